@@ -1,0 +1,1 @@
+"""Embedded synthetic data generator: hand, probe, arm, grasps, cameras, scene, renderer, writer."""

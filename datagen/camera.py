@@ -1,0 +1,149 @@
+"""Pinhole cameras: intrinsics, look-at extrinsics, projection, axis conventions.
+
+Convention:
+    Annotations use the OpenCV camera frame: x right, y down, z forward
+    (into the scene). pyrender uses OpenGL camera axes: x right, y up,
+    z backward. :func:`swap_gl_cv_axes` is the one function that converts
+    between them. ``T_cam_world`` maps world points into the (OpenCV)
+    camera frame; ``T_world_cam`` is the camera pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from datagen import tolerances as tol
+from datagen.geometry import _check_last, invert_transform, make_transform
+
+#: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels; the image is ``width`` x ``height``.
+
+    Pixel centres sit at integer coordinates: pixel (u, v) covers
+    [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5] (OpenCV's convention).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise ValueError(f"image {name} must be a positive int, got {v!r}")
+        for name in ("fx", "fy"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"focal length {name} must be positive and finite, got {v!r}")
+        for name in ("cx", "cy"):
+            if not np.isfinite(getattr(self, name)):
+                raise ValueError(f"principal point {name} must be finite, got {getattr(self, name)!r}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def from_lens(cls, focal_mm: float, sensor_mm: float, width: int, height: int) -> "Intrinsics":
+        """Blender-style lens on a sensor fitted to the larger image side.
+
+        HUP-3D: 60 mm on 32 mm at 256 x 256 gives fx = fy = 480, cx = cy = 128.
+        """
+        if focal_mm <= 0 or sensor_mm <= 0:
+            raise ValueError(f"focal_mm and sensor_mm must be positive, got {focal_mm}, {sensor_mm}")
+        f = focal_mm / sensor_mm * max(width, height)
+        return cls(f, f, width / 2.0, height / 2.0, width, height)
+
+
+def swap_gl_cv_axes(T_world_cam: np.ndarray) -> np.ndarray:
+    """Convert a camera pose between OpenCV and OpenGL camera axes.
+
+    The change of axes flips y and z; it is its own inverse, so the same call
+    converts OpenCV -> OpenGL and OpenGL -> OpenCV.
+
+    Args:
+        T_world_cam: (..., 4, 4) float camera-to-world pose in one convention.
+
+    Returns:
+        (..., 4, 4) float64 the same pose in the other convention.
+    """
+    T_world_cam = _check_last(T_world_cam, (4, 4), "T_world_cam")
+    return T_world_cam @ _FLIP_YZ
+
+
+def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """OpenCV camera pose looking from ``eye`` at ``target``.
+
+    The image's "up" (-y of the camera) is the projection of ``up_world`` on
+    the image plane. When the view is parallel to ``up_world`` (a camera at a
+    pole of the viewpoint sphere) the up vector is replaced by the world axis
+    least aligned with the view direction (ties go to x, then y), so that
+    every viewpoint has a defined, finite pose.
+
+    Args:
+        eye_world: (3,) float, metres, camera centre in the world frame.
+        target_world: (3,) float, metres, point on the optical axis.
+        up_world: (3,) float, direction that should point up in the image.
+
+    Returns:
+        (4, 4) float64 ``T_cam_world`` (OpenCV axes).
+    """
+    eye = _check_last(eye_world, (3,), "eye_world").reshape(3)
+    target = _check_last(target_world, (3,), "target_world").reshape(3)
+    up = _check_last(up_world, (3,), "up_world").reshape(3)
+    forward = target - eye
+    dist = np.linalg.norm(forward)
+    if dist < tol.MIN_PROJECTION_DEPTH_M:
+        raise ValueError(f"eye and target coincide ({eye.tolist()}): the view direction is undefined")
+    if np.linalg.norm(up) == 0:
+        raise ValueError("up_world must be non-zero")
+    z = forward / dist
+    up = up / np.linalg.norm(up)
+    if np.linalg.norm(np.cross(z, up)) < tol.LOOK_AT_PARALLEL:
+        up = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(z, -up)  # OpenCV: y points down, so "up" is -y
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R_world_cam = np.stack([x, y, z], axis=1)
+    return invert_transform(make_transform(R_world_cam, eye))
+
+
+def project_points(points_cam: np.ndarray, K: np.ndarray, behind: str = "raise") -> np.ndarray:
+    """Pinhole projection of camera-frame points (no distortion).
+
+    Args:
+        points_cam: (..., N, 3) float, metres, OpenCV camera frame.
+        K: (3, 3) or (..., 3, 3) float camera matrix.
+        behind: what to do with points at or behind the camera plane
+            (z < MIN_PROJECTION_DEPTH_M): "raise" a ValueError naming them, or
+            return "nan" for them.
+
+    Returns:
+        (..., N, 2) float64 pixel coordinates (u, v).
+    """
+    if behind not in ("raise", "nan"):
+        raise ValueError(f"behind must be 'raise' or 'nan', got {behind!r}")
+    points_cam = _check_last(points_cam, (3,), "points_cam")
+    K = _check_last(K, (3, 3), "K")
+    z = points_cam[..., 2]
+    bad = z < tol.MIN_PROJECTION_DEPTH_M
+    if np.any(bad) and behind == "raise":
+        idx = np.argwhere(bad)[:5].tolist()
+        raise ValueError(
+            f"{int(bad.sum())} point(s) at or behind the camera plane (z <= 0), first indices {idx}"
+        )
+    safe_z = np.where(bad, 1.0, z)[..., None]
+    xy1 = np.concatenate([points_cam[..., :2] / safe_z, np.ones_like(safe_z)], axis=-1)
+    uv = np.einsum("...ij,...nj->...ni", K, xy1)[..., :2]
+    return np.where(bad[..., None], np.nan, uv)

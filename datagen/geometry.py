@@ -1,0 +1,199 @@
+"""Rotations and rigid transforms (numpy, batched).
+
+Convention:
+    Rotation matrices act on column vectors: ``p_a = R_a_b @ p_b``.
+    Axis-angle vectors ``r`` rotate right-handed by ``|r|`` radians about
+    ``r / |r|``. 4x4 transforms are named by frame: ``T_a_b`` maps points in
+    frame b into frame a.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from datagen import tolerances as tol
+
+
+def _check_last(x: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim < len(shape) or x.shape[x.ndim - len(shape):] != shape:
+        want = "(..., " + ", ".join(map(str, shape)) + ")"
+        raise ValueError(f"{name} must be {want}, got {tuple(x.shape)}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return x
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices.
+
+    Args:
+        v: (..., 3) float.
+
+    Returns:
+        (..., 3, 3) float64 with ``skew(v) @ u == cross(v, u)``.
+    """
+    v = _check_last(v, (3,), "v")
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, stable at zero angle.
+
+    Args:
+        axis_angle: (..., 3) float, radians.
+
+    Returns:
+        (..., 3, 3) float64 rotation matrices.
+    """
+    r = _check_last(axis_angle, (3,), "axis_angle")
+    theta = np.linalg.norm(r, axis=-1)[..., None, None]
+    K = skew(r)
+    small = theta < tol.SMALL_ANGLE_RAD
+    safe = np.where(small, 1.0, theta)
+    # sin(t)/t and (1-cos t)/t^2, with their Taylor limits near zero
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def check_rotation(R: np.ndarray, name: str = "R") -> np.ndarray:
+    """Validate (..., 3, 3) rotation matrices (orthonormal, det +1)."""
+    R = _check_last(R, (3, 3), name)
+    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
+    if err > tol.ROTATION_ORTHONORMAL:
+        raise ValueError(f"{name} is not orthonormal (max |R^T R - I| = {err:.2e})")
+    if np.any(np.linalg.det(R) < 0):
+        raise ValueError(f"{name} contains a reflection (det < 0)")
+    return R
+
+
+def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`axis_angle_to_matrix`, stable near 0 and near pi.
+
+    Args:
+        R: (..., 3, 3) float rotation matrices.
+
+    Returns:
+        (..., 3) float64 axis-angle with angle in [0, pi].
+    """
+    R = check_rotation(R)
+    trace = np.trace(R, axis1=-2, axis2=-1)
+    theta = np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
+    vee = np.stack(
+        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1
+    )
+    sin_t = np.sin(theta)
+    small = theta < tol.SMALL_ANGLE_RAD
+    near_pi = (np.pi - theta) < tol.NEAR_PI_RAD
+    generic = ~(small | near_pi)
+    out = np.zeros(R.shape[:-2] + (3,))
+    # generic: axis from the skew-symmetric part
+    scale = np.where(generic, theta / (2.0 * np.where(generic, sin_t, 1.0)), 0.5)
+    out = np.where((generic | small)[..., None], scale[..., None] * vee, out)
+    if np.any(near_pi):
+        # near pi the skew part vanishes; R + I = 2 n n^T (1 - cos) + ..., read n from
+        # its largest column, then fix the sign with the (small) skew part
+        Rp = R[near_pi]
+        B = (Rp + np.eye(3)) / 2.0
+        col = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
+        n = B[np.arange(len(Rp)), :, col]
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        sign = np.sign(np.einsum("ni,ni->n", n, vee[near_pi]))
+        n *= np.where(sign == 0, 1.0, sign)[:, None]
+        out[near_pi] = n * theta[near_pi][:, None]
+    return out
+
+
+def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Stack rotations and translations into 4x4 transforms.
+
+    Args:
+        R: (..., 3, 3) float rotation.
+        t: (..., 3) float translation.
+
+    Returns:
+        (..., 4, 4) float64.
+    """
+    R = _check_last(R, (3, 3), "R")
+    t = _check_last(t, (3,), "t")
+    batch = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    T = np.zeros(batch + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert_transform(T_a_b: np.ndarray) -> np.ndarray:
+    """Inverse of rigid 4x4 transforms: returns ``T_b_a``.
+
+    Args:
+        T_a_b: (..., 4, 4) float rigid transforms.
+
+    Returns:
+        (..., 4, 4) float64.
+    """
+    T_a_b = _check_last(T_a_b, (4, 4), "T_a_b")
+    R = T_a_b[..., :3, :3]
+    Rt = np.swapaxes(R, -1, -2)
+    return make_transform(Rt, -np.einsum("...ij,...j->...i", Rt, T_a_b[..., :3, 3]))
+
+
+def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Apply rigid transforms to points.
+
+    Args:
+        T_a_b: (4, 4) or (B, 4, 4) float.
+        points_b: (N, 3) or (B, N, 3) float, points in frame b.
+
+    Returns:
+        (..., N, 3) float64 points in frame a.
+    """
+    T_a_b = _check_last(T_a_b, (4, 4), "T_a_b")
+    points_b = _check_last(points_b, (3,), "points_b")
+    return np.einsum("...ij,...nj->...ni", T_a_b[..., :3, :3], points_b) + T_a_b[..., None, :3, 3]
+
+
+def euler_to_matrix(angles: np.ndarray, order: str = "xyz") -> np.ndarray:
+    """Intrinsic Euler angles to rotation matrices.
+
+    Args:
+        angles: (..., 3) float, radians, applied about the moving axes in ``order``.
+        order: three letters from "xyz", e.g. "xyz" means R = Rx(a0) Ry(a1) Rz(a2).
+
+    Returns:
+        (..., 3, 3) float64.
+    """
+    if len(order) != 3 or set(order) - set("xyz"):
+        raise ValueError(f"order must be three letters from 'xyz', got {order!r}")
+    angles = _check_last(angles, (3,), "angles")
+    R = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
+    for k, axis in enumerate(order):
+        v = np.zeros(angles.shape[:-1] + (3,))
+        v[..., "xyz".index(axis)] = angles[..., k]
+        R = R @ axis_angle_to_matrix(v)
+    return R
+
+
+def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
+    """Inverse of ``euler_to_matrix(angles, "xyz")``.
+
+    Args:
+        R: (..., 3, 3) float rotation matrices.
+
+    Returns:
+        (..., 3) float64 angles (a, b, c), radians, with R = Rx(a) Ry(b) Rz(c),
+        b in [-pi/2, pi/2]. At b = +-pi/2 (gimbal lock) c is set to 0.
+    """
+    R = check_rotation(R)
+    cos_b = np.hypot(R[..., 0, 0], R[..., 0, 1])
+    b = np.arctan2(R[..., 0, 2], cos_b)
+    locked = cos_b < tol.SMALL_ANGLE_RAD
+    a = np.where(locked, np.arctan2(R[..., 2, 1], R[..., 1, 1]), np.arctan2(-R[..., 1, 2], R[..., 2, 2]))
+    c = np.where(locked, 0.0, np.arctan2(-R[..., 0, 1], R[..., 0, 0]))
+    return np.stack([a, b, c], axis=-1)

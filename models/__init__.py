@@ -1,0 +1,1 @@
+"""ResNet backbones, graph layers, HOPE-Net and the ResNet regression baseline."""
