@@ -1,0 +1,125 @@
+"""Choosing the offscreen OpenGL platform before pyrender is imported.
+
+PyOpenGL fixes its platform (EGL or OSMesa) at first import, so the choice is
+made here, once per process, before anything imports ``OpenGL`` or
+``pyrender``: EGL first (Mesa llvmpipe on a CPU machine, the vendor driver on
+a GPU), OSMesa as the fallback. This module is also the one place that
+restores ``np.infty`` (removed in numpy 2, still used by pyrender 0.1.45).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import sys
+import warnings
+
+import numpy as np
+
+PLATFORMS = ("egl", "osmesa")
+_chosen: str | None = None
+
+
+def _egl_works() -> bool:
+    """Does an EGL device display initialise? Asked through ctypes, so PyOpenGL stays unimported.
+
+    Mirrors what pyrender does: enumerate EGL devices (EGL_EXT_device_enumeration)
+    and open a platform display on the first one; no window system is needed.
+    """
+    name = ctypes.util.find_library("EGL") or "libEGL.so.1"
+    try:
+        egl = ctypes.CDLL(name)
+    except OSError:
+        return False
+    egl.eglGetProcAddress.restype = ctypes.c_void_p
+    egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    query_addr = egl.eglGetProcAddress(b"eglQueryDevicesEXT")
+    display_addr = egl.eglGetProcAddress(b"eglGetPlatformDisplayEXT")
+    if not query_addr or not display_addr:
+        return False
+    query_devices = ctypes.CFUNCTYPE(
+        ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int)
+    )(query_addr)
+    get_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p)(display_addr)
+    devices = (ctypes.c_void_p * 8)()
+    count = ctypes.c_int(0)
+    if not query_devices(8, devices, ctypes.byref(count)) or count.value < 1:
+        return False
+    egl_platform_device_ext = 0x313F
+    display = get_display(egl_platform_device_ext, devices[0], None)
+    if not display:
+        return False
+    egl.eglInitialize.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+    egl.eglTerminate.argtypes = [ctypes.c_void_p]
+    major, minor = ctypes.c_int(), ctypes.c_int()
+    if not egl.eglInitialize(display, ctypes.byref(major), ctypes.byref(minor)):
+        return False
+    egl.eglTerminate(display)
+    return True
+
+
+def _osmesa_works() -> bool:
+    name = ctypes.util.find_library("OSMesa") or "libOSMesa.so.8"
+    try:
+        ctypes.CDLL(name)
+    except OSError:
+        return False
+    import importlib.metadata
+
+    version = importlib.metadata.version("PyOpenGL")
+    if tuple(int(x) for x in version.split(".")[:3]) < (3, 1, 7):
+        raise RuntimeError(
+            f"OSMesa rendering needs PyOpenGL >= 3.1.7, found {version} "
+            "(pyrender pins 3.1.0 but works with newer): pip install 'PyOpenGL==3.1.10'"
+        )
+    return True
+
+
+def configure(platform: str | None = None) -> str:
+    """Select the offscreen GL platform for this process and return it.
+
+    Args:
+        platform: "egl", "osmesa", or None for automatic (the environment's
+            ``PYOPENGL_PLATFORM`` if set, else EGL if it initialises, else
+            OSMesa). A platform asked for by name that does not work is an
+            error, not a silent fallback.
+
+    Returns:
+        The platform in use.
+    """
+    global _chosen
+    if not hasattr(np, "infty"):
+        np.infty = np.inf  # pyrender 0.1.45 uses the numpy 1 alias
+    if platform is not None and platform not in PLATFORMS:
+        raise ValueError(f"render platform must be one of {PLATFORMS} or None, got {platform!r}")
+    requested = platform or os.environ.get("PYOPENGL_PLATFORM") or None
+    if requested is not None and requested not in PLATFORMS:
+        raise ValueError(f"PYOPENGL_PLATFORM must be one of {PLATFORMS} for offscreen rendering, got {requested!r}")
+    if _chosen is not None:
+        if requested is not None and requested != _chosen:
+            raise RuntimeError(
+                f"this process already renders with {_chosen!r}; PyOpenGL cannot switch to {requested!r} "
+                "(start a new process)"
+            )
+        return _chosen
+    if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") not in PLATFORMS:
+        raise RuntimeError("OpenGL was imported before datagen.gl.configure(); import hupbench renderers first")
+    if requested == "egl" and not _egl_works():
+        raise RuntimeError("EGL was requested but no EGL display initialises: apt-get install libegl1 libegl-mesa0")
+    if requested == "osmesa" and not _osmesa_works():
+        raise RuntimeError("OSMesa was requested but libOSMesa is missing: apt-get install libosmesa6")
+    if requested is None:
+        if _egl_works():
+            requested = "egl"
+        elif _osmesa_works():
+            requested = "osmesa"
+            warnings.warn("EGL is not available; rendering with OSMesa (slower)", RuntimeWarning, stacklevel=2)
+        else:
+            raise RuntimeError(
+                "no offscreen OpenGL platform: install Mesa EGL (apt-get install libegl1 libegl-mesa0) "
+                "or OSMesa (apt-get install libosmesa6)"
+            )
+    os.environ["PYOPENGL_PLATFORM"] = requested
+    _chosen = requested
+    return requested

@@ -1,0 +1,222 @@
+"""Offscreen rendering of RGB, metric depth and segmentation labels with pyrender.
+
+Only the modalities asked for are rendered: RGB and depth come from one
+colour pass, segmentation (and depth, when RGB is not asked for) from one
+flat-shaded label pass.
+
+Convention:
+    Camera poses are given as ``T_cam_world`` in OpenCV axes and converted
+    to pyrender's OpenGL axes by :func:`datagen.camera.swap_gl_cv_axes`.
+    Depth is the camera-frame z in metres (float32), 0 where no surface
+    was hit. Labels: 0 background, 1 hand, 2 arm, 3 probe (``SEG_LABELS``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from datagen import gl
+from datagen.camera import Intrinsics, swap_gl_cv_axes
+from datagen.geometry import _check_last, invert_transform
+
+MODALITIES = ("rgb", "depth", "seg")
+SEG_LABELS = {"background": 0, "hand": 1, "arm": 2, "probe": 3}
+ZNEAR_M, ZFAR_M = 0.01, 20.0
+
+
+def check_modalities(modalities: Iterable[str]) -> tuple[str, ...]:
+    """Validate a modality list and return it as a sorted-by-canonical-order tuple."""
+    if isinstance(modalities, str):
+        modalities = (modalities,)
+    modalities = tuple(modalities)
+    if not modalities:
+        raise ValueError(f"at least one modality must be asked for, from {MODALITIES}")
+    unknown = [m for m in modalities if m not in MODALITIES]
+    if unknown:
+        raise ValueError(f"unknown modality {unknown[0]!r}; choose from {MODALITIES}")
+    return tuple(m for m in MODALITIES if m in modalities)
+
+
+@dataclass
+class MeshPart:
+    """One coloured piece of the scene.
+
+    Attributes:
+        name: identifier, e.g. "hand", "probe_lens".
+        mesh: ``trimesh.Trimesh`` in the world frame, metres.
+        label: segmentation label (``SEG_LABELS`` value).
+        color: (3,) RGB in [0, 1].
+        roughness: PBR roughness in [0, 1].
+        smooth: interpolate vertex normals (False shows facets).
+    """
+
+    name: str
+    mesh: object
+    label: int
+    color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    roughness: float = 0.7
+    metallic: float = 0.0
+    smooth: bool = True
+
+    def __post_init__(self) -> None:
+        if self.label not in SEG_LABELS.values() or self.label == 0:
+            raise ValueError(f"part {self.name!r}: label must be one of 1, 2, 3, got {self.label!r}")
+        color = np.asarray(self.color, dtype=np.float64)
+        if color.shape != (3,) or not np.all((color >= 0) & (color <= 1)):
+            raise ValueError(f"part {self.name!r}: color must be 3 values in [0, 1], got {self.color!r}")
+
+
+@dataclass
+class PointLight:
+    """A point lamp.
+
+    Attributes:
+        position_world: (3,) float, metres.
+        color: (3,) RGB in [0, 1].
+        intensity: pyrender point-light intensity (candela).
+    """
+
+    position_world: Sequence[float]
+    color: Sequence[float] = (1.0, 1.0, 1.0)
+    intensity: float = 2.0
+
+    def __post_init__(self) -> None:
+        _check_last(self.position_world, (3,), "light position_world")
+        if not np.isfinite(self.intensity) or self.intensity < 0:
+            raise ValueError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
+
+
+@dataclass
+class RenderSettings:
+    """Per-render appearance that is not part of the geometry."""
+
+    background_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    ambient: float = 0.35
+    lights: list[PointLight] = field(default_factory=list)
+
+
+class Renderer:
+    """A reusable offscreen renderer for one image size.
+
+    Build it once per process (the GL context is the expensive part), set the
+    scene's parts, then render as many camera poses as needed.
+
+    Args:
+        intrinsics: camera intrinsics and image size.
+        platform: "egl", "osmesa" or None for automatic (see :mod:`datagen.gl`).
+    """
+
+    def __init__(self, intrinsics: Intrinsics, platform: str | None = None) -> None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+        self.platform = gl.configure(platform)
+        import pyrender
+
+        self._pyrender = pyrender
+        self.intrinsics = intrinsics
+        self._renderer = pyrender.OffscreenRenderer(intrinsics.width, intrinsics.height)
+        self._scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35] * 3)
+        camera = pyrender.IntrinsicsCamera(
+            intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, znear=ZNEAR_M, zfar=ZFAR_M
+        )
+        self._camera_node = self._scene.add(camera, pose=np.eye(4))
+        self._part_nodes: dict[str, object] = {}
+        self._labels: dict[object, tuple[int, int, int]] = {}
+        self._light_nodes: list[object] = []
+
+    def set_parts(self, parts: Sequence[MeshPart]) -> None:
+        """Replace the scene's meshes."""
+        pyrender = self._pyrender
+        names = [p.name for p in parts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"part names must be unique, got {names}")
+        for node in self._part_nodes.values():
+            self._scene.remove_node(node)
+        self._part_nodes.clear()
+        self._labels.clear()
+        for part in parts:
+            material = pyrender.MetallicRoughnessMaterial(
+                baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic
+            )
+            mesh = pyrender.Mesh.from_trimesh(part.mesh, material=material, smooth=part.smooth)
+            node = self._scene.add(mesh, name=part.name)
+            self._part_nodes[part.name] = node
+            self._labels[node] = (part.label,) * 3
+
+    def set_color(self, name: str, color: Sequence[float]) -> None:
+        """Change a part's base colour without re-uploading its mesh."""
+        if name not in self._part_nodes:
+            raise KeyError(f"no part named {name!r}; parts are {sorted(self._part_nodes)}")
+        for primitive in self._part_nodes[name].mesh.primitives:
+            primitive.material.baseColorFactor = np.array([*color, 1.0])
+
+    def render(self, T_cam_world: np.ndarray, modalities: Iterable[str] = MODALITIES,
+               settings: RenderSettings | None = None) -> dict[str, np.ndarray]:
+        """Render the current parts from one camera.
+
+        Args:
+            T_cam_world: (4, 4) float, world -> OpenCV camera.
+            modalities: any of "rgb", "depth", "seg".
+            settings: background, ambient light and lamps; defaults to a white
+                background, ambient light and one lamp at the camera.
+
+        Returns:
+            dict with the requested keys: "rgb" (H, W, 3) uint8; "depth"
+            (H, W) float32 metres, 0 = background; "seg" (H, W) uint8 labels.
+        """
+        pyrender = self._pyrender
+        modalities = check_modalities(modalities)
+        T_cam_world = _check_last(T_cam_world, (4, 4), "T_cam_world")
+        if T_cam_world.shape != (4, 4):
+            raise ValueError(f"T_cam_world must be (4, 4), got {T_cam_world.shape}")
+        if not self._part_nodes:
+            raise RuntimeError("the scene has no parts: call set_parts() first")
+        T_world_cam_gl = swap_gl_cv_axes(invert_transform(T_cam_world))
+        self._scene.set_pose(self._camera_node, T_world_cam_gl)
+        settings = settings or RenderSettings(lights=[PointLight(T_world_cam_gl[:3, 3], intensity=0.5)])
+        self._apply_lights(settings)
+
+        out: dict[str, np.ndarray] = {}
+        depth = None
+        if "rgb" in modalities:
+            color, depth = self._renderer.render(self._scene)
+            out["rgb"] = np.ascontiguousarray(color[..., :3])
+        if "seg" in modalities:
+            seg, seg_depth = self._renderer.render(
+                self._scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._labels
+            )
+            out["seg"] = np.ascontiguousarray(seg[..., 0])
+            depth = seg_depth if depth is None else depth
+        if "depth" in modalities:
+            if depth is None:
+                depth = self._renderer.render(self._scene, flags=pyrender.RenderFlags.DEPTH_ONLY)
+            out["depth"] = np.asarray(depth, dtype=np.float32)
+        return out
+
+    def _apply_lights(self, settings: RenderSettings) -> None:
+        pyrender = self._pyrender
+        self._scene.bg_color = np.array([*settings.background_rgb, 1.0])
+        self._scene.ambient_light = np.array([settings.ambient] * 3)
+        for node in self._light_nodes:
+            self._scene.remove_node(node)
+        self._light_nodes = []
+        for light in settings.lights:
+            pose = np.eye(4)
+            pose[:3, 3] = np.asarray(light.position_world, dtype=np.float64)
+            node = self._scene.add(pyrender.PointLight(color=np.asarray(light.color), intensity=light.intensity), pose=pose)
+            self._light_nodes.append(node)
+
+    def close(self) -> None:
+        """Release the GL context."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
