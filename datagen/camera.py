@@ -112,7 +112,7 @@ def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0,
     up = up / np.linalg.norm(up)
     if np.linalg.norm(np.cross(z, up)) < tol.LOOK_AT_PARALLEL:
         up = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(z, -up)  # OpenCV: y points down, so "up" is -y
+    x = np.cross(z, up)  # OpenCV: y points down, so y = z x x comes out as -up
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R_world_cam = np.stack([x, y, z], axis=1)

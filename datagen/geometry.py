@@ -83,11 +83,12 @@ def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     """
     R = check_rotation(R)
     trace = np.trace(R, axis1=-2, axis2=-1)
-    theta = np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
     vee = np.stack(
         [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1
     )
-    sin_t = np.sin(theta)
+    # atan2 of (sin, cos) keeps full precision near 0 and pi, where arccos of the trace loses it
+    sin_t = 0.5 * np.linalg.norm(vee, axis=-1)
+    theta = np.arctan2(sin_t, (trace - 1.0) / 2.0)
     small = theta < tol.SMALL_ANGLE_RAD
     near_pi = (np.pi - theta) < tol.NEAR_PI_RAD
     generic = ~(small | near_pi)
@@ -96,10 +97,11 @@ def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     scale = np.where(generic, theta / (2.0 * np.where(generic, sin_t, 1.0)), 0.5)
     out = np.where((generic | small)[..., None], scale[..., None] * vee, out)
     if np.any(near_pi):
-        # near pi the skew part vanishes; R + I = 2 n n^T (1 - cos) + ..., read n from
-        # its largest column, then fix the sign with the (small) skew part
+        # near pi the skew part vanishes; the symmetric part is cos(t) I + (1 - cos(t)) n n^T,
+        # so read n from the largest column of n n^T, then fix its sign with the skew part
         Rp = R[near_pi]
-        B = (Rp + np.eye(3)) / 2.0
+        cos_t = np.cos(theta[near_pi])[:, None, None]
+        B = ((Rp + np.swapaxes(Rp, -1, -2)) / 2.0 - cos_t * np.eye(3)) / (1.0 - cos_t)
         col = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
         n = B[np.arange(len(Rp)), :, col]
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
