@@ -522,20 +522,43 @@ def _build_mesh(spec: HandSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     joints, tips = rest_skeleton(spec.scale)
     pad = 20.0 * MM * spec.scale
     lo = np.minimum(joints.min(0), tips.min(0)) - pad
-    hi = np.maximum(joints.max(0), tips.max(0)) + pad
     step = spec.voxel_m
-    axes = [np.arange(lo[d], hi[d] + step, step) for d in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-    values = np.stack([p.sdf(grid) for p in prims], axis=1)  # (G, P)
-    field = _blend(values, prims, spec)
-    field = field.reshape(len(axes[0]), len(axes[1]), len(axes[2]))
+    extent = np.maximum(joints.max(0), tips.max(0)) + pad - lo
+    block = 8
+    nblocks = np.ceil(extent / (step * block)).astype(int)
+    field = _narrow_band_field(prims, spec, lo, step, block, nblocks)
     verts, faces, _, _ = marching_cubes(field, level=0.0, spacing=(step, step, step))
     verts = verts + lo
     verts, faces = _decimate(verts, faces, spec.max_faces, fast_simplification)
     faces = _orient_outward(verts, faces)
     weights = _skin_weights(verts, faces, prims, spec)
     return verts, faces.astype(np.int64), weights
+
+
+def _narrow_band_field(prims, spec, lo, step, block, nblocks) -> np.ndarray:
+    """Sample the blended field on the grid, exactly only in blocks the surface can cross.
+
+    The blended field is 1-Lipschitz (a distance bound), so a block whose centre
+    value exceeds its half-diagonal holds no surface; such blocks get the centre
+    value (right sign, no zero crossing) instead of a full evaluation.
+    """
+    shape = nblocks * block
+    half_diag = 0.5 * np.sqrt(3.0) * block * step
+    centres = lo + (np.stack(np.meshgrid(*[np.arange(n) for n in nblocks], indexing="ij"), -1) + 0.5) * block * step
+    coarse = _blend_points(centres.reshape(-1, 3), prims, spec).reshape(tuple(nblocks))
+    near = np.abs(coarse) <= half_diag + step
+    field = np.repeat(np.repeat(np.repeat(coarse, block, 0), block, 1), block, 2).astype(np.float64)
+    offsets = np.stack(np.meshgrid(*[np.arange(block)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.argwhere(near)  # (Bn, 3) block indices
+    cells = (idx[:, None, :] * block + offsets[None]).reshape(-1, 3)  # (Bn * block^3, 3)
+    values = _blend_points(lo + cells * step, prims, spec)
+    field[cells[:, 0], cells[:, 1], cells[:, 2]] = values
+    return field
+
+
+def _blend_points(points: np.ndarray, prims: list[_Primitive], spec: HandSpec) -> np.ndarray:
+    """Blended field at (N, 3) points."""
+    return _blend(np.stack([p.sdf(points) for p in prims], axis=1), prims, spec)
 
 
 def _blend(values: np.ndarray, prims: list[_Primitive], spec: HandSpec) -> np.ndarray:
@@ -577,42 +600,74 @@ def _orient_outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return faces[:, ::-1].copy() if volume < 0 else faces
 
 
-def _skin_weights(verts, faces, prims, spec: HandSpec) -> np.ndarray:
-    """Weights from the nearest implicit piece, blended with its kinematic neighbours.
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
-    Each vertex belongs to the bone of the piece it lies on; near a joint it
-    blends with the parent or child bone by a soft-min of their surface
-    distances. Restricting the blend to kinematic neighbours keeps the side
-    of one finger from following the finger next to it.
+
+def _bone_radii(spec: HandSpec) -> np.ndarray:
+    """(16,) capsule radius of the bone each joint moves, metres (0 for the wrist)."""
+    radii = np.zeros(NUM_JOINTS)
+    for i, finger in enumerate(kp.MANO_FINGER_ORDER):
+        radii[1 + 3 * i : 4 + 3 * i] = _THUMB_RADII_MM if finger == "thumb" else _FINGER_RADII_MM[finger]
+    return radii * MM * spec.scale
+
+
+def _skin_weights(verts, faces, prims, spec: HandSpec) -> np.ndarray:
+    """Linear-blend-skinning weights with compact blend zones around the joints.
+
+    Each vertex belongs to the bone of the implicit piece it lies on. Across
+    each finger joint the weight passes from parent to child bone with a
+    smoothstep over +-0.75 bone radii along the bone axis, the same function
+    on both sides so the weights are continuous where ownership changes; on
+    the palm side the blend fades out radially so the palm is not dragged
+    by a finger. The thenar eminence (soft tissue over the thumb metacarpal)
+    blends with the palm where their surface distances differ by under 6 mm. Outside the zones a
+    vertex follows one bone exactly (weight 1).
     """
     s = spec.scale * MM
     values = np.stack([p.sdf(verts) for p in prims], axis=1)  # (V, P)
     bones = np.array([p.bone for p in prims])
-    per_bone = np.full((len(verts), NUM_JOINTS), np.inf)
-    for j in range(NUM_JOINTS):
-        per_bone[:, j] = values[:, bones == j].min(axis=1)
+    per_bone = np.stack([values[:, bones == j].min(axis=1) for j in range(NUM_JOINTS)], axis=1)  # (V, 16)
     owner = np.argmin(per_bone, axis=1)
-    parents = np.array(kp.MANO_PARENTS)
-    neighbours = np.zeros((NUM_JOINTS, NUM_JOINTS), dtype=bool)
-    for j in range(NUM_JOINTS):
-        neighbours[j, j] = True
-        if parents[j] >= 0:
-            neighbours[j, parents[j]] = neighbours[parents[j], j] = True
-    allowed = neighbours[owner]  # (V, 16)
-    tau = 2.5 * s
-    logits = np.where(allowed, -(per_bone - per_bone.min(axis=1, keepdims=True)) / tau, -np.inf)
-    w = np.exp(logits)
+    w = np.zeros((len(verts), NUM_JOINTS))
+    w[np.arange(len(verts)), owner] = 1.0
+
+    joints, tips = rest_skeleton(spec.scale)
+    ends = _child_of_joint(joints, tips)
+    radii = _bone_radii(spec)
+    thumb_cmc = 13
+    for j in range(1, NUM_JOINTS):
+        p = kp.MANO_PARENTS[j]
+        if j == thumb_cmc:
+            sel = (owner == 0) | (owner == thumb_cmc)
+            t = _smoothstep((per_bone[sel, 0] - per_bone[sel, thumb_cmc] + 6.0 * s) / (12.0 * s))
+            w[sel, 0], w[sel, thumb_cmc] = 1.0 - t, t
+            continue
+        direction = _unit(ends[j] - joints[j])
+        delta = 0.75 * radii[j]
+        rel = verts - joints[j]
+        axial = rel @ direction
+        radial = np.linalg.norm(rel - axial[:, None] * direction, axis=1)
+        t = _smoothstep((axial + delta) / (2.0 * delta))  # 0: parent bone, 1: this bone
+        child_side = owner == j
+        w[child_side, p] += 1.0 - t[child_side]
+        w[child_side, j] -= 1.0 - t[child_side]
+        parent_side = owner == p
+        if p == 0:
+            t = t * _smoothstep((1.9 * radii[j] - radial) / (0.6 * radii[j]))
+        w[parent_side, j] += t[parent_side]
+        w[parent_side, p] -= t[parent_side]
+    w = np.clip(w, 0.0, None)
     w /= w.sum(axis=1, keepdims=True)
-    # a few rounds of neighbour averaging smooth the seams left by the hard owner choice
+    # one round of neighbour averaging softens the few seams where two zones meet
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    for _ in range(3):
-        acc = w.copy()
-        count = np.ones(len(verts))
-        np.add.at(acc, edges[:, 0], w[edges[:, 1]])
-        np.add.at(acc, edges[:, 1], w[edges[:, 0]])
-        np.add.at(count, edges[:, 0], 1)
-        np.add.at(count, edges[:, 1], 1)
-        w = acc / count[:, None]
+    acc, count = w.copy(), np.ones(len(verts))
+    np.add.at(acc, edges[:, 0], w[edges[:, 1]])
+    np.add.at(acc, edges[:, 1], w[edges[:, 0]])
+    np.add.at(count, edges[:, 0], 1)
+    np.add.at(count, edges[:, 1], 1)
+    w = acc / count[:, None]
     # snap negligible weights to zero so that rigid regions move exactly rigidly
-    w[w < 1e-4] = 0.0
+    w[w < 1e-6] = 0.0
     return w / w.sum(axis=1, keepdims=True)
