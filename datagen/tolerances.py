@@ -13,3 +13,9 @@ LOOK_AT_PARALLEL = 1e-6
 MIN_PROJECTION_DEPTH_M = 1e-6
 #: orthonormality check for rotation matrices given by users
 ROTATION_ORTHONORMAL = 1e-4
+#: consecutive rings of the procedural probe must differ in height or radius by more than this
+PROBE_RING_STEP_M = 1e-7
+#: slack added to the distance bound when culling probe triangles, absorbing rounding
+PROBE_SDF_PRUNE_SLACK_M = 1e-9
+#: below this SDF gradient norm (m/m) the probe's surface normal is undefined and returned as zero
+PROBE_SDF_MIN_GRADIENT = 1e-9

@@ -1,0 +1,119 @@
+"""A hand-probe scene: the posed meshes and the 29 keypoints of one grasp.
+
+Convention:
+    World = probe frame (the probe at the origin, as in HUP-3D) unless a
+    ``T_world_probe`` is given. Hand pose and translation are in the world
+    frame (see :mod:`datagen.hand`). Metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from datagen import keypoints as kp
+from datagen.arm import ArmSpec, forearm_mesh
+from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation, transform_points
+from datagen.hand import HandSpec, build_hand, check_pose, clamp_pose
+from datagen.probe import ProbeSpec, build_probe
+from datagen.render import SEG_LABELS, MeshPart
+
+#: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
+GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
+ARM_RGB = (1.0, 0.6784, 0.3765)
+PROBE_BODY_RGB = (0.86, 0.86, 0.84)
+PROBE_LENS_RGB = (0.18, 0.19, 0.21)
+
+
+@dataclass
+class Grasp:
+    """A hand holding the probe.
+
+    Attributes:
+        hand_pose: (48,) float axis-angle, radians (``datagen.hand`` Convention).
+        hand_trans: (3,) float, metres, wrist position in the world frame.
+        wrist_flexion, wrist_deviation: forearm -> hand angles, radians.
+        T_world_probe: (4, 4) float probe pose; identity puts the probe at the origin.
+    """
+
+    hand_pose: np.ndarray
+    hand_trans: np.ndarray
+    wrist_flexion: float = 0.0
+    wrist_deviation: float = 0.0
+    T_world_probe: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self) -> None:
+        self.hand_pose = check_pose(self.hand_pose, "hand_pose")
+        if self.hand_pose.ndim != 1:
+            raise ValueError(f"hand_pose must be (48,), got {self.hand_pose.shape}")
+        self.hand_trans = _check_last(self.hand_trans, (3,), "hand_trans")
+        if self.hand_trans.shape != (3,):
+            raise ValueError(f"hand_trans must be (3,), got {self.hand_trans.shape}")
+        T = _check_last(self.T_world_probe, (4, 4), "T_world_probe")
+        if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
+            raise ValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")
+        check_rotation(T[:3, :3], "T_world_probe rotation")
+        self.T_world_probe = T
+
+
+@dataclass(frozen=True)
+class SceneModels:
+    """The specs of the embedded models a scene is built from."""
+
+    hand: HandSpec = HandSpec()
+    probe: ProbeSpec = ProbeSpec()
+    arm: ArmSpec = ArmSpec()
+
+
+def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels()) -> np.ndarray:
+    """The 29 keypoints of a grasp.
+
+    Args:
+        grasp: the hand and probe placement.
+        models: model specs.
+
+    Returns:
+        (29, 3) float64, metres, world frame, in ``datagen.keypoints`` order.
+    """
+    hand = build_hand(models.hand)
+    probe = build_probe(models.probe)
+    out = np.zeros((kp.NUM_KEYPOINTS, 3))
+    out[kp.HAND_SLICE] = hand.keypoints(grasp.hand_pose, grasp.hand_trans)
+    out[kp.CORNER_SLICE] = transform_points(grasp.T_world_probe, probe.corners_probe)
+    return out
+
+
+def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLOVE_RGB[0],
+                arm_rgb=ARM_RGB) -> list[MeshPart]:
+    """Posed, coloured meshes of a grasp, ready for :class:`datagen.render.Renderer`.
+
+    Args:
+        grasp: the hand and probe placement.
+        models: model specs.
+        glove_rgb: (3,) hand colour in [0, 1].
+        arm_rgb: (3,) forearm colour in [0, 1].
+
+    Returns:
+        Parts "hand" (label 1), "arm" (2), "probe_body" and "probe_lens" (3).
+    """
+    import trimesh
+
+    hand = build_hand(models.hand)
+    probe = build_probe(models.probe)
+    pose = clamp_pose(grasp.hand_pose, scale=models.hand.scale)
+    hand_mesh = hand.mesh(pose, grasp.hand_trans, clamp=False)
+    arm_mesh = forearm_mesh(
+        axis_angle_to_matrix(pose[:3]), grasp.hand_trans, grasp.wrist_flexion, grasp.wrist_deviation, models.arm
+    )
+    probe_mesh = probe.mesh.copy()
+    probe_mesh.apply_transform(grasp.T_world_probe)
+    lens = probe.lens_face_mask
+    body_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[~lens], process=False)
+    lens_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[lens], process=False)
+    return [
+        MeshPart("hand", hand_mesh, SEG_LABELS["hand"], tuple(glove_rgb), roughness=0.8),
+        MeshPart("arm", arm_mesh, SEG_LABELS["arm"], tuple(arm_rgb), roughness=0.6),
+        MeshPart("probe_body", body_mesh, SEG_LABELS["probe"], PROBE_BODY_RGB, roughness=0.35),
+        MeshPart("probe_lens", lens_mesh, SEG_LABELS["probe"], PROBE_LENS_RGB, roughness=0.5),
+    ]

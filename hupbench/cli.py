@@ -1,0 +1,50 @@
+"""The ``hupbench`` command: one subcommand per user verb, each a thin main over ``run_<verb>``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+VERBS = {
+    "quickstart": "render the embedded default end to end (for now: the preview sheet)",
+}
+
+
+def _quickstart(overrides: list[str]) -> int:
+    from hupbench.config import compose
+    from hupbench.quickstart import run_quickstart
+
+    result = run_quickstart(compose("quickstart", overrides))
+    print(f"hupbench quickstart finished in {result['seconds']:.1f} s (renderer: {result['render_platform']})")
+    print(f"  preview sheet : {result['preview']}")
+    print(f"  run record    : {result['run_info']}")
+    print(f"  keypoints in view: {result['keypoints_in_view']} of 29")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="hupbench",
+        description="Synthetic hand + ultrasound-probe data, training and benchmarks (HUP-3D).",
+        epilog="Config overrides are Hydra's key=value, e.g. hupbench quickstart camera.width=128",
+    )
+    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    for verb, help_text in VERBS.items():
+        p = sub.add_parser(verb, help=help_text)
+        p.add_argument("overrides", nargs="*", metavar="key=value", help="Hydra config overrides")
+    args = parser.parse_args(argv)
+    if args.verb is None:
+        parser.print_help()
+        return 2
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        return {"quickstart": _quickstart}[args.verb](args.overrides)
+    except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
+        print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

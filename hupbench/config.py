@@ -1,0 +1,41 @@
+"""Composing the packaged Hydra configs for the CLI verbs and the tests."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+HYDRA_VERSION_BASE = "1.3"
+
+
+def config_dir() -> Path:
+    """Directory holding the Hydra configs (``conf/`` of the source tree, shipped as ``hupbench.conf``)."""
+    path = Path(str(resources.files("hupbench.conf")))
+    if not (path / "quickstart.yaml").is_file():
+        raise FileNotFoundError(f"hupbench configs not found in {path}: is the package installed completely?")
+    return path
+
+
+def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
+    """Compose a config with Hydra overrides (``key=value``), as the CLI does.
+
+    Args:
+        config_name: top-level config file name without ``.yaml``.
+        overrides: Hydra override strings.
+
+    Returns:
+        The composed config, read-only.
+    """
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    bad = [o for o in overrides if "=" not in o]
+    if bad:
+        raise ValueError(f"overrides must look like key=value, got {bad}")
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=HYDRA_VERSION_BASE):
+        cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
+    OmegaConf.set_readonly(cfg, True)
+    return cfg
