@@ -132,16 +132,11 @@ def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
     return out
 
 
-def write_png(path, image_rgb: np.ndarray) -> None:
+def write_png(path, image_rgb: np.ndarray):
     """Write an RGB image as PNG atomically (temporary name, then rename)."""
-    import os
-    from pathlib import Path
+    from datagen.io import write_bytes
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image_rgb[..., ::-1]))
     if not ok:
         raise RuntimeError(f"PNG encoding failed for {path}")
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(buf.tobytes())
-    os.replace(tmp, path)
+    return write_bytes(path, buf.tobytes())

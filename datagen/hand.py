@@ -296,6 +296,60 @@ def joint_names() -> tuple[str, ...]:
     return tuple(names)
 
 
+def forward_kinematics_torch(R_local: "torch.Tensor", trans: "torch.Tensor", joints_rest: "torch.Tensor"):
+    """World rotations and positions of the 16 joints (differentiable).
+
+    Args:
+        R_local: (..., 16, 3, 3) joint rotations relative to the parent, rest axes
+            (index 0 is the global rotation, hand frame -> world).
+        trans: (..., 3) wrist position in the world, metres.
+        joints_rest: (16, 3) rest joint positions, metres, hand frame.
+
+    Returns:
+        R_world: (..., 16, 3, 3) and t_world: (..., 16, 3): a rest point ``p``
+        rigidly attached to joint j goes to ``R_world[j] @ (p - J_j) + t_world[j]``.
+    """
+    import torch
+
+    R_world = [R_local[..., 0, :, :]]
+    t_world = [trans]
+    for j in range(1, NUM_JOINTS):
+        p = kp.MANO_PARENTS[j]
+        R_world.append(R_world[p] @ R_local[..., j, :, :])
+        t_world.append(t_world[p] + (R_world[p] @ (joints_rest[j] - joints_rest[p])[:, None])[..., 0])
+    return torch.stack(R_world, dim=-3), torch.stack(t_world, dim=-2)
+
+
+def keypoints_torch(R_world, t_world, joints_rest, tips_rest):
+    """(..., 21, 3) OpenPose-order keypoints from :func:`forward_kinematics_torch`'s output."""
+    import torch
+
+    out = [None] * kp.NUM_HAND
+    for j, op in enumerate(kp.MANO_TO_OPENPOSE):
+        out[op] = t_world[..., j, :]
+    for tip_op, j in kp.TIP_PARENT_MANO.items():
+        offset = tips_rest[(j - 1) // 3] - joints_rest[j]
+        out[tip_op] = (R_world[..., j, :, :] @ offset[:, None])[..., 0] + t_world[..., j, :]
+    return torch.stack(out, dim=-2)
+
+
+def skin_torch(R_world, t_world, joints_rest, vertices_rest, weights):
+    """Linear blend skinning (differentiable).
+
+    Args:
+        R_world, t_world: from :func:`forward_kinematics_torch`, (..., 16, 3, 3), (..., 16, 3).
+        joints_rest: (16, 3); vertices_rest: (V, 3) metres, hand frame; weights: (V, 16).
+
+    Returns:
+        (..., V, 3) posed vertices, metres, world frame.
+    """
+    offset = t_world - (R_world @ joints_rest[:, :, None])[..., 0]  # (..., 16, 3)
+    batch = R_world.shape[:-3]
+    # blend the 16 rotations per vertex as one (V, 16) x (16, 9) matmul: no (V, 16, 3, 3) intermediate
+    R_blend = (weights @ R_world.reshape(batch + (16, 9))).reshape(batch + (-1, 3, 3))  # (..., V, 3, 3)
+    return (R_blend @ vertices_rest[:, :, None])[..., 0] + weights @ offset
+
+
 def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarray:
     """World transforms of the 16 joints.
 
@@ -308,34 +362,36 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
         (16, 4, 4) or (B, 16, 4, 4) float64 ``G``: ``G[j] @ [p_rest - J_j, 1]``
         is where a rest-pose point ``p_rest`` rigidly attached to joint j goes.
     """
+    import torch
+
     pose = check_pose(pose)
     trans = _check_last(trans, (3,), "trans")
     joints, _ = rest_skeleton(scale)
     batch = pose.shape[:-1]
     R = axis_angle_to_matrix(pose.reshape(batch + (NUM_JOINTS, 3)))  # (..., 16, 3, 3)
+    R_world, t_world = forward_kinematics_torch(
+        torch.from_numpy(R), torch.from_numpy(np.broadcast_to(trans, batch + (3,)).copy()), torch.from_numpy(joints)
+    )
     G = np.zeros(batch + (NUM_JOINTS, 4, 4))
-    G[..., :, 3, 3] = 1.0
-    G[..., 0, :3, :3] = R[..., 0, :, :]
-    G[..., 0, :3, 3] = np.broadcast_to(trans, batch + (3,))
-    for j in range(1, NUM_JOINTS):
-        p = kp.MANO_PARENTS[j]
-        local = np.zeros(batch + (4, 4))
-        local[..., :3, :3] = R[..., j, :, :]
-        local[..., :3, 3] = joints[j] - joints[p]
-        local[..., 3, 3] = 1.0
-        G[..., j, :, :] = G[..., p, :, :] @ local
+    G[..., :3, :3] = R_world.numpy()
+    G[..., :3, 3] = t_world.numpy()
+    G[..., 3, 3] = 1.0
     return G
+
+
+def torch_cat_global(R_global, R_joints):
+    """Stack the global rotation (..., 3, 3) in front of the joints' (..., 15, 3, 3)."""
+    import torch
+
+    return torch.cat([R_global[..., None, :, :].expand(R_joints.shape[:-3] + (1, 3, 3)), R_joints], dim=-3)
 
 
 def _posed_keypoints(G: np.ndarray, joints_rest: np.ndarray, tips_rest: np.ndarray) -> np.ndarray:
     """(..., 21, 3) OpenPose-order keypoints from joint transforms."""
-    out = np.zeros(G.shape[:-3] + (kp.NUM_HAND, 3))
-    out[..., list(kp.MANO_TO_OPENPOSE), :] = G[..., :, :3, 3]
-    for tip_op, j in kp.TIP_PARENT_MANO.items():
-        finger_i = (j - 1) // 3
-        offset = tips_rest[finger_i] - joints_rest[j]
-        out[..., tip_op, :] = np.einsum("...ij,j->...i", G[..., j, :3, :3], offset) + G[..., j, :3, 3]
-    return out
+    import torch
+
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+    return keypoints_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(joints_rest), t(tips_rest)).numpy()
 
 
 class HandModel:
@@ -401,9 +457,63 @@ class HandModel:
         """
         if clamp:
             pose = clamp_pose(pose, scale=self.spec.scale)
-        A = self.skinning_transforms(pose, trans)  # (..., 16, 4, 4)
-        blended = np.einsum("vj,...jab->...vab", self.weights, A)  # (..., V, 4, 4)
-        return np.einsum("...vab,vb->...va", blended[..., :3, :3], self.vertices_rest) + blended[..., :3, 3]
+        import torch
+
+        G = forward_kinematics(pose, trans, self.spec.scale)
+        t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+        return skin_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(self.joints_rest), t(self.vertices_rest),
+                          t(self.weights)).numpy()
+
+    def buffers(self, dtype=None, device=None) -> dict:
+        """The model's constant arrays as torch tensors, cached per dtype and device.
+
+        Returns:
+            dict with "joints_rest" (16, 3), "tips_rest" (5, 3), "vertices_rest" (V, 3),
+            "weights" (V, 16), "frames" (15, 3, 3) anatomical axes and "limits" (15, 3, 2) radians.
+        """
+        import torch
+
+        dtype = dtype or torch.float32
+        device = torch.device(device or "cpu")
+        key = (dtype, device)
+        cache = self.__dict__.setdefault("_buffers", {})
+        if key not in cache:
+            arrays = {
+                "joints_rest": self.joints_rest,
+                "tips_rest": self.tips_rest,
+                "vertices_rest": self.vertices_rest,
+                "weights": self.weights,
+                "frames": anatomical_frames(self.spec.scale),
+                "limits": self.limits_rad,
+            }
+            cache[key] = {k: torch.as_tensor(v, dtype=dtype, device=device) for k, v in arrays.items()}
+        return cache[key]
+
+    def forward_torch(self, R_global, trans, angles, vertex_index=None):
+        """Differentiable keypoints and skinned vertices from anatomical angles.
+
+        Args:
+            R_global: (..., 3, 3) tensor, hand frame -> world rotation.
+            trans: (..., 3) tensor, metres, wrist position in the world.
+            angles: (..., 15, 3) tensor (flexion, abduction, twist), radians, MANO
+                joint order; not clamped here (bound them in the caller).
+            vertex_index: optional (V',) long tensor: skin only these vertices.
+
+        Returns:
+            keypoints: (..., 21, 3) OpenPose order; vertices: (..., V', 3); both metres, world.
+        """
+        from datagen.rotations_torch import euler_xyz_to_matrix
+
+        b = self.buffers(angles.dtype, angles.device)
+        frames = b["frames"]
+        R_joints = frames @ euler_xyz_to_matrix(angles) @ frames.transpose(-1, -2)  # (..., 15, 3, 3)
+        R_local = torch_cat_global(R_global, R_joints)
+        R_world, t_world = forward_kinematics_torch(R_local, trans, b["joints_rest"])
+        keypoints = keypoints_torch(R_world, t_world, b["joints_rest"], b["tips_rest"])
+        verts, weights = b["vertices_rest"], b["weights"]
+        if vertex_index is not None:
+            verts, weights = verts[vertex_index], weights[vertex_index]
+        return keypoints, skin_torch(R_world, t_world, b["joints_rest"], verts, weights)
 
     def mesh(self, pose: np.ndarray, trans, clamp: bool = True):
         """Posed mesh as a ``trimesh.Trimesh`` (metres, world frame)."""

@@ -7,6 +7,7 @@ import sys
 
 VERBS = {
     "quickstart": "render the embedded default end to end (for now: the preview sheet)",
+    "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
 }
 
 
@@ -19,6 +20,18 @@ def _quickstart(overrides: list[str]) -> int:
     print(f"  preview sheet : {result['preview']}")
     print(f"  run record    : {result['run_info']}")
     print(f"  keypoints in view: {result['keypoints_in_view']} of 29")
+    return 0
+
+
+def _grasps(overrides: list[str]) -> int:
+    from hupbench.config import compose
+    from hupbench.grasps import run_grasps
+
+    result = run_grasps(compose("grasps", overrides))
+    print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
+          f"{result['candidates']} candidates plausible, {result['selected']} selected")
+    for key in ("grasps_npz", "grasps_json", "contact_sheet"):
+        print(f"  {key:14s}: {result[key]}")
     return 0
 
 
@@ -40,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     from omegaconf.errors import OmegaConfBaseException
 
     try:
-        return {"quickstart": _quickstart}[args.verb](args.overrides)
+        return {"quickstart": _quickstart, "grasps": _grasps}[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)
         return 1

@@ -13,7 +13,8 @@ from pathlib import Path
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from hupbench.provenance import run_info, write_json
+from datagen.io import write_json
+from hupbench.provenance import run_info
 
 
 def run_quickstart(cfg: DictConfig) -> dict:

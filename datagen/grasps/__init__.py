@@ -1,0 +1,1 @@
+"""The two-stage grasp generator: a BPS-conditioned CVAE sampler and an energy-based refinement."""

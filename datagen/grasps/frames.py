@@ -1,0 +1,72 @@
+"""The generator frame and the probe z-offset (HUP-3D's "polygon offset" correction).
+
+GrabNet-style generators work object-centric: the probe, rotated by its
+Euler angles Theta_Vol, sits with its volume centroid at the origin. The
+renderer, as in HUP-3D, puts the probe frame's origin (the lens apex) at the
+world origin. The two placements differ by the centroid, whose z is the
+paper's Delta z (the probe is mirror-symmetric in x and y, so x and y are 0):
+``p_gen = R_vol @ (p_probe - c)``, ``c = (0, 0, Delta z)``.
+
+Convention:
+    Theta_Vol: (alpha, beta, gamma) degrees, intrinsic x-y-z Euler angles
+    (R_vol = Rx(alpha) Ry(beta) Rz(gamma)); any real values are accepted, 0
+    and 360 give the same rotation. Metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from datagen.geometry import euler_to_matrix, make_transform
+
+
+def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Centroid of the solid bounded by a closed, outward-wound triangle mesh.
+
+    Sums signed tetrahedra (origin, triangle); exact for any closed mesh.
+
+    Args:
+        vertices: (V, 3) float, metres. faces: (F, 3) int.
+
+    Returns:
+        (3,) float64, metres.
+    """
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    volumes = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
+    total = volumes.sum()
+    if not total > 0:
+        raise ValueError(f"mesh must be closed and outward-wound (signed volume {total:.3e} m^3)")
+    return (volumes[:, None] * tri.sum(axis=1) / 4.0).sum(axis=0) / total
+
+
+def probe_z_offset(probe) -> float:
+    """Delta z: the height of the probe's volume centroid above the lens apex, metres."""
+    return float(volume_centroid(probe.mesh.vertices, probe.mesh.faces)[2])
+
+
+def check_euler_deg(theta_vol) -> np.ndarray:
+    """Validate one Theta_Vol triple or a list of them: (3,) or (N, 3) finite degrees."""
+    theta = np.asarray(theta_vol, dtype=np.float64)
+    if theta.ndim not in (1, 2) or theta.shape[-1] != 3:
+        raise ValueError(f"Theta_Vol must be [alpha, beta, gamma] degrees or a list of them, got shape {theta.shape}")
+    if not np.all(np.isfinite(theta)):
+        raise ValueError(f"Theta_Vol must be finite, got {theta.tolist()}")
+    return theta
+
+
+def T_gen_probe(theta_vol_deg, probe) -> np.ndarray:
+    """Probe frame -> generator frame.
+
+    Args:
+        theta_vol_deg: (3,) Euler angles Theta_Vol, degrees.
+        probe: a :class:`datagen.probe.Probe`.
+
+    Returns:
+        (4, 4) float64 ``T_gen_probe``.
+    """
+    theta = check_euler_deg(theta_vol_deg)
+    if theta.shape != (3,):
+        raise ValueError(f"one Theta_Vol triple expected, got shape {theta.shape}")
+    R_vol = euler_to_matrix(np.deg2rad(theta), "xyz")
+    centroid = np.array([0.0, 0.0, probe_z_offset(probe)])
+    return make_transform(R_vol, -R_vol @ centroid)

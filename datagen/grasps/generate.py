@@ -1,0 +1,201 @@
+"""Grasp generation end to end: starts -> refinement -> scores -> selection -> files.
+
+For each probe orientation Theta_Vol the hand approaches from the same side
+of the generator frame (the operator's side, -y), so the orientation decides
+which face of the handle it meets. Starts come from the sampler ("cvae":
+the shipped conditional VAE, then a short refinement, as RefineNet does) or
+are randomised around the handle ("random": full refinement). Every
+candidate is scored; the plausible ones are reduced to N diverse grasps by
+farthest-point sampling on their joint positions, unless ids are pinned.
+
+Convention:
+    Candidates and outputs are in the probe frame (the renderer's world:
+    lens apex at the origin); the generator frame of each Theta_Vol is kept
+    beside them (see :mod:`datagen.grasps.frames`). Metres and radians.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, fields
+import numpy as np
+import torch
+
+from datagen import keypoints as kp
+from datagen.geometry import invert_transform, matrix_to_axis_angle
+from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
+from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
+from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
+from datagen.hand import HandSpec, anatomical_to_pose, build_hand
+from datagen.probe import ProbeSpec, build_probe
+
+SAMPLERS = ("random", "cvae")
+#: the operator stands on the generator frame's -y side
+APPROACH_GEN = np.array([0.0, -1.0, 0.0])
+
+
+@dataclass(frozen=True)
+class GraspGenConfig:
+    """What to generate.
+
+    Attributes:
+        theta_vol_deg: list of (alpha, beta, gamma) probe orientations, degrees.
+        starts_per_theta: candidates per orientation.
+        sampler: "random" (randomised starts, full refinement) or "cvae".
+        short_refine_iterations: refinement steps after CVAE samples.
+        n_select: how many grasps to keep.
+        pinned_ids: candidate ids to keep instead of selecting (None to select).
+        seed: everything random derives from it.
+    """
+
+    theta_vol_deg: tuple = ((0.0, 0.0, 0.0),)
+    starts_per_theta: int = 16
+    sampler: str = "random"
+    short_refine_iterations: int = 80
+    n_select: int = 11
+    pinned_ids: tuple | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        theta = check_euler_deg(self.theta_vol_deg)
+        if theta.ndim != 2 or len(theta) == 0:
+            raise ValueError(f"theta_vol_deg must be a non-empty list of [alpha, beta, gamma], got {self.theta_vol_deg!r}")
+        object.__setattr__(self, "theta_vol_deg", tuple(tuple(map(float, t)) for t in theta))
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
+        for name in ("starts_per_theta", "n_select"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be a positive int, got {v!r}")
+        v = self.short_refine_iterations
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"short_refine_iterations must be an int >= 0, got {v!r}")
+        if self.pinned_ids is not None:
+            ids = tuple(self.pinned_ids)
+            if not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
+                raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
+            object.__setattr__(self, "pinned_ids", ids)
+
+
+def approach_azimuth(theta_vol_deg, probe) -> float:
+    """Azimuth (radians, about the probe's +z) of the operator's side in the probe frame."""
+    T = T_gen_probe(theta_vol_deg, probe)
+    a = T[:3, :3].T @ APPROACH_GEN  # the operator's side, in the probe frame
+    if np.hypot(a[0], a[1]) < 1e-6:
+        return 0.0  # looking straight along the handle: any side; keep the canonical one
+    # turn the canonical grip (hand on the probe's -y side) to the operator's side
+    return float(np.arctan2(a[1], a[0]) - np.arctan2(-1.0, 0.0))
+
+
+def to_generator_frame(grasps: GraspBatch, T_gen_probe_: np.ndarray) -> GraspBatch:
+    """Express probe-frame grasps in a generator frame (rotation about the wrist + move)."""
+    R = T_gen_probe_[:3, :3]
+    return GraspBatch(R @ grasps.R_global, grasps.trans @ R.T + T_gen_probe_[:3, 3], grasps.angles, grasps.energy)
+
+
+def to_probe_frame(grasps: GraspBatch, T_gen_probe_: np.ndarray) -> GraspBatch:
+    """Inverse of :func:`to_generator_frame`."""
+    return to_generator_frame(grasps, invert_transform(T_gen_probe_))
+
+
+def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspBatch:
+    from datagen.grasps.cvae_sampling import sample_grasps
+
+    return sample_grasps(n, theta, probe, hand, rng)
+
+
+def generate_candidates(config: GraspGenConfig, hand_spec: HandSpec = HandSpec(),
+                        probe_spec: ProbeSpec = ProbeSpec(), refine_config: RefineConfig | None = None,
+                        log=print) -> dict:
+    """Make, refine and score the candidates of every Theta_Vol.
+
+    Returns:
+        dict with "grasps" (:class:`GraspBatch`, probe frame), "theta_index" (M,),
+        "scores" (dict of (M,) arrays), "seconds" (float).
+    """
+    hand, probe = build_hand(hand_spec), build_probe(probe_spec)
+    rc = refine_config or RefineConfig()
+    energy = GraspEnergy(hand, probe, rc)
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+    start_time = time.perf_counter()
+    batches, theta_index = [], []
+    for k, theta in enumerate(config.theta_vol_deg):
+        if config.sampler == "cvae":
+            starts = _cvae_starts(config.starts_per_theta, theta, probe, hand, rng)
+            iterations = config.short_refine_iterations
+        else:
+            starts = random_starts(config.starts_per_theta, rng, hand.limits_rad, approach_azimuth(theta, probe))
+            iterations = rc.iterations
+        refined = refine(energy, starts, iterations=iterations)
+        batches.append(refined)
+        theta_index += [k] * len(refined)
+        log(f"  Theta_Vol {list(theta)}: {len(refined)} candidates refined "
+            f"({time.perf_counter() - start_time:.0f} s so far)")
+    grasps = GraspBatch.concat(batches)
+    scores = score_grasps(energy, grasps)
+    return {"grasps": grasps, "theta_index": np.array(theta_index), "scores": scores,
+            "seconds": time.perf_counter() - start_time}
+
+
+def select_grasps(candidates: dict, hand, n: int, seed: int, pinned_ids=None) -> np.ndarray:
+    """Candidate ids of the selected grasps: pinned ones, or N diverse plausible ones."""
+    M = len(candidates["grasps"])
+    if pinned_ids is not None:
+        unknown = [i for i in pinned_ids if not 0 <= i < M]
+        if unknown:
+            raise ValueError(f"unknown grasp id(s) {unknown}: candidates are numbered 0..{M - 1}")
+        return np.array(pinned_ids, dtype=np.int64)
+    ok = np.flatnonzero(candidates["scores"]["plausible"])
+    if n > len(ok):
+        raise ValueError(f"cannot select {n} grasps: only {len(ok)} of {M} candidates are plausible "
+                         f"(thresholds {PLAUSIBLE}); add starts or orientations")
+    g = candidates["grasps"]
+    with torch.no_grad():
+        keypoints, _ = hand.forward_torch(torch.as_tensor(g.R_global[ok]), torch.as_tensor(g.trans[ok]),
+                                          torch.as_tensor(g.angles[ok]), vertex_index=torch.arange(1))
+    picked = farthest_point_selection(keypoints.numpy().reshape(len(ok), -1), n, np.random.default_rng(seed))
+    return ok[picked]
+
+
+def grasp_arrays(candidates: dict, ids: np.ndarray, config: GraspGenConfig, probe) -> dict[str, np.ndarray]:
+    """The arrays of ``grasps.npz`` for the chosen candidate ids."""
+    g = candidates["grasps"].take(ids)
+    thetas = np.array(config.theta_vol_deg)[candidates["theta_index"][ids]]
+    T_gen = np.stack([T_gen_probe(t, probe) for t in thetas])
+    gen = [to_generator_frame(g.take([i]), T_gen[i]) for i in range(len(ids))]
+    pose = anatomical_to_pose(g.angles, matrix_to_axis_angle(g.R_global))
+    pose_gen = np.concatenate([anatomical_to_pose(b.angles, matrix_to_axis_angle(b.R_global)) for b in gen])
+    hand = build_hand()
+    keypoints = hand.keypoints(pose, g.trans, clamp=False)
+    out = {
+        "grasp_id": ids.astype(np.int64),
+        "hand_pose": pose.astype(np.float64),
+        "hand_trans": g.trans,
+        "hand_angles": g.angles,
+        "keypoints_probe": keypoints,
+        "probe_euler_deg": thetas,
+        "T_gen_probe": T_gen,
+        "hand_pose_gen": pose_gen,
+        "hand_trans_gen": np.concatenate([b.trans for b in gen]),
+        "T_world_probe": np.broadcast_to(np.eye(4), (len(ids), 4, 4)).copy(),
+        "probe_z_offset_m": np.array(probe_z_offset(probe)),
+        "energy": g.energy,
+    }
+    for name in SCORE_NAMES:
+        out[f"score_{name}"] = candidates["scores"][name][ids]
+    return out
+
+
+def scores_json(arrays: dict, config: GraspGenConfig) -> dict:
+    """Human-readable record of the selected grasps and their scores."""
+    rows = []
+    for i, gid in enumerate(arrays["grasp_id"]):
+        row = {"grasp_id": int(gid), "probe_euler_deg": arrays["probe_euler_deg"][i].tolist()}
+        for name in SCORE_NAMES:
+            v = arrays[f"score_{name}"][i]
+            row[name] = bool(v) if name in ("plausible", "thumb_contact") else round(float(v), 4)
+        rows.append(row)
+    return {"thresholds": PLAUSIBLE, "config": {f.name: getattr(config, f.name) for f in fields(config)},
+            "probe_z_offset_m": float(arrays["probe_z_offset_m"]), "keypoint_names": list(kp.HAND_NAMES),
+            "grasps": rows}

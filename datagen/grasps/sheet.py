@@ -1,0 +1,67 @@
+"""Contact sheet: every selected grasp rendered from three viewpoints, with its scores.
+
+Convention:
+    Probe frame (lens apex at the origin, +z along the handle), metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from datagen.camera import Intrinsics, look_at
+from datagen.draw import grid, titled
+from datagen.geometry import axis_angle_to_matrix
+from datagen.render import PointLight, Renderer, RenderSettings
+from datagen.scene import Grasp, scene_parts
+
+VIEW_DISTANCE_M = 0.42
+
+
+def grasp_views(hand_pose: np.ndarray) -> list[np.ndarray]:
+    """Three ``T_cam_world`` looking at a grasp from the side away from the forearm.
+
+    Two views 55 degrees either side of the direction opposite the forearm,
+    slightly from above, and one from below the lens (it must stay uncovered).
+
+    Args:
+        hand_pose: (48,) float axis-angle; its global rotation gives the forearm direction.
+
+    Returns:
+        list of three (4, 4) float64 camera poses (OpenCV), probe frame.
+    """
+    centre = np.array([0.0, 0.0, 0.085])
+    forearm = -axis_angle_to_matrix(np.asarray(hand_pose[:3], dtype=np.float64))[:, 0]  # hand -x
+    away = np.arctan2(-forearm[1], -forearm[0]) if np.hypot(forearm[0], forearm[1]) > 1e-6 else 0.0
+    views = []
+    for azimuth, elevation in ((away + np.deg2rad(55), 20.0), (away - np.deg2rad(55), 20.0), (away, -40.0)):
+        el = np.deg2rad(elevation)
+        d = np.array([np.cos(el) * np.cos(azimuth), np.cos(el) * np.sin(azimuth), np.sin(el)])
+        views.append(look_at(centre + VIEW_DISTANCE_M * d, centre, up_world=(0.0, 0.0, 1.0)))
+    return views
+
+
+def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None) -> np.ndarray:
+    """Render the contact sheet of ``grasps.npz``-style arrays.
+
+    Args:
+        arrays: with "grasp_id", "hand_pose" (N, 48), "hand_trans" (N, 3), "keypoints_probe"
+            (N, 21, 3) and "score_*" entries.
+        size: tile side, pixels.
+        platform: GL platform.
+
+    Returns:
+        (H, W, 3) uint8: one row per grasp, three views each.
+    """
+    intrinsics = Intrinsics.from_lens(60.0, 32.0, size, size)
+    tiles = []
+    with Renderer(intrinsics, platform=platform) as renderer:
+        for i, gid in enumerate(arrays["grasp_id"]):
+            renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i])))
+            label = (f"#{int(gid)} pen {arrays['score_max_penetration_mm'][i]:.1f}mm "
+                     f"pads {int(arrays['score_pads_in_contact'][i])} fc {arrays['score_force_closure_residual'][i]:.2f}")
+            for k, T in enumerate(grasp_views(arrays["hand_pose"][i])):
+                eye = np.linalg.inv(T)[:3, 3]
+                settings = RenderSettings(lights=[PointLight(eye + [0.0, 0.0, 0.15], intensity=0.5)], ambient=0.3)
+                rgb = renderer.render(T, ("rgb",), settings)["rgb"]
+                tiles.append(titled(rgb, label if k == 0 else ""))
+    return grid(tiles, columns=3)

@@ -1,0 +1,56 @@
+"""``hupbench grasps``: synthesise, score and select grasps; write grasps.npz, grasps.json and a contact sheet."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from datagen.io import save_npz, write_json
+from hupbench.provenance import run_info
+
+
+def run_grasps(cfg: DictConfig, log=print) -> dict:
+    """Run the grasp generator.
+
+    Args:
+        cfg: the composed ``grasps`` config.
+        log: progress printer.
+
+    Returns:
+        dict with the output paths, counts and timings.
+    """
+    from datagen.draw import write_png
+    from datagen.grasps.generate import generate_candidates, grasp_arrays, scores_json, select_grasps
+    from datagen.grasps.sheet import contact_sheet
+    from datagen.hand import build_hand
+    from datagen.probe import build_probe
+
+    start = time.perf_counter()
+    gen_config = instantiate(cfg.generate, _convert_="all")
+    refine_config = instantiate(cfg.refine, _convert_="all")
+    out_dir = Path(cfg.out_dir)
+    log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
+        f"({gen_config.sampler} sampler)")
+    candidates = generate_candidates(gen_config, refine_config=refine_config, log=log)
+    scores = candidates["scores"]
+    ids = select_grasps(candidates, build_hand(), gen_config.n_select, gen_config.seed, gen_config.pinned_ids)
+    arrays = grasp_arrays(candidates, ids, gen_config, build_probe())
+    all_ids = np.arange(len(candidates["grasps"]))
+    candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, build_probe())
+    save_npz(out_dir / "candidates.npz", candidate_arrays)
+    npz = save_npz(out_dir / "grasps.npz", arrays)
+    summary = scores_json(arrays, gen_config)
+    summary["candidates"] = {"total": len(all_ids), "plausible": int(scores["plausible"].sum()),
+                             "refine_seconds": round(candidates["seconds"], 1)}
+    js = write_json(out_dir / "grasps.json", summary)
+    log(f"rendering the contact sheet of {len(ids)} grasps")
+    sheet = write_png(out_dir / "contact_sheet.png", contact_sheet(arrays, cfg.sheet.tile_px, cfg.sheet.platform))
+    seconds = time.perf_counter() - start
+    write_json(out_dir / "run.json", run_info(cfg, verb="grasps", seconds=seconds))
+    return {"grasps_npz": str(npz), "grasps_json": str(js), "contact_sheet": str(sheet),
+            "candidates": len(all_ids), "plausible": int(scores["plausible"].sum()), "selected": len(ids),
+            "seconds": seconds}

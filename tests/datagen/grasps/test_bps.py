@@ -1,0 +1,144 @@
+"""Tests for the Basis Point Set encoding of the probe (datagen/grasps/bps.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import stats
+
+from datagen.geometry import euler_to_matrix, transform_points
+from datagen.grasps.bps import basis_points, encode_many, encode_probe
+from datagen.grasps.frames import T_gen_probe, probe_z_offset
+from datagen.probe import Probe, build_probe
+
+MM = 1e-3
+#: the probe's gridded signed distance is within a few tenths of a millimetre of the mesh
+GRID_ERROR_M = 0.5 * MM
+
+
+@pytest.fixture(scope="module")
+def probe() -> Probe:
+    return build_probe()
+
+
+@pytest.fixture(scope="module")
+def basis() -> np.ndarray:
+    return basis_points(256, seed=3)
+
+
+# ----------------------------------------------------------------------------- basis points
+
+
+def test_basis_points_are_uniform_in_the_ball():
+    radius_m = 0.15
+    points = basis_points(20000, radius_m=radius_m, seed=0)
+    assert points.shape == (20000, 3)
+    r = np.linalg.norm(points, axis=1)
+    assert r.max() <= radius_m
+    # uniform in volume: P(|p| < R/2) = (1/2)^3; binomial std here is 0.0023
+    assert abs(np.mean(r < radius_m / 2) - 1 / 8) < 0.01
+    # the whole radial law: (r/R)^3 ~ U(0, 1)
+    assert stats.kstest((r / radius_m) ** 3, "uniform").pvalue > 1e-3
+    # isotropic: centred at the origin, E[x^2] = R^2 / 5 on every axis
+    np.testing.assert_allclose(points.mean(axis=0), 0.0, atol=3e-3)
+    np.testing.assert_allclose((points**2).mean(axis=0), radius_m**2 / 5, rtol=0.05)
+
+
+def test_basis_points_deterministic_by_seed():
+    a = basis_points(64, seed=7)
+    np.testing.assert_array_equal(a, basis_points(64, seed=7))
+    assert np.abs(a - basis_points(64, seed=8)).max() > 1e-3
+    # the radius scales the same draw
+    np.testing.assert_allclose(basis_points(64, radius_m=0.3, seed=7), 2.0 * a)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"n": 0}, ValueError, "n must be >= 1"),
+        ({"n": 2.5}, TypeError, "n must be an int"),
+        ({"radius_m": 0.0}, ValueError, "radius_m"),
+        ({"radius_m": float("nan")}, ValueError, "radius_m"),
+        ({"seed": "a"}, TypeError, "seed must be an int"),
+    ],
+)
+def test_basis_points_bad_input(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        basis_points(**kwargs)
+
+
+# ----------------------------------------------------------------------------- encoding
+
+
+def test_encoding_is_rotation_consistent(probe, basis):
+    Rz90 = euler_to_matrix(np.deg2rad([0.0, 0.0, 90.0]))
+    plain = encode_probe(probe, (0.0, 0.0, 0.0), basis)
+    turned = encode_probe(probe, (0.0, 0.0, 90.0), basis @ Rz90.T)
+    np.testing.assert_allclose(turned, plain, atol=1e-6)
+    # any orientation: rotating the basis with the probe leaves the features unchanged
+    theta = (25.0, -40.0, 130.0)
+    R_vol = euler_to_matrix(np.deg2rad(theta))
+    np.testing.assert_allclose(encode_probe(probe, theta, basis @ R_vol.T), plain, atol=1e-6)
+    # ... while the same basis sees a different probe placement
+    assert np.abs(encode_probe(probe, theta, basis) - plain).max() > 0.01
+
+
+def test_features_nonnegative_and_zero_on_the_surface(probe):
+    theta = (30.0, 10.0, -60.0)
+    surface_probe, _ = trimesh.sample.sample_surface(probe.mesh, 200, seed=1)
+    surface_gen = transform_points(T_gen_probe(theta, probe), surface_probe)
+    features = encode_probe(probe, theta, surface_gen)
+    assert features.dtype == np.float32 and features.shape == (200,)
+    assert features.min() >= 0.0
+    assert features.max() < GRID_ERROR_M
+    assert encode_probe(probe, theta, surface_gen, exact=True).max() < 1e-6
+    features = encode_probe(probe, theta, basis_points(2000, seed=5))
+    assert features.min() >= 0.0
+
+
+def test_known_distance_below_the_lens(probe):
+    # 10 mm straight below the lens apex (the probe frame's origin); the lens
+    # curves away with a 55 mm radius, so the apex is the nearest surface point
+    below_probe = np.array([[0.0, 0.0, -0.010]])
+    below_gen = below_probe - np.array([0.0, 0.0, probe_z_offset(probe)])
+    np.testing.assert_allclose(encode_probe(probe, (0, 0, 0), below_gen, exact=True), [0.010], atol=1e-6)
+    np.testing.assert_allclose(encode_probe(probe, (0, 0, 0), below_gen), [0.010], atol=GRID_ERROR_M)
+    # at the generator origin (the volume centroid, inside the probe) the depth is
+    # at most the probe's half thickness in y
+    inside = encode_probe(probe, (0, 0, 0), np.zeros((1, 3)), exact=True)[0]
+    assert 0.0 < inside <= probe.mesh.bounds[1, 1]
+
+
+def test_grid_upper_bounds_exact(probe, basis):
+    grid = encode_probe(probe, (10.0, 20.0, 30.0), basis)
+    exact = encode_probe(probe, (10.0, 20.0, 30.0), basis, exact=True)
+    assert np.all(grid >= exact - GRID_ERROR_M)
+    assert np.median(grid - exact) < 5 * MM
+
+
+def test_encode_many_matches_encode_probe(probe, basis):
+    thetas = np.array([[0.0, 0.0, 0.0], [90.0, 0.0, 0.0], [12.0, -70.0, 200.0]])
+    many = encode_many(probe, thetas, basis)
+    assert many.shape == (3, len(basis)) and many.dtype == np.float32
+    for i, theta in enumerate(thetas):
+        np.testing.assert_allclose(many[i], encode_probe(probe, theta, basis), atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    ("call", "error", "match"),
+    [
+        (lambda p, b: encode_probe("probe", (0, 0, 0), b), TypeError, "probe must be"),
+        (lambda p, b: encode_probe(p, (0, 0), b), ValueError, "Theta_Vol"),
+        (lambda p, b: encode_probe(p, (0, np.nan, 0), b), ValueError, "finite"),
+        (lambda p, b: encode_probe(p, [[0, 0, 0]], b), ValueError, "one Theta_Vol triple"),
+        (lambda p, b: encode_probe(p, (0, 0, 0), b[:, :2]), ValueError, r"basis must be \(n, 3\)"),
+        (lambda p, b: encode_probe(p, (0, 0, 0), np.full((4, 3), np.nan)), ValueError, "basis contains NaN"),
+        (lambda p, b: encode_probe(p, (0, 0, 0), np.array([["a", "b", "c"]])), ValueError, "real array"),
+        (lambda p, b: encode_many(p, (0, 0, 0), b), ValueError, r"thetas_deg must be \(N, 3\)"),
+        (lambda p, b: encode_many(p, np.zeros((0, 3)), b), ValueError, "N >= 1"),
+    ],
+)
+def test_encode_bad_input(probe, basis, call, error, match):
+    with pytest.raises(error, match=match):
+        call(probe, basis)
