@@ -8,6 +8,7 @@ import sys
 VERBS = {
     "quickstart": "render the embedded default end to end (for now: the preview sheet)",
     "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
+    "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
 }
 
 
@@ -35,6 +36,16 @@ def _grasps(overrides: list[str]) -> int:
     return 0
 
 
+def _train_grasp_sampler(overrides: list[str]) -> int:
+    from hupbench.config import compose
+    from hupbench.grasps import run_train_grasp_sampler
+
+    result = run_train_grasp_sampler(compose("train_grasp_sampler", overrides))
+    print(f"hupbench train-grasp-sampler finished in {result['seconds']:.0f} s: {result['corpus_size']} "
+          f"plausible grasps of {result['n_refined']} refined; weights: {result['path']}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
@@ -53,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     from omegaconf.errors import OmegaConfBaseException
 
     try:
-        return {"quickstart": _quickstart, "grasps": _grasps}[args.verb](args.overrides)
+        handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler}
+        return handlers[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)
         return 1

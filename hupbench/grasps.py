@@ -29,6 +29,10 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
     from datagen.hand import build_hand
     from datagen.probe import build_probe
 
+    import torch
+
+    # CPU results are bit-reproducible only at a fixed thread count
+    torch.set_num_threads(cfg.threads)
     start = time.perf_counter()
     gen_config = instantiate(cfg.generate, _convert_="all")
     refine_config = instantiate(cfg.refine, _convert_="all")
@@ -54,3 +58,29 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
     return {"grasps_npz": str(npz), "grasps_json": str(js), "contact_sheet": str(sheet),
             "candidates": len(all_ids), "plausible": int(scores["plausible"].sum()), "selected": len(ids),
             "seconds": seconds}
+
+
+def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
+    """Make the refinement corpus and train the grasp CVAE (``hupbench train-grasp-sampler``).
+
+    Args:
+        cfg: the composed ``train_grasp_sampler`` config.
+
+    Returns:
+        dict with the weights path, corpus size and timing.
+    """
+    import torch
+
+    from datagen.grasps.cvae import SHIPPED_WEIGHTS
+    from datagen.grasps.cvae_sampling import train_sampler
+    from datagen.hand import build_hand
+    from datagen.probe import build_probe
+
+    # CPU results are bit-reproducible only at a fixed thread count
+    torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out) if cfg.out else SHIPPED_WEIGHTS
+    result = train_sampler(instantiate(cfg.corpus), instantiate(cfg.cvae), out, build_hand(), build_probe(), log=log)
+    write_json(out.with_suffix(".run.json"), run_info(cfg, verb="train-grasp-sampler", seconds=result["seconds"],
+                                                      corpus_size=result["corpus_size"],
+                                                      n_refined=result["n_refined"]))
+    return result

@@ -69,7 +69,7 @@ LOGVAR_MIN, LOGVAR_MAX = -12.0, 6.0
 #: where the trained sampler ships with the package (written by the training command, not by tests)
 SHIPPED_WEIGHTS = Path(__file__).parent / "weights" / "grasp_cvae.npz"
 #: the command that trains the sampler and writes SHIPPED_WEIGHTS
-RETRAIN_COMMAND = "hupbench grasps train_sampler=true"
+RETRAIN_COMMAND = "hupbench train-grasp-sampler"
 
 _FILE_FORMAT = "hupbench.grasp_cvae"
 _FILE_VERSION = 1

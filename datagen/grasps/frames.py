@@ -46,7 +46,10 @@ def probe_z_offset(probe) -> float:
 
 def check_euler_deg(theta_vol) -> np.ndarray:
     """Validate one Theta_Vol triple or a list of them: (3,) or (N, 3) finite degrees."""
-    theta = np.asarray(theta_vol, dtype=np.float64)
+    try:
+        theta = np.asarray(theta_vol, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Theta_Vol must be numbers [alpha, beta, gamma] or a list of them, got {theta_vol!r}") from exc
     if theta.ndim not in (1, 2) or theta.shape[-1] != 3:
         raise ValueError(f"Theta_Vol must be [alpha, beta, gamma] degrees or a list of them, got shape {theta.shape}")
     if not np.all(np.isfinite(theta)):
