@@ -1,0 +1,70 @@
+"""Grasp generation, error against run time.
+
+For the refinement alone (randomised starts) and for the sampler + refinement
+(CVAE proposals), refine the same number of candidates with growing
+iteration budgets and print, per budget: wall time, plausible fraction,
+plausible grasps per minute, and the distribution of penetration and pads in
+contact. Each budget is a fresh run (Adam restarts), measured in one process.
+
+Usage: python benchmarks/grasps.py [--orientations 4] [--starts 16] [--budgets 0 25 50 100 200 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--orientations", type=int, default=4, help="probe orientations (about the handle axis)")
+    parser.add_argument("--starts", type=int, default=16, help="candidates per orientation")
+    parser.add_argument("--budgets", type=int, nargs="+", default=[0, 25, 50, 100, 200, 300])
+    parser.add_argument("--samplers", nargs="+", default=["random", "cvae"], choices=["random", "cvae"])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    if args.orientations < 1 or args.starts < 1 or min(args.budgets) < 0:
+        parser.error("--orientations and --starts must be positive, --budgets >= 0")
+    torch.set_num_threads(args.threads)
+
+    from datagen.grasps.cvae_sampling import sample_grasps
+    from datagen.grasps.generate import approach_azimuth
+    from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
+    from datagen.grasps.scores import score_grasps
+    from datagen.hand import build_hand
+    from datagen.probe import build_probe
+    from datagen.grasps.cvae import load_shipped_cvae
+
+    hand, probe = build_hand(), build_probe()
+    thetas = [(0.0, 0.0, 360.0 * k / args.orientations) for k in range(args.orientations)]
+    model = load_shipped_cvae() if "cvae" in args.samplers else None
+    print(f"{len(thetas)} orientations x {args.starts} candidates, torch threads {args.threads}")
+    print(f"{'sampler':8s} {'iters':>5s} {'seconds':>8s} {'plausible':>9s} {'per min':>8s} "
+          f"{'pen p50/p90 mm':>15s} {'pads p50':>8s} {'thumb':>6s}")
+    for sampler in args.samplers:
+        for budget in args.budgets:
+            rng = np.random.default_rng(args.seed)
+            energy = GraspEnergy(hand, probe, RefineConfig(iterations=budget))
+            start = time.perf_counter()
+            batches = []
+            for theta in thetas:
+                if sampler == "cvae":
+                    starts = sample_grasps(args.starts, theta, probe, hand, rng, model)
+                else:
+                    starts = random_starts(args.starts, rng, hand.limits_rad, approach_azimuth(theta, probe))
+                batches.append(refine(energy, starts) if budget else starts)
+            seconds = time.perf_counter() - start
+            scores = score_grasps(energy, GraspBatch.concat(batches))
+            ok = scores["plausible"]
+            pen = scores["max_penetration_mm"]
+            print(f"{sampler:8s} {budget:5d} {seconds:8.1f} {ok.mean():9.2f} {60.0 * ok.sum() / seconds:8.1f} "
+                  f"{np.median(pen):7.1f}/{np.percentile(pen, 90):<7.1f} {np.median(scores['pads_in_contact']):8.0f} "
+                  f"{scores['thumb_contact'].mean():6.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
