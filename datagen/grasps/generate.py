@@ -50,8 +50,8 @@ class GraspGenConfig:
 
     theta_vol_deg: tuple = ((0.0, 0.0, 0.0),)
     starts_per_theta: int = 16
-    sampler: str = "random"
-    short_refine_iterations: int = 80
+    sampler: str = "cvae"
+    short_refine_iterations: int = 40
     n_select: int = 11
     pinned_ids: tuple | None = None
     seed: int = 0

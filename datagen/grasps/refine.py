@@ -377,3 +377,18 @@ def random_starts(n: int, rng: np.random.Generator, limits: np.ndarray, approach
         angles[i, :, 1:] = rng.uniform(0.35, 0.65, size=(15, 2)) * (limits[:, 1:, 1] - limits[:, 1:, 0]) \
             + limits[:, 1:, 0]
     return GraspBatch(R_out, t_out, angles)
+
+
+def heuristic_starts(n: int, limits: np.ndarray, approach_azimuth: float = 0.0) -> GraspBatch:
+    """n copies of one hand-made start: the canonical grip turned to the approach side, joints mid-range.
+
+    The baseline a sampler must beat on diversity: refinement is deterministic, so
+    identical starts give identical grasps.
+    """
+    if n < 1:
+        raise ValueError(f"number of starts must be >= 1, got {n}")
+    R_c, t_c = canonical_grip()
+    Rz = aa_to_matrix_np(np.array([0.0, 0.0, approach_azimuth]))
+    angles = limits[..., 0] + 0.5 * (limits[..., 1] - limits[..., 0])
+    return GraspBatch(np.repeat((Rz @ R_c)[None], n, 0), np.repeat((Rz @ t_c)[None], n, 0),
+                      np.repeat(angles[None], n, 0))

@@ -1,0 +1,41 @@
+import numpy as np
+import pytest
+
+from datagen.grasps.cvae import SHIPPED_WEIGHTS, load_shipped_cvae
+from datagen.grasps.cvae_sampling import CorpusConfig, sample_grasps
+from datagen.hand import build_hand, joint_limits_rad
+from datagen.probe import build_probe
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_shipped_cvae()
+
+
+def test_shipped_weights_record_how_they_were_made(shipped):
+    assert SHIPPED_WEIGHTS.is_file()
+    _, config, meta = shipped
+    assert config.latent_dim == 16 and config.n_bps == meta["bps_n"] == 1024
+    assert meta["bps_radius_m"] == pytest.approx(0.15)
+    assert meta["corpus_size"] > 100 and meta["n_refined"] >= meta["corpus_size"]
+
+
+def test_samples_are_valid_and_reproducible(shipped):
+    hand, probe = build_hand(), build_probe()
+    a = sample_grasps(6, (0.0, 0.0, 90.0), probe, hand, np.random.default_rng(5), shipped)
+    b = sample_grasps(6, (0.0, 0.0, 90.0), probe, hand, np.random.default_rng(5), shipped)
+    c = sample_grasps(6, (0.0, 0.0, 90.0), probe, hand, np.random.default_rng(6), shipped)
+    np.testing.assert_array_equal(a.trans, b.trans)
+    assert not np.allclose(a.trans, c.trans)
+    limits = joint_limits_rad()
+    assert np.all(a.angles >= limits[..., 0] - 1e-9) and np.all(a.angles <= limits[..., 1] + 1e-9)
+    np.testing.assert_allclose(a.R_global @ np.swapaxes(a.R_global, 1, 2), np.broadcast_to(np.eye(3), (6, 3, 3)),
+                               atol=1e-9)
+    # proposals land around the handle, not somewhere else in the scene
+    wrist_to_axis = np.linalg.norm(a.trans[:, :2], axis=1)
+    assert np.all(wrist_to_axis < 0.12) and np.all((a.trans[:, 2] > 0.0) & (a.trans[:, 2] < 0.2))
+
+
+def test_corpus_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="n_orientations must be a positive int"):
+        CorpusConfig(n_orientations=0)
