@@ -154,7 +154,7 @@ class Renderer:
             primitive.material.baseColorFactor = np.array([*color, 1.0])
 
     def render(self, T_cam_world: np.ndarray, modalities: Iterable[str] = MODALITIES,
-               settings: RenderSettings | None = None) -> dict[str, np.ndarray]:
+               settings: RenderSettings | None = None, alpha: bool = False) -> dict[str, np.ndarray]:
         """Render the current parts from one camera.
 
         Args:
@@ -162,6 +162,8 @@ class Renderer:
             modalities: any of "rgb", "depth", "seg".
             settings: background, ambient light and lamps; defaults to a white
                 background, ambient light and one lamp at the camera.
+            alpha: return "rgb" as (H, W, 4) RGBA with alpha 0 on the background,
+                for compositing over a photograph.
 
         Returns:
             dict with the requested keys: "rgb" (H, W, 3) uint8; "depth"
@@ -182,8 +184,9 @@ class Renderer:
         out: dict[str, np.ndarray] = {}
         depth = None
         if "rgb" in modalities:
-            color, depth = self._renderer.render(self._scene)
-            out["rgb"] = np.ascontiguousarray(color[..., :3])
+            flags = pyrender.RenderFlags.RGBA if alpha else pyrender.RenderFlags.NONE
+            color, depth = self._renderer.render(self._scene, flags=flags)
+            out["rgb"] = np.ascontiguousarray(color if alpha else color[..., :3])
         if "seg" in modalities:
             seg, seg_depth = self._renderer.render(
                 self._scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._labels

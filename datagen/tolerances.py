@@ -19,3 +19,18 @@ PROBE_RING_STEP_M = 1e-7
 PROBE_SDF_PRUNE_SLACK_M = 1e-9
 #: below this SDF gradient norm (m/m) the probe's surface normal is undefined and returned as zero
 PROBE_SDF_MIN_GRADIENT = 1e-9
+
+#: a hand keypoint is visible when the first surface on its pixel ray is the hand and lies at
+#: most this far in front of it (joint centres sit up to ~12 mm under their skin)
+VISIBLE_HAND_DEPTH_M = 0.016
+#: ... and at most this far behind it (a fingertip on the silhouette whose pixel shows a surface
+#: further back is not seen)
+VISIBLE_HAND_BEHIND_M = 0.003
+#: a probe box corner is visible when nothing on its pixel ray is more than this in front of it
+VISIBLE_CORNER_DEPTH_M = 0.005
+#: verify: 2D keypoints must equal the projection of the 3D ones within this
+VERIFY_REPROJECTION_PX = 0.01
+#: verify: 3D keypoints must equal those recomputed from the stored pose within this
+VERIFY_KEYPOINT_M = 1e-4
+#: verify: probe pixels (eroded mask), unprojected with their depth, lie this close to the probe surface
+VERIFY_PROBE_SURFACE_M = 0.003

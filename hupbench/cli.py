@@ -9,6 +9,8 @@ VERBS = {
     "quickstart": "render the embedded default end to end (for now: the preview sheet)",
     "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
+    "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
+    "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
 }
 
 
@@ -46,6 +48,39 @@ def _train_grasp_sampler(overrides: list[str]) -> int:
     return 0
 
 
+def _generate(overrides: list[str]) -> int:
+    from hupbench.config import compose
+    from hupbench.generate import run_generate
+
+    result = run_generate(compose("generate", overrides))
+    rate = result["frames_rendered"] / result["seconds"] if result["seconds"] > 0 else 0.0
+    state = "complete" if result["complete"] else "partial (other shards pending)"
+    print(f"hupbench generate: {result['frames_rendered']} frames rendered in {result['seconds']:.0f} s "
+          f"({rate:.1f} frames/s); dataset {state}: {result['out_dir']}")
+    if result["complete"]:
+        print("  frames per split: " + ", ".join(f"{k} {v}" for k, v in result["counts"].items()))
+    return 0
+
+
+def _verify(args: list[str]) -> int:
+    from hupbench.generate import run_verify
+
+    parser = argparse.ArgumentParser(prog="hupbench verify")
+    parser.add_argument("dataset")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--max-report", type=int, default=50, help="problems printed in full")
+    ns = parser.parse_args(args)
+    result = run_verify(ns.dataset, workers=ns.workers)
+    for p in result["problems"][: ns.max_report]:
+        print(f"  {p['kind']:20s} split={p['split']} frame={p['frame_id']}: {p['detail']}")
+    if not result["ok"]:
+        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
+        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
+        return 1
+    print(f"hupbench verify: OK, {result['frames']} frames checked")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
@@ -55,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, help_text in VERBS.items():
         p = sub.add_parser(verb, help=help_text)
-        p.add_argument("overrides", nargs="*", metavar="key=value", help="Hydra config overrides")
+        p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
     args = parser.parse_args(argv)
     if args.verb is None:
         parser.print_help()
@@ -64,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     from omegaconf.errors import OmegaConfBaseException
 
     try:
-        handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler}
+        handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
+                    "generate": _generate, "verify": _verify}
         return handlers[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)

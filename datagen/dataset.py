@@ -1,0 +1,508 @@
+"""Dataset generation: Algorithm 1 of HUP-3D, written to the dataset contract of DESIGN.md.
+
+Frames are the product grasps x z_ego x backgrounds x gloves x viewpoints.
+The frame index is the mixed-radix number of that tuple, viewpoints fastest:
+
+    i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view
+
+and frame ``i`` is a pure function of (config, i): its camera comes from the
+sphere, its lamp from a generator seeded with (seed, i). Frames are rendered
+in chunks of one (grasp, z_ego, background) block (n_glove x n_view frames
+sharing the meshes); a chunk's image files are written atomically, then its
+annotation rows, also atomically: a chunk whose rows exist is done, any
+other is rendered again on resume (overwriting, never duplicating).
+``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. When every
+chunk is done the rows are merged into ``<split>/annotations.npz`` and
+``manifest.json`` is written last.
+
+Convention:
+    Annotations are in the OpenCV camera frame, metres; 2D in pixels of the
+    stored image. World = probe frame.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from datagen import keypoints as kp
+from datagen import tolerances as tol
+from datagen.camera import Intrinsics, project_points
+from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
+from datagen.io import save_npz, write_bytes, write_json
+from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
+from datagen.sphere import SphereSpec, camera_pose, sphere_frame, viewpoints
+
+SCHEMA_VERSION = 1
+GENERATOR_VERSION = "0.1.0"
+SPLITS = ("train", "val", "test")
+DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
+#: HUP-3D's lamp (REFERENCE.md), in the camera frame of the published renderer
+LAMP_LOW = np.array([-0.6, 0.1, 0.5])
+LAMP_HIGH = np.array([0.6, 0.4, 0.5])
+#: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
+#: exposes a gloved hand at 0.5 m like the preview
+LAMP_INTENSITY_PER_WATT = 0.0075
+GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
+ARM_RGB = (1.0, 0.6784, 0.3765)
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """Everything that determines the frames.
+
+    Attributes:
+        z_ego_m: camera distances to the grasp, metres.
+        splits: grasps per split, in the order of the grasps file (train, val, test).
+        modalities: which of rgb, depth, seg to write.
+        rgb_format: "jpg" or "png". jpeg_quality: 0-100.
+        seed: lamp randomisation seed.
+        sphere: the viewpoint sphere.
+        width, height, fx, fy, cx, cy: the camera.
+        n_backgrounds, n_gloves: counts (backgrounds come from the background set).
+    """
+
+    z_ego_m: tuple = (0.5, 0.8)
+    splits: dict = field(default_factory=lambda: {"train": 7, "val": 2, "test": 2})
+    modalities: tuple = MODALITIES
+    rgb_format: str = "jpg"
+    jpeg_quality: int = 95
+    seed: int = 0
+    sphere: SphereSpec = SphereSpec()
+    width: int = 256
+    height: int = 256
+    fx: float = 480.0
+    fy: float = 480.0
+    cx: float = 128.0
+    cy: float = 128.0
+    n_backgrounds: int = 8
+    n_gloves: int = 2
+
+    def __post_init__(self) -> None:
+        z = tuple(float(v) for v in self.z_ego_m)
+        if not z or any(not math.isfinite(v) or v <= 0 for v in z):
+            raise ValueError(f"z_ego_m must be positive distances, got {list(self.z_ego_m)}")
+        object.__setattr__(self, "z_ego_m", z)
+        splits = dict(self.splits)
+        if set(splits) - set(SPLITS) or any(isinstance(v, bool) or not isinstance(v, int) or v < 0
+                                            for v in splits.values()):
+            raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
+        object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
+        object.__setattr__(self, "modalities", check_modalities(self.modalities))
+        if self.rgb_format not in ("jpg", "png"):
+            raise ValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
+        if not 0 <= self.jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be in [0, 100], got {self.jpeg_quality}")
+        Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
+        if self.n_gloves not in (1, 2):
+            raise ValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
+        if self.n_backgrounds < 1:
+            raise ValueError(f"n_backgrounds must be >= 1, got {self.n_backgrounds}")
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The frame index <-> (grasp, z, background, glove, view) bijection."""
+
+    n_grasps: int
+    n_z: int
+    n_backgrounds: int
+    n_gloves: int
+    n_views: int
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.n_grasps, self.n_z, self.n_backgrounds, self.n_gloves, self.n_views)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def chunk_size(self) -> int:
+        return self.n_gloves * self.n_views
+
+    @property
+    def n_chunks(self) -> int:
+        return self.n_grasps * self.n_z * self.n_backgrounds
+
+    def index(self, grasp: int, z: int, background: int, glove: int, view: int) -> int:
+        """Frame index of a tuple (each component in range)."""
+        return int(np.ravel_multi_index((grasp, z, background, glove, view), self.shape))
+
+    def tuple(self, index: int) -> tuple[int, int, int, int, int]:
+        """Inverse of :meth:`index`."""
+        if not 0 <= index < self.size:
+            raise ValueError(f"frame index {index} out of range [0, {self.size})")
+        return tuple(int(v) for v in np.unravel_index(index, self.shape))
+
+    def chunk_frames(self, chunk: int) -> range:
+        return range(chunk * self.chunk_size, (chunk + 1) * self.chunk_size)
+
+
+def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
+    """Grasp indices of each split: consecutive in the grasps file, train first."""
+    total = sum(spec.splits.values())
+    if total != n_grasps:
+        raise ValueError(f"splits {spec.splits} add up to {total} grasps but the grasps file holds {n_grasps}")
+    out, start = {}, 0
+    for name in SPLITS:
+        out[name] = list(range(start, start + spec.splits[name]))
+        start += spec.splits[name]
+    return out
+
+
+def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:
+    """The frame's lamp, a pure function of (seed, frame index).
+
+    Returns:
+        "position_cam" (3,) metres in the OpenCV camera frame (HUP-3D's box with y up
+        turned to y down), "color" (3,) = (c, c, b), "energy_w" Blender watts.
+    """
+    rng = np.random.default_rng([spec.seed, index])
+    x, y, z = rng.uniform(LAMP_LOW, LAMP_HIGH)
+    c, b = rng.uniform(0.6, 1.0, size=2)
+    return {"position_cam": np.array([x, -y, z]), "color": np.array([c, c, b]),
+            "energy_w": np.array(rng.uniform(50.0, 300.0))}
+
+
+class GraspSet:
+    """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry."""
+
+    def __init__(self, path: Path) -> None:
+        from datagen.hand import build_hand
+        from datagen.probe import build_probe
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
+        with np.load(path) as data:
+            self.hand_pose = np.asarray(data["hand_pose"], dtype=np.float64)
+            self.hand_trans = np.asarray(data["hand_trans"], dtype=np.float64)
+            self.grasp_id = np.asarray(data["grasp_id"], dtype=np.int64)
+        self.path = path
+        hand, probe = build_hand(), build_probe()
+        self.keypoints_world = np.concatenate(
+            [hand.keypoints(self.hand_pose, self.hand_trans, clamp=False),
+             np.broadcast_to(probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
+        R = axis_angle_to_matrix(self.hand_pose[:, :3])
+        self.forearm_axis = -R[:, :, 0]
+        self.dorsal = R[:, :, 1]
+        self.target = 0.5 * (self.keypoints_world.min(axis=1) + self.keypoints_world.max(axis=1))
+
+    def __len__(self) -> int:
+        return len(self.hand_pose)
+
+
+def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
+    """Camera and annotation geometry of one frame (no rendering)."""
+    g, z, b, c, v = layout.tuple(index)
+    view_ids, angles = viewpoints(spec.sphere)
+    theta, phi = angles[v]
+    frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g])
+    T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.target[g], frame)
+    keypoints_cam = transform_points(T_cam_world, grasps.keypoints_world[g])
+    return {"grasp": g, "z": z, "background": b, "glove": c, "view": v, "view_id": int(view_ids[v]),
+            "theta": theta, "phi": phi, "T_cam_world": T_cam_world, "keypoints_cam": keypoints_cam,
+            "keypoints_2d": project_points(keypoints_cam, spec.intrinsics.K)}
+
+
+def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.ndarray, seg: np.ndarray,
+               slack_m: float = 0.0) -> np.ndarray:
+    """(29,) bool: inside the image and not occluded (definitions in :mod:`datagen.tolerances`).
+
+    Args:
+        keypoints_cam: (29, 3) metres, camera frame. keypoints_2d: (29, 2) pixels.
+        depth: (H, W) metres, 0 = background. seg: (H, W) labels.
+        slack_m: widens the depth bounds (a stored depth map is quantised).
+    """
+    h, w = depth.shape
+    uv = np.round(keypoints_2d).astype(np.int64)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    out = np.zeros(kp.NUM_KEYPOINTS, dtype=bool)
+    for i in np.flatnonzero(inside):
+        d, label, z = depth[uv[i, 1], uv[i, 0]], seg[uv[i, 1], uv[i, 0]], keypoints_cam[i, 2]
+        if i < kp.NUM_HAND:
+            out[i] = (label == SEG_LABELS["hand"]
+                      and z - tol.VISIBLE_HAND_DEPTH_M - slack_m <= d <= z + tol.VISIBLE_HAND_BEHIND_M + slack_m)
+        else:
+            out[i] = d == 0 or d >= z - tol.VISIBLE_CORNER_DEPTH_M - slack_m
+    return out
+
+
+def frame_path(root: Path, split: str, modality: str, frame_id: int, rgb_format: str = "jpg") -> Path:
+    ext = rgb_format if modality == "rgb" else "png"
+    return Path(root) / split / modality / f"{frame_id:06d}.{ext}"
+
+
+# --- rendering workers ---------------------------------------------------------------
+
+_worker: dict = {}
+
+
+def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None) -> None:
+    from datagen.backgrounds import BackgroundSet
+    from datagen.render import Renderer
+
+    import torch
+
+    torch.set_num_threads(1)
+    _worker["spec"] = spec
+    _worker["grasps"] = GraspSet(Path(grasps_path))
+    _worker["backgrounds"] = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
+    _worker["renderer"] = Renderer(spec.intrinsics, platform=platform)
+    _worker["grasp_loaded"] = None
+
+
+def _render_chunk(args) -> tuple[int, int]:
+    """Render, encode and write one chunk; return (chunk, frames written)."""
+    from datagen.backgrounds import composite
+    from datagen.scene import Grasp, scene_parts
+
+    chunk, root, split, layout = args
+    spec, grasps, renderer = _worker["spec"], _worker["grasps"], _worker["renderer"]
+    rows = []
+    for index in layout.chunk_frames(chunk):
+        cam = frame_camera(spec, grasps, layout, index)
+        g = cam["grasp"]
+        if _worker["grasp_loaded"] != g:
+            renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
+            _worker["grasp_loaded"] = g
+        renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+        light = lamp(spec, index)
+        T_world_cam = invert_transform(cam["T_cam_world"])
+        position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
+        settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[
+            PointLight(position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
+        wanted = set(spec.modalities) | {"depth", "seg"}  # depth and labels decide visibility
+        frames = renderer.render(cam["T_cam_world"], tuple(m for m in MODALITIES if m in wanted), settings,
+                                 alpha=True)
+        if "rgb" in spec.modalities:
+            background = _worker["backgrounds"].image(cam["background"], spec.width, spec.height)
+            rgb = composite(frames["rgb"], background)
+            ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
+            params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
+            ok, buf = cv2.imencode(ext, rgb[..., ::-1], params)
+            write_bytes(frame_path(root, split, "rgb", index, spec.rgb_format), buf.tobytes())
+        if "depth" in spec.modalities:
+            depth_u16 = np.round(frames["depth"] / DEPTH_SCALE_M).astype(np.uint16)
+            ok, buf = cv2.imencode(".png", depth_u16)
+            write_bytes(frame_path(root, split, "depth", index), buf.tobytes())
+        if "seg" in spec.modalities:
+            ok, buf = cv2.imencode(".png", frames["seg"])
+            write_bytes(frame_path(root, split, "seg", index), buf.tobytes())
+        rows.append({
+            "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
+            "visible": visibility(cam["keypoints_cam"], cam["keypoints_2d"], frames["depth"], frames["seg"]),
+            "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
+            "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
+            "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
+            "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
+            "light_position_cam": light["position_cam"], "light_color": light["color"],
+            "light_energy_w": light["energy_w"],
+        })
+    save_npz(_chunk_path(root, split, chunk), _stack_rows(rows))
+    return chunk, len(rows)
+
+
+ANNOTATION_DTYPES = {
+    "frame_id": np.int64, "keypoints_3d_cam": np.float32, "keypoints_2d": np.float32, "visible": bool,
+    "K": np.float64, "T_cam_world": np.float64, "grasp_id": np.int64, "grasp_index": np.int64,
+    "view_id": np.int64, "theta": np.float64, "phi": np.float64, "z_ego": np.float64, "background_id": np.int64,
+    "glove_id": np.int64, "hand_pose": np.float64, "hand_trans": np.float64, "light_position_cam": np.float64,
+    "light_color": np.float64, "light_energy_w": np.float64,
+}
+
+
+def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:
+    return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dt) for k, dt in ANNOTATION_DTYPES.items()}
+
+
+def _chunk_path(root: Path, split: str, chunk: int) -> Path:
+    return Path(root) / split / ".chunks" / f"{chunk:05d}.npz"
+
+
+# --- the run -------------------------------------------------------------------------
+
+
+def config_hash(resolved: dict) -> str:
+    """sha256 of the resolved config with the keys that do not change frames removed."""
+    keep = {k: v for k, v in resolved.items() if k not in ("workers", "shard", "out_dir", "progress", "_provenance")}
+    return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def check_output_dir(out_dir: Path) -> None:
+    """Fail early (before rendering) if the output folder cannot be written."""
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe_file = out_dir / f".write_test{os.getpid()}"
+        probe_file.write_bytes(b"")
+        probe_file.unlink()
+    except OSError as exc:
+        raise ValueError(f"output path {out_dir} is not writable: {exc.strerror or exc}") from exc
+
+
+def parse_shard(shard: str | None) -> tuple[int, int]:
+    """"k/n" -> (k, n) with 0 <= k < n; None -> (0, 1)."""
+    if shard in (None, "", "0/1"):
+        return 0, 1
+    try:
+        k, n = (int(x) for x in str(shard).split("/"))
+    except ValueError as exc:
+        raise ValueError(f"shard must look like k/n (e.g. 0/4), got {shard!r}") from exc
+    if not (n >= 1 and 0 <= k < n):
+        raise ValueError(f"shard {shard!r}: need 0 <= k < n")
+    return k, n
+
+
+def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,
+             backgrounds_dir: str | None = None, workers: int = 1, shard: str | None = None,
+             platform: str | None = None, progress: bool = True, log=print) -> dict:
+    """Render (or resume) a dataset. See the module docstring for the layout and the guarantees.
+
+    Returns:
+        dict with "out_dir", "frames_total", "frames_rendered" (this run), "seconds",
+        "complete" (manifest written) and "counts" per split.
+    """
+    from datagen.backgrounds import BackgroundSet
+
+    out_dir = Path(out_dir)
+    k, n = parse_shard(shard)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive int, got {workers!r}")
+    backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
+    if len(backgrounds) < spec.n_backgrounds:
+        raise ValueError(f"{spec.n_backgrounds} backgrounds asked for but the set holds {len(backgrounds)}")
+    check_output_dir(out_dir)
+    grasps = GraspSet(grasps_path)
+    splits = split_of_grasps(spec, len(grasps))
+    view_ids, _ = viewpoints(spec.sphere)
+    layout = Layout(len(grasps), len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
+    chash = config_hash(resolved_config)
+    progress_file = out_dir / ".progress.json"
+    if (out_dir / "manifest.json").is_file():
+        manifest = json.loads((out_dir / "manifest.json").read_text())
+        if manifest.get("config_hash") != chash:
+            raise ValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
+        return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
+                "complete": True, "counts": manifest["counts"]}
+    if progress_file.is_file():
+        started = json.loads(progress_file.read_text())
+        if started.get("config_hash") != chash:
+            raise ValueError(f"{out_dir} holds a partial dataset started with another config; "
+                             "resume it with the same config or choose a new out_dir")
+    else:
+        write_json(progress_file, {"config_hash": chash, "layout": asdict(layout)})
+    if not (out_dir / "grasps.npz").is_file() or Path(grasps_path).resolve() != (out_dir / "grasps.npz").resolve():
+        shutil.copyfile(grasps_path, out_dir / ".grasps.npz.tmp")
+        os.replace(out_dir / ".grasps.npz.tmp", out_dir / "grasps.npz")
+
+    split_of = {g: s for s, gs in splits.items() for g in gs}
+    chunk_split = [split_of[layout.tuple(c * layout.chunk_size)[0]] for c in range(layout.n_chunks)]
+    todo = [c for c in range(layout.n_chunks) if c % n == k and not _chunk_path(out_dir, chunk_split[c], c).is_file()]
+    start = time.perf_counter()
+    rendered = 0
+    if todo:
+        log(f"rendering {len(todo) * layout.chunk_size} frames ({len(todo)} chunks) with {workers} worker(s)"
+            + (f", shard {k}/{n}" if n > 1 else ""))
+        for split in SPLITS:
+            for m in spec.modalities:
+                (out_dir / split / m).mkdir(parents=True, exist_ok=True)
+            (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
+        jobs = [(c, str(out_dir), chunk_split[c], layout) for c in todo]
+        init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
+        bar = _progress(len(todo) * layout.chunk_size, progress)
+        if workers == 1:
+            _worker_init(*init)
+            results = map(_render_chunk, jobs)
+            for _, count in results:
+                rendered += count
+                bar.update(count)
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ctx.Pool(workers, initializer=_worker_init, initargs=init) as pool:
+                for _, count in pool.imap_unordered(_render_chunk, jobs):
+                    rendered += count
+                    bar.update(count)
+        bar.close()
+    seconds = time.perf_counter() - start
+    missing = [c for c in range(layout.n_chunks) if not _chunk_path(out_dir, chunk_split[c], c).is_file()]
+    if missing:
+        log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
+        return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered,
+                "seconds": seconds, "complete": False, "counts": {}}
+    counts = _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps)
+    return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered, "seconds": seconds,
+            "complete": True, "counts": counts}
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="frame", disable=not enabled, smoothing=0.1, dynamic_ncols=True)
+
+
+def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps) -> dict:
+    """Merge the chunk rows per split, then write the manifest (last)."""
+    counts = {}
+    for split in SPLITS:
+        chunks = [c for c in range(layout.n_chunks) if chunk_split[c] == split]
+        parts = []
+        for c in chunks:
+            with np.load(_chunk_path(out_dir, split, c)) as data:
+                parts.append({key: data[key] for key in data.files})
+        merged = {key: np.concatenate([p[key] for p in parts]) for key in ANNOTATION_DTYPES} if parts else \
+            {key: np.zeros((0,), dtype=dt) for key, dt in ANNOTATION_DTYPES.items()}
+        counts[split] = int(len(merged["frame_id"]))
+        if counts[split]:
+            save_npz(out_dir / split / "annotations.npz", merged)
+    view_ids, angles = viewpoints(spec.sphere)
+    manifest = {
+        "schema_version": SCHEMA_VERSION,
+        "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
+                      "git_commit": resolved_config.get("_provenance", {}).get("git_commit", "unknown")},
+        "config": resolved_config,
+        "config_hash": chash,
+        "counts": counts,
+        "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in splits.items()},
+        "grasp_indices": splits,
+        "layout": {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(layout.shape),
+                   "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
+                   "chunk_size": layout.chunk_size},
+        "image_size": [spec.width, spec.height],
+        "K": spec.intrinsics.K.tolist(),
+        "modalities": list(spec.modalities),
+        "rgb_format": spec.rgb_format,
+        "keypoint_names": list(kp.KEYPOINT_NAMES),
+        "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],
+        "seg_labels": SEG_LABELS,
+        "depth_scale_m": DEPTH_SCALE_M,
+        "z_ego_m": list(spec.z_ego_m),
+        "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(), "phi_rad": angles[:, 1].tolist(),
+                       "sphere": asdict(spec.sphere)},
+        "backgrounds": {"names": list(backgrounds.names[: spec.n_backgrounds]),
+                        "fingerprint": backgrounds.fingerprint()},
+        "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
+        "arm_rgb": list(ARM_RGB),
+    }
+    write_json(out_dir / "manifest.json", manifest)
+    # the manifest is the completion mark; the chunk rows and the progress file are scaffolding
+    for split in SPLITS:
+        shutil.rmtree(out_dir / split / ".chunks", ignore_errors=True)
+    (out_dir / ".progress.json").unlink(missing_ok=True)
+    return counts

@@ -1,0 +1,55 @@
+"""``hupbench generate``: render the dataset; ``hupbench verify``: re-check one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from hupbench.provenance import run_info
+
+
+def run_generate(cfg: DictConfig, log=print) -> dict:
+    """Validate the config, make the grasps if needed, and render (or resume) the dataset.
+
+    Args:
+        cfg: the composed ``generate`` config.
+
+    Returns:
+        :func:`datagen.dataset.generate`'s dict.
+    """
+    from datagen.backgrounds import BackgroundSet
+    from datagen.dataset import check_output_dir, generate, parse_shard
+
+    # everything that can be wrong with the config fails here, before any rendering
+    spec = instantiate(cfg.dataset, _convert_="all")
+    parse_shard(cfg.shard)
+    if cfg.backgrounds.dir is not None:
+        BackgroundSet.from_dir(cfg.backgrounds.dir)
+    out_dir = Path(cfg.out_dir)
+    check_output_dir(out_dir)
+    grasps_path = Path(cfg.grasps_path) if cfg.grasps_path else out_dir / "grasps" / "grasps.npz"
+    if cfg.grasps_path is None and not grasps_path.is_file():
+        from hupbench.config import compose
+        from hupbench.grasps import run_grasps
+
+        grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
+        n_grasps = grasps_cfg.generate.n_select
+        if sum(spec.splits.values()) != n_grasps:
+            raise ValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
+                             f"grasps config selects {n_grasps}")
+        log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
+        run_grasps(grasps_cfg, log=log)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
+    return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
+                    workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
+                    log=log)
+
+
+def run_verify(dataset: str | Path, workers: int = 2, log=print) -> dict:
+    """Verify a dataset folder (see :mod:`datagen.verify`)."""
+    from datagen.verify import verify
+
+    return verify(dataset, workers=workers, log=log)
