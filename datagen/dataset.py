@@ -501,8 +501,11 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
         "arm_rgb": list(ARM_RGB),
     }
     write_json(out_dir / "manifest.json", manifest)
-    # the manifest is the completion mark; the chunk rows and the progress file are scaffolding
+    # the manifest is the completion mark; the chunk rows, the progress file and temporary files
+    # left by killed runs are scaffolding
     for split in SPLITS:
         shutil.rmtree(out_dir / split / ".chunks", ignore_errors=True)
+        for stray in (out_dir / split).glob("*/.*.tmp*"):
+            stray.unlink(missing_ok=True)
     (out_dir / ".progress.json").unlink(missing_ok=True)
     return counts

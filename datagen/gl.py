@@ -123,3 +123,31 @@ def configure(platform: str | None = None) -> str:
     os.environ["PYOPENGL_PLATFORM"] = requested
     _chosen = requested
     return requested
+
+
+def patch_pyrender() -> None:
+    """Make pyrender's EGL renderers independent of each other.
+
+    pyrender's ``EGLPlatform.delete_context`` calls ``eglTerminate`` on the
+    display, but an EGL device display is one handle per process: terminating
+    it when one renderer closes breaks every other live renderer
+    (EGL_BAD_DISPLAY). Here closing destroys only the renderer's own context;
+    the display lives as long as the process. Call after :func:`configure`.
+    """
+    if _chosen != "egl":
+        return
+    from pyrender.platforms import egl as pyrender_egl
+
+    if getattr(pyrender_egl.EGLPlatform, "_hupbench_patched", False):
+        return
+
+    def delete_context(self):
+        from OpenGL.EGL import eglDestroyContext
+
+        if self._egl_display is not None and self._egl_context is not None:
+            eglDestroyContext(self._egl_display, self._egl_context)
+        self._egl_context = None
+        self._egl_display = None
+
+    pyrender_egl.EGLPlatform.delete_context = delete_context
+    pyrender_egl.EGLPlatform._hupbench_patched = True

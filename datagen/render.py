@@ -113,6 +113,7 @@ class Renderer:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
         self.platform = gl.configure(platform)
+        gl.patch_pyrender()
         import pyrender
 
         self._pyrender = pyrender

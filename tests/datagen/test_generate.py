@@ -1,0 +1,204 @@
+"""Dataset generation and verification on a tiny dataset (2 grasps x 2 backgrounds x 10 views, 64 x 64)."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from datagen.dataset import DatasetSpec, generate
+from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from datagen.io import save_npz
+from datagen.preview import handset_grasp
+from datagen.sphere import SphereSpec
+from datagen.verify import verify
+
+# r_circ = 0.4 on r_sph = 0.8: 3 latitude bands, two rings of 5 views (+ 2 poles, excluded)
+TINY = dict(splits={"train": 1, "val": 0, "test": 1}, z_ego_m=(0.5,), n_backgrounds=2, n_gloves=1,
+            sphere=SphereSpec(r_circ_m=0.4), width=64, height=64, fx=120.0, fy=120.0, cx=32.0, cy=32.0)
+
+
+def write_grasps(path, n=2):
+    """The hand-set grasp, turned about the probe axis n ways."""
+    g = handset_grasp()
+    poses, trans = [], []
+    for k in range(n):
+        Rz = axis_angle_to_matrix(np.array([0.0, 0.0, k * np.pi / 2]))
+        pose = g.hand_pose.copy()
+        pose[:3] = matrix_to_axis_angle(Rz @ axis_angle_to_matrix(g.hand_pose[:3]))
+        poses.append(pose)
+        trans.append(Rz @ g.hand_trans)
+    return save_npz(path, {"hand_pose": np.array(poses), "hand_trans": np.array(trans),
+                           "grasp_id": np.arange(n, dtype=np.int64)})
+
+
+def run(out, grasps, **kwargs):
+    spec = DatasetSpec(**{**TINY, **kwargs.pop("spec", {})})
+    return generate(spec, out, grasps, {"test": "tiny"}, progress=False, log=lambda *_: None, **kwargs)
+
+
+def annotations(root):
+    out = {}
+    for split in ("train", "test"):
+        with np.load(root / split / "annotations.npz") as data:
+            out[split] = {k: data[k] for k in data.files}
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tiny")
+    grasps = write_grasps(root / "grasps_in.npz")
+    result = run(root / "ds", grasps)
+    return root, grasps, result
+
+
+def test_tiny_dataset_follows_the_contract_and_verifies(tiny):
+    root, _, result = tiny
+    ds = root / "ds"
+    assert result["complete"] and result["counts"] == {"train": 20, "val": 0, "test": 20}
+    manifest = json.loads((ds / "manifest.json").read_text())
+    for key in ("schema_version", "generator", "config", "counts", "grasp_ids", "image_size", "K", "keypoint_names",
+                "skeleton_edges", "seg_labels", "depth_scale_m", "viewpoints"):
+        assert key in manifest, key
+    assert manifest["seg_labels"] == {"background": 0, "hand": 1, "arm": 2, "probe": 3}
+    ann = annotations(ds)["train"]
+    assert ann["keypoints_3d_cam"].shape == (20, 29, 3) and ann["keypoints_3d_cam"].dtype == np.float32
+    assert ann["keypoints_2d"].shape == (20, 29, 2) and ann["visible"].dtype == bool
+    assert ann["K"].shape == (20, 3, 3) and ann["T_cam_world"].shape == (20, 4, 4)
+    assert ann["hand_pose"].shape == (20, 48)
+    depth = cv2.imread(str(ds / "train" / "depth" / f"{ann['frame_id'][0]:06d}.png"), cv2.IMREAD_UNCHANGED)
+    assert depth.dtype == np.uint16
+    assert (ds / "grasps.npz").is_file()
+    assert not list(ds.glob("*/.chunks")) and not (ds / ".progress.json").exists()
+    assert verify(ds, workers=1, log=lambda *_: None)["ok"]
+
+
+def test_same_config_same_annotations_and_images(tiny):
+    root, grasps, _ = tiny
+    run(root / "again", grasps)
+    a, b = annotations(root / "ds"), annotations(root / "again")
+    for split in a:
+        for key in a[split]:
+            np.testing.assert_array_equal(a[split][key], b[split][key], err_msg=key)
+    for path in (root / "ds").glob("*/*/*.*"):
+        assert path.read_bytes() == (root / "again" / path.relative_to(root / "ds")).read_bytes(), path
+
+
+def test_shards_render_the_same_frames_as_the_full_run(tiny):
+    root, grasps, _ = tiny
+    first = run(root / "sharded", grasps, shard="0/2")
+    assert not first["complete"] and not (root / "sharded" / "manifest.json").exists()
+    second = run(root / "sharded", grasps, shard="1/2")
+    assert second["complete"]
+    a, b = annotations(root / "ds"), annotations(root / "sharded")
+    for split in a:
+        for key in a[split]:
+            np.testing.assert_array_equal(a[split][key], b[split][key], err_msg=key)
+    for path in (root / "ds").glob("*/*/*.*"):
+        assert path.read_bytes() == (root / "sharded" / path.relative_to(root / "ds")).read_bytes(), path
+
+
+def test_sigkill_then_resume_loses_and_duplicates_nothing(tiny, tmp_path):
+    root, grasps, _ = tiny
+    out = tmp_path / "killed"
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(os.path.dirname(__file__))!r})
+        from test_generate import run
+        run({str(out)!r}, {str(grasps)!r}, spec=dict(n_backgrounds=4, splits={{"train": 1, "val": 0, "test": 1}}))
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.time() + 120
+    # kill as soon as the first chunk is complete, while later chunks are being written
+    while time.time() < deadline and not list(out.glob("*/.chunks/*.npz")):
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "manifest.json").exists()
+    result = run(out, grasps, spec=dict(n_backgrounds=4))
+    assert result["complete"] and 0 < result["frames_rendered"] < 80
+    assert verify(out, workers=1, log=lambda *_: None)["ok"]
+    reference = tmp_path / "reference"
+    run(reference, grasps, spec=dict(n_backgrounds=4))
+    a, b = annotations(out), annotations(reference)
+    for split in a:
+        for key in a[split]:
+            np.testing.assert_array_equal(a[split][key], b[split][key], err_msg=key)
+    assert not list(out.glob("*/*/.*.tmp*"))
+
+
+def _broken_copy(tiny, tmp_path):
+    root, _, _ = tiny
+    broken = tmp_path / "broken"
+    shutil.copytree(root / "ds", broken)
+    return broken
+
+
+def _kinds(path):
+    return {p["kind"] for p in verify(path, workers=1, log=lambda *_: None)["problems"]}
+
+
+def _edit_annotations(path, split, edit):
+    ann_path = path / split / "annotations.npz"
+    with np.load(ann_path) as data:
+        ann = {k: data[k].copy() for k in data.files}
+    edit(ann)
+    save_npz(ann_path, ann)
+    return int(ann["frame_id"][0])
+
+
+def test_verify_missing_and_undecodable_files(tiny, tmp_path):
+    broken = _broken_copy(tiny, tmp_path)
+    ann = annotations(broken)["train"]
+    (broken / "train" / "rgb" / f"{ann['frame_id'][0]:06d}.jpg").unlink()
+    (broken / "train" / "depth" / f"{ann['frame_id'][1]:06d}.png").write_bytes(b"not a png")
+    problems = verify(broken, workers=1, log=lambda *_: None)["problems"]
+    named = {(p["kind"], p["frame_id"]) for p in problems}
+    assert ("missing_file", ann["frame_id"][0]) in named and ("undecodable_file", ann["frame_id"][1]) in named
+
+
+def test_verify_counts_and_frame_ids(tiny, tmp_path):
+    broken = _broken_copy(tiny, tmp_path)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["counts"]["train"] = 21
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    assert "count_mismatch" in _kinds(broken)
+    broken2 = tmp_path / "broken2"
+    shutil.copytree(tiny[0] / "ds", broken2)
+    _edit_annotations(broken2, "test", lambda a: a["frame_id"].__setitem__(1, a["frame_id"][0]))
+    assert "frame_ids" in _kinds(broken2)
+
+
+def test_verify_reprojection_and_pose(tiny, tmp_path):
+    broken = _broken_copy(tiny, tmp_path)
+    fid = _edit_annotations(broken, "train", lambda a: a["keypoints_2d"].__setitem__((0, 5, 0), a["keypoints_2d"][0, 5, 0] + 0.05))
+    fid2 = _edit_annotations(broken, "test", lambda a: a["hand_trans"].__setitem__((0, 2), a["hand_trans"][0, 2] + 0.01))
+    problems = verify(broken, workers=1, log=lambda *_: None)["problems"]
+    named = {(p["kind"], p["frame_id"]) for p in problems}
+    assert ("reprojection", fid) in named and ("pose_mismatch", fid2) in named
+
+
+def test_verify_mask_and_depth_consistency(tiny, tmp_path):
+    broken = _broken_copy(tiny, tmp_path)
+    ann = annotations(broken)["train"]
+    k = int(np.flatnonzero(ann["visible"][:, :21].sum(axis=1) > 0)[0])
+    fid = int(ann["frame_id"][k])
+    seg_path = broken / "train" / "seg" / f"{fid:06d}.png"
+    cv2.imwrite(str(seg_path), np.zeros((64, 64), np.uint8))  # the mask lost the hand
+    # a probe frame whose depth was scaled: the probe pixels no longer lie on the probe
+    j = next(i for i in range(len(ann["frame_id"])) if i != k)
+    depth_path = broken / "train" / "depth" / f"{int(ann['frame_id'][j]):06d}.png"
+    depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(depth_path), (depth.astype(np.float64) * 1.05).astype(np.uint16))
+    problems = verify(broken, workers=1, log=lambda *_: None)["problems"]
+    named = {(p["kind"], p["frame_id"]) for p in problems}
+    assert ("visible_not_on_hand", fid) in named
+    assert ("probe_depth", int(ann["frame_id"][j])) in named
