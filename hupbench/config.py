@@ -39,3 +39,21 @@ def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
         cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
     OmegaConf.set_readonly(cfg, True)
     return cfg
+
+
+def build(node):
+    """``hydra.utils.instantiate`` with plain containers, re-raising the constructor's own error.
+
+    Hydra wraps a ValueError raised by a config dataclass in InstantiationException; the
+    verbs and their tests want the original, which names the bad field.
+    """
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    try:
+        return instantiate(node, _convert_="all")
+    except InstantiationException as exc:
+        cause = exc.__cause__
+        if isinstance(cause, (ValueError, TypeError)):
+            raise cause from None
+        raise

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from hupbench.config import build
 from hupbench.provenance import run_info
 
 
@@ -23,7 +23,7 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
     from datagen.dataset import check_output_dir, generate, parse_shard
 
     # everything that can be wrong with the config fails here, before any rendering
-    spec = instantiate(cfg.dataset, _convert_="all")
+    spec = build(cfg.dataset)
     parse_shard(cfg.shard)
     if cfg.backgrounds.dir is not None:
         BackgroundSet.from_dir(cfg.backgrounds.dir)

@@ -6,10 +6,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from datagen.io import save_npz, write_json
+from hupbench.config import build
 from hupbench.provenance import run_info
 
 
@@ -34,8 +34,8 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
     # CPU results are bit-reproducible only at a fixed thread count
     torch.set_num_threads(cfg.threads)
     start = time.perf_counter()
-    gen_config = instantiate(cfg.generate, _convert_="all")
-    refine_config = instantiate(cfg.refine, _convert_="all")
+    gen_config = build(cfg.generate)
+    refine_config = build(cfg.refine)
     out_dir = Path(cfg.out_dir)
     log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
         f"({gen_config.sampler} sampler)")
@@ -79,7 +79,7 @@ def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
     # CPU results are bit-reproducible only at a fixed thread count
     torch.set_num_threads(cfg.threads)
     out = Path(cfg.out) if cfg.out else SHIPPED_WEIGHTS
-    result = train_sampler(instantiate(cfg.corpus), instantiate(cfg.cvae), out, build_hand(), build_probe(), log=log)
+    result = train_sampler(build(cfg.corpus), build(cfg.cvae), out, build_hand(), build_probe(), log=log)
     write_json(out.with_suffix(".run.json"), run_info(cfg, verb="train-grasp-sampler", seconds=result["seconds"],
                                                       corpus_size=result["corpus_size"],
                                                       n_refined=result["n_refined"]))

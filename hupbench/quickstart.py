@@ -10,10 +10,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from datagen.io import write_json
+from hupbench.config import build
 from hupbench.provenance import run_info
 
 
@@ -32,8 +32,8 @@ def run_quickstart(cfg: DictConfig) -> dict:
 
     start = time.perf_counter()
     out_dir = Path(cfg.out_dir)
-    intrinsics = instantiate(cfg.camera)
-    view = instantiate(cfg.view)
+    intrinsics = build(cfg.camera)
+    view = build(cfg.view)
     result = preview(out_dir / "preview.png", handset_grasp(), intrinsics, view,
                      modalities=list(cfg.render.modalities), platform=cfg.render.platform)
     preview_path = result["path"]
