@@ -181,6 +181,8 @@ class Renderer:
         self._scene.set_pose(self._camera_node, T_world_cam_gl)
         settings = settings or RenderSettings(lights=[PointLight(T_world_cam_gl[:3, 3], intensity=0.5)])
         self._apply_lights(settings)
+        # pyrender writes the background colour's alpha into RGBA output: make it 0 to composite
+        self._scene.bg_color = np.array([*settings.background_rgb, 0.0 if alpha else 1.0])
 
         out: dict[str, np.ndarray] = {}
         depth = None

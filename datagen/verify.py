@@ -165,3 +165,48 @@ def verify(root, workers: int = 2, log=print) -> dict:
             problems += check_frame(job)
     by_kind = {kind: sum(p["kind"] == kind for p in problems) for kind in KINDS}
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "ok": not problems}
+
+
+def sample_sheet(root, split: str = "train", view: int = 20, tile_px: int = 128) -> np.ndarray:
+    """One frame per (background, glove) of a dataset: RGB, depth, mask and keypoints side by side.
+
+    Takes the split's first grasp at the first distance and the given view index.
+
+    Returns:
+        (H, W, 3) uint8 RGB: one row per background, both gloves in a row.
+    """
+    from datagen.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled
+
+    root = Path(root)
+    manifest = json.loads((root / "manifest.json").read_text())
+    missing = {"rgb", "depth", "seg"} - set(manifest["modalities"])
+    if missing:
+        raise ValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
+    with np.load(root / split / "annotations.npz") as data:
+        ann = {k: data[k] for k in ("frame_id", "keypoints_2d", "visible", "background_id", "glove_id",
+                                    "grasp_index", "z_ego")}
+    n_view = manifest["layout"]["shape"][4]
+    if not 0 <= view < n_view:
+        raise ValueError(f"view must be in [0, {n_view}), got {view}")
+    first = (ann["grasp_index"] == ann["grasp_index"].min()) & (ann["z_ego"] == ann["z_ego"].min())
+    names = manifest["backgrounds"]["names"]
+    tiles = []
+    scale = tile_px / manifest["image_size"][0]
+    for b in sorted(set(ann["background_id"].tolist())):
+        for glove in sorted(set(ann["glove_id"].tolist())):
+            rows = np.flatnonzero(first & (ann["background_id"] == b) & (ann["glove_id"] == glove))
+            i = rows[min(view, len(rows) - 1)]
+            fid = int(ann["frame_id"][i])
+            rgb = cv2.imread(str(frame_path(root, split, "rgb", fid, manifest["rgb_format"])))[..., ::-1]
+            depth = cv2.imread(str(frame_path(root, split, "depth", fid)), cv2.IMREAD_UNCHANGED)
+            seg = cv2.imread(str(frame_path(root, split, "seg", fid)), cv2.IMREAD_UNCHANGED)
+            size = (tile_px, tile_px)
+            panels = [cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA),
+                      cv2.resize(colorize_depth(depth * manifest["depth_scale_m"]), size, interpolation=cv2.INTER_NEAREST),
+                      cv2.resize(colorize_labels(seg), size, interpolation=cv2.INTER_NEAREST)]
+            kps = draw_keypoints(panels[0], ann["keypoints_2d"][i] * scale + 0.5 * (scale - 1), ann["visible"][i],
+                                 radius=1.5)
+            label = f"{names[b]} / glove {glove}"
+            tiles += [titled(panels[0], label[:22]), titled(panels[1], "depth"), titled(panels[2], "mask"),
+                      titled(kps, f"frame {fid}")]
+    return grid(tiles, columns=8)

@@ -69,8 +69,14 @@ def _verify(args: list[str]) -> int:
     parser.add_argument("dataset")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--max-report", type=int, default=50, help="problems printed in full")
+    parser.add_argument("--sample-sheet", metavar="PNG", help="also write one frame per background and glove")
     ns = parser.parse_args(args)
     result = run_verify(ns.dataset, workers=ns.workers)
+    if ns.sample_sheet:
+        from datagen.draw import write_png
+        from datagen.verify import sample_sheet
+
+        print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     for p in result["problems"][: ns.max_report]:
         print(f"  {p['kind']:20s} split={p['split']} frame={p['frame_id']}: {p['detail']}")
     if not result["ok"]:

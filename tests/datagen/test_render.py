@@ -166,3 +166,12 @@ def test_osmesa_fallback_renders_the_same_depth():
     assert result["platform"] == "osmesa"
     assert result["depth"] == pytest.approx(0.6, abs=1e-3)
     assert result["labels"] == [0, 3]
+
+
+def test_alpha_output_is_transparent_on_the_background(renderer):
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+    renderer.set_parts([MeshPart("a", sphere, SEG_LABELS["hand"])])
+    out = renderer.render(_camera_down_z(0.6), ("rgb", "seg"), alpha=True)
+    assert out["rgb"].shape == (256, 256, 4)
+    np.testing.assert_array_equal(out["rgb"][..., 3][out["seg"] == 0], 0)
+    assert (out["rgb"][..., 3][out["seg"] == 1] == 255).mean() > 0.95
