@@ -173,5 +173,9 @@ def test_alpha_output_is_transparent_on_the_background(renderer):
     renderer.set_parts([MeshPart("a", sphere, SEG_LABELS["hand"])])
     out = renderer.render(_camera_down_z(0.6), ("rgb", "seg"), alpha=True)
     assert out["rgb"].shape == (256, 256, 4)
-    np.testing.assert_array_equal(out["rgb"][..., 3][out["seg"] == 0], 0)
+    # anti-aliased silhouette pixels blend; one pixel away from the silhouette alpha is exactly 0
+    import cv2
+
+    background = cv2.erode((out["seg"] == 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    np.testing.assert_array_equal(out["rgb"][..., 3][background], 0)
     assert (out["rgb"][..., 3][out["seg"] == 1] == 255).mean() > 0.95
