@@ -28,6 +28,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from datagen import keypoints as kp
 from datagen.geometry import (
@@ -296,7 +297,7 @@ def joint_names() -> tuple[str, ...]:
     return tuple(names)
 
 
-def forward_kinematics_torch(R_local: "torch.Tensor", trans: "torch.Tensor", joints_rest: "torch.Tensor"):
+def forward_kinematics_torch(R_local: torch.Tensor, trans: torch.Tensor, joints_rest: torch.Tensor):
     """World rotations and positions of the 16 joints (differentiable).
 
     Args:
@@ -309,8 +310,6 @@ def forward_kinematics_torch(R_local: "torch.Tensor", trans: "torch.Tensor", joi
         R_world: (..., 16, 3, 3) and t_world: (..., 16, 3): a rest point ``p``
         rigidly attached to joint j goes to ``R_world[j] @ (p - J_j) + t_world[j]``.
     """
-    import torch
-
     R_world = [R_local[..., 0, :, :]]
     t_world = [trans]
     for j in range(1, NUM_JOINTS):
@@ -322,8 +321,6 @@ def forward_kinematics_torch(R_local: "torch.Tensor", trans: "torch.Tensor", joi
 
 def keypoints_torch(R_world, t_world, joints_rest, tips_rest):
     """(..., 21, 3) OpenPose-order keypoints from :func:`forward_kinematics_torch`'s output."""
-    import torch
-
     out = [None] * kp.NUM_HAND
     for j, op in enumerate(kp.MANO_TO_OPENPOSE):
         out[op] = t_world[..., j, :]
@@ -362,8 +359,6 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
         (16, 4, 4) or (B, 16, 4, 4) float64 ``G``: ``G[j] @ [p_rest - J_j, 1]``
         is where a rest-pose point ``p_rest`` rigidly attached to joint j goes.
     """
-    import torch
-
     pose = check_pose(pose)
     trans = _check_last(trans, (3,), "trans")
     joints, _ = rest_skeleton(scale)
@@ -381,15 +376,11 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
 
 def torch_cat_global(R_global, R_joints):
     """Stack the global rotation (..., 3, 3) in front of the joints' (..., 15, 3, 3)."""
-    import torch
-
     return torch.cat([R_global[..., None, :, :].expand(R_joints.shape[:-3] + (1, 3, 3)), R_joints], dim=-3)
 
 
 def _posed_keypoints(G: np.ndarray, joints_rest: np.ndarray, tips_rest: np.ndarray) -> np.ndarray:
     """(..., 21, 3) OpenPose-order keypoints from joint transforms."""
-    import torch
-
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
     return keypoints_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(joints_rest), t(tips_rest)).numpy()
 
@@ -457,8 +448,6 @@ class HandModel:
         """
         if clamp:
             pose = clamp_pose(pose, scale=self.spec.scale)
-        import torch
-
         G = forward_kinematics(pose, trans, self.spec.scale)
         t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
         return skin_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(self.joints_rest), t(self.vertices_rest),
@@ -471,8 +460,6 @@ class HandModel:
             dict with "joints_rest" (16, 3), "tips_rest" (5, 3), "vertices_rest" (V, 3),
             "weights" (V, 16), "frames" (15, 3, 3) anatomical axes and "limits" (15, 3, 2) radians.
         """
-        import torch
-
         dtype = dtype or torch.float32
         device = torch.device(device or "cpu")
         key = (dtype, device)
@@ -652,7 +639,6 @@ def _narrow_band_field(prims, spec, lo, step, block, nblocks) -> np.ndarray:
     value exceeds its half-diagonal holds no surface; such blocks get the centre
     value (right sign, no zero crossing) instead of a full evaluation.
     """
-    shape = nblocks * block
     half_diag = 0.5 * np.sqrt(3.0) * block * step
     centres = lo + (np.stack(np.meshgrid(*[np.arange(n) for n in nblocks], indexing="ij"), -1) + 0.5) * block * step
     coarse = _blend_points(centres.reshape(-1, 3), prims, spec).reshape(tuple(nblocks))

@@ -56,15 +56,15 @@ def test_starts_far_away_and_deep_inside(models):
     far = GraspBatch(start.R_global, start.trans + [0.5, -0.4, 0.3], start.angles)
     inside = GraspBatch(start.R_global, np.array([[0.0, 0.0, 0.09], [0.0, 0.0, 0.03]]), start.angles)
     for batch in (far, inside):
-        out = refine(energy, batch)
-        scores = _assert_finite_and_scored(energy, out)
-        # either it recovered a grasp, or the scores say why it is rejected
-        for i in range(len(out)):
-            assert scores["plausible"][i] or (
-                scores["max_penetration_mm"][i] > 2.0 or scores["pads_in_contact"][i] < 3
-                or not scores["thumb_contact"][i] or scores["force_closure_residual"][i] > 0.05
-                or scores["self_penetration_mm"][i] > 4.0
-            )
+        _assert_finite_and_scored(energy, refine(energy, batch))
+    # starts inside the probe: each either gets pushed out, or stays stuck (a wrist at the handle's
+    # core straddles it and the pushes cancel) and is then rejected by its scores
+    before = score_grasps(energy, inside)["max_penetration_mm"]
+    after = score_grasps(energy, refine(energy, inside))
+    assert before.min() > 5.0
+    recovered = after["max_penetration_mm"] <= 2.0
+    assert recovered.any()
+    assert not after["plausible"][~recovered].any()
     # the far start is pulled back towards the probe
     out = refine(energy, far)
     assert np.linalg.norm(out.trans - [0.0, 0.0, 0.09], axis=1).max() < np.linalg.norm(far.trans - [0, 0, 0.09], axis=1).min()
