@@ -14,29 +14,10 @@ import numpy as np
 import pytest
 
 from datagen.dataset import DatasetSpec, generate
-from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from datagen.io import save_npz
-from datagen.preview import handset_grasp
-from datagen.sphere import SphereSpec
 from datagen.verify import verify
 
-# r_circ = 0.4 on r_sph = 0.8: 3 latitude bands, two rings of 5 views (+ 2 poles, excluded)
-TINY = dict(splits={"train": 1, "val": 0, "test": 1}, z_ego_m=(0.5,), n_backgrounds=2, n_gloves=1,
-            sphere=SphereSpec(r_circ_m=0.4), width=64, height=64, fx=120.0, fy=120.0, cx=32.0, cy=32.0)
-
-
-def write_grasps(path, n=2):
-    """The hand-set grasp, turned about the probe axis n ways."""
-    g = handset_grasp()
-    poses, trans = [], []
-    for k in range(n):
-        Rz = axis_angle_to_matrix(np.array([0.0, 0.0, k * np.pi / 2]))
-        pose = g.hand_pose.copy()
-        pose[:3] = matrix_to_axis_angle(Rz @ axis_angle_to_matrix(g.hand_pose[:3]))
-        poses.append(pose)
-        trans.append(Rz @ g.hand_trans)
-    return save_npz(path, {"hand_pose": np.array(poses), "hand_trans": np.array(trans),
-                           "grasp_id": np.arange(n, dtype=np.int64)})
+from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 
 def run(out, grasps, **kwargs):
@@ -111,7 +92,7 @@ def test_sigkill_then_resume_loses_and_duplicates_nothing(tiny, tmp_path):
     out = tmp_path / "killed"
     code = textwrap.dedent(f"""
         import sys
-        sys.path.insert(0, {str(os.path.dirname(__file__))!r})
+        sys.path[:0] = [{str(os.path.dirname(__file__))!r}, {str(os.path.dirname(os.path.dirname(__file__)))!r}]
         from test_generate import run
         run({str(out)!r}, {str(grasps)!r}, spec=dict(n_backgrounds=4, splits={{"train": 1, "val": 0, "test": 1}}))
     """)

@@ -1,0 +1,191 @@
+"""The dataset reader: a torch Dataset over the dataset contract of DESIGN.md.
+
+Each item is one frame resized to the model's square input, with every label
+moved into that input image: 2D keypoints and the intrinsics follow the
+resize (and the optional in-plane rotation), 3D keypoints follow the rotation
+about the optical axis, so that ``project(keypoints_3d, K) == keypoints_2d``
+holds exactly in the input image.
+
+Convention:
+    3D keypoints: metres, OpenCV camera frame. 2D keypoints: pixels of the
+    input image (pixel centres at integers) in ``keypoints_2d_px`` and
+    normalised to [-1, 1] across the input (``u_norm = (u + 0.5) / S * 2 - 1``)
+    in ``keypoints_2d``. Images: float32 RGB in [0, 1], (3, S, S).
+    In-plane rotation: by ``angle`` radians about the principal point, image
+    content turning counter-clockwise on screen for positive angles; the
+    camera-frame points turn by the matching rotation about +z.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from datagen import keypoints as kp
+from datagen.dataset import SPLITS, frame_path
+
+
+def resize_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics after resizing the image by ``scale`` (pixel centres at integers).
+
+    u' = (u + 0.5) * scale - 0.5, so fx' = fx * scale and cx' = (cx + 0.5) * scale - 0.5.
+    """
+    out = np.array(K, dtype=np.float64, copy=True)
+    out[0, 0] *= scale
+    out[1, 1] *= scale
+    out[0, 2] = (out[0, 2] + 0.5) * scale - 0.5
+    out[1, 2] = (out[1, 2] + 0.5) * scale - 0.5
+    return out
+
+
+def resize_points(uv: np.ndarray, scale: float) -> np.ndarray:
+    """(N, 2) pixel coordinates after resizing the image by ``scale``."""
+    return (np.asarray(uv, dtype=np.float64) + 0.5) * scale - 0.5
+
+
+def rotation_about_optical_axis(angle: float) -> np.ndarray:
+    """(3, 3) camera-frame rotation that turns the image content by ``angle`` about the principal point.
+
+    With y pointing down in the image, a counter-clockwise turn on screen is a rotation of
+    the camera-frame points by -angle about +z.
+    """
+    c, s = np.cos(-angle), np.sin(-angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ReaderConfig:
+    """How frames become model inputs.
+
+    Attributes:
+        input_size: side of the square input, pixels.
+        rotate_deg: in-plane rotation augmentation range (+-), degrees; 0 disables it.
+        photometric: kornia colour jitter strength (0 disables it).
+        seed: augmentation seed (item i of epoch e draws from (seed, e, i)).
+    """
+
+    input_size: int = 128
+    rotate_deg: float = 0.0
+    photometric: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 16:
+            raise ValueError(f"input_size must be an int >= 16, got {self.input_size!r}")
+        if not 0.0 <= self.rotate_deg <= 180.0:
+            raise ValueError(f"rotate_deg must be in [0, 180], got {self.rotate_deg!r}")
+        if not 0.0 <= self.photometric <= 1.0:
+            raise ValueError(f"photometric must be in [0, 1], got {self.photometric!r}")
+
+
+class HUPDataset(torch.utils.data.Dataset):
+    """Frames of one split, resized (and optionally augmented) for a model.
+
+    Args:
+        root: dataset folder (with ``manifest.json``).
+        split: "train", "val" or "test".
+        config: input size and augmentation.
+
+    Items are dicts: "image" (3, S, S) float32; "keypoints_3d" (29, 3) float32 metres;
+    "keypoints_2d" (29, 2) float32 in [-1, 1]; "keypoints_2d_px" (29, 2) float32 input pixels;
+    "visible" (29,) bool; "K" (3, 3) float32 of the input image; "frame_id" int64.
+    Only RGB is read: the models use nothing else.
+    """
+
+    def __init__(self, root, split: str, config: ReaderConfig = ReaderConfig()) -> None:
+        self.root = Path(root)
+        manifest_path = self.root / "manifest.json"
+        if not manifest_path.is_file():
+            raise FileNotFoundError(f"{self.root} has no manifest.json: not a finished hupbench dataset")
+        self.manifest = json.loads(manifest_path.read_text())
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        if self.manifest["counts"].get(split, 0) == 0:
+            raise ValueError(f"split {split!r} of {self.root} is empty")
+        if "rgb" not in self.manifest["modalities"]:
+            raise ValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
+        if len(self.manifest["keypoint_names"]) != kp.NUM_KEYPOINTS:
+            raise ValueError(f"dataset has {len(self.manifest['keypoint_names'])} keypoints, "
+                             f"this reader expects {kp.NUM_KEYPOINTS}")
+        self.split, self.config = split, config
+        with np.load(self.root / split / "annotations.npz") as data:
+            self.ann = {k: data[k] for k in ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K")}
+        self.epoch = 0
+        self._jitter = None
+        if config.photometric > 0:
+            import kornia.augmentation as KA
+
+            p = config.photometric
+            self._jitter = KA.ColorJiggle(brightness=0.4 * p, contrast=0.4 * p, saturation=0.4 * p, hue=0.05 * p, p=1.0)
+
+    def __len__(self) -> int:
+        return len(self.ann["frame_id"])
+
+    def set_epoch(self, epoch: int) -> None:
+        """Change the augmentation draws (call once per epoch)."""
+        self.epoch = int(epoch)
+
+    def __getitem__(self, index: int) -> dict:
+        frame_id = int(self.ann["frame_id"][index])
+        path = frame_path(self.root, self.split, "rgb", frame_id, self.manifest["rgb_format"])
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise FileNotFoundError(f"cannot read {path}")
+        image = image[..., ::-1]
+        size = self.config.input_size
+        scale = size / image.shape[1]
+        if image.shape[0] != image.shape[1]:
+            raise ValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
+        image = cv2.resize(np.ascontiguousarray(image), (size, size), interpolation=cv2.INTER_AREA)
+        K = resize_intrinsics(self.ann["K"][index], scale)
+        points_3d = self.ann["keypoints_3d_cam"][index].astype(np.float64)
+        uv = resize_points(self.ann["keypoints_2d"][index], scale)
+        rng = np.random.default_rng([self.config.seed, self.epoch, index])
+        if self.config.rotate_deg > 0:
+            angle = np.deg2rad(rng.uniform(-self.config.rotate_deg, self.config.rotate_deg))
+            image, points_3d, uv = rotate_in_plane(image, points_3d, uv, K, angle)
+        tensor = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255.0
+        if self._jitter is not None:
+            torch_rng = torch.Generator().manual_seed(int(rng.integers(2**62)))
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(int(torch.randint(0, 2**62, (1,), generator=torch_rng)))
+                tensor = self._jitter(tensor[None])[0].clamp(0.0, 1.0)
+        inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < size - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < size - 0.5)
+        return {
+            "image": tensor,
+            "keypoints_3d": torch.from_numpy(points_3d.astype(np.float32)),
+            "keypoints_2d": torch.from_numpy(((uv + 0.5) / size * 2.0 - 1.0).astype(np.float32)),
+            "keypoints_2d_px": torch.from_numpy(uv.astype(np.float32)),
+            "visible": torch.from_numpy(self.ann["visible"][index] & inside),
+            "K": torch.from_numpy(K.astype(np.float32)),
+            "frame_id": torch.tensor(frame_id, dtype=torch.int64),
+        }
+
+
+def rotate_in_plane(image: np.ndarray, points_3d: np.ndarray, uv: np.ndarray, K: np.ndarray, angle: float):
+    """Turn the image about the principal point and the 3D points about the optical axis to match.
+
+    Exact for a pinhole camera with fx == fy (square pixels), which the datasets have.
+
+    Args:
+        image: (S, S, 3) uint8. points_3d: (N, 3) metres, camera frame. uv: (N, 2) pixels.
+        K: (3, 3) intrinsics of ``image``. angle: radians, counter-clockwise on screen.
+
+    Returns:
+        (image, points_3d, uv) rotated.
+    """
+    if not np.isclose(K[0, 0], K[1, 1]):
+        raise ValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0]}, fy={K[1, 1]}")
+    centre = (float(K[0, 2]), float(K[1, 2]))
+    # cv2's positive angle is counter-clockwise on screen (y down)
+    M = cv2.getRotationMatrix2D(centre, float(np.rad2deg(angle)), 1.0)
+    rotated = cv2.warpAffine(image, M, (image.shape[1], image.shape[0]), flags=cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REFLECT_101)
+    R = rotation_about_optical_axis(angle)
+    uv_rot = np.asarray(uv) @ M[:, :2].T + M[:, 2]
+    return rotated, points_3d @ R.T, uv_rot

@@ -1,0 +1,32 @@
+"""Fixtures shared across the test packages."""
+
+import numpy as np
+import pytest
+
+from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from datagen.io import save_npz
+from datagen.preview import handset_grasp
+from datagen.sphere import SphereSpec
+
+# a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded), 64 x 64 images
+TINY_SPEC = dict(splits={"train": 1, "val": 0, "test": 1}, z_ego_m=(0.5,), n_backgrounds=2, n_gloves=1,
+                 sphere=SphereSpec(r_circ_m=0.4), width=64, height=64, fx=120.0, fy=120.0, cx=32.0, cy=32.0)
+
+
+def write_grasps(path, n=2):
+    """The hand-set grasp, turned about the probe axis n ways, as a grasps.npz."""
+    g = handset_grasp()
+    poses, trans = [], []
+    for k in range(n):
+        Rz = axis_angle_to_matrix(np.array([0.0, 0.0, k * np.pi / 2]))
+        pose = g.hand_pose.copy()
+        pose[:3] = matrix_to_axis_angle(Rz @ axis_angle_to_matrix(g.hand_pose[:3]))
+        poses.append(pose)
+        trans.append(Rz @ g.hand_trans)
+    return save_npz(path, {"hand_pose": np.array(poses), "hand_trans": np.array(trans),
+                           "grasp_id": np.arange(n, dtype=np.int64)})
+
+
+@pytest.fixture(scope="session")
+def tiny_grasps(tmp_path_factory):
+    return write_grasps(tmp_path_factory.mktemp("grasps") / "grasps.npz")
