@@ -22,9 +22,9 @@ import torch
 from torch import nn
 
 __all__ = [
+    "RESNET_SPECS",
     "BasicBlock",
     "Bottleneck",
-    "RESNET_SPECS",
     "ResNet",
     "ResNetOutput",
     "resnet",
@@ -117,7 +117,7 @@ class Bottleneck(nn.Module):
 
 
 #: name -> (block type, blocks per stage)
-RESNET_SPECS: dict[str, tuple[type[BasicBlock] | type[Bottleneck], tuple[int, int, int, int]]] = {
+RESNET_SPECS: dict[str, tuple[type[BasicBlock | Bottleneck], tuple[int, int, int, int]]] = {
     "resnet10": (BasicBlock, (1, 1, 1, 1)),
     "resnet18": (BasicBlock, (2, 2, 2, 2)),
     "resnet34": (BasicBlock, (3, 4, 6, 3)),
@@ -154,7 +154,7 @@ class ResNet(nn.Module):
 
     def __init__(
         self,
-        block: type[BasicBlock] | type[Bottleneck],
+        block: type[BasicBlock | Bottleneck],
         layers: tuple[int, int, int, int] | list[int],
         num_classes: int | None = None,
         zero_init_residual: bool = False,
