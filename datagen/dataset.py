@@ -41,6 +41,7 @@ from datagen.camera import Intrinsics, project_points
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz, write_bytes, write_json
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
+from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
 from datagen.sphere import SphereSpec, camera_pose, sphere_frame, viewpoints
 
 SCHEMA_VERSION = 1
@@ -53,8 +54,6 @@ LAMP_HIGH = np.array([0.6, 0.4, 0.5])
 #: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
 #: exposes a gloved hand at 0.5 m like the preview
 LAMP_INTENSITY_PER_WATT = 0.0075
-GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
-ARM_RGB = (1.0, 0.6784, 0.3765)
 
 
 @dataclass(frozen=True)
@@ -271,7 +270,6 @@ def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | Non
 def _render_chunk(args) -> tuple[int, int]:
     """Render, encode and write one chunk; return (chunk, frames written)."""
     from datagen.backgrounds import composite
-    from datagen.scene import Grasp, scene_parts
 
     chunk, root, split, layout = args
     spec, grasps, renderer = _worker["spec"], _worker["grasps"], _worker["renderer"]

@@ -26,6 +26,7 @@ Convention:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -89,8 +90,9 @@ def all_viewpoints(spec: SphereSpec) -> np.ndarray:
     return np.array(views)
 
 
+@functools.lru_cache(maxsize=16)
 def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]:
-    """The views in use after exclusions.
+    """The views in use after exclusions (cached per spec; the arrays are read-only).
 
     Returns:
         view_ids: (V',) int64 ids into :func:`all_viewpoints`; angles: (V', 2) (theta, phi) radians.
@@ -108,7 +110,10 @@ def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]
     ids = np.array([i for i in range(total) if i not in excluded], dtype=np.int64)
     if len(ids) == 0:
         raise ValueError("the sphere exclusions leave no view")
-    return ids, angles[ids]
+    kept = angles[ids]
+    ids.setflags(write=False)
+    kept.setflags(write=False)
+    return ids, kept
 
 
 def sphere_frame(forearm_axis: np.ndarray, dorsal: np.ndarray) -> np.ndarray:

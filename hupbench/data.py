@@ -28,6 +28,7 @@ import torch
 
 from datagen import keypoints as kp
 from datagen.dataset import SPLITS, frame_path
+from models.coords import pixels_to_normalized
 
 
 def resize_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
@@ -159,7 +160,7 @@ class HUPDataset(torch.utils.data.Dataset):
         return {
             "image": tensor,
             "keypoints_3d": torch.from_numpy(points_3d.astype(np.float32)),
-            "keypoints_2d": torch.from_numpy(((uv + 0.5) / size * 2.0 - 1.0).astype(np.float32)),
+            "keypoints_2d": pixels_to_normalized(torch.from_numpy(uv.astype(np.float32)), size, size),
             "keypoints_2d_px": torch.from_numpy(uv.astype(np.float32)),
             "visible": torch.from_numpy(self.ann["visible"][index] & inside),
             "K": torch.from_numpy(K.astype(np.float32)),

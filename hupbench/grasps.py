@@ -24,7 +24,7 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
         dict with the output paths, counts and timings.
     """
     from datagen.draw import write_png
-    from datagen.grasps.generate import generate_candidates, grasp_arrays, scores_json, select_grasps
+    from datagen.grasps.generate import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from datagen.grasps.sheet import contact_sheet
     from datagen.hand import build_hand
     from datagen.probe import build_probe
@@ -42,9 +42,9 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
     candidates = generate_candidates(gen_config, refine_config=refine_config, log=log)
     scores = candidates["scores"]
     ids = select_grasps(candidates, build_hand(), gen_config.n_select, gen_config.seed, gen_config.pinned_ids)
-    arrays = grasp_arrays(candidates, ids, gen_config, build_probe())
     all_ids = np.arange(len(candidates["grasps"]))
     candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, build_probe())
+    arrays = take_rows(candidate_arrays, ids)
     save_npz(out_dir / "candidates.npz", candidate_arrays)
     npz = save_npz(out_dir / "grasps.npz", arrays)
     summary = scores_json(arrays, gen_config)

@@ -15,6 +15,8 @@ Convention:
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from datagen.geometry import euler_to_matrix, make_transform
@@ -39,8 +41,9 @@ def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return (volumes[:, None] * tri.sum(axis=1) / 4.0).sum(axis=0) / total
 
 
+@functools.lru_cache(maxsize=8)
 def probe_z_offset(probe) -> float:
-    """Delta z: the height of the probe's volume centroid above the lens apex, metres."""
+    """Delta z: the height of the probe's volume centroid above the lens apex, metres (cached per probe)."""
     return float(volume_centroid(probe.mesh.vertices, probe.mesh.faces)[2])
 
 

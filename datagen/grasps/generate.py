@@ -187,6 +187,12 @@ def grasp_arrays(candidates: dict, ids: np.ndarray, config: GraspGenConfig, prob
     return out
 
 
+def take_rows(arrays: dict, ids: np.ndarray) -> dict[str, np.ndarray]:
+    """The rows ``ids`` of :func:`grasp_arrays` output for all candidates (per-probe scalars kept)."""
+    n = len(arrays["grasp_id"])
+    return {k: (v[ids] if v.ndim and len(v) == n else v) for k, v in arrays.items()}
+
+
 def scores_json(arrays: dict, config: GraspGenConfig) -> dict:
     """Human-readable record of the selected grasps and their scores."""
     rows = []
