@@ -13,11 +13,13 @@ Convention:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import torch
 from torch import nn
 
+from models.prior import PointPrior
 from models.resnet import resnet
 
 __all__ = ["RegressorOutput", "ResNetRegressor"]
@@ -44,6 +46,9 @@ class ResNetRegressor(nn.Module):
         n_keypoints: N, keypoints predicted (29 = 21 hand joints + 8 probe corners).
         predict_2d: also regress (B, N, 2) 2D keypoints from the same feature.
         zero_init_residual: zero the last BN of each residual branch of the backbone.
+        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (see
+            :mod:`models.prior`), e.g. the training split's mean in metres; None for zeros.
+        points3d_scale: target units per raw 3D output unit.
     """
 
     def __init__(
@@ -52,6 +57,8 @@ class ResNetRegressor(nn.Module):
         n_keypoints: int = 29,
         predict_2d: bool = False,
         zero_init_residual: bool = False,
+        points3d_mean: Sequence[Sequence[float]] | None = None,
+        points3d_scale: float = 1.0,
     ) -> None:
         super().__init__()
         if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 1:
@@ -64,11 +71,14 @@ class ResNetRegressor(nn.Module):
             "n_keypoints": n_keypoints,
             "predict_2d": predict_2d,
             "zero_init_residual": zero_init_residual,
+            "points3d_mean": PointPrior.config_value(points3d_mean),
+            "points3d_scale": float(points3d_scale),
         }
         self.n_keypoints = n_keypoints
         self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
         self.head3d = nn.Linear(self.backbone.feature_dim, n_keypoints * 3)
         self.head2d = nn.Linear(self.backbone.feature_dim, n_keypoints * 2) if predict_2d else None
+        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
 
     @property
     def config(self) -> dict[str, Any]:
@@ -85,7 +95,7 @@ class ResNetRegressor(nn.Module):
             :class:`RegressorOutput`: ``points2d`` (B, N, 2) or None, ``points3d`` (B, N, 3).
         """
         features = self.backbone.features(images)  # (B, F)
-        points3d = self.head3d(features).reshape(-1, self.n_keypoints, 3)  # (B, N * 3) -> (B, N, 3)
+        points3d = self.prior3d(self.head3d(features).reshape(-1, self.n_keypoints, 3))  # (B, N * 3) -> (B, N, 3)
         points2d = None
         if self.head2d is not None:
             points2d = self.head2d(features).reshape(-1, self.n_keypoints, 2)  # (B, N * 2) -> (B, N, 2)

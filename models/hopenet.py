@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from models.graph import GraphNet2D, GraphUNet
+from models.prior import PointPrior
 from models.resnet import resnet
 
 __all__ = ["HOPENet", "HOPENetOutput"]
@@ -57,6 +58,9 @@ class HOPENet(nn.Module):
             (15, 7, 4, 2, 1) at 29 keypoints, halving otherwise.
         unet_bottleneck: hidden width of the U-Net's bottleneck MLP.
         zero_init_residual: zero the last BN of each residual branch of the backbone.
+        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (see
+            :mod:`models.prior`), e.g. the training split's mean in metres; None for zeros.
+        points3d_scale: target units per raw 3D output unit.
     """
 
     def __init__(
@@ -68,6 +72,8 @@ class HOPENet(nn.Module):
         unet_node_counts: Sequence[int] | None = None,
         unet_bottleneck: int = 20,
         zero_init_residual: bool = False,
+        points3d_mean: Sequence[Sequence[float]] | None = None,
+        points3d_scale: float = 1.0,
     ) -> None:
         super().__init__()
         if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 2:
@@ -81,6 +87,8 @@ class HOPENet(nn.Module):
             "unet_node_counts": None if unet_node_counts is None else list(unet_node_counts),
             "unet_bottleneck": unet_bottleneck,
             "zero_init_residual": zero_init_residual,
+            "points3d_mean": PointPrior.config_value(points3d_mean),
+            "points3d_scale": float(points3d_scale),
         }
         self.n_keypoints = n_keypoints
         self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
@@ -95,6 +103,7 @@ class HOPENet(nn.Module):
             channels=unet_channels,
             bottleneck=unet_bottleneck,
         )
+        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
 
     @property
     def config(self) -> dict[str, Any]:
@@ -114,5 +123,5 @@ class HOPENet(nn.Module):
         features = self.backbone.features(images)  # (B, F)
         points2d_init = self.head2d(features).reshape(-1, self.n_keypoints, 2)  # (B, N * 2) -> (B, N, 2)
         points2d = self.graphnet(points2d_init, features)  # (B, N, 2)
-        points3d = self.unet(points2d)  # (B, N, 3)
+        points3d = self.prior3d(self.unet(points2d))  # (B, N, 3)
         return HOPENetOutput(points2d_init, points2d, points3d)

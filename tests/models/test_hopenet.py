@@ -110,7 +110,8 @@ def test_no_device_moves_and_only_parameters_or_bn_buffers():
     model = HOPENet("resnet10")
     assert {t.device.type for t in model.state_dict().values()} == {"cpu"}
     buffers = {name.rsplit(".", 1)[-1] for name, _ in model.named_buffers()}
-    assert buffers == {"running_mean", "running_var", "num_batches_tracked"}
+    # batch-norm statistics and the fixed 3D prior (models/prior.py)
+    assert buffers == {"running_mean", "running_var", "num_batches_tracked", "mean"}
 
 
 def test_bad_arguments():
