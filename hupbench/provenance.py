@@ -12,7 +12,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 PACKAGES = ("hupbench", "numpy", "torch", "trimesh", "pyrender", "PyOpenGL", "opencv-python-headless",
-            "hydra-core", "scikit-image")
+            "hydra-core", "scikit-image", "kornia", "onnx", "onnxruntime")
 
 
 def git_commit(repo_dir: Path | None = None) -> str:

@@ -30,3 +30,15 @@ def write_grasps(path, n=2):
 @pytest.fixture(scope="session")
 def tiny_grasps(tmp_path_factory):
     return write_grasps(tmp_path_factory.mktemp("grasps") / "grasps.npz")
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory):
+    """A finished 64 x 64 dataset with 20 frames in each of train, val and test (one grasp each). Read only."""
+    from datagen.dataset import DatasetSpec, generate
+
+    grasps = write_grasps(tmp_path_factory.mktemp("grasps3") / "grasps.npz", n=3)
+    root = tmp_path_factory.mktemp("tiny") / "dataset"
+    spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 1, "val": 1, "test": 1}}))
+    generate(spec, root, grasps, {"test": "tiny_dataset"}, progress=False, log=lambda *_: None)
+    return root

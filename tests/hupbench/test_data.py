@@ -1,3 +1,4 @@
+import json
 import cv2
 import numpy as np
 import pytest
@@ -6,13 +7,6 @@ from conftest import TINY_SPEC
 from datagen.camera import project_points
 from datagen.dataset import DatasetSpec, generate
 from hupbench.data import HUPDataset, ReaderConfig, resize_intrinsics, resize_points, rotate_in_plane
-
-
-@pytest.fixture(scope="module")
-def tiny_dataset(tiny_grasps, tmp_path_factory):
-    root = tmp_path_factory.mktemp("reader") / "ds"
-    generate(DatasetSpec(**TINY_SPEC), root, tiny_grasps, {"test": "reader"}, progress=False, log=lambda *_: None)
-    return root
 
 
 def _bright_spot(image):
@@ -68,7 +62,12 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
         HUPDataset(tmp_path, "train")
     with pytest.raises(ValueError, match="split must be one of"):
         HUPDataset(tiny_dataset, "dev")
+    no_val = tmp_path / "no_val"
+    no_val.mkdir()
+    manifest = json.loads((tiny_dataset / "manifest.json").read_text())
+    manifest["counts"]["val"] = 0
+    (no_val / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ValueError, match="split 'val' .* is empty"):
-        HUPDataset(tiny_dataset, "val")
+        HUPDataset(no_val, "val")
     with pytest.raises(ValueError, match="input_size must be an int >= 16"):
         ReaderConfig(input_size=8)
