@@ -1,0 +1,427 @@
+"""Benchmark metrics as pure functions: numpy in -> numpy/float out, torch in -> torch out, same numbers.
+
+Convention:
+    Inputs are metres (3D, OpenCV camera frame of the model-input camera) or pixels (2D); every
+    reported number is millimetres (``_mm``), pixels (``_px``) or a fraction in [0, 1]. Keypoint
+    order is :mod:`datagen.keypoints`: 0..20 the hand (0 = wrist, the root), 21..28 the probe box
+    corners.
+
+Averaging:
+    MPJPE (paper Sec. 4; REFERENCE.md) is the absolute camera-frame Euclidean error, no root or
+    Procrustes alignment, averaged over keypoints and frames. ``mpjpe_split_mm`` reports "hand"
+    (21 keypoints), "probe" (8 corners) and "all" (the mean over all 29 keypoints and all frames,
+    i.e. keypoint-weighted: all = (21 hand + 8 probe) / 29). The paper's HOPE-Net row (all 8.65,
+    hand 5.33, probe 17.05 mm) is not keypoint-weighted: (21 x 5.33 + 8 x 17.05) / 29 = 8.56, not
+    8.65. Rounding of the published numbers cannot explain the gap (with every number moved by
+    the 0.005 mm of rounding the keypoint-weighted mean is at most 8.57); 8.65 corresponds to the
+    probe weighing 28.3 % of "all" instead of 8/29 = 27.6 %. The three numbers cannot all be
+    means over the same frames and keypoints (e.g. they come from different checkpoints, or "all"
+    was averaged over a different keypoint subset); the paper does not say. We therefore always
+    report all three numbers and state ``ALL_AVERAGING`` beside them.
+
+Degenerate sets:
+    Procrustes alignment (:func:`procrustes_align`) solves the similarity (scale, rotation,
+    translation) by the SVD of the cross-covariance with the determinant correction (Umeyama
+    1991), so reflections never enter; collinear and coplanar sets give one of the equally good
+    rotations; a prediction whose points all coincide (zero spread, no scale defined) is mapped to
+    the target centroid (scale 0). No input of finite numbers gives NaN or inf.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from datagen.keypoints import (
+    CORNER_SLICE,
+    HAND_SLICE,
+    NUM_CORNERS,
+    NUM_HAND,
+    NUM_KEYPOINTS,
+)
+
+__all__ = [
+    "ALL_AVERAGING",
+    "EGOCENTRIC_MAX_THETA_RAD",
+    "PCK_THRESHOLDS_MM",
+    "ROOT_INDEX",
+    "background_labels",
+    "breakdown_mpjpe_mm",
+    "keypoint_errors_mm",
+    "latitude_labels",
+    "mpjpe_mm",
+    "mpjpe_split_mm",
+    "normalized_to_pixels",
+    "pa_mpjpe_mm",
+    "pck_auc",
+    "pck_auc_from_errors",
+    "pck_mm",
+    "pixel_error_px",
+    "pixel_errors_px",
+    "procrustes_align",
+    "root_relative_mpjpe_mm",
+    "split_from_errors_mm",
+    "z_ego_labels",
+]
+
+#: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
+ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
+#: the hand root for root-relative errors: the wrist (OpenPose keypoint 0)
+ROOT_INDEX = 0
+#: thresholds of the 3D PCK curve whose area is :func:`pck_auc`: 0 to 50 mm in 0.5 mm steps (101)
+PCK_THRESHOLDS_MM = np.linspace(0.0, 50.0, 101)
+#: a set whose mean squared distance from its centroid is below this (m^2, i.e. 1e-12 m RMS) has
+#: no defined scale: Procrustes maps it to the target centroid instead of dividing by ~0
+PROCRUSTES_MIN_VARIANCE_M2 = 1e-24
+#: views with sphere polar angle theta below this are "egocentric" (see :func:`latitude_labels`)
+EGOCENTRIC_MAX_THETA_RAD = np.pi / 2
+HAND = tuple(range(NUM_HAND))
+PROBE = tuple(range(NUM_HAND, NUM_KEYPOINTS))
+
+_MM_PER_M = 1000.0
+
+
+def _is_torch(x) -> bool:
+    return isinstance(x, torch.Tensor)
+
+
+def _check_points(pred, gt, dim: int, names=("pred_m", "gt_m")) -> None:
+    for name, x in zip(names, (pred, gt)):
+        if not isinstance(x, (np.ndarray, torch.Tensor)):
+            raise TypeError(f"{name} must be a numpy array or torch tensor, got {type(x).__name__}")
+        if x.ndim != 3 or x.shape[-1] != dim:
+            raise ValueError(f"{name} must be (N, K, {dim}), got {tuple(x.shape)}")
+    if _is_torch(pred) != _is_torch(gt):
+        raise TypeError(f"{names[0]} and {names[1]} must both be numpy or both torch, got "
+                        f"{type(pred).__name__} and {type(gt).__name__}")
+    if tuple(pred.shape) != tuple(gt.shape):
+        raise ValueError(f"{names[0]} {tuple(pred.shape)} and {names[1]} {tuple(gt.shape)} must have the same shape")
+
+
+def _index(keypoints, k: int) -> list[int]:
+    """Keypoint selection (None, slice or sequence of ints) -> validated list of indices into range(k)."""
+    if keypoints is None:
+        return list(range(k))
+    if isinstance(keypoints, slice):
+        idx = list(range(k))[keypoints]
+    else:
+        idx = [int(i) for i in np.asarray(keypoints).reshape(-1)]
+    if not idx:
+        raise ValueError("keypoints selects no keypoint")
+    bad = [i for i in idx if not 0 <= i < k]
+    if bad:
+        raise ValueError(f"keypoint indices {bad} are out of range for {k} keypoints")
+    return idx
+
+
+def _mean(x):
+    return x.mean() if _is_torch(x) else float(np.mean(x))
+
+
+def keypoint_errors_mm(pred_m, gt_m):
+    """Euclidean 3D error per frame and keypoint.
+
+    Args:
+        pred_m: (N, K, 3) float, metres, predicted keypoints.
+        gt_m: (N, K, 3) float, metres, ground truth in the same frame.
+
+    Returns:
+        (N, K) errors in millimetres (numpy float64 for numpy input; a tensor of the input dtype
+        for torch input).
+    """
+    _check_points(pred_m, gt_m, 3)
+    if _is_torch(pred_m):
+        return torch.linalg.vector_norm(pred_m - gt_m, dim=-1) * _MM_PER_M
+    return np.linalg.norm(np.asarray(pred_m, np.float64) - np.asarray(gt_m, np.float64), axis=-1) * _MM_PER_M
+
+
+def mpjpe_mm(pred_m, gt_m, keypoints=None):
+    """Mean per-joint position error (absolute, no alignment) over frames and the chosen keypoints.
+
+    Args:
+        pred_m, gt_m: (N, K, 3) float, metres, same frame.
+        keypoints: None (all K), a slice or a sequence of keypoint indices.
+
+    Returns:
+        millimetres: a python float for numpy input, a 0-dim tensor for torch input.
+    """
+    errors = keypoint_errors_mm(pred_m, gt_m)
+    return _mean(errors[:, _index(keypoints, errors.shape[1])])
+
+
+def split_from_errors_mm(errors_mm) -> dict[str, float]:
+    """{"all", "hand", "probe"} MPJPE (python floats, mm) from (N, 29) per-keypoint errors in mm.
+
+    "all" is the mean over all 29 keypoints and all frames (see ``ALL_AVERAGING``).
+    """
+    if tuple(errors_mm.shape[1:]) != (NUM_KEYPOINTS,) or errors_mm.ndim != 2:
+        raise ValueError(f"errors_mm must be (N, {NUM_KEYPOINTS}), got {tuple(errors_mm.shape)}")
+    if errors_mm.shape[0] == 0:
+        raise ValueError("errors_mm holds no frame")
+    return {"all": float(errors_mm.mean()), "hand": float(errors_mm[:, HAND_SLICE].mean()),
+            "probe": float(errors_mm[:, CORNER_SLICE].mean())}
+
+
+def mpjpe_split_mm(pred_m, gt_m) -> dict[str, float]:
+    """MPJPE of the hand (keypoints 0..20), the probe corners (21..28) and all 29.
+
+    Args:
+        pred_m, gt_m: (N, 29, 3) float, metres, same frame (numpy or torch).
+
+    Returns:
+        {"all": float, "hand": float, "probe": float}, millimetres, python floats for either input.
+        "all" is keypoint-weighted (mean over all 29 keypoints and frames), so
+        all = (21 hand + 8 probe) / 29; the paper's 8.65 is not (see the module docstring).
+    """
+    _check_points(pred_m, gt_m, 3)
+    if pred_m.shape[1] != NUM_KEYPOINTS:
+        raise ValueError(f"mpjpe_split_mm needs {NUM_KEYPOINTS} keypoints ({NUM_HAND} hand + {NUM_CORNERS} probe), "
+                         f"got {pred_m.shape[1]}")
+    with torch.no_grad():
+        return split_from_errors_mm(keypoint_errors_mm(pred_m, gt_m))
+
+
+def root_relative_mpjpe_mm(pred_m, gt_m, root: int = ROOT_INDEX, keypoints=HAND):
+    """MPJPE after moving each hand so that its root (the wrist) sits at the origin.
+
+    Both prediction and ground truth are translated by their own root; the error is then averaged
+    over ``keypoints`` (default: the 21 hand joints, the root included with its zero error, as in
+    the FreiHAND / HO-3D evaluation).
+
+    Args:
+        pred_m, gt_m: (N, K, 3) float, metres.
+        root: index of the root keypoint (default 0, the wrist).
+        keypoints: the keypoints averaged (default 0..20).
+
+    Returns:
+        millimetres: python float (numpy) or 0-dim tensor (torch).
+    """
+    _check_points(pred_m, gt_m, 3)
+    (root,) = _index([root], pred_m.shape[1])
+    return mpjpe_mm(pred_m - pred_m[:, root:root + 1], gt_m - gt_m[:, root:root + 1], keypoints)
+
+
+def procrustes_align(pred_m, gt_m):
+    """Similarity transform (scale, rotation, translation) that best maps each prediction onto its ground truth.
+
+    Minimises sum_k ||s R p_k + t - g_k||^2 per frame (Umeyama 1991): R = U D V^T from the SVD
+    U S V^T of the cross-covariance of the centred sets, D = diag(1, 1, sign(det U det V)) so that
+    R is a proper rotation (never a reflection), s = tr(S D) / var(p), t = mean(g) - s R mean(p).
+    Computed in float64. Degenerate sets stay finite: collinear or coplanar sets give one of the
+    equally optimal rotations; a prediction with (near) zero spread gets s = 0, i.e. every point is
+    mapped to the ground-truth centroid.
+
+    Args:
+        pred_m: (N, K, 3) float, metres, predicted points.
+        gt_m: (N, K, 3) float, metres, target points (K >= 1).
+
+    Returns:
+        (N, K, 3) the aligned prediction, same type and dtype as ``pred_m``.
+    """
+    _check_points(pred_m, gt_m, 3)
+    if pred_m.shape[1] < 1:
+        raise ValueError("procrustes_align needs at least one keypoint")
+    if _is_torch(pred_m):
+        out = _procrustes_np(pred_m.detach().cpu().double().numpy(), gt_m.detach().cpu().double().numpy())
+        return torch.from_numpy(out).to(dtype=pred_m.dtype, device=pred_m.device)
+    return _procrustes_np(np.asarray(pred_m, np.float64), np.asarray(gt_m, np.float64)).astype(
+        np.result_type(pred_m.dtype, np.float32), copy=False)
+
+
+def _procrustes_np(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    # one float64 numpy path for both backends, so numpy and torch give the same numbers bit for bit
+    mu_p, mu_g = p.mean(axis=1, keepdims=True), g.mean(axis=1, keepdims=True)  # (N, 1, 3)
+    x, y = p - mu_p, g - mu_g                                                   # (N, K, 3) centred
+    var_p = (x ** 2).sum(axis=(1, 2)) / p.shape[1]                               # (N,)
+    cov = np.einsum("nki,nkj->nij", y, x) / p.shape[1]                           # (N, 3, 3) = Y^T X / K
+    u, s, vt = np.linalg.svd(cov)
+    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)         # (N,) reflection fix
+    u[:, :, 2] *= d[:, None]                                                     # U D
+    rot = u @ vt                                                                 # (N, 3, 3)
+    trace = s[:, 0] + s[:, 1] + d * s[:, 2]                                      # tr(S D)
+    has_scale = var_p > PROCRUSTES_MIN_VARIANCE_M2
+    scale = np.where(has_scale, trace / np.where(has_scale, var_p, 1.0), 0.0)   # (N,)
+    return scale[:, None, None] * np.einsum("nij,nkj->nki", rot, x) + mu_g
+
+
+def pa_mpjpe_mm(pred_m, gt_m, keypoints=HAND):
+    """MPJPE after Procrustes alignment of the chosen keypoints (default: the 21 hand joints).
+
+    The alignment is fitted on ``keypoints`` only and the error averaged over the same keypoints.
+
+    Args:
+        pred_m, gt_m: (N, K, 3) float, metres.
+        keypoints: the keypoints aligned and averaged (default 0..20, the hand).
+
+    Returns:
+        millimetres: python float (numpy) or 0-dim tensor (torch).
+    """
+    _check_points(pred_m, gt_m, 3)
+    idx = _index(keypoints, pred_m.shape[1])
+    pred_sel, gt_sel = pred_m[:, idx], gt_m[:, idx]
+    return mpjpe_mm(procrustes_align(pred_sel, gt_sel), gt_sel)
+
+
+def pck_mm(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
+    """Percentage of correct keypoints: the fraction of errors at or below each threshold.
+
+    Args:
+        errors_mm: (N, K) (or any shape) errors in millimetres.
+        thresholds_mm: (T,) thresholds, millimetres.
+
+    Returns:
+        (T,) fractions in [0, 1] (numpy float64, or a tensor for tensor input).
+    """
+    if _is_torch(errors_mm):
+        t = torch.as_tensor(np.asarray(thresholds_mm), dtype=errors_mm.dtype, device=errors_mm.device)
+        return (errors_mm.reshape(-1, 1) <= t).to(errors_mm.dtype).mean(dim=0)
+    e = np.asarray(errors_mm, np.float64).reshape(-1, 1)
+    return (e <= np.asarray(thresholds_mm, np.float64)).mean(axis=0)
+
+
+def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
+    """Area under the 3D PCK curve, normalised to [0, 1] by the threshold range.
+
+    The curve is sampled at ``thresholds_mm`` (default 0, 0.5, ..., 50 mm: 101 thresholds) and
+    integrated with the trapezoidal rule, then divided by (max - min threshold): 1 means every
+    error is 0, 0 means every error is above 50 mm.
+
+    Args:
+        errors_mm: (N, K) errors, millimetres.
+        thresholds_mm: (T,) increasing thresholds, T >= 2, millimetres.
+
+    Returns:
+        python float (numpy) or 0-dim tensor (torch).
+    """
+    th = np.asarray(thresholds_mm, np.float64)
+    if th.ndim != 1 or len(th) < 2 or not np.all(np.diff(th) > 0):
+        raise ValueError(f"thresholds_mm must be at least 2 increasing values, got {th.tolist()}")
+    curve = pck_mm(errors_mm, th)
+    widths = np.diff(th) / (th[-1] - th[0])
+    if _is_torch(curve):
+        w = torch.as_tensor(widths, dtype=curve.dtype, device=curve.device)
+        return (0.5 * (curve[1:] + curve[:-1]) * w).sum()
+    return float((0.5 * (curve[1:] + curve[:-1]) * widths).sum())
+
+
+def pck_auc(pred_m, gt_m, keypoints=None, thresholds_mm=PCK_THRESHOLDS_MM):
+    """AUC of the absolute 3D PCK over 0-50 mm (see :func:`pck_auc_from_errors`) of the chosen keypoints.
+
+    Args:
+        pred_m, gt_m: (N, K, 3) float, metres.
+        keypoints: None (all), a slice or indices.
+
+    Returns:
+        fraction in [0, 1]: python float (numpy) or 0-dim tensor (torch).
+    """
+    errors = keypoint_errors_mm(pred_m, gt_m)
+    return pck_auc_from_errors(errors[:, _index(keypoints, errors.shape[1])], thresholds_mm)
+
+
+def normalized_to_pixels(points_norm, width: int, height: int):
+    """Normalised [-1, 1] image coordinates -> pixels (models/coords.py convention, any backend).
+
+    u = ((x + 1) W - 1) / 2, pixel centres at integers.
+
+    Args:
+        points_norm: (..., 2) float, normalised coordinates.
+        width, height: image size in pixels.
+
+    Returns:
+        (..., 2) pixels, same backend.
+    """
+    if _is_torch(points_norm):
+        from models.coords import normalized_to_pixels as _to_px
+
+        return _to_px(points_norm, width, height)
+    size = np.array([width, height], dtype=np.float64)
+    return ((np.asarray(points_norm, np.float64) + 1.0) * size - 1.0) / 2.0
+
+
+def pixel_errors_px(pred_px, gt_px):
+    """(N, K) Euclidean 2D errors in pixels from (N, K, 2) predicted and true pixel coordinates."""
+    _check_points(pred_px, gt_px, 2, names=("pred_px", "gt_px"))
+    if _is_torch(pred_px):
+        return torch.linalg.vector_norm(pred_px - gt_px, dim=-1)
+    return np.linalg.norm(np.asarray(pred_px, np.float64) - np.asarray(gt_px, np.float64), axis=-1)
+
+
+def pixel_error_px(pred_px, gt_px, mask=None):
+    """Mean 2D keypoint error in pixels.
+
+    Args:
+        pred_px, gt_px: (N, K, 2) float, pixels of the same image.
+        mask: optional (N, K) bool, the keypoints counted (e.g. ``visible``); default all.
+
+    Returns:
+        pixels: python float (numpy) or 0-dim tensor (torch); NaN-free (raises if the mask is empty).
+    """
+    errors = pixel_errors_px(pred_px, gt_px)
+    if mask is None:
+        return _mean(errors)
+    if tuple(mask.shape) != tuple(errors.shape):
+        raise ValueError(f"mask must be {tuple(errors.shape)}, got {tuple(mask.shape)}")
+    if not bool(mask.any()):
+        raise ValueError("mask selects no keypoint")
+    return _mean(errors[mask])
+
+
+def latitude_labels(theta_rad) -> np.ndarray:
+    """Camera-latitude bucket of each frame: "egocentric" or "non_egocentric".
+
+    The viewpoint sphere's polar axis is the forearm (datagen/sphere.py): north (theta = 0) points
+    from the hand towards the elbow. A head-mounted (egocentric) camera of the person holding the
+    probe looks at the hand from the arm's side, so we call a view egocentric when the camera is
+    on the elbow's hemisphere, theta < pi/2 (``EGOCENTRIC_MAX_THETA_RAD``); the views at or beyond
+    the equator look at the hand from the fingertips' side or across, as a second person or a
+    room camera would. The ``z_ego`` distances of the paper (0.5, 0.8 m) are egocentric head-hand
+    distances for every view, so they do not decide this.
+
+    Args:
+        theta_rad: (N,) polar angle of each frame's viewpoint, radians (annotations "theta").
+
+    Returns:
+        (N,) array of str.
+    """
+    theta = np.asarray(theta_rad, np.float64).reshape(-1)
+    return np.where(theta < EGOCENTRIC_MAX_THETA_RAD, "egocentric", "non_egocentric")
+
+
+def z_ego_labels(z_ego_m) -> np.ndarray:
+    """Camera-distance bucket of each frame, e.g. "0.5 m" (annotations "z_ego", metres)."""
+    z = np.asarray(z_ego_m, np.float64).reshape(-1)
+    return np.array([f"{v:g} m" for v in np.round(z, 3)])
+
+
+def background_labels(background_id, names: Sequence[str] | None = None) -> np.ndarray:
+    """Background bucket of each frame: its name from ``names`` (by id) or "background <id>"."""
+    ids = np.asarray(background_id).reshape(-1).astype(np.int64)
+    if names is not None:
+        bad = sorted({int(i) for i in ids if not 0 <= i < len(names)})
+        if bad:
+            raise ValueError(f"background ids {bad} have no name among {len(names)} names")
+        return np.array([str(names[i]) for i in ids])
+    return np.array([f"background {i}" for i in ids])
+
+
+def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
+    """MPJPE split by a per-frame label.
+
+    Args:
+        errors_mm: (N, 29) per-keypoint absolute errors, millimetres (numpy or torch).
+        labels: (N,) one bucket label per frame (str or anything with a str()).
+
+    Returns:
+        {label: {"frames": int, "mpjpe_mm": {"all", "hand", "probe"}}}, labels sorted.
+    """
+    errors = errors_mm.detach().cpu().numpy() if _is_torch(errors_mm) else np.asarray(errors_mm, np.float64)
+    labels = np.asarray(labels).reshape(-1).astype(str)
+    if errors.ndim != 2 or len(labels) != errors.shape[0]:
+        raise ValueError(f"labels must hold one entry per frame: errors {tuple(errors.shape)}, labels {labels.shape}")
+    out = {}
+    for label in sorted(set(labels.tolist())):
+        rows = errors[labels == label]
+        out[label] = {"frames": int(rows.shape[0]), "mpjpe_mm": split_from_errors_mm(rows)}
+    return out

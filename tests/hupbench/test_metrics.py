@@ -1,0 +1,218 @@
+"""Metric tests: hand-computed answers, invariances, degenerate sets, numpy vs torch agreement."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hupbench import metrics as M
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def _random_points(n=4, k=29, seed=0):
+    rng = np.random.default_rng(seed)
+    gt = rng.normal(0.0, 0.05, (n, k, 3)) + np.array([0.0, 0.0, 0.6])
+    pred = gt + rng.normal(0.0, 0.01, (n, k, 3))
+    return pred, gt
+
+
+def test_keypoint_errors_known_answer():
+    gt = np.zeros((1, 2, 3))
+    pred = np.array([[[0.003, 0.004, 0.0], [0.0, 0.0, -0.012]]])  # 3-4-5 triangle and 12 mm along z
+    np.testing.assert_allclose(M.keypoint_errors_mm(pred, gt), [[5.0, 12.0]])
+    assert M.mpjpe_mm(pred, gt) == pytest.approx(8.5)
+    assert M.mpjpe_mm(pred, gt, keypoints=[1]) == pytest.approx(12.0)
+    assert M.mpjpe_mm(pred, gt, keypoints=slice(0, 1)) == pytest.approx(5.0)
+
+
+def test_split_is_keypoint_weighted():
+    # hand keypoints off by 1 mm along x, probe corners by 10 mm: all = (21 + 80) / 29
+    gt = np.zeros((2, 29, 3))
+    pred = gt.copy()
+    pred[:, :21, 0] = 0.001
+    pred[:, 21:, 1] = -0.010
+    split = M.mpjpe_split_mm(pred, gt)
+    assert split == pytest.approx({"all": 101.0 / 29.0, "hand": 1.0, "probe": 10.0})
+    assert all(type(v) is float for v in split.values())
+    split_t = M.mpjpe_split_mm(torch.from_numpy(pred).float(), torch.from_numpy(gt).float())
+    assert all(type(v) is float for v in split_t.values())
+    assert split_t == pytest.approx(split, rel=1e-6)
+
+
+def test_paper_all_is_not_keypoint_weighted():
+    # REFERENCE.md: the paper's 8.65 mm is not (21 x 5.33 + 8 x 17.05) / 29
+    assert (21 * 5.33 + 8 * 17.05) / 29 == pytest.approx(8.56, abs=0.005)
+    assert "29 keypoints" in M.ALL_AVERAGING
+
+
+def test_root_relative_known_answer():
+    gt = np.zeros((1, 21, 3))
+    gt[0, :, 2] = 0.5
+    pred = gt + np.array([0.02, 0.0, 0.0])  # pure translation: root-relative error 0
+    pred[0, 8, 1] += 0.021  # one joint 21 mm off after root alignment -> mean 1 mm over 21 joints
+    assert M.root_relative_mpjpe_mm(pred, gt) == pytest.approx(1.0)
+    assert M.mpjpe_mm(pred, gt) > 19.0  # the absolute error keeps the 20 mm shift
+
+
+def test_pa_mpjpe_zero_for_similarity_copy():
+    _, gt = _random_points(n=3, k=21)
+    R = _rotation([0.3, -1.0, 0.5], 2.1)
+    pred = 1.7 * gt @ R.T + np.array([0.1, -0.2, 0.3])
+    assert M.pa_mpjpe_mm(pred, gt) == pytest.approx(0.0, abs=1e-6)
+    assert M.mpjpe_mm(pred, gt) > 100.0
+    aligned = M.procrustes_align(pred, gt)
+    np.testing.assert_allclose(aligned, gt, atol=1e-9)
+
+
+def test_pa_known_answer_scale_only():
+    # gt = two points 2 cm apart; pred the same direction but 1 cm apart and shifted: aligns exactly
+    gt = np.array([[[0.0, 0.0, 0.5], [0.02, 0.0, 0.5]]])
+    pred = np.array([[[1.0, 1.0, 1.0], [1.01, 1.0, 1.0]]])
+    np.testing.assert_allclose(M.procrustes_align(pred, gt), gt, atol=1e-12)
+    # a noisy point cannot be aligned: a square vs a rectangle, error is hand-computable
+    gt = np.array([[[1.0, 1, 0], [-1, 1, 0], [-1, -1, 0], [1, -1, 0]]]) * 0.01
+    pred = np.array([[[2.0, 1, 0], [-2, 1, 0], [-2, -1, 0], [2, -1, 0]]]) * 0.01
+    # best similarity: s = tr(S)/var(p) = (2 + 1) * 1e-4 / (5e-4) = 0.6 -> points (1.2, 0.6):
+    # error per point sqrt(0.2^2 + 0.4^2) cm
+    assert M.pa_mpjpe_mm(pred, gt, keypoints=None) == pytest.approx(10 * math.sqrt(0.2 ** 2 + 0.4 ** 2))
+
+
+def test_procrustes_never_reflects():
+    # a mirror image cannot be aligned by a rotation: the error must stay > 0 and the fit be proper
+    _, gt = _random_points(n=2, k=21, seed=3)
+    mirrored = gt * np.array([-1.0, 1.0, 1.0])
+    aligned = M.procrustes_align(mirrored, gt)
+    assert M.mpjpe_mm(aligned, gt) > 1.0
+    # the aligned set is a rotated + scaled copy of the mirrored set: its own handedness is kept
+    c = aligned[0] - aligned[0].mean(0)
+    m = mirrored[0] - mirrored[0].mean(0)
+    det_fit = np.linalg.det(np.linalg.lstsq(m, c, rcond=None)[0])
+    assert det_fit > 0
+
+
+@pytest.mark.parametrize("case", ["collinear", "coplanar", "all_equal", "zero_pred", "zero_both", "single_point"])
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_procrustes_degenerate_sets_finite(case, backend):
+    rng = np.random.default_rng(7)
+    gt = rng.normal(0, 0.05, (2, 21, 3))
+    if case == "collinear":
+        t = rng.normal(0, 1, (2, 21, 1))
+        pred = t * np.array([0.01, 0.02, 0.0]) + 0.5
+        gt = t * np.array([0.0, 0.0, 0.03])  # both collinear: exact alignment exists
+    elif case == "coplanar":
+        pred = rng.normal(0, 0.05, (2, 21, 3))
+        pred[..., 2] = 0.4
+        gt = pred @ _rotation([1, 1, 0], 0.7).T * 0.5
+    elif case == "all_equal":
+        pred = np.full((2, 21, 3), 0.3)
+    elif case == "zero_pred":
+        pred = np.zeros((2, 21, 3))
+    elif case == "zero_both":
+        pred = np.zeros((2, 21, 3))
+        gt = np.zeros((2, 21, 3))
+    else:
+        pred = rng.normal(0, 0.05, (2, 1, 3))
+        gt = gt[:, :1]
+    if backend == "torch":
+        pred, gt = torch.from_numpy(pred), torch.from_numpy(gt)
+    aligned = M.procrustes_align(pred, gt)
+    assert bool(np.isfinite(np.asarray(aligned)).all())
+    err = float(M.pa_mpjpe_mm(pred, gt, keypoints=None))
+    assert math.isfinite(err)
+    gt_np = np.asarray(gt)
+    if case in ("collinear", "coplanar", "zero_both", "single_point"):
+        assert err == pytest.approx(0.0, abs=1e-6)
+    if case in ("all_equal", "zero_pred"):
+        # no scale: every point goes to the target centroid
+        np.testing.assert_allclose(np.asarray(aligned), np.broadcast_to(gt_np.mean(1, keepdims=True), gt_np.shape),
+                                   atol=1e-12)
+
+
+def test_pck_auc_known_answers():
+    th = M.PCK_THRESHOLDS_MM
+    assert th[0] == 0.0 and th[-1] == 50.0 and len(th) == 101
+    assert M.pck_auc_from_errors(np.zeros((3, 29))) == pytest.approx(1.0)
+    assert M.pck_auc_from_errors(np.full((3, 29), 60.0)) == pytest.approx(0.0)
+    # a single error of 25 mm: PCK is 0 below 25 and 1 from 25 on; trapezoid area (50 - 25 + 0.25) / 50
+    assert M.pck_auc_from_errors(np.array([[25.0]])) == pytest.approx(25.25 / 50.0)
+    # coarse thresholds, hand-computable: errors 0 and 10 mm, thresholds 0, 10, 20
+    assert M.pck_auc_from_errors(np.array([[0.0, 10.0]]), [0.0, 10.0, 20.0]) == pytest.approx(
+        (0.5 * (0.5 + 1.0) * 10 + 1.0 * 10) / 20)
+    gt = np.zeros((1, 2, 3))
+    pred = np.array([[[0.0, 0.0, 0.0], [0.06, 0.0, 0.0]]])
+    assert M.pck_auc(pred, gt) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="increasing"):
+        M.pck_auc_from_errors(np.zeros((1, 1)), [10.0, 0.0])
+
+
+def test_pixel_error_known_answer():
+    gt = np.zeros((1, 3, 2))
+    pred = np.array([[[3.0, 4.0], [0.0, 1.0], [6.0, 8.0]]])
+    assert M.pixel_error_px(pred, gt) == pytest.approx(16.0 / 3.0)
+    mask = np.array([[True, True, False]])
+    assert M.pixel_error_px(pred, gt, mask) == pytest.approx(3.0)
+    # normalised -> pixels: the left edge of a 64-wide image is -0.5 px, the centre 31.5
+    np.testing.assert_allclose(M.normalized_to_pixels(np.array([[-1.0, 0.0]]), 64, 64), [[-0.5, 31.5]])
+    t = M.normalized_to_pixels(torch.tensor([[-1.0, 0.0]]), 64, 64)
+    np.testing.assert_allclose(t.numpy(), [[-0.5, 31.5]])
+
+
+def test_numpy_torch_agree():
+    pred, gt = _random_points(n=5)
+    pt, gtt = torch.from_numpy(pred), torch.from_numpy(gt)
+    for fn in (M.mpjpe_mm, M.root_relative_mpjpe_mm, M.pa_mpjpe_mm, M.pck_auc):
+        a, b = fn(pred, gt), fn(pt, gtt)
+        assert isinstance(a, float) and isinstance(b, torch.Tensor), fn.__name__
+        assert float(b) == pytest.approx(a, rel=1e-9, abs=1e-9), fn.__name__
+    np.testing.assert_allclose(M.keypoint_errors_mm(pt, gtt).numpy(), M.keypoint_errors_mm(pred, gt), rtol=1e-12)
+    np.testing.assert_allclose(M.procrustes_align(pt, gtt).numpy(), M.procrustes_align(pred, gt), rtol=1e-12)
+    px_pred, px_gt = pred[..., :2] * 100, gt[..., :2] * 100
+    assert float(M.pixel_error_px(torch.from_numpy(px_pred), torch.from_numpy(px_gt))) == pytest.approx(
+        M.pixel_error_px(px_pred, px_gt))
+    # float32 tensors keep their dtype and agree to float32 precision
+    e32 = M.mpjpe_mm(pt.float(), gtt.float())
+    assert e32.dtype == torch.float32 and float(e32) == pytest.approx(M.mpjpe_mm(pred, gt), rel=1e-5)
+
+
+def test_breakdowns():
+    errors = np.zeros((4, 29))
+    errors[:, :21] = np.array([1.0, 2.0, 3.0, 4.0])[:, None]
+    errors[:, 21:] = 10.0
+    theta = np.array([0.3, 1.0, math.pi / 2, 2.5])
+    lat = M.latitude_labels(theta)
+    assert lat.tolist() == ["egocentric", "egocentric", "non_egocentric", "non_egocentric"]
+    table = M.breakdown_mpjpe_mm(errors, lat)
+    assert table["egocentric"]["frames"] == 2
+    assert table["egocentric"]["mpjpe_mm"] == pytest.approx({"hand": 1.5, "probe": 10.0,
+                                                             "all": (21 * 1.5 + 80) / 29})
+    assert table["non_egocentric"]["mpjpe_mm"]["hand"] == pytest.approx(3.5)
+    z = M.z_ego_labels([0.5, 0.8, 0.5, 0.8])
+    assert z.tolist() == ["0.5 m", "0.8 m", "0.5 m", "0.8 m"]
+    assert M.breakdown_mpjpe_mm(torch.from_numpy(errors), z)["0.8 m"]["mpjpe_mm"]["hand"] == pytest.approx(3.0)
+    assert M.background_labels([0, 2], ["white", "room", "phantom"]).tolist() == ["white", "phantom"]
+    assert M.background_labels([1]).tolist() == ["background 1"]
+    with pytest.raises(ValueError, match="no name"):
+        M.background_labels([5], ["white"])
+    with pytest.raises(ValueError, match="one entry per frame"):
+        M.breakdown_mpjpe_mm(errors, lat[:3])
+
+
+def test_bad_input_messages():
+    with pytest.raises(ValueError, match=r"pred_m must be \(N, K, 3\), got \(2, 3\)"):
+        M.mpjpe_mm(np.zeros((2, 3)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="same shape"):
+        M.mpjpe_mm(np.zeros((2, 29, 3)), np.zeros((2, 21, 3)))
+    with pytest.raises(TypeError, match="must both be numpy or both torch"):
+        M.mpjpe_mm(np.zeros((1, 2, 3)), torch.zeros(1, 2, 3))
+    with pytest.raises(TypeError, match="numpy array or torch tensor"):
+        M.mpjpe_mm([[[0, 0, 0]]], np.zeros((1, 1, 3)))
+    with pytest.raises(ValueError, match="29 keypoints"):
+        M.mpjpe_split_mm(np.zeros((1, 21, 3)), np.zeros((1, 21, 3)))
+    with pytest.raises(ValueError, match="out of range"):
+        M.mpjpe_mm(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), keypoints=[5])
