@@ -11,7 +11,9 @@ VERBS = {
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
+    "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
 }
+OWN_OPTION_VERBS = {"leaderboard"}
 
 
 def _quickstart(overrides: list[str]) -> int:
@@ -87,6 +89,18 @@ def _verify(args: list[str]) -> int:
     return 0
 
 
+def _leaderboard(args: list[str]) -> int:
+    from hupbench.leaderboard import run_leaderboard
+
+    parser = argparse.ArgumentParser(prog="hupbench leaderboard")
+    parser.add_argument("--dir", default="leaderboard", help="leaderboard folder holding results/ (and logs/)")
+    ns = parser.parse_args(args)
+    result = run_leaderboard(ns.dir)
+    print(f"hupbench leaderboard: {result['rows']} rows ({result['measured']} measured, {result['reported']} "
+          f"reported) -> {result['readme']}, " + ", ".join(str(p) for p in result["plots"]))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
@@ -95,7 +109,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, help_text in VERBS.items():
-        p = sub.add_parser(verb, help=help_text)
+        # a verb that parses its own options (leading "--dir ...") gets them all: REMAINDER does not
+        # capture a first argument that looks like an option of this parser
+        own = verb in OWN_OPTION_VERBS
+        p = sub.add_parser(verb, help=help_text, add_help=not own, prefix_chars="+" if own else "-")
         p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
     args = parser.parse_args(argv)
     if args.verb is None:
@@ -106,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
-                    "generate": _generate, "verify": _verify}
+                    "generate": _generate, "verify": _verify, "leaderboard": _leaderboard}
         return handlers[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)

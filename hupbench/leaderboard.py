@@ -1,0 +1,574 @@
+"""The leaderboard: a table and two plots rebuilt from ``leaderboard/results/*.json``.
+
+``hupbench leaderboard [--dir leaderboard]`` reads every results file
+(validated by :mod:`hupbench.results`; a bad file is an error naming it),
+and regenerates ``README.md`` (the table, notes and per-row details),
+``mpjpe_vs_latency.png`` (error against inference latency with the Pareto
+frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
+training wall time, from the training logs under ``logs/``).
+
+Rebuilding from the same files gives the same bytes: rows are sorted, every
+number is formatted explicitly, nothing depends on the clock, and the plots
+are drawn with matplotlib's default style at a fixed size and dpi with a
+PNG ``Software`` tag that names only the matplotlib and Pillow versions
+(which are what decide the pixels).
+
+Convention: errors in mm, latency in ms per image at batch 1, times in
+seconds inside and minutes or hours on the plot axes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from datagen.io import write_bytes
+from hupbench.results import load_results
+
+README = "README.md"
+LATENCY_PLOT = "mpjpe_vs_latency.png"
+TRAINING_PLOT = "val_mpjpe_vs_training_time.png"
+FIGSIZE_IN = (9.0, 6.0)
+DPI = 100  # FIGSIZE_IN x DPI = 900 x 600 px
+MISSING = "—"
+NUM_HAND, NUM_PROBE = 21, 8
+# "all" that differs from the keypoint-weighted mean by more than the two-decimal rounding of the inputs
+WEIGHTED_MEAN_TOLERANCE_MM = 0.01
+
+
+# ----------------------------------------------------------------------------- rows
+
+def load_rows(results_dir: str | Path) -> list[dict]:
+    """Every results file in a folder, validated and sorted for the table.
+
+    Args:
+        results_dir: the folder holding ``<run_name>.json`` files.
+
+    Returns:
+        Validated result dicts, sorted by :func:`sort_key`.
+
+    Raises:
+        FileNotFoundError: the folder does not exist.
+        ValueError: a file breaks the schema, its run_name is not its file stem, it is not a
+            test-split result, or it is a measured row without the command that reproduces it;
+            the message names the file. There must be at least one file.
+    """
+    results_dir = Path(results_dir)
+    if not results_dir.is_dir():
+        raise FileNotFoundError(f"results folder not found: {results_dir}")
+    paths = sorted(results_dir.glob("*.json"))
+    if not paths:
+        raise ValueError(f"no results files (*.json) in {results_dir}")
+    rows = []
+    for path in paths:
+        row = load_results(path)
+        if row["run_name"] != path.stem:
+            raise ValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
+                             f"got {row['run_name']!r}")
+        if row["dataset"]["split"] != "test":
+            raise ValueError(f"{path}: the leaderboard compares test-split results, "
+                             f"got results['dataset']['split'] = {row['dataset']['split']!r}")
+        if row["kind"] == "measured" and row["training"]["command"] is None:
+            raise ValueError(f"{path}: a measured row must name the command that reproduces it in "
+                             "results['training']['command'], got None")
+        rows.append(row)
+    return sorted(rows, key=sort_key)
+
+
+def sort_key(row: dict) -> tuple[float, str]:
+    """Table order: MPJPE all ascending, then run name (unique), so that ties are deterministic."""
+    return (row["metrics"]["mpjpe_mm"]["all"], row["run_name"])
+
+
+def inference_latency_ms(row: dict) -> tuple[float | None, str | None]:
+    """Latency per image at batch 1: ONNX Runtime where measured, else PyTorch.
+
+    Returns:
+        ``(milliseconds, runtime)`` with runtime "ONNX Runtime" or "PyTorch"; ``(None, None)`` when neither.
+    """
+    latency = row["latency_ms_per_image"]
+    if latency["onnxruntime"]["batch1"] is not None:
+        return latency["onnxruntime"]["batch1"], "ONNX Runtime"
+    if latency["pytorch"]["batch1"] is not None:
+        return latency["pytorch"]["batch1"], "PyTorch"
+    return None, None
+
+
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
+    """Indices of the points no other point beats on both axes (lower is better on both).
+
+    A point is dominated when another is no worse on both coordinates and strictly better on one;
+    identical points do not dominate each other, so both stay.
+
+    Args:
+        points: ``(x, y)`` pairs, e.g. (latency ms, MPJPE mm).
+
+    Returns:
+        Indices into ``points`` of the non-dominated ones, ordered by x, then y, then index.
+    """
+    front = []
+    for i, (xi, yi) in enumerate(points):
+        dominated = any(xj <= xi and yj <= yi and (xj < xi or yj < yi) for j, (xj, yj) in enumerate(points) if j != i)
+        if not dominated:
+            front.append(i)
+    return sorted(front, key=lambda i: (points[i][0], points[i][1], i))
+
+
+def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
+    """Validation MPJPE against training time from a training log (JSON lines).
+
+    Only lines with ``"event": "val"`` are read; their ``train_wall_s`` (training only, validation
+    passes excluded) and ``val_mpjpe_mm["all"]`` must be finite non-negative numbers.
+
+    Args:
+        path: the log, one JSON object per line (``metrics.jsonl`` of a training run).
+
+    Returns:
+        ``(train_wall_s, val_mpjpe_all_mm)`` pairs in file order.
+
+    Raises:
+        FileNotFoundError: the log does not exist.
+        ValueError: a line is not a JSON object, a validation line lacks a field, or there is no
+            validation line; the message names the file and line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"training log not found: {path}")
+    curve = []
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}:{lineno}: not a JSON line: {exc}") from exc
+        if not isinstance(record, dict):
+            raise ValueError(f"{path}:{lineno}: expected a JSON object, got {type(record).__name__}")
+        if record.get("event") != "val":
+            continue
+        seconds = record.get("train_wall_s")
+        mpjpe = record.get("val_mpjpe_mm")
+        mpjpe_all = mpjpe.get("all") if isinstance(mpjpe, dict) else None
+        for name, value in (("train_wall_s", seconds), ("val_mpjpe_mm['all']", mpjpe_all)):
+            if not _finite_non_negative(value):
+                raise ValueError(f"{path}:{lineno}: validation line needs {name} as a finite number >= 0, "
+                                 f"got {value!r}")
+        curve.append((float(seconds), float(mpjpe_all)))
+    if not curve:
+        raise ValueError(f"{path}: no validation lines ({{\"event\": \"val\", ...}}) to plot")
+    return curve
+
+
+def _finite_non_negative(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
+
+
+# ----------------------------------------------------------------------------- table
+
+def _number(value: float | None, digits: int = 2) -> str:
+    return MISSING if value is None else f"{value:.{digits}f}"
+
+
+def format_duration(seconds: float | None) -> str:
+    """``"42 s"``, ``"35 min"`` or ``"2.5 h"``; the missing mark for None."""
+    if seconds is None:
+        return MISSING
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _cell(text: str) -> str:
+    # a pipe would end the cell and a newline the row
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def _code(text: str | None) -> str:
+    return MISSING if text is None else f"`{_cell(text)}`"
+
+
+TABLE_COLUMNS = ("model", "kind", "test data", "input (px)", "params (M)", "MPJPE all (mm)", "MPJPE hand (mm)",
+                 "MPJPE probe (mm)", "PA-MPJPE hand (mm)", "AUC 0-50 mm", "training (time, hardware)",
+                 "latency ONNX Runtime (ms/image, batch 1)", "latency PyTorch (ms/image, batch 1)", "command")
+
+
+# numbers right-aligned, text left
+_ALIGN = {c: "---" if c in ("model", "kind", "test data", "training (time, hardware)", "command") else "---:"
+          for c in TABLE_COLUMNS}
+
+
+def table_row(row: dict) -> list[str]:
+    """The table cells of one results row, formatted (two decimals for mm and ms, three for AUC).
+
+    Args:
+        row: a validated results dict.
+
+    Returns:
+        One string per column of :data:`TABLE_COLUMNS`.
+    """
+    model, metrics, training = row["model"], row["metrics"], row["training"]
+    mpjpe = metrics["mpjpe_mm"]
+    params = None if model["parameters"] is None else model["parameters"] / 1e6
+    if training["wall_s"] is None and training["hardware"] is None:
+        train_cell = MISSING
+    else:
+        train_cell = format_duration(training["wall_s"]) + (f", {training['hardware']}" if training["hardware"] else "")
+    latency = row["latency_ms_per_image"]
+    return [
+        _cell(model["label"]),
+        "measured" if row["kind"] == "measured" else "reported in paper",
+        _cell(row["dataset"]["name"]),
+        MISSING if model["input_size"] is None else str(model["input_size"]),
+        _number(params),
+        _number(mpjpe["all"]),
+        _number(mpjpe["hand"]),
+        _number(mpjpe["probe"]),
+        _number(metrics["pa_mpjpe_hand_mm"]),
+        _number(metrics["pck_auc_0_50mm"], 3),
+        _cell(train_cell),
+        _number(latency["onnxruntime"]["batch1"]),
+        _number(latency["pytorch"]["batch1"]),
+        _code(training["command"]),
+    ]
+
+
+def keypoint_weighted_all_mm(row: dict) -> float | None:
+    """(21 x hand + 8 x probe) / 29: the mean over all 29 keypoints implied by the hand and probe numbers."""
+    mpjpe = row["metrics"]["mpjpe_mm"]
+    if mpjpe["hand"] is None or mpjpe["probe"] is None:
+        return None
+    return (NUM_HAND * mpjpe["hand"] + NUM_PROBE * mpjpe["probe"]) / (NUM_HAND + NUM_PROBE)
+
+
+def _details(row: dict) -> list[str]:
+    model, dataset, training = row["model"], row["dataset"], row["training"]
+    mpjpe = row["metrics"]["mpjpe_mm"]
+    lines = [f"### {_cell(model['label'])} (`{row['run_name']}`)", ""]
+    kind = "measured here" if row["kind"] == "measured" else "reported in a paper, not measured here"
+    lines.append(f"- kind: {kind}; results file [`results/{row['run_name']}.json`](results/{row['run_name']}.json)")
+    data = f"- test data: {_cell(dataset['name'])}, split `{dataset['split']}`"
+    if dataset["frames"] is not None:
+        data += f", {dataset['frames']} frames"
+    if dataset["manifest_sha256"] is not None:
+        data += f", manifest sha256 `{dataset['manifest_sha256'][:12]}`"
+    lines.append(data)
+    lines.append(f"- MPJPE all {mpjpe['all']:.2f} mm, averaged: {_cell(mpjpe['all_averaging'])}")
+    weighted = keypoint_weighted_all_mm(row)
+    if weighted is not None:
+        check = (f"- keypoint-weighted mean of hand and probe: (21 × {mpjpe['hand']:.2f} + 8 × {mpjpe['probe']:.2f})"
+                 f" / 29 = {weighted:.2f} mm")
+        if abs(weighted - mpjpe["all"]) > WEIGHTED_MEAN_TOLERANCE_MM:
+            check += f", which is not the row's all ({mpjpe['all']:.2f} mm)"
+        lines.append(check)
+    if row["metrics"]["root_relative_hand_mpjpe_mm"] is not None or row["metrics"]["pixel_error_px"] is not None:
+        lines.append(f"- root-relative hand MPJPE {_number(row['metrics']['root_relative_hand_mpjpe_mm'])} mm; "
+                     f"2D error {_number(row['metrics']['pixel_error_px'])} px")
+    if model["flops"] is not None or model["format"] is not None:
+        flops = MISSING if model["flops"] is None else f"{model['flops'] / 1e9:.2f}"
+        lines.append(f"- GFLOPs per image {flops}; evaluated from {model['format'] or MISSING}")
+    latency = row["latency_ms_per_image"]
+    if any(v is not None for runtime in latency.values() for v in runtime.values()):
+        lines.append(f"- latency ms/image, batch 1 / batch 32: ONNX Runtime {_number(latency['onnxruntime']['batch1'])}"
+                     f" / {_number(latency['onnxruntime']['batch32'])}, PyTorch {_number(latency['pytorch']['batch1'])}"
+                     f" / {_number(latency['pytorch']['batch32'])}; device: {_cell(row['device'] or MISSING)}")
+    if training["samples_seen"] is not None or training["epochs"] is not None:
+        lines.append(f"- training: {training['samples_seen'] if training['samples_seen'] is not None else MISSING}"
+                     f" samples, {_number(training['epochs'], 1)} epochs")
+    if training["command"] is not None:
+        lines.append(f"- reproduce: `{_cell(training['command'])}`")
+    if training["log"] is not None:
+        lines.append(f"- training log: [`{training['log']}`]({training['log']})")
+    if row["git_commit"] is not None:
+        lines.append(f"- git commit `{row['git_commit']}`" + (f", evaluated {row['created_utc']}" if row["created_utc"] else ""))
+    if row["source"] is not None:
+        lines.append(f"- source: {_cell(row['source'])}")
+    return lines + [""]
+
+
+def render_readme(rows: list[dict]) -> str:
+    """The leaderboard README for rows already sorted by :func:`sort_key`.
+
+    Args:
+        rows: validated result dicts.
+
+    Returns:
+        Markdown text ending in one newline; a pure function of ``rows``.
+    """
+    n_measured = sum(row["kind"] == "measured" for row in rows)
+    out = [
+        "# hupbench leaderboard",
+        "",
+        ("<!-- Generated by `hupbench leaderboard` from results/*.json. Do not edit by hand: edit or add a results "
+         "file and rebuild. -->"),
+        "",
+        ("3D hand and ultrasound-probe pose estimation from one RGB image: how far the predicted keypoints are "
+         "from the truth (MPJPE, mm) against what the model costs to train and to run. One row per results "
+         "file in [`results/`](results/) (schema version 1, validated on load)."),
+        "",
+        ("- **measured** rows were evaluated here by `hupbench eval` on the test split of the dataset they name. "
+         "Every measured row names the committed command that reproduces its training (last column), and its "
+         "results file records the model config, the dataset manifest hash, the git commit and the device."),
+        ("- **reported in paper** rows quote a paper's numbers on that paper's data. They were not measured "
+         "here, have no latency or training time, and their test data differ from the measured rows'."),
+        "",
+        ("Rebuild the table and both plots from the repository root with `hupbench leaderboard --dir leaderboard`; "
+         "the same results files give the same bytes. To add a row, evaluate a model with "
+         "`hupbench eval MODEL DATASET` into `leaderboard/results/<run_name>.json`, copy its training log to "
+         "`leaderboard/logs/<run_name>.jsonl`, and rebuild."),
+        "",
+        (f"{len(rows)} rows ({n_measured} measured, {len(rows) - n_measured} reported), sorted by MPJPE all, then "
+         f"run name. {MISSING} means not measured or not reported."),
+        "",
+        "| " + " | ".join(TABLE_COLUMNS) + " |",
+        "|" + "|".join(_ALIGN[c] for c in TABLE_COLUMNS) + "|",
+    ]
+    out += ["| " + " | ".join(table_row(row)) + " |" for row in rows]
+    out += [
+        "",
+        "## What the numbers mean",
+        "",
+        ("- MPJPE: mean Euclidean distance between predicted and true 3D keypoints in the camera frame, in mm, "
+         "with no root or scale alignment. *hand* averages the 21 hand joints, *probe* the 8 corners of the "
+         "probe's box, *all* the 29 keypoints together."),
+        ("- How *all* is averaged matters when hand and probe errors differ: the mean over all 29 keypoints is "
+         "(21 × hand + 8 × probe) / 29. Each row below states how its *all* was averaged. The HUP-3D paper's "
+         "8.65 mm is not the keypoint-weighted mean of its 5.33 mm (hand) and 17.05 mm (probe), which is "
+         "(21 × 5.33 + 8 × 17.05) / 29 = 8.56 mm; the paper does not say how its total is averaged."),
+        ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
+         "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
+         "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),
+        ("- Training time is wall time of the training loop (validation passes excluded) on the named hardware. "
+         "Latency is wall time per image at batch 1 on the row's device (see its details), ONNX Runtime and "
+         "PyTorch measured separately."),
+        "",
+        "## Plots",
+        "",
+        f"![MPJPE against inference latency]({LATENCY_PLOT})",
+        "",
+        ("MPJPE (all) against inference latency per image at batch 1 (ONNX Runtime where measured, else PyTorch). "
+         "The line joins the Pareto frontier: the rows no other row beats on both error and latency. Paper rows "
+         "have no latency and are drawn as horizontal reference lines."),
+        "",
+        f"![Validation MPJPE against training wall time]({TRAINING_PLOT})",
+        "",
+        ("Validation MPJPE (all) against training wall time, one line per measured row with a training log; the "
+         "paper's test numbers are dashed reference lines."),
+        "",
+        "## Row details",
+        "",
+    ]
+    for row in rows:
+        out += _details(row)
+    return "\n".join(out).rstrip("\n") + "\n"
+
+
+# ----------------------------------------------------------------------------- plots
+
+def _figure():
+    """A figure on the Agg canvas (no pyplot, no global backend switch)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot()
+
+
+def _png_bytes(fig) -> bytes:
+    import matplotlib
+    import PIL
+
+    buffer = io.BytesIO()
+    # The default Software tag is fine, but say so explicitly: the versions that decide the pixels, no date.
+    fig.savefig(buffer, format="png", dpi=DPI,
+                metadata={"Software": f"hupbench leaderboard; matplotlib {matplotlib.__version__}; "
+                                      f"Pillow {PIL.__version__}"})
+    return buffer.getvalue()
+
+
+def _plain_log_ticks(axis) -> None:
+    """Ticks at 1, 2, 5 x 10^k labelled as plain numbers (``20``, not ``2 x 10^1``)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _reference_label(row: dict) -> str:
+    return f"{row['dataset']['name']}: {row['model']['name']} {row['metrics']['mpjpe_mm']['all']:.2f} mm"
+
+
+_REFERENCE_STYLES = ("--", ":", "-.", (0, (5, 1, 1, 1)))
+
+
+def _draw_references(ax, reported: list[dict]) -> None:
+    for k, row in enumerate(reported):
+        y = row["metrics"]["mpjpe_mm"]["all"]
+        ax.axhline(y, color="0.35", linestyle=_REFERENCE_STYLES[k % len(_REFERENCE_STYLES)], linewidth=1.2,
+                   label=_reference_label(row) + " (test, reported)")
+    # in order of height, labels go alternately below and above their line, so two close lines keep
+    # readable labels
+    by_height = sorted(reported, key=sort_key)
+    for k, row in enumerate(by_height):
+        ax.text(0.01, row["metrics"]["mpjpe_mm"]["all"], " " + _reference_label(row),
+                transform=ax.get_yaxis_transform(), ha="left", va="top" if k % 2 == 0 else "bottom",
+                fontsize=8, color="0.25")
+
+
+def _y_limit(values: list[float]) -> float:
+    return max(values) * 1.2 if values else 1.0
+
+
+def plot_latency(rows: list[dict]) -> bytes:
+    """MPJPE all against inference latency, with the Pareto frontier; PNG bytes.
+
+    Args:
+        rows: validated result dicts (sorted). Measured rows with a batch-1 latency are points; reported
+            rows are horizontal reference lines.
+
+    Returns:
+        A 900 x 600 px PNG, a pure function of ``rows`` for one matplotlib and Pillow version.
+    """
+    import matplotlib
+
+    with matplotlib.rc_context():
+        matplotlib.rcdefaults()  # the user's matplotlibrc must not change the committed bytes
+        fig, ax = _figure()
+        points, labels, runtimes = [], [], []
+        for row in rows:
+            ms, runtime = inference_latency_ms(row)
+            if row["kind"] == "measured" and ms is not None:
+                points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
+                labels.append(row["model"]["label"])
+                runtimes.append(runtime)
+        reported = [row for row in rows if row["kind"] == "reported"]
+        _draw_references(ax, reported)
+        for runtime, marker in (("ONNX Runtime", "o"), ("PyTorch", "s")):
+            chosen = [p for p, r in zip(points, runtimes) if r == runtime]
+            if chosen:
+                ax.scatter([p[0] for p in chosen], [p[1] for p in chosen], marker=marker, s=45, zorder=3,
+                           color="tab:blue" if runtime == "ONNX Runtime" else "tab:orange",
+                           label=f"measured, {runtime} latency")
+        for (x, y), label in zip(points, labels):
+            ax.annotate(label, (x, y), xytext=(6, 5), textcoords="offset points", fontsize=8)
+        if points:
+            front = [points[i] for i in pareto_front(points)]
+            ax.plot([p[0] for p in front], [p[1] for p in front], color="tab:green", linewidth=1.5, zorder=2,
+                    drawstyle="steps-post" if len(front) > 1 else "default", label="Pareto frontier")
+            xs = [p[0] for p in points]
+            low, high = min(xs), max(xs)
+            if high / max(low, 1e-9) > 20:
+                ax.set_xscale("log")
+                ax.set_xlim(low / 2, high * 2)
+                _plain_log_ticks(ax.xaxis)
+            else:
+                pad = max((high - low) * 0.15, high * 0.1, 0.5)
+                ax.set_xlim(max(0.0, low - pad), high + pad)
+        else:
+            ax.set_xscale("log")
+            ax.set_xlim(1, 1000)
+            _plain_log_ticks(ax.xaxis)
+            ax.text(0.5, 0.5, "no measured rows with a latency yet\n(hupbench eval writes them)",
+                    transform=ax.transAxes, ha="center", va="center", color="0.4")
+        ax.set_ylim(0, _y_limit([p[1] for p in points] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]))
+        ax.set_xlabel("inference latency (ms per image, batch 1)")
+        ax.set_ylabel("test MPJPE, all 29 keypoints (mm)")
+        ax.set_title("Error against inference latency (lower left is better)")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(loc="lower right", fontsize=8)
+        fig.tight_layout()
+        return _png_bytes(fig)
+
+
+def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
+    """Validation MPJPE against training wall time, one line per measured row with a log; PNG bytes.
+
+    Args:
+        rows: validated result dicts (sorted).
+        leaderboard_dir: the folder that ``training.log`` paths are relative to.
+
+    Returns:
+        A 900 x 600 px PNG, a pure function of the rows and logs for one matplotlib and Pillow version.
+
+    Raises:
+        FileNotFoundError, ValueError: a named log is missing or malformed (see :func:`read_validation_curve`).
+    """
+    import matplotlib
+
+    curves = []
+    for row in rows:
+        if row["kind"] == "measured" and row["training"]["log"] is not None:
+            log_path = Path(leaderboard_dir) / row["training"]["log"]
+            try:
+                curves.append((row, read_validation_curve(log_path)))
+            except (ValueError, FileNotFoundError) as exc:
+                raise type(exc)(f"results/{row['run_name']}.json: training log: {exc}") from exc
+    longest_s = max((s for _, curve in curves for s, _ in curve), default=0.0)
+    hours = longest_s > 2 * 3600
+    scale, unit = (3600.0, "h") if hours else (60.0, "min")
+
+    with matplotlib.rc_context():
+        matplotlib.rcdefaults()
+        fig, ax = _figure()
+        reported = [row for row in rows if row["kind"] == "reported"]
+        _draw_references(ax, reported)
+        colours = matplotlib.colormaps["tab10"].colors
+        for k, (row, curve) in enumerate(curves):
+            hardware = f", {row['training']['hardware']}" if row["training"]["hardware"] else ""
+            ax.plot([s / scale for s, _ in curve], [m for _, m in curve], marker="o", markersize=3, linewidth=1.5,
+                    color=colours[k % len(colours)], label=f"{row['model']['label']}{hardware}")
+        if curves:
+            ax.set_xlim(0, longest_s / scale * 1.05 if longest_s > 0 else 1.0)
+        else:
+            ax.set_xlim(0, 1)
+            ax.text(0.5, 0.5, "no measured rows with a training log yet", transform=ax.transAxes,
+                    ha="center", va="center", color="0.4")
+        values = [m for _, c in curves for _, m in c] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]
+        positive = [v for v in values if v > 0]
+        if positive and max(positive) / min(positive) > 5:
+            # early validation errors are often ten times the final ones: a log axis shows both ends
+            ax.set_yscale("log")
+            ax.set_ylim(min(positive) / 1.3, max(positive) * 1.3)
+            _plain_log_ticks(ax.yaxis)
+        else:
+            ax.set_ylim(0, _y_limit(values))
+        ax.set_xlabel(f"training wall time ({unit}, validation passes excluded)")
+        ax.set_ylabel("validation MPJPE, all 29 keypoints (mm)" + (", log scale" if ax.get_yscale() == "log" else ""))
+        ax.set_title("Validation error against training time (paper lines: test split)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        return _png_bytes(fig)
+
+
+# ----------------------------------------------------------------------------- verb
+
+def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
+    """Rebuild README.md and both plots in ``dir`` from ``dir/results/*.json``.
+
+    Args:
+        dir: the leaderboard folder (``results/`` inside, ``logs/`` for training logs).
+
+    Returns:
+        {"rows": int, "measured": int, "reported": int, "readme": Path, "plots": [Path, Path]}.
+
+    Raises:
+        FileNotFoundError, ValueError: a missing folder or log, or a bad results file, named.
+    """
+    root = Path(dir)
+    rows = load_rows(root / "results")
+    # render everything before writing anything, so a bad log leaves the old files in place
+    readme = render_readme(rows).encode("utf-8")
+    latency_png = plot_latency(rows)
+    training_png = plot_training(rows, root)
+    paths = [write_bytes(root / README, readme), write_bytes(root / LATENCY_PLOT, latency_png),
+             write_bytes(root / TRAINING_PLOT, training_png)]
+    measured = sum(row["kind"] == "measured" for row in rows)
+    return {"rows": len(rows), "measured": measured, "reported": len(rows) - measured, "readme": paths[0],
+            "plots": paths[1:]}

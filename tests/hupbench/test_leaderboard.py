@@ -1,0 +1,285 @@
+"""The leaderboard: byte-for-byte rebuild of the committed files, the table, the plots, bad input named."""
+
+import json
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib
+import PIL
+import pytest
+
+from hupbench.cli import main
+from hupbench.leaderboard import (
+    DPI,
+    FIGSIZE_IN,
+    LATENCY_PLOT,
+    README,
+    TRAINING_PLOT,
+    format_duration,
+    inference_latency_ms,
+    keypoint_weighted_all_mm,
+    load_rows,
+    pareto_front,
+    read_validation_curve,
+    run_leaderboard,
+    table_row,
+)
+from hupbench.results import blank_results, load_results, write_results
+
+COMMITTED = Path(__file__).resolve().parents[2] / "leaderboard"
+OUTPUTS = (README, LATENCY_PLOT, TRAINING_PLOT)
+
+
+def png_chunks(data: bytes) -> dict:
+    """Chunk type -> list of payloads of a PNG."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    chunks, pos = {}, 8
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        kind = data[pos + 4:pos + 8].decode("ascii")
+        chunks.setdefault(kind, []).append(data[pos + 8:pos + 8 + length])
+        pos += 12 + length
+    return chunks
+
+
+def png_size(data: bytes) -> tuple[int, int]:
+    return struct.unpack(">II", png_chunks(data)["IHDR"][0][:8])
+
+
+def png_software(data: bytes) -> str:
+    for payload in png_chunks(data).get("tEXt", []):
+        key, _, value = payload.partition(b"\0")
+        if key == b"Software":
+            return value.decode("latin-1")
+    return ""
+
+
+def measured(name, label, all_mm, hand, probe, onnx_ms, torch_ms, wall_s, hardware="1x H100", log=True):
+    d = blank_results("measured", name)
+    d["model"] |= {"name": "hopenet", "label": label, "parameters": 12_345_678, "input_size": 128, "format": "onnx"}
+    d["dataset"] |= {"name": "hupbench default", "frames": 5760, "manifest_sha256": "ab" * 32, "path": "/data"}
+    d["metrics"] = {"mpjpe_mm": {"all": all_mm, "hand": hand, "probe": probe, "all_averaging": "mean over 29 keypoints"},
+                    "root_relative_hand_mpjpe_mm": 7.0, "pa_mpjpe_hand_mm": 4.5678, "pck_auc_0_50mm": 0.81234,
+                    "pixel_error_px": 2.0}
+    d["latency_ms_per_image"]["onnxruntime"]["batch1"] = onnx_ms
+    d["latency_ms_per_image"]["pytorch"]["batch1"] = torch_ms
+    d["training"] |= {"wall_s": wall_s, "hardware": hardware, "command": f"python train.py run_name={name}",
+                      "log": f"logs/{name}.jsonl" if log else None}
+    return d
+
+
+def write_log(path: Path, wall_s: float, final_mm: float, n: int = 5) -> None:
+    lines = [json.dumps({"event": "train", "step": 0, "samples_seen": 0, "wall_s": 0.0, "train_wall_s": 0.0,
+                         "loss": 1.0, "lr": 1e-3})]
+    for i in range(1, n + 1):
+        lines.append(json.dumps({"event": "val", "step": 10 * i, "epoch": float(i), "samples_seen": 640 * i,
+                                 "wall_s": 1.1 * wall_s * i / n, "train_wall_s": wall_s * i / n,
+                                 "val_mpjpe_mm": {"all": final_mm * (1 + 2 / i), "hand": 1.0, "probe": 2.0}}))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture
+def synthetic_board(tmp_path):
+    """The committed paper rows plus three synthetic measured rows with logs (one without a log)."""
+    root = tmp_path / "board"
+    shutil.copytree(COMMITTED / "results", root / "results")
+    rows = [measured("fast_small", "HOPE-Net (ResNet-10, 64 px)", 30.0, 25.0, 43.125, 2.0, 5.0, 1500.0),
+            measured("slow_big", "HOPE-Net (ResNet-50, 224 px)", 10.456, 8.0, 16.9, 80.0, 150.0, 20 * 3600.0),
+            measured("torch_only", "ResNet-50 regressor (224 px)", 12.0, 10.0, 17.25, None, 40.0, 5 * 3600.0,
+                     hardware=None, log=False)]
+    for row in rows:
+        write_results(root / "results" / f"{row['run_name']}.json", row)
+        if row["training"]["log"]:
+            write_log(root / row["training"]["log"], row["training"]["wall_s"], row["metrics"]["mpjpe_mm"]["all"])
+    return root
+
+
+# ----------------------------------------------------------------------------- committed files
+
+def test_committed_paper_rows():
+    hope = load_results(COMMITTED / "results" / "paper_hopenet.json")
+    assert hope["kind"] == "reported" and hope["dataset"]["name"] == "HUP-3D (paper)"
+    assert (hope["metrics"]["mpjpe_mm"]["all"], hope["metrics"]["mpjpe_mm"]["hand"],
+            hope["metrics"]["mpjpe_mm"]["probe"]) == (8.65, 5.33, 17.05)
+    assert keypoint_weighted_all_mm(hope) == pytest.approx(8.5631, abs=1e-4)  # not 8.65: stated in the README
+    resnet = load_results(COMMITTED / "results" / "paper_resnet50.json")
+    assert resnet["metrics"]["mpjpe_mm"]["all"] == 9.69 and resnet["metrics"]["mpjpe_mm"]["hand"] is None
+    for row in (hope, resnet):
+        assert row["source"] == "Birlo et al., HUP-3D, test split of unseen grasps"
+        assert row["latency_ms_per_image"]["onnxruntime"]["batch1"] is None
+
+
+def test_rebuild_reproduces_committed_files_byte_for_byte(tmp_path):
+    copy = tmp_path / "leaderboard"
+    shutil.copytree(COMMITTED, copy)
+    result = run_leaderboard(copy)
+    assert result["rows"] == len(list((COMMITTED / "results").glob("*.json")))
+    assert (copy / README).read_bytes() == (COMMITTED / README).read_bytes()
+    # the pixels are matplotlib's and Pillow's: the committed PNGs name the versions that drew them
+    versions = f"matplotlib {matplotlib.__version__}; Pillow {PIL.__version__}"
+    for name in (LATENCY_PLOT, TRAINING_PLOT):
+        committed = (COMMITTED / name).read_bytes()
+        assert png_size(committed) == png_size((copy / name).read_bytes())
+        if versions not in png_software(committed):
+            pytest.skip(f"{name} was drawn by {png_software(committed)!r}; this environment has {versions}")
+        assert (copy / name).read_bytes() == committed, f"{name} differs from the committed file"
+
+
+def test_plots_have_fixed_size_and_no_date(synthetic_board):
+    run_leaderboard(synthetic_board)
+    for name in (LATENCY_PLOT, TRAINING_PLOT):
+        data = (synthetic_board / name).read_bytes()
+        assert png_size(data) == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI)) == (900, 600)
+        text_keys = [p.partition(b"\0")[0] for kind in ("tEXt", "iTXt", "zTXt") for p in png_chunks(data).get(kind, [])]
+        assert text_keys == [b"Software"]  # no creation time or other varying metadata
+        assert "tIME" not in png_chunks(data)
+
+
+def test_rebuild_in_a_second_process_gives_identical_bytes(synthetic_board):
+    run_leaderboard(synthetic_board)
+    first = {name: (synthetic_board / name).read_bytes() for name in OUTPUTS}
+    code = f"from hupbench.leaderboard import run_leaderboard; run_leaderboard({str(synthetic_board)!r})"
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+    for name in OUTPUTS:
+        assert (synthetic_board / name).read_bytes() == first[name], name
+
+
+# ----------------------------------------------------------------------------- table
+
+def test_synthetic_measured_rows_in_table(synthetic_board):
+    result = run_leaderboard(synthetic_board)
+    assert (result["rows"], result["measured"], result["reported"]) == (5, 3, 2)
+    text = (synthetic_board / README).read_text()
+    table = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    # sorted by MPJPE all
+    assert [line.split(" | ")[0][2:] for line in table] == [
+        "HOPE-Net, HUP-3D paper (backbone and input size not stated)",
+        "ResNet-50 baseline, HUP-3D paper (input size not stated)",
+        "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
+    assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | 128 | 12.35 | 10.46 | 8.00 | "
+                        "16.90 | 4.57 | 0.812 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
+                        "`python train.py run_name=slow_big` |")
+    assert table[3].endswith("| 5.0 h | — | 40.00 | `python train.py run_name=torch_only` |")
+    assert table[4].split(" | ")[10] == "25 min, 1x H100"
+    assert table[0] == ("| HOPE-Net, HUP-3D paper (backbone and input size not stated) | reported in paper | "
+                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | — | — | — | — | — | — |")
+    assert "(21 × 5.33 + 8 × 17.05) / 29 = 8.56 mm, which is not the row's all (8.65 mm)" in text
+    # a measured row whose all is the keypoint-weighted mean is not flagged
+    assert "/ 29 = 30.00 mm\n" in text and "not the row's all (30.00 mm)" not in text
+
+
+def test_table_cells_escape_pipes_and_newlines():
+    row = measured("r", "a | b\nc", 1.0, 1.0, 1.0, None, None, None, hardware=None, log=False)
+    cells = table_row(row)
+    assert cells[0] == "a \\| b c"
+    assert cells[10] == "—" and cells[11] == "—"
+
+
+@pytest.mark.parametrize("seconds, text", [(None, "—"), (42.4, "42 s"), (59.9, "60 s"), (60.0, "1 min"),
+                                           (2100.0, "35 min"), (3600.0, "1.0 h"), (9000.0, "2.5 h")])
+def test_format_duration(seconds, text):
+    assert format_duration(seconds) == text
+
+
+def test_latency_prefers_onnxruntime():
+    assert inference_latency_ms(measured("a", "a", 1, 1, 1, 3.0, 9.0, None)) == (3.0, "ONNX Runtime")
+    assert inference_latency_ms(measured("a", "a", 1, 1, 1, None, 9.0, None)) == (9.0, "PyTorch")
+    assert inference_latency_ms(measured("a", "a", 1, 1, 1, None, None, None)) == (None, None)
+
+
+# ----------------------------------------------------------------------------- pure functions
+
+def test_pareto_front_known_answer():
+    points = [(10.0, 5.0),   # 0: front (slowest, most accurate)
+              (2.0, 30.0),   # 1: front (fastest)
+              (5.0, 12.0),   # 2: front
+              (6.0, 12.0),   # 3: dominated by 2 (slower, same error)
+              (5.0, 20.0),   # 4: dominated by 2 (same speed, worse)
+              (12.0, 6.0),   # 5: dominated by 0
+              (5.0, 12.0)]   # 6: duplicate of 2: neither dominates the other
+    assert pareto_front(points) == [1, 2, 6, 0]
+    assert pareto_front([]) == []
+    assert pareto_front([(1.0, 1.0)]) == [0]
+
+
+def test_read_validation_curve(tmp_path):
+    log = tmp_path / "m.jsonl"
+    write_log(log, 100.0, 10.0, n=2)
+    assert read_validation_curve(log) == [(50.0, 30.0), (100.0, 20.0)]
+
+
+@pytest.mark.parametrize("content, message", [
+    ('{"event": "val", "train_wall_s": 1.0}\n', r"m.jsonl:1: validation line needs val_mpjpe_mm\['all'\]"),
+    ('{"event": "train"}\n{"event": "val", "train_wall_s": -1, "val_mpjpe_mm": {"all": 1}}\n',
+     r"m.jsonl:2: validation line needs train_wall_s as a finite number >= 0, got -1"),
+    ('{"event": "train"}\nnot json\n', r"m.jsonl:2: not a JSON line"),
+    ('[1, 2]\n', r"m.jsonl:1: expected a JSON object, got list"),
+    ('{"event": "train"}\n', r"m.jsonl: no validation lines"),
+])
+def test_bad_log_is_named(tmp_path, content, message):
+    log = tmp_path / "m.jsonl"
+    log.write_text(content)
+    with pytest.raises(ValueError, match=message):
+        read_validation_curve(log)
+
+
+# ----------------------------------------------------------------------------- bad results files
+
+def test_wrong_schema_version_is_rejected_with_its_name(synthetic_board):
+    path = synthetic_board / "results" / "slow_big.json"
+    data = json.loads(path.read_text())
+    data["schema_version"] = 2
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 1"):
+        run_leaderboard(synthetic_board)
+    assert not (synthetic_board / README).exists()  # nothing written
+
+
+def test_cli_reports_bad_file(synthetic_board, capsys):
+    (synthetic_board / "results" / "broken.json").write_text("{")
+    assert main(["leaderboard", "--dir", str(synthetic_board)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("hupbench leaderboard: error: ") and "broken.json: not valid JSON" in err
+
+
+def test_cli_rebuilds(synthetic_board, capsys):
+    assert main(["leaderboard", "--dir", str(synthetic_board)]) == 0
+    out = capsys.readouterr().out
+    assert "5 rows (3 measured, 2 reported)" in out
+    assert all((synthetic_board / name).is_file() for name in OUTPUTS)
+
+
+def _edit(board: Path, name: str, edit) -> None:
+    path = board / "results" / f"{name}.json"
+    data = json.loads(path.read_text())
+    edit(data)
+    path.write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(run_name="other"), r"slow_big\.json: results\['run_name'\] must equal the file stem"),
+    (lambda d: d["dataset"].update(split="val"), r"slow_big\.json: the leaderboard compares test-split results"),
+    (lambda d: d["training"].update(command=None), r"slow_big\.json: a measured row must name the command"),
+])
+def test_rows_the_leaderboard_refuses(synthetic_board, edit, message):
+    _edit(synthetic_board, "slow_big", edit)
+    with pytest.raises(ValueError, match=message):
+        load_rows(synthetic_board / "results")
+
+
+def test_missing_log_is_named(synthetic_board):
+    (synthetic_board / "logs" / "fast_small.jsonl").unlink()
+    with pytest.raises(FileNotFoundError, match=r"results/fast_small\.json: training log: .*fast_small\.jsonl"):
+        run_leaderboard(synthetic_board)
+
+
+def test_empty_or_missing_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match="results folder not found"):
+        run_leaderboard(tmp_path)
+    (tmp_path / "results").mkdir()
+    with pytest.raises(ValueError, match=r"no results files \(\*\.json\)"):
+        run_leaderboard(tmp_path)
