@@ -1,0 +1,185 @@
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from hupbench.checkpoint import load_model, read_checkpoint
+from hupbench.config import compose
+from hupbench.train import EpochSampler, hopenet_loss, run_train, warmup_cosine
+from models.hopenet import HOPENetOutput
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def tiny_cfg(dataset, run_dir, *extra):
+    """The real train config shrunk to a few steps on the 64 px tiny dataset."""
+    return compose("train", [
+        "model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", "data.reader.input_size=64",
+        "data.batch_size=4", "data.num_workers=0", "data.val_frames=8", "train.max_steps=4", "train.val_every=2",
+        "train.ckpt_every=2", "train.log_every=1", "train.progress=false", "train.tensorboard=false", "threads=2",
+        *extra])
+
+
+def read_log(run_dir):
+    return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_short_run_writes_everything(tiny_dataset, tmp_path):
+    run_dir = tmp_path / "run"
+    result = run_train(tiny_cfg(tiny_dataset, run_dir, "train.tensorboard=true"), log=lambda *_: None)
+    assert result["complete"] and result["steps"] == 4 and result["samples_seen"] == 16
+    for name in ("run.json", "metrics.jsonl", "summary.json", "checkpoints/last.pt", "checkpoints/best.pt"):
+        assert (run_dir / name).is_file(), name
+    assert any(p.name.startswith("events.out.tfevents") for p in (run_dir / "tb").iterdir())
+    info = json.loads((run_dir / "run.json").read_text())
+    assert info["config"]["model"]["_target_"] == "models.hopenet.HOPENet"
+    assert len(info["git_commit"]) >= 40 and info["packages"]["torch"].startswith("2.13")
+    log = read_log(run_dir)
+    vals = [r for r in log if r["event"] == "val"]
+    assert [r["step"] for r in vals] == [0, 2, 4]
+    assert all(set(r["val_mpjpe_mm"]) == {"all", "hand", "probe"} and r["val_frames"] == 8 for r in vals)
+    # "all" is the keypoint-weighted mean of the 21 hand joints and 8 corners
+    v = vals[-1]["val_mpjpe_mm"]
+    assert v["all"] == pytest.approx((21 * v["hand"] + 8 * v["probe"]) / 29)
+    assert [r["step"] for r in log if r["event"] == "train"] == [1, 2, 3, 4]
+    assert all(r["wall_s"] >= r["train_wall_s"] > 0 for r in log if r["event"] == "train")
+    # the checkpoint rebuilds the model by itself, with the training split's mean layout as its prior
+    model, payload = load_model(run_dir / "checkpoints" / "last.pt")
+    assert payload["step"] == 4 and payload["input_size"] == 64
+    assert payload["K_input"][0][0] == pytest.approx(120.0)  # 64 px dataset, fx 120, no resize
+    assert torch.equal(model.prior3d.mean, torch.tensor(payload["model_config"]["points3d_mean"]))
+    assert 0.3 < float(model.prior3d.mean[:, 2].mean()) < 1.0  # metres in front of the camera
+
+
+def test_resume_gives_the_same_next_losses(tiny_dataset, tmp_path):
+    straight = tmp_path / "straight"
+    run_train(tiny_cfg(tiny_dataset, straight, "train.max_steps=6", "train.ckpt_every=100"), log=lambda *_: None)
+    pieces = tmp_path / "pieces"
+    first = run_train(tiny_cfg(tiny_dataset, pieces, "train.max_steps=6", "train.ckpt_every=100",
+                               "train.stop_after=3"), log=lambda *_: None)
+    assert not first["complete"] and not (pieces / "summary.json").exists()
+    assert read_checkpoint(pieces / "checkpoints" / "last.pt")["step"] == 3
+    second = run_train(tiny_cfg(tiny_dataset, pieces, "train.max_steps=6", "train.ckpt_every=100"),
+                       log=lambda *_: None)
+    assert second["complete"] and second["steps"] == 6
+    losses = {r["step"]: r["loss"] for r in read_log(straight) if r["event"] == "train"}
+    resumed = {r["step"]: r["loss"] for r in read_log(pieces) if r["event"] == "train"}
+    assert sorted(resumed) == [1, 2, 3, 4, 5, 6]  # nothing lost, nothing logged twice
+    for step in range(1, 7):
+        assert resumed[step] == pytest.approx(losses[step], rel=1e-6, abs=1e-9), step
+    a = read_checkpoint(straight / "checkpoints" / "last.pt")["model"]
+    b = read_checkpoint(pieces / "checkpoints" / "last.pt")["model"]
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], rtol=1e-5, atol=1e-7)
+
+
+def test_hopenet_loss_known_values():
+    target = {"keypoints_2d": torch.zeros(1, 29, 2), "keypoints_3d": torch.zeros(1, 29, 3)}
+    out = HOPENetOutput(torch.full((1, 29, 2), 0.5), torch.full((1, 29, 2), 0.1), torch.full((1, 29, 3), 0.02))
+    weights = {"w2d_init": 2.0, "w2d": 3.0, "w3d": 1.0, "unit_3d_m": 0.01}
+    total, terms = hopenet_loss(out, target, weights)
+    assert terms["loss_2d_init"] == pytest.approx(0.25)
+    assert terms["loss_2d"] == pytest.approx(0.01)
+    assert terms["loss_3d"] == pytest.approx(4.0)  # 2 cm off in every coordinate, measured in cm
+    assert float(total) == pytest.approx(2 * 0.25 + 3 * 0.01 + 4.0)
+
+
+def test_schedule_warms_up_and_decays():
+    opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=1.0)
+    sched = warmup_cosine(opt, total_steps=1000, warmup_steps=100, final_lr_fraction=0.1)
+    lrs = []
+    for _ in range(1000):
+        lrs.append(sched.get_last_lr()[0])
+        opt.step()
+        sched.step()
+    assert lrs[0] == pytest.approx(0.01) and lrs[99] == pytest.approx(1.0)
+    assert max(lrs) == pytest.approx(1.0) and lrs[-1] == pytest.approx(0.1, abs=1e-4)
+    assert all(a >= b for a, b in zip(lrs[100:], lrs[101:]))
+
+
+def test_sampler_ranks_are_disjoint_and_resume_mid_epoch():
+    whole = list(EpochSampler(50, 4, seed=1))
+    assert len(whole) == 48 and len(set(whole)) == 48
+    ranks = [list(EpochSampler(50, 4, seed=1, world=2, rank=r)) for r in range(2)]
+    assert set(ranks[0]).isdisjoint(ranks[1]) and len(ranks[0]) == len(ranks[1]) == 24
+    late = EpochSampler(50, 4, seed=1)
+    late.set_position(0, 5)
+    assert list(late) == whole[20:]
+    late.set_position(1, 0)
+    assert list(late) != whole
+
+
+@pytest.mark.parametrize("overrides,error,match", [
+    (["device=cuda"], RuntimeError, "device=cuda was asked for but CUDA is not available"),
+    (["precision=fp16"], ValueError, "precision must be 'fp32' or 'bf16', got 'fp16'"),
+    (["data.batch_size=64"], ValueError, "fewer than one batch of 64"),
+    (["data.reader.input_size=8"], ValueError, "input_size must be an int >= 16"),
+    (["model.n_keypoints=21"], ValueError, r"points3d_mean must be \(21, 3\)|n_keypoints"),
+])
+def test_bad_config_fails_before_training(tiny_dataset, tmp_path, overrides, error, match):
+    run_dir = tmp_path / "run"
+    if torch.cuda.is_available() and overrides == ["device=cuda"]:
+        pytest.skip("CUDA is present")
+    with pytest.raises(error, match=match):
+        run_train(tiny_cfg(tiny_dataset, run_dir, *overrides), log=lambda *_: None)
+    assert not (run_dir / "checkpoints").exists()
+
+
+def test_dataset_problems_fail_before_training(tiny_dataset, tmp_path):
+    with pytest.raises(FileNotFoundError, match="has no manifest.json"):
+        run_train(tiny_cfg(tmp_path, tmp_path / "run"), log=lambda *_: None)
+    bad = tmp_path / "bad"
+    shutil.copytree(tiny_dataset, bad)
+    manifest = json.loads((bad / "manifest.json").read_text())
+    manifest["keypoint_names"] = manifest["keypoint_names"][:21]
+    (bad / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="has 21 keypoints; the models are built for 29"):
+        run_train(tiny_cfg(bad, tmp_path / "run2"), log=lambda *_: None)
+    assert not (tmp_path / "run").exists() and not (tmp_path / "run2").exists()
+
+
+def test_unknown_model_is_named():
+    with pytest.raises(Exception, match="Could not find 'model/hopenet_r99'"):
+        compose("train", ["model=hopenet_r99"])
+
+
+def test_checkpoint_from_another_model_is_refused(tiny_dataset, tmp_path):
+    other = tmp_path / "other"
+    run_train(tiny_cfg(tiny_dataset, other, "model=resnet50_128", "data.reader.input_size=64",
+                       "train.max_steps=1"), log=lambda *_: None)
+    with pytest.raises(ValueError, match=r"trained with another config.*model\._target_"):
+        run_train(tiny_cfg(tiny_dataset, tmp_path / "run", f"train.resume={other}/checkpoints/last.pt"),
+                  log=lambda *_: None)
+    with pytest.raises(ValueError, match="already holds a checkpoint"):
+        run_train(tiny_cfg(tiny_dataset, other, "model=resnet50_128", "data.reader.input_size=64",
+                           "train.max_steps=1", "train.resume=never"), log=lambda *_: None)
+
+
+@pytest.mark.parametrize("model", ["hopenet", "hopenet_r18", "hopenet_r10_128", "resnet50", "resnet50_128"])
+def test_every_model_config_composes_and_builds(model):
+    cfg = compose("train", [f"model={model}"])
+    from hupbench.config import build
+
+    net = build(cfg.model)
+    assert cfg.data.reader.input_size in (128, 224)
+    with torch.no_grad():
+        out = net.eval()(torch.rand(1, 3, 64, 64))
+    assert out.points3d.shape == (1, 29, 3)
+
+
+@pytest.mark.slow
+def test_train_py_multirun(tiny_dataset, tmp_path):
+    """python train.py -m sweeps two models, each job in its own folder with its own run.json."""
+    args = [sys.executable, str(REPO / "train.py"), "-m", "model=hopenet_r10_128,resnet50_128",
+            f"data.root={tiny_dataset}", f"out_root={tmp_path}", "data.reader.input_size=64", "data.batch_size=4",
+            "data.num_workers=0", "data.val_frames=4", "train.max_steps=1", "train.progress=false"]
+    done = subprocess.run(args, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    summaries = sorted(tmp_path.glob("multirun/**/summary.json"))
+    assert len(summaries) == 2
+    names = {json.loads((s.parent / "run.json").read_text())["config"]["model_id"] for s in summaries}
+    assert names == {"hopenet_r10_128", "resnet50_128"}
