@@ -12,8 +12,9 @@ VERBS = {
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
+    "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
 }
-OWN_OPTION_VERBS = {"leaderboard"}
+OWN_OPTION_VERBS = {"leaderboard", "predict"}
 
 
 def _quickstart(overrides: list[str]) -> int:
@@ -101,6 +102,26 @@ def _leaderboard(args: list[str]) -> int:
     return 0
 
 
+def _predict(args: list[str]) -> int:
+    # only hupbench.predict: the inference path must run without torch
+    from hupbench.predict import DEFAULT_BATCH_SIZE, run_predict
+
+    parser = argparse.ArgumentParser(prog="hupbench predict",
+                                     description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.")
+    parser.add_argument("model", metavar="MODEL.onnx", help="a model written by `hupbench export`")
+    parser.add_argument("inputs", nargs="+", metavar="IMAGE_OR_DIR", help="image files and/or folders of images")
+    parser.add_argument("--out", default="predictions", help="output folder (predictions.json, *_overlay.png)")
+    parser.add_argument("--K", metavar="fx,fy,cx,cy", help="intrinsics of the original images, pixels "
+                        "(default: the training camera scaled to each image)")
+    parser.add_argument("--no-overlay", action="store_true", help="write the JSON only")
+    parser.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE, help="images per onnxruntime call")
+    ns = parser.parse_args(args)
+    result = run_predict(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay, batch_size=ns.batch_size)
+    print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed; "
+          f"{result['json']}" + (f" and {len(result['overlays'])} overlay PNG(s)" if result["overlays"] else ""))
+    return 1 if result["failed"] else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
@@ -123,7 +144,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
-                    "generate": _generate, "verify": _verify, "leaderboard": _leaderboard}
+                    "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
+                    "predict": _predict}
         return handlers[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)

@@ -1,0 +1,95 @@
+"""Predicted keypoints drawn on the original image: hand skeleton and probe box (numpy + OpenCV only).
+
+Convention:
+    Images are RGB uint8 (H, W, 3); pixel coordinates (u, v) follow OpenCV
+    (pixel centres at integers). Colours come from the keypoint names (the
+    ``hupbench.keypoint_names`` of the ONNX metadata): one colour per finger
+    (``thumb_*``, ``index_*``, ...), grey for the wrist, orange for the probe
+    box corners (``probe_corner_*``); an edge takes the colour of its second
+    keypoint, as in :func:`datagen.draw.draw_keypoints`. Lines scale with the
+    image so that an overlay on a phone photo is as readable as on a 64 px frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from datagen.draw import FINGER_RGB, PROBE_RGB
+
+OTHER_RGB = (200, 200, 200)
+HALO_RGB = (0, 0, 0)  # a dark rim under every line keeps it visible on bright and dark photos alike
+_SHIFT = 2  # fixed-point bits for sub-pixel drawing
+_PIXELS_PER_LINE_WIDTH = 320  # one more pixel of line width for every 320 px of the longer image side
+
+
+def keypoint_color(name: str) -> tuple[int, int, int]:
+    """RGB colour of a keypoint from its name.
+
+    Args:
+        name: a keypoint name such as ``"index_pip"``, ``"wrist"`` or ``"probe_corner_-x+y-z"``.
+
+    Returns:
+        (r, g, b) ints in [0, 255].
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"keypoint name must be a str, got {type(name).__name__}")
+    if name.startswith("probe"):
+        return PROBE_RGB
+    return FINGER_RGB.get(name.split("_")[0], OTHER_RGB)
+
+
+def line_width(height: int, width: int) -> int:
+    """Line thickness in pixels for an image of this size (1 px up to 479 px, 2 px from 480 px, ...)."""
+    return max(1, round(max(height, width) / _PIXELS_PER_LINE_WIDTH))
+
+
+def draw_prediction(image_rgb: np.ndarray, uv: np.ndarray, names: Sequence[str],
+                    edges: Sequence[Sequence[int]]) -> np.ndarray:
+    """Draw predicted keypoints and their skeleton on an image.
+
+    Edges between two probe corners (the probe's box) are drawn first, hand edges over them,
+    then a marker at every keypoint, so that the hand stays on top where it covers the probe.
+
+    Args:
+        image_rgb: (H, W, 3) uint8 RGB, the original image.
+        uv: (N, 2) float, pixels of ``image_rgb``, pixel centres at integers; rows with a
+            non-finite value are not drawn (nor their edges).
+        names: N keypoint names (colours, see the module docstring).
+        edges: pairs (i, j) of keypoint indices in [0, N) to join with a line.
+
+    Returns:
+        (H, W, 3) uint8, a drawn copy of ``image_rgb``.
+    """
+    image_rgb = np.asarray(image_rgb)
+    if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
+        raise ValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
+    uv = np.asarray(uv, dtype=np.float64)
+    n = len(names)
+    if uv.shape != (n, 2):
+        raise ValueError(f"uv must be ({n}, 2) for {n} keypoint names, got {tuple(uv.shape)}")
+    edge_array = np.asarray(edges, dtype=np.int64).reshape(-1, 2) if len(edges) else np.zeros((0, 2), np.int64)
+    if edge_array.size and (edge_array.min() < 0 or edge_array.max() >= n):
+        raise ValueError(f"edges must index keypoints in [0, {n}), got values {edge_array.min()}..{edge_array.max()}")
+    colors = [keypoint_color(name) for name in names]
+    is_corner = np.array([name.startswith("probe") for name in names], dtype=bool)
+
+    out = np.ascontiguousarray(image_rgb.copy())
+    thickness = line_width(*out.shape[:2])
+    radius = round((1.2 * thickness + 1.5) * (1 << _SHIFT))
+    ok = np.all(np.isfinite(uv), axis=1)
+    fixed = np.round(np.where(ok[:, None], uv, 0.0) * (1 << _SHIFT)).astype(np.int64)
+    fixed = np.clip(fixed, -(1 << 28), 1 << 28)  # keep far-off predictions in OpenCV's int32 range
+    points = [tuple(map(int, p)) for p in fixed]
+
+    box_first = sorted(edge_array.tolist(), key=lambda e: not (is_corner[e[0]] and is_corner[e[1]]))
+    for a, b in box_first:
+        if ok[a] and ok[b]:
+            cv2.line(out, points[a], points[b], HALO_RGB, thickness + 2, cv2.LINE_AA, _SHIFT)
+            cv2.line(out, points[a], points[b], colors[b], thickness, cv2.LINE_AA, _SHIFT)
+    for i in np.flatnonzero(ok):
+        cv2.circle(out, points[i], radius + (1 << _SHIFT), HALO_RGB, -1, cv2.LINE_AA, _SHIFT)
+        cv2.circle(out, points[i], radius, colors[i], -1, cv2.LINE_AA, _SHIFT)
+    return out

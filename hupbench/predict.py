@@ -1,0 +1,651 @@
+"""``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
+
+Only onnxruntime, numpy and OpenCV run here (plus the torch-free ``datagen.keypoints``,
+``datagen.draw`` and ``datagen.io``), so a deployment needs neither PyTorch nor the training code.
+
+Model: an ``.onnx`` file written by ``hupbench export`` (the ONNX contract in the notes): input
+``image`` (B, 3, S, S) float32 RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1]
+coordinates of the input image and ``points3d`` (B, N, 3) metres in the OpenCV camera frame of the
+model-input camera ``K_input``; metadata ``hupbench.*`` (input size, K_input, keypoint names,
+skeleton edges, run name). A file without that metadata is refused.
+
+Images: PNG or JPEG of any size, recognised by content (not by name). 8- and 16-bit samples are
+scaled to [0, 1]; a grey image becomes three equal channels; an alpha channel is composited over
+the padding grey (so transparent areas look like the padding to the network); JPEG EXIF orientation
+is applied (OpenCV's ``IMREAD_COLOR``).
+
+Geometry (pad to square, then resize):
+    An H x W image is padded to a centred L x L square, L = max(H, W), with
+    pad_left = (L - W) // 2 columns on the left and pad_top = (L - H) // 2 rows on top, filled
+    with mid-grey (0.5), then resized to S x S with ``cv2.INTER_AREA``, scale s = S / L.
+    Why pad and not centre-crop: padding keeps every pixel, so a hand or probe near the border of
+    a wide photo stays in view and gets keypoints instead of being cut off, and the predictions
+    can land anywhere on the original image; the price is fewer input pixels on the subject. The
+    padding is a constant grey, not reflected content, so that it holds no mirrored copy of a hand.
+    With pixel centres at integers (OpenCV; as ``hupbench.data.resize_intrinsics``):
+        u_in = (u + pad_left + 0.5) * s - 0.5        v_in = (v + pad_top + 0.5) * s - 0.5
+        u    = (u_in + 0.5) / s - 0.5 - pad_left    v    = (v_in + 0.5) / s - 0.5 - pad_top
+    and from the model's normalised output (x_n = (2 u_in + 1) / S - 1):
+        u = (x_n + 1) * L / 2 - 0.5 - pad_left      v = (y_n + 1) * L / 2 - 0.5 - pad_top.
+    Intrinsics follow the same map: fx_in = fx * s, cx_in = (cx + pad_left + 0.5) * s - 0.5
+    (and fy, cy with pad_top).
+
+Camera:
+    The network's 3D output is for its training camera K_input at the model input. Without
+    ``--K`` the image is assumed to come from that camera scaled to the image: the reported K is
+    K_input mapped back to the original pixels (the inverse of the map above) and the 3D points
+    are the network's output as it is ("camera": "assumed training camera"); they are what
+    ``hupbench eval`` scores. With ``--K fx,fy,cx,cy`` of the original image ("camera": "user K"),
+    the user's camera at the model input is K_user_in (the map above). The network judges depth
+    from the object's size in pixels, so a point it sees at an input pixel with focal f_train lies,
+    through a lens of focal f_user_in, at depth z_user = z * f_user_in / f_train (with
+    fx != fy the ratio is the geometric mean sqrt(fx_user_in / fx_train * fy_user_in / fy_train));
+    x and y are re-derived by back-projecting the 2D prediction through K_user_in at that depth, so
+    the reported 3D points project through the user's K exactly onto the reported 2D points.
+    One ``--K`` applies to every image of the call.
+
+Outputs (``OUT/``): ``predictions.json`` (written atomically) with, per image, the path, ok/error,
+image size, the camera and its K (original image pixels), the keypoint names, ``keypoints_2d_px``
+(N, 2) original image pixels (from ``points2d``), ``keypoints_3d_m`` (N, 3) metres in the camera
+frame of that K, and the model's run name; and ``OUT/<stem>_overlay.png`` per image (the hand
+skeleton and the probe box on the original image; ``<stem>_<k>_overlay.png`` when two inputs share
+a stem). A file that cannot be read as an image gets an error in its record and on stderr; the
+others are still processed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
+
+from datagen.draw import write_png
+from datagen.io import write_bytes
+from hupbench.overlay import draw_prediction
+
+SCHEMA_VERSION = 1
+ONNX_SCHEMA = "1"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
+DEFAULT_BATCH_SIZE = 16
+CAMERA_ASSUMED = "assumed training camera"
+CAMERA_USER = "user K"
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_JPEG_MAGIC = b"\xff\xd8\xff"
+_DECIMALS_M = 6  # 1 um: far below any model's error, keeps the JSON readable
+_DECIMALS_PX = 3
+_DECIMALS_K = 6
+# onnxruntime raises its own exception types (not RuntimeError) for unreadable or invalid models
+_ORT_LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph,
+                    ort_errors.InvalidArgument, ort_errors.NoSuchFile, ort_errors.NotImplemented)
+
+PREPROCESSING = (
+    "pad the H x W image to a centred L x L square (L = max(H, W), pad_left = (L - W) // 2, "
+    "pad_top = (L - H) // 2, mid-grey 0.5), resize to S x S with cv2.INTER_AREA (s = S / L); "
+    "pixel centres at integers: u = (u_in + 0.5) / s - 0.5 - pad_left, v = (v_in + 0.5) / s - 0.5 - pad_top"
+)
+
+
+# ---------------------------------------------------------------- geometry
+
+
+@dataclass(frozen=True)
+class InputGeometry:
+    """How an H x W image becomes the S x S model input: centred padding to a square, then a resize.
+
+    Attributes:
+        width: W, original image width, pixels.
+        height: H, original image height, pixels.
+        input_size: S, side of the model input, pixels.
+    """
+
+    width: int
+    height: int
+    input_size: int
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height", "input_size"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be a positive int (pixels), got {value!r}")
+
+    @property
+    def side(self) -> int:
+        """L = max(H, W), side of the padded square, original pixels."""
+        return max(self.width, self.height)
+
+    @property
+    def pad_left(self) -> int:
+        return (self.side - self.width) // 2
+
+    @property
+    def pad_top(self) -> int:
+        return (self.side - self.height) // 2
+
+    @property
+    def scale(self) -> float:
+        """s = S / L, model-input pixels per original pixel."""
+        return self.input_size / self.side
+
+    def _offset(self) -> np.ndarray:
+        return np.array([self.pad_left, self.pad_top], dtype=np.float64)
+
+    def image_to_input_px(self, uv: np.ndarray) -> np.ndarray:
+        """(..., 2) original-image pixels -> (..., 2) model-input pixels."""
+        return (np.asarray(uv, dtype=np.float64) + self._offset() + 0.5) * self.scale - 0.5
+
+    def input_to_image_px(self, uv_in: np.ndarray) -> np.ndarray:
+        """(..., 2) model-input pixels -> (..., 2) original-image pixels."""
+        return (np.asarray(uv_in, dtype=np.float64) + 0.5) / self.scale - 0.5 - self._offset()
+
+    def normalized_to_input_px(self, xy_norm: np.ndarray) -> np.ndarray:
+        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) model-input pixels."""
+        return ((np.asarray(xy_norm, dtype=np.float64) + 1.0) * self.input_size - 1.0) / 2.0
+
+    def normalized_to_image_px(self, xy_norm: np.ndarray) -> np.ndarray:
+        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) original-image pixels."""
+        return (np.asarray(xy_norm, dtype=np.float64) + 1.0) * self.side / 2.0 - 0.5 - self._offset()
+
+    def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
+        """(3, 3) intrinsics of the original image -> (3, 3) intrinsics of the model input."""
+        K = _check_K(K, "K")
+        out = K.copy()
+        out[:2, :] *= self.scale
+        out[:2, 2] = (K[:2, 2] + self._offset() + 0.5) * self.scale - 0.5
+        return out
+
+    def intrinsics_to_image(self, K_in: np.ndarray) -> np.ndarray:
+        """(3, 3) intrinsics of the model input -> (3, 3) intrinsics of the original image."""
+        K_in = _check_K(K_in, "K_in")
+        out = K_in.copy()
+        out[:2, :] /= self.scale
+        out[:2, 2] = (K_in[:2, 2] + 0.5) / self.scale - 0.5 - self._offset()
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"side": self.side, "pad_left": self.pad_left, "pad_top": self.pad_top, "scale": self.scale}
+
+
+def _check_K(K: Any, name: str) -> np.ndarray:
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"{name} must be (3, 3) intrinsics, got shape {K.shape}")
+    if not np.all(np.isfinite(K)):
+        raise ValueError(f"{name} must be finite, got {K.tolist()}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
+        raise ValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
+    return K
+
+
+def parse_intrinsics(text: str) -> np.ndarray:
+    """Parse ``--K fx,fy,cx,cy`` (pixels of the original image) into a (3, 3) matrix.
+
+    Args:
+        text: four comma-separated numbers, e.g. ``"480,480,320,240"``.
+
+    Returns:
+        (3, 3) float64 K.
+    """
+    if not isinstance(text, str):
+        raise TypeError(f"--K must be a string 'fx,fy,cx,cy', got {type(text).__name__}")
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        fx, fy, cx, cy = (float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
+    return _check_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
+
+
+def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
+                       K_user_in: np.ndarray) -> np.ndarray:
+    """3D keypoints for the user's camera from a network trained with another camera.
+
+    The network sees pixels; it infers depth from apparent size, which it learned for focal
+    f_train. The same pixels through focal f_user mean depth z * f_user / f_train. The point
+    then lies on the ray of its 2D prediction through K_user_in.
+
+    Convention: all cameras share the OpenCV camera frame axes; K's are of the model input image.
+
+    Args:
+        uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
+        points3d_train: (N, 3) float, metres, the network's 3D output (camera K_train).
+        K_train: (3, 3) intrinsics the network was trained with (K_input), model-input pixels.
+        K_user_in: (3, 3) the user's intrinsics mapped to the model input.
+
+    Returns:
+        (N, 3) float64, metres, OpenCV camera frame of the user's camera.
+    """
+    uv_in = np.asarray(uv_in, dtype=np.float64)
+    points3d_train = np.asarray(points3d_train, dtype=np.float64)
+    if uv_in.ndim != 2 or uv_in.shape[1] != 2:
+        raise ValueError(f"uv_in must be (N, 2), got {uv_in.shape}")
+    if points3d_train.shape != (uv_in.shape[0], 3):
+        raise ValueError(f"points3d_train must be ({uv_in.shape[0]}, 3) to match uv_in, got {points3d_train.shape}")
+    K_train = _check_K(K_train, "K_train")
+    K_user_in = _check_K(K_user_in, "K_user_in")
+    focal_ratio = np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
+    z = points3d_train[:, 2] * focal_ratio
+    x = (uv_in[:, 0] - K_user_in[0, 2]) * z / K_user_in[0, 0]
+    y = (uv_in[:, 1] - K_user_in[1, 2]) * z / K_user_in[1, 1]
+    return np.stack([x, y, z], axis=1)
+
+
+# ---------------------------------------------------------------- images
+
+
+def decode_image(data: bytes, source: str = "image") -> np.ndarray:
+    """Decode PNG or JPEG bytes to RGB float32.
+
+    Args:
+        data: the file's bytes.
+        source: name for error messages (the path).
+
+    Returns:
+        (H, W, 3) float32 RGB in [0, 1].
+    """
+    if not data:
+        raise ValueError(f"{source}: empty file (0 bytes), not an image")
+    if data.startswith(_PNG_MAGIC):
+        kind, flags = "PNG", cv2.IMREAD_UNCHANGED  # keep 16-bit samples and alpha
+    elif data.startswith(_JPEG_MAGIC):
+        kind, flags = "JPEG", cv2.IMREAD_COLOR  # applies the EXIF orientation of photos
+    else:
+        raise ValueError(f"{source}: not a PNG or JPEG image (the file starts with {data[:8]!r})")
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    if image is None or image.size == 0:
+        raise ValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file)")
+    if image.dtype == np.uint8:
+        image = image.astype(np.float32) / 255.0
+    elif image.dtype == np.uint16:
+        image = image.astype(np.float32) / 65535.0
+    else:
+        raise ValueError(f"{source}: {kind} with {image.dtype} samples is not supported (8 or 16 bit)")
+    if image.ndim == 2:
+        image = image[:, :, None]
+    channels = image.shape[2]
+    if channels in (2, 4):  # grey + alpha or BGRA: composite over the padding grey
+        alpha = image[:, :, -1:]
+        image = image[:, :, :-1] * alpha + PAD_VALUE * (1.0 - alpha)
+    if image.shape[2] == 1:
+        image = np.repeat(image, 3, axis=2)
+    elif image.shape[2] == 3:
+        image = image[:, :, ::-1]  # BGR -> RGB
+    else:
+        raise ValueError(f"{source}: {kind} with {channels} channels is not supported")
+    return np.ascontiguousarray(image, dtype=np.float32)
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read a PNG or JPEG file (recognised by content) as RGB float32.
+
+    Args:
+        path: image file.
+
+    Returns:
+        (H, W, 3) float32 RGB in [0, 1].
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a regular file")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
+    return decode_image(data, str(path))
+
+
+def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, InputGeometry]:
+    """Pad an image to a centred square and resize it to the model input (module docstring).
+
+    Args:
+        image_rgb: (H, W, 3) float32 RGB in [0, 1].
+        input_size: S, pixels.
+
+    Returns:
+        (3, S, S) float32 RGB in [0, 1], the model input; and its :class:`InputGeometry`.
+    """
+    image_rgb = np.asarray(image_rgb)
+    if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.float32:
+        raise ValueError(f"image_rgb must be (H, W, 3) float32, got {image_rgb.shape} {image_rgb.dtype}")
+    height, width = image_rgb.shape[:2]
+    geometry = InputGeometry(width=width, height=height, input_size=input_size)
+    pad_bottom = geometry.side - height - geometry.pad_top
+    pad_right = geometry.side - width - geometry.pad_left
+    square = cv2.copyMakeBorder(image_rgb, geometry.pad_top, pad_bottom, geometry.pad_left, pad_right,
+                                cv2.BORDER_CONSTANT, value=(PAD_VALUE, PAD_VALUE, PAD_VALUE))
+    if geometry.side != input_size:
+        square = cv2.resize(square, (input_size, input_size), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(square.transpose(2, 0, 1), dtype=np.float32), geometry
+
+
+def to_uint8(image_rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float in [0, 1] -> (H, W, 3) uint8."""
+    return np.clip(np.round(np.asarray(image_rgb) * 255.0), 0, 255).astype(np.uint8)
+
+
+def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[str, str]]]:
+    """Turn the command-line arguments into the list of files to process.
+
+    A directory expands to its image files (suffix .png, .jpg, .jpeg, any case; not recursive;
+    sorted by name); anything else in it is skipped with a note. A file named explicitly is
+    always processed (and fails on its own if it is no image); so is a missing path, which then
+    gets a per-file error.
+
+    Returns:
+        files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
+    """
+    if isinstance(inputs, (str, Path)):
+        raise TypeError("inputs must be a list of paths, got a single path")
+    files: list[Path] = []
+    skipped: list[dict[str, str]] = []
+    for item in inputs:
+        path = Path(item)
+        if not path.is_dir():
+            files.append(path)
+            continue
+        for entry in sorted(path.iterdir(), key=lambda p: p.name):
+            if entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
+                files.append(entry)
+            elif entry.is_dir():
+                skipped.append({"path": str(entry), "reason": "a directory (directories are not searched recursively)"})
+            else:
+                skipped.append({"path": str(entry), "reason": f"not an image file name ({', '.join(IMAGE_SUFFIXES)})"})
+    return files, skipped
+
+
+# ---------------------------------------------------------------- model
+
+
+@dataclass(frozen=True)
+class PredictModel:
+    """An ONNX keypoint model with its hupbench metadata.
+
+    Attributes:
+        path: the .onnx file.
+        session: onnxruntime session (CPUExecutionProvider).
+        input_size: S, pixels.
+        K_input: (3, 3) intrinsics of the model input image, the camera of the 3D output.
+        keypoint_names: N names.
+        skeleton_edges: pairs (i, j) of keypoint indices.
+        run_name: the training run's name.
+        git_commit: commit the model was exported from.
+        sha256: hash of the .onnx file.
+    """
+
+    path: Path
+    session: ort.InferenceSession
+    input_size: int
+    K_input: np.ndarray
+    keypoint_names: tuple[str, ...]
+    skeleton_edges: tuple[tuple[int, int], ...]
+    run_name: str
+    git_commit: str
+    sha256: str
+
+
+def parse_metadata(metadata: dict[str, str], source: str = "model") -> dict[str, Any]:
+    """Read and check the ``hupbench.*`` metadata_props of an exported model.
+
+    Args:
+        metadata: the ONNX model's metadata_props (string to string).
+        source: name for error messages.
+
+    Returns:
+        ``{"input_size": int, "K_input": (3, 3) ndarray, "keypoint_names": tuple,
+        "skeleton_edges": tuple of pairs, "run_name": str, "git_commit": str}``.
+    """
+    if not isinstance(metadata, dict):
+        raise TypeError(f"metadata must be a dict of strings, got {type(metadata).__name__}")
+    if "hupbench.onnx_schema" not in metadata:
+        raise ValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing); "
+                         "predict reads models written by `hupbench export CKPT`")
+    if metadata["hupbench.onnx_schema"] != ONNX_SCHEMA:
+        raise ValueError(f"{source} has hupbench.onnx_schema {metadata['hupbench.onnx_schema']!r}; "
+                         f"this hupbench reads {ONNX_SCHEMA!r}")
+    required = ("hupbench.input_size", "hupbench.K_input", "hupbench.keypoint_names", "hupbench.skeleton_edges")
+    missing = [key for key in required if key not in metadata]
+    if missing:
+        raise ValueError(f"{source} lacks metadata {', '.join(missing)}")
+
+    def load(key: str) -> Any:
+        try:
+            return json.loads(metadata[key])
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{source}: metadata {key} is not JSON ({exc}): {metadata[key][:80]!r}") from None
+
+    try:
+        input_size = int(metadata["hupbench.input_size"])
+    except ValueError:
+        raise ValueError(f"{source}: hupbench.input_size must be an int, got "
+                         f"{metadata['hupbench.input_size']!r}") from None
+    if input_size < 1:
+        raise ValueError(f"{source}: hupbench.input_size must be positive, got {input_size}")
+    K_input = _check_K(load("hupbench.K_input"), f"{source}: hupbench.K_input")
+    names = load("hupbench.keypoint_names")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"{source}: hupbench.keypoint_names must be a non-empty JSON list of strings, got {names!r}")
+    edges = load("hupbench.skeleton_edges")
+    if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
+            or not all(isinstance(i, int) and 0 <= i < len(names) for e in edges for i in e)):
+        raise ValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
+                         f"0 <= i, j < {len(names)}, got {metadata['hupbench.skeleton_edges'][:120]!r}")
+    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
+            "skeleton_edges": tuple((int(a), int(b)) for a, b in edges),
+            "run_name": metadata.get("hupbench.run_name", ""), "git_commit": metadata.get("hupbench.git_commit", "")}
+
+
+def load_onnx_model(path: str | Path) -> PredictModel:
+    """Open an exported model with onnxruntime (CPU) and check it against the ONNX contract.
+
+    Args:
+        path: ``.onnx`` file from ``hupbench export``.
+
+    Returns:
+        The :class:`PredictModel`.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model {path} does not exist")
+    data = path.read_bytes()
+    try:
+        session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+    except _ORT_LOAD_ERRORS as exc:
+        raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from None
+    meta = parse_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
+    inputs = {i.name: i for i in session.get_inputs()}
+    outputs = {o.name for o in session.get_outputs()}
+    if "image" not in inputs or not {"points2d", "points3d"} <= outputs:
+        raise ValueError(f"{path}: expected input 'image' and outputs 'points2d', 'points3d', got inputs "
+                         f"{sorted(inputs)} and outputs {sorted(outputs)}")
+    shape = list(inputs["image"].shape)
+    S = meta["input_size"]
+    if len(shape) != 4 or shape[1:] != [3, S, S]:
+        raise ValueError(f"{path}: input 'image' must be (batch, 3, {S}, {S}) as hupbench.input_size says, "
+                         f"got {shape}")
+    return PredictModel(path=path, session=session, sha256=hashlib.sha256(data).hexdigest(), **meta)
+
+
+def run_model(model: PredictModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Run the network on a batch of prepared inputs.
+
+    Args:
+        model: from :func:`load_onnx_model`.
+        images: (B, 3, S, S) float32 RGB in [0, 1].
+
+    Returns:
+        points2d (B, N, 2) float32 normalised [-1, 1] input coordinates; points3d (B, N, 3)
+        float32, metres, OpenCV camera frame of K_input.
+    """
+    S = model.input_size
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[1:] != (3, S, S) or images.dtype != np.float32:
+        raise ValueError(f"images must be (B, 3, {S}, {S}) float32, got {images.shape} {images.dtype}")
+    points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
+    n, b = len(model.keypoint_names), images.shape[0]
+    if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
+        raise RuntimeError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
+                           f"names, got {points2d.shape} and {points3d.shape}")
+    return points2d, points3d
+
+
+# ---------------------------------------------------------------- run
+
+
+def _plain(values: np.ndarray, decimals: int) -> list:
+    """Rounded nested lists; a non-finite value becomes null so that the file stays valid JSON."""
+    rounded = np.round(np.asarray(values, dtype=np.float64), decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
+    return np.where(np.isfinite(rounded), rounded, None).tolist()
+
+
+def _compact_json(value: Any, indent: int = 0) -> str:
+    """Indented JSON (keys sorted) with every list of numbers on one line: one keypoint per line."""
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(value, dict) and value:
+        items = [f"{inner}{json.dumps(str(k))}: {_compact_json(v, indent + 2)}" for k, v in sorted(value.items())]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    if isinstance(value, (list, tuple)) and value:
+        if all(v is None or isinstance(v, (int, float)) for v in value):
+            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+        return "[\n" + ",\n".join(inner + _compact_json(v, indent + 2) for v in value) + "\n" + pad + "]"
+    return json.dumps(value, allow_nan=False)
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr)
+
+
+def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometry: InputGeometry,
+                        K_input: np.ndarray, K_user: np.ndarray | None = None) -> dict[str, Any]:
+    """Map one image's network outputs to its original pixels and to the chosen camera.
+
+    Args:
+        points2d_norm: (N, 2) normalised [-1, 1] input coordinates.
+        points3d: (N, 3) metres, camera frame of K_input.
+        geometry: how the image became the input.
+        K_input: (3, 3) the network's training camera at the model input.
+        K_user: (3, 3) the user's intrinsics of the original image, or None to assume the training camera.
+
+    Returns:
+        ``{"camera": str, "K": (3, 3) original pixels, "K_model_input": (3, 3), "keypoints_2d_px": (N, 2)
+        original pixels, "keypoints_3d_m": (N, 3) metres, camera frame of "K"}``.
+    """
+    uv_px = geometry.normalized_to_image_px(points2d_norm)
+    if K_user is None:
+        return {"camera": CAMERA_ASSUMED, "K": geometry.intrinsics_to_image(K_input), "K_model_input": K_input,
+                "keypoints_2d_px": uv_px, "keypoints_3d_m": np.asarray(points3d, dtype=np.float64)}
+    K_user_in = geometry.intrinsics_to_input(K_user)
+    xyz = user_camera_points(geometry.normalized_to_input_px(points2d_norm), points3d, K_input, K_user_in)
+    return {"camera": CAMERA_USER, "K": np.asarray(K_user, dtype=np.float64), "K_model_input": K_user_in,
+            "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
+
+
+def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: str | Path = "predictions",
+                K: str | np.ndarray | None = None, overlay: bool = True, batch_size: int = DEFAULT_BATCH_SIZE,
+                log: Callable[[str], None] = _stderr) -> dict[str, Any]:
+    """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays.
+
+    Args:
+        model_path: ``.onnx`` file from ``hupbench export``.
+        inputs: image files and/or directories (module docstring, :func:`expand_inputs`).
+        out_dir: output folder (created).
+        K: the user's intrinsics of the original images, ``"fx,fy,cx,cy"`` or (3, 3); None
+            assumes the training camera scaled to each image.
+        overlay: write ``<stem>_overlay.png`` per image.
+        batch_size: images per onnxruntime call.
+        log: receives per-file errors and notes (default: stderr).
+
+    Returns:
+        ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
+        "records": [per-image dicts as in the JSON]}``.
+    """
+    if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+    K_user = parse_intrinsics(K) if isinstance(K, str) else (None if K is None else _check_K(K, "K"))
+    model = load_onnx_model(model_path)
+    files, skipped = expand_inputs(inputs)
+    for item in skipped:
+        log(f"hupbench predict: note: {item['path']}: {item['reason']}")
+    if not files:
+        raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {[str(i) for i in inputs]}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    names = list(model.keypoint_names)
+    records: list[dict[str, Any]] = []
+    overlays: list[Path] = []
+    used_stems: set[str] = set()
+    for start in range(0, len(files), batch_size):
+        chunk_records = [_empty_record(path, names, model.run_name) for path in files[start : start + batch_size]]
+        loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
+        for record in chunk_records:
+            try:
+                image = read_image(record["path"])
+            except (ValueError, FileNotFoundError) as exc:
+                record["error"] = str(exc)
+                log(f"hupbench predict: error: {exc}")
+                continue
+            model_input, geometry = preprocess(image, model.input_size)
+            loaded.append((record, image, model_input, geometry))
+        if loaded:
+            points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
+            for b, (record, image, _, geometry) in enumerate(loaded):
+                result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
+                record.update(
+                    ok=True, image_size={"width": geometry.width, "height": geometry.height},
+                    camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
+                    K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
+                    keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
+                    keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
+                )
+                if overlay:
+                    stem = _unique_stem(Path(record["path"]).stem, used_stems)
+                    drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
+                    record["overlay"] = str(write_png(out_dir / f"{stem}_overlay.png", drawn))
+                    overlays.append(Path(record["overlay"]))
+        records.extend(chunk_records)
+
+    failed = sum(not r["ok"] for r in records)
+    document = {
+        "schema_version": SCHEMA_VERSION,
+        "tool": "hupbench predict",
+        "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
+                  "git_commit": model.git_commit, "input_size": model.input_size,
+                  "K_input": model.K_input.tolist()},
+        "keypoint_names": names,
+        "skeleton_edges": [list(e) for e in model.skeleton_edges],
+        "preprocessing": PREPROCESSING,
+        "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
+        "skipped": skipped,
+        "images": records,
+    }
+    json_path = write_bytes(out_dir / "predictions.json", (_compact_json(document) + "\n").encode())
+    return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
+            "overlays": overlays, "skipped": skipped, "records": records}
+
+
+def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]:
+    """The JSON record of one input before (or without) a prediction: every key present, values null."""
+    return {"path": str(path), "ok": False, "error": None, "image_size": None, "camera": None, "K": None,
+            "K_model_input": None, "input_geometry": None, "keypoint_names": names, "keypoints_2d_px": None,
+            "keypoints_3d_m": None, "run_name": run_name, "overlay": None}
+
+
+def _unique_stem(stem: str, used: set[str]) -> str:
+    """``stem``, or ``stem_2``, ``stem_3``, ... when an earlier input already had that stem."""
+    candidate, k = stem, 1
+    while candidate in used:
+        k += 1
+        candidate = f"{stem}_{k}"
+    used.add(candidate)
+    return candidate

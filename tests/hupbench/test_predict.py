@@ -1,0 +1,600 @@
+"""hupbench predict: geometry, camera conversion, image reading, overlays, the CLI, and no torch.
+
+Most tests use a tiny hand-written ONNX graph that follows the ONNX contract and whose answer is
+known: it finds the most red pixel of the input (largest R - G), puts keypoint k at that pixel plus a
+fixed offset (normalised units), and places keypoint k at a fixed depth z_k on the ray of its 2D
+point through K_input (a pinhole-consistent network). Images with one red dot then have a known
+prediction in original pixels, up to half a model-input pixel.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from datagen import keypoints as kp
+from datagen.draw import FINGER_RGB, PROBE_RGB
+from hupbench.cli import main
+from hupbench.overlay import draw_prediction, keypoint_color, line_width
+from hupbench.predict import (
+    CAMERA_ASSUMED,
+    CAMERA_USER,
+    PAD_VALUE,
+    InputGeometry,
+    _compact_json,
+    decode_image,
+    expand_inputs,
+    keypoints_for_image,
+    load_onnx_model,
+    parse_intrinsics,
+    parse_metadata,
+    preprocess,
+    run_predict,
+    user_camera_points,
+)
+
+S = 32
+K_TRAIN = np.array([[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]])
+N = kp.NUM_KEYPOINTS
+_rng = np.random.default_rng(7)
+OFFSETS_NORM = np.concatenate([np.zeros((1, 2)), _rng.uniform(-0.3, 0.3, size=(N - 1, 2))]).astype(np.float32)
+DEPTHS_M = _rng.uniform(0.4, 0.9, size=N).astype(np.float32)
+RED = (0, 0, 255)  # BGR for cv2.imwrite
+
+
+def _const(name, array, dtype=np.float32):
+    return helper.make_node("Constant", [], [name], value=numpy_helper.from_array(np.asarray(array, dtype), name))
+
+
+def make_dot_model(path: Path, metadata: dict[str, str] | None = None) -> Path:
+    """Write the known-answer ONNX graph described in the module docstring."""
+    nodes = [
+        _const("starts0", [0], np.int64), _const("ends1", [1], np.int64), _const("ends2", [2], np.int64),
+        _const("axis1", [1], np.int64), _const("axis2", [2], np.int64),
+        _const("flat_shape", [0, -1], np.int64), _const("side", [S], np.int64),
+        helper.make_node("Slice", ["image", "starts0", "ends1", "axis1"], ["red"]),
+        helper.make_node("Slice", ["image", "ends1", "ends2", "axis1"], ["green"]),
+        helper.make_node("Sub", ["red", "green"], ["redness"]),  # (B, 1, S, S): 0 on grey, 1 on pure red
+        helper.make_node("Reshape", ["redness", "flat_shape"], ["flat"]),  # (B, S * S)
+        helper.make_node("ArgMax", ["flat"], ["index"], axis=1, keepdims=1),  # (B, 1) int64
+        helper.make_node("Mod", ["index", "side"], ["u_int"]),
+        helper.make_node("Div", ["index", "side"], ["v_int"]),
+        helper.make_node("Concat", ["u_int", "v_int"], ["uv_int"], axis=1),  # (B, 2)
+        helper.make_node("Cast", ["uv_int"], ["uv"], to=TensorProto.FLOAT),
+        _const("two_over_s", 2.0 / S), _const("norm_shift", 1.0 / S - 1.0),
+        helper.make_node("Mul", ["uv", "two_over_s"], ["uv_scaled"]),
+        helper.make_node("Add", ["uv_scaled", "norm_shift"], ["xy_norm"]),  # (2u + 1) / S - 1
+        helper.make_node("Unsqueeze", ["xy_norm", "axis1"], ["xy_norm3"]),  # (B, 1, 2)
+        _const("offsets", OFFSETS_NORM[None]),
+        helper.make_node("Add", ["xy_norm3", "offsets"], ["points2d"]),  # (B, N, 2)
+        _const("half_s", S / 2.0), _const("px_shift", S / 2 - 0.5 - K_TRAIN[:2, 2]),
+        helper.make_node("Mul", ["points2d", "half_s"], ["p_half"]),
+        helper.make_node("Add", ["p_half", "px_shift"], ["uv_centred"]),  # u_in - cx
+        _const("z_over_f", np.stack([DEPTHS_M / K_TRAIN[0, 0], DEPTHS_M / K_TRAIN[1, 1]], axis=1)[None]),
+        helper.make_node("Mul", ["uv_centred", "z_over_f"], ["xy3"]),  # (B, N, 2) metres
+        _const("zero", 0.0), _const("depths", DEPTHS_M[None, :, None]),
+        helper.make_node("Slice", ["xy3", "starts0", "ends1", "axis2"], ["x3"]),
+        helper.make_node("Mul", ["x3", "zero"], ["zeros"]),
+        helper.make_node("Add", ["zeros", "depths"], ["z3"]),  # (B, N, 1)
+        helper.make_node("Concat", ["xy3", "z3"], ["points3d"], axis=2),
+    ]
+    graph = helper.make_graph(
+        nodes, "dot",
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, S, S])],
+        [helper.make_tensor_value_info("points2d", TensorProto.FLOAT, ["batch", N, 2]),
+         helper.make_tensor_value_info("points3d", TensorProto.FLOAT, ["batch", N, 3])],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    if metadata is None:
+        metadata = contract_metadata()
+    helper.set_model_props(model, metadata)
+    onnx.checker.check_model(model)
+    onnx.save(model, path)
+    return path
+
+
+def contract_metadata(**changes) -> dict[str, str]:
+    meta = {
+        "hupbench.onnx_schema": "1", "hupbench.input_size": str(S), "hupbench.K_input": json.dumps(K_TRAIN.tolist()),
+        "hupbench.keypoint_names": json.dumps(list(kp.KEYPOINT_NAMES)),
+        "hupbench.skeleton_edges": json.dumps([list(e) for e in kp.SKELETON_EDGES]),
+        "hupbench.model_config": json.dumps({"name": "dot"}), "hupbench.run_name": "dot-run",
+        "hupbench.git_commit": "0" * 40,
+    }
+    meta.update(changes)
+    return {k: v for k, v in meta.items() if v is not None}
+
+
+@pytest.fixture(scope="module")
+def dot_model(tmp_path_factory) -> Path:
+    return make_dot_model(tmp_path_factory.mktemp("onnx") / "dot.onnx")
+
+
+def dot_image(width: int, height: int, dot_uv: tuple[int, int], gray: bool = False) -> np.ndarray:
+    """Black BGR image (or grey-scale) with one pure red pixel."""
+    if gray:
+        return np.full((height, width), 40, dtype=np.uint8)
+    image = np.zeros((height, width, 3), dtype=np.uint8)
+    image[dot_uv[1], dot_uv[0]] = RED
+    return image
+
+
+def photo_like(width: int, height: int, seed: int = 0) -> np.ndarray:
+    """BGR uint8 with gradients, noise and shapes: JPEG-typical content, not from the dataset."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    image = np.stack([xx / width * 200, yy / height * 180, (xx + yy) / (width + height) * 150 + 50], axis=2)
+    image += rng.normal(0, 12, size=image.shape)
+    image = np.clip(image, 0, 255).astype(np.uint8)
+    cv2.circle(image, (width // 3, height // 2), height // 5, (30, 160, 220), -1)
+    cv2.rectangle(image, (width // 2, height // 4), (width - 20, height - 30), (200, 90, 40), -1)
+    cv2.ellipse(image, (width // 2, height // 2), (width // 6, height // 9), 30, 0, 360, (240, 240, 240), 3)
+    return image
+
+
+def project(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    return (points_cam[:, :2] / points_cam[:, 2:]) * np.diag(K)[:2] + K[:2, 2]
+
+
+# ------------------------------------------------------------------ geometry
+
+
+@pytest.mark.parametrize(("width", "height"), [(100, 60), (60, 100), (300, 300), (24, 16), (33, 32)])
+def test_geometry_round_trip_and_corners(width, height):
+    g = InputGeometry(width, height, S)
+    uv = np.random.default_rng(0).uniform(-5, 400, size=(50, 2))
+    np.testing.assert_allclose(g.input_to_image_px(g.image_to_input_px(uv)), uv, atol=1e-9)
+    # the outer edges of the padded square are the edges of the input: -0.5 and S - 0.5
+    edges = np.array([[-0.5 - g.pad_left, -0.5 - g.pad_top], [g.side - 0.5 - g.pad_left, g.side - 0.5 - g.pad_top]])
+    np.testing.assert_allclose(g.image_to_input_px(edges), [[-0.5, -0.5], [S - 0.5, S - 0.5]], atol=1e-9)
+    # normalised -> pixels agrees with going through input pixels
+    xy_norm = np.random.default_rng(1).uniform(-1.2, 1.2, size=(20, 2))
+    via_input = g.input_to_image_px(g.normalized_to_input_px(xy_norm))
+    np.testing.assert_allclose(g.normalized_to_image_px(xy_norm), via_input, atol=1e-9)
+
+
+def test_geometry_known_values_wide_image():
+    g = InputGeometry(100, 60, S)  # L = 100, pad_top = 20, s = 0.32
+    assert (g.side, g.pad_left, g.pad_top, g.scale) == (100, 0, 20, 0.32)
+    # image pixel (0, 0) -> ((0 + 0.5) * 0.32 - 0.5, (20 + 0.5) * 0.32 - 0.5)
+    np.testing.assert_allclose(g.image_to_input_px([0.0, 0.0]), [-0.34, 6.06], atol=1e-12)
+    np.testing.assert_allclose(g.normalized_to_image_px([0.0, 0.0]), [49.5, 29.5], atol=1e-12)  # centre
+
+
+def test_intrinsics_follow_points():
+    g = InputGeometry(100, 60, S)
+    K = np.array([[90.0, 0.0, 47.0], [0.0, 85.0, 31.0], [0.0, 0.0, 1.0]])
+    points = np.random.default_rng(2).uniform([-0.1, -0.1, 0.3], [0.1, 0.1, 0.9], size=(10, 3))
+    K_in = g.intrinsics_to_input(K)
+    np.testing.assert_allclose(project(points, K_in), g.image_to_input_px(project(points, K)), atol=1e-9)
+    np.testing.assert_allclose(g.intrinsics_to_image(K_in), K, atol=1e-12)
+
+
+def test_preprocess_pads_with_grey_and_keeps_content():
+    image = np.ones((60, 100, 3), dtype=np.float32)  # white, wide: grey bands top and bottom
+    model_input, g = preprocess(image, S)
+    assert model_input.shape == (3, S, S) and model_input.dtype == np.float32
+    # rows of the input fully in the padding are grey, rows fully inside the image white
+    top_band = int(np.floor(g.image_to_input_px([0, -0.5])[1]))  # first input row touching the image
+    np.testing.assert_allclose(model_input[:, : top_band - 1], PAD_VALUE, atol=1e-6)
+    np.testing.assert_allclose(model_input[:, S // 2], 1.0, atol=1e-6)
+    assert g.pad_top == 20 and g.pad_left == 0
+
+
+# ------------------------------------------------------------------ camera
+
+
+def test_user_camera_points_known_answer():
+    """Known 3D points seen by the user's camera; an ideal training-camera network sees the same pixels."""
+    rng = np.random.default_rng(3)
+    points_user = rng.uniform([-0.15, -0.1, 0.4], [0.15, 0.1, 0.9], size=(N, 3))
+    K_user_in = np.array([[95.0, 0.0, 14.2], [0.0, 95.0, 17.1], [0.0, 0.0, 1.0]])
+    uv_in = project(points_user, K_user_in)
+    # the training camera sees the same pixels from a point at depth z * f_train / f_user on the same pixel ray
+    z_train = points_user[:, 2] * K_TRAIN[0, 0] / K_user_in[0, 0]
+    points_train = np.stack([(uv_in[:, 0] - K_TRAIN[0, 2]) * z_train / K_TRAIN[0, 0],
+                             (uv_in[:, 1] - K_TRAIN[1, 2]) * z_train / K_TRAIN[1, 1], z_train], axis=1)
+    np.testing.assert_allclose(project(points_train, K_TRAIN), uv_in, atol=1e-9)  # two K's, same pixels
+    np.testing.assert_allclose(user_camera_points(uv_in, points_train, K_TRAIN, K_user_in), points_user, atol=1e-12)
+    # with the principal points equal, only depth changes: (x, y, z) -> (x, y, z * f_user / f_train)
+    K_same_c = K_user_in.copy()
+    K_same_c[:2, 2] = K_TRAIN[:2, 2]
+    uv_same = project(points_train, K_TRAIN)
+    expected = points_train * [1.0, 1.0, K_same_c[0, 0] / K_TRAIN[0, 0]]
+    np.testing.assert_allclose(user_camera_points(uv_same, points_train, K_TRAIN, K_same_c), expected, atol=1e-12)
+
+
+def test_user_camera_equal_to_training_camera_is_identity_for_consistent_outputs():
+    points = np.random.default_rng(4).uniform([-0.1, -0.1, 0.4], [0.1, 0.1, 0.8], size=(N, 3))
+    np.testing.assert_allclose(user_camera_points(project(points, K_TRAIN), points, K_TRAIN, K_TRAIN), points,
+                               atol=1e-12)
+
+
+def test_keypoints_for_image_assumed_and_user_camera():
+    g = InputGeometry(100, 60, S)
+    xy_norm = OFFSETS_NORM.astype(np.float64)
+    uv_in = g.normalized_to_input_px(xy_norm)
+    points3d = np.concatenate([(uv_in - K_TRAIN[:2, 2]) * DEPTHS_M[:, None] / 60.0, DEPTHS_M[:, None]], axis=1)
+    assumed = keypoints_for_image(xy_norm, points3d, g, K_TRAIN)
+    assert assumed["camera"] == CAMERA_ASSUMED
+    np.testing.assert_allclose(assumed["keypoints_3d_m"], points3d)  # the network's output as it is
+    # f = 60 / 0.32; c = (16 + 0.5) / 0.32 - 0.5 - pad, pad = (0, 20)
+    np.testing.assert_allclose(assumed["K"], [[187.5, 0, 51.0625], [0, 187.5, 31.0625], [0, 0, 1]])
+    np.testing.assert_allclose(project(points3d, assumed["K"]), assumed["keypoints_2d_px"], atol=1e-9)
+    K_user = np.array([[250.0, 0.0, 52.0], [0.0, 250.0, 27.0], [0.0, 0.0, 1.0]])
+    user = keypoints_for_image(xy_norm, points3d, g, K_TRAIN, K_user)
+    assert user["camera"] == CAMERA_USER
+    np.testing.assert_allclose(user["keypoints_3d_m"][:, 2], DEPTHS_M * 250.0 / 187.5, rtol=1e-6)
+    np.testing.assert_allclose(project(user["keypoints_3d_m"], K_user), user["keypoints_2d_px"], atol=1e-9)
+
+
+def test_parse_intrinsics():
+    np.testing.assert_allclose(parse_intrinsics("480, 470,320,240"), [[480, 0, 320], [0, 470, 240], [0, 0, 1]])
+    for bad in ("480,480,320", "a,b,c,d", "1,2,3,4,5", "0,480,320,240", "-1,480,320,240", "nan,1,1,1"):
+        with pytest.raises(ValueError, match="--K"):
+            parse_intrinsics(bad)
+
+
+# ------------------------------------------------------------------ images and inputs
+
+
+def _encode(ext: str, image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(ext, image)
+    assert ok
+    return buf.tobytes()
+
+
+def test_decode_grey_16bit_alpha_and_colour_order():
+    grey = decode_image(_encode(".png", np.full((5, 7), 51, np.uint8)))
+    assert grey.shape == (5, 7, 3)
+    np.testing.assert_allclose(grey, 0.2, atol=1e-6)
+    deep = decode_image(_encode(".png", np.full((4, 4), 65535 // 5, np.uint16)))
+    np.testing.assert_allclose(deep, (65535 // 5) / 65535, atol=1e-6)
+    bgra = np.zeros((3, 3, 4), np.uint8)
+    bgra[..., 2] = 255  # red
+    bgra[0, 0, 3] = 255  # only one opaque pixel; the rest is transparent
+    rgba = decode_image(_encode(".png", bgra))
+    np.testing.assert_allclose(rgba[0, 0], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(rgba[1, 1], [PAD_VALUE] * 3)
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    (b"", "empty file"),
+    (b"hello, this is text\n", "not a PNG or JPEG"),
+    (b"\x89PNG\r\n\x1a\n" + bytes(range(200)), "could not be decoded"),
+])
+def test_decode_errors(data, message):
+    with pytest.raises(ValueError, match=message):
+        decode_image(data, "x.png")
+
+
+def test_expand_inputs(tmp_path):
+    d = tmp_path / "dir"
+    (d / "sub").mkdir(parents=True)
+    for name in ("b.PNG", "a.jpg", "c.JpEg", "notes.txt", "d.bmp"):
+        (d / name).write_bytes(b"x")
+    files, skipped = expand_inputs([d, tmp_path / "missing.png"])
+    assert [f.name for f in files] == ["a.jpg", "b.PNG", "c.JpEg", "missing.png"]
+    assert sorted(Path(s["path"]).name for s in skipped) == ["d.bmp", "notes.txt", "sub"]
+    with pytest.raises(TypeError, match="list of paths"):
+        expand_inputs(str(d))
+
+
+# ------------------------------------------------------------------ model metadata
+
+
+def test_metadata_parsing_and_errors(tmp_path):
+    meta = parse_metadata(contract_metadata())
+    assert meta["input_size"] == S and meta["keypoint_names"] == kp.KEYPOINT_NAMES and meta["run_name"] == "dot-run"
+    with pytest.raises(ValueError, match="no hupbench metadata"):
+        parse_metadata({"producer": "x"}, "m.onnx")
+    with pytest.raises(ValueError, match="onnx_schema '2'"):
+        parse_metadata(contract_metadata(**{"hupbench.onnx_schema": "2"}))
+    with pytest.raises(ValueError, match="lacks metadata hupbench.K_input"):
+        parse_metadata(contract_metadata(**{"hupbench.K_input": None}))
+    with pytest.raises(ValueError, match="skeleton_edges"):
+        parse_metadata(contract_metadata(**{"hupbench.skeleton_edges": "[[0, 29]]"}))
+    with pytest.raises(ValueError, match="K_input"):
+        parse_metadata(contract_metadata(**{"hupbench.K_input": "[[0, 0, 1], [0, 1, 1], [0, 0, 1]]"}))
+
+
+def test_model_without_metadata_is_refused(tmp_path, capsys):
+    bare = make_dot_model(tmp_path / "bare.onnx", metadata={})
+    with pytest.raises(ValueError, match="has no hupbench metadata"):
+        load_onnx_model(bare)
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), dot_image(40, 40, (3, 3)))
+    assert main(["predict", str(bare), str(image), "--out", str(tmp_path / "out")]) == 1
+    assert "hupbench predict: error:" in capsys.readouterr().err
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"not a protobuf at all")
+    with pytest.raises(ValueError, match="not a readable ONNX model"):
+        load_onnx_model(garbage)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_onnx_model(tmp_path / "none.onnx")
+
+
+def test_model_input_size_must_match_metadata(tmp_path):
+    wrong = make_dot_model(tmp_path / "wrong.onnx", metadata=contract_metadata(**{"hupbench.input_size": "64"}))
+    with pytest.raises(ValueError, match=r"must be \(batch, 3, 64, 64\)"):
+        load_onnx_model(wrong)
+
+
+# ------------------------------------------------------------------ overlay
+
+
+def test_overlay_colours_box_edges_and_line_width():
+    h, w = 750, 1000  # lines 3 px wide: their centre pixels carry the exact colour
+    image = np.full((h, w, 3), 255, np.uint8)
+    uv = np.full((N, 2), np.nan)
+    uv[0] = (150, 625)  # wrist
+    uv[1] = (375, 625)  # thumb_cmc
+    for c, (ix, iy, iz) in enumerate(itertools.product((0, 1), repeat=3)):
+        uv[kp.NUM_HAND + c] = (500 + 300 * ix + 125 * iz, 100 + 300 * iy + 75 * iz)
+    out = draw_prediction(image, uv, kp.KEYPOINT_NAMES, kp.SKELETON_EDGES)
+    assert out.shape == image.shape and out.dtype == np.uint8
+    np.testing.assert_array_equal(out[300, 712], [255, 255, 255])  # unchanged where nothing is drawn
+    assert tuple(out[625, 262]) == FINGER_RGB["thumb"]  # edge wrist -> thumb_cmc: the thumb's colour
+    assert tuple(out[625, 150]) == FINGER_RGB["wrist"] and tuple(out[625, 375]) == FINGER_RGB["thumb"]  # markers
+    corners = uv[kp.CORNER_SLICE]
+    for a, b in itertools.combinations(range(8), 2):
+        u, v = np.round((corners[a] + corners[b]) / 2).astype(int)
+        bits_differ = sum(x != y for x, y in zip(kp.CORNER_BITS[a], kp.CORNER_BITS[b]))
+        if bits_differ == 1:  # the 12 box edges are drawn in the probe colour
+            assert tuple(out[v, u]) == PROBE_RGB, (a, b)
+        else:  # face and body diagonals are not drawn
+            np.testing.assert_array_equal(out[v, u], [255, 255, 255], err_msg=str((a, b)))
+    assert line_width(60, 100) == 1 and line_width(1080, 1920) == 6
+    assert keypoint_color("probe_corner_-x-y-z") == PROBE_RGB and keypoint_color("little_tip") == FINGER_RGB["little"]
+    with pytest.raises(ValueError, match=r"uv must be \(29, 2\)"):
+        draw_prediction(image, uv[:3], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES)
+
+
+# ------------------------------------------------------------------ run_predict end to end
+
+
+@pytest.fixture(scope="module")
+def image_set(tmp_path_factory) -> dict[str, Path]:
+    """Images not from the dataset, with the red dot where the graph can find it, and broken files."""
+    d = tmp_path_factory.mktemp("images")
+    files = {
+        "wide": (dot_image(100, 60, (71, 13)), ".png"), "tall": (dot_image(60, 100, (12, 83)), ".png"),
+        "square": (dot_image(300, 300, (222, 41)), ".png"), "small": (dot_image(24, 16, (5, 10)), ".png"),
+        "grey": (dot_image(50, 80, (0, 0), gray=True), ".png"),
+    }
+    paths = {}
+    for name, (image, ext) in files.items():
+        paths[name] = d / f"{name}{ext}"
+        cv2.imwrite(str(paths[name]), image)
+    paths["photo"] = d / "photo.jpg"
+    cv2.imwrite(str(paths["photo"]), photo_like(320, 240), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    paths["broken"] = d / "broken.png"
+    paths["broken"].write_bytes(np.random.default_rng(5).integers(0, 256, 500, dtype=np.uint8).tobytes())
+    paths["empty"] = d / "empty.png"
+    paths["empty"].write_bytes(b"")
+    paths["text"] = d / "readme.txt"
+    paths["text"].write_text("not an image\n")
+    return paths
+
+
+DOTS = {"wide": ((71, 13), (100, 60)), "tall": ((12, 83), (60, 100)), "square": ((222, 41), (300, 300)),
+        "small": ((5, 10), (24, 16))}
+
+
+@pytest.fixture(scope="module")
+def predicted(dot_model, image_set, tmp_path_factory):
+    out = tmp_path_factory.mktemp("pred")
+    order = ["wide", "broken", "tall", "square", "empty", "small", "grey", "photo", "text"]
+    messages: list[str] = []
+    result = run_predict(dot_model, [image_set[k] for k in order], out, batch_size=3, log=messages.append)
+    document = json.loads((out / "predictions.json").read_text())
+    records = {Path(r["path"]).stem: r for r in document["images"]}
+    return {"result": result, "doc": document, "records": records, "out": out, "messages": messages,
+            "order": order}
+
+
+def test_predict_dot_lands_on_the_original_pixel(predicted):
+    for name, (dot, (w, h)) in DOTS.items():
+        record = predicted["records"][name]
+        assert record["ok"] and record["error"] is None
+        assert record["image_size"] == {"width": w, "height": h}
+        g = InputGeometry(w, h, S)
+        uv = np.array(record["keypoints_2d_px"])
+        assert uv.shape == (N, 2)
+        # the graph finds the input pixel containing the dot: within half an input pixel, in original pixels
+        half_input_pixel = 0.5 / g.scale
+        np.testing.assert_array_less(np.abs(uv[0] - dot), half_input_pixel + 1e-3)
+        # every other keypoint sits at its normalised offset from the wrist, scaled to the padded square
+        np.testing.assert_allclose(uv - uv[0], OFFSETS_NORM * g.side / 2, atol=2e-3)
+
+
+def test_predict_grey_image_known_answer(predicted):
+    """No red anywhere: ArgMax picks input pixel (0, 0), which lies in the left padding of a 50 x 80 image."""
+    record = predicted["records"]["grey"]
+    g = InputGeometry(50, 80, S)
+    expected = (0.0 + 0.5) / g.scale - 0.5 - np.array([g.pad_left, g.pad_top])  # (-14.25, 0.75)
+    np.testing.assert_allclose(record["keypoints_2d_px"][0], expected, atol=1e-3)
+    np.testing.assert_allclose(expected, [-14.25, 0.75])
+
+
+def test_predict_json_content_and_assumed_camera(predicted):
+    doc = predicted["doc"]
+    assert doc["schema_version"] == 1 and doc["model"]["run_name"] == "dot-run"
+    assert doc["counts"] == {"images": 9, "ok": 6, "failed": 3}
+    assert [Path(r["path"]).stem for r in doc["images"]] == [
+        "wide", "broken", "tall", "square", "empty", "small", "grey", "photo", "readme"]  # input order kept
+    for stem in ("wide", "tall", "square", "small", "grey", "photo"):
+        record = predicted["records"][stem]
+        assert record["camera"] == CAMERA_ASSUMED and record["run_name"] == "dot-run"
+        assert record["keypoint_names"] == list(kp.KEYPOINT_NAMES)
+        xyz, uv, K = (np.array(record[k]) for k in ("keypoints_3d_m", "keypoints_2d_px", "K"))
+        assert xyz.shape == (N, 3)
+        np.testing.assert_allclose(xyz[:, 2], DEPTHS_M, atol=1e-6)  # the network's 3D output, unchanged
+        np.testing.assert_allclose(project(xyz, K), uv, atol=0.05)  # the reported K is the assumed camera
+        np.testing.assert_allclose(K, InputGeometry(**record["image_size"], input_size=S).intrinsics_to_image(K_TRAIN),
+                                   atol=1e-6)
+
+
+def test_predict_errors_are_per_file(predicted):
+    records, messages = predicted["records"], predicted["messages"]
+    expected = {"broken": "not a PNG or JPEG", "empty": "empty file", "readme": "not a PNG or JPEG"}
+    for stem, text in expected.items():
+        record = records[stem]
+        assert not record["ok"] and text in record["error"] and record["keypoints_3d_m"] is None
+        assert any(text in m and stem in m and m.startswith("hupbench predict: error:") for m in messages)
+    assert predicted["result"]["failed"] == 3 and predicted["result"]["ok"] == 6
+
+
+def test_predict_overlays_have_the_original_size(predicted):
+    out = predicted["out"]
+    for stem in ("wide", "tall", "square", "small", "grey", "photo"):
+        path = out / f"{stem}_overlay.png"
+        assert predicted["records"][stem]["overlay"] == str(path)
+        overlay = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        w, h = (predicted["records"][stem]["image_size"][k] for k in ("width", "height"))
+        assert overlay.shape == (h, w, 3)
+    # markers sit at the predicted keypoints of the 300 x 300 image, in their keypoint's colour
+    uv = np.array(predicted["records"]["square"]["keypoints_2d_px"])
+    gaps = np.linalg.norm(uv[:, None] - uv[None], axis=2) + np.eye(N) * 1e9
+    isolated = [k for k in range(N) if gaps[k].min() > 10 and np.all((uv[k] > 5) & (uv[k] < 295))]
+    assert len(isolated) >= 5
+    overlay = cv2.imread(str(out / "square_overlay.png"))[..., ::-1]
+    for k in isolated:
+        u, v = np.round(uv[k]).astype(int)
+        assert tuple(overlay[v, u]) == keypoint_color(kp.KEYPOINT_NAMES[k]), k
+    assert not (out / "broken_overlay.png").exists()
+
+
+def test_predict_user_K_known_answer(dot_model, image_set, tmp_path):
+    """--K: depth scales by f_user_in / f_train; the 3D points project through the user's K onto the 2D."""
+    K_user = np.array([[150.0, 0.0, 48.0], [0.0, 150.0, 33.0], [0.0, 0.0, 1.0]])
+    result = run_predict(dot_model, [image_set["wide"]], tmp_path, K="150,150,48,33", overlay=False)
+    record = result["records"][0]
+    assert record["camera"] == CAMERA_USER and record["overlay"] is None
+    np.testing.assert_allclose(record["K"], K_user)
+    f_user_in = 150.0 * S / 100  # the wide image's scale is S / L = 0.32
+    xyz, uv = np.array(record["keypoints_3d_m"]), np.array(record["keypoints_2d_px"])
+    np.testing.assert_allclose(xyz[:, 2], DEPTHS_M * f_user_in / K_TRAIN[0, 0], atol=2e-6)
+    np.testing.assert_allclose(project(xyz, K_user), uv, atol=2e-3)
+    assert not list(tmp_path.glob("*_overlay.png"))
+
+
+def test_predict_directory_and_stem_collisions(dot_model, image_set, tmp_path):
+    d = tmp_path / "in"
+    d.mkdir()
+    cv2.imwrite(str(d / "x.png"), dot_image(40, 30, (3, 3)))
+    cv2.imwrite(str(d / "x.JPG"), photo_like(64, 48))
+    (d / "notes.txt").write_text("skip me")
+    messages: list[str] = []
+    result = run_predict(dot_model, [d], tmp_path / "out", log=messages.append)
+    assert [Path(r["path"]).name for r in result["records"]] == ["x.JPG", "x.png"]
+    assert result["failed"] == 0 and [p.name for p in result["overlays"]] == ["x_overlay.png", "x_2_overlay.png"]
+    assert result["skipped"] == [{"path": str(d / "notes.txt"), "reason": "not an image file name (.png, .jpg, .jpeg)"}]
+    assert any("note:" in m and "notes.txt" in m for m in messages)
+    (d / "x.png").unlink()
+    (d / "x.JPG").unlink()
+    with pytest.raises(ValueError, match="no image files"):
+        run_predict(dot_model, [d], tmp_path / "out2", log=messages.append)
+
+
+def test_json_layout_round_trips():
+    document = {"b": [[1.5, -2.0, None], [3, 4, 5]], "a": {"path": "img[1,  2].png", "empty": [], "d": {}},
+                "names": ["x", "y"], "flag": True}
+    text = _compact_json(document)
+    assert json.loads(text) == document
+    assert '  "b": [\n    [1.5, -2.0, null],\n    [3, 4, 5]\n  ],' in text  # one row per line
+    assert '"path": "img[1,  2].png"' in text  # strings untouched
+
+
+def test_batching_does_not_change_answers(dot_model, image_set, tmp_path):
+    names = ["wide", "tall", "square", "small", "grey", "photo"]
+    one = run_predict(dot_model, [image_set[k] for k in names], tmp_path / "a", overlay=False, batch_size=1)
+    all_ = run_predict(dot_model, [image_set[k] for k in names], tmp_path / "b", overlay=False, batch_size=16)
+    for r1, r2 in zip(one["records"], all_["records"]):
+        assert r1["keypoints_3d_m"] == r2["keypoints_3d_m"] and r1["keypoints_2d_px"] == r2["keypoints_2d_px"]
+
+
+# ------------------------------------------------------------------ CLI and the no-torch rule
+
+
+def test_cli_exit_codes(dot_model, image_set, tmp_path, capsys):
+    good = [str(image_set["wide"]), str(image_set["photo"])]
+    assert main(["predict", str(dot_model), *good, "--out", str(tmp_path / "ok"), "--no-overlay"]) == 0
+    assert json.loads((tmp_path / "ok" / "predictions.json").read_text())["counts"]["failed"] == 0
+    assert not list((tmp_path / "ok").glob("*.png"))
+    rc = main(["predict", str(dot_model), *good, str(image_set["empty"]), "--out", str(tmp_path / "bad"),
+               "--K", "100,100,50,30"])
+    captured = capsys.readouterr()
+    assert rc == 1
+    assert f"hupbench predict: error: {image_set['empty']}: empty file" in captured.err
+    assert "1 of 3 failed" in captured.out
+    assert main(["predict", str(dot_model), *good, "--K", "1,2,3", "--out", str(tmp_path / "k")]) == 1
+    assert "--K must be four numbers" in capsys.readouterr().err
+
+
+def test_predict_does_not_import_torch(dot_model, image_set, tmp_path):
+    code = (
+        "import sys\n"
+        "from hupbench.cli import main\n"
+        f"rc = main(['predict', {str(dot_model)!r}, {str(image_set['photo'])!r}, {str(image_set['wide'])!r}, "
+        f"'--out', {str(tmp_path)!r}, '--K', '300,300,160,120'])\n"
+        "assert rc == 0, rc\n"
+        "heavy = sorted(m for m in sys.modules if m == 'torch' or m.startswith(('torch.', 'torchvision', 'kornia')))\n"
+        "print('IMPORTED', heavy)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 0, proc.stderr
+    assert "IMPORTED []" in proc.stdout, proc.stdout
+    assert (tmp_path / "photo_overlay.png").is_file() and (tmp_path / "wide_overlay.png").is_file()
+
+
+# ------------------------------------------------------------------ with a real exported model
+
+
+@pytest.mark.slow
+def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path):
+    """export an untrained HOPE-Net, predict on rendered frames, compare with PyTorch on the reader's inputs."""
+    export = pytest.importorskip("hupbench.export")
+    import torch
+
+    from hupbench.checkpoint import load_model, save_checkpoint
+    from hupbench.data import HUPDataset, ReaderConfig
+    from models.build import build_model
+
+    manifest = json.loads((tiny_dataset / "manifest.json").read_text())
+    size = manifest["image_size"][0]  # square frames, and the model input the same size: no resize
+    K = np.array(manifest["K"], dtype=np.float64).reshape(3, 3)
+    torch.manual_seed(0)
+    model = build_model({"name": "hopenet", "backbone": "resnet10"})
+    ckpt = save_checkpoint(tmp_path / "tiny.pt", {
+        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
+        "step": 0, "epoch": 0, "samples_seen": 0, "train_seconds": 0.0, "input_size": size, "K_input": K.tolist(),
+        "config": {"run_name": "tiny-untrained"}, "dataset": {"path": str(tiny_dataset), "manifest_sha256": "x"}})
+    onnx_path = Path(export.run_export(ckpt, tmp_path / "tiny.onnx", dataset=tiny_dataset, parity_frames=2,
+                                       log=lambda *_: None)["onnx"])
+    reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=size))
+    frames = [reader[i] for i in range(4)]
+    paths = sorted((tiny_dataset / "test" / "rgb").iterdir())[:4]
+    result = run_predict(onnx_path, paths, tmp_path / "out")
+    assert result["failed"] == 0
+    module = export.contract_model(*load_model(ckpt))
+    with torch.no_grad():
+        points2d, points3d = module(torch.stack([f["image"] for f in frames]))
+    for record, path, p2, p3 in zip(result["records"], paths, points2d.numpy(), points3d.numpy()):
+        assert record["run_name"] == "tiny-untrained" and record["camera"] == CAMERA_ASSUMED
+        np.testing.assert_allclose(record["K"], K, atol=1e-6)  # a dataset-size image: the training camera itself
+        np.testing.assert_allclose(record["keypoints_3d_m"], p3, atol=1e-4)  # 0.1 mm
+        np.testing.assert_allclose(record["keypoints_2d_px"], ((p2 + 1.0) * size - 1.0) / 2.0, atol=1e-2)
+        overlay = cv2.imread(record["overlay"])
+        assert overlay.shape == (size, size, 3)
