@@ -183,3 +183,34 @@ def test_train_py_multirun(tiny_dataset, tmp_path):
     assert len(summaries) == 2
     names = {json.loads((s.parent / "run.json").read_text())["config"]["model_id"] for s in summaries}
     assert names == {"hopenet_r10_128", "resnet50_128"}
+
+
+@pytest.mark.slow
+def test_torchrun_two_processes_gloo(tiny_dataset, tmp_path):
+    """2-process DDP on CPU: rank-0 files only, reduced validation equals one process's, checkpoint loads alone."""
+    single = tmp_path / "single"
+    run_train(tiny_cfg(tiny_dataset, single, "train.max_steps=1"), log=lambda *_: None)
+    ddp = tmp_path / "ddp"
+    args = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+            str(REPO / "train.py"), "model=hopenet_r10_128", f"data.root={tiny_dataset}", f"run_dir={ddp}",
+            "data.reader.input_size=64", "data.batch_size=4", "data.num_workers=0", "data.val_frames=8",
+            "train.max_steps=2", "train.val_every=2", "train.ckpt_every=2", "train.log_every=1",
+            "train.progress=false", "train.tensorboard=false", "threads=1"]
+    done = subprocess.run(args, capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                          env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = read_log(ddp)
+    assert [r["step"] for r in log if r["event"] == "val"] == [0, 2]  # written once, by rank 0
+    assert [r["samples_seen"] for r in log if r["event"] == "train"] == [8, 16]  # 2 ranks x batch 4
+    # the same initial weights (same seed): the all-reduced MPJPE over 4 + 4 frames equals one process over 8
+    first_ddp = log[0]["val_mpjpe_mm"]
+    first_single = read_log(single)[0]["val_mpjpe_mm"]
+    for key in ("all", "hand", "probe"):
+        assert first_ddp[key] == pytest.approx(first_single[key], rel=1e-5)
+    assert log[0]["val_frames"] == 8
+    summary = json.loads((ddp / "summary.json").read_text())
+    assert summary["world_size"] == 2 and summary["steps"] == 2
+    model, payload = load_model(ddp / "checkpoints" / "last.pt")
+    assert payload["world_size"] == 2 and not any(k.startswith("module.") for k in payload["model"])
+    with torch.no_grad():
+        assert model(torch.rand(1, 3, 64, 64)).points3d.shape == (1, 29, 3)
