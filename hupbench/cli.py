@@ -11,10 +11,12 @@ VERBS = {
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
+    "eval": "evaluate a checkpoint or ONNX model on a dataset split: metrics, breakdowns, latency; results JSON",
+    "export": "export a checkpoint to ONNX (opset 18, dynamic batch) with a parity check against PyTorch",
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
     "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
 }
-OWN_OPTION_VERBS = {"leaderboard", "predict"}
+OWN_OPTION_VERBS = {"leaderboard", "predict", "eval", "export"}
 
 
 def _quickstart(overrides: list[str]) -> int:
@@ -122,6 +124,43 @@ def _predict(args: list[str]) -> int:
     return 1 if result["failed"] else 0
 
 
+def _eval(args: list[str]) -> int:
+    from hupbench.evaluate import run_eval
+
+    parser = argparse.ArgumentParser(prog="hupbench eval")
+    parser.add_argument("model", help="a hupbench checkpoint (.pt) or an exported ONNX model (.onnx)")
+    parser.add_argument("dataset", help="a finished dataset folder (with manifest.json)")
+    parser.add_argument("--split", default="test", choices=("train", "val", "test"))
+    parser.add_argument("--out", help="results JSON (default leaderboard/results/<run name>.json); its stem is the run name")
+    parser.add_argument("--run-name", help="default: the training run name, the ONNX metadata's, or the stem of --out")
+    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--latency", action=argparse.BooleanOptionalAction, default=True,
+                        help="time PyTorch and onnxruntime at batch 1 and 32")
+    parser.add_argument("--threads", type=int, help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
+    ns = parser.parse_args(args)
+    result = run_eval(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
+                      batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads)
+    print(result["table"])
+    print(f"hupbench eval: results written to {result['out']}")
+    return 0
+
+
+def _export(args: list[str]) -> int:
+    from hupbench.export import OPSET, run_export
+
+    parser = argparse.ArgumentParser(prog="hupbench export")
+    parser.add_argument("checkpoint", help="a hupbench checkpoint (.pt)")
+    parser.add_argument("--out", help="destination .onnx (default: the checkpoint path with suffix .onnx)")
+    parser.add_argument("--dataset", help="dataset for the parity images (default: the checkpoint's training dataset)")
+    parser.add_argument("--opset", type=int, default=OPSET)
+    parser.add_argument("--run-name", help="hupbench.run_name metadata (default: the training run name)")
+    ns = parser.parse_args(args)
+    result = run_export(ns.checkpoint, out=ns.out, dataset=ns.dataset, opset=ns.opset, run_name=ns.run_name)
+    print(f"hupbench export: {result['onnx']} (opset {result['opset']}, parity max |ORT - PyTorch|: "
+          f"points3d {result['parity']['points3d_mm']:.2e} mm, points2d {result['parity']['points2d_px']:.2e} px)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
@@ -145,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
-                    "predict": _predict}
+                    "predict": _predict, "eval": _eval, "export": _export}
         return handlers[args.verb](args.overrides)
     except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)

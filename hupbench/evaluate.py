@@ -1,0 +1,397 @@
+"""``hupbench eval MODEL DATASET``: every benchmark metric of a checkpoint or an exported ONNX model.
+
+The model runs over one split of a dataset (``hupbench.data.HUPDataset`` at the model's input
+size, batched, under ``torch.inference_mode``), the metrics of :mod:`hupbench.metrics` are
+computed on all frames, and a results JSON in schema version 1 (:mod:`hupbench.results`) is
+written. A checkpoint runs through :class:`hupbench.export.ContractModule`, the same wrapper the
+ONNX export uses, so both formats report the same quantities.
+
+What the numbers are:
+    mpjpe_mm            absolute camera-frame 3D error (no alignment), mm: hand (21), probe (8)
+                        and all 29 keypoint-weighted (``metrics.ALL_AVERAGING``).
+    root_relative_hand_mpjpe_mm   the 21 hand joints after moving both hands' wrists to the origin.
+    pa_mpjpe_hand_mm    the 21 hand joints after a Procrustes (similarity) alignment per frame.
+    pck_auc_0_50mm      area under the 3D PCK curve of the absolute errors of all 29 keypoints,
+                        thresholds 0, 0.5, ..., 50 mm (``metrics.PCK_THRESHOLDS_MM``), in [0, 1].
+    pixel_error_px      mean 2D error of all 29 keypoints (visible or not) in pixels of the stored
+                        dataset image (e.g. 256 px), so that models of different input sizes compare.
+    breakdowns          MPJPE by camera latitude (``metrics.latitude_labels``: egocentric = camera on
+                        the elbow's hemisphere, theta < 90 deg), by z_ego and by background name.
+    latency             ms per image, median of timed runs after warm-up, batch 1 and 32, PyTorch
+                        (checkpoints only) and onnxruntime (a checkpoint is exported to a temporary
+                        ONNX file first); both use torch's intra-op thread count.
+    parameters, flops   from the model rebuilt from its config (weights do not change either; an
+                        ONNX file carries the config in its metadata); FLOPs per image counted by
+                        ``torch.utils.flop_counter.FlopCounterMode`` (2 x multiply-adds).
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from datagen import keypoints as kp
+from hupbench import metrics as M
+
+__all__ = ["LATENCY_RUNS", "count_flops", "format_table", "measure_latency_ms", "run_eval"]
+
+#: (least warm-up runs, timed runs) per batch size for the latency medians
+LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
+#: warm-up also lasts at least this long (s): oneDNN and onnxruntime set up kernels lazily, and on
+#: a busy machine the first calls can be many times slower than the steady state
+WARMUP_MIN_S = 0.5
+#: at most this many warm-up runs, however long they take
+WARMUP_MAX_RUNS = 50
+#: relative difference between the eval images' intrinsics and the model's K_input above which a warning is logged
+K_MISMATCH_REL = 1e-3
+MODEL_LABELS = {"hopenet": "HOPE-Net", "resnet_regressor": "ResNet regressor"}
+
+
+def _backbone_label(name: str) -> str:
+    return f"ResNet-{name[len('resnet'):]}" if name.startswith("resnet") else name
+
+
+def model_label(model_config: dict, input_size: int) -> str:
+    """Human label naming the model, backbone and input size, e.g. "HOPE-Net (ResNet-18, 128 px)"."""
+    name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
+    backbone = model_config.get("backbone")
+    parts = ([_backbone_label(backbone)] if backbone else []) + [f"{input_size} px"]
+    if model_config.get("name") == "resnet_regressor" and model_config.get("predict_2d"):
+        parts.append("2D head")
+    return f"{name} ({', '.join(parts)})"
+
+
+def count_flops(module: torch.nn.Module, input_size: int) -> int:
+    """FLOPs of one forward pass on one (1, 3, S, S) image (2 x multiply-adds, as FlopCounterMode counts)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    counter = FlopCounterMode(display=False)
+    with torch.inference_mode(), counter:
+        module(torch.zeros(1, 3, input_size, input_size))
+    return int(counter.get_total_flops())
+
+
+def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch: int,
+                       warmup: int, repeats: int) -> float:
+    """Median wall time per image of ``run`` on a (batch, 3, S, S) float32 array, milliseconds.
+
+    Warm-up: at least ``warmup`` runs and ``WARMUP_MIN_S`` seconds (at most ``WARMUP_MAX_RUNS`` runs);
+    then the median of ``repeats`` timed runs, divided by ``batch``.
+    """
+    images = np.random.default_rng(0).random((batch, 3, input_size, input_size), dtype=np.float32)
+    start, runs = time.perf_counter(), 0
+    while runs < warmup or (time.perf_counter() - start < WARMUP_MIN_S and runs < WARMUP_MAX_RUNS):
+        run(images)
+        runs += 1
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run(images)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times) * 1000.0 / batch
+
+
+def _latencies(torch_module, onnx_path, input_size: int, threads: int, log) -> dict[str, dict[str, float | None]]:
+    from hupbench.export import ort_session
+
+    out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
+    if torch_module is not None:
+        def run_torch(images):
+            with torch.inference_mode():
+                torch_module(torch.from_numpy(images))
+        for batch, (warmup, repeats) in LATENCY_RUNS.items():
+            out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats)
+    session = ort_session(onnx_path, threads)
+    for batch, (warmup, repeats) in LATENCY_RUNS.items():
+        out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
+            lambda images: session.run(None, {"image": images}), input_size, batch, warmup, repeats)
+    log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
+                                           for b, v in d.items() if v is not None))
+    return out
+
+
+def _check_dataset(dataset: Path, split: str) -> dict:
+    if not dataset.exists():
+        raise FileNotFoundError(f"dataset {dataset} does not exist")
+    manifest_path = dataset / "manifest.json"
+    if not manifest_path.is_file():
+        raise FileNotFoundError(f"{dataset} has no manifest.json: not a finished hupbench dataset")
+    manifest = json.loads(manifest_path.read_text())
+    names = manifest.get("keypoint_names", [])
+    if len(names) != kp.NUM_KEYPOINTS:
+        raise ValueError(f"dataset {dataset} has {len(names)} keypoints; the benchmark needs {kp.NUM_KEYPOINTS} "
+                         f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+    counts = manifest.get("counts", {})
+    if split not in counts:
+        raise ValueError(f"split must be one of {sorted(counts)}, got {split!r}")
+    if counts[split] == 0:
+        raise ValueError(f"split {split!r} of {dataset} is empty (counts: {counts})")
+    return manifest
+
+
+def _model_format(path: Path) -> str:
+    """"pytorch" for a checkpoint, "onnx" for an ONNX file; errors for a missing file or another type."""
+    suffix = path.suffix.lower()
+    if suffix not in (".pt", ".pth", ".onnx"):
+        raise ValueError(f"unknown model file type {path.name!r}: expected a hupbench checkpoint (.pt) "
+                         f"or an exported ONNX model (.onnx)")
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {path} does not exist")
+    return "onnx" if suffix == ".onnx" else "pytorch"
+
+
+class _Model:
+    """What eval needs of either format: name, sizes, a batch predictor, and the objects to time."""
+
+    def __init__(self, path: Path) -> None:
+        if _model_format(path) == "pytorch":
+            self._load_checkpoint(path)
+        else:
+            self._load_onnx(path)
+        n = self.model_config.get("n_keypoints", kp.NUM_KEYPOINTS)
+        if n != kp.NUM_KEYPOINTS:
+            raise ValueError(f"the model predicts {n} keypoints; the dataset and the benchmark have "
+                             f"{kp.NUM_KEYPOINTS}")
+
+    def _load_checkpoint(self, path: Path) -> None:
+        from hupbench.checkpoint import load_model
+        from hupbench.export import contract_model, default_run_name
+
+        model, payload = load_model(path)
+        self.format = "pytorch"
+        self.payload = payload
+        self.model_config = dict(payload["model_config"])
+        self.module = contract_model(model, payload)
+        self.input_size = self.module.input_size
+        self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
+        self.run_name = default_run_name(path, payload)
+        self.session = None
+
+    def _load_onnx(self, path: Path) -> None:
+        from hupbench.export import ort_session, read_onnx_metadata
+
+        meta = read_onnx_metadata(path)
+        if len(meta["keypoint_names"]) != kp.NUM_KEYPOINTS:
+            raise ValueError(f"{path} predicts {len(meta['keypoint_names'])} keypoints; the benchmark has "
+                             f"{kp.NUM_KEYPOINTS}")
+        self.format = "onnx"
+        self.payload = None
+        self.model_config = meta["model_config"]
+        self.module = None
+        self.input_size = meta["input_size"]
+        self.K_input = np.asarray(meta["K_input"], dtype=np.float64)
+        self.run_name = meta["run_name"] or path.stem
+        self.session = ort_session(path)
+        self.onnx_path = path
+
+    def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """(B, 3, S, S) -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy."""
+        if self.module is not None:
+            with torch.inference_mode():
+                points2d, points3d = self.module(images)
+            return points2d.double().numpy(), points3d.double().numpy()
+        points2d, points3d = self.session.run(["points2d", "points3d"], {"image": images.numpy()})
+        return points2d.astype(np.float64), points3d.astype(np.float64)
+
+    def cost(self) -> tuple[int, int]:
+        """(parameters, FLOPs per image) of the architecture, rebuilt from its config when needed."""
+        from hupbench.export import ContractModule
+        from models.build import build_model
+
+        module = self.module
+        if module is None:
+            module = ContractModule(build_model(self.model_config).eval(), self.K_input, self.input_size).eval()
+        parameters = sum(p.numel() for p in module.model.parameters())
+        return int(parameters), count_flops(module, self.input_size)
+
+
+def _training_block(model_path: Path, payload: dict | None) -> dict:
+    block = {"wall_s": None, "hardware": None, "samples_seen": None, "epochs": None, "command": None, "log": None}
+    if payload is None:
+        return block
+    for key, field, cast in (("wall_s", "train_seconds", float), ("samples_seen", "samples_seen", int),
+                             ("epochs", "epoch", float)):
+        if payload.get(field) is not None:
+            block[key] = cast(payload[field])
+    # the training loop writes run.json (with the hardware line) beside its checkpoints/ folder
+    run_json = model_path.resolve().parent.parent / "run.json"
+    if run_json.is_file():
+        try:
+            hardware = json.loads(run_json.read_text()).get("hardware")
+        except json.JSONDecodeError:
+            hardware = None
+        if isinstance(hardware, str) and hardware.strip():
+            block["hardware"] = hardware
+    return block
+
+
+def _resolve_out(out, run_name: str | None, default_name: str) -> tuple[Path, str]:
+    """Results path and run name: the run name is the file stem (schema), so they must agree."""
+    if out is not None:
+        out = Path(out)
+        if out.suffix.lower() != ".json":
+            raise ValueError(f"--out must be a .json file, got {out.name!r}")
+        if run_name is not None and run_name != out.stem:
+            raise ValueError(f"the run name {run_name!r} must equal the results file stem {out.stem!r} "
+                             f"(leave out --run-name or rename --out)")
+        return out, out.stem
+    name = run_name or default_name
+    return Path("leaderboard") / "results" / f"{name}.json", name
+
+
+def format_table(results: dict) -> str:
+    """A short human-readable table of a results dict."""
+    m, lat = results["metrics"], results["latency_ms_per_image"]
+
+    def f(v, fmt="{:.2f}"):
+        return "-" if v is None else fmt.format(v)
+
+    rows = [
+        ("model", f"{results['model']['label']} [{results['model']['format']}]"),
+        ("dataset", (f"{results['dataset']['name']}, split {results['dataset']['split']}, "
+                    f"{results['dataset']['frames']} frames")),
+        ("MPJPE all / hand / probe", (f"{f(m['mpjpe_mm']['all'])} / {f(m['mpjpe_mm']['hand'])} / "
+                                     f"{f(m['mpjpe_mm']['probe'])} mm")),
+        ("root-relative hand MPJPE", f"{f(m['root_relative_hand_mpjpe_mm'])} mm"),
+        ("PA-MPJPE hand", f"{f(m['pa_mpjpe_hand_mm'])} mm"),
+        ("3D PCK AUC 0-50 mm", f(m["pck_auc_0_50mm"], "{:.3f}")),
+        ("2D error", f"{f(m['pixel_error_px'])} px"),
+        ("parameters / GFLOPs", (f"{f(results['model']['parameters'], '{:,}')} / "
+                                f"{f(None if results['model']['flops'] is None else results['model']['flops'] / 1e9, '{:.3f}')}")),
+        ("latency PyTorch b1 / b32", f"{f(lat['pytorch']['batch1'])} / {f(lat['pytorch']['batch32'])} ms/image"),
+        ("latency ORT b1 / b32", f"{f(lat['onnxruntime']['batch1'])} / {f(lat['onnxruntime']['batch32'])} ms/image"),
+    ]
+    for axis, buckets in results["breakdowns"].items():
+        for label, b in buckets.items():
+            rows.append((f"  {axis}: {label}", (f"{f(b['mpjpe_mm']['all'])} mm all, {f(b['mpjpe_mm']['hand'])} hand, "
+                                               f"{f(b['mpjpe_mm']['probe'])} probe ({b['frames']} frames)")))
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
+             run_name: str | None = None, batch_size: int = 32, latency: bool = True,
+             threads: int | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
+
+    Args:
+        model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
+        dataset: a finished dataset folder (with ``manifest.json``).
+        split: "train", "val" or "test".
+        out: results ``.json`` (default ``leaderboard/results/<run_name>.json`` under the current
+            folder); its stem is the run name.
+        run_name: default: the checkpoint's training ``run_name`` (or file stem), the ONNX
+            metadata's run name, or the stem of ``out``.
+        batch_size: frames per forward pass.
+        latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
+        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's
+            current setting); the device string records the count.
+        log: called with progress lines.
+
+    Returns:
+        {"results": the validated results dict, "out": str path, "table": str}
+    """
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    previous_threads = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
+              log) -> dict[str, Any]:
+    from hupbench.checkpoint import file_sha256
+    from hupbench.data import HUPDataset, ReaderConfig
+    from hupbench.provenance import git_commit
+    from hupbench.results import blank_results, write_results
+    from hupbench.train import hardware_description
+
+    _model_format(model_path)
+    manifest = _check_dataset(dataset, split)
+    net = _Model(model_path)
+    out_path, run_name = _resolve_out(out, run_name, net.run_name)
+
+    reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size))
+    K_eval = reader[0]["K"].double().numpy()
+    if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
+        log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "
+            f"{net.K_input.round(3).tolist()}: its 3D output assumes the training camera")
+    loader = torch.utils.data.DataLoader(reader, batch_size=batch_size, shuffle=False, num_workers=0)
+    pred2d, pred3d, gt2d, gt3d, frame_ids = [], [], [], [], []
+    start = time.perf_counter()
+    for batch in loader:
+        p2, p3 = net.predict(batch["image"])
+        pred2d.append(p2)
+        pred3d.append(p3)
+        gt2d.append(batch["keypoints_2d"].double().numpy())
+        gt3d.append(batch["keypoints_3d"].double().numpy())
+        frame_ids.append(batch["frame_id"].numpy())
+    pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
+    log(f"ran {net.format} model on {len(reader)} {split} frames in {time.perf_counter() - start:.1f} s")
+    bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
+    if bad.any():
+        raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+
+    with np.load(dataset / split / "annotations.npz") as ann:
+        fields = {k: ann[k] for k in ("frame_id", "theta", "z_ego", "background_id")}
+    if not np.array_equal(fields["frame_id"], np.concatenate(frame_ids)):
+        raise RuntimeError("the reader's frame order differs from the annotations' (dataset modified while reading?)")
+
+    errors = M.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
+    width, height = (int(v) for v in manifest["image_size"])
+    pixel_error = M.pixel_error_px(M.normalized_to_pixels(pred2d, width, height),
+                                   M.normalized_to_pixels(gt2d, width, height))
+    background_names = (manifest.get("backgrounds") or {}).get("names")
+    results = blank_results("measured", run_name)
+    parameters, flops = net.cost()
+    results["model"] = {"name": str(net.model_config.get("name")), "label": model_label(net.model_config, net.input_size),
+                        "config": net.model_config, "parameters": parameters, "flops": flops,
+                        "input_size": int(net.input_size), "format": net.format}
+    total = sum(int(v) for v in manifest["counts"].values())
+    results["dataset"] = {"path": str(dataset.resolve()), "manifest_sha256": file_sha256(dataset / "manifest.json"),
+                          "split": split, "frames": len(reader), "name": f"hupbench {dataset.resolve().name} "
+                                                                          f"({total:,} frames)"}
+    results["metrics"] = {
+        "mpjpe_mm": M.split_from_errors_mm(errors) | {"all_averaging": M.ALL_AVERAGING},
+        "root_relative_hand_mpjpe_mm": M.root_relative_mpjpe_mm(pred3d, gt3d),
+        "pa_mpjpe_hand_mm": M.pa_mpjpe_mm(pred3d, gt3d),
+        "pck_auc_0_50mm": M.pck_auc_from_errors(errors),
+        "pixel_error_px": pixel_error,
+    }
+    results["breakdowns"] = {
+        "latitude": M.breakdown_mpjpe_mm(errors, M.latitude_labels(fields["theta"])),
+        "z_ego": M.breakdown_mpjpe_mm(errors, M.z_ego_labels(fields["z_ego"])),
+        "background": M.breakdown_mpjpe_mm(errors, M.background_labels(fields["background_id"], background_names)),
+    }
+    if latency:
+        if net.format == "onnx":
+            results["latency_ms_per_image"] = _latencies(None, net.onnx_path, net.input_size,
+                                                         torch.get_num_threads(), log)
+        else:
+            from hupbench.export import export_onnx, onnx_metadata
+
+            with tempfile.TemporaryDirectory(prefix="hupbench_eval_") as tmp:
+                onnx_path = export_onnx(net.module, Path(tmp) / "model.onnx",
+                                        onnx_metadata(net.payload, run_name, git_commit()))
+                results["latency_ms_per_image"] = _latencies(net.module, onnx_path, net.input_size,
+                                                             torch.get_num_threads(), log)
+    results["device"] = hardware_description(torch.device("cpu"))
+    results["training"] = _training_block(model_path, net.payload)
+    results["git_commit"] = git_commit()
+    results["created_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    write_results(out_path, results)
+    return {"results": results, "out": str(out_path), "table": format_table(results)}

@@ -1,0 +1,191 @@
+"""hupbench eval: checkpoint vs exported ONNX agreement, known answers through the whole pipeline, bad input."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from test_export import (  # the session's one export, shared
+    INPUT_SIZE,
+    exported_model,
+    make_checkpoint,
+)
+
+from hupbench import evaluate as EV
+from hupbench import metrics as M
+from hupbench.checkpoint import file_sha256
+from hupbench.cli import main
+from hupbench.data import HUPDataset, ReaderConfig
+from hupbench.results import load_results
+
+QUIET = {"log": lambda *_: None}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, tiny_dataset):
+    return exported_model(tmp_path_factory, tiny_dataset)
+
+
+def _flatten(d, prefix=""):
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out |= _flatten(v, f"{prefix}{k}.")
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
+    ckpt, onnx_path = exported
+    r_pt = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8, **QUIET)
+    r_onnx = EV.run_eval(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True, **QUIET)
+    a, b = load_results(r_pt["out"]), load_results(r_onnx["out"])
+    assert a == r_pt["results"] and b == r_onnx["results"]
+    # every metric and every breakdown within 0.1 mm (2D: 0.01 px, AUC: 0.001)
+    fa, fb = _flatten(a["metrics"] | {"breakdowns": a["breakdowns"]}), _flatten(b["metrics"] | {"breakdowns": b["breakdowns"]})
+    assert fa.keys() == fb.keys()
+    for key in fa:
+        if isinstance(fa[key], str):
+            assert fa[key] == fb[key] == M.ALL_AVERAGING
+        elif key.endswith("frames"):
+            assert fa[key] == fb[key]
+        else:
+            tol = {"metrics.pixel_error_px": 0.01, "metrics.pck_auc_0_50mm": 0.001}.get(key, 0.1)
+            assert abs(fa[key] - fb[key]) <= tol, key
+    assert abs(a["metrics"]["mpjpe_mm"]["all"] - b["metrics"]["mpjpe_mm"]["all"]) < 1e-3
+    # the same architecture: parameters and FLOPs agree (the ONNX side rebuilds the config)
+    assert a["model"]["parameters"] == b["model"]["parameters"] > 1_000_000
+    assert a["model"]["flops"] == b["model"]["flops"] > 0
+    assert (a["model"]["format"], b["model"]["format"]) == ("pytorch", "onnx")
+    assert a["model"]["label"] == "HOPE-Net (ResNet-10, 64 px)"
+    assert a["model"]["input_size"] == b["model"]["input_size"] == INPUT_SIZE
+    # latency: PyTorch is not timed for an ONNX file; onnxruntime is, at batch 1 and 32
+    assert b["latency_ms_per_image"]["pytorch"] == {"batch1": None, "batch32": None}
+    assert all(v > 0 for v in b["latency_ms_per_image"]["onnxruntime"].values())
+    assert a["latency_ms_per_image"]["onnxruntime"] == {"batch1": None, "batch32": None}
+    # provenance and the training block of the checkpoint
+    assert a["run_name"] == "tiny_pt" and b["run_name"] == "tiny_onnx"
+    assert a["dataset"]["manifest_sha256"] == file_sha256(tiny_dataset / "manifest.json")
+    assert a["dataset"]["frames"] == 20 and a["dataset"]["split"] == "test"
+    assert a["training"] == {"wall_s": 0.0, "hardware": None, "samples_seen": 0, "epochs": 0.0,
+                                  "command": None, "log": None}
+    assert b["training"]["wall_s"] is None
+    assert len(a["git_commit"]) >= 7 and "threads" in a["device"]
+    # breakdown buckets of the tiny dataset: rings at 60 and 120 degrees, one distance, two backgrounds
+    assert {k: v["frames"] for k, v in a["breakdowns"]["latitude"].items()} == {"egocentric": 10, "non_egocentric": 10}
+    assert {k: v["frames"] for k, v in a["breakdowns"]["z_ego"].items()} == {"0.5 m": 20}
+    assert {k: v["frames"] for k, v in a["breakdowns"]["background"].items()} == {"consultation_room": 10,
+                                                                                  "plain_white": 10}
+
+
+def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, monkeypatch):
+    """Predictions = ground truth shifted by 5.2 mm in 3D and 3 px in 2D: every metric is hand-computable."""
+    ckpt, _ = exported
+    truth = iter(torch.utils.data.DataLoader(HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE)),
+                                             batch_size=7))
+    width = json.loads((tiny_dataset / "manifest.json").read_text())["image_size"][0]
+
+    def shifted_truth(self, images):
+        batch = next(truth)
+        assert images.shape[0] == batch["image"].shape[0]
+        points3d = batch["keypoints_3d"].double().numpy() + np.array([0.0, 0.0052, 0.0])
+        points2d = batch["keypoints_2d"].double().numpy() + np.array([2 * 3.0 / width, 0.0])  # 3 px of the stored image
+        return points2d, points3d
+
+    monkeypatch.setattr(EV._Model, "predict", shifted_truth)
+    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "shifted.json", latency=False, batch_size=7, **QUIET)["results"]
+    m = r["metrics"]
+    assert m["mpjpe_mm"]["all"] == pytest.approx(5.2, abs=1e-4)
+    assert m["mpjpe_mm"]["hand"] == pytest.approx(5.2, abs=1e-4)
+    assert m["mpjpe_mm"]["probe"] == pytest.approx(5.2, abs=1e-4)
+    assert m["root_relative_hand_mpjpe_mm"] == pytest.approx(0.0, abs=1e-4)
+    assert m["pa_mpjpe_hand_mm"] == pytest.approx(0.0, abs=1e-4)
+    # PCK steps from 0 to 1 between the 5.0 and 5.5 mm thresholds: area (0.25 + 44.5) / 50
+    assert m["pck_auc_0_50mm"] == pytest.approx(44.75 / 50)
+    assert m["pixel_error_px"] == pytest.approx(3.0, abs=1e-4)
+    for axis in ("latitude", "z_ego", "background"):
+        for bucket in r["breakdowns"][axis].values():
+            assert bucket["mpjpe_mm"]["all"] == pytest.approx(5.2, abs=1e-4)
+
+
+def test_eval_cli_prints_table(exported, tiny_dataset, tmp_path, capsys):
+    _, onnx_path = exported
+    out = tmp_path / "cli_run.json"
+    assert main(["eval", str(onnx_path), str(tiny_dataset), "--out", str(out), "--no-latency",
+                 "--batch-size", "16", "--threads", "1"]) == 0
+    printed = capsys.readouterr().out
+    results = load_results(out)
+    all_mm = results["metrics"]["mpjpe_mm"]["all"]
+    assert f"{all_mm:.2f} / " in printed and "MPJPE all / hand / probe" in printed
+    assert "latitude: egocentric" in printed and f"results written to {out}" in printed
+    assert results["device"].endswith("1 threads")
+    assert torch.get_num_threads() >= 1  # restored after the run
+
+
+def _dataset_copy(src, dst, edit):
+    """A dataset folder whose manifest is ``edit(manifest)``; the split folders are linked, not copied."""
+    dst.mkdir()
+    for split in ("train", "val", "test"):
+        (dst / split).symlink_to(src / split, target_is_directory=True)
+    manifest = json.loads((src / "manifest.json").read_text())
+    (dst / "manifest.json").write_text(json.dumps(edit(manifest)))
+    return dst
+
+
+def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
+    ckpt, _ = exported
+    out = {"out": tmp_path / "r.json", "latency": False, **QUIET}
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(ValueError, match=r"unknown model file type 'notes.txt'.*\.pt.*\.onnx"):
+        EV.run_eval(tmp_path / "notes.txt", tiny_dataset, **out)
+    with pytest.raises(FileNotFoundError, match="model file .*missing.pt does not exist"):
+        EV.run_eval(tmp_path / "missing.pt", tiny_dataset, **out)
+    with pytest.raises(FileNotFoundError, match="dataset .*nowhere does not exist"):
+        EV.run_eval(ckpt, tmp_path / "nowhere", **out)
+    (tmp_path / "empty_dir").mkdir()
+    with pytest.raises(FileNotFoundError, match="no manifest.json"):
+        EV.run_eval(ckpt, tmp_path / "empty_dir", **out)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"state_dict": {"w": torch.zeros(2)}}, foreign)
+    with pytest.raises(ValueError, match="not a hupbench checkpoint"):
+        EV.run_eval(foreign, tiny_dataset, **out)
+    fake_onnx = tmp_path / "fake.onnx"
+    fake_onnx.write_bytes(b"\x00\x01 not onnx")
+    with pytest.raises(ValueError, match="fake.onnx"):
+        EV.run_eval(fake_onnx, tiny_dataset, **out)
+    hand_only = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21)
+    with pytest.raises(ValueError, match="predicts 21 keypoints"):
+        EV.run_eval(hand_only, tiny_dataset, **out)
+    short = _dataset_copy(tiny_dataset, tmp_path / "ds21", lambda m: m | {"keypoint_names": m["keypoint_names"][:21]})
+    with pytest.raises(ValueError, match="has 21 keypoints; the benchmark needs 29"):
+        EV.run_eval(ckpt, short, **out)
+    empty = _dataset_copy(tiny_dataset, tmp_path / "ds_empty", lambda m: m | {"counts": m["counts"] | {"test": 0}})
+    with pytest.raises(ValueError, match="split 'test' of .* is empty"):
+        EV.run_eval(ckpt, empty, **out)
+    with pytest.raises(ValueError, match="split must be one of"):
+        EV.run_eval(ckpt, tiny_dataset, split="holdout", **out)
+    with pytest.raises(ValueError, match="must equal the results file stem"):
+        EV.run_eval(ckpt, tiny_dataset, run_name="other", **out)
+    with pytest.raises(ValueError, match="batch_size must be a positive int"):
+        EV.run_eval(ckpt, tiny_dataset, batch_size=0, **out)
+    assert not (tmp_path / "r.json").exists()
+    assert main(["eval", str(tmp_path / "notes.txt"), str(tiny_dataset), "--out", str(tmp_path / "r.json")]) == 1
+    assert "hupbench eval: error: unknown model file type" in capsys.readouterr().err
+
+
+def test_latency_helper_median():
+    calls = []
+    ms = EV.measure_latency_ms(lambda images: calls.append(images.shape), input_size=16, batch=4, warmup=2, repeats=5)
+    assert ms >= 0 and math.isfinite(ms)
+    assert len(calls) >= 7 and calls[0] == (4, 3, 16, 16)
+
+
+@pytest.mark.slow
+def test_checkpoint_eval_times_pytorch_and_onnxruntime(exported, tiny_dataset, tmp_path):
+    ckpt, _ = exported
+    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "timed.json", latency=True, **QUIET)["results"]
+    for runtime in ("pytorch", "onnxruntime"):
+        assert all(v > 0 for v in r["latency_ms_per_image"][runtime].values()), runtime
+    assert not list(tmp_path.glob("*.onnx"))

@@ -1,0 +1,186 @@
+"""hupbench export: the ONNX contract (names, shapes, dynamic batch, opset, metadata), parity, atomicity, bad input."""
+
+import json
+import shutil
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from datagen import keypoints as kp
+from hupbench import export as E
+from hupbench.checkpoint import (
+    file_sha256,
+    load_model,
+    read_checkpoint,
+    save_checkpoint,
+)
+from hupbench.cli import main
+from hupbench.data import HUPDataset, ReaderConfig
+from models.baseline import RegressorOutput
+from models.build import build_model
+from models.coords import pixels_to_normalized
+
+INPUT_SIZE = 64
+
+
+def make_checkpoint(path, dataset, **model_cfg):
+    """An untrained model (ResNet-10 backbone by default) with the train split's mean layout as its 3D prior."""
+    torch.manual_seed(0)
+    with np.load(dataset / "train" / "annotations.npz") as ann:
+        mean = ann["keypoints_3d_cam"].mean(axis=0)
+    cfg = {"name": "hopenet", "backbone": "resnet10", "points3d_mean": mean.tolist()} | model_cfg
+    if cfg.get("n_keypoints", kp.NUM_KEYPOINTS) != kp.NUM_KEYPOINTS:
+        cfg["points3d_mean"] = None
+    model = build_model(cfg)
+    K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    return save_checkpoint(path, {
+        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
+        "step": 0, "epoch": 0.0, "samples_seen": 0, "train_seconds": 0.0, "input_size": INPUT_SIZE,
+        "K_input": K.tolist(), "config": {"run_name": "tiny_hopenet"},
+        "dataset": {"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}})
+
+
+def exported_model(tmp_path_factory, dataset):
+    """(checkpoint, onnx) of an untrained HOPE-Net, exported once per session (shared with test_eval)."""
+    folder = tmp_path_factory.getbasetemp() / "exported_hopenet_r10_64"
+    ckpt, onnx_path = folder / "model.pt", folder / "model.onnx"
+    if not onnx_path.is_file():
+        folder.mkdir(exist_ok=True)
+        make_checkpoint(ckpt, dataset)
+        E.run_export(ckpt, onnx_path, log=lambda *_: None)
+    return ckpt, onnx_path
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, tiny_dataset):
+    return exported_model(tmp_path_factory, tiny_dataset)
+
+
+def _images(dataset, n):
+    reader = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))
+    return torch.stack([reader[i]["image"] for i in range(n)])
+
+
+def test_onnx_contract(exported, tiny_dataset):
+    ckpt, onnx_path = exported
+    payload = read_checkpoint(ckpt)
+    proto = onnx.load(str(onnx_path))
+    assert {o.domain: o.version for o in proto.opset_import}[""] == E.OPSET == 18
+    (inp,) = proto.graph.input
+    dims = [d.dim_param or d.dim_value for d in inp.type.tensor_type.shape.dim]
+    assert (inp.name, dims) == ("image", ["batch", 3, INPUT_SIZE, INPUT_SIZE])
+    assert [o.name for o in proto.graph.output] == ["points2d", "points3d"]
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert sorted(props) == sorted(E.META + k for k in (
+        "onnx_schema", "input_size", "K_input", "keypoint_names", "skeleton_edges", "model_config", "run_name",
+        "git_commit"))
+    assert props["hupbench.onnx_schema"] == "1"
+    assert props["hupbench.input_size"] == str(INPUT_SIZE)
+    np.testing.assert_allclose(json.loads(props["hupbench.K_input"]), payload["K_input"])
+    assert json.loads(props["hupbench.keypoint_names"]) == list(kp.KEYPOINT_NAMES)
+    assert json.loads(props["hupbench.skeleton_edges"]) == [list(e) for e in kp.SKELETON_EDGES]
+    assert json.loads(props["hupbench.model_config"]) == payload["model_config"]
+    assert props["hupbench.run_name"] == "tiny_hopenet"
+    assert len(props["hupbench.git_commit"]) >= 7
+    # no temporary file left beside the export
+    assert sorted(p.name for p in onnx_path.parent.iterdir()) == ["model.onnx", "model.pt"]
+
+
+def test_dynamic_batch_and_parity_on_real_images(exported, tiny_dataset):
+    ckpt, onnx_path = exported
+    module = E.contract_model(*load_model(ckpt))
+    session = E.ort_session(onnx_path)
+    for batch in (1, 3):
+        images = _images(tiny_dataset, batch)
+        points2d, points3d = session.run(None, {"image": images.numpy()})
+        assert points2d.shape == (batch, 29, 2) and points3d.shape == (batch, 29, 3)
+        assert points2d.dtype == np.float32 and points3d.dtype == np.float32
+    diff = E.parity(module, onnx_path, _images(tiny_dataset, 8))
+    assert diff["frames"] == 8
+    assert diff["points3d_mm"] <= E.PARITY_MAX_3D_MM
+    assert diff["points2d_px"] == pytest.approx(diff["points2d_norm"] * INPUT_SIZE / 2)
+    # the 3D outputs are real depths (the prior layout is tenths of a metre away), so the 0.1 mm
+    # tolerance is tested at the scale of real outputs
+    with torch.inference_mode():
+        assert float(module(_images(tiny_dataset, 1))[1][..., 2].mean()) > 0.1
+
+
+def test_projection_without_2d_head():
+    class Fixed3D(torch.nn.Module):
+        def forward(self, image):
+            p = torch.tensor([[0.1, -0.05, 0.5], [0.0, 0.0, -0.2]]).expand(image.shape[0], 2, 3)
+            return RegressorOutput(None, p)
+
+    K = [[120.0, 0.0, 32.0], [0.0, 120.0, 32.0], [0.0, 0.0, 1.0]]
+    points2d, _ = E.ContractModule(Fixed3D(), K, 64)(torch.zeros(2, 3, 64, 64))
+    # u = 120 * 0.1 / 0.5 + 32 = 56, v = 120 * -0.05 / 0.5 + 32 = 20 -> x = 113 / 64 - 1, y = 41 / 64 - 1
+    np.testing.assert_allclose(points2d[0, 0].numpy(), [113 / 64 - 1, 41 / 64 - 1], rtol=1e-6)
+    np.testing.assert_allclose(points2d[0, 0].numpy(),
+                               pixels_to_normalized(torch.tensor([56.0, 20.0]), 64, 64).numpy(), rtol=1e-6)
+    # a point behind the camera is projected at the minimum depth instead of dividing by <= 0
+    assert bool(torch.isfinite(points2d).all())
+    np.testing.assert_allclose(points2d[1, 1].numpy(), [1 / 64, 1 / 64], atol=1e-6)  # (0, 0, z) hits cx, cy
+
+
+def test_failed_parity_leaves_no_file(exported, tmp_path, monkeypatch):
+    ckpt, onnx_path = exported
+    # reuse the real export bytes (fast) and demand an impossible tolerance
+    monkeypatch.setattr(E, "export_onnx", lambda module, path, metadata, opset=18: shutil.copyfile(onnx_path, path))
+    monkeypatch.setattr(E, "PARITY_MAX_3D_MM", -1.0)
+    out = tmp_path / "sub" / "model.onnx"
+    with pytest.raises(RuntimeError, match="ONNX parity check failed"):
+        E.run_export(ckpt, out, log=lambda *_: None)
+    assert list(out.parent.iterdir()) == []
+
+
+def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
+    ckpt, onnx_path = exported
+    with pytest.raises(ValueError, match=r"needs a hupbench checkpoint \(.pt\), got 'model.onnx'"):
+        E.run_export(onnx_path)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        E.run_export(tmp_path / "missing.pt")
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(ValueError, match="not a hupbench checkpoint"):
+        E.run_export(foreign)
+    with pytest.raises(FileNotFoundError, match="for the parity check does not exist"):
+        E.run_export(ckpt, tmp_path / "x.onnx", dataset=tmp_path / "no_dataset")
+    with pytest.raises(FileNotFoundError, match="no manifest.json"):
+        E.run_export(ckpt, tmp_path / "x.onnx", dataset=tmp_path)
+    with pytest.raises(ValueError, match="must end in .onnx"):
+        E.run_export(ckpt, tmp_path / "x.bin")
+    hand_only = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21)
+    with pytest.raises(ValueError, match="predicts 21 keypoints"):
+        E.run_export(hand_only, tmp_path / "x.onnx")
+    assert main(["export", str(foreign)]) == 1
+    assert "hupbench export: error:" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.onnx"))
+
+
+def test_read_metadata_refuses_foreign_onnx(tmp_path):
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])])
+    path = tmp_path / "foreign.onnx"
+    onnx.save(helper.make_model(graph), str(path))
+    with pytest.raises(ValueError, match="not a hupbench ONNX export"):
+        E.read_onnx_metadata(path)
+    (tmp_path / "garbage.onnx").write_bytes(b"not a protobuf at all")
+    with pytest.raises(ValueError, match="garbage.onnx"):
+        E.read_onnx_metadata(tmp_path / "garbage.onnx")
+
+
+@pytest.mark.slow
+def test_export_regressor_without_2d_head(tiny_dataset, tmp_path):
+    ckpt = make_checkpoint(tmp_path / "reg.pt", tiny_dataset, name="resnet_regressor")
+    result = E.run_export(ckpt, log=lambda *_: None)
+    assert result["onnx"] == str(tmp_path / "reg.onnx")
+    assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
+    points2d, points3d = E.ort_session(result["onnx"]).run(None, {"image": _images(tiny_dataset, 2).numpy()})
+    K = np.asarray(read_checkpoint(ckpt)["K_input"])
+    uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
+    np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-5)
