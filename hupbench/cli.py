@@ -137,9 +137,12 @@ def _eval(args: list[str]) -> int:
     parser.add_argument("--latency", action=argparse.BooleanOptionalAction, default=True,
                         help="time PyTorch and onnxruntime at batch 1 and 32")
     parser.add_argument("--threads", type=int, help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
+    parser.add_argument("--training-command", help="the committed command that reproduces the training run")
+    parser.add_argument("--training-log", help="the run's metrics.jsonl relative to the leaderboard folder")
     ns = parser.parse_args(args)
     result = run_eval(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
-                      batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads)
+                      batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
+                      training_command=ns.training_command, training_log=ns.training_log)
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
     return 0

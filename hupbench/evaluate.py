@@ -217,7 +217,9 @@ def _training_block(model_path: Path, payload: dict | None) -> dict:
     block = {"wall_s": None, "hardware": None, "samples_seen": None, "epochs": None, "command": None, "log": None}
     if payload is None:
         return block
-    for key, field, cast in (("wall_s", "train_seconds", float), ("samples_seen", "samples_seen", int),
+    # wall time of the whole run (validation included) where the checkpoint has it
+    wall_field = "wall_seconds" if payload.get("wall_seconds") is not None else "train_seconds"
+    for key, field, cast in (("wall_s", wall_field, float), ("samples_seen", "samples_seen", int),
                              ("epochs", "epoch", float)):
         if payload.get(field) is not None:
             block[key] = cast(payload[field])
@@ -279,7 +281,8 @@ def format_table(results: dict) -> str:
 
 def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
              run_name: str | None = None, batch_size: int = 32, latency: bool = True,
-             threads: int | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
+             threads: int | None = None, training_command: str | None = None, training_log: str | None = None,
+             log: Callable[[str], None] = print) -> dict[str, Any]:
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
     Args:
@@ -294,6 +297,10 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
         threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's
             current setting); the device string records the count.
+        training_command: the committed command that reproduces the training run (the
+            leaderboard requires one for a measured row), stored as ``training.command``.
+        training_log: the run's metrics.jsonl as a path relative to the leaderboard folder
+            (e.g. ``logs/<run_name>.jsonl``), stored as ``training.log``.
         log: called with progress lines.
 
     Returns:
@@ -307,13 +314,14 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
     if threads is not None:
         torch.set_num_threads(threads)
     try:
-        return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log)
+        return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log,
+                         training_command, training_log)
     finally:
         torch.set_num_threads(previous_threads)
 
 
 def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
-              log) -> dict[str, Any]:
+              log, training_command: str | None = None, training_log: str | None = None) -> dict[str, Any]:
     from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.provenance import git_commit
@@ -391,6 +399,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
                                                              torch.get_num_threads(), log)
     results["device"] = hardware_description(torch.device("cpu"))
     results["training"] = _training_block(model_path, net.payload)
+    results["training"]["command"] = training_command
+    results["training"]["log"] = training_log
     results["git_commit"] = git_commit()
     results["created_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     write_results(out_path, results)

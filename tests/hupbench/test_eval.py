@@ -39,7 +39,9 @@ def _flatten(d, prefix=""):
 
 def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     ckpt, onnx_path = exported
-    r_pt = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8, **QUIET)
+    r_pt = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8,
+                       training_command="bash scripts/paper_protocol.sh tiny", training_log="logs/tiny_pt.jsonl",
+                       **QUIET)
     r_onnx = EV.run_eval(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True, **QUIET)
     a, b = load_results(r_pt["out"]), load_results(r_onnx["out"])
     assert a == r_pt["results"] and b == r_onnx["results"]
@@ -70,7 +72,7 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     assert a["dataset"]["manifest_sha256"] == file_sha256(tiny_dataset / "manifest.json")
     assert a["dataset"]["frames"] == 20 and a["dataset"]["split"] == "test"
     assert a["training"] == {"wall_s": 0.0, "hardware": None, "samples_seen": 0, "epochs": 0.0,
-                                  "command": None, "log": None}
+                             "command": "bash scripts/paper_protocol.sh tiny", "log": "logs/tiny_pt.jsonl"}
     assert b["training"]["wall_s"] is None
     assert len(a["git_commit"]) >= 7 and "threads" in a["device"]
     # breakdown buckets of the tiny dataset: rings at 60 and 120 degrees, one distance, two backgrounds
