@@ -11,7 +11,9 @@ in chunks of one (grasp, z_ego, background) block (n_glove x n_view frames
 sharing the meshes); a chunk's image files are written atomically, then its
 annotation rows, also atomically: a chunk whose rows exist is done, any
 other is rendered again on resume (overwriting, never duplicating).
-``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. When every
+``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. Chunks are
+rendered by :class:`ChunkRenderer`, in local worker processes or on Ray actors
+(:mod:`datagen.ray_launcher`), and written by :func:`write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
 ``manifest.json`` is written last.
 
@@ -23,6 +25,7 @@ Convention:
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import multiprocessing
@@ -40,6 +43,7 @@ from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz, write_bytes, write_json
+from datagen.ray_launcher import RayOptions, check_launcher
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
 from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
 from datagen.sphere import SphereSpec, camera_pose, sphere_frame, viewpoints
@@ -180,16 +184,24 @@ def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:
 
 
 class GraspSet:
-    """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry."""
+    """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry.
 
-    def __init__(self, path: Path) -> None:
+    Args:
+        path: a grasps.npz, or its bytes (what a Ray actor on another machine is sent).
+    """
+
+    def __init__(self, path: str | Path | bytes) -> None:
         from datagen.hand import build_hand
         from datagen.probe import build_probe
 
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
-        with np.load(path) as data:
+        if isinstance(path, bytes):
+            source, path = io.BytesIO(path), None
+        else:
+            path = Path(path)
+            if not path.is_file():
+                raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
+            source = path
+        with np.load(source) as data:
             self.hand_pose = np.asarray(data["hand_pose"], dtype=np.float64)
             self.hand_trans = np.asarray(data["hand_trans"], dtype=np.float64)
             self.grasp_id = np.asarray(data["grasp_id"], dtype=np.int64)
@@ -248,73 +260,139 @@ def frame_path(root: Path, split: str, modality: str, frame_id: int, rgb_format:
     return Path(root) / split / modality / f"{frame_id:06d}.{ext}"
 
 
-# --- rendering workers ---------------------------------------------------------------
+# --- rendering chunks ----------------------------------------------------------------
 
+
+@dataclass
+class ChunkOutput:
+    """One rendered chunk, encoded and ready to write.
+
+    Attributes:
+        chunk: chunk index. split: the split its grasp belongs to.
+        files: (modality, frame_id, encoded bytes) per image file, in frame order.
+        rows: annotation rows, ``ANNOTATION_DTYPES`` keys, each (chunk_size, ...).
+    """
+
+    chunk: int
+    split: str
+    files: list[tuple[str, int, bytes]]
+    rows: dict[str, np.ndarray]
+
+
+class ChunkRenderer:
+    """Renders chunks of a dataset; owns one GL renderer (build one per process and reuse it).
+
+    Both launchers use it: the local worker processes and the Ray actors
+    (:mod:`datagen.ray_launcher`), so a frame comes out the same whichever ran it.
+
+    Args:
+        spec: the dataset spec.
+        grasps: path of the dataset's grasps.npz, or its bytes (a Ray actor on another machine).
+        backgrounds_dir: folder of background photographs, None for the built-ins.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.gl`.
+    """
+
+    def __init__(self, spec: DatasetSpec, grasps: str | Path | bytes, backgrounds_dir: str | None,
+                 platform: str | None) -> None:
+        from datagen.backgrounds import BackgroundSet
+        from datagen.render import Renderer
+
+        import torch
+
+        # one torch thread per renderer process: the parallelism is across processes (or actors)
+        torch.set_num_threads(1)
+        self.spec = spec
+        self.grasps = GraspSet(grasps)
+        self.backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
+        self.renderer = Renderer(spec.intrinsics, platform=platform)
+        self._grasp_loaded = None
+
+    def render(self, chunk: int, split: str, layout: Layout) -> ChunkOutput:
+        """Render and encode every frame of one chunk (nothing is written).
+
+        Args:
+            chunk: chunk index in ``range(layout.n_chunks)``. split: its split. layout: the frame layout.
+
+        Returns:
+            The chunk's encoded image files and annotation rows.
+        """
+        from datagen.backgrounds import composite
+
+        spec, grasps, renderer = self.spec, self.grasps, self.renderer
+        rows, files = [], []
+        for index in layout.chunk_frames(chunk):
+            cam = frame_camera(spec, grasps, layout, index)
+            g = cam["grasp"]
+            if self._grasp_loaded != g:
+                renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
+                self._grasp_loaded = g
+            renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+            light = lamp(spec, index)
+            T_world_cam = invert_transform(cam["T_cam_world"])
+            position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
+            settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[
+                PointLight(position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
+            wanted = set(spec.modalities) | {"depth", "seg"}  # depth and labels decide visibility
+            frames = renderer.render(cam["T_cam_world"], tuple(m for m in MODALITIES if m in wanted), settings,
+                                     alpha=True)
+            if "rgb" in spec.modalities:
+                background = self.backgrounds.image(cam["background"], spec.width, spec.height)
+                rgb = composite(frames["rgb"], background)
+                ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
+                params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
+                files.append(("rgb", index, _encode(ext, rgb[..., ::-1], params)))
+            if "depth" in spec.modalities:
+                depth_u16 = np.round(frames["depth"] / DEPTH_SCALE_M).astype(np.uint16)
+                files.append(("depth", index, _encode(".png", depth_u16)))
+            if "seg" in spec.modalities:
+                files.append(("seg", index, _encode(".png", frames["seg"])))
+            rows.append({
+                "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
+                "visible": visibility(cam["keypoints_cam"], cam["keypoints_2d"], frames["depth"], frames["seg"]),
+                "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
+                "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
+                "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
+                "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
+                "light_position_cam": light["position_cam"], "light_color": light["color"],
+                "light_energy_w": light["energy_w"],
+            })
+        return ChunkOutput(chunk, split, files, _stack_rows(rows))
+
+
+def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
+    ok, buf = cv2.imencode(ext, image, params or [])
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
+    return buf.tobytes()
+
+
+def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:
+    """Write a rendered chunk: its image files atomically, then its annotation rows (the done mark).
+
+    Writing a chunk twice (a retried range) overwrites the same files with the same bytes.
+
+    Returns:
+        The number of frames written.
+    """
+    for modality, frame_id, data in output.files:
+        write_bytes(frame_path(root, output.split, modality, frame_id, rgb_format), data)
+    save_npz(_chunk_path(root, output.split, output.chunk), output.rows)
+    return len(output.rows["frame_id"])
+
+
+# the local launcher's per-process state: one ChunkRenderer per worker process
 _worker: dict = {}
 
 
 def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None) -> None:
-    from datagen.backgrounds import BackgroundSet
-    from datagen.render import Renderer
-
-    import torch
-
-    torch.set_num_threads(1)
-    _worker["spec"] = spec
-    _worker["grasps"] = GraspSet(Path(grasps_path))
-    _worker["backgrounds"] = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
-    _worker["renderer"] = Renderer(spec.intrinsics, platform=platform)
-    _worker["grasp_loaded"] = None
+    _worker["chunks"] = ChunkRenderer(spec, grasps_path, backgrounds_dir, platform)
 
 
 def _render_chunk(args) -> tuple[int, int]:
-    """Render, encode and write one chunk; return (chunk, frames written)."""
-    from datagen.backgrounds import composite
-
+    """Render and write one chunk in a local worker; return (chunk, frames written)."""
     chunk, root, split, layout = args
-    spec, grasps, renderer = _worker["spec"], _worker["grasps"], _worker["renderer"]
-    rows = []
-    for index in layout.chunk_frames(chunk):
-        cam = frame_camera(spec, grasps, layout, index)
-        g = cam["grasp"]
-        if _worker["grasp_loaded"] != g:
-            renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
-            _worker["grasp_loaded"] = g
-        renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
-        light = lamp(spec, index)
-        T_world_cam = invert_transform(cam["T_cam_world"])
-        position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
-        settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[
-            PointLight(position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
-        wanted = set(spec.modalities) | {"depth", "seg"}  # depth and labels decide visibility
-        frames = renderer.render(cam["T_cam_world"], tuple(m for m in MODALITIES if m in wanted), settings,
-                                 alpha=True)
-        if "rgb" in spec.modalities:
-            background = _worker["backgrounds"].image(cam["background"], spec.width, spec.height)
-            rgb = composite(frames["rgb"], background)
-            ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
-            params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
-            ok, buf = cv2.imencode(ext, rgb[..., ::-1], params)
-            write_bytes(frame_path(root, split, "rgb", index, spec.rgb_format), buf.tobytes())
-        if "depth" in spec.modalities:
-            depth_u16 = np.round(frames["depth"] / DEPTH_SCALE_M).astype(np.uint16)
-            ok, buf = cv2.imencode(".png", depth_u16)
-            write_bytes(frame_path(root, split, "depth", index), buf.tobytes())
-        if "seg" in spec.modalities:
-            ok, buf = cv2.imencode(".png", frames["seg"])
-            write_bytes(frame_path(root, split, "seg", index), buf.tobytes())
-        rows.append({
-            "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
-            "visible": visibility(cam["keypoints_cam"], cam["keypoints_2d"], frames["depth"], frames["seg"]),
-            "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
-            "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
-            "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
-            "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
-            "light_position_cam": light["position_cam"], "light_color": light["color"],
-            "light_energy_w": light["energy_w"],
-        })
-    save_npz(_chunk_path(root, split, chunk), _stack_rows(rows))
-    return chunk, len(rows)
+    chunks = _worker["chunks"]
+    return chunk, write_chunk(Path(root), chunks.render(chunk, split, layout), chunks.spec.rgb_format)
 
 
 ANNOTATION_DTYPES = {
@@ -339,7 +417,8 @@ def _chunk_path(root: Path, split: str, chunk: int) -> Path:
 
 def config_hash(resolved: dict) -> str:
     """sha256 of the resolved config with the keys that do not change frames removed."""
-    keep = {k: v for k, v in resolved.items() if k not in ("workers", "shard", "out_dir", "progress", "_provenance")}
+    keep = {k: v for k, v in resolved.items()
+            if k not in ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance")}
     return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -370,15 +449,24 @@ def parse_shard(shard: str | None) -> tuple[int, int]:
 
 def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,
              backgrounds_dir: str | None = None, workers: int = 1, shard: str | None = None,
-             platform: str | None = None, progress: bool = True, log=print) -> dict:
+             platform: str | None = None, progress: bool = True, log=print, launcher: str = "local",
+             ray: RayOptions | None = None) -> dict:
     """Render (or resume) a dataset. See the module docstring for the layout and the guarantees.
+
+    Args:
+        launcher: "local" renders in ``workers`` processes on this machine; "ray" on Ray actors
+            (:mod:`datagen.ray_launcher`, options in ``ray``). Both write the same files.
+        ray: :class:`datagen.ray_launcher.RayOptions` (None: the defaults, a private runtime
+            with ``workers`` actors).
 
     Returns:
         dict with "out_dir", "frames_total", "frames_rendered" (this run), "seconds",
         "complete" (manifest written) and "counts" per split.
     """
     from datagen.backgrounds import BackgroundSet
-
+    check_launcher(launcher)
+    if ray is not None and not isinstance(ray, RayOptions):
+        raise TypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
     out_dir = Path(out_dir)
     k, n = parse_shard(shard)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -416,8 +504,8 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     start = time.perf_counter()
     rendered = 0
     if todo:
-        log(f"rendering {len(todo) * layout.chunk_size} frames ({len(todo)} chunks) with {workers} worker(s)"
-            + (f", shard {k}/{n}" if n > 1 else ""))
+        log(f"rendering {len(todo) * layout.chunk_size} frames ({len(todo)} chunks) with "
+            + (f"{workers} worker(s)" if launcher == "local" else "Ray") + (f", shard {k}/{n}" if n > 1 else ""))
         for split in SPLITS:
             for m in spec.modalities:
                 (out_dir / split / m).mkdir(parents=True, exist_ok=True)
@@ -425,7 +513,18 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
         jobs = [(c, str(out_dir), chunk_split[c], layout) for c in todo]
         init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
         bar = _progress(len(todo) * layout.chunk_size, progress)
-        if workers == 1:
+        if launcher == "ray":
+            from datagen.ray_launcher import render_chunks
+
+            def on_chunk(output: ChunkOutput) -> None:
+                nonlocal rendered
+                count = write_chunk(out_dir, output, spec.rgb_format)
+                rendered += count
+                bar.update(count)
+
+            render_chunks([(c, chunk_split[c]) for c in todo], layout, spec, (out_dir / "grasps.npz").read_bytes(),
+                          backgrounds_dir, platform, ray or RayOptions(), workers, on_chunk, log=log)
+        elif workers == 1:
             _worker_init(*init)
             results = map(_render_chunk, jobs)
             for _, count in results:

@@ -21,10 +21,13 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
     """
     from datagen.backgrounds import BackgroundSet
     from datagen.dataset import check_output_dir, generate, parse_shard
+    from datagen.ray_launcher import check_launcher
 
     # everything that can be wrong with the config fails here, before any rendering
     spec = build(cfg.dataset)
     parse_shard(cfg.shard)
+    check_launcher(cfg.launcher)
+    ray_options = build(cfg.ray)
     if cfg.backgrounds.dir is not None:
         BackgroundSet.from_dir(cfg.backgrounds.dir)
     out_dir = Path(cfg.out_dir)
@@ -45,7 +48,7 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
     resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
     return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
                     workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
-                    log=log)
+                    log=log, launcher=cfg.launcher, ray=ray_options)
 
 
 def run_verify(dataset: str | Path, workers: int = 2, log=print) -> dict:
