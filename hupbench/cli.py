@@ -6,7 +6,7 @@ import argparse
 import sys
 
 VERBS = {
-    "quickstart": "render the embedded default end to end (for now: the preview sheet)",
+    "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
     "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
@@ -16,18 +16,21 @@ VERBS = {
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
     "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
 }
-OWN_OPTION_VERBS = {"leaderboard", "predict", "eval", "export"}
+OWN_OPTION_VERBS = {"leaderboard", "predict", "eval", "export", "quickstart"}
 
 
-def _quickstart(overrides: list[str]) -> int:
+def _quickstart(args: list[str]) -> int:
     from hupbench.config import compose
-    from hupbench.quickstart import run_quickstart
+    from hupbench.quickstart import run_quickstart, summary_lines
 
+    parser = argparse.ArgumentParser(prog="hupbench quickstart", epilog="overrides: Hydra key=value of "
+                                     "conf/quickstart.yaml, e.g. out_dir=/tmp/qs stop_after=dataset")
+    parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version")
+    parser.add_argument("overrides", nargs="*", metavar="key=value")
+    ns = parser.parse_args(args)
+    overrides = [*ns.overrides, "fast=true"] if ns.fast else ns.overrides
     result = run_quickstart(compose("quickstart", overrides))
-    print(f"hupbench quickstart finished in {result['seconds']:.1f} s (renderer: {result['render_platform']})")
-    print(f"  preview sheet : {result['preview']}")
-    print(f"  run record    : {result['run_info']}")
-    print(f"  keypoints in view: {result['keypoints_in_view']} of 29")
+    print("\n".join(summary_lines(result)))
     return 0
 
 

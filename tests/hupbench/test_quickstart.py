@@ -10,8 +10,8 @@ from hupbench.quickstart import run_quickstart
 
 
 def test_quickstart_writes_preview_and_run_record(tmp_path):
-    cfg = compose("quickstart", [f"out_dir={tmp_path}"])
-    result = run_quickstart(cfg)
+    cfg = compose("quickstart", [f"out_dir={tmp_path}", "stop_after=preview"])
+    result = run_quickstart(cfg, log=lambda *_: None)
     sheet = cv2.imread(result["preview"])
     assert sheet is not None and sheet.shape[0] > 256 and sheet.shape[1] > 512
     # all 29 keypoints of the default view are inside the image
@@ -25,8 +25,8 @@ def test_quickstart_writes_preview_and_run_record(tmp_path):
 
 
 def test_quickstart_modalities_override(tmp_path):
-    cfg = compose("quickstart", [f"out_dir={tmp_path}", "render.modalities=[depth]"])
-    result = run_quickstart(cfg)
+    cfg = compose("quickstart", [f"out_dir={tmp_path}", "render.modalities=[depth]", "stop_after=preview"])
+    result = run_quickstart(cfg, log=lambda *_: None)
     sheet = cv2.imread(result["preview"])
     # one depth tile and one keypoint tile side by side
     assert sheet.shape[1] < 2 * (256 + 6) + 6 + 1 and sheet.shape[0] < 256 + 22 + 13
@@ -41,6 +41,12 @@ def test_cli_reports_bad_input(tmp_path, capsys):
     assert "no_such_key" in capsys.readouterr().err
     assert main(["quickstart", "novalue"]) == 1
     assert "key=value" in capsys.readouterr().err
+    assert main(["quickstart", f"out_dir={tmp_path}", "stop_after=training"]) == 1
+    assert "stop_after must be one of preview, grasps" in capsys.readouterr().err
+    # a bad override of a later stage fails before the first stage renders anything
+    assert main(["quickstart", f"out_dir={tmp_path}", "train=['model=nope']"]) == 1
+    assert "Could not find 'model/nope'" in capsys.readouterr().err
+    assert not (tmp_path / "preview.png").exists()
 
 
 def test_cli_without_verb_prints_help(capsys):
@@ -53,3 +59,22 @@ def test_bad_view_is_rejected(tmp_path, override, capsys):
     assert main(["quickstart", f"out_dir={tmp_path}", override]) == 1
     err = capsys.readouterr().err
     assert "distance_m must be positive" in err or "elevation_deg must be in [-90, 90]" in err
+
+
+def test_fast_quickstart_runs_every_stage(tmp_path, capsys):
+    """hupbench quickstart --fast: grasps -> dataset -> verify -> train -> eval -> export -> predict, with a summary."""
+    assert main(["quickstart", "--fast", f"out_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    for stage in ("[2/8] grasps", "[4/8] verify", "[5/8] train", "[8/8] predict"):
+        assert stage in out
+    assert "hupbench quickstart finished in" in out and "test MPJPE: all" in out
+    work = tmp_path / "fast"
+    results = json.loads((work / "results" / "quickstart.json").read_text())
+    assert results["dataset"]["frames"] == 10 and results["metrics"]["mpjpe_mm"]["all"] > 0
+    predictions = json.loads((work / "predict" / "predictions.json").read_text())
+    record = predictions["images"][0]
+    assert len(record["keypoints_3d_m"]) == 29
+    assert cv2.imread(str(next((work / "predict").glob("*_overlay.png")))).shape[:2] == (64, 64)
+    assert (work / "model.onnx").is_file() and (work / "run" / "summary.json").is_file()
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert set(record["stages"]) == {"preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict"}
