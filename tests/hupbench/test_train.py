@@ -77,6 +77,23 @@ def test_resume_gives_the_same_next_losses(tiny_dataset, tmp_path):
         torch.testing.assert_close(a[key], b[key], rtol=1e-5, atol=1e-7)
 
 
+def test_recompute_bn_statistics_gives_exact_averages():
+    from hupbench.train import recompute_bn_statistics
+
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4))
+    net[1].running_mean.fill_(50.0)  # stale statistics, as after fast-moving weights
+    frames = torch.randn(12, 3, 8, 8) * 2 + 1
+    loader = [{"image": frames[:4]}, {"image": frames[4:8]}, {"image": frames[8:]}]
+    assert recompute_bn_statistics(net.eval(), loader, torch.device("cpu"), {"device_type": "cpu",
+                                                                             "enabled": False}) == 12
+    assert not net.training and net[1].momentum == 0.1
+    with torch.no_grad():
+        features = net[0](frames)  # (12, 4, 6, 6)
+    # equal batches: the cumulative average of the batch means is the mean over all frames
+    torch.testing.assert_close(net[1].running_mean, features.mean(dim=(0, 2, 3)), rtol=1e-5, atol=1e-6)
+
+
 def test_hopenet_loss_known_values():
     target = {"keypoints_2d": torch.zeros(1, 29, 2), "keypoints_3d": torch.zeros(1, 29, 3)}
     out = HOPENetOutput(torch.full((1, 29, 2), 0.5), torch.full((1, 29, 2), 0.1), torch.full((1, 29, 3), 0.02))
@@ -214,3 +231,31 @@ def test_torchrun_two_processes_gloo(tiny_dataset, tmp_path):
     assert payload["world_size"] == 2 and not any(k.startswith("module.") for k in payload["model"])
     with torch.no_grad():
         assert model(torch.rand(1, 3, 64, 64)).points3d.shape == (1, 29, 3)
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory):
+    """64 px, 28 views x 2 backgrounds per grasp; train on two turns of the hand-set grasp, validate on a third."""
+    from datagen.dataset import DatasetSpec, generate
+    from datagen.sphere import SphereSpec
+
+    from conftest import TINY_SPEC, write_grasps
+
+    grasps = write_grasps(tmp_path_factory.mktemp("grasps4") / "grasps.npz", n=4)
+    root = tmp_path_factory.mktemp("small") / "dataset"
+    spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 2, "val": 1, "test": 1},
+                                       "sphere": SphereSpec(r_circ_m=0.25)}))
+    generate(spec, root, grasps, {"test": "small_dataset"}, progress=False, log=lambda *_: None)
+    return root
+
+
+@pytest.mark.slow
+def test_short_run_lowers_validation_mpjpe(small_dataset, tmp_path):
+    """A few minutes of CPU training must take validation MPJPE on an unseen grasp well below its start
+    (the start is already the training split's mean layout, not an arbitrary guess)."""
+    cfg = tiny_cfg(small_dataset, tmp_path / "run", "data.batch_size=16", "data.val_frames=null",
+                   "train.max_steps=240", "train.val_every=80", "train.ckpt_every=240", "train.log_every=20",
+                   "data.reader.rotate_deg=0")
+    result = run_train(cfg, log=lambda *_: None)
+    first, last = result["first_val_mpjpe_mm"]["all"], result["val_mpjpe_mm"]["all"]
+    assert last < 0.6 * first, (first, last)
