@@ -189,6 +189,10 @@ class Renderer:
         if "rgb" in modalities:
             flags = pyrender.RenderFlags.RGBA if alpha else pyrender.RenderFlags.NONE
             color, depth = self._renderer.render(self._scene, flags=flags)
+            if alpha and color.shape[-1] == 3:
+                # OSMesa has no framebuffer objects and pyrender reads its colour buffer as RGB only:
+                # without multisampling, coverage is exactly where the depth buffer was written
+                color = np.concatenate([color, np.where(depth > 0, 255, 0).astype(np.uint8)[..., None]], axis=-1)
             out["rgb"] = np.ascontiguousarray(color if alpha else color[..., :3])
         if "seg" in modalities:
             seg, seg_depth = self._renderer.render(

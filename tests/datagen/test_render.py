@@ -155,8 +155,10 @@ def test_osmesa_fallback_renders_the_same_depth():
             r.set_parts([MeshPart("box", box, 3)])
             T = look_at(np.array([0.0, 0.0, 0.65]), np.zeros(3), up_world=(0.0, 1.0, 0.0))
             out = r.render(T, ("depth", "seg"))
+            rgba = r.render(T, ("rgb",), alpha=True)["rgb"]  # OSMesa reads RGB only: alpha from coverage
             print(json.dumps({"platform": r.platform, "depth": float(out["depth"][64, 64]),
-                              "labels": sorted(np.unique(out["seg"]).tolist())}))
+                              "labels": sorted(np.unique(out["seg"]).tolist()), "rgba_shape": list(rgba.shape),
+                              "alpha_matches_seg": bool(((rgba[..., 3] > 0) == (out["seg"] > 0)).all())}))
         """
     )
     env = {k: v for k, v in __import__("os").environ.items() if k != "PYOPENGL_PLATFORM"}
@@ -166,6 +168,7 @@ def test_osmesa_fallback_renders_the_same_depth():
     assert result["platform"] == "osmesa"
     assert result["depth"] == pytest.approx(0.6, abs=1e-3)
     assert result["labels"] == [0, 3]
+    assert result["rgba_shape"] == [128, 128, 4] and result["alpha_matches_seg"]
 
 
 def test_alpha_output_is_transparent_on_the_background(renderer):
