@@ -7,11 +7,15 @@ actor start-up) and after start-up (from the moment every worker has finished it
 the last chunk, read from the written files' times), the 2-worker / 1-worker ratios, and whether
 the runs wrote byte-identical annotations.
 
-training: (to come) training throughput with 1 and 2 torchrun processes.
+training: trains the same model with the same global batch on 1 process (all threads) and on 2
+torchrun processes (DDP over gloo, the threads shared out), and prints training images/s from each
+run's metrics.jsonl after the warm-up steps, and the 2-process / 1-process ratio.
 
 Usage:
     python benchmarks/scale.py generation [--backgrounds 4] [--size 256] [--r-circ-m 0.15]
                                           [--ray-workers 1 2] [--local-workers 2] [--grasps GRASPS_NPZ]
+    python benchmarks/scale.py training [--dataset hupbench_out/dataset] [--model hopenet_r10_128]
+                                        [--batch 32] [--steps 40] [--threads 2] [--processes 1 2]
 """
 
 from __future__ import annotations
@@ -121,7 +125,60 @@ def add_generation_args(parser: argparse.ArgumentParser) -> None:
 
 
 # ----------------------------------------------------------------------------- training
-# (reserved: training throughput with 1 and 2 torchrun processes; register its sub-command in main())
+
+
+def _training_rate(run_dir: Path, warmup_steps: int) -> float:
+    """Images/s between the first logged step after warm-up and the last one (training time only)."""
+    import json
+
+    lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    steps = [r for r in lines if r["event"] == "train" and r["step"] >= warmup_steps]
+    first, last = steps[0], steps[-1]
+    return (last["samples_seen"] - first["samples_seen"]) / (last["train_wall_s"] - first["train_wall_s"])
+
+
+def training(args: argparse.Namespace) -> None:
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    rates = {}
+    print(f"training {args.model} on {args.dataset}: global batch {args.batch}, {args.steps} steps, "
+          f"{args.threads} threads in all")
+    for n in args.processes:
+        if args.batch % n or args.threads % n:
+            raise SystemExit(f"--batch {args.batch} and --threads {args.threads} must divide by {n} processes")
+        with tempfile.TemporaryDirectory() as tmp:
+            run_dir = Path(tmp) / "run"
+            overrides = [f"model={args.model}", f"data.root={Path(args.dataset).resolve()}", f"run_dir={run_dir}",
+                         f"data.batch_size={args.batch // n}", f"threads={args.threads // n}",
+                         f"train.max_steps={args.steps}", "train.log_every=5", f"train.val_every={10 * args.steps}",
+                         f"train.ckpt_every={10 * args.steps}", "train.bn_recompute_frames=0", "data.val_frames=8",
+                         "train.progress=false", "train.tensorboard=false"]
+            launcher = [sys.executable] if n == 1 else [sys.executable, "-m", "torch.distributed.run", "--standalone",
+                                                        "--nproc-per-node", str(n)]
+            start = time.perf_counter()
+            done = subprocess.run([*launcher, str(repo / "train.py"), *overrides], capture_output=True, text=True,
+                                  cwd=tmp, env={**__import__("os").environ, "OMP_NUM_THREADS": str(args.threads // n)})
+            if done.returncode != 0:
+                raise SystemExit(f"{n}-process run failed:\n{done.stderr[-3000:]}")
+            rates[n] = _training_rate(run_dir, warmup_steps=min(10, args.steps // 2))
+            print(f"  {n} process(es) x {args.threads // n} thread(s), batch {args.batch // n} each: "
+                  f"{rates[n]:6.1f} img/s ({time.perf_counter() - start:.0f} s wall incl. start-up)", flush=True)
+    if 1 in rates:
+        for n, rate in rates.items():
+            if n != 1:
+                print(f"  ratio {n} processes / 1 process: {rate / rates[1]:.2f}")
+
+
+def add_training_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--dataset", default="hupbench_out/dataset", help="a finished dataset (train and val splits)")
+    parser.add_argument("--model", default="hopenet_r10_128", help="a conf/model/ name")
+    parser.add_argument("--batch", type=int, default=32, help="global batch, split over the processes")
+    parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--threads", type=int, default=2, help="torch threads in all, split over the processes")
+    parser.add_argument("--processes", type=int, nargs="+", default=[1, 2])
+    parser.set_defaults(run=training)
 
 
 # ----------------------------------------------------------------------------- entry point
@@ -131,6 +188,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sections = parser.add_subparsers(dest="section", required=True)
     add_generation_args(sections.add_parser("generation", help="frames/s with 1 and 2 Ray workers"))
+    add_training_args(sections.add_parser("training", help="training images/s with 1 and 2 torchrun processes"))
     args = parser.parse_args()
     args.run(args)
 
