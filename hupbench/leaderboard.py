@@ -342,7 +342,8 @@ def render_readme(rows: list[dict]) -> str:
         ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
          "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
          "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),
-        ("- Training time is wall time of the training loop (validation passes excluded) on the named hardware. "
+        ("- Training time is the training run's whole wall time (validation passes included) on the named hardware; "
+         "the training-time plot counts training steps only. "
          "Latency is wall time per image at batch 1 on the row's device (see its details), ONNX Runtime and "
          "PyTorch measured separately."),
         "",
