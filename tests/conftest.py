@@ -27,6 +27,15 @@ def write_grasps(path, n=2):
                            "grasp_id": np.arange(n, dtype=np.int64)})
 
 
+def annotations(root, splits=("train", "test")):
+    """{split: {array name: array}} of a finished dataset's annotation files."""
+    out = {}
+    for split in splits:
+        with np.load(root / split / "annotations.npz") as data:
+            out[split] = {k: data[k] for k in data.files}
+    return out
+
+
 @pytest.fixture(scope="session")
 def tiny_grasps(tmp_path_factory):
     return write_grasps(tmp_path_factory.mktemp("grasps") / "grasps.npz")

@@ -17,20 +17,12 @@ from datagen.dataset import DatasetSpec, generate
 from datagen.io import save_npz
 from datagen.verify import verify
 
-from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 
 def run(out, grasps, **kwargs):
     spec = DatasetSpec(**{**TINY, **kwargs.pop("spec", {})})
     return generate(spec, out, grasps, {"test": "tiny"}, progress=False, log=lambda *_: None, **kwargs)
-
-
-def annotations(root):
-    out = {}
-    for split in ("train", "test"):
-        with np.load(root / split / "annotations.npz") as data:
-            out[split] = {k: data[k] for k in data.files}
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from hupbench.cli import main
 from hupbench.config import compose
 from hupbench.generate import run_generate
 
-from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 #: one grasp, 2 chunks of 10 frames: the smallest dataset that gives two actors a chunk each
 ONE_GRASP = {"splits": {"train": 1, "val": 0, "test": 0}}
@@ -34,14 +34,6 @@ def run(out, grasps, launcher, spec=(), log=lambda *_: None, **kwargs):
 def files(root):
     """{relative path: bytes} of every file of a finished dataset."""
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-def annotations(root):
-    out = {}
-    for split in ("train", "test"):
-        with np.load(root / split / "annotations.npz") as data:
-            out[split] = {k: data[k] for k in data.files}
-    return out
 
 
 @pytest.fixture(scope="module")
