@@ -176,16 +176,22 @@ def test_checkpoint_from_another_model_is_refused(tiny_dataset, tmp_path):
                            "train.max_steps=1", "train.resume=never"), log=lambda *_: None)
 
 
+@pytest.mark.parametrize("batch", [1, 4])
 @pytest.mark.parametrize("model", ["hopenet", "hopenet_r18", "hopenet_r10_128", "resnet50", "resnet50_128"])
-def test_every_model_config_composes_and_builds(model):
+def test_every_model_config_composes_and_builds(model, batch):
     cfg = compose("train", [f"model={model}"])
     from hupbench.config import build
 
     net = build(cfg.model)
-    assert cfg.data.reader.input_size in (128, 224)
+    size = cfg.data.reader.input_size
+    assert size in (128, 224)
     with torch.no_grad():
-        out = net.eval()(torch.rand(1, 3, 64, 64))
-    assert out.points3d.shape == (1, 29, 3)
+        out = net.eval()(torch.rand(batch, 3, size, size))
+    assert out.points3d.shape == (batch, 29, 3)
+    if cfg.model._target_.endswith("HOPENet"):
+        assert out.points2d_init.shape == out.points2d.shape == (batch, 29, 2)
+    else:
+        assert out.points2d is None  # the paper's baseline regresses 3D only
 
 
 @pytest.mark.slow
