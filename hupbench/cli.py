@@ -9,7 +9,7 @@ VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
     "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
-    "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n",
+    "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n, launcher=ray",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
     "eval": "evaluate a checkpoint or ONNX model on a dataset split: metrics, breakdowns, latency; results JSON",
     "export": "export a checkpoint to ONNX (opset 18, dynamic batch) with a parity check against PyTorch",
