@@ -142,10 +142,12 @@ def _eval(args: list[str]) -> int:
     parser.add_argument("--threads", type=int, help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
     parser.add_argument("--training-command", help="the committed command that reproduces the training run")
     parser.add_argument("--training-log", help="the run's metrics.jsonl relative to the leaderboard folder")
+    parser.add_argument("--label", help="the model's name in the results (default: the run's label, else "
+                        "model, backbone and input size)")
     ns = parser.parse_args(args)
     result = run_eval(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
                       batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
-                      training_command=ns.training_command, training_log=ns.training_log)
+                      training_command=ns.training_command, training_log=ns.training_log, label=ns.label)
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
     return 0

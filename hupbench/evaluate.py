@@ -282,7 +282,7 @@ def format_table(results: dict) -> str:
 def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
              run_name: str | None = None, batch_size: int = 32, latency: bool = True,
              threads: int | None = None, training_command: str | None = None, training_log: str | None = None,
-             log: Callable[[str], None] = print) -> dict[str, Any]:
+             label: str | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
     Args:
@@ -301,6 +301,8 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
             leaderboard requires one for a measured row), stored as ``training.command``.
         training_log: the run's metrics.jsonl as a path relative to the leaderboard folder
             (e.g. ``logs/<run_name>.jsonl``), stored as ``training.log``.
+        label: the model's name in the results (default: the training config's ``label``, else
+            model, backbone and input size).
         log: called with progress lines.
 
     Returns:
@@ -315,13 +317,14 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         torch.set_num_threads(threads)
     try:
         return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log,
-                         training_command, training_log)
+                         training_command, training_log, label)
     finally:
         torch.set_num_threads(previous_threads)
 
 
 def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
-              log, training_command: str | None = None, training_log: str | None = None) -> dict[str, Any]:
+              log, training_command: str | None = None, training_log: str | None = None,
+              label: str | None = None) -> dict[str, Any]:
     from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.provenance import git_commit
@@ -366,7 +369,10 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     background_names = (manifest.get("backgrounds") or {}).get("names")
     results = blank_results("measured", run_name)
     parameters, flops = net.cost()
-    results["model"] = {"name": str(net.model_config.get("name")), "label": model_label(net.model_config, net.input_size),
+    # a run's config may name its variant (train.yaml ``label``); otherwise model, backbone and input size
+    label = label or ((net.payload or {}).get("config") or {}).get("label") or model_label(net.model_config,
+                                                                                          net.input_size)
+    results["model"] = {"name": str(net.model_config.get("name")), "label": str(label),
                         "config": net.model_config, "parameters": parameters, "flops": flops,
                         "input_size": int(net.input_size), "format": net.format}
     total = sum(int(v) for v in manifest["counts"].values())

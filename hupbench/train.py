@@ -36,7 +36,8 @@ from hupbench.config import build
 from hupbench.provenance import run_info
 
 # config keys that may differ between a run and the run it resumes
-RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers")
+RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers",
+                    "label")
 
 
 # ----------------------------------------------------------------------------------------------

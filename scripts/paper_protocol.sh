@@ -11,6 +11,7 @@ experiment="${1:?usage: scripts/paper_protocol.sh EXPERIMENT (a file of conf/exp
 [ -f "conf/experiment/$experiment.yaml" ] || { echo "no conf/experiment/$experiment.yaml" >&2; exit 1; }
 dataset=hupbench_out/dataset
 run_name=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).run_name)")
+label=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).label or '')")
 run_dir=hupbench_out/runs/$run_name
 
 [ -f "$dataset/manifest.json" ] || hupbench generate out_dir="$dataset"
@@ -20,5 +21,6 @@ cp "$run_dir/metrics.jsonl" "leaderboard/logs/$run_name.jsonl"
 hupbench export "$run_dir/checkpoints/last.pt" --out "$run_dir/$run_name.onnx" --dataset "$dataset"
 hupbench eval "$run_dir/checkpoints/last.pt" "$dataset" --split test --run-name "$run_name" \
     --out "leaderboard/results/$run_name.json" \
-    --training-command "bash scripts/paper_protocol.sh $experiment" --training-log "logs/$run_name.jsonl"
+    --training-command "bash scripts/paper_protocol.sh $experiment" --training-log "logs/$run_name.jsonl" \
+    ${label:+--label "$label"}
 hupbench leaderboard

@@ -42,7 +42,8 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     r_pt = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8,
                        training_command="bash scripts/paper_protocol.sh tiny", training_log="logs/tiny_pt.jsonl",
                        **QUIET)
-    r_onnx = EV.run_eval(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True, **QUIET)
+    r_onnx = EV.run_eval(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True,
+                         label="HOPE-Net (ResNet-10, 64 px, exported)", **QUIET)
     a, b = load_results(r_pt["out"]), load_results(r_onnx["out"])
     assert a == r_pt["results"] and b == r_onnx["results"]
     # every metric and every breakdown within 0.1 mm (2D: 0.01 px, AUC: 0.001)
@@ -61,7 +62,8 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     assert a["model"]["parameters"] == b["model"]["parameters"] > 1_000_000
     assert a["model"]["flops"] == b["model"]["flops"] > 0
     assert (a["model"]["format"], b["model"]["format"]) == ("pytorch", "onnx")
-    assert a["model"]["label"] == "HOPE-Net (ResNet-10, 64 px)"
+    assert a["model"]["label"] == "HOPE-Net (ResNet-10, 64 px)"  # made from the config
+    assert b["model"]["label"] == "HOPE-Net (ResNet-10, 64 px, exported)"  # given
     assert a["model"]["input_size"] == b["model"]["input_size"] == INPUT_SIZE
     # latency: PyTorch is not timed for an ONNX file; onnxruntime is, at batch 1 and 32
     assert b["latency_ms_per_image"]["pytorch"] == {"batch1": None, "batch32": None}
