@@ -59,6 +59,38 @@ def rotation_about_optical_axis(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def read_manifest(root, split: str | None = None, needs: str = "this reader expects") -> dict:
+    """Read a finished dataset's manifest and check what every consumer relies on.
+
+    Args:
+        root: dataset folder.
+        split: when given, it must be a split of the dataset with at least one frame.
+        needs: how the keypoint-count error names the consumer, e.g. "the models are built for".
+
+    Returns:
+        the manifest dict.
+    """
+    root = Path(root)
+    if not root.exists():
+        raise FileNotFoundError(f"dataset {root} does not exist")
+    manifest_path = root / "manifest.json"
+    if not manifest_path.is_file():
+        raise FileNotFoundError(f"{root} has no manifest.json: not a finished hupbench dataset "
+                                "(make one with `hupbench generate`)")
+    manifest = json.loads(manifest_path.read_text())
+    n = len(manifest.get("keypoint_names", []))
+    if n != kp.NUM_KEYPOINTS:
+        raise ValueError(f"dataset {root} has {n} keypoints; {needs} {kp.NUM_KEYPOINTS} "
+                         f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+    if split is not None:
+        counts = manifest.get("counts", {})
+        if split not in SPLITS or split not in counts:
+            raise ValueError(f"split must be one of {sorted(counts) or list(SPLITS)}, got {split!r}")
+        if counts[split] == 0:
+            raise ValueError(f"split {split!r} of {root} is empty (counts: {counts})")
+    return manifest
+
+
 @dataclass(frozen=True)
 class ReaderConfig:
     """How frames become model inputs.
@@ -100,19 +132,9 @@ class HUPDataset(torch.utils.data.Dataset):
 
     def __init__(self, root, split: str, config: ReaderConfig = ReaderConfig()) -> None:
         self.root = Path(root)
-        manifest_path = self.root / "manifest.json"
-        if not manifest_path.is_file():
-            raise FileNotFoundError(f"{self.root} has no manifest.json: not a finished hupbench dataset")
-        self.manifest = json.loads(manifest_path.read_text())
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-        if self.manifest["counts"].get(split, 0) == 0:
-            raise ValueError(f"split {split!r} of {self.root} is empty")
+        self.manifest = read_manifest(self.root, split)
         if "rgb" not in self.manifest["modalities"]:
             raise ValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
-        if len(self.manifest["keypoint_names"]) != kp.NUM_KEYPOINTS:
-            raise ValueError(f"dataset has {len(self.manifest['keypoint_names'])} keypoints, "
-                             f"this reader expects {kp.NUM_KEYPOINTS}")
         self.split, self.config = split, config
         with np.load(self.root / split / "annotations.npz") as data:
             self.ann = {k: data[k] for k in ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K")}

@@ -119,22 +119,9 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log) -> d
 
 
 def _check_dataset(dataset: Path, split: str) -> dict:
-    if not dataset.exists():
-        raise FileNotFoundError(f"dataset {dataset} does not exist")
-    manifest_path = dataset / "manifest.json"
-    if not manifest_path.is_file():
-        raise FileNotFoundError(f"{dataset} has no manifest.json: not a finished hupbench dataset")
-    manifest = json.loads(manifest_path.read_text())
-    names = manifest.get("keypoint_names", [])
-    if len(names) != kp.NUM_KEYPOINTS:
-        raise ValueError(f"dataset {dataset} has {len(names)} keypoints; the benchmark needs {kp.NUM_KEYPOINTS} "
-                         f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
-    counts = manifest.get("counts", {})
-    if split not in counts:
-        raise ValueError(f"split must be one of {sorted(counts)}, got {split!r}")
-    if counts[split] == 0:
-        raise ValueError(f"split {split!r} of {dataset} is empty (counts: {counts})")
-    return manifest
+    from hupbench.data import read_manifest
+
+    return read_manifest(dataset, split, needs="the benchmark needs")
 
 
 def _model_format(path: Path) -> str:

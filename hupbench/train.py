@@ -146,24 +146,6 @@ class EpochSampler(torch.utils.data.Sampler):
 # set-up checks (all before the first step)
 
 
-def _check_dataset(root: Path) -> dict:
-    manifest_path = root / "manifest.json"
-    if not manifest_path.is_file():
-        raise FileNotFoundError(f"data.root={root} has no manifest.json: not a finished hupbench dataset "
-                                "(make one with `hupbench generate`)")
-    manifest = json.loads(manifest_path.read_text())
-    names = manifest.get("keypoint_names", [])
-    if len(names) != kp.NUM_KEYPOINTS:
-        raise ValueError(f"dataset {root} has {len(names)} keypoints; the models are built for {kp.NUM_KEYPOINTS}")
-    return manifest
-
-
-def _mean_layout(root: Path, split: str) -> np.ndarray:
-    """(29, 3) float64, metres: the mean camera-frame keypoint layout of a split (the 3D prior)."""
-    with np.load(root / split / "annotations.npz") as data:
-        return data["keypoints_3d_cam"].astype(np.float64).mean(axis=0)
-
-
 def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
     out = []
     for key in sorted(set(a) | set(b)):
@@ -203,8 +185,8 @@ def recompute_bn_statistics(model: torch.nn.Module, loader, device: torch.device
     """Replace every batch norm's running statistics by exact averages over ``loader`` (precise BN).
 
     Running statistics are an exponential average over past batches, taken while the weights
-    moved; at Adam's early learning rates they lag the weights so far that the model in eval
-    mode was measured at 181 mm MPJPE where the same weights with fresh statistics gave 66 mm.
+    moved; at Adam's early learning rates they lag the weights so far that eval-mode errors
+    came out worse than the untrained prior's while batch statistics gave a good fit.
     Recomputing them from un-augmented training frames before each validation and checkpoint
     makes eval-mode outputs (validation, ``hupbench eval``, ONNX) those of the current weights.
     Training is unaffected: in train mode batch norm normalises with the batch's own statistics.
@@ -334,7 +316,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         dict with "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen",
         "train_seconds", "wall_seconds", "val_mpjpe_mm" (last validation) and "first_val_mpjpe_mm".
     """
-    from hupbench.data import HUPDataset
+    from hupbench.data import HUPDataset, read_manifest, resize_intrinsics
 
     world, rank, local_rank = _dist_env()
     device = _device(cfg, local_rank)
@@ -346,7 +328,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     root = Path(cfg.data.root)
 
     # -- everything that can be wrong is checked before the first step
-    _check_dataset(root)
+    manifest = read_manifest(root, needs="the models are built for")
     reader = build(cfg.data.reader)
     train_set = HUPDataset(root, cfg.data.train_split, reader)
     val_reader = type(reader)(input_size=reader.input_size, rotate_deg=0.0, photometric=0.0, seed=reader.seed)
@@ -362,7 +344,8 @@ def run_train(cfg: DictConfig, log=print) -> dict:
                              + "; ".join(diff))
         mean_layout = checkpoint["model_config"].get("points3d_mean")
     else:
-        mean_layout = _mean_layout(root, cfg.data.train_split).tolist()
+        # the prior: the training split's mean camera-frame layout, (29, 3) metres
+        mean_layout = train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
     torch.manual_seed(int(cfg.seed))  # the initial weights are a function of the seed
     model = build(OmegaConf.create({**OmegaConf.to_container(cfg.model, resolve=True), "points3d_mean": mean_layout}))
     if model.config["n_keypoints"] != kp.NUM_KEYPOINTS:
@@ -429,7 +412,8 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         bn_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(plain_train, sorted(bn_indices.tolist())),
                                                 shuffle=False, **loader_args)
 
-    base = {"K_input": train_set[0]["K"].double().tolist(), "input_size": reader.input_size, "config": resolved,
+    K_input = resize_intrinsics(train_set.ann["K"][0], reader.input_size / int(manifest["image_size"][0]))
+    base = {"K_input": K_input.tolist(), "input_size": reader.input_size, "config": resolved,
             "dataset": {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / "manifest.json")}}
 
     def save(name: str, val: dict | None) -> None:
