@@ -147,3 +147,27 @@ def project_points(points_cam: np.ndarray, K: np.ndarray, behind: str = "raise")
     xy1 = np.concatenate([points_cam[..., :2] / safe_z, np.ones_like(safe_z)], axis=-1)
     uv = np.einsum("...ij,...nj->...ni", K, xy1)[..., :2]
     return np.where(bad[..., None], np.nan, uv)
+
+
+def resize_intrinsics(K: np.ndarray, scale: float, offset=(0.0, 0.0)) -> np.ndarray:
+    """Intrinsics after padding the image by ``offset`` pixels (left, top), then resizing it by ``scale``.
+
+    Convention: pixel centres at integers, so a pixel u maps to u' = (u + offset + 0.5) * scale - 0.5;
+    fx' = fx * scale and cx' = (cx + offset_x + 0.5) * scale - 0.5 (likewise y).
+
+    Args:
+        K: (3, 3) intrinsics, pixels. scale: new pixels per old pixel. offset: (2,) pixels added
+            on the left and top before resizing.
+
+    Returns:
+        (3, 3) float64 intrinsics of the resized image.
+    """
+    out = np.array(K, dtype=np.float64, copy=True)
+    out[:2, :2] *= scale
+    out[:2, 2] = (out[:2, 2] + np.asarray(offset, dtype=np.float64) + 0.5) * scale - 0.5
+    return out
+
+
+def resize_points(uv: np.ndarray, scale: float, offset=(0.0, 0.0)) -> np.ndarray:
+    """(..., 2) pixel coordinates after padding by ``offset`` and resizing by ``scale`` (see resize_intrinsics)."""
+    return (np.asarray(uv, dtype=np.float64) + np.asarray(offset, dtype=np.float64) + 0.5) * scale - 0.5

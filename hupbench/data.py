@@ -27,26 +27,9 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
+from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part of the reader's API)
 from datagen.dataset import SPLITS, frame_path
 from models.coords import pixels_to_normalized
-
-
-def resize_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
-    """Intrinsics after resizing the image by ``scale`` (pixel centres at integers).
-
-    u' = (u + 0.5) * scale - 0.5, so fx' = fx * scale and cx' = (cx + 0.5) * scale - 0.5.
-    """
-    out = np.array(K, dtype=np.float64, copy=True)
-    out[0, 0] *= scale
-    out[1, 1] *= scale
-    out[0, 2] = (out[0, 2] + 0.5) * scale - 0.5
-    out[1, 2] = (out[1, 2] + 0.5) * scale - 0.5
-    return out
-
-
-def resize_points(uv: np.ndarray, scale: float) -> np.ndarray:
-    """(N, 2) pixel coordinates after resizing the image by ``scale``."""
-    return (np.asarray(uv, dtype=np.float64) + 0.5) * scale - 0.5
 
 
 def rotation_about_optical_axis(angle: float) -> np.ndarray:

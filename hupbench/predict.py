@@ -22,7 +22,7 @@ Geometry (pad to square, then resize):
     a wide photo stays in view and gets keypoints instead of being cut off, and the predictions
     can land anywhere on the original image; the price is fewer input pixels on the subject. The
     padding is a constant grey, not reflected content, so that it holds no mirrored copy of a hand.
-    With pixel centres at integers (OpenCV; as ``hupbench.data.resize_intrinsics``):
+    With pixel centres at integers (OpenCV; as ``datagen.camera.resize_intrinsics``):
         u_in = (u + pad_left + 0.5) * s - 0.5        v_in = (v + pad_top + 0.5) * s - 0.5
         u    = (u_in + 0.5) / s - 0.5 - pad_left    v    = (v_in + 0.5) / s - 0.5 - pad_top
     and from the model's normalised output (x_n = (2 u_in + 1) / S - 1):
@@ -68,6 +68,7 @@ import numpy as np
 import onnxruntime as ort
 from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
+from datagen.camera import resize_intrinsics, resize_points
 from datagen.draw import write_png
 from datagen.io import write_bytes
 from hupbench.overlay import draw_prediction
@@ -141,7 +142,7 @@ class InputGeometry:
 
     def image_to_input_px(self, uv: np.ndarray) -> np.ndarray:
         """(..., 2) original-image pixels -> (..., 2) model-input pixels."""
-        return (np.asarray(uv, dtype=np.float64) + self._offset() + 0.5) * self.scale - 0.5
+        return resize_points(uv, self.scale, self._offset())
 
     def input_to_image_px(self, uv_in: np.ndarray) -> np.ndarray:
         """(..., 2) model-input pixels -> (..., 2) original-image pixels."""
@@ -157,11 +158,7 @@ class InputGeometry:
 
     def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
         """(3, 3) intrinsics of the original image -> (3, 3) intrinsics of the model input."""
-        K = _check_K(K, "K")
-        out = K.copy()
-        out[:2, :] *= self.scale
-        out[:2, 2] = (K[:2, 2] + self._offset() + 0.5) * self.scale - 0.5
-        return out
+        return resize_intrinsics(_check_K(K, "K"), self.scale, self._offset())
 
     def intrinsics_to_image(self, K_in: np.ndarray) -> np.ndarray:
         """(3, 3) intrinsics of the model input -> (3, 3) intrinsics of the original image."""

@@ -87,3 +87,20 @@ def test_gl_cv_swap_is_an_involution_with_known_axes():
     p_world = transform_points(T_world_cam, np.array([[0.1, 0.2, 1.0]]))
     p_gl = transform_points(np.linalg.inv(T_world_gl), p_world)[0]
     np.testing.assert_allclose(p_gl, [0.1, -0.2, -1.0], atol=1e-12)
+
+
+def test_resize_with_padding_keeps_projections_consistent():
+    from datagen.camera import resize_intrinsics, resize_points
+
+    K = np.array([[480.0, 0.0, 128.0], [0.0, 470.0, 100.0], [0.0, 0.0, 1.0]])
+    points = np.array([[0.01, -0.02, 0.5], [0.1, 0.05, 0.8], [-0.07, 0.0, 0.6]])
+
+    def project(K_, p):
+        uvw = p @ K_.T
+        return uvw[:, :2] / uvw[:, 2:]
+
+    for scale, offset in ((0.5, (0.0, 0.0)), (0.37, (20.0, 0.0)), (2.0, (3.0, 11.0))):
+        moved = resize_points(project(K, points), scale, offset)
+        np.testing.assert_allclose(moved, project(resize_intrinsics(K, scale, offset), points), atol=1e-9)
+    # pixel centres at integers: the image's outer edge -0.5 stays the edge after resizing
+    np.testing.assert_allclose(resize_points(np.array([-0.5, -0.5]), 0.25), [-0.5, -0.5])
