@@ -12,7 +12,14 @@ HYDRA_VERSION_BASE = "1.3"
 
 
 def config_dir() -> Path:
-    """Directory holding the Hydra configs (``conf/`` of the source tree, shipped as ``hupbench.conf``)."""
+    """Directory holding the Hydra configs (``conf/`` of the source tree, shipped as ``hupbench.conf``).
+
+    A source checkout's own ``conf/`` (beside this package) wins over the installed mapping, so that
+    code imported from a checkout (``PYTHONPATH``, a git worktree) composes that checkout's configs.
+    """
+    beside = Path(__file__).resolve().parents[1] / "conf"
+    if (beside / "quickstart.yaml").is_file():
+        return beside
     path = Path(str(resources.files("hupbench.conf")))
     if not (path / "quickstart.yaml").is_file():
         raise FileNotFoundError(f"hupbench configs not found in {path}: is the package installed completely?")
