@@ -46,15 +46,27 @@ from datagen.io import save_npz, write_bytes, write_json
 from datagen.ray_launcher import RayOptions, check_launcher
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
 from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
-from datagen.sphere import SphereSpec, camera_pose, sphere_frame, viewpoints
+from datagen.sphere import (
+    SphereSpec,
+    camera_pose,
+    excluded_view_ids,
+    sphere_frame,
+    unit_directions,
+    viewpoints,
+)
 
 SCHEMA_VERSION = 1
-GENERATOR_VERSION = "0.1.0"
+GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
 SPLITS = ("train", "val", "test")
 DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
 #: HUP-3D's lamp (REFERENCE.md), in the camera frame of the published renderer
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
+#: what the camera can aim at besides a keypoint (by name): the centre of the 29 keypoints' box in
+#: the world (probe) frame, hupbench's aim before issue 13
+BOX_CENTRE = "box_centre"
+#: the published renderer's aim: the right middle-finger MCP (SMPL-H joint 40, our keypoint 9)
+PAPER_LOOK_AT = "middle_mcp"
 #: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
 #: exposes a gloved hand at 0.5 m like the preview
 LAMP_INTENSITY_PER_WATT = 0.0075
@@ -71,6 +83,10 @@ class DatasetSpec:
         rgb_format: "jpg" or "png". jpeg_quality: 0-100.
         seed: lamp randomisation seed.
         sphere: the viewpoint sphere.
+        look_at: the point each camera looks at from distance z_ego, which lands at
+            (0, 0, z_ego) in the camera frame: a keypoint name (default "middle_mcp", keypoint 9,
+            as the published renderer) or "box_centre" (centre of the 29 keypoints' box in the
+            world frame).
         width, height, fx, fy, cx, cy: the camera.
         n_backgrounds, n_gloves: counts (backgrounds come from the background set).
     """
@@ -82,6 +98,7 @@ class DatasetSpec:
     jpeg_quality: int = 95
     seed: int = 0
     sphere: SphereSpec = SphereSpec()
+    look_at: str = PAPER_LOOK_AT
     width: int = 256
     height: int = 256
     fx: float = 480.0
@@ -111,6 +128,9 @@ class DatasetSpec:
             raise ValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
         if self.n_backgrounds < 1:
             raise ValueError(f"n_backgrounds must be >= 1, got {self.n_backgrounds}")
+        if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
+            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
+                             f"got {self.look_at!r}")
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -213,10 +233,18 @@ class GraspSet:
         R = axis_angle_to_matrix(self.hand_pose[:, :3])
         self.forearm_axis = -R[:, :, 0]
         self.dorsal = R[:, :, 1]
-        self.target = 0.5 * (self.keypoints_world.min(axis=1) + self.keypoints_world.max(axis=1))
+        self.box_centre = 0.5 * (self.keypoints_world.min(axis=1) + self.keypoints_world.max(axis=1))
 
     def __len__(self) -> int:
         return len(self.hand_pose)
+
+    def look_at_points(self, look_at: str) -> np.ndarray:
+        """(G, 3) float64, metres, world frame: each grasp's camera target (see ``DatasetSpec.look_at``)."""
+        if look_at == BOX_CENTRE:
+            return self.box_centre
+        if look_at not in kp.KEYPOINT_NAMES:
+            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name, got {look_at!r}")
+        return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -224,12 +252,49 @@ def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int
     g, z, b, c, v = layout.tuple(index)
     view_ids, angles = viewpoints(spec.sphere)
     theta, phi = angles[v]
-    frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g])
-    T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.target[g], frame)
+    frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g], spec.sphere.axis)
+    T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.look_at_points(spec.look_at)[g], frame,
+                              spec.sphere.axis)
     keypoints_cam = transform_points(T_cam_world, grasps.keypoints_world[g])
     return {"grasp": g, "z": z, "background": b, "glove": c, "view": v, "view_id": int(view_ids[v]),
             "theta": theta, "phi": phi, "T_cam_world": T_cam_world, "keypoints_cam": keypoints_cam,
             "keypoints_2d": project_points(keypoints_cam, spec.intrinsics.K)}
+
+
+def view_directions_arm(sphere: SphereSpec, angles: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 unit vectors from the target to the camera in the arm frame.
+
+    The arm frame's columns are hand -> elbow, dorsal and their cross product (the thumb side of
+    a right hand), :func:`datagen.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
+    """
+    # the sphere frame of an arm frame equal to the identity gives the sphere's axes in arm coordinates
+    frame = sphere_frame(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), sphere.axis)
+    return unit_directions(angles) @ frame.T
+
+
+def protocol(spec: DatasetSpec) -> dict:
+    """The viewing protocol of a dataset, for its manifest.
+
+    "name" is "paper" when the sphere, its exclusions and the look-at are the published
+    renderer's, "forearm_box_centre" when they are hupbench's before issue 13, else "custom".
+    """
+    s = spec.sphere
+    geometry = (s.r_sph_m, s.r_circ_m, s.variant) == (0.8, 0.15, "ceil")
+    if geometry and s.axis == "body" and s.exclude == ("elbow",) and s.elbow_cone_deg == 10.0 \
+            and spec.look_at == PAPER_LOOK_AT:
+        name = "paper"
+    elif geometry and s.axis == "forearm" and s.exclude == ("poles",) and spec.look_at == BOX_CENTRE:
+        name = "forearm_box_centre"
+    else:
+        name = "custom"
+    polar = {"body": "dorsal (back of the hand: the body's vertical, perpendicular to the forearm)",
+             "forearm": "forearm (north = hand -> elbow)"}[s.axis]
+    up = {"body": "towards the north pole along the meridian (the body's vertical), defined at the poles",
+          "forearm": "the fingers (-north); at the poles the dorsal direction"}[s.axis]
+    return {"name": name, "sphere_axis": s.axis, "polar_axis": polar, "image_up": up,
+            "exclude": list(s.exclude), "elbow_cone_deg": s.elbow_cone_deg,
+            "excluded_view_ids": list(excluded_view_ids(s)), "look_at": spec.look_at,
+            "look_at_index": None if spec.look_at == BOX_CENTRE else kp.KEYPOINT_NAMES.index(spec.look_at)}
 
 
 def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.ndarray, seg: np.ndarray,
@@ -591,7 +656,11 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
         "depth_scale_m": DEPTH_SCALE_M,
         "z_ego_m": list(spec.z_ego_m),
         "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(), "phi_rad": angles[:, 1].tolist(),
-                       "sphere": asdict(spec.sphere)},
+                       "sphere": asdict(spec.sphere),
+                       # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
+                       # the same for every grasp, whichever way the sphere is attached
+                       "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist()},
+        "protocol": protocol(spec),
         "backgrounds": {"names": list(backgrounds.names[: spec.n_backgrounds]),
                         "fingerprint": backgrounds.fingerprint()},
         "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],

@@ -11,17 +11,37 @@ gives N_lat = 8 (rings 6, 11, 15, 16, 15, 11, 6 = 80, + 2 = 82):
 ``variant="floor"`` selects it.
 
 Views are numbered from the north pole (view 0) ring by ring (longitude
-0 first) to the south pole (the last). By default the two poles are
-excluded: they look along the forearm, one of them through the arm
-(the paper's "92 - 2 excluded = 90").
+0 first) to the south pole (the last), the published renderer's order.
+
+Two ways to attach the sphere to the hand (``axis``):
+
+``"body"`` (default, the published renderer): the camera stays fixed and the
+    whole SMPL-H body (a T-pose: right arm straight out sideways, palm down)
+    is turned by (90 deg - theta) about X, then by -phi about Y (intrinsic
+    X-Y), with the right middle-finger MCP put at distance z_ego in front of
+    the camera. Seen from the hand, the sphere's polar axis is the body's
+    vertical, perpendicular to the straight forearm: north is the BACK OF
+    THE HAND (dorsal: the palm faces down in the T-pose). Longitude 0 is the
+    body's front, which for the right hand is the thumb (radial) side,
+    ``forearm_axis x dorsal``; longitude 90 deg is the elbow (the forearm at
+    theta = 90, phi = 90 deg). Image "up" is the body's vertical: the
+    meridian's tangent towards the north pole, which stays defined at the
+    poles (north pole, looking down on the back of the hand: up is the
+    body's back, the little-finger side; south pole: up is the thumb side,
+    the body's front). The published renderer drops the two views 10 deg
+    off the elbow-side forearm axis (theta 80 / 100 deg, phi 90 deg: ids 34
+    and 50), looking into the hollow of the arm, and keeps both poles:
+    ``exclude=("elbow",)`` with ``elbow_cone_deg=10``.
+``"forearm"`` (hupbench before issue 13): the polar axis is the forearm,
+    north = from the hand towards the elbow; longitude 0 is the dorsal
+    direction. Image "up" is the fingers' direction (-north); at the poles,
+    where that is parallel to the view, the dorsal direction. The two poles
+    (along the forearm) were excluded: ``exclude=("poles",)``.
 
 Convention:
-    The sphere's polar axis is the forearm axis of the grasp: north = from
-    the hand towards the elbow. Longitude 0 is the hand's dorsal direction.
-    Cameras stand ``distance`` from the target, look at it, and keep the
-    fingers "up" in the image (up vector = the pointing direction of the
-    fingers, -polar axis); at the poles, where that is parallel to the view,
-    the up vector is the dorsal direction. Metres and radians.
+    Metres and radians. A sphere frame is a (3, 3) matrix whose columns are,
+    in the world frame, longitude 0, longitude 90 deg and north. Camera
+    poses are ``T_cam_world`` in OpenCV axes (x right, y down, z forward).
 """
 
 from __future__ import annotations
@@ -33,8 +53,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from datagen.camera import look_at
+from datagen.geometry import invert_transform, make_transform
 
 VARIANTS = ("ceil", "floor")
+AXES = ("body", "forearm")
+#: named exclusion rules: "poles" = both poles; "elbow" = views within ``elbow_cone_deg`` of the
+#: elbow-side forearm axis
+EXCLUDE_RULES = ("poles", "elbow")
+#: slack on the elbow cone, degrees: the published excluded views sit exactly on its edge (10 deg)
+_CONE_SLACK_DEG = 1e-6
 
 
 @dataclass(frozen=True)
@@ -44,13 +71,20 @@ class SphereSpec:
     Attributes:
         r_sph_m, r_circ_m: sphere and circle radii, metres (r_circ < r_sph).
         variant: "ceil" (published code, 92 views) or "floor" (paper's formula, 82).
-        exclude: view ids left out (default: the two poles of the ceil variant).
+        axis: "body" (published renderer: polar axis = the body's vertical = dorsal direction,
+            perpendicular to the forearm) or "forearm" (polar axis along the forearm).
+        exclude: view ids and/or rules left out: "poles", "elbow" (views within
+            ``elbow_cone_deg`` of the hand -> elbow direction). Default: the published renderer's
+            two exclusions.
+        elbow_cone_deg: half-angle of the "elbow" rule's cone, degrees, in [0, 180).
     """
 
     r_sph_m: float = 0.8
     r_circ_m: float = 0.15
     variant: str = "ceil"
-    exclude: tuple = ("poles",)
+    axis: str = "body"
+    exclude: tuple = ("elbow",)
+    elbow_cone_deg: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("r_sph_m", "r_circ_m"):
@@ -61,10 +95,18 @@ class SphereSpec:
             raise ValueError(f"sphere r_circ_m ({self.r_circ_m}) must be smaller than r_sph_m ({self.r_sph_m})")
         if self.variant not in VARIANTS:
             raise ValueError(f"sphere variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.axis not in AXES:
+            raise ValueError(f"sphere axis must be one of {AXES}, got {self.axis!r}")
+        cone = self.elbow_cone_deg
+        if isinstance(cone, bool) or not isinstance(cone, (int, float)) or not 0 <= cone < 180:
+            raise ValueError(f"sphere elbow_cone_deg must be a number in [0, 180), got {cone!r}")
         exclude = tuple(self.exclude or ())
         for e in exclude:
-            if e != "poles" and (isinstance(e, bool) or not isinstance(e, int)):
-                raise ValueError(f"sphere exclude entries must be view ids or 'poles', got {e!r}")
+            if isinstance(e, str):
+                if e not in EXCLUDE_RULES:
+                    raise ValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {e!r}")
+            elif isinstance(e, bool) or not isinstance(e, int):
+                raise ValueError(f"sphere exclude entries must be view ids or one of {EXCLUDE_RULES}, got {e!r}")
         object.__setattr__(self, "exclude", exclude)
 
 
@@ -90,6 +132,52 @@ def all_viewpoints(spec: SphereSpec) -> np.ndarray:
     return np.array(views)
 
 
+def unit_directions(angles: np.ndarray) -> np.ndarray:
+    """Points of the unit sphere in sphere coordinates.
+
+    Args:
+        angles: (V, 2) (theta, phi) radians.
+
+    Returns:
+        (V, 3) float64 unit vectors (longitude 0, longitude 90 deg, north components): the
+        direction from the target to the camera.
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    if angles.ndim != 2 or angles.shape[1] != 2:
+        raise ValueError(f"angles must be (V, 2) (theta, phi), got {angles.shape}")
+    theta, phi = angles[:, 0], angles[:, 1]
+    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)
+
+
+def elbow_direction(axis: str) -> np.ndarray:
+    """(3,) the hand -> elbow direction in sphere coordinates of the given ``axis``."""
+    if axis not in AXES:
+        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    # body: longitude 90 deg on the equator (the published renderer's theta = phi = 90 deg);
+    # forearm: the north pole
+    return np.array([0.0, 1.0, 0.0]) if axis == "body" else np.array([0.0, 0.0, 1.0])
+
+
+@functools.lru_cache(maxsize=16)
+def excluded_view_ids(spec: SphereSpec = SphereSpec()) -> tuple[int, ...]:
+    """Ids (into :func:`all_viewpoints`) that ``spec.exclude`` leaves out, ascending."""
+    angles = all_viewpoints(spec)
+    total = len(angles)
+    excluded = set()
+    for e in spec.exclude:
+        if e == "poles":
+            excluded |= {0, total - 1}
+        elif e == "elbow":
+            cosine = unit_directions(angles) @ elbow_direction(spec.axis)
+            within = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))) <= spec.elbow_cone_deg + _CONE_SLACK_DEG
+            excluded |= {int(i) for i in np.flatnonzero(within)}
+        elif not 0 <= e < total:
+            raise ValueError(f"sphere exclude id {e} is not a view: ids are 0..{total - 1}")
+        else:
+            excluded.add(int(e))
+    return tuple(sorted(excluded))
+
+
 @functools.lru_cache(maxsize=16)
 def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]:
     """The views in use after exclusions (cached per spec; the arrays are read-only).
@@ -98,16 +186,8 @@ def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]
         view_ids: (V',) int64 ids into :func:`all_viewpoints`; angles: (V', 2) (theta, phi) radians.
     """
     angles = all_viewpoints(spec)
-    total = len(angles)
-    excluded = set()
-    for e in spec.exclude:
-        if e == "poles":
-            excluded |= {0, total - 1}
-        elif not 0 <= e < total:
-            raise ValueError(f"sphere exclude id {e} is not a view: ids are 0..{total - 1}")
-        else:
-            excluded.add(e)
-    ids = np.array([i for i in range(total) if i not in excluded], dtype=np.int64)
+    excluded = set(excluded_view_ids(spec))
+    ids = np.array([i for i in range(len(angles)) if i not in excluded], dtype=np.int64)
     if len(ids) == 0:
         raise ValueError("the sphere exclusions leave no view")
     kept = angles[ids]
@@ -116,38 +196,80 @@ def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]
     return ids, kept
 
 
-def sphere_frame(forearm_axis: np.ndarray, dorsal: np.ndarray) -> np.ndarray:
-    """(3, 3) columns x (longitude 0), y, z (north) of the sphere in the world frame.
+def arm_frame(forearm_axis: np.ndarray, dorsal: np.ndarray) -> np.ndarray:
+    """(3, 3) columns: hand -> elbow, dorsal, radial (thumb side of a right hand), in the world frame.
 
     Args:
         forearm_axis: (3,) direction from the hand towards the elbow.
         dorsal: (3,) the back-of-hand direction (made orthogonal to the axis).
+
+    Returns:
+        (3, 3) float64 rotation; the third column is ``forearm_axis x dorsal``.
     """
-    z = np.asarray(forearm_axis, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    x = np.asarray(dorsal, dtype=np.float64) - (np.dot(dorsal, z)) * z
-    if np.linalg.norm(x) < 1e-9:
+    elbow = np.asarray(forearm_axis, dtype=np.float64).reshape(3)
+    norm = np.linalg.norm(elbow)
+    if not np.isfinite(norm) or norm < 1e-12:
+        raise ValueError(f"the forearm axis must be a finite non-zero vector, got {elbow.tolist()}")
+    elbow = elbow / norm
+    back = np.asarray(dorsal, dtype=np.float64).reshape(3)
+    back = back - np.dot(back, elbow) * elbow
+    if np.linalg.norm(back) < 1e-9:
         raise ValueError("the dorsal direction must not be parallel to the forearm axis")
-    x /= np.linalg.norm(x)
-    return np.stack([x, np.cross(z, x), z], axis=1)
+    back /= np.linalg.norm(back)
+    return np.stack([elbow, back, np.cross(elbow, back)], axis=1)
+
+
+def sphere_frame(forearm_axis: np.ndarray, dorsal: np.ndarray, axis: str) -> np.ndarray:
+    """(3, 3) columns longitude 0, longitude 90 deg, north of the sphere in the world frame.
+
+    Args:
+        forearm_axis: (3,) direction from the hand towards the elbow.
+        dorsal: (3,) the back-of-hand direction (made orthogonal to the axis).
+        axis: "body": north = dorsal, longitude 0 = radial (thumb side), longitude 90 deg =
+            elbow; "forearm": north = elbow, longitude 0 = dorsal, longitude 90 deg = radial.
+    """
+    if axis not in AXES:
+        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    elbow, back, radial = arm_frame(forearm_axis, dorsal).T
+    columns = (radial, elbow, back) if axis == "body" else (back, radial, elbow)
+    return np.stack(columns, axis=1)
 
 
 def camera_pose(theta: float, phi: float, distance_m: float, target_world: np.ndarray,
-                frame: np.ndarray) -> np.ndarray:
-    """``T_cam_world`` (OpenCV) of one viewpoint.
+                frame: np.ndarray, axis: str) -> np.ndarray:
+    """``T_cam_world`` (OpenCV) of one viewpoint: the camera ``distance_m`` from the target, looking at it.
 
     Args:
         theta, phi: polar angle from north and longitude, radians.
         distance_m: camera to target, metres (> 0).
-        target_world: (3,) the point looked at.
-        frame: (3, 3) from :func:`sphere_frame`.
+        target_world: (3,) the point looked at; it lands at (0, 0, distance_m) in the camera frame.
+        frame: (3, 3) from :func:`sphere_frame` with the same ``axis``.
+        axis: "body" (image up = the meridian towards north, as the published renderer's body
+            rotation gives; defined at the poles too) or "forearm" (up = -north, the fingers; at
+            the poles longitude 0, the dorsal direction).
 
     Returns:
         (4, 4) float64.
     """
     if not math.isfinite(distance_m) or distance_m <= 0:
         raise ValueError(f"camera distance must be positive, got {distance_m!r}")
-    direction = frame @ np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
-    at_pole = math.sin(theta) < 1e-9
-    up = frame[:, 0] if at_pole else -frame[:, 2]
-    return look_at(np.asarray(target_world) + distance_m * direction, target_world, up_world=up)
+    if axis not in AXES:
+        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    frame = np.asarray(frame, dtype=np.float64)
+    target = np.asarray(target_world, dtype=np.float64).reshape(3)
+    st, ct, sp, cp = math.sin(theta), math.cos(theta), math.sin(phi), math.cos(phi)
+    direction = frame @ np.array([st * cp, st * sp, ct])
+    if axis == "forearm":
+        at_pole = abs(st) < 1e-9
+        up = frame[:, 0] if at_pole else -frame[:, 2]
+        return look_at(target + distance_m * direction, target, up_world=up)
+    # -d(direction)/d(theta): unit, orthogonal to the view and smooth through the poles, so the
+    # camera needs no look-at special case anywhere on the sphere
+    up = frame @ np.array([-ct * cp, -ct * sp, st])
+    z = -direction  # OpenCV z looks from the camera at the target
+    y = -up  # OpenCV y points down in the image
+    R_world_cam = np.stack([np.cross(y, z), y, z], axis=1)
+    T_cam_world = invert_transform(make_transform(R_world_cam, target + distance_m * direction))
+    # put the target exactly on the optical axis (the inverse's rounding would leave ~1e-17 m)
+    T_cam_world[:3, 3] = np.array([0.0, 0.0, distance_m]) - T_cam_world[:3, :3] @ target
+    return T_cam_world

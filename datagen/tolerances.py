@@ -32,5 +32,8 @@ VISIBLE_CORNER_DEPTH_M = 0.005
 VERIFY_REPROJECTION_PX = 0.01
 #: verify: 3D keypoints must equal those recomputed from the stored pose within this
 VERIFY_KEYPOINT_M = 1e-4
+#: verify: the protocol's look-at point must sit this close to (0, 0, z_ego) in the camera frame
+#: (float32 keypoints at up to ~1 m round to ~6e-8 m)
+VERIFY_LOOK_AT_M = 1e-6
 #: verify: probe pixels (eroded mask), unprojected with their depth, lie this close to the probe surface
 VERIFY_PROBE_SURFACE_M = 0.003

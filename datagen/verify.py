@@ -4,8 +4,10 @@ Failure kinds (each names the frame):
     ``missing_file``, ``undecodable_file``, ``count_mismatch``, ``frame_ids``,
     ``reprojection`` (2D != projection of 3D), ``pose_mismatch`` (3D != the
     keypoints of the stored hand pose and probe corners seen by the stored
-    camera), ``visible_not_on_hand`` (a visible hand keypoint whose pixel is
-    not hand in the mask or whose depth is not just in front of it),
+    camera), ``look_at`` (the point the manifest's protocol aims at is not at
+    (0, 0, z_ego) in the camera frame), ``visible_not_on_hand`` (a visible
+    hand keypoint whose pixel is not hand in the mask or whose depth is not
+    just in front of it),
     ``probe_depth`` (probe pixels unprojected with their depth are off the
     probe surface by more than max(3 mm, 1.5 pixel footprints)). Thresholds are in :mod:`datagen.tolerances`.
 """
@@ -27,7 +29,7 @@ from datagen.geometry import invert_transform, transform_points
 from datagen.render import SEG_LABELS
 
 KINDS = ("missing_file", "undecodable_file", "count_mismatch", "frame_ids", "reprojection", "pose_mismatch",
-         "visible_not_on_hand", "probe_depth")
+         "look_at", "visible_not_on_hand", "probe_depth")
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
 
@@ -55,6 +57,27 @@ def check_geometry(ann: dict, split: str) -> list[dict]:
         problems.append(_problem(split, ann["frame_id"][i], "pose_mismatch",
                                  f"3D keypoints {1000 * err3[i]:.2f} mm from the stored pose"))
     return problems
+
+
+def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
+    """The camera's aim: ``look_at`` (a keypoint name or "box_centre", the centre of the 29
+    keypoints' box in the world frame) must sit at (0, 0, z_ego) in every frame's camera frame."""
+    cam = ann["keypoints_3d_cam"].astype(np.float64)
+    if look_at == "box_centre":
+        world = transform_points(invert_transform(ann["T_cam_world"]), cam)
+        centre = 0.5 * (world.min(axis=1) + world.max(axis=1))
+        point = transform_points(ann["T_cam_world"], centre[:, None])[:, 0]
+    elif look_at in kp.KEYPOINT_NAMES:
+        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]
+    else:
+        raise ValueError(f"manifest protocol look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+    expected = np.zeros_like(point)
+    expected[:, 2] = ann["z_ego"]
+    err = np.linalg.norm(point - expected, axis=1)
+    return [_problem(split, ann["frame_id"][i], "look_at",
+                     f"{look_at} at {np.round(1000 * point[i], 3).tolist()} mm, expected (0, 0, z_ego) "
+                     f"({1000 * err[i]:.4f} mm off)")
+            for i in np.flatnonzero(~(err <= tol.VERIFY_LOOK_AT_M))]
 
 
 def _read(path: Path, flags):
@@ -148,6 +171,9 @@ def verify(root, workers: int = 2, log=print) -> dict:
                                      f"{len(ann['frame_id'])} annotated frames, manifest says {expected}"))
         all_ids.append(ann["frame_id"])
         problems += check_geometry(ann, split)
+        # datasets made before the manifest recorded a protocol have no look-at to check
+        if "protocol" in manifest:
+            problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
         for i in range(len(ann["frame_id"])):
             jobs.append((str(root), split, manifest, {k: v[i] for k, v in ann.items()}))
     ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)

@@ -8,9 +8,12 @@ from datagen.io import save_npz
 from datagen.preview import handset_grasp
 from datagen.sphere import SphereSpec
 
-# a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded), 64 x 64 images
+# a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so
+# coarse a sphere is near the elbow, so the default exclusion would keep all 12), 64 x 64 images; the
+# sphere axis and the look-at are the paper protocol's defaults
 TINY_SPEC = dict(splits={"train": 1, "val": 0, "test": 1}, z_ego_m=(0.5,), n_backgrounds=2, n_gloves=1,
-                 sphere=SphereSpec(r_circ_m=0.4), width=64, height=64, fx=120.0, fy=120.0, cx=32.0, cy=32.0)
+                 sphere=SphereSpec(r_circ_m=0.4, exclude=("poles",)), width=64, height=64, fx=120.0, fy=120.0,
+                 cx=32.0, cy=32.0)
 
 
 def write_grasps(path, n=2):

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from datagen.dataset import DatasetSpec, Layout, lamp, parse_shard, split_of_grasps
+from datagen.dataset import DatasetSpec, Layout, lamp, parse_shard, protocol, split_of_grasps, view_directions_arm
+from datagen.sphere import SphereSpec, viewpoints
 
 
 def test_bijection_covers_every_frame_once():
@@ -58,6 +59,7 @@ def test_lamp_is_a_pure_function_of_seed_and_index():
     (dict(splits={"train": 7, "dev": 4}), "splits must map"),
     (dict(width=0), "image width must be a positive int"),
     (dict(rgb_format="bmp"), "rgb_format"),
+    (dict(look_at="centre"), "look_at must be 'box_centre' or a keypoint name .* got 'centre'"),
 ])
 def test_bad_dataset_spec(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -69,3 +71,31 @@ def test_parse_shard():
     for bad in ("4/4", "a/b", "1", "-1/3"):
         with pytest.raises(ValueError, match="shard"):
             parse_shard(bad)
+
+
+def test_default_protocol_is_the_papers_and_the_earlier_one_is_named():
+    paper = protocol(DatasetSpec())
+    assert paper["name"] == "paper" and paper["sphere_axis"] == "body" and paper["look_at"] == "middle_mcp"
+    assert paper["excluded_view_ids"] == [34, 50] and paper["look_at_index"] == 9
+    earlier = protocol(DatasetSpec(sphere=SphereSpec(axis="forearm", exclude=("poles",)), look_at="box_centre"))
+    assert earlier["name"] == "forearm_box_centre" and earlier["excluded_view_ids"] == [0, 91]
+    assert earlier["look_at_index"] is None
+    assert protocol(DatasetSpec(look_at="wrist"))["name"] == "custom"
+
+
+@pytest.mark.parametrize("axis", ["body", "forearm"])
+def test_view_directions_in_the_arm_frame(axis):
+    """(elbow, dorsal, thumb side) components: the published sphere has 16 views exactly perpendicular to
+    the forearm and its north pole on the back of the hand; the forearm sphere has none perpendicular."""
+    sphere = SphereSpec(axis=axis, exclude=())
+    ids, angles = viewpoints(sphere)
+    d = view_directions_arm(sphere, angles)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    perpendicular = int(np.sum(np.abs(d[:, 0]) < 1e-9))
+    if axis == "body":
+        assert perpendicular == 16
+        np.testing.assert_allclose(d[0], [0.0, 1.0, 0.0], atol=1e-12)  # north: dorsal
+        np.testing.assert_allclose(d[34], [np.cos(np.radians(10)), np.sin(np.radians(10)), 0.0], atol=1e-12)
+    else:
+        assert perpendicular == 0
+        np.testing.assert_allclose(d[0], [1.0, 0.0, 0.0], atol=1e-12)  # north: elbow

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from datagen.dataset import DatasetSpec, generate
+from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz
 from datagen.verify import verify
 
@@ -175,3 +176,80 @@ def test_verify_mask_and_depth_consistency(tiny, tmp_path):
     named = {(p["kind"], p["frame_id"]) for p in problems}
     assert ("visible_not_on_hand", fid) in named
     assert ("probe_depth", int(ann["frame_id"][j])) in named
+
+
+def _arm_frames(hand_pose):
+    """(N, 3, 3) columns hand -> elbow, dorsal, thumb side of each row's grasp, world frame."""
+    R = axis_angle_to_matrix(hand_pose[:, :3])
+    elbow, dorsal = -R[:, :, 0], R[:, :, 1]
+    return np.stack([elbow, dorsal, np.cross(elbow, dorsal)], axis=2)
+
+
+def test_paper_protocol_puts_the_middle_mcp_at_the_principal_point(tiny):
+    """The default aim (the published renderer's): keypoint 9 at (0, 0, z_ego) in every frame."""
+    root, _, _ = tiny
+    ds = root / "ds"
+    manifest = json.loads((ds / "manifest.json").read_text())
+    protocol = manifest["protocol"]
+    assert protocol["sphere_axis"] == "body" and protocol["look_at"] == "middle_mcp"
+    assert protocol["look_at_index"] == 9 and protocol["excluded_view_ids"] == [0, 11]
+    assert protocol["name"] == "custom"  # the tiny sphere is not the paper's
+    assert manifest["viewpoints"]["sphere"]["axis"] == "body"
+    directions = np.array(manifest["viewpoints"]["direction_arm"])
+    view_index = {v: i for i, v in enumerate(manifest["viewpoints"]["ids"])}
+    for split, ann in annotations(ds).items():
+        n = len(ann["frame_id"])
+        expected = np.zeros((n, 3))
+        expected[:, 2] = ann["z_ego"]
+        np.testing.assert_allclose(ann["keypoints_3d_cam"][:, 9], expected, atol=1e-6, rtol=0, err_msg=split)
+        np.testing.assert_allclose(ann["keypoints_2d"][:, 9], np.full((n, 2), 32.0), atol=1e-4, err_msg=split)
+        # the manifest's per-view direction is where each frame's camera stands, seen from the arm
+        T_world_cam = invert_transform(ann["T_cam_world"])
+        eye = T_world_cam[:, :3, 3]
+        kp9_world = transform_points(T_world_cam, ann["keypoints_3d_cam"][:, 9:10].astype(np.float64))[:, 0]
+        seen = np.einsum("nji,nj->ni", _arm_frames(ann["hand_pose"]), (eye - kp9_world) / ann["z_ego"][:, None])
+        want = directions[[view_index[v] for v in ann["view_id"]]]
+        np.testing.assert_allclose(seen, want, atol=1e-5, err_msg=split)
+        # the back of the hand is up in every image: the 2D dorsal direction from keypoint 9 points to -v
+        dorsal_cam = np.einsum("nij,nj->ni", ann["T_cam_world"][:, :3, :3], _arm_frames(ann["hand_pose"])[:, :, 1])
+        assert np.all(np.abs(dorsal_cam[:, 0]) < 1e-9) and np.all(dorsal_cam[:, 1] < 0), split
+
+
+def test_earlier_protocol_is_an_option_and_verifies(tiny, tmp_path):
+    """axis=forearm + look_at=box_centre: the cameras hupbench made before issue 13."""
+    from datagen.camera import look_at
+    from datagen.sphere import SphereSpec
+
+    _, grasps, _ = tiny
+    out = tmp_path / "earlier"
+    run(out, grasps, spec=dict(sphere=SphereSpec(r_circ_m=0.4, axis="forearm", exclude=("poles",)),
+                               look_at="box_centre"))
+    assert verify(out, workers=1, log=lambda *_: None)["ok"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["protocol"]["look_at"] == "box_centre" and manifest["protocol"]["look_at_index"] is None
+    assert manifest["protocol"]["sphere_axis"] == "forearm"
+    ann = annotations(out)["train"]
+    arm = _arm_frames(ann["hand_pose"])
+    kp_world = transform_points(invert_transform(ann["T_cam_world"]), ann["keypoints_3d_cam"].astype(np.float64))
+    centre = 0.5 * (kp_world.min(axis=1) + kp_world.max(axis=1))
+    for i in range(len(ann["frame_id"])):
+        elbow, dorsal, radial = arm[i].T
+        theta, phi = ann["theta"][i], ann["phi"][i]
+        direction = (np.sin(theta) * np.cos(phi) * dorsal + np.sin(theta) * np.sin(phi) * radial
+                     + np.cos(theta) * elbow)
+        T = look_at(centre[i] + ann["z_ego"][i] * direction, centre[i], up_world=-elbow)
+        np.testing.assert_allclose(ann["T_cam_world"][i], T, atol=1e-6)
+    # keypoint 9 is off the optical axis here
+    assert np.abs(ann["keypoints_3d_cam"][:, 9, :2]).max() > 0.005
+
+
+def test_verify_checks_the_protocols_look_at(tiny, tmp_path):
+    broken = _broken_copy(tiny, tmp_path)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["protocol"]["look_at"] = "wrist"
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    problems = verify(broken, workers=1, log=lambda *_: None)["problems"]
+    flagged = {p["frame_id"] for p in problems if p["kind"] == "look_at"}
+    ann = annotations(broken)
+    assert flagged == {int(f) for a in ann.values() for f in a["frame_id"]}
+    assert "wrist at" in next(p["detail"] for p in problems if p["kind"] == "look_at")
