@@ -6,14 +6,23 @@ name fails (``ctypes.CDLL`` / ``ctypes.cdll.LoadLibrary`` raise OSError, ``ctype
 returns None) and ``_tkinter`` (which links libtk and so libX11) cannot be imported, all before
 anything else is imported; it then renders one frame with RGB, depth and labels through
 :class:`datagen.render.Renderer` on the platform under test and reports what it saw.
+
+The slow test goes further where it can (root on Debian/Ubuntu): it really removes, in a private mount
+namespace, the library files of every X11/GL/EGL package that install.sh's package list does not pull in,
+and renders the same frame there, so install.sh's list is checked to be sufficient.
 """
 
 import json
 import math
 import os
+import re
+import shlex
+import shutil
 import subprocess
 import sys
+import sysconfig
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -126,3 +135,71 @@ def test_renders_rgb_depth_and_labels_without_x11_libraries(platform):
     assert red[0] > 150 and red[1] < 60 and red[2] < 60, red
     assert green[1] > 150 and green[0] < 60 and green[2] < 60, green
     assert seen["background_rgb"] == [255, 255, 255]
+
+
+#: Debian packages of X11 client libraries and GL/EGL stacks that a bare machine may lack
+X11_AND_GL_PACKAGES = re.compile(
+    r"^(libx11|libxau|libxcb|libxdmcp|libxext|libxfixes|libxft|libxi6|libxinerama|libxkbcommon-x11|libxmu|libxpm|"
+    r"libxrandr|libxrender|libxshmfence|libxss|libxt6|libxtst|libxv1|libxxf86|libxaw|libxcomposite|libxcursor|"
+    r"libxdamage|libtk|libglx|libgl1|libgles|libegl|libopengl|libosmesa|libglu|libglut|libglapi|libgbm|libwayland)"
+)
+
+
+def _install_sh_packages() -> list[str]:
+    text = (Path(__file__).resolve().parents[2] / "install.sh").read_text()
+    match = re.search(r'^DEB_PACKAGES="([^"]+)"', text, flags=re.M)
+    assert match, "install.sh no longer sets DEB_PACKAGES=\"...\""
+    return match.group(1).split()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("platform", ["egl", "osmesa"])
+def test_install_sh_packages_are_enough_on_a_machine_without_the_others(tmp_path, platform):
+    """A bare Debian box after install.sh, simulated: in a private mount namespace every library file of
+    the X11, GL and EGL packages outside the dependency closure of install.sh's DEB_PACKAGES reads as empty
+    (/dev/null bound over it) and the loader cache is rebuilt without them; then the frame of the test above
+    is rendered there."""
+    tools = ("unshare", "mount", "ldconfig", "dpkg-query", "apt-cache")
+    if sys.platform != "linux" or os.geteuid() != 0 or not all(shutil.which(t) for t in tools):
+        pytest.skip(f"needs root on Debian/Ubuntu with {', '.join(tools)}")
+    wanted = _install_sh_packages()
+    listed = subprocess.run(["dpkg-query", "-W", "-f=${Package} ${Status}\n"], capture_output=True, text=True,
+                            check=True).stdout.splitlines()
+    installed = {line.split()[0] for line in listed if line.endswith("install ok installed")}
+    if not set(wanted) <= installed:
+        pytest.skip(f"install.sh's packages are not all installed here: {sorted(set(wanted) - installed)}")
+    closure_out = subprocess.run(
+        ["apt-cache", "depends", "--recurse", "--no-recommends", "--no-suggests", "--no-conflicts", "--no-breaks",
+         "--no-replaces", "--no-enhances", *wanted], capture_output=True, text=True, check=True).stdout
+    closure = {line.strip() for line in closure_out.splitlines() if line and not line.startswith((" ", "<"))}
+    assert set(wanted) <= closure, f"apt-cache gave no dependency closure: {sorted(closure)[:20]}"
+    hidden_packages = sorted(p for p in installed if X11_AND_GL_PACKAGES.match(p) and p not in closure)
+    lib_dir = Path("/usr/lib") / sysconfig.get_config_var("MULTIARCH")
+
+    def libraries(packages):  # the shared-object files (symbolic links followed) of these packages
+        files = subprocess.run(["dpkg", "-L", *packages], capture_output=True, text=True).stdout.splitlines()
+        return {str(Path(f).resolve()) for f in files if f.startswith(f"{lib_dir}/") and ".so" in f
+                and Path(f).resolve().is_file()}
+
+    # a -dev package's libFOO.so link may point into a kept package: binding over it would hide that too
+    hidden = sorted(libraries(hidden_packages) - libraries(sorted(closure & installed)))
+    assert any("libXrender.so" in f for f in hidden) or "libxrender1" not in installed, hidden_packages
+    script = tmp_path / "bare.sh"
+    cache = tmp_path / "ld.so.cache"
+    script.write_text("set -e\n" + "".join(f"mount --bind /dev/null {shlex.quote(f)}\n" for f in hidden)
+                      + f"ldconfig -C {cache}\nmount --bind {cache} /etc/ld.so.cache\n"
+                      + 'exec "$@"\n')
+    env = {k: v for k, v in os.environ.items() if k not in ("PYOPENGL_PLATFORM", "DISPLAY")}
+    lookup = ("import ctypes.util; print(' '.join(n for n in ('X11', 'Xext', 'Xrender') "
+              "if ctypes.util.find_library(n) is None))")
+    # the namespace really lacks libXrender (none of install.sh's packages pulls it in)
+    missing = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", str(script), sys.executable, "-c",
+                              lookup], capture_output=True, text=True, timeout=120, env=env)
+    assert missing.returncode == 0 and "Xrender" in missing.stdout.split(), missing.stderr[-2000:]
+    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", str(script), sys.executable, "-c",
+                           RENDER_WITHOUT_X11, platform], capture_output=True, text=True, timeout=180, env=env)
+    assert proc.returncode == 0, (f"install.sh's packages {wanted} do not render with {platform} once "
+                                  f"{hidden_packages} are gone:\n{proc.stderr[-3000:]}")
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["platform"] == platform
+    assert result["cube_depth"] == pytest.approx(0.6, abs=1e-3) and result["labels"] == [0, 1, 3]
