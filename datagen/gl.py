@@ -3,8 +3,10 @@
 PyOpenGL fixes its platform (EGL or OSMesa) at first import, so the choice is
 made here, once per process, before anything imports ``OpenGL`` or
 ``pyrender``: EGL first (Mesa llvmpipe on a CPU machine, the vendor driver on
-a GPU), OSMesa as the fallback. This module is also the one place that
-restores ``np.infty`` (removed in numpy 2, still used by pyrender 0.1.45).
+a GPU), OSMesa as the fallback. This module is also the one place that imports
+pyrender (:func:`load_pyrender`): without its interactive viewer, which would
+pull in pyglet's X11 window system, and with ``np.infty`` restored (removed in
+numpy 2, still used by pyrender 0.1.45).
 """
 
 from __future__ import annotations
@@ -13,16 +15,21 @@ import ctypes
 import ctypes.util
 import os
 import sys
+import types
 import warnings
 
 import numpy as np
 
 PLATFORMS = ("egl", "osmesa")
+#: what EGL rendering needs on Debian/Ubuntu (install.sh installs it): the GLVND EGL loader, Mesa's EGL
+#: vendor library and its DRI drivers (llvmpipe on a CPU), and libOpenGL for GL without GLX/X11
+EGL_PACKAGES_HINT = "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0"
 _chosen: str | None = None
 
 
 def _egl_works() -> bool:
-    """Does an EGL device display initialise? Asked through ctypes, so PyOpenGL stays unimported.
+    """Does an EGL device display initialise, with a GL library to draw with? Asked through
+    ctypes, so PyOpenGL stays unimported.
 
     Mirrors what pyrender does: enumerate EGL devices (EGL_EXT_device_enumeration)
     and open a platform display on the first one; no window system is needed.
@@ -56,7 +63,15 @@ def _egl_works() -> bool:
     if not egl.eglInitialize(display, ctypes.byref(major), ctypes.byref(minor)):
         return False
     egl.eglTerminate(display)
-    return True
+    # PyOpenGL's EGL platform takes GL from libOpenGL (GLVND, no X11) or else libGL; without
+    # either, pyrender fails later on an opaque AttributeError, so EGL counts as unavailable
+    for gl_name, soname in (("OpenGL", "libOpenGL.so.0"), ("GL", "libGL.so.1")):
+        try:
+            ctypes.CDLL(ctypes.util.find_library(gl_name) or soname)
+            return True
+        except OSError:
+            continue
+    return False
 
 
 def _osmesa_works() -> bool:
@@ -106,7 +121,10 @@ def configure(platform: str | None = None) -> str:
     if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") not in PLATFORMS:
         raise RuntimeError("OpenGL was imported before datagen.gl.configure(); import hupbench renderers first")
     if requested == "egl" and not _egl_works():
-        raise RuntimeError("EGL was requested but no EGL display initialises: apt-get install libegl1 libegl-mesa0")
+        raise RuntimeError(
+            f"EGL was requested but does not work here (no EGL display initialises, or no libOpenGL/libGL): "
+            f"{EGL_PACKAGES_HINT}"
+        )
     if requested == "osmesa" and not _osmesa_works():
         raise RuntimeError("OSMesa was requested but libOSMesa is missing: apt-get install libosmesa6")
     if requested is None:
@@ -117,7 +135,7 @@ def configure(platform: str | None = None) -> str:
             warnings.warn("EGL is not available; rendering with OSMesa (slower)", RuntimeWarning, stacklevel=2)
         else:
             raise RuntimeError(
-                "no offscreen OpenGL platform: install Mesa EGL (apt-get install libegl1 libegl-mesa0) "
+                f"no offscreen OpenGL platform: install Mesa EGL ({EGL_PACKAGES_HINT}) "
                 "or OSMesa (apt-get install libosmesa6)"
             )
     os.environ["PYOPENGL_PLATFORM"] = requested
@@ -125,14 +143,48 @@ def configure(platform: str | None = None) -> str:
     return requested
 
 
-def patch_pyrender() -> None:
+class _OffscreenOnlyViewer:
+    """Stands in for ``pyrender.Viewer``, which hupbench never opens (see :func:`load_pyrender`)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        raise RuntimeError(
+            "pyrender's interactive Viewer is not loaded in a process that renders with hupbench: it needs "
+            "pyglet's X11 window system; hupbench renders offscreen only (EGL or OSMesa)"
+        )
+
+
+def load_pyrender() -> types.ModuleType:
+    """Import pyrender for offscreen rendering and return it. Call after :func:`configure`.
+
+    ``import pyrender`` imports its interactive viewer, a ``pyglet.window.Window``
+    subclass: pyglet's window module loads libX11, libXext and libXrender (and
+    pyrender's viewer tries tkinter), none of which offscreen EGL or OSMesa
+    rendering uses and which a bare Debian box or a GPU server does not have.
+    A stand-in ``pyrender.viewer`` is registered before the import, so pyglet is
+    never imported; pyglet's own headless mode is no substitute, because it still
+    loads libGL (GLX, hence libX11) and needs EGL even when OSMesa renders.
+    A pyrender the process had already imported is returned as it is.
+    """
+    if _chosen is None:
+        raise RuntimeError("datagen.gl.configure() must choose the platform before pyrender is imported")
+    if "pyrender" not in sys.modules:
+        viewer = types.ModuleType("pyrender.viewer", "hupbench stand-in for pyrender's X11 viewer (offscreen only)")
+        viewer.Viewer = _OffscreenOnlyViewer
+        sys.modules.setdefault("pyrender.viewer", viewer)
+    import pyrender
+
+    _patch_pyrender_egl()
+    return pyrender
+
+
+def _patch_pyrender_egl() -> None:
     """Make pyrender's EGL renderers independent of each other.
 
     pyrender's ``EGLPlatform.delete_context`` calls ``eglTerminate`` on the
     display, but an EGL device display is one handle per process: terminating
     it when one renderer closes breaks every other live renderer
     (EGL_BAD_DISPLAY). Here closing destroys only the renderer's own context;
-    the display lives as long as the process. Call after :func:`configure`.
+    the display lives as long as the process.
     """
     if _chosen != "egl":
         return

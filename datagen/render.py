@@ -113,9 +113,7 @@ class Renderer:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
         self.platform = gl.configure(platform)
-        gl.patch_pyrender()
-        import pyrender
-
+        pyrender = gl.load_pyrender()  # offscreen only: never pyglet's X11 window system
         self._pyrender = pyrender
         self.intrinsics = intrinsics
         self._renderer = pyrender.OffscreenRenderer(intrinsics.width, intrinsics.height)
