@@ -88,6 +88,30 @@ def test_full_scene_labels_are_exactly_the_parts_present(renderer):
     np.testing.assert_array_equal(out["depth"] > 0, out["seg"] > 0)
 
 
+def test_orientation_marker_renders_green_as_probe_on_the_plus_x_end(renderer):
+    """The marker is its own part, drawn in PROBE_MARKER_RGB, labelled probe; seen from +x only."""
+    from datagen.preview import handset_grasp
+    from datagen.scene import PROBE_MARKER_RGB, scene_parts
+
+    parts = [p for p in scene_parts(handset_grasp()) if p.name.startswith("probe")]
+    assert [p.name for p in parts] == ["probe_body", "probe_lens", "probe_marker"]
+    marker = parts[-1]
+    assert marker.label == SEG_LABELS["probe"] and marker.color == PROBE_MARKER_RGB
+    renderer.set_parts(parts)
+    head = np.array([0.0, 0.0, 0.03])
+    greens = {}
+    for side in (1.0, -1.0):
+        # the probe head from 0.5 m on its +x (or -x) side, a little above, lit from the camera
+        eye = head + 0.5 * np.array([side * np.cos(np.deg2rad(20)), 0.0, np.sin(np.deg2rad(20))])
+        out = renderer.render(look_at(eye, head, up_world=(0.0, 0.0, 1.0)), ("rgb", "seg"))
+        rgb = out["rgb"].astype(int)
+        green = (rgb[..., 1] > rgb[..., 0] + 60) & (rgb[..., 1] > rgb[..., 2] + 60)
+        assert np.all(out["seg"][green] == SEG_LABELS["probe"])
+        greens[side] = int(green.sum())
+    # 14 x 8 mm at 0.5 m is about 13 x 8 px of the 256 px image, foreshortened on the sloping shoulder
+    assert greens[1.0] >= 30 and greens[-1.0] == 0
+
+
 def test_camera_at_the_pole_renders_without_nan(renderer):
     from datagen.preview import handset_grasp
     from datagen.scene import keypoints_world, scene_parts
