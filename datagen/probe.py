@@ -92,10 +92,13 @@ class ProbeSpec:
     apart. Here it is a raised pad moulded into the **+x** end of the head
     (the end of the array on the probe frame's +x axis), centred on y = 0,
     on the shoulder where the head narrows towards the neck (z about 30 to
-    38 mm): 14 mm along the shoulder, 8 mm across, a rounded pad whose
-    height rises smoothly over 3 mm from its outline to 2 mm above the
-    housing, drawn in its own bright green (``datagen.scene.PROBE_MARKER_RGB``, the colour of a marker light)
-    and labelled probe (3) in the segmentation. It makes the probe no longer
+    38 mm): 14 mm along the shoulder by 20 mm around the end (the end is
+    about 23 mm thick, so the pad covers its narrow face and wraps onto
+    both rounded edges, to y = +-9.3 mm), its height rising smoothly over
+    3 mm from its outline to 2 mm above the housing. It is drawn in its own
+    bright green, glowing a little like a marker light
+    (``datagen.scene.PROBE_MARKER_RGB`` and ``PROBE_MARKER_EMISSIVE``), and
+    labelled probe (3) in the segmentation. It makes the probe no longer
     symmetric under the half turn about its long axis (x, y) -> (-x, -y),
     which otherwise maps the picture onto itself and swaps the 8 box corners
     in pairs, so the corner labels can be read from the image.
@@ -103,18 +106,24 @@ class ProbeSpec:
     Why this size and place: real marks are ridges of 2-3 mm or dots and
     lights of 3-5 mm; no CAD drawing of the C1-5-D's mark was available, so
     only its kind and place (one end of the array, on the head) follow the
-    real probe. It is larger than a real mark so that the models' 128 px
-    input can see it: at the HUP-3D camera (f = 480 px at 256 px) 1 mm is
-    0.96 px at 0.5 m and 0.6 px at 0.8 m in the stored 256 px image, half
-    that at 128 px, so the pad covers about 7 x 4 px at 0.5 m and 4 x 2 px
-    at 0.8 m of a 128 px input where the +x end faces the camera, and its
-    colour differs from the grey housing, the dark lens, both gloves and
-    the arm. It sits on the shoulder rather than on the flat end face
-    because the flat end (x = 36 mm) is what bounds the box: the shoulder
-    falls away from it there, so the raised pad stays inside the box (its
-    outermost point at x = 34.3 mm) and the 8 box corners (keypoints 21-28)
-    do not move (the build refuses a spec whose marker leaves the box).
-    Fingers of the grasps rest on the neck and the handle, above it.
+    real probe, and it is made larger so that the models' 128 px input can
+    see it. At the HUP-3D camera (f = 480 px at 256 px) 1 mm is 0.96 px at
+    0.5 m and 0.6 px at 0.8 m of the stored 256 px image, half that at
+    128 px: the pad spans up to about 7 x 10 px at 0.5 m and 4 x 6 px at
+    0.8 m of a 128 px input. Wrapping it round the end's edges lets views of
+    the head's broad faces see it too: on 160 frames of 3 grasps rendered
+    by ``hupbench generate`` (40 views, 2 backgrounds) it showed at least
+    8 green pixels of the 256 px image in 45 % of frames, against 26 % for
+    an 8 mm wide pad with the same glow (24 mm: 52 %); a one-sided mark cannot show in views of
+    the other end, where its absence is the cue. Its green differs from the
+    grey housing, the dark lens, both gloves and the arm. It sits on the
+    shoulder rather than on the flat end face because the flat end
+    (x = 36 mm) is what bounds the box: the shoulder falls away from it
+    there, so the raised pad stays inside the box (its outermost point at
+    x = 34.4 mm, y = 9.3 mm of the box's 36 and 15 mm) and the 8 box corners
+    (keypoints 21-28) do not move (the build refuses a spec whose marker
+    leaves the box). Fingers of the grasps rest on the neck and the handle,
+    above it.
 
     Attributes:
         lens_radius: radius of curvature of the cylindrical acoustic lens
@@ -142,16 +151,17 @@ class ProbeSpec:
         marker_length: length of the marker along the +x side's meridian
             (the profile line y = 0 of the head's +x end, running up the
             shoulder from the lens edge towards the neck).
-        marker_width: width of the marker across it (around the head's end,
-            towards +y and -y); its footprint is a stadium (a rectangle with
-            semicircular ends) of ``marker_length`` x ``marker_width``.
+        marker_width: width of the marker across it, measured around the
+            head's end (arc length towards +y and -y); its footprint is a
+            stadium (a rectangle with semicircular ends) of ``marker_length``
+            x ``marker_width``.
         marker_edge: width of the smooth ramp from the housing up to the
             marker's flat top, inside the footprint.
         marker_z: height z (probe frame) of the marker's centre on the +x
             meridian.
         marker_subdivisions: each quad of the sweep under the marker is split
             into this many x this many, so that its outline is resolved to
-            about half a millimetre.
+            about 0.7 mm (the sweep's quads there are about 2 mm).
         n_around: vertices per ring (a multiple of 4, so that rings are
             sampled symmetrically about the x and y axes).
         n_lens_rings: rings on the lens cap, apex excluded.
@@ -181,10 +191,10 @@ class ProbeSpec:
     strain_relief_diameter: float = 0.015
     marker_height: float = 0.002
     marker_length: float = 0.014
-    marker_width: float = 0.008
+    marker_width: float = 0.020
     marker_edge: float = 0.003
     marker_z: float = 0.034
-    marker_subdivisions: int = 4
+    marker_subdivisions: int = 3
     n_around: int = 80
     n_lens_rings: int = 10
     n_fillet_rings: int = 4
@@ -220,9 +230,9 @@ class ProbeSpec:
                 f"n_body_rings >= 8, n_cap_rings >= 2, got {self.n_lens_rings}, {self.n_fillet_rings}, "
                 f"{self.n_body_rings}, {self.n_cap_rings}"
             )
-        if self.marker_width <= 2 * self.marker_edge or self.marker_length < self.marker_width:
+        if min(self.marker_length, self.marker_width) <= 2 * self.marker_edge:
             raise ValueError(
-                f"ProbeSpec marker footprint must have marker_length >= marker_width > 2 * marker_edge, got "
+                f"ProbeSpec marker footprint must have marker_length and marker_width > 2 * marker_edge, got "
                 f"length {self.marker_length}, width {self.marker_width}, edge {self.marker_edge}"
             )
         r = self.lens_edge_radius
@@ -579,14 +589,15 @@ class _MarkedMesh(NamedTuple):
 
 
 def _marker_profile(t: np.ndarray, s: np.ndarray, spec: ProbeSpec, t0: float) -> tuple[np.ndarray, np.ndarray]:
-    """Height of the marker above the housing and the distance from its spine.
+    """Height of the marker above the housing and the distance from its core.
 
     The footprint is a stadium in the surface coordinates (t along the +x
-    meridian, s around the ring): a spine segment of length ``marker_length -
-    marker_width`` along t, centred at ``t0``, thickened by ``marker_width /
-    2``. The height is ``marker_height`` on the plateau and falls to 0 with a
-    smoothstep over the last ``marker_edge`` before the footprint's outline,
-    so the surface stays C1.
+    meridian, s around the ring), ``marker_length`` along t by
+    ``marker_width`` along s, centred at (``t0``, 0): its core segment (along
+    the longer of the two) thickened by half the shorter extent. The height
+    is ``marker_height`` on the plateau and falls to 0 with a smoothstep over
+    the last ``marker_edge`` before the footprint's outline, so the surface
+    stays C1.
 
     Args:
         t, s: (...) float64 surface coordinates, metres.
@@ -595,14 +606,19 @@ def _marker_profile(t: np.ndarray, s: np.ndarray, spec: ProbeSpec, t0: float) ->
 
     Returns:
         height: (...) float64 metres, 0 outside the footprint.
-        spine_distance: (...) float64 metres; the footprint is ``spine_distance < marker_width / 2``.
+        core_distance: (...) float64 metres; the footprint is ``core_distance < marker_rim(spec)``.
     """
-    half_spine = 0.5 * (spec.marker_length - spec.marker_width)
-    along = np.clip(t - t0, -half_spine, half_spine)
-    spine_distance = np.hypot(t - t0 - along, s)
-    rim = 0.5 * spec.marker_width
-    height = spec.marker_height * _smoothstep((rim - spine_distance) / spec.marker_edge)
-    return height, spine_distance
+    rim = _marker_rim(spec)
+    dt = np.maximum(np.abs(t - t0) - (0.5 * spec.marker_length - rim), 0.0)
+    ds = np.maximum(np.abs(s) - (0.5 * spec.marker_width - rim), 0.0)
+    core_distance = np.hypot(dt, ds)
+    height = spec.marker_height * _smoothstep((rim - core_distance) / spec.marker_edge)
+    return height, core_distance
+
+
+def _marker_rim(spec: ProbeSpec) -> float:
+    """Radius of the footprint's rounded ends: half its shorter extent, metres."""
+    return 0.5 * min(spec.marker_length, spec.marker_width)
 
 
 def _add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -690,7 +706,7 @@ def _add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: 
     s_fine = bilinear(s_ring)
     normal = bilinear(normals)
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    height, spine = _marker_profile(t_fine, s_fine, spec, t0)
+    height, core = _marker_profile(t_fine, s_fine, spec, t0)
     outline = np.zeros(height.shape, dtype=bool)
     outline[[0, -1], :] = outline[:, [0, -1]] = True
     if np.any(height[outline] != 0.0):
@@ -714,8 +730,8 @@ def _add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: 
     patch = np.stack([t1, t2], axis=2).reshape(-1, 3)
     patch_rows = np.repeat((k0[:-1, :-1] + 1).reshape(-1), 2)
     patch_cols = np.repeat(j0[:-1, :-1].reshape(-1), 2)
-    cell_spine = np.stack([spine[:-1, :-1], spine[:-1, 1:], spine[1:, :-1], spine[1:, 1:]]).mean(axis=0)
-    patch_marker = np.repeat((cell_spine < half_w).reshape(-1), 2)
+    cell_core = np.stack([core[:-1, :-1], core[:-1, 1:], core[1:, :-1], core[1:, 1:]]).mean(axis=0)
+    patch_marker = np.repeat((cell_core < _marker_rim(spec)).reshape(-1), 2)
 
     block_cols = (np.arange(-big_j, big_j)) % m
     block = (rows >= k_lo + 1) & (rows <= k_hi) & np.isin(cols, block_cols)

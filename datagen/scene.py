@@ -25,8 +25,11 @@ ARM_RGB = (1.0, 0.6784, 0.3765)
 PROBE_BODY_RGB = (0.86, 0.86, 0.84)
 PROBE_LENS_RGB = (0.18, 0.19, 0.21)
 #: the probe's orientation marker (datagen.probe.ProbeSpec): the saturated green of a marker light, far
-#: from the grey housing, the dark lens, both glove colours, the arm and the skin tones of the backgrounds
+#: from the grey housing, the dark lens, both glove colours, the arm and the skin tones of the backgrounds;
+#: it also glows (PROBE_MARKER_EMISSIVE) like the light it stands for, so it stays green in the shadow of
+#: the hand or away from the lamp
 PROBE_MARKER_RGB = (0.05, 0.85, 0.25)
+PROBE_MARKER_EMISSIVE = (0.02, 0.45, 0.12)
 
 
 @dataclass
@@ -123,5 +126,6 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
     ]
     if marker.any():
         marker_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[marker], process=False)
-        parts.append(MeshPart("probe_marker", marker_mesh, SEG_LABELS["probe"], PROBE_MARKER_RGB, roughness=0.3))
+        parts.append(MeshPart("probe_marker", marker_mesh, SEG_LABELS["probe"], PROBE_MARKER_RGB, roughness=0.3,
+                              emissive=PROBE_MARKER_EMISSIVE))
     return parts

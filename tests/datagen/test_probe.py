@@ -74,8 +74,8 @@ def test_mesh_is_closed_outward_and_within_budget(probe: Probe) -> None:
     assert mesh.is_watertight
     assert mesh.is_winding_consistent
     assert mesh.volume > 0
-    # 11,360 faces for the sweep and about 1,340 more for the refined patch under the marker
-    assert len(mesh.faces) <= 13_000
+    # 11,360 faces for the sweep and about 1,650 more for the refined patch under the marker
+    assert len(mesh.faces) <= 14_000
     # a probe about 165 x 72 x 28 mm holds roughly 100-200 cm^3
     assert 100e-6 < mesh.volume < 200e-6
     assert np.all(mesh.area_faces > 0)
@@ -98,8 +98,8 @@ def test_mesh_is_mirror_symmetric_except_for_the_marker(probe: Probe, plain: Pro
     # end lose their mirror image, nothing else
     lost = ~_mirrored(v, [-1, 1, 1])
     assert lost.sum() > 100
-    assert np.abs(v[lost, 0]).min() > 0.02 and np.abs(v[lost, 1]).max() < 0.01
-    assert 0.025 < v[lost, 2].min() and v[lost, 2].max() < 0.045
+    assert np.abs(v[lost, 0]).min() > 0.015 and np.abs(v[lost, 1]).max() < 0.013
+    assert 0.02 < v[lost, 2].min() and v[lost, 2].max() < 0.045
     raised = plain.signed_distance_exact(v) > 1e-6
     assert raised.sum() > 50 and lost[raised].all()
 
@@ -129,14 +129,16 @@ def test_marker_is_on_the_plus_x_end_of_the_head(probe: Probe, plain: Probe) -> 
     # documented side: +x, centred on y = 0, on the head's shoulder around marker_z
     assert v[:, 0].min() > 0.02
     np.testing.assert_allclose(v[:, 1].max(), -v[:, 1].min(), atol=1e-12)
-    assert v[:, 1].max() == pytest.approx(spec.marker_width / 2, abs=0.5 * MM)
+    # the width is measured around the rounded end, so the marker reaches a little less far in y
+    assert 0.8 * spec.marker_width / 2 < v[:, 1].max() < spec.marker_width / 2
     assert v[:, 2].min() > probe.region_z.lens[1] and v[:, 2].max() < probe.region_z.head[1]
     assert v[:, 2].min() < spec.marker_z < v[:, 2].max()
-    # its area is about that of the flat 14 x 8 mm stadium, plus what the slopes of the rounded pad add
-    stadium = spec.marker_width * (spec.marker_length - spec.marker_width) + np.pi * (spec.marker_width / 2) ** 2
+    # its area is about that of the flat 14 x 20 mm stadium, plus what the slopes of the rounded pad add
+    rim = min(spec.marker_length, spec.marker_width) / 2
+    stadium = spec.marker_length * spec.marker_width - (4 - np.pi) * rim**2
     assert stadium < mesh.area_faces[marker].sum() < 1.3 * stadium
-    # the pad stands marker_height proud of the housing it was moulded into
-    assert plain.signed_distance_exact(v).max() == pytest.approx(spec.marker_height, abs=1e-9)
+    # the pad stands marker_height proud of the housing it was moulded into (up to the sweep's chords)
+    assert plain.signed_distance_exact(v).max() == pytest.approx(spec.marker_height, abs=0.05 * MM)
     # nothing changed on the -x end
     far = mesh.vertices[:, 0] < 0
     assert np.abs(plain.signed_distance_exact(mesh.vertices[far])).max() < 1e-12
@@ -162,7 +164,8 @@ def test_signed_distance_sign_at_the_marker(probe: Probe, plain: Probe) -> None:
     outside = mesh.vertices[top] + 1 * MM * normal
     for points, sign in ((inside, -1.0), (outside, 1.0)):
         exact = probe.signed_distance_exact(points)
-        np.testing.assert_allclose(exact, sign * 1 * MM, atol=0.05 * MM)
+        # 1 mm along the vertex normal is 1 mm from the surface up to the pad's curvature
+        np.testing.assert_allclose(exact, sign * 1 * MM, atol=0.1 * MM)
         np.testing.assert_allclose(probe.signed_distance(points), exact, atol=0.3 * MM)
         torch_d = probe.signed_distance_torch(torch.tensor(points)).numpy()
         np.testing.assert_allclose(torch_d, probe.signed_distance(points), atol=1e-12)
@@ -448,8 +451,8 @@ def test_bad_torch_points_raise(probe: Probe, points, match) -> None:
         ({"n_body_rings": 3}, "ring counts too small"),
         ({"marker_height": -0.001}, "marker_height must be >= 0"),
         ({"marker_subdivisions": 2.5}, "marker_subdivisions must be an int"),
-        ({"marker_width": 0.005}, "marker_length >= marker_width > 2 \\* marker_edge"),
-        ({"marker_length": 0.006}, "marker_length >= marker_width"),
+        ({"marker_width": 0.005}, "marker_length and marker_width > 2 \\* marker_edge"),
+        ({"marker_length": 0.006}, "marker_length and marker_width > 2 \\* marker_edge"),
     ],
 )
 def test_bad_spec_raises(change, match) -> None:
@@ -463,7 +466,9 @@ def test_bad_spec_raises(change, match) -> None:
         ({"marker_z": 0.005}, "must lie on the head's housing|must lie on the housing"),
         ({"marker_z": 0.12}, "must lie on the head's housing"),
         ({"marker_height": 0.01}, "sticks out of the probe's bounding box"),
-        ({"marker_width": 0.03, "marker_length": 0.03}, "wider than the head's end|sticks out|must lie on"),
+        ({"marker_length": 0.05}, "must lie on the head's housing"),
+        ({"marker_width": 0.03, "marker_length": 0.03}, "sticks out of the probe's bounding box"),
+        ({"marker_width": 0.08}, "wider than the head's end"),
     ],
 )
 def test_misplaced_marker_is_refused(change, match) -> None:
