@@ -333,7 +333,8 @@ def _spread_ratio(pred3d: np.ndarray, gt3d: np.ndarray, log) -> dict[str, float 
     log(f"spread ratio of predicted to true 3D keypoints across frames (1 = varies like the truth): {shown}")
     for axis in M.collapsed_axes(ratios):
         log(f"warning: predicted 3D keypoints barely vary along the camera {axis} axis across frames: spread ratio "
-            f"{ratios[axis]:.2f} < {M.SPREAD_RATIO_WARN} of the truth's (the model may give one {axis} for every image)")
+            f"{ratios[axis]:.2f} < {M.SPREAD_RATIO_WARN} of the truth's "
+            f"(the model may give one {axis} for every image)")
     return ratios
 
 

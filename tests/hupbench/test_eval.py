@@ -140,10 +140,12 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
         gt = ann["keypoints_3d_cam"].astype(np.float64)
     expected = gt.copy()
     expected[:, 21:] = gt[:, 21:][:, half_turn]
-    expected[..., 0] = gt[0, :, 0]
+    expected[..., 0] = expected[0, :, 0]
     # only the frozen x remains in the symmetric error; the plain one also pays for the swapped labels
     frozen = np.abs(gt[..., 0] - gt[0, :, 0])[:, 21:]
     assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(1000 * frozen.mean(), rel=1e-4)
+    plain = 1000 * np.linalg.norm(expected - gt, axis=-1)[:, 21:].mean()
+    assert m["mpjpe_mm"]["probe"] == pytest.approx(plain, rel=1e-4)
     assert m["mpjpe_mm"]["probe"] > m["probe_symmetric_mpjpe_mm"] + 10.0
     assert m["spread_ratio"]["x"] == 0.0
     assert m["spread_ratio"]["y"] == pytest.approx(1.0, abs=1e-9) and m["spread_ratio"]["z"] == pytest.approx(1.0)

@@ -1,5 +1,6 @@
 """Metric tests: hand-computed answers, invariances, degenerate sets, numpy vs torch agreement."""
 
+import itertools
 import math
 
 import numpy as np
@@ -226,7 +227,7 @@ HALF_TURN_PERM = (6, 7, 4, 5, 2, 3, 0, 1)
 def _probe_frames(n=3, seed=0):
     """(n, 29, 3) truth: random hands and an axis-centred probe box, rotated and moved per frame."""
     rng = np.random.default_rng(seed)
-    bits = np.array(list(__import__("itertools").product((0, 1), repeat=3)), np.float64)
+    bits = np.array(list(itertools.product((0, 1), repeat=3)), np.float64)
     box = (2 * bits - 1) * [0.036, 0.015, 0.0825] + [0.0, 0.0, 0.0825]          # probe frame
     frames = np.empty((n, 29, 3))
     for i in range(n):
@@ -241,8 +242,6 @@ def test_half_turn_permutation_is_read_from_the_corners():
     # the documented corner order (ix, iy, iz) -> (1 - ix, 1 - iy, iz)
     assert M.PROBE_SYMMETRIES["half_turn"] == (tuple(range(8)), HALF_TURN_PERM)
     assert M.PROBE_SYMMETRIES["none"] == (tuple(range(8)),)
-    import itertools
-
     for k, (ix, iy, iz) in enumerate(itertools.product((0, 1), repeat=3)):
         assert HALF_TURN_PERM[k] == 4 * (1 - ix) + 2 * (1 - iy) + iz
     _, box = _probe_frames()
