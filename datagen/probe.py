@@ -17,10 +17,20 @@ sheared along z by the same lens sag, so the lower edge of the housing
 follows the lens arc and the head reads as a fan; the shear fades out
 towards the neck.
 
+An orientation marker (a raised green pad on the +x end of the head, see
+:class:`ProbeSpec`) is moulded into the sweep by refining the quads under it
+and pushing them out, so the mesh stays one closed surface. Without it the
+probe would be exactly mirror-symmetric about x = 0 and y = 0, hence
+unchanged by a half turn about its long axis; with it only the mirror
+y -> -y remains, which no rigid motion can produce.
+
 The signed distance is gridded: exact point-to-triangle distances (our own
 vectorised closest-point computation, not trimesh's) at the nodes of a
 regular grid, signed with angle-weighted pseudo-normals, then interpolated
 trilinearly (numpy and differentiable torch versions of the same formula).
+The grid of the symmetric sweep is computed on one quadrant and mirrored;
+the nodes the marker can affect are then recomputed exactly on the marked
+mesh, so every node is exact for the probe as built.
 
 Convention:
     Metres. Probe frame: origin at the lens apex (the centre of the curved
@@ -75,6 +85,46 @@ class ProbeSpec:
     extents along y of the probe frame; heights are z of the probe frame on
     the long axis (x = y = 0), measured from the lens apex.
 
+    Orientation marker (the ``marker_*`` fields): like every convex probe,
+    the real one carries a mark at one end of its transducer array (a raised
+    ridge or dot, on some probes a light) that matches the orientation mark
+    on the scanner's screen; it is what tells the two ends of the array
+    apart. Here it is a raised pad moulded into the **+x** end of the head
+    (the end of the array on the probe frame's +x axis), centred on y = 0,
+    on the shoulder where the head narrows towards the neck (z about 30 to
+    38 mm): 14 mm along the shoulder by 20 mm around the end (the end is
+    about 23 mm thick, so the pad covers its narrow face and wraps onto
+    both rounded edges, to y = +-9.3 mm), its height rising smoothly over
+    3 mm from its outline to 2 mm above the housing. It is drawn in its own
+    bright green, glowing a little like a marker light
+    (``datagen.scene.PROBE_MARKER_RGB`` and ``PROBE_MARKER_EMISSIVE``), and
+    labelled probe (3) in the segmentation. It makes the probe no longer
+    symmetric under the half turn about its long axis (x, y) -> (-x, -y),
+    which otherwise maps the picture onto itself and swaps the 8 box corners
+    in pairs, so the corner labels can be read from the image.
+
+    Why this size and place: real marks are ridges of 2-3 mm or dots and
+    lights of 3-5 mm; no CAD drawing of the C1-5-D's mark was available, so
+    only its kind and place (one end of the array, on the head) follow the
+    real probe, and it is made larger so that the models' 128 px input can
+    see it. At the HUP-3D camera (f = 480 px at 256 px) 1 mm is 0.96 px at
+    0.5 m and 0.6 px at 0.8 m of the stored 256 px image, half that at
+    128 px: the pad spans up to about 7 x 10 px at 0.5 m and 4 x 6 px at
+    0.8 m of a 128 px input. Wrapping it round the end's edges lets views of
+    the head's broad faces see it too: on 160 frames of 3 grasps rendered
+    by ``hupbench generate`` (40 views, 2 backgrounds) it showed at least
+    8 green pixels of the 256 px image in 45 % of frames, against 26 % for
+    an 8 mm wide pad with the same glow (24 mm: 52 %); a one-sided mark cannot show in views of
+    the other end, where its absence is the cue. Its green differs from the
+    grey housing, the dark lens, both gloves and the arm. It sits on the
+    shoulder rather than on the flat end face because the flat end
+    (x = 36 mm) is what bounds the box: the shoulder falls away from it
+    there, so the raised pad stays inside the box (its outermost point at
+    x = 34.4 mm, y = 9.3 mm of the box's 36 and 15 mm) and the 8 box corners
+    (keypoints 21-28) do not move (the build refuses a spec whose marker
+    leaves the box). Fingers of the grasps rest on the neck and the handle,
+    above it.
+
     Attributes:
         lens_radius: radius of curvature of the cylindrical acoustic lens
             (its axis is parallel to y).
@@ -95,6 +145,23 @@ class ProbeSpec:
             from the handle's end face to the cable end.
         strain_relief_diameter: diameter of the strain relief at its root; it
             tapers to 85 % of that at the cable end.
+        marker_height: how far the orientation marker stands out of the
+            housing (along the surface normal); 0 builds the probe without a
+            marker, exactly mirror-symmetric about x = 0 and y = 0.
+        marker_length: length of the marker along the +x side's meridian
+            (the profile line y = 0 of the head's +x end, running up the
+            shoulder from the lens edge towards the neck).
+        marker_width: width of the marker across it, measured around the
+            head's end (arc length towards +y and -y); its footprint is a
+            stadium (a rectangle with semicircular ends) of ``marker_length``
+            x ``marker_width``.
+        marker_edge: width of the smooth ramp from the housing up to the
+            marker's flat top, inside the footprint.
+        marker_z: height z (probe frame) of the marker's centre on the +x
+            meridian.
+        marker_subdivisions: each quad of the sweep under the marker is split
+            into this many x this many, so that its outline is resolved to
+            about 0.7 mm (the sweep's quads there are about 2 mm).
         n_around: vertices per ring (a multiple of 4, so that rings are
             sampled symmetrically about the x and y axes).
         n_lens_rings: rings on the lens cap, apex excluded.
@@ -122,6 +189,12 @@ class ProbeSpec:
     length: float = 0.165
     strain_relief_length: float = 0.017
     strain_relief_diameter: float = 0.015
+    marker_height: float = 0.002
+    marker_length: float = 0.014
+    marker_width: float = 0.020
+    marker_edge: float = 0.003
+    marker_z: float = 0.034
+    marker_subdivisions: int = 3
     n_around: int = 80
     n_lens_rings: int = 10
     n_fillet_rings: int = 4
@@ -141,9 +214,9 @@ class ProbeSpec:
                     raise ValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")
                 if not math.isfinite(v):
                     raise ValueError(f"ProbeSpec.{f.name} must be finite, got {v!r}")
-            if f.name == "sdf_margin":
+            if f.name in ("sdf_margin", "marker_height"):
                 if v < 0:
-                    raise ValueError(f"ProbeSpec.sdf_margin must be >= 0, got {v!r}")
+                    raise ValueError(f"ProbeSpec.{f.name} must be >= 0, got {v!r}")
             elif f.name == "handle_flare":
                 if v < 0:
                     raise ValueError(f"ProbeSpec.handle_flare must be >= 0, got {v!r}")
@@ -156,6 +229,11 @@ class ProbeSpec:
                 "ProbeSpec ring counts too small: need n_lens_rings >= 2, n_fillet_rings >= 2, "
                 f"n_body_rings >= 8, n_cap_rings >= 2, got {self.n_lens_rings}, {self.n_fillet_rings}, "
                 f"{self.n_body_rings}, {self.n_cap_rings}"
+            )
+        if min(self.marker_length, self.marker_width) <= 2 * self.marker_edge:
+            raise ValueError(
+                f"ProbeSpec marker footprint must have marker_length and marker_width > 2 * marker_edge, got "
+                f"length {self.marker_length}, width {self.marker_width}, edge {self.marker_edge}"
             )
         r = self.lens_edge_radius
         if r >= _HEAD_CORNER * self.head_thickness / 2:
@@ -492,6 +570,246 @@ def _ring_faces(n_rings: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarra
     rows = np.concatenate([np.zeros(m), np.repeat(np.arange(1, n_rings), 2 * m), np.full(m, n_rings)])
     cols = np.concatenate([j, np.tile(np.repeat(j, 2), n_rings - 1), j])
     return faces, rows.astype(np.int64), cols.astype(np.int64)
+
+
+# --------------------------------------------------------------------------- orientation marker
+
+
+class _MarkedMesh(NamedTuple):
+    """The swept mesh with the orientation marker moulded into it."""
+
+    vertices: np.ndarray  # (V, 3) float64, probe frame, metres
+    faces: np.ndarray  # (F, 3) int64, outward-wound
+    rows: np.ndarray  # (F,) int64 band of each face in the sweep layout (see _ring_faces)
+    cols: np.ndarray  # (F,) int64 ring segment of each face
+    lens: np.ndarray  # (F,) bool, faces of the acoustic lens
+    marker: np.ndarray  # (F,) bool, faces of the marker's footprint (drawn in the marker colour)
+    changed_lo: np.ndarray  # (3,) lower corner of a box holding every surface point that differs from the sweep
+    changed_hi: np.ndarray  # (3,) upper corner of that box
+
+
+def _marker_profile(t: np.ndarray, s: np.ndarray, spec: ProbeSpec, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Height of the marker above the housing and the distance from its core.
+
+    The footprint is a stadium in the surface coordinates (t along the +x
+    meridian, s around the ring), ``marker_length`` along t by
+    ``marker_width`` along s, centred at (``t0``, 0): its core segment (along
+    the longer of the two) thickened by half the shorter extent. The height
+    is ``marker_height`` on the plateau and falls to 0 with a smoothstep over
+    the last ``marker_edge`` before the footprint's outline, so the surface
+    stays C1.
+
+    Args:
+        t, s: (...) float64 surface coordinates, metres.
+        spec: the probe spec.
+        t0: t of the marker's centre, metres.
+
+    Returns:
+        height: (...) float64 metres, 0 outside the footprint.
+        core_distance: (...) float64 metres; the footprint is ``core_distance < marker_rim(spec)``.
+    """
+    rim = _marker_rim(spec)
+    dt = np.maximum(np.abs(t - t0) - (0.5 * spec.marker_length - rim), 0.0)
+    ds = np.maximum(np.abs(s) - (0.5 * spec.marker_width - rim), 0.0)
+    core_distance = np.hypot(dt, ds)
+    height = spec.marker_height * _smoothstep((rim - core_distance) / spec.marker_edge)
+    return height, core_distance
+
+
+def _marker_rim(spec: ProbeSpec) -> float:
+    """Radius of the footprint's rounded ends: half its shorter extent, metres."""
+    return 0.5 * min(spec.marker_length, spec.marker_width)
+
+
+def _add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                lens: np.ndarray, n_rings: int) -> _MarkedMesh:
+    """Mould the orientation marker into the +x end of the head.
+
+    The quads of the sweep under the marker (a block of whole ring bands and
+    segments centred on the +x meridian) are replaced by a finer grid, each
+    quad split into ``marker_subdivisions`` x ``marker_subdivisions`` by
+    bilinear interpolation of its corners, and that grid is pushed out along
+    the interpolated vertex normals by :func:`_marker_profile`. The height is
+    0 on the block's outline, whose edges keep their straight shape; the
+    neighbouring triangles that share an outline edge are split into fans
+    that take the outline's new vertices, so the surface stays one closed,
+    consistently wound 2-manifold (no booleans, no T-junctions). New faces
+    keep the (band, segment) layout of the quad they came from.
+
+    Args:
+        spec: the probe spec (``marker_height > 0``).
+        vertices: (V, 3) float64 vertices of the sweep (:func:`_build_probe_cached` layout).
+        faces, rows, cols: (F, 3), (F,), (F,) int64 from :func:`_ring_faces`.
+        lens: (F,) bool lens faces.
+        n_rings: number of rings of the sweep.
+
+    Returns:
+        :class:`_MarkedMesh`.
+
+    Raises:
+        ValueError: the spec places the marker off the head's housing, or it would stick out of the
+            probe's bounding box (whose corners are keypoints).
+    """
+    m, n = spec.n_around, spec.marker_subdivisions
+    ring = vertices[1 : 1 + n_rings * m].reshape(n_rings, m, 3)
+    normals = trimesh.Trimesh(vertices, faces, process=False).vertex_normals[1 : 1 + n_rings * m].reshape(n_rings, m, 3)
+
+    # surface coordinates: t = arc length along the +x meridian (vertex 0 of every ring, on y = 0),
+    # s = signed arc length around each ring from that vertex (+y positive)
+    meridian = ring[:, 0]
+    t_ring = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(meridian, axis=0), axis=-1))])
+    seg = np.linalg.norm(np.roll(ring, -1, axis=1) - ring, axis=-1)  # (K, m): segment j runs from j to j + 1
+    around = np.concatenate([np.zeros((n_rings, 1)), np.cumsum(seg, axis=1)[:, :-1]], axis=1)
+    perimeter = seg.sum(axis=1, keepdims=True)
+    j = np.arange(m)
+    s_ring = np.where(j <= m // 2, around, around - perimeter)  # (K, m)
+
+    first_body = spec.n_lens_rings + spec.n_fillet_rings
+    head_top = int(np.searchsorted(meridian[:, 2], spec.head_height))
+    above = np.flatnonzero(meridian[first_body:, 2] >= spec.marker_z)
+    if not len(above) or first_body + above[0] == first_body:
+        raise ValueError(f"ProbeSpec.marker_z ({spec.marker_z}) must lie on the housing of the head, above the "
+                         f"lens edge (z {meridian[first_body, 2]:.4f} m on the +x side) and below head_height")
+    k = first_body + int(above[0])
+    w = (spec.marker_z - meridian[k - 1, 2]) / (meridian[k, 2] - meridian[k - 1, 2])
+    t0 = float(t_ring[k - 1] + w * (t_ring[k] - t_ring[k - 1]))
+    k_lo = int(np.searchsorted(t_ring, t0 - 0.5 * spec.marker_length, side="right")) - 1
+    k_hi = int(np.searchsorted(t_ring, t0 + 0.5 * spec.marker_length, side="left"))
+    if k_lo < first_body or k_hi > head_top:
+        raise ValueError(
+            f"the orientation marker (marker_z {spec.marker_z}, marker_length {spec.marker_length}) must lie on the "
+            f"head's housing between the lens edge and head_height ({spec.head_height}): it spans rings {k_lo}-{k_hi}, "
+            f"the housing of the head rings {first_body}-{head_top}"
+        )
+    half_w = 0.5 * spec.marker_width
+    reach = s_ring[k_lo : k_hi + 1, : m // 4].min(axis=0)  # the least arc length to segment j over the rings
+    if reach[-1] < half_w:
+        raise ValueError(f"ProbeSpec.marker_width ({spec.marker_width}) is wider than the head's end")
+    big_j = int(np.argmax(reach >= half_w))  # the block spans segments -big_j .. big_j - 1
+
+    # the fine grid over the block: (U, V) points, U along the rings, V around them
+    u_count, v_count = (k_hi - k_lo) * n + 1, 2 * big_j * n + 1
+    a, b = np.meshgrid(np.arange(u_count), np.arange(v_count), indexing="ij")
+    kc = np.minimum(a // n, k_hi - k_lo - 1)  # coarse cell, relative to k_lo and -big_j
+    jc = np.minimum(b // n, 2 * big_j - 1)
+    fa, fb = (a - kc * n) / n, (b - jc * n) / n
+    k0, j0 = k_lo + kc, (jc - big_j) % m
+    j1 = (j0 + 1) % m
+
+    def bilinear(field: np.ndarray) -> np.ndarray:
+        fa_, fb_ = (fa, fb) if field.ndim == 2 else (fa[..., None], fb[..., None])
+        return ((1 - fa_) * (1 - fb_) * field[k0, j0] + (1 - fa_) * fb_ * field[k0, j1]
+                + fa_ * (1 - fb_) * field[k0 + 1, j0] + fa_ * fb_ * field[k0 + 1, j1])
+
+    base = bilinear(ring)
+    t_fine = bilinear(np.broadcast_to(t_ring[:, None], (n_rings, m)))
+    s_fine = bilinear(s_ring)
+    normal = bilinear(normals)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    height, core = _marker_profile(t_fine, s_fine, spec, t0)
+    outline = np.zeros(height.shape, dtype=bool)
+    outline[[0, -1], :] = outline[:, [0, -1]] = True
+    if np.any(height[outline] != 0.0):
+        raise RuntimeError("orientation marker: the block under the marker does not contain its footprint")
+    moved = base + height[..., None] * normal
+
+    # vertex indices: fine points on coarse vertices reuse them, the others are appended
+    index = np.empty((u_count, v_count), dtype=np.int64)
+    on_coarse = (a % n == 0) & (b % n == 0)
+    index[on_coarse] = 1 + (k_lo + a[on_coarse] // n) * m + (b[on_coarse] // n - big_j) % m
+    fresh = ~on_coarse
+    index[fresh] = len(vertices) + np.arange(int(fresh.sum()))
+    out_vertices = np.concatenate([vertices, moved[fresh]])
+    out_vertices[index[on_coarse]] = moved[on_coarse]
+
+    # patch faces, split along mirrored diagonals on either side of y = 0 like the sweep (_ring_faces)
+    lo, lo_n, hi, hi_n = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
+    plus_y = (b[:-1, :-1] >= big_j * n)[..., None]
+    t1 = np.where(plus_y, np.stack([lo, lo_n, hi], -1), np.stack([lo, lo_n, hi_n], -1))
+    t2 = np.where(plus_y, np.stack([lo_n, hi_n, hi], -1), np.stack([lo, hi_n, hi], -1))
+    patch = np.stack([t1, t2], axis=2).reshape(-1, 3)
+    patch_rows = np.repeat((k0[:-1, :-1] + 1).reshape(-1), 2)
+    patch_cols = np.repeat(j0[:-1, :-1].reshape(-1), 2)
+    cell_core = np.stack([core[:-1, :-1], core[:-1, 1:], core[1:, :-1], core[1:, 1:]]).mean(axis=0)
+    patch_marker = np.repeat((cell_core < _marker_rim(spec)).reshape(-1), 2)
+
+    block_cols = (np.arange(-big_j, big_j)) % m
+    block = (rows >= k_lo + 1) & (rows <= k_hi) & np.isin(cols, block_cols)
+    if block.sum() != 2 * (k_hi - k_lo) * 2 * big_j:
+        raise RuntimeError("orientation marker: the block under the marker is not whole quads of the sweep")
+
+    # the outline's edges, each with the fine vertices along it
+    chains = [index[0, q * n : q * n + n + 1] for q in range(2 * big_j)]
+    chains += [index[-1, q * n : q * n + n + 1] for q in range(2 * big_j)]
+    chains += [index[q * n : q * n + n + 1, 0] for q in range(k_hi - k_lo)]
+    chains += [index[q * n : q * n + n + 1, -1] for q in range(k_hi - k_lo)]
+    keep = ~block
+    fans, fan_rows, fan_cols, fan_lens = [], [], [], []
+    for chain in chains:
+        v0, v1 = int(chain[0]), int(chain[-1])
+        hit = np.flatnonzero(keep & (faces == v0).any(axis=1) & (faces == v1).any(axis=1))
+        if len(hit) != 1:
+            raise RuntimeError(f"orientation marker: outline edge ({v0}, {v1}) has {len(hit)} outer faces, not 1")
+        f = hit[0]
+        tri = list(faces[f])
+        i0 = tri.index(v0)
+        # walk the face's own winding: it runs (v1 -> v0) or (v0 -> v1) along the shared edge
+        path = chain[::-1] if tri[(i0 + 2) % 3] == v1 else chain
+        if not (tri.index(int(path[0])) + 1) % 3 == tri.index(int(path[-1])):
+            raise RuntimeError("orientation marker: an outline face is not wound consistently")
+        apex = tri[(tri.index(int(path[-1])) + 1) % 3]
+        fans.append(np.column_stack([path[:-1], path[1:], np.full(len(path) - 1, apex)]))
+        fan_rows.append(np.full(len(path) - 1, rows[f]))
+        fan_cols.append(np.full(len(path) - 1, cols[f]))
+        fan_lens.append(np.full(len(path) - 1, lens[f]))
+        keep[f] = False
+
+    out_faces = np.concatenate([faces[keep], *fans, patch]).astype(np.int64)
+    out_rows = np.concatenate([rows[keep], *fan_rows, patch_rows]).astype(np.int64)
+    out_cols = np.concatenate([cols[keep], *fan_cols, patch_cols]).astype(np.int64)
+    out_lens = np.concatenate([lens[keep], *fan_lens, np.zeros(len(patch), dtype=bool)])
+    out_marker = np.concatenate([np.zeros(int(keep.sum()) + sum(len(x) for x in fans), dtype=bool), patch_marker])
+
+    body_lo, body_hi = vertices.min(axis=0), vertices.max(axis=0)
+    if np.any(moved < body_lo) or np.any(moved > body_hi):
+        raise ValueError(
+            "the orientation marker sticks out of the probe's bounding box (its corners are keypoints 21-28 and "
+            f"must not move): marker spans {moved.reshape(-1, 3).min(axis=0)} .. {moved.reshape(-1, 3).max(axis=0)} m, "
+            f"the box {body_lo} .. {body_hi} m; lower marker_height or move marker_z"
+        )
+    old = vertices[faces[block].reshape(-1)]
+    changed = np.concatenate([old, moved.reshape(-1, 3)])
+    return _MarkedMesh(out_vertices, out_faces, out_rows, out_cols, out_lens, out_marker,
+                       changed.min(axis=0), changed.max(axis=0))
+
+
+def _patch_grid(grid: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray], distance: "_MeshDistance",
+                changed_lo: np.ndarray, changed_hi: np.ndarray) -> np.ndarray:
+    """Exact signed distances of the marked mesh from those of the symmetric sweep.
+
+    The two surfaces differ only inside the box ``[changed_lo, changed_hi]``.
+    A node whose distance to that box exceeds its old unsigned distance keeps
+    its closest point (outside the box, on both surfaces) and its side (it is
+    not between the two surfaces), so its value is unchanged; every other
+    node is recomputed exactly on the marked mesh.
+
+    Args:
+        grid: (nx, ny, nz) float64 exact signed distances to the sweep, metres.
+        axes: node coordinates along x, y, z, metres.
+        distance: the marked mesh's exact distance.
+        changed_lo, changed_hi: (3,) float64, metres, probe frame.
+
+    Returns:
+        (nx, ny, nz) float64, a new array.
+    """
+    xs, ys, zs = axes
+    gap = [np.maximum(np.maximum(lo - c, c - hi), 0.0) for c, lo, hi in zip(axes, changed_lo, changed_hi)]
+    to_box = np.sqrt(gap[0][:, None, None] ** 2 + gap[1][None, :, None] ** 2 + gap[2][None, None, :] ** 2)
+    redo = np.argwhere(to_box <= np.abs(grid) + tol.PROBE_SDF_PRUNE_SLACK_M)
+    out = grid.copy()
+    points = np.column_stack([xs[redo[:, 0]], ys[redo[:, 1]], zs[redo[:, 2]]])
+    out[redo[:, 0], redo[:, 1], redo[:, 2]] = distance.signed(points)
+    return out
 
 
 # --------------------------------------------------------------------------- distance to triangles
@@ -1036,11 +1354,16 @@ class Probe:
     Attributes:
         spec: the :class:`ProbeSpec` it was built from.
         mesh: ``trimesh.Trimesh`` in the probe frame, metres: watertight,
-            outward-wound, exactly mirror-symmetric about x = 0 and y = 0,
-            smooth vertex normals (no creases anywhere).
+            outward-wound, smooth vertex normals (no creases anywhere);
+            exactly mirror-symmetric about y = 0, and about x = 0 except for
+            the orientation marker on the +x end (with ``marker_height = 0``
+            symmetric about both, hence also under the half turn about z).
         lens_face_mask: (F,) bool, the faces of the acoustic lens.
+        marker_face_mask: (F,) bool, the faces of the orientation marker's
+            footprint (all False without a marker); disjoint from the lens.
         corners_probe: (8, 3) float64, metres, probe frame: the tight
-            axis-aligned box of the mesh (for this symmetric probe also its
+            axis-aligned box of the mesh (the marker stays inside the box of
+            the sweep, so the box is centred on the long axis and also the
             minimum-volume oriented box), corner k at
             ``(x, y, z)[(min, max)[bit]]`` with bits ``CORNER_BITS[k]``, the
             ``itertools.product((min, max), repeat=3)`` order of
@@ -1055,20 +1378,23 @@ class Probe:
     """
 
     def __init__(self, spec: ProbeSpec, mesh: trimesh.Trimesh, lens_face_mask: np.ndarray,
-                 region_z: RegionZ, distance: _MeshDistance, sdf_axes: tuple[np.ndarray, np.ndarray, np.ndarray]):
+                 marker_face_mask: np.ndarray, region_z: RegionZ, distance: _MeshDistance,
+                 sdf_axes: tuple[np.ndarray, np.ndarray, np.ndarray], sdf_grid: np.ndarray):
         self.spec = spec
         self.mesh = mesh
         self.lens_face_mask = lens_face_mask
+        self.marker_face_mask = marker_face_mask
         self.region_z = region_z
         bounds = np.asarray(mesh.bounds, dtype=np.float64)  # (2, 3) min, max
         self.corners_probe = np.array([[bounds[b, axis] for axis, b in enumerate(bits)] for bits in CORNER_BITS])
         self._distance = distance
         xs, ys, zs = sdf_axes
-        self.sdf_grid = distance.signed_grid(xs, ys, zs)
+        self.sdf_grid = sdf_grid
         self.sdf_origin = np.array([xs[0], ys[0], zs[0]])
         self.sdf_spacing = float(spec.sdf_spacing)
         self._sdf_upper = np.array([xs[-1], ys[-1], zs[-1]])
-        for arr in (self.lens_face_mask, self.corners_probe, self.sdf_grid, self.sdf_origin, self._sdf_upper):
+        for arr in (self.lens_face_mask, self.marker_face_mask, self.corners_probe, self.sdf_grid, self.sdf_origin,
+                    self._sdf_upper):
             arr.flags.writeable = False
         self._torch_cache: dict[tuple[str, torch.dtype], tuple[torch.Tensor, ...]] = {}
 
@@ -1257,7 +1583,6 @@ def _build_probe_cached(spec: ProbeSpec) -> Probe:
     n_rings, m, _ = rings.shape
     vertices = np.concatenate([[[0.0, 0.0, 0.0]], rings.reshape(-1, 3), [[0.0, 0.0, spec.length]]])
     faces, rows, cols = _ring_faces(n_rings, m)
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
     # the apex fan and the bands between lens rings: faces come bottom-up, band by band
     lens = np.zeros(len(faces), dtype=bool)
     lens[: m + 2 * m * (n_lens - 1)] = True
@@ -1271,8 +1596,18 @@ def _build_probe_cached(spec: ProbeSpec) -> Probe:
         handle=(neck_top, handle_end),
         strain_relief=(handle_end, spec.length),
     )
+    # the sweep is exactly mirror-symmetric, so its grid is computed on one quadrant of nodes and mirrored
     distance = _MeshDistance(vertices, faces, rows, cols)
-    return Probe(spec, mesh, lens, region_z, distance, _sdf_axes(spec, np.asarray(mesh.bounds)))
+    axes = _sdf_axes(spec, np.stack([vertices.min(axis=0), vertices.max(axis=0)]))
+    grid = distance.signed_grid(*axes)
+    marker = np.zeros(len(faces), dtype=bool)
+    if spec.marker_height > 0:
+        marked = _add_marker(spec, vertices, faces, rows, cols, lens, n_rings)
+        vertices, faces, lens, marker = marked.vertices, marked.faces, marked.lens, marked.marker
+        distance = _MeshDistance(vertices, faces, marked.rows, marked.cols)
+        grid = _patch_grid(grid, axes, distance, marked.changed_lo, marked.changed_hi)
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    return Probe(spec, mesh, lens, marker, region_z, distance, axes, grid)
 
 
 def build_probe(spec: ProbeSpec = ProbeSpec()) -> Probe:

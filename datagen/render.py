@@ -51,6 +51,8 @@ class MeshPart:
         color: (3,) RGB in [0, 1].
         roughness: PBR roughness in [0, 1].
         smooth: interpolate vertex normals (False shows facets).
+        emissive: (3,) RGB in [0, 1] the part gives off by itself, whatever the lights (e.g. a
+            marker light); black by default.
     """
 
     name: str
@@ -60,13 +62,15 @@ class MeshPart:
     roughness: float = 0.7
     metallic: float = 0.0
     smooth: bool = True
+    emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.label not in SEG_LABELS.values() or self.label == 0:
             raise ValueError(f"part {self.name!r}: label must be one of 1, 2, 3, got {self.label!r}")
-        color = np.asarray(self.color, dtype=np.float64)
-        if color.shape != (3,) or not np.all((color >= 0) & (color <= 1)):
-            raise ValueError(f"part {self.name!r}: color must be 3 values in [0, 1], got {self.color!r}")
+        for name in ("color", "emissive"):
+            value = np.asarray(getattr(self, name), dtype=np.float64)
+            if value.shape != (3,) or not np.all((value >= 0) & (value <= 1)):
+                raise ValueError(f"part {self.name!r}: {name} must be 3 values in [0, 1], got {getattr(self, name)!r}")
 
 
 @dataclass
@@ -138,7 +142,8 @@ class Renderer:
         self._labels.clear()
         for part in parts:
             material = pyrender.MetallicRoughnessMaterial(
-                baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic
+                baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic,
+                emissiveFactor=list(part.emissive)
             )
             mesh = pyrender.Mesh.from_trimesh(part.mesh, material=material, smooth=part.smooth)
             node = self._scene.add(mesh, name=part.name)

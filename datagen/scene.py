@@ -24,6 +24,12 @@ GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
 ARM_RGB = (1.0, 0.6784, 0.3765)
 PROBE_BODY_RGB = (0.86, 0.86, 0.84)
 PROBE_LENS_RGB = (0.18, 0.19, 0.21)
+#: the probe's orientation marker (datagen.probe.ProbeSpec): the saturated green of a marker light, far
+#: from the grey housing, the dark lens, both glove colours, the arm and the skin tones of the backgrounds;
+#: it also glows (PROBE_MARKER_EMISSIVE) like the light it stands for, so it stays green in the shadow of
+#: the hand or away from the lamp
+PROBE_MARKER_RGB = (0.05, 0.85, 0.25)
+PROBE_MARKER_EMISSIVE = (0.02, 0.45, 0.12)
 
 
 @dataclass
@@ -95,7 +101,8 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
         arm_rgb: (3,) forearm colour in [0, 1].
 
     Returns:
-        Parts "hand" (label 1), "arm" (2), "probe_body" and "probe_lens" (3).
+        Parts "hand" (label 1), "arm" (2), "probe_body", "probe_lens" and, when the probe has an
+        orientation marker, "probe_marker" (all three label 3).
     """
     import trimesh
 
@@ -108,12 +115,17 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
     )
     probe_mesh = probe.mesh.copy()
     probe_mesh.apply_transform(grasp.T_world_probe)
-    lens = probe.lens_face_mask
-    body_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[~lens], process=False)
+    lens, marker = probe.lens_face_mask, probe.marker_face_mask
+    body_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[~lens & ~marker], process=False)
     lens_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[lens], process=False)
-    return [
+    parts = [
         MeshPart("hand", hand_mesh, SEG_LABELS["hand"], tuple(glove_rgb), roughness=0.8),
         MeshPart("arm", arm_mesh, SEG_LABELS["arm"], tuple(arm_rgb), roughness=0.6),
         MeshPart("probe_body", body_mesh, SEG_LABELS["probe"], PROBE_BODY_RGB, roughness=0.35),
         MeshPart("probe_lens", lens_mesh, SEG_LABELS["probe"], PROBE_LENS_RGB, roughness=0.5),
     ]
+    if marker.any():
+        marker_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[marker], process=False)
+        parts.append(MeshPart("probe_marker", marker_mesh, SEG_LABELS["probe"], PROBE_MARKER_RGB, roughness=0.3,
+                              emissive=PROBE_MARKER_EMISSIVE))
+    return parts

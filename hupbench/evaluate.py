@@ -2,13 +2,23 @@
 
 The model runs over one split of a dataset (``hupbench.data.HUPDataset`` at the model's input
 size, batched, under ``torch.inference_mode``), the metrics of :mod:`hupbench.metrics` are
-computed on all frames, and a results JSON in schema version 1 (:mod:`hupbench.results`) is
+computed on all frames, and a results JSON in schema version 2 (:mod:`hupbench.results`) is
 written. A checkpoint runs through :class:`hupbench.export.ContractModule`, the same wrapper the
 ONNX export uses, so both formats report the same quantities.
 
 What the numbers are:
     mpjpe_mm            absolute camera-frame 3D error (no alignment), mm: hand (21), probe (8)
                         and all 29 keypoint-weighted (``metrics.ALL_AVERAGING``).
+    probe_symmetric_mpjpe_mm      the probe corners' MPJPE with each frame's corners matched under
+                        the probe box's half turn about its long axis when that is closer
+                        (``metrics.probe_symmetric_mpjpe_mm``, BOP-style); the corner permutation
+                        is read from the dataset's own corners in the probe frame, and checked to
+                        map the box onto itself. Null (with a log line) if it does not.
+    spread_ratio        {x, y, z}: for each camera axis, the standard deviation over frames of the
+                        predicted coordinate, averaged over the 29 keypoints, divided by the same
+                        for the truth (``metrics.spread_ratios``); 1 = varies like the truth, 0 = the
+                        same output for every image. A ratio below 0.5
+                        (``metrics.SPREAD_RATIO_WARN``) prints a warning naming the axis.
     root_relative_hand_mpjpe_mm   the 21 hand joints after moving both hands' wrists to the origin.
     pa_mpjpe_hand_mm    the 21 hand joints after a Procrustes (similarity) alignment per frame.
     pck_auc_0_50mm      area under the 3D PCK curve of the absolute errors of all 29 keypoints,
@@ -52,6 +62,11 @@ WARMUP_MIN_S = 0.5
 WARMUP_MAX_RUNS = 50
 #: relative difference between the eval images' intrinsics and the model's K_input above which a warning is logged
 K_MISMATCH_REL = 1e-3
+#: the dataset's corners are stored in float32 camera coordinates: taken back to the probe frame they
+#: agree to about a micrometre, so the half-turn check allows this fraction of the box's size (~9 um)
+CORNER_SYMMETRY_REL_TOL = 1e-4
+#: corners of different frames, taken back to the probe frame, must agree within this (metres)
+CORNER_FRAME_TOL_M = 1e-5
 MODEL_LABELS = {"hopenet": "HOPE-Net", "resnet_regressor": "ResNet regressor"}
 
 
@@ -116,6 +131,35 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log) -> d
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
     return out
+
+
+def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) -> tuple[tuple[int, ...], ...]:
+    """The probe corners' symmetry group (identity and the half turn about the long axis) read from annotations.
+
+    The true corners are taken back to the world frame, which is the probe frame in every hupbench
+    dataset (DESIGN.md), and the half turn about its z axis must map the 8 corners onto each other.
+
+    Args:
+        keypoints_3d_cam: (N, 29, 3) float, metres, OpenCV camera frame (annotations ``keypoints_3d_cam``).
+        T_cam_world: (N, 4, 4) float, world -> camera (annotations ``T_cam_world``).
+
+    Returns:
+        ((0, ..., 7), half-turn permutation of the 8 corners), as in ``metrics.PROBE_SYMMETRIES``.
+
+    Raises:
+        ValueError: the corners differ between frames in the probe frame, or the box is not
+            symmetric under the half turn (e.g. it is not centred on the probe's long axis).
+    """
+    corners_cam = np.asarray(keypoints_3d_cam, np.float64)[:, kp.CORNER_SLICE]       # (N, 8, 3)
+    T = np.asarray(T_cam_world, np.float64)
+    # world = R^T (cam - t)
+    corners_world = np.einsum("nji,nkj->nki", T[:, :3, :3], corners_cam - T[:, None, :3, 3])
+    drift = float(np.abs(corners_world - corners_world[:1]).max())
+    if drift > CORNER_FRAME_TOL_M:
+        raise ValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
+                         f"(probe) frame: the dataset does not place the probe at the world origin")
+    half_turn = M.symmetry_permutation(corners_world.mean(axis=0), M.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
+    return (tuple(range(kp.NUM_CORNERS)), half_turn)
 
 
 def _check_dataset(dataset: Path, split: str) -> dict:
@@ -250,6 +294,8 @@ def format_table(results: dict) -> str:
         ("MPJPE all / hand / probe", (f"{f(m['mpjpe_mm']['all'])} / {f(m['mpjpe_mm']['hand'])} / "
                                      f"{f(m['mpjpe_mm']['probe'])} mm")),
         ("root-relative hand MPJPE", f"{f(m['root_relative_hand_mpjpe_mm'])} mm"),
+        ("probe MPJPE, half-turn symmetric", f"{f(m['probe_symmetric_mpjpe_mm'])} mm"),
+        ("spread ratio x / y / z", " / ".join(f(m["spread_ratio"][a]) for a in M.SPREAD_AXES)),
         ("PA-MPJPE hand", f"{f(m['pa_mpjpe_hand_mm'])} mm"),
         ("3D PCK AUC 0-50 mm", f(m["pck_auc_0_50mm"], "{:.3f}")),
         ("2D error", f"{f(m['pixel_error_px'])} px"),
@@ -264,6 +310,32 @@ def format_table(results: dict) -> str:
                                                f"{f(b['mpjpe_mm']['probe'])} probe ({b['frames']} frames)")))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def _symmetric_probe_error(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, log) -> float | None:
+    """``metrics.probe_symmetric_mpjpe_mm`` with the group read from the annotations; None (logged) if undefined."""
+    try:
+        group = probe_symmetry_group(fields["keypoints_3d_cam"], fields["T_cam_world"])
+    except ValueError as exc:
+        log(f"warning: no half-turn symmetric probe error: {exc}")
+        return None
+    errors, choice = M.probe_symmetric_errors_mm(pred3d, gt3d, group)
+    plain = float(M.keypoint_errors_mm(pred3d, gt3d)[:, kp.CORNER_SLICE].mean())
+    log(f"probe MPJPE {plain:.2f} mm; minimised over the half turn about the probe's long axis {errors.mean():.2f} mm "
+        f"(the half-turned corner labels were closer on {100.0 * np.mean(choice != 0):.1f} % of frames)")
+    return float(errors.mean())
+
+
+def _spread_ratio(pred3d: np.ndarray, gt3d: np.ndarray, log) -> dict[str, float | None]:
+    """``metrics.spread_ratios``, logged, with a warning naming every axis below ``SPREAD_RATIO_WARN``."""
+    ratios = M.spread_ratios(pred3d, gt3d)
+    shown = ", ".join(f"{a} {'-' if r is None else f'{r:.2f}'}" for a, r in ratios.items())
+    log(f"spread ratio of predicted to true 3D keypoints across frames (1 = varies like the truth): {shown}")
+    for axis in M.collapsed_axes(ratios):
+        log(f"warning: predicted 3D keypoints barely vary along the camera {axis} axis across frames: spread ratio "
+            f"{ratios[axis]:.2f} < {M.SPREAD_RATIO_WARN} of the truth's "
+            f"(the model may give one {axis} for every image)")
+    return ratios
 
 
 def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
@@ -345,7 +417,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
 
     with np.load(dataset / split / "annotations.npz") as ann:
-        fields = {k: ann[k] for k in ("frame_id", "theta", "z_ego", "background_id")}
+        fields = {k: ann[k] for k in ("frame_id", "theta", "z_ego", "background_id", "keypoints_3d_cam",
+                                      "T_cam_world")}
     if not np.array_equal(fields["frame_id"], np.concatenate(frame_ids)):
         raise RuntimeError("the reader's frame order differs from the annotations' (dataset modified while reading?)")
 
@@ -372,6 +445,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         "pa_mpjpe_hand_mm": M.pa_mpjpe_mm(pred3d, gt3d),
         "pck_auc_0_50mm": M.pck_auc_from_errors(errors),
         "pixel_error_px": pixel_error,
+        "probe_symmetric_mpjpe_mm": _symmetric_probe_error(pred3d, gt3d, fields, log),
+        "spread_ratio": _spread_ratio(pred3d, gt3d, log),
     }
     results["breakdowns"] = {
         "latitude": M.breakdown_mpjpe_mm(errors, M.latitude_labels(fields["theta"])),

@@ -193,13 +193,26 @@ def _code(text: str | None) -> str:
 
 
 TABLE_COLUMNS = ("model", "kind", "test data", "input (px)", "params (M)", "MPJPE all (mm)", "MPJPE hand (mm)",
-                 "MPJPE probe (mm)", "PA-MPJPE hand (mm)", "AUC 0-50 mm", "training (time, hardware)",
-                 "latency ONNX Runtime (ms/image, batch 1)", "latency PyTorch (ms/image, batch 1)", "command")
+                 "MPJPE probe (mm)", "MPJPE probe, half-turn symmetric (mm)", "PA-MPJPE hand (mm)", "AUC 0-50 mm",
+                 "spread ratio x / y / z", "training (time, hardware)", "latency ONNX Runtime (ms/image, batch 1)",
+                 "latency PyTorch (ms/image, batch 1)", "command")
+#: the axes and threshold of the spread ratios (hupbench.metrics.SPREAD_AXES, SPREAD_RATIO_WARN), kept
+#: here as plain values so that the leaderboard does not import torch
+SPREAD_AXES = ("x", "y", "z")
+SPREAD_RATIO_WARN = 0.5
 
 
 # numbers right-aligned, text left
 _ALIGN = {c: "---" if c in ("model", "kind", "test data", "training (time, hardware)", "command") else "---:"
           for c in TABLE_COLUMNS}
+
+
+def spread_cell(row: dict) -> str:
+    """``"0.02 / 0.01 / 0.95"`` (x / y / z spread ratios), a missing mark per unknown axis, one mark if all are."""
+    ratios = row["metrics"]["spread_ratio"]
+    if all(ratios[a] is None for a in SPREAD_AXES):
+        return MISSING
+    return " / ".join(_number(ratios[a]) for a in SPREAD_AXES)
 
 
 def table_row(row: dict) -> list[str]:
@@ -228,8 +241,10 @@ def table_row(row: dict) -> list[str]:
         _number(mpjpe["all"]),
         _number(mpjpe["hand"]),
         _number(mpjpe["probe"]),
+        _number(metrics["probe_symmetric_mpjpe_mm"]),
         _number(metrics["pa_mpjpe_hand_mm"]),
         _number(metrics["pck_auc_0_50mm"], 3),
+        spread_cell(row),
         _cell(train_cell),
         _number(latency["onnxruntime"]["batch1"]),
         _number(latency["pytorch"]["batch1"]),
@@ -265,6 +280,18 @@ def _details(row: dict) -> list[str]:
         if abs(weighted - mpjpe["all"]) > WEIGHTED_MEAN_TOLERANCE_MM:
             check += f", which is not the row's all ({mpjpe['all']:.2f} mm)"
         lines.append(check)
+    symmetric = row["metrics"]["probe_symmetric_mpjpe_mm"]
+    if symmetric is not None:
+        lines.append(f"- probe MPJPE with the corners matched under the half turn about the probe's long axis where "
+                     f"closer: {symmetric:.2f} mm (plain: {_number(mpjpe['probe'])} mm)")
+    ratios = row["metrics"]["spread_ratio"]
+    if any(ratios[a] is not None for a in SPREAD_AXES):
+        low = [a for a in SPREAD_AXES if ratios[a] is not None and ratios[a] < SPREAD_RATIO_WARN]
+        line = f"- spread ratio of predicted to true 3D keypoints across the test frames, x / y / z: {spread_cell(row)}"
+        if low:
+            line += (f"; below {SPREAD_RATIO_WARN} on {', '.join(low)}: the predictions barely vary along "
+                     f"{'that axis' if len(low) == 1 else 'those axes'} (collapsed)")
+        lines.append(line)
     if row["metrics"]["root_relative_hand_mpjpe_mm"] is not None or row["metrics"]["pixel_error_px"] is not None:
         lines.append(f"- root-relative hand MPJPE {_number(row['metrics']['root_relative_hand_mpjpe_mm'])} mm; "
                      f"2D error {_number(row['metrics']['pixel_error_px'])} px")
@@ -308,7 +335,8 @@ def render_readme(rows: list[dict]) -> str:
         "",
         ("3D hand and ultrasound-probe pose estimation from one RGB image: how far the predicted keypoints are "
          "from the truth (MPJPE, mm) against what the model costs to train and to run. One row per results "
-         "file in [`results/`](results/) (schema version 1, validated on load)."),
+         "file in [`results/`](results/) (schema version 2, validated on load; files written in version 1 "
+         f"are read with the two metrics version 2 added unknown, {MISSING})."),
         "",
         ("- **measured** rows were evaluated here by `hupbench eval` on the test split of the dataset they name. "
          "Every measured row names the committed command that reproduces its training (last column), and its "
@@ -339,6 +367,17 @@ def render_readme(rows: list[dict]) -> str:
          "(21 × hand + 8 × probe) / 29. Each row below states how its *all* was averaged. The HUP-3D paper's "
          "8.65 mm is not the keypoint-weighted mean of its 5.33 mm (hand) and 17.05 mm (probe), which is "
          "(21 × 5.33 + 8 × 17.05) / 29 = 8.56 mm; the paper does not say how its total is averaged."),
+        ("- MPJPE probe, half-turn symmetric: the probe MPJPE with each frame's predicted corners compared with "
+         "the true corners both as labelled and relabelled by the half turn about the probe's long axis (corner "
+         "(ix, iy, iz) of the box becomes (1 − ix, 1 − iy, iz)), whichever is closer, as the BOP benchmark scores "
+         "symmetric objects. It never exceeds the plain probe MPJPE; the gap is the error of confusing the two ends "
+         "of the probe's transducer array. The probe carries an orientation marker on the +x end of its head "
+         "(`datagen/probe.py`), so the two ends can be told apart in the image and the plain probe MPJPE is the "
+         "benchmark number; datasets rendered before the marker was added do not show it."),
+        ("- Spread ratio x / y / z: for each camera axis, the standard deviation across the test frames of a "
+         "predicted 3D coordinate, averaged over the 29 keypoints, divided by the same for the truth. 1 means the "
+         "predictions vary as much as the truth; near 0 means the model gives about the same value for every "
+         f"image (a collapsed model). `hupbench eval` warns below {SPREAD_RATIO_WARN}."),
         ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
          "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
          "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),

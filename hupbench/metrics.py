@@ -19,6 +19,25 @@ Averaging:
     was averaged over a different keypoint subset); the paper does not say. We therefore always
     report all three numbers and state ``ALL_AVERAGING`` beside them.
 
+Symmetry:
+    The probe's 8 box corners are only defined up to the box's symmetries that also map the probe
+    onto itself. Without its orientation marker (datagen/probe.py) the probe is unchanged by the half
+    turn about its long axis z, (x, y, z) -> (-x, -y, z), which maps corner (ix, iy, iz) to
+    (1 - ix, 1 - iy, iz) of its axis-centred box; the BOP benchmark (Hodan et al.) scores such objects
+    by minimising the error over the symmetry group (MSSD, MSPD). :func:`probe_symmetric_mpjpe_mm`
+    does the same for the corners, per frame, beside the plain probe MPJPE: the mean corner error
+    under the identity or the half turn, whichever is smaller. The gap between the two numbers is
+    how much of a model's probe error is the swapped labelling of a half-turned box. Probes built
+    now carry the marker, so the half turn can be read from the image and the plain probe MPJPE is
+    the benchmark number; the symmetric one shows whether a model reads the marker (and is the
+    fair score on data rendered before the marker existed).
+    ``hupbench.train.hopenet_loss`` can take the same minimum in training (``loss.probe_symmetry``).
+
+Spread (collapse guard):
+    :func:`spread_ratios` compares how much the predicted 3D keypoints vary across frames with how
+    much the truth does, per camera axis; a model that outputs one layout for every image has
+    ratios near 0 on the axes it ignores (HOPE-Net's x and y in issue 14: 0.02).
+
 Degenerate sets:
     Procrustes alignment (:func:`procrustes_align`) solves the similarity (scale, rotation,
     translation) by the SVD of the cross-covariance with the determinant correction (Umeyama
@@ -35,6 +54,7 @@ import numpy as np
 import torch
 
 from datagen.keypoints import (
+    CORNER_BITS,
     CORNER_SLICE,
     HAND_SLICE,
     NUM_CORNERS,
@@ -45,10 +65,15 @@ from datagen.keypoints import (
 __all__ = [
     "ALL_AVERAGING",
     "EGOCENTRIC_MAX_THETA_RAD",
+    "HALF_TURN_Z",
     "PCK_THRESHOLDS_MM",
+    "PROBE_SYMMETRIES",
     "ROOT_INDEX",
+    "SPREAD_AXES",
+    "SPREAD_RATIO_WARN",
     "background_labels",
     "breakdown_mpjpe_mm",
+    "collapsed_axes",
     "keypoint_errors_mm",
     "latitude_labels",
     "mpjpe_mm",
@@ -58,11 +83,17 @@ __all__ = [
     "pck_auc",
     "pck_auc_from_errors",
     "pck_mm",
+    "permute_keypoints",
     "pixel_error_px",
     "pixel_errors_px",
+    "probe_symmetric_errors_mm",
+    "probe_symmetric_mpjpe_mm",
     "procrustes_align",
     "root_relative_mpjpe_mm",
     "split_from_errors_mm",
+    "spread_ratios",
+    "symmetry_costs",
+    "symmetry_permutation",
     "z_ego_labels",
 ]
 
@@ -79,6 +110,17 @@ PROCRUSTES_MIN_VARIANCE_M2 = 1e-24
 EGOCENTRIC_MAX_THETA_RAD = np.pi / 2
 HAND = tuple(range(NUM_HAND))
 PROBE = tuple(range(NUM_HAND, NUM_KEYPOINTS))
+#: the half turn about the probe frame's long axis z: (x, y, z) -> (-x, -y, z)
+HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])
+#: a point set maps onto itself under a symmetry when every mapped point lies within this of a point
+#: of the set, relative to the set's size (largest distance from its centroid)
+SYMMETRY_REL_TOL = 1e-6
+#: the camera axes of :func:`spread_ratios`, in order
+SPREAD_AXES = ("x", "y", "z")
+#: ``hupbench eval`` warns when a spread ratio is below this (the collapse guard of issue 14)
+SPREAD_RATIO_WARN = 0.5
+#: a truth whose spread along an axis is below this (metres) does not vary there: its ratio is None
+SPREAD_MIN_M = 1e-9
 
 _MM_PER_M = 1000.0
 
@@ -425,3 +467,232 @@ def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
         rows = errors[labels == label]
         out[label] = {"frames": int(rows.shape[0]), "mpjpe_mm": split_from_errors_mm(rows)}
     return out
+
+
+# ----------------------------------------------------------------------------- symmetric probe error
+
+
+def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) -> tuple[int, ...]:
+    """The permutation by which a rotation maps a point set onto itself.
+
+    Args:
+        points_m: (K, 3) float, metres, the points in the object's own frame (e.g. the probe's box
+            corners in the probe frame, ``datagen.probe.Probe.corners_probe``).
+        rotation: (3, 3) a proper rotation about that frame's origin (e.g. :data:`HALF_TURN_Z`).
+        rel_tol: largest allowed distance between a rotated point and its match, relative to the
+            set's size (its largest distance from its centroid).
+
+    Returns:
+        ``perm`` with ``rotation @ points[k] == points[perm[k]]`` (within the tolerance), a
+        permutation of range(K) as python ints.
+
+    Raises:
+        ValueError: wrong shapes, not a rotation, or the set is not symmetric under it (the message
+            gives the largest mismatch in mm).
+    """
+    p = np.asarray(points_m, np.float64)
+    r = np.asarray(rotation, np.float64)
+    if p.ndim != 2 or p.shape[-1] != 3 or len(p) < 1:
+        raise ValueError(f"points_m must be (K, 3) with K >= 1, got {p.shape}")
+    if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-9) or np.linalg.det(r) < 0:
+        raise ValueError(f"rotation must be a (3, 3) proper rotation matrix, got {r.tolist()}")
+    moved = p @ r.T
+    dist = np.linalg.norm(moved[:, None] - p[None], axis=-1)  # (K, K): rotated point k to point j
+    perm = dist.argmin(axis=1)
+    size = max(float(np.linalg.norm(p - p.mean(axis=0), axis=-1).max()), 1e-12)
+    worst = float(dist[np.arange(len(p)), perm].max())
+    if worst > rel_tol * size or len(set(perm.tolist())) != len(p):
+        raise ValueError(f"the points are not symmetric under the rotation: a rotated point lies "
+                         f"{worst * _MM_PER_M:.3g} mm from the nearest point "
+                         f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
+    return tuple(int(k) for k in perm)
+
+
+def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
+    # an axis-centred box with three different side lengths, corners in the documented order
+    # (datagen.keypoints.CORNER_BITS, itertools.product((min, max), repeat=3) over x, y, z):
+    # the permutation is read off the coordinates, not written by hand
+    box = (2.0 * np.array(CORNER_BITS, np.float64) - 1.0) * np.array([0.036, 0.015, 0.0825]) + [0.0, 0.0, 0.0825]
+    identity = tuple(range(NUM_CORNERS))
+    return {"none": (identity,), "half_turn": (identity, symmetry_permutation(box, HALF_TURN_Z))}
+
+
+#: the probe corners' symmetry groups as permutations of the 8 corners (indices into 21..28 minus
+#: 21): "none" is the identity only, "half_turn" adds the half turn about the long axis, which maps
+#: corner (ix, iy, iz) to (1 - ix, 1 - iy, iz): (6, 7, 4, 5, 2, 3, 0, 1)
+PROBE_SYMMETRIES = _box_symmetries()
+
+
+def _check_permutations(permutations, k: int) -> np.ndarray:
+    perms = np.asarray(permutations)
+    if perms.ndim != 2 or perms.shape[1] != k or len(perms) < 1 or not np.issubdtype(perms.dtype, np.integer):
+        raise ValueError(f"permutations must be (G, {k}) integer permutations of range({k}), got "
+                         f"{np.asarray(permutations).tolist()}")
+    if not all(sorted(row.tolist()) == list(range(k)) for row in perms):
+        raise ValueError(f"every row of permutations must be a permutation of range({k}), got {perms.tolist()}")
+    return perms.astype(np.int64)
+
+
+def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = False):
+    """Error of the chosen keypoints under each element of a symmetry group, per frame.
+
+    ``cost[n, g]`` is the mean over the selected keypoints k of ``|pred[n, sel[k]] - gt[n,
+    sel[perm_g[k]]]|`` (or its square): the prediction labelled k is compared with the true point
+    the symmetry g relabels as k.
+
+    Args:
+        pred, gt: (N, K, D) float, same frame and unit (metres for 3D, any for 2D); numpy or torch.
+        permutations: (G, S) permutations of range(S), S = number of selected keypoints
+            (e.g. ``PROBE_SYMMETRIES["half_turn"]`` for the 8 corners).
+        keypoints: the selected keypoints (default 21..28, the probe corners).
+        squared: mean squared distance instead of mean distance.
+
+    Returns:
+        (N, G) in the input's unit (squared with ``squared``): float64 numpy, or a tensor of the
+        input dtype (differentiable) for torch input.
+    """
+    if not isinstance(pred, (np.ndarray, torch.Tensor)) or not isinstance(gt, (np.ndarray, torch.Tensor)):
+        raise TypeError(f"pred and gt must be numpy arrays or torch tensors, got {type(pred).__name__} and "
+                        f"{type(gt).__name__}")
+    _check_points(pred, gt, pred.shape[-1] if pred.ndim == 3 else 3, names=("pred", "gt"))
+    idx = _index(keypoints, pred.shape[1])
+    perms = _check_permutations(permutations, len(idx))
+    sel = np.asarray(idx)[perms]                                                 # (G, S) keypoint indices
+    if _is_torch(pred):
+        p = pred[:, idx][:, None]                                                 # (N, 1, S, D)
+        g = gt[:, torch.as_tensor(sel, device=gt.device)]                         # (N, G, S, D)
+        sq = ((p - g) ** 2).sum(dim=-1)
+        per_point = sq if squared else torch.sqrt(sq)
+        return per_point.mean(dim=-1)
+    p = np.asarray(pred, np.float64)[:, idx][:, None]
+    g = np.asarray(gt, np.float64)[:, sel]
+    sq = ((p - g) ** 2).sum(axis=-1)
+    return (sq if squared else np.sqrt(sq)).mean(axis=-1)
+
+
+def permute_keypoints(points, permutations, choice, keypoints=PROBE):
+    """Relabel the chosen keypoints of each frame by one element of a symmetry group.
+
+    ``out[n, sel[k]] = points[n, sel[perm[k]]]`` with ``perm = permutations[choice[n]]``; the other
+    keypoints are copied unchanged. With ``choice`` the argmin of :func:`symmetry_costs`, the truth
+    is relabelled to the symmetric copy nearest the prediction.
+
+    Args:
+        points: (N, K, D) float, numpy or torch (e.g. 3D or 2D targets).
+        permutations: (G, S) permutations of range(S), S = number of selected keypoints.
+        choice: (N,) int, the group element per frame, numpy or torch like ``points``.
+        keypoints: the selected keypoints (default the probe corners).
+
+    Returns:
+        (N, K, D) of the same type, dtype and device (a new array; gradients flow for torch).
+    """
+    if not isinstance(points, (np.ndarray, torch.Tensor)) or points.ndim != 3:
+        raise ValueError(f"points must be an (N, K, D) numpy array or torch tensor, got "
+                         f"{getattr(points, 'shape', type(points).__name__)}")
+    idx = _index(keypoints, points.shape[1])
+    perms = _check_permutations(permutations, len(idx))
+    sel = np.asarray(idx)[perms]                                                  # (G, S)
+    n = points.shape[0]
+    if tuple(choice.shape) != (n,):
+        raise ValueError(f"choice must be ({n},), got {tuple(choice.shape)}")
+    if _is_torch(points):
+        choice = torch.as_tensor(choice, dtype=torch.int64, device=points.device)
+        if n and (int(choice.min()) < 0 or int(choice.max()) >= len(perms)):
+            raise ValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
+        source = torch.as_tensor(sel, device=points.device)[choice]               # (N, S)
+        rows = torch.arange(n, device=points.device)[:, None]
+        out = points.clone()
+        out[:, idx] = points[rows, source]
+        return out
+    choice = np.asarray(choice, np.int64)
+    if n and (choice.min() < 0 or choice.max() >= len(perms)):
+        raise ValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
+    out = np.array(points, copy=True)
+    out[:, idx] = points[np.arange(n)[:, None], sel[choice]]
+    return out
+
+
+def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_turn"]):
+    """Per-frame probe corner error, minimised over the probe box's symmetry group.
+
+    Args:
+        pred_m, gt_m: (N, 29, 3) float, metres, same frame (numpy or torch).
+        permutations: the group as permutations of the 8 corners (default identity and the half
+            turn about the long axis, :data:`PROBE_SYMMETRIES`).
+
+    Returns:
+        (errors, choice): (N,) mean corner error in mm under the best group element, and (N,) int64
+        index of that element (0 = identity when it is listed first); numpy for numpy input, tensors
+        for torch input.
+    """
+    _check_points(pred_m, gt_m, 3)
+    if pred_m.shape[1] != NUM_KEYPOINTS:
+        raise ValueError(f"probe symmetric errors need {NUM_KEYPOINTS} keypoints, got {pred_m.shape[1]}")
+    costs = symmetry_costs(pred_m, gt_m, permutations) * _MM_PER_M               # (N, G) mm
+    if _is_torch(costs):
+        best, choice = costs.min(dim=1)
+        return best, choice
+    return costs.min(axis=1), costs.argmin(axis=1).astype(np.int64)
+
+
+def probe_symmetric_mpjpe_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_turn"]):
+    """Probe corner MPJPE with each frame's corners matched under the probe box's symmetry group.
+
+    For every frame the 8 predicted corners are compared with the true corners relabelled by each
+    group element (default: the identity and the half turn about the long axis, corner (ix, iy, iz)
+    -> (1 - ix, 1 - iy, iz)); the smaller mean corner error counts, and the result is its mean over
+    frames, as the BOP benchmark scores symmetric objects (an MSSD-style minimum over the group,
+    with the mean instead of the maximum over points so that it compares with the plain probe
+    MPJPE, which it never exceeds).
+
+    Args:
+        pred_m, gt_m: (N, 29, 3) float, metres, same frame.
+        permutations: the group as permutations of the 8 corners.
+
+    Returns:
+        millimetres: python float (numpy) or 0-dim tensor (torch).
+    """
+    errors, _ = probe_symmetric_errors_mm(pred_m, gt_m, permutations)
+    return _mean(errors)
+
+
+# ----------------------------------------------------------------------------- spread (collapse guard)
+
+
+def spread_ratios(pred_m, gt_m) -> dict[str, float | None]:
+    """How much the predicted 3D keypoints vary across frames, relative to the truth, per camera axis.
+
+    For each axis a of the camera frame (x right, y down, z forward):
+    ``spread_a(P) = mean over keypoints k of std over frames n of P[n, k, a]`` (population standard
+    deviation), and the ratio is ``spread_a(pred) / spread_a(gt)``. 1 means the prediction varies as
+    much as the truth, 0 that it is the same for every frame along that axis (a collapsed model);
+    a prediction scaled by s about its per-keypoint mean gives s. The ratio is None on an axis
+    along which the truth does not vary (spread below ``SPREAD_MIN_M``, e.g. a single frame).
+
+    Args:
+        pred_m, gt_m: (N, K, 3) float, metres, the same frames and keypoints (numpy or torch).
+
+    Returns:
+        {"x": ratio, "y": ratio, "z": ratio}, python floats (or None), for either input.
+    """
+    _check_points(pred_m, gt_m, 3)
+    if _is_torch(pred_m):
+        pred_m, gt_m = (x.detach().cpu().double().numpy() for x in (pred_m, gt_m))
+    pred, gt = np.asarray(pred_m, np.float64), np.asarray(gt_m, np.float64)
+    if pred.shape[0] == 0 or pred.shape[1] == 0:
+        raise ValueError(f"spread_ratios needs at least one frame and one keypoint, got {pred.shape}")
+    spread_pred = pred.std(axis=0).mean(axis=0)                                    # (3,) metres
+    spread_gt = gt.std(axis=0).mean(axis=0)
+    return {axis: (float(sp / sg) if sg >= SPREAD_MIN_M else None)
+            for axis, sp, sg in zip(SPREAD_AXES, spread_pred, spread_gt)}
+
+
+def collapsed_axes(ratios: dict[str, float | None], threshold: float = SPREAD_RATIO_WARN) -> list[str]:
+    """The axes whose spread ratio (from :func:`spread_ratios`) is below ``threshold``, in x, y, z order.
+
+    An axis with ratio None (the truth does not vary there) is never reported.
+    """
+    unknown = sorted(set(ratios) - set(SPREAD_AXES))
+    if unknown:
+        raise ValueError(f"ratios has unknown axes {unknown}; expected keys {list(SPREAD_AXES)}")
+    return [a for a in SPREAD_AXES if ratios.get(a) is not None and ratios[a] < threshold]

@@ -1,10 +1,22 @@
-"""The results JSON: one file per evaluated model, schema version 1.
+"""The results JSON: one file per evaluated model, schema version 2.
 
 ``hupbench eval`` writes it, ``hupbench leaderboard`` reads it. The schema is
 the one in the shared contract (notes/common.md), checked exactly: every key
 is present (``null`` where a value is unknown), no key is unknown, types are
 exact (an ``int`` field refuses ``True`` and ``1.5``), numbers are finite,
 errors and latencies are non-negative, and the PCK AUC lies in [0, 1].
+
+Versions:
+    2 adds two entries to ``metrics``: ``probe_symmetric_mpjpe_mm`` (the probe
+    corner MPJPE minimised per frame over the probe box's half turn,
+    ``hupbench.metrics.probe_symmetric_mpjpe_mm``; never above the plain probe
+    MPJPE) and ``spread_ratio`` ({"x", "y", "z"}: the spread of the predicted
+    3D keypoints across frames over the truth's, ``hupbench.metrics.spread_ratios``;
+    ``hupbench eval`` warns below 0.5). Both may be ``null``.
+    1 files (written before) still load: :func:`load_results` validates them
+    as version 1 and returns them upgraded to version 2 with those fields
+    ``null`` (unknown: they were not measured, and nothing is made up for
+    them). Only version 2 is written.
 
 A ``"reported"`` row (numbers quoted from a paper) may leave almost every
 field ``null``; it needs ``metrics.mpjpe_mm.all`` and a ``source`` citation.
@@ -23,7 +35,9 @@ from pathlib import Path
 
 from datagen.io import write_json
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: versions :func:`load_results` reads (older ones are upgraded on load)
+READABLE_VERSIONS = (1, 2)
 KINDS = ("measured", "reported")
 FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
@@ -35,7 +49,11 @@ _TOP_KEYS = ("schema_version", "kind", "run_name", "model", "dataset", "metrics"
              "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
 _DATASET_KEYS = ("path", "manifest_sha256", "split", "frames", "name")
-_METRIC_KEYS = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
+_METRIC_KEYS_V1 = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
+_METRIC_KEYS = _METRIC_KEYS_V1 + ("probe_symmetric_mpjpe_mm", "spread_ratio")
+_SPREAD_KEYS = ("x", "y", "z")
+# the symmetric probe error is a minimum that includes the identity: it may exceed the plain one only by rounding
+_SYMMETRIC_SLACK_MM = 1e-6
 _MPJPE_KEYS = ("all", "hand", "probe", "all_averaging")
 _LATENCY_RUNTIMES = ("pytorch", "onnxruntime")
 _LATENCY_BATCHES = ("batch1", "batch32")
@@ -121,7 +139,7 @@ def _validate_mpjpe_triplet(m: dict, parts: tuple, keys: tuple, *, all_nullable:
 
 
 def validate_results(d: dict) -> dict:
-    """Check a results dict against schema version 1.
+    """Check a results dict against its schema version (2, or 1 for files written before).
 
     Args:
         d: the parsed results JSON.
@@ -135,9 +153,9 @@ def validate_results(d: dict) -> dict:
     """
     _keys(d, (), _TOP_KEYS)
     version = d["schema_version"]
-    if not isinstance(version, int) or isinstance(version, bool) or version != SCHEMA_VERSION:
-        raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench reads), "
-                         f"got {_show(version)}")
+    if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
+        raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
+                         f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
@@ -163,13 +181,23 @@ def validate_results(d: dict) -> dict:
     _string(dataset, ("dataset", "name"), nullable=False)
 
     metrics = d["metrics"]
-    _keys(metrics, ("metrics",), _METRIC_KEYS)
+    _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
     _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
     _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
     _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
     _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
     _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
     _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
+    if version >= 2:
+        _number(metrics, ("metrics", "probe_symmetric_mpjpe_mm"), nullable=True)
+        symmetric, probe = metrics["probe_symmetric_mpjpe_mm"], metrics["mpjpe_mm"]["probe"]
+        if symmetric is not None and probe is not None and symmetric > probe + _SYMMETRIC_SLACK_MM:
+            _fail(("metrics", "probe_symmetric_mpjpe_mm"),
+                  f"at most the plain probe MPJPE ({probe!r}: a minimum over a group that holds the identity)",
+                  symmetric)
+        _keys(metrics["spread_ratio"], ("metrics", "spread_ratio"), _SPREAD_KEYS)
+        for axis in _SPREAD_KEYS:
+            _number(metrics["spread_ratio"], ("metrics", "spread_ratio", axis), nullable=True)
 
     breakdowns = d["breakdowns"]
     if not isinstance(breakdowns, dict):
@@ -237,7 +265,8 @@ def blank_results(kind: str, run_name: str) -> dict:
         "schema_version": SCHEMA_VERSION, "kind": kind, "run_name": run_name,
         "model": dict.fromkeys(_MODEL_KEYS),
         "dataset": dict.fromkeys(_DATASET_KEYS) | {"split": "test"},
-        "metrics": dict.fromkeys(_METRIC_KEYS) | {"mpjpe_mm": dict.fromkeys(_MPJPE_KEYS)},
+        "metrics": dict.fromkeys(_METRIC_KEYS) | {"mpjpe_mm": dict.fromkeys(_MPJPE_KEYS),
+                                                   "spread_ratio": dict.fromkeys(_SPREAD_KEYS)},
         "breakdowns": {},
         "latency_ms_per_image": {r: dict.fromkeys(_LATENCY_BATCHES) for r in _LATENCY_RUNTIMES},
         "device": None,
@@ -247,14 +276,37 @@ def blank_results(kind: str, run_name: str) -> dict:
     return copy.deepcopy(blank)
 
 
+def upgrade_results(d: dict) -> dict:
+    """A validated results dict in the current schema version.
+
+    Version 1 gains ``metrics.probe_symmetric_mpjpe_mm = None`` and
+    ``metrics.spread_ratio = {"x": None, "y": None, "z": None}`` (not measured
+    when the file was written); version 2 is returned as is.
+
+    Args:
+        d: a dict that :func:`validate_results` accepts.
+
+    Returns:
+        ``d`` itself when it is current, else an upgraded deep copy (``d`` is not changed).
+    """
+    validate_results(d)
+    if d["schema_version"] == SCHEMA_VERSION:
+        return d
+    out = copy.deepcopy(d)
+    out["schema_version"] = SCHEMA_VERSION
+    out["metrics"]["probe_symmetric_mpjpe_mm"] = None
+    out["metrics"]["spread_ratio"] = dict.fromkeys(_SPREAD_KEYS)
+    return validate_results(out)
+
+
 def load_results(path: str | Path) -> dict:
-    """Read a results JSON and validate it.
+    """Read a results JSON, validate it and upgrade it to the current schema version.
 
     Args:
         path: the ``.json`` file.
 
     Returns:
-        The validated dict.
+        The validated dict, in schema version 2 (see :func:`upgrade_results`).
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -268,7 +320,7 @@ def load_results(path: str | Path) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON: {exc}") from exc
     try:
-        return validate_results(data)
+        return upgrade_results(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from exc
 
@@ -284,7 +336,10 @@ def write_results(path: str | Path, d: dict) -> Path:
         The written path.
 
     Raises:
-        ValueError: ``d`` breaks the schema (nothing is written).
+        ValueError: ``d`` breaks the schema or is not the current version (nothing is written).
     """
     validate_results(d)
+    if d["schema_version"] != SCHEMA_VERSION:
+        raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} to be written, got "
+                         f"{d['schema_version']}: upgrade_results() first")
     return write_json(path, d)

@@ -34,6 +34,16 @@ def probe() -> Probe:
 
 
 @pytest.fixture(scope="module")
+def plain() -> Probe:
+    """The probe without its orientation marker (coarse grid: only the mesh and exact distances are used)."""
+    return build_probe(dataclasses.replace(ProbeSpec(), marker_height=0.0, sdf_spacing=0.004))
+
+
+#: the half turn about the probe's long axis z: (x, y, z) -> (-x, -y, z)
+HALF_TURN = np.diag([-1.0, -1.0, 1.0])
+
+
+@pytest.fixture(scope="module")
 def random_points(probe: Probe) -> np.ndarray:
     """(2000, 3) points uniform in the bounding box + 30 mm, probe frame."""
     lo, hi = probe.mesh.bounds
@@ -64,17 +74,106 @@ def test_mesh_is_closed_outward_and_within_budget(probe: Probe) -> None:
     assert mesh.is_watertight
     assert mesh.is_winding_consistent
     assert mesh.volume > 0
-    assert len(mesh.faces) <= 12_000
+    # 11,360 faces for the sweep and about 1,650 more for the refined patch under the marker
+    assert len(mesh.faces) <= 14_000
     # a probe about 165 x 72 x 28 mm holds roughly 100-200 cm^3
     assert 100e-6 < mesh.volume < 200e-6
     assert np.all(mesh.area_faces > 0)
 
 
-def test_mesh_is_mirror_symmetric(probe: Probe) -> None:
-    v = probe.mesh.vertices
+def _mirrored(v: np.ndarray, flip) -> np.ndarray:
+    """(V,) bool: which vertices have their mirror image ``v * flip`` among the vertices."""
     key = {tuple(row) for row in np.round(v, 12)}
+    return np.array([tuple(row) in key for row in np.round(v * flip, 12)])
+
+
+def test_mesh_is_mirror_symmetric_except_for_the_marker(probe: Probe, plain: Probe) -> None:
+    # without the marker: symmetric about x = 0 and y = 0
     for flip in ([-1, 1, 1], [1, -1, 1]):
-        assert all(tuple(row) in key for row in np.round(v * flip, 12))
+        assert _mirrored(plain.mesh.vertices, flip).all()
+    # with it: still about y = 0 (the marker is centred on y = 0) ...
+    v = probe.mesh.vertices
+    assert _mirrored(v, [1, -1, 1]).all()
+    # ... but not about x = 0: the refined patch on the +x end and the housing vertices facing it on the -x
+    # end lose their mirror image, nothing else
+    lost = ~_mirrored(v, [-1, 1, 1])
+    assert lost.sum() > 100
+    assert np.abs(v[lost, 0]).min() > 0.015 and np.abs(v[lost, 1]).max() < 0.013
+    assert 0.02 < v[lost, 2].min() and v[lost, 2].max() < 0.045
+    raised = plain.signed_distance_exact(v) > 1e-6
+    assert raised.sum() > 50 and lost[raised].all()
+
+
+def test_half_turned_mesh_differs_by_the_marker_height(probe: Probe, plain: Probe) -> None:
+    # symmetric Hausdorff distance between the surface and its half-turned copy, sampled at the vertices:
+    # the half turn is an involutive isometry, so max_v d(R v, S) covers both directions
+    assert probe.spec.marker_height == pytest.approx(0.002)
+    turned = probe.mesh.vertices @ HALF_TURN.T
+    hausdorff = np.abs(probe.signed_distance_exact(turned)).max()
+    assert hausdorff == pytest.approx(probe.spec.marker_height, abs=0.05 * MM)
+    # the same through trimesh's own closest points
+    _, dist, _ = trimesh.proximity.closest_point(probe.mesh, turned)
+    assert dist.max() == pytest.approx(hausdorff, abs=1e-6)
+    # without the marker the half turn maps the mesh onto itself
+    plain_turned = plain.mesh.vertices @ HALF_TURN.T
+    assert np.abs(plain.signed_distance_exact(plain_turned)).max() < 1e-12
+    assert _mirrored(plain.mesh.vertices, [-1, -1, 1]).all()
+
+
+def test_marker_is_on_the_plus_x_end_of_the_head(probe: Probe, plain: Probe) -> None:
+    spec, mesh = probe.spec, probe.mesh
+    marker = probe.marker_face_mask
+    assert marker.dtype == bool and marker.shape == (len(mesh.faces),)
+    assert not (marker & probe.lens_face_mask).any()
+    v = mesh.vertices[np.unique(mesh.faces[marker])]
+    # documented side: +x, centred on y = 0, on the head's shoulder around marker_z
+    assert v[:, 0].min() > 0.02
+    np.testing.assert_allclose(v[:, 1].max(), -v[:, 1].min(), atol=1e-12)
+    # the width is measured around the rounded end, so the marker reaches a little less far in y
+    assert 0.8 * spec.marker_width / 2 < v[:, 1].max() < spec.marker_width / 2
+    assert v[:, 2].min() > probe.region_z.lens[1] and v[:, 2].max() < probe.region_z.head[1]
+    assert v[:, 2].min() < spec.marker_z < v[:, 2].max()
+    # its area is about that of the flat 14 x 20 mm stadium, plus what the slopes of the rounded pad add
+    rim = min(spec.marker_length, spec.marker_width) / 2
+    stadium = spec.marker_length * spec.marker_width - (4 - np.pi) * rim**2
+    assert stadium < mesh.area_faces[marker].sum() < 1.3 * stadium
+    # the pad stands marker_height proud of the housing it was moulded into (up to the sweep's chords)
+    assert plain.signed_distance_exact(v).max() == pytest.approx(spec.marker_height, abs=0.05 * MM)
+    # nothing changed on the -x end
+    far = mesh.vertices[:, 0] < 0
+    assert np.abs(plain.signed_distance_exact(mesh.vertices[far])).max() < 1e-12
+
+
+def test_marker_keeps_box_lens_and_regions(probe: Probe, plain: Probe) -> None:
+    np.testing.assert_array_equal(probe.corners_probe, plain.corners_probe)
+    np.testing.assert_array_equal(probe.mesh.bounds, plain.mesh.bounds)
+    assert probe.region_z == plain.region_z
+    lens = probe.mesh.triangles[probe.lens_face_mask]
+    plain_lens = plain.mesh.triangles[plain.lens_face_mask]
+    np.testing.assert_array_equal(np.sort(lens.reshape(-1, 9), axis=0), np.sort(plain_lens.reshape(-1, 9), axis=0))
+
+
+def test_signed_distance_sign_at_the_marker(probe: Probe, plain: Probe) -> None:
+    mesh = probe.mesh
+    top = np.unique(mesh.faces[probe.marker_face_mask])
+    height = plain.signed_distance_exact(mesh.vertices[top])
+    top = top[height > 0.9 * probe.spec.marker_height]  # the pad's flat top
+    assert len(top) > 10
+    normal = mesh.vertex_normals[top]
+    inside = mesh.vertices[top] - 1 * MM * normal  # inside the pad, 1 mm above the housing
+    outside = mesh.vertices[top] + 1 * MM * normal
+    for points, sign in ((inside, -1.0), (outside, 1.0)):
+        exact = probe.signed_distance_exact(points)
+        # 1 mm along the vertex normal is 1 mm from the surface up to the pad's curvature
+        np.testing.assert_allclose(exact, sign * 1 * MM, atol=0.1 * MM)
+        np.testing.assert_allclose(probe.signed_distance(points), exact, atol=0.3 * MM)
+        torch_d = probe.signed_distance_torch(torch.tensor(points)).numpy()
+        np.testing.assert_allclose(torch_d, probe.signed_distance(points), atol=1e-12)
+        # trimesh (positive inside) agrees on the side
+        assert np.all(np.sign(-trimesh.proximity.signed_distance(mesh, points)) == sign)
+    # without the marker the same inside points are outside the housing; on the -x end they are outside too
+    assert np.all(plain.signed_distance_exact(inside) > 0.5 * MM)
+    assert np.all(probe.signed_distance(inside @ HALF_TURN.T) > 0.5 * MM)
 
 
 def test_vertex_normals_are_smooth(probe: Probe) -> None:
@@ -350,11 +449,32 @@ def test_bad_torch_points_raise(probe: Probe, points, match) -> None:
         ({"length": 0.09}, "leaves no handle"),
         ({"head_height": 0.008}, "head_height .* too small"),
         ({"n_body_rings": 3}, "ring counts too small"),
+        ({"marker_height": -0.001}, "marker_height must be >= 0"),
+        ({"marker_subdivisions": 2.5}, "marker_subdivisions must be an int"),
+        ({"marker_width": 0.005}, "marker_length and marker_width > 2 \\* marker_edge"),
+        ({"marker_length": 0.006}, "marker_length and marker_width > 2 \\* marker_edge"),
     ],
 )
 def test_bad_spec_raises(change, match) -> None:
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(ProbeSpec(), **change)
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"marker_z": 0.005}, "must lie on the head's housing|must lie on the housing"),
+        ({"marker_z": 0.12}, "must lie on the head's housing"),
+        ({"marker_height": 0.01}, "sticks out of the probe's bounding box"),
+        ({"marker_length": 0.05}, "must lie on the head's housing"),
+        ({"marker_width": 0.03, "marker_length": 0.03}, "sticks out of the probe's bounding box"),
+        ({"marker_width": 0.08}, "wider than the head's end"),
+    ],
+)
+def test_misplaced_marker_is_refused(change, match) -> None:
+    spec = dataclasses.replace(ProbeSpec(), sdf_spacing=0.004, **change)
+    with pytest.raises(ValueError, match=match):
+        build_probe(spec)
 
 
 def test_build_rejects_non_spec() -> None:

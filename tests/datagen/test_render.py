@@ -88,6 +88,30 @@ def test_full_scene_labels_are_exactly_the_parts_present(renderer):
     np.testing.assert_array_equal(out["depth"] > 0, out["seg"] > 0)
 
 
+def test_orientation_marker_renders_green_as_probe_on_the_plus_x_end(renderer):
+    """The marker is its own part, drawn in PROBE_MARKER_RGB, labelled probe; seen from +x only."""
+    from datagen.preview import handset_grasp
+    from datagen.scene import PROBE_MARKER_RGB, scene_parts
+
+    parts = [p for p in scene_parts(handset_grasp()) if p.name.startswith("probe")]
+    assert [p.name for p in parts] == ["probe_body", "probe_lens", "probe_marker"]
+    marker = parts[-1]
+    assert marker.label == SEG_LABELS["probe"] and marker.color == PROBE_MARKER_RGB
+    renderer.set_parts(parts)
+    head = np.array([0.0, 0.0, 0.03])
+    greens = {}
+    for side in (1.0, -1.0):
+        # the probe head from 0.5 m on its +x (or -x) side, a little above, lit from the camera
+        eye = head + 0.5 * np.array([side * np.cos(np.deg2rad(20)), 0.0, np.sin(np.deg2rad(20))])
+        out = renderer.render(look_at(eye, head, up_world=(0.0, 0.0, 1.0)), ("rgb", "seg"))
+        rgb = out["rgb"].astype(int)
+        green = (rgb[..., 1] > rgb[..., 0] + 60) & (rgb[..., 1] > rgb[..., 2] + 60)
+        assert np.all(out["seg"][green] == SEG_LABELS["probe"])
+        greens[side] = int(green.sum())
+    # 14 x 20 mm at 0.5 m is up to 13 x 19 px of the 256 px image, foreshortened on the sloping shoulder
+    assert greens[1.0] >= 60 and greens[-1.0] == 0
+
+
 def test_camera_at_the_pole_renders_without_nan(renderer):
     from datagen.preview import handset_grasp
     from datagen.scene import keypoints_world, scene_parts
@@ -139,6 +163,10 @@ def test_bad_render_requests(renderer):
         renderer.render(np.eye(3))
     with pytest.raises(ValueError, match="label must be one of 1, 2, 3"):
         MeshPart("x", trimesh.creation.box(), 7)
+    with pytest.raises(ValueError, match=r"part 'x': color must be 3 values in \[0, 1\], got \(1.5, 0, 0\)"):
+        MeshPart("x", trimesh.creation.box(), 3, color=(1.5, 0, 0))
+    with pytest.raises(ValueError, match=r"part 'x': emissive must be 3 values in \[0, 1\], got \(0, 1\)"):
+        MeshPart("x", trimesh.creation.box(), 3, emissive=(0, 1))
     with pytest.raises(ValueError, match="image width must be a positive int"):
         Renderer(Intrinsics(480.0, 480.0, 0.0, 0.0, 0, 256))
 

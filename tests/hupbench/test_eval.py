@@ -112,6 +112,66 @@ def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, mo
     for axis in ("latitude", "z_ego", "background"):
         for bucket in r["breakdowns"][axis].values():
             assert bucket["mpjpe_mm"]["all"] == pytest.approx(5.2, abs=1e-4)
+    # a shift keeps the labels (the half turn is further) and moves every frame alike (spread unchanged)
+    assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(5.2, abs=1e-4)
+    assert m["spread_ratio"] == pytest.approx({"x": 1.0, "y": 1.0, "z": 1.0}, abs=1e-6)
+
+
+def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_path, monkeypatch):
+    """Predicted corners relabelled by the half turn, every keypoint's x frozen: eval says both."""
+    ckpt, _ = exported
+    reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE))
+    truth = iter(torch.utils.data.DataLoader(reader, batch_size=len(reader)))
+    half_turn = list(M.PROBE_SYMMETRIES["half_turn"][1])
+
+    def turned_and_frozen(self, images):
+        batch = next(truth)
+        points3d = batch["keypoints_3d"].double().numpy()
+        points3d[:, 21:] = points3d[:, 21:][:, half_turn]
+        points3d[..., 0] = points3d[0, :, 0]  # the same x for every frame, per keypoint
+        return batch["keypoints_2d"].double().numpy(), points3d
+
+    monkeypatch.setattr(EV._Model, "predict", turned_and_frozen)
+    lines = []
+    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "turned.json", latency=False, batch_size=len(reader),
+                    log=lines.append)["results"]
+    m = r["metrics"]
+    with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
+        gt = ann["keypoints_3d_cam"].astype(np.float64)
+    expected = gt.copy()
+    expected[:, 21:] = gt[:, 21:][:, half_turn]
+    expected[..., 0] = expected[0, :, 0]
+    # only the frozen x remains in the symmetric error; the plain one also pays for the swapped labels
+    frozen = np.abs(gt[..., 0] - gt[0, :, 0])[:, 21:]
+    assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(1000 * frozen.mean(), rel=1e-4)
+    plain = 1000 * np.linalg.norm(expected - gt, axis=-1)[:, 21:].mean()
+    assert m["mpjpe_mm"]["probe"] == pytest.approx(plain, rel=1e-4)
+    assert m["mpjpe_mm"]["probe"] > m["probe_symmetric_mpjpe_mm"] + 10.0
+    assert m["spread_ratio"]["x"] == 0.0
+    assert m["spread_ratio"]["y"] == pytest.approx(1.0, abs=1e-9) and m["spread_ratio"]["z"] == pytest.approx(1.0)
+    warnings = [line for line in lines if line.startswith("warning:")]
+    assert len(warnings) == 1 and "along the camera x axis" in warnings[0] and "spread ratio 0.00 < 0.5" in warnings[0]
+    assert any("the half-turned corner labels were closer on 100.0 % of frames" in line for line in lines)
+    # stored, and shown in the table
+    assert load_results(tmp_path / "turned.json")["metrics"]["spread_ratio"]["x"] == 0.0
+    table = EV.format_table(r)
+    assert "spread ratio x / y / z" in table and "0.00 / 1.00 / 1.00" in table
+
+
+def test_probe_symmetry_group_is_read_from_the_dataset(tiny_dataset):
+    with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
+        points, T = ann["keypoints_3d_cam"], ann["T_cam_world"]
+    assert EV.probe_symmetry_group(points, T) == M.PROBE_SYMMETRIES["half_turn"]
+    # a box moved off the probe axis by 3 mm (in the probe frame) is not half-turn symmetric
+    moved = points.astype(np.float64).copy()
+    moved[:, 21:] += (T[:, :3, :3] @ np.array([0.003, 0.0, 0.0]))[:, None]   # R_cam_world (3 mm along x)
+    with pytest.raises(ValueError, match="not symmetric under the rotation"):
+        EV.probe_symmetry_group(moved, T)
+    # corners that move between frames: not a probe at the world origin
+    drifting = points.astype(np.float64).copy()
+    drifting[1, 21:] += T[1, :3, :3] @ np.array([0.0, 0.0, 0.001])   # 1 mm along the probe axis in frame 1
+    with pytest.raises(ValueError, match="differ between frames by 1.000 mm"):
+        EV.probe_symmetry_group(drifting, T)
 
 
 def test_eval_cli_prints_table(exported, tiny_dataset, tmp_path, capsys):

@@ -63,7 +63,8 @@ def measured(name, label, all_mm, hand, probe, onnx_ms, torch_ms, wall_s, hardwa
     d["dataset"] |= {"name": "hupbench default", "frames": 5760, "manifest_sha256": "ab" * 32, "path": "/data"}
     d["metrics"] = {"mpjpe_mm": {"all": all_mm, "hand": hand, "probe": probe, "all_averaging": "mean over 29 keypoints"},
                     "root_relative_hand_mpjpe_mm": 7.0, "pa_mpjpe_hand_mm": 4.5678, "pck_auc_0_50mm": 0.81234,
-                    "pixel_error_px": 2.0}
+                    "pixel_error_px": 2.0, "probe_symmetric_mpjpe_mm": probe - 1.0,
+                    "spread_ratio": {"x": 0.9, "y": 1.01, "z": 0.456}}
     d["latency_ms_per_image"]["onnxruntime"]["batch1"] = onnx_ms
     d["latency_ms_per_image"]["pytorch"]["batch1"] = torch_ms
     d["training"] |= {"wall_s": wall_s, "hardware": hardware, "command": f"python train.py run_name={name}",
@@ -165,12 +166,16 @@ def test_synthetic_measured_rows_in_table(synthetic_board):
         "ResNet-50 baseline, HUP-3D paper (input size not stated)",
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
     assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | 128 | 12.35 | 10.46 | 8.00 | "
-                        "16.90 | 4.57 | 0.812 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
+                        "16.90 | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
                         "`python train.py run_name=slow_big` |")
     assert table[3].endswith("| 5.0 h | — | 40.00 | `python train.py run_name=torch_only` |")
-    assert table[4].split(" | ")[10] == "25 min, 1x H100"
+    assert table[4].split(" | ")[12] == "25 min, 1x H100"
     assert table[0] == ("| HOPE-Net, HUP-3D paper (backbone and input size not stated) | reported in paper | "
-                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | — | — | — | — | — | — |")
+                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 8) + " |")
+    assert ("- probe MPJPE with the corners matched under the half turn about the probe's long axis where closer: "
+            "15.90 mm (plain: 16.90 mm)") in text
+    assert ("- spread ratio of predicted to true 3D keypoints across the test frames, x / y / z: 0.90 / 1.01 / 0.46; "
+            "below 0.5 on z: the predictions barely vary along that axis (collapsed)") in text
     assert "(21 × 5.33 + 8 × 17.05) / 29 = 8.56 mm, which is not the row's all (8.65 mm)" in text
     # a measured row whose all is the keypoint-weighted mean is not flagged
     assert "/ 29 = 30.00 mm\n" in text and "not the row's all (30.00 mm)" not in text
@@ -180,7 +185,7 @@ def test_table_cells_escape_pipes_and_newlines():
     row = measured("r", "a | b\nc", 1.0, 1.0, 1.0, None, None, None, hardware=None, log=False)
     cells = table_row(row)
     assert cells[0] == "a \\| b c"
-    assert cells[10] == "—" and cells[11] == "—"
+    assert cells[12] == "—" and cells[13] == "—"  # no training time, no ONNX latency
 
 
 @pytest.mark.parametrize("seconds, text", [(None, "—"), (42.4, "42 s"), (59.9, "60 s"), (60.0, "1 min"),
@@ -233,12 +238,34 @@ def test_bad_log_is_named(tmp_path, content, message):
 
 # ----------------------------------------------------------------------------- bad results files
 
+def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
+    path = synthetic_board / "results" / "slow_big.json"
+    data = json.loads(path.read_text())
+    data["schema_version"] = 1
+    del data["metrics"]["probe_symmetric_mpjpe_mm"], data["metrics"]["spread_ratio"]
+    path.write_text(json.dumps(data))
+    run_leaderboard(synthetic_board)
+    text = (synthetic_board / README).read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
+    cells = row.split(" | ")
+    assert cells[8:12] == ["—", "4.57", "0.812", "—"]
+    assert "15.90 mm (plain" not in text and "spread ratio of predicted to true 3D keypoints across the test" not in \
+        text.split("(`slow_big`)")[1].split("###")[0]
+
+
+def test_spread_constants_match_the_metrics():
+    from hupbench import leaderboard, metrics
+
+    assert leaderboard.SPREAD_AXES == metrics.SPREAD_AXES
+    assert leaderboard.SPREAD_RATIO_WARN == metrics.SPREAD_RATIO_WARN
+
+
 def test_wrong_schema_version_is_rejected_with_its_name(synthetic_board):
     path = synthetic_board / "results" / "slow_big.json"
     data = json.loads(path.read_text())
-    data["schema_version"] = 2
+    data["schema_version"] = 3
     path.write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 1"):
+    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 2"):
         run_leaderboard(synthetic_board)
     assert not (synthetic_board / README).exists()  # nothing written
 

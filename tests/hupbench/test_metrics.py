@@ -1,5 +1,6 @@
 """Metric tests: hand-computed answers, invariances, degenerate sets, numpy vs torch agreement."""
 
+import itertools
 import math
 
 import numpy as np
@@ -216,3 +217,155 @@ def test_bad_input_messages():
         M.mpjpe_split_mm(np.zeros((1, 21, 3)), np.zeros((1, 21, 3)))
     with pytest.raises(ValueError, match="out of range"):
         M.mpjpe_mm(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), keypoints=[5])
+
+
+# ----------------------------------------------------------------------------- symmetric probe error
+
+HALF_TURN_PERM = (6, 7, 4, 5, 2, 3, 0, 1)
+
+
+def _probe_frames(n=3, seed=0):
+    """(n, 29, 3) truth: random hands and an axis-centred probe box, rotated and moved per frame."""
+    rng = np.random.default_rng(seed)
+    bits = np.array(list(itertools.product((0, 1), repeat=3)), np.float64)
+    box = (2 * bits - 1) * [0.036, 0.015, 0.0825] + [0.0, 0.0, 0.0825]          # probe frame
+    frames = np.empty((n, 29, 3))
+    for i in range(n):
+        R = _rotation(rng.normal(size=3), rng.uniform(0, np.pi))
+        t = np.array([0.0, 0.0, 0.6]) + rng.normal(0, 0.05, 3)
+        frames[i, :21] = rng.normal(0, 0.05, (21, 3)) + t
+        frames[i, 21:] = box @ R.T + t
+    return frames, box
+
+
+def test_half_turn_permutation_is_read_from_the_corners():
+    # the documented corner order (ix, iy, iz) -> (1 - ix, 1 - iy, iz)
+    assert M.PROBE_SYMMETRIES["half_turn"] == (tuple(range(8)), HALF_TURN_PERM)
+    assert M.PROBE_SYMMETRIES["none"] == (tuple(range(8)),)
+    for k, (ix, iy, iz) in enumerate(itertools.product((0, 1), repeat=3)):
+        assert HALF_TURN_PERM[k] == 4 * (1 - ix) + 2 * (1 - iy) + iz
+    _, box = _probe_frames()
+    assert M.symmetry_permutation(box, M.HALF_TURN_Z) == HALF_TURN_PERM
+    assert M.symmetry_permutation(box, np.eye(3)) == tuple(range(8))
+
+
+def test_the_probe_box_is_symmetric_under_the_half_turn():
+    from datagen.probe import build_probe
+
+    corners = build_probe().corners_probe
+    assert M.symmetry_permutation(corners, M.HALF_TURN_Z) == HALF_TURN_PERM
+
+
+def test_symmetry_permutation_refuses_an_asymmetric_set():
+    _, box = _probe_frames()
+    with pytest.raises(ValueError, match="not symmetric under the rotation: .* mm from the nearest point"):
+        M.symmetry_permutation(box + [0.002, 0.0, 0.0], M.HALF_TURN_Z)   # box off the axis by 2 mm
+    with pytest.raises(ValueError, match="proper rotation"):
+        M.symmetry_permutation(box, np.diag([-1.0, 1.0, 1.0]))          # a mirror
+    with pytest.raises(ValueError, match=r"must be \(K, 3\)"):
+        M.symmetry_permutation(box[:, :2], M.HALF_TURN_Z)
+
+
+def test_symmetric_probe_error_known_answers():
+    gt, _ = _probe_frames(n=4)
+    turned = gt.copy()
+    turned[:, 21:] = gt[:, 21:][:, list(HALF_TURN_PERM)]   # the half-turned labelling of the same box
+    # the plain probe error of the swapped labels is large, the symmetric one is zero
+    assert M.mpjpe_split_mm(turned, gt)["probe"] > 20.0
+    assert M.probe_symmetric_mpjpe_mm(turned, gt) == pytest.approx(0.0, abs=1e-9)
+    errors, choice = M.probe_symmetric_errors_mm(turned, gt)
+    np.testing.assert_array_equal(choice, [1, 1, 1, 1])
+    # only the identity in the group: the plain probe MPJPE
+    assert M.probe_symmetric_mpjpe_mm(turned, gt, M.PROBE_SYMMETRIES["none"]) == pytest.approx(
+        M.mpjpe_split_mm(turned, gt)["probe"], rel=1e-12)
+    # a 3 mm shift of every corner along x: 3 mm under either labelling choice, the identity wins
+    shifted = gt.copy()
+    shifted[:, 21:, 0] += 0.003
+    assert M.probe_symmetric_mpjpe_mm(shifted, gt) == pytest.approx(3.0)
+    np.testing.assert_array_equal(M.probe_symmetric_errors_mm(shifted, gt)[1], 0)
+    # mixed frames: frame 0 turned (0 mm), frame 1 shifted (3 mm): mean 1.5; never above the plain error
+    mixed = np.concatenate([turned[:1], shifted[1:2]])
+    assert M.probe_symmetric_mpjpe_mm(mixed, gt[:2]) == pytest.approx(1.5)
+    pred, truth = _random_points(n=5)
+    assert M.probe_symmetric_mpjpe_mm(pred, truth) <= M.mpjpe_split_mm(pred, truth)["probe"] + 1e-12
+
+
+def test_symmetric_probe_error_torch_matches_numpy():
+    pred, gt = _random_points(n=6, seed=3)
+    errors, choice = M.probe_symmetric_errors_mm(pred, gt)
+    errors_t, choice_t = M.probe_symmetric_errors_mm(torch.from_numpy(pred), torch.from_numpy(gt))
+    np.testing.assert_allclose(errors_t.numpy(), errors, rtol=1e-12)
+    np.testing.assert_array_equal(choice_t.numpy(), choice)
+    value = M.probe_symmetric_mpjpe_mm(torch.from_numpy(pred), torch.from_numpy(gt))
+    assert isinstance(value, torch.Tensor) and float(value) == pytest.approx(M.probe_symmetric_mpjpe_mm(pred, gt))
+
+
+def test_symmetry_costs_and_permute_keypoints():
+    gt, _ = _probe_frames(n=2)
+    perms = M.PROBE_SYMMETRIES["half_turn"]
+    costs = M.symmetry_costs(gt, gt, perms)
+    assert costs.shape == (2, 2)
+    np.testing.assert_allclose(costs[:, 0], 0.0, atol=1e-15)
+    # the half turn moves every corner to the diagonally opposite corner of its z-face
+    diagonal = np.hypot(0.072, 0.030)
+    np.testing.assert_allclose(costs[:, 1], diagonal, rtol=1e-12)
+    np.testing.assert_allclose(M.symmetry_costs(gt, gt, perms, squared=True)[:, 1], diagonal**2, rtol=1e-12)
+    # relabelling by the half turn, twice, is the identity; the hand is untouched
+    once = M.permute_keypoints(gt, perms, np.array([1, 0]))
+    np.testing.assert_array_equal(once[0, 21:], gt[0, 21:][list(HALF_TURN_PERM)])
+    np.testing.assert_array_equal(once[1], gt[1])
+    np.testing.assert_array_equal(once[:, :21], gt[:, :21])
+    np.testing.assert_array_equal(M.permute_keypoints(once, perms, np.array([1, 0])), gt)
+    once_t = M.permute_keypoints(torch.from_numpy(gt), perms, torch.tensor([1, 0]))
+    np.testing.assert_array_equal(once_t.numpy(), once)
+    # works on 2D points too
+    assert M.permute_keypoints(gt[..., :2], perms, np.array([1, 1])).shape == (2, 29, 2)
+
+
+@pytest.mark.parametrize(
+    "permutations, choice, match",
+    [
+        ([[0, 1, 2, 3, 4, 5, 6, 6]], [0, 0], "must be a permutation of range\\(8\\)"),
+        ([[0, 1, 2]], [0, 0], "must be \\(G, 8\\) integer permutations"),
+        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0, 1], "choice must index the 1 permutations"),
+        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0], "choice must be \\(2,\\)"),
+    ],
+)
+def test_bad_permutations_are_named(permutations, choice, match):
+    gt, _ = _probe_frames(n=2)
+    with pytest.raises(ValueError, match=match):
+        M.permute_keypoints(gt, permutations, np.array(choice))
+
+
+# ----------------------------------------------------------------------------- spread ratios
+
+
+def test_spread_ratio_known_answers():
+    _, gt = _random_points(n=20, seed=4)
+    assert M.spread_ratios(gt, gt) == pytest.approx({"x": 1.0, "y": 1.0, "z": 1.0})
+    # one layout for every image (the mean of the truth): 0 on every axis
+    constant = np.broadcast_to(gt[0], gt.shape).copy()
+    assert M.spread_ratios(constant, gt) == pytest.approx({"x": 0.0, "y": 0.0, "z": 0.0}, abs=1e-12)
+    assert M.collapsed_axes(M.spread_ratios(constant, gt)) == ["x", "y", "z"]
+    # a copy scaled about the per-keypoint mean by (0.3, 2, 1), and moved: ratios 0.3, 2, 1
+    mean = gt.mean(axis=0)
+    scaled = mean + (gt - mean) * [0.3, 2.0, 1.0] + [0.1, -0.2, 0.05]
+    assert M.spread_ratios(scaled, gt) == pytest.approx({"x": 0.3, "y": 2.0, "z": 1.0}, rel=1e-12)
+    assert M.collapsed_axes(M.spread_ratios(scaled, gt)) == ["x"]
+    ratios_t = M.spread_ratios(torch.from_numpy(scaled).float(), torch.from_numpy(gt).float())
+    assert all(type(v) is float for v in ratios_t.values())
+    assert ratios_t == pytest.approx({"x": 0.3, "y": 2.0, "z": 1.0}, rel=1e-5)
+
+
+def test_spread_ratio_hand_computed_and_undefined():
+    # two frames, one keypoint: truth moves 2 cm along x only, prediction 1 cm along x and 1 cm along z
+    gt = np.array([[[0.0, 0.0, 0.5]], [[0.02, 0.0, 0.5]]])
+    pred = np.array([[[0.0, 0.0, 0.5]], [[0.01, 0.0, 0.51]]])
+    # std over 2 frames = half the difference: x 5 mm / 10 mm; y, z: the truth does not move -> None
+    assert M.spread_ratios(pred, gt) == {"x": 0.5, "y": None, "z": None}
+    assert M.collapsed_axes({"x": 0.5, "y": None, "z": 0.49}) == ["z"]
+    assert M.spread_ratios(pred[:1], gt[:1]) == {"x": None, "y": None, "z": None}   # one frame
+    with pytest.raises(ValueError, match="unknown axes"):
+        M.collapsed_axes({"w": 0.1})
+    with pytest.raises(ValueError, match="must have the same shape"):
+        M.spread_ratios(pred, gt[:1])

@@ -1,7 +1,9 @@
 """The results schema: valid rows pass, every kind of bad field is named by its path."""
 
+import copy
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -9,9 +11,12 @@ from hupbench.results import (
     SCHEMA_VERSION,
     blank_results,
     load_results,
+    upgrade_results,
     validate_results,
     write_results,
 )
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def measured_row(run_name="hopenet_r18_128"):
@@ -22,7 +27,8 @@ def measured_row(run_name="hopenet_r18_128"):
                      "name": "hupbench default (31,680 frames)"}
     d["metrics"] = {"mpjpe_mm": {"all": 12.5, "hand": 10.0, "probe": 19.0, "all_averaging": "keypoint-weighted"},
                     "root_relative_hand_mpjpe_mm": 8.0, "pa_mpjpe_hand_mm": 5.5, "pck_auc_0_50mm": 0.75,
-                    "pixel_error_px": 3.2}
+                    "pixel_error_px": 3.2, "probe_symmetric_mpjpe_mm": 15.5,
+                    "spread_ratio": {"x": 0.9, "y": 1.1, "z": 0.4}}
     d["breakdowns"] = {"z_ego": {"0.5 m": {"frames": 2880, "mpjpe_mm": {"all": 11.0, "hand": 9.0, "probe": 16.0}}}}
     d["latency_ms_per_image"] = {"pytorch": {"batch1": 20.0, "batch32": 8.0},
                                  "onnxruntime": {"batch1": 10.0, "batch32": None}}
@@ -52,7 +58,9 @@ def test_blank_is_fresh_and_incomplete():
     a, b = blank_results("measured", "r"), blank_results("measured", "r")
     a["model"]["name"] = "x"
     assert b["model"]["name"] is None
-    assert a["schema_version"] == SCHEMA_VERSION == 1
+    assert a["schema_version"] == SCHEMA_VERSION == 2
+    assert a["metrics"]["probe_symmetric_mpjpe_mm"] is None
+    assert a["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
     with pytest.raises(ValueError, match=r"results\['model'\]\['label'\] must be a non-empty string, got None"):
         validate_results(a)
     with pytest.raises(ValueError, match="kind must be one of"):
@@ -100,8 +108,15 @@ def _delete(d, path):
     (("breakdowns", "colour"), {}, r"results\['breakdowns'\] has unknown key\(s\) \['colour'\]"),
     (("model",), "hopenet", r"results\['model'\] must be a dict, got 'hopenet'"),
     (("extra",), 1, r"results has unknown key\(s\) \['extra'\]"),
-    (("schema_version",), 2, r"results\['schema_version'\] must be 1 .* got 2"),
-    (("schema_version",), "1", r"results\['schema_version'\] must be 1 .* got '1'"),
+    (("schema_version",), 3, r"results\['schema_version'\] must be 2 .* or one of \[1\] .* got 3"),
+    (("schema_version",), "2", r"results\['schema_version'\] must be 2 .* got '2'"),
+    (("metrics", "probe_symmetric_mpjpe_mm"), -0.5,
+     r"results\['metrics'\]\['probe_symmetric_mpjpe_mm'\] must be a finite number >= 0 or null, got -0.5"),
+    (("metrics", "probe_symmetric_mpjpe_mm"), 19.5,
+     r"\['probe_symmetric_mpjpe_mm'\] must be at most the plain probe MPJPE \(19.0: .*\), got 19.5"),
+    (("metrics", "spread_ratio", "y"), "wide", r"results\['metrics'\]\['spread_ratio'\]\['y'\] must be a finite"),
+    (("metrics", "spread_ratio"), {"x": 1.0, "y": 1.0}, r"\['spread_ratio'\] is missing key\(s\) \['z'\]"),
+    (("metrics", "spread_ratio"), None, r"results\['metrics'\]\['spread_ratio'\] must be a dict, got None"),
 ])
 def test_bad_field_is_named(path, value, message):
     row = measured_row()
@@ -149,12 +164,51 @@ def test_write_refuses_bad_row_and_writes_nothing(tmp_path):
     assert not (tmp_path / "r.json").exists()
 
 
+def version_1_row():
+    """A row as hupbench wrote it before schema version 2."""
+    row = measured_row()
+    row["schema_version"] = 1
+    del row["metrics"]["probe_symmetric_mpjpe_mm"], row["metrics"]["spread_ratio"]
+    return row
+
+
+def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
+    old = version_1_row()
+    assert validate_results(old) is old
+    kept = copy.deepcopy(old)
+    new = upgrade_results(old)
+    assert old == kept  # the input is not changed
+    assert new["schema_version"] == 2
+    assert new["metrics"]["probe_symmetric_mpjpe_mm"] is None
+    assert new["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
+    assert {k: v for k, v in new["metrics"].items() if k in old["metrics"]} == old["metrics"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    assert load_results(path) == new
+    # version 1 has no room for the new fields, and only the current version is written
+    with_new = version_1_row()
+    with_new["metrics"]["spread_ratio"] = {"x": 1.0, "y": 1.0, "z": 1.0}
+    with pytest.raises(ValueError, match=r"results\['metrics'\] has unknown key\(s\) \['spread_ratio'\]"):
+        validate_results(with_new)
+    with pytest.raises(ValueError, match="must be 2 to be written, got 1: upgrade_results"):
+        write_results(tmp_path / "r.json", old)
+    assert upgrade_results(measured_row()) == measured_row()
+
+
+def test_committed_results_load():
+    for path in sorted((REPO / "leaderboard" / "results").glob("*.json")):
+        row = load_results(path)
+        assert row["schema_version"] == SCHEMA_VERSION
+        if json.loads(path.read_text())["schema_version"] == 1:
+            assert row["metrics"]["probe_symmetric_mpjpe_mm"] is None
+
+
 def test_load_names_the_file(tmp_path):
     row = measured_row()
-    row["schema_version"] = 2
+    row["schema_version"] = 3
     bad = tmp_path / "future.json"
     bad.write_text(json.dumps(row))
-    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 1"):
+    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 2"):
         load_results(bad)
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")

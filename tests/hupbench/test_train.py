@@ -105,6 +105,62 @@ def test_hopenet_loss_known_values():
     assert float(total) == pytest.approx(2 * 0.25 + 3 * 0.01 + 4.0)
 
 
+def _half_turned(points: torch.Tensor) -> torch.Tensor:
+    """The same keypoints with the 8 probe corners relabelled by the half turn (ix, iy, iz) -> (1-ix, 1-iy, iz)."""
+    out = points.clone()
+    out[:, 21:] = points[:, 21:][:, [6, 7, 4, 5, 2, 3, 0, 1]]
+    return out
+
+
+def test_symmetric_probe_loss_is_zero_for_the_half_turned_truth():
+    gen = torch.Generator().manual_seed(0)
+    target = {"keypoints_2d": torch.rand(3, 29, 2, generator=gen) * 2 - 1,
+              "keypoints_3d": torch.rand(3, 29, 3, generator=gen) * 0.1 + torch.tensor([0.0, 0.0, 0.5])}
+    # frames 0 and 2 predict the half-turned labelling (in 2D and 3D), frame 1 the truth itself
+    turned = {k: _half_turned(v) for k, v in target.items()}
+    p2 = torch.stack([turned["keypoints_2d"][0], target["keypoints_2d"][1], turned["keypoints_2d"][2]])
+    p3 = torch.stack([turned["keypoints_3d"][0], target["keypoints_3d"][1], turned["keypoints_3d"][2]])
+    weights = {"w2d_init": 1.25, "w2d": 1.25, "w3d": 1.0, "unit_3d_m": 0.01}
+
+    def loss(symmetry):
+        p2_, p3_ = p2.clone().requires_grad_(True), p3.clone().requires_grad_(True)
+        total, terms = hopenet_loss(HOPENetOutput(p2_, p2_, p3_), target, {**weights, "probe_symmetry": symmetry})
+        return total, terms, p3_
+
+    total, terms, _ = loss("half_turn")
+    assert float(total.detach()) == pytest.approx(0.0, abs=1e-12)
+    assert terms["probe_half_turned"] == pytest.approx(2 / 3)
+    plain, plain_terms, _ = loss("none")
+    assert float(plain.detach()) > 1.0 and "probe_half_turned" not in plain_terms
+    # the default (no key) is "none"
+    default_total, _ = hopenet_loss(HOPENetOutput(p2, p2, p3), target, weights)
+    assert float(default_total) == pytest.approx(float(plain.detach()))
+    # gradients flow through the chosen labelling: move one predicted corner and the loss grows from it
+    p3_moved = p3.clone()
+    p3_moved[0, 21, 0] += 0.01
+    p3_moved.requires_grad_(True)
+    total, _ = hopenet_loss(HOPENetOutput(p2, p2, p3_moved), target, {**weights, "probe_symmetry": "half_turn"})
+    total.backward()
+    grad = p3_moved.grad
+    assert float(total.detach()) == pytest.approx(1.0 / (3 * 29 * 3))   # 1 cm in one of 261 coordinates, cm^2
+    assert grad[0, 21, 0] > 0 and torch.count_nonzero(grad) == 1
+
+
+def test_symmetric_probe_loss_picks_by_3d_and_relabels_2d_consistently():
+    # 3D half-turned, 2D exactly the truth: the 3D choice (half turn) also relabels the 2D targets,
+    # so the 2D terms now see the swapped corners: the loss is the 2D terms only, and equals the
+    # plain loss with 3D and 2D swapped roles
+    target = {"keypoints_2d": torch.rand(1, 29, 2) * 2 - 1, "keypoints_3d": torch.rand(1, 29, 3) * 0.1}
+    out = HOPENetOutput(target["keypoints_2d"], target["keypoints_2d"], _half_turned(target["keypoints_3d"]))
+    weights = {"w2d_init": 1.0, "w2d": 1.0, "w3d": 1.0, "unit_3d_m": 0.01, "probe_symmetry": "half_turn"}
+    total, terms = hopenet_loss(out, target, weights)
+    assert terms["loss_3d"] == pytest.approx(0.0, abs=1e-12) and terms["probe_half_turned"] == 1.0
+    expected = torch.nn.functional.mse_loss(target["keypoints_2d"], _half_turned(target["keypoints_2d"]))
+    assert terms["loss_2d"] == pytest.approx(float(expected)) and float(expected) > 0
+    with pytest.raises(ValueError, match="loss.probe_symmetry must be one of \\['half_turn', 'none'\\], got 'mirror'"):
+        hopenet_loss(out, target, {**weights, "probe_symmetry": "mirror"})
+
+
 def test_schedule_warms_up_and_decays():
     opt = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=1.0)
     sched = warmup_cosine(opt, total_steps=1000, warmup_steps=100, final_lr_fraction=0.1)
