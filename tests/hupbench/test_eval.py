@@ -141,9 +141,13 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
     expected = gt.copy()
     expected[:, 21:] = gt[:, 21:][:, half_turn]
     expected[..., 0] = expected[0, :, 0]
-    # only the frozen x remains in the symmetric error; the plain one also pays for the swapped labels
-    frozen = np.abs(gt[..., 0] - gt[0, :, 0])[:, 21:]
-    assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(1000 * frozen.mean(), rel=1e-4)
+    # per frame the better of the two labellings counts: relabelled back, only the frozen x remains
+    # (the half turn swaps corners across x = 0, so on some frames the identity can still win)
+    as_labelled = np.linalg.norm(expected[:, 21:] - gt[:, 21:], axis=-1).mean(axis=1)  # (N,) metres
+    relabelled = np.linalg.norm(expected[:, 21:][:, half_turn] - gt[:, 21:], axis=-1).mean(axis=1)
+    assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(1000 * np.minimum(as_labelled, relabelled).mean(), rel=1e-4)
+    turned_share = 100.0 * np.mean(relabelled < as_labelled)
+    assert turned_share > 50.0
     plain = 1000 * np.linalg.norm(expected - gt, axis=-1)[:, 21:].mean()
     assert m["mpjpe_mm"]["probe"] == pytest.approx(plain, rel=1e-4)
     assert m["mpjpe_mm"]["probe"] > m["probe_symmetric_mpjpe_mm"] + 10.0
@@ -151,7 +155,8 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
     assert m["spread_ratio"]["y"] == pytest.approx(1.0, abs=1e-9) and m["spread_ratio"]["z"] == pytest.approx(1.0)
     warnings = [line for line in lines if line.startswith("warning:")]
     assert len(warnings) == 1 and "along the camera x axis" in warnings[0] and "spread ratio 0.00 < 0.5" in warnings[0]
-    assert any("the half-turned corner labels were closer on 100.0 % of frames" in line for line in lines)
+    assert any(f"the half-turned corner labels were closer on {turned_share:.1f} % of frames" in line
+               for line in lines)
     # stored, and shown in the table
     assert load_results(tmp_path / "turned.json")["metrics"]["spread_ratio"]["x"] == 0.0
     table = EV.format_table(r)
