@@ -1,10 +1,21 @@
-"""Training throughput: images per second for one optimiser step (forward, loss, backward, Adam).
+"""Training throughput of the whole input pipeline: loader + augmentation + optimiser step, images/s.
 
-Models: hopenet_r18 at 128 px, HOPE-Net (ResNet-10) and the ResNet-50 baseline at 224 px, in fp32
-and with bf16 autocast (+ channels_last), on synthetic batches (speed does not depend on the
-pixels). Prints the median over timed steps after warm-up and the bf16 / fp32 ratio.
+Runs the training code's own pieces (``hupbench.train.setup_data`` and ``train_step``) on a real
+dataset for each pipeline side by side in one process: ``jpeg`` (the reference reader: JPEG decode,
+resize, rotation and colour jitter per image in loader workers) and ``cache`` (frames decoded once
+into the memory-mapped frame cache, augmentation per batch on the training device). For each it
+prints the median step rate over the timed steps, the end-to-end rate (all timed steps, data waits
+included) and the share of wall time the device waited for data (time spent in the loader's
+``next()``; on CUDA each step is synchronised so that waits and compute are told apart).
 
-Usage: python benchmarks/train.py [--batch 16] [--steps 6] [--threads 2]
+Usage:
+    python benchmarks/train.py DATASET [--model hopenet_r10_128] [--device cpu|cuda] [--batch 32]
+        [--steps 40] [--warmup 5] [--threads 2] [--compile]
+        [--pipelines jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16]
+    Each pipeline item is PIPELINE:WORKERS[:cl][:bf16]: loader workers, channels_last, bf16 autocast;
+    the first item is the reference the others are compared with.
+
+The frame cache is built before timing (its one-off cost is printed separately).
 """
 
 from __future__ import annotations
@@ -13,55 +24,90 @@ import argparse
 import statistics
 import time
 
-import torch
 
-CASES = (
-    ("hopenet_r18", {"name": "hopenet", "backbone": "resnet18"}, 128),
-    ("hopenet", {"name": "hopenet", "backbone": "resnet10"}, 224),
-    ("resnet50", {"name": "resnet_regressor", "backbone": "resnet50"}, 224),
-)
+def measure(dataset: str, model_name: str, pipeline: str, workers: int, precision: str, channels_last: bool,
+            args) -> dict:
+    import torch
 
+    from hupbench.config import build, compose
+    from hupbench.train import build_run_model, learning_rate, setup_data, train_step
 
-def step_time(model, images, bf16: bool) -> float:
-    optimiser = torch.optim.Adam(model.parameters(), lr=1e-3)
-    start = time.perf_counter()
-    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-        out = model(images)
-        loss = out.points3d.float().square().mean()
-        if getattr(out, "points2d", None) is not None:
-            loss = loss + out.points2d.float().square().mean()
-    optimiser.zero_grad(set_to_none=True)
-    loss.backward()
-    optimiser.step()
-    return time.perf_counter() - start
+    cfg = compose("train", [f"model={model_name}", f"data.root={dataset}", f"data.pipeline={pipeline}",
+                            f"data.num_workers={workers}", f"data.batch_size={args.batch}", f"device={args.device}",
+                            f"precision={precision}", f"channels_last={str(channels_last).lower()}",
+                            "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true"])
+    device = torch.device(args.device)
+    t0 = time.perf_counter()
+    data = setup_data(cfg, 1, 0, device, log=print)
+    setup_s = time.perf_counter() - t0
+    K = data.train_set.ann["K"][0]
+    model = build_run_model(cfg, data.train_set.ann, K, None, None).to(device)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    train_model = torch.compile(model) if args.compile else model
+    optimizer = build(cfg.optim.optimizer)(model.parameters(), lr=learning_rate(cfg, 1))
+    scheduler = build(cfg.optim.scheduler)(optimizer, total_steps=args.warmup + args.steps)
+    autocast = {"device_type": device.type, "dtype": torch.bfloat16, "enabled": precision == "bf16"}
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    data.sampler.set_position(0, 0)
+    if hasattr(data.train_set, "set_epoch"):
+        data.train_set.set_epoch(0)
+    batches = iter(data.train_loader)
+    waits, steps = [], []
+    start = None
+    for i in range(args.warmup + args.steps):
+        if i == args.warmup:
+            sync()
+            start = time.perf_counter()
+        t_wait = time.perf_counter()
+        batch = next(batches)
+        t_step = time.perf_counter()
+        loss, _ = train_step(train_model, optimizer, scheduler, batch, 0, data, cfg, device, autocast)
+        float(loss)  # waits for the device
+        t_end = time.perf_counter()
+        if i >= args.warmup:
+            waits.append(t_step - t_wait)
+            steps.append(t_end - t_wait)
+    total = time.perf_counter() - start
+    return {"setup_s": setup_s, "median_img_s": args.batch / statistics.median(steps),
+            "end_to_end_img_s": args.batch * args.steps / total, "wait_share": sum(waits) / total}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=16)
-    parser.add_argument("--steps", type=int, default=6, help="timed steps per case (after 2 warm-up steps)")
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("dataset", help="a dataset made by hupbench generate")
+    parser.add_argument("--model", default="hopenet_r10_128", help="a config of conf/model/")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--steps", type=int, default=40, help="timed steps per pipeline (after the warm-up)")
+    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads of the training process")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the training model")
+    parser.add_argument("--pipelines", default="jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16",
+                        help="comma-separated PIPELINE:WORKERS[:cl][:bf16] (cl: channels_last; bf16: autocast)")
     args = parser.parse_args()
+
+    import torch
+
     torch.set_num_threads(args.threads)
-
-    from models.build import build_model
-
-    print(f"batch {args.batch}, {args.steps} timed steps, torch threads {args.threads}")
-    for label, cfg, size in CASES:
-        rates = {}
-        for bf16 in (False, True):
-            torch.manual_seed(0)
-            model = build_model(cfg).train()
-            images = torch.rand(args.batch, 3, size, size)
-            if bf16:
-                model = model.to(memory_format=torch.channels_last)
-                images = images.contiguous(memory_format=torch.channels_last)
-            for _ in range(2):
-                step_time(model, images, bf16)
-            times = [step_time(model, images, bf16) for _ in range(args.steps)]
-            rates[bf16] = args.batch / statistics.median(times)
-        print(f"  {label:12s} {size} px: fp32 {rates[False]:6.1f} img/s, bf16+channels_last {rates[True]:6.1f} img/s, "
-              f"ratio {rates[True] / rates[False]:.2f}", flush=True)
+    print(f"{args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, {args.device}"
+          f"{', compiled' if args.compile else ''}, torch threads {args.threads}")
+    rows = []
+    for item in args.pipelines.split(","):
+        pipeline, workers, *flags = item.split(":")
+        unknown = set(flags) - {"cl", "bf16"}
+        if unknown:
+            raise SystemExit(f"unknown flags {sorted(unknown)} in {item!r}; known: cl, bf16")
+        result = measure(args.dataset, args.model, pipeline, int(workers), "bf16" if "bf16" in flags else "fp32",
+                         "cl" in flags, args)
+        rows.append((item, result))
+        print(f"  {item:10s} setup {result['setup_s']:6.1f} s | median step {result['median_img_s']:7.1f} img/s | "
+              f"end to end {result['end_to_end_img_s']:7.1f} img/s | waiting for data {100 * result['wait_share']:5.1f} %",
+              flush=True)
+    if len(rows) > 1:
+        base = rows[0][1]["end_to_end_img_s"]
+        for item, result in rows[1:]:
+            print(f"  {item} / {rows[0][0]}: {result['end_to_end_img_s'] / base:.2f}x end to end")
 
 
 if __name__ == "__main__":

@@ -156,15 +156,15 @@ def resize_intrinsics(K: np.ndarray, scale: float, offset=(0.0, 0.0)) -> np.ndar
     fx' = fx * scale and cx' = (cx + offset_x + 0.5) * scale - 0.5 (likewise y).
 
     Args:
-        K: (3, 3) intrinsics, pixels. scale: new pixels per old pixel. offset: (2,) pixels added
+        K: (..., 3, 3) intrinsics, pixels. scale: new pixels per old pixel. offset: (2,) pixels added
             on the left and top before resizing.
 
     Returns:
-        (3, 3) float64 intrinsics of the resized image.
+        (..., 3, 3) float64 intrinsics of the resized image.
     """
     out = np.array(K, dtype=np.float64, copy=True)
-    out[:2, :2] *= scale
-    out[:2, 2] = (out[:2, 2] + np.asarray(offset, dtype=np.float64) + 0.5) * scale - 0.5
+    out[..., :2, :2] *= scale
+    out[..., :2, 2] = (out[..., :2, 2] + np.asarray(offset, dtype=np.float64) + 0.5) * scale - 0.5
     return out
 
 

@@ -29,7 +29,6 @@ import torch
 from datagen import keypoints as kp
 from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part of the reader's API)
 from datagen.dataset import SPLITS, frame_path
-from models.coords import pixels_to_normalized
 
 
 def rotation_about_optical_axis(angle: float) -> np.ndarray:
@@ -161,16 +160,35 @@ class HUPDataset(torch.utils.data.Dataset):
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(int(torch.randint(0, 2**62, (1,), generator=torch_rng)))
                 tensor = self._jitter(tensor[None])[0].clamp(0.0, 1.0)
-        inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < size - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < size - 0.5)
-        return {
-            "image": tensor,
-            "keypoints_3d": torch.from_numpy(points_3d.astype(np.float32)),
-            "keypoints_2d": pixels_to_normalized(torch.from_numpy(uv.astype(np.float32)), size, size),
-            "keypoints_2d_px": torch.from_numpy(uv.astype(np.float32)),
-            "visible": torch.from_numpy(self.ann["visible"][index] & inside),
-            "K": torch.from_numpy(K.astype(np.float32)),
-            "frame_id": torch.tensor(frame_id, dtype=torch.int64),
-        }
+        labels = input_labels({"keypoints_3d_cam": points_3d, "keypoints_2d": uv, "K": K,
+                               "visible": self.ann["visible"][index]}, 1.0, size)
+        return {"image": tensor, **{name: torch.from_numpy(value) for name, value in labels.items()},
+                "frame_id": torch.tensor(frame_id, dtype=torch.int64)}
+
+
+def input_labels(ann: dict, scale: float, size: int) -> dict[str, np.ndarray]:
+    """Labels of stored frames moved into the square model input (one frame or many at once).
+
+    Args:
+        ann: "keypoints_3d_cam" (..., 29, 3) metres, OpenCV camera frame; "keypoints_2d" (..., 29, 2)
+            pixels of the stored image; "K" (..., 3, 3) its intrinsics; "visible" (..., 29) bool.
+        scale: input pixels per stored pixel (S / stored width).
+        size: S, side of the input image.
+
+    Returns:
+        float32 "keypoints_3d" (..., 29, 3) metres, "keypoints_2d_px" (..., 29, 2) input pixels,
+        "keypoints_2d" (..., 29, 2) normalised [-1, 1], "K" (..., 3, 3) of the input image, and
+        "visible" (..., 29) bool: visible in the stored frame and inside the input image.
+    """
+    uv = resize_points(ann["keypoints_2d"], scale)
+    inside = ((uv >= -0.5) & (uv < size - 0.5)).all(axis=-1)
+    return {
+        "keypoints_3d": np.asarray(ann["keypoints_3d_cam"], dtype=np.float32),
+        "keypoints_2d": ((2.0 * uv + 1.0) / size - 1.0).astype(np.float32),
+        "keypoints_2d_px": uv.astype(np.float32),
+        "visible": np.asarray(ann["visible"], dtype=bool) & inside,
+        "K": resize_intrinsics(ann["K"], scale).astype(np.float32),
+    }
 
 
 def rotate_in_plane(image: np.ndarray, points_3d: np.ndarray, uv: np.ndarray, K: np.ndarray, angle: float):

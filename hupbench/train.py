@@ -23,7 +23,9 @@ import os
 import platform
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -33,11 +35,12 @@ from datagen import keypoints as kp
 from datagen.io import write_bytes, write_json
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
+from hupbench.frames import model_images
 from hupbench.provenance import run_info
 
 # config keys that may differ between a run and the run it resumes
 RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers",
-                    "label")
+                    "data.cache_dir", "label")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -69,7 +72,7 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
     return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
 
 
-def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, float]]:
+def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """HOPE-Net's weighted MSE over whichever outputs the model has.
 
     With ``probe_symmetry: half_turn`` the probe corners' labels are taken up to the half turn about
@@ -88,8 +91,10 @@ def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch
             optionally probe_symmetry ("none", the default, or "half_turn").
 
     Returns:
-        (total loss, {term name: value}) with the unweighted terms for logging; with half_turn also
-        "probe_half_turned", the fraction of samples whose corners were relabelled.
+        (total loss, {term name: 0-dim detached tensor on the loss's device}) with the unweighted
+        terms for logging (tensors, so that the training loop reads them without waiting for the
+        device at every step); with half_turn also "probe_half_turned", the fraction of samples
+        whose corners were relabelled.
     """
     from hupbench.metrics import PROBE_SYMMETRIES, permute_keypoints, symmetry_costs
 
@@ -114,10 +119,16 @@ def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch
     if output.points2d is not None:
         terms["loss_2d"] = torch.nn.functional.mse_loss(output.points2d.float(), target_2d)
         total = total + weights["w2d"] * terms["loss_2d"]
-    logged = {name: float(value.detach()) for name, value in terms.items()}
+    logged = {name: value.detach() for name, value in terms.items()}
     if choice is not None:
-        logged["probe_half_turned"] = float((choice != 0).float().mean())
+        logged["probe_half_turned"] = (choice != 0).float().mean()
     return total, logged
+
+
+def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, float]]:
+    """:func:`loss_terms` with the logged terms as Python floats."""
+    total, terms = loss_terms(output, batch, weights)
+    return total, {name: float(value) for name, value in terms.items()}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -232,7 +243,7 @@ def recompute_bn_statistics(model: torch.nn.Module, loader, device: torch.device
     frames = 0
     for batch in loader:
         with torch.autocast(**autocast):
-            model(batch["image"].to(device, non_blocking=True))
+            model(model_images(batch["image"], device))
         frames += len(batch["image"])
     for m, momentum in zip(norms, momenta):
         m.momentum = momentum
@@ -255,7 +266,7 @@ def validate(model: torch.nn.Module, loader, device: torch.device, autocast: dic
     sums = torch.zeros(kp.NUM_KEYPOINTS, dtype=torch.float64)
     count = torch.zeros((), dtype=torch.float64)
     for batch in loader:
-        images = batch["image"].to(device, non_blocking=True)
+        images = model_images(batch["image"], device)
         with torch.autocast(**autocast):
             points3d = model(images).points3d.float()
         errors = keypoint_errors_mm(points3d.cpu().double(), batch["keypoints_3d"].double())  # (B, 29)
@@ -332,6 +343,115 @@ def hardware_description(device: torch.device) -> str:
     return f"CPU: {cpu}, {torch.get_num_threads()} threads"
 
 
+class TrainData(NamedTuple):
+    """What :func:`setup_data` builds: the splits, their loaders and the per-batch augmentation.
+
+    ``augment`` is None for the reference JPEG reader (it augments per item in its workers).
+    """
+
+    train_set: Any
+    val_set: Any
+    sampler: EpochSampler
+    train_loader: Any
+    val_loader: Any
+    bn_loader: Any
+    augment: Any
+
+
+def _bounded_threads(_worker_id: int) -> None:
+    """Loader workers decode or gather with one thread each: OpenCV and OpenMP pools in every worker
+    oversubscribe the machine (the issue 12 measurement: load 140-170 on 16 cores)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log=print) -> TrainData:
+    """The training and validation data of a run (``data.pipeline``: cache or jpeg).
+
+    cache (default): frames decoded and resized once into a memory-mapped frame cache
+    (:mod:`hupbench.frames`), batches gathered in one call, augmentation per batch on ``device``.
+    jpeg: the reference reader, a JPEG decoded and augmented per item in the loader workers.
+    """
+    from hupbench.data import HUPDataset
+    from hupbench.frames import BatchAugment, CachedFrames, collate_batch
+
+    root = Path(cfg.data.root)
+    reader = build(cfg.data.reader)
+    pipeline = cfg.data.get("pipeline", "cache")
+    if pipeline not in ("cache", "jpeg"):
+        raise ValueError(f"data.pipeline must be 'cache' or 'jpeg', got {pipeline!r}")
+    plain = type(reader)(input_size=reader.input_size, rotate_deg=0.0, photometric=0.0, seed=reader.seed)
+    train_set = HUPDataset(root, cfg.data.train_split, reader if pipeline == "jpeg" else plain)
+    val_set = HUPDataset(root, cfg.data.val_split, plain)
+    bn_set = HUPDataset(root, cfg.data.train_split, plain) if pipeline == "jpeg" else train_set
+    augment = None
+    extra = {}
+    if pipeline == "cache":
+        show = bool(cfg.train.progress) and rank == 0
+        cache_dir = cfg.data.get("cache_dir")
+        train_frames = CachedFrames(train_set, cache_dir=cache_dir, progress=show, log=log)
+        val_frames = CachedFrames(val_set, cache_dir=cache_dir, progress=show, log=log)
+        augment = BatchAugment(reader.rotate_deg, reader.photometric, reader.seed)
+        train_set, val_set, bn_set = train_frames, val_frames, train_frames
+        extra = {"collate_fn": collate_batch}
+    workers = int(cfg.data.num_workers)
+    loader_args = {"batch_size": int(cfg.data.batch_size), "num_workers": workers,
+                   "pin_memory": device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
+                   # the reference reader's workers must see set_epoch: they are forked anew each epoch
+                   "persistent_workers": workers > 0 and pipeline == "cache", **extra}
+    sampler = EpochSampler(len(train_set), int(cfg.data.batch_size), int(cfg.seed), world, rank)
+    train_loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
+    val_indices = np.arange(len(val_set))
+    if cfg.data.val_frames is not None and cfg.data.val_frames < len(val_set):
+        val_indices = np.linspace(0, len(val_set) - 1, int(cfg.data.val_frames)).round().astype(int)
+    val_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(val_set, val_indices[rank::world].tolist()),
+                                             shuffle=False, **loader_args)
+    bn_loader = None
+    if cfg.train.bn_recompute_frames:
+        # un-augmented training frames, a fixed draw: the statistics the model meets at test time
+        n_bn = min(int(cfg.train.bn_recompute_frames), len(bn_set))
+        bn_indices = np.random.default_rng(int(cfg.seed)).choice(len(bn_set), n_bn, replace=False)
+        bn_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(bn_set, sorted(bn_indices.tolist())),
+                                                shuffle=False, **loader_args)
+    return TrainData(train_set, val_set, sampler, train_loader, val_loader, bn_loader, augment)
+
+
+def learning_rate(cfg: DictConfig, world: int) -> float:
+    """The optimiser's learning rate for this run's global batch.
+
+    ``optim.reference_batch`` null: ``optim.optimizer.lr`` as given. A number N: linear scaling
+    (Goyal et al. 2017, "Accurate, large minibatch SGD"), lr x global batch / N, which the
+    scheduler's linear warm-up makes safe in the first steps.
+    """
+    lr = float(cfg.optim.optimizer.lr)
+    reference = cfg.optim.get("reference_batch")
+    if reference is None:
+        return lr
+    if isinstance(reference, bool) or not isinstance(reference, int) or reference < 1:
+        raise ValueError(f"optim.reference_batch must be null or a positive int, got {reference!r}")
+    return lr * int(cfg.data.batch_size) * world / reference
+
+
+def train_step(model, optimizer, scheduler, batch: dict, epoch: int, data: TrainData, cfg: DictConfig,
+               device: torch.device, autocast: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """One optimiser step on one batch; returns the detached loss and its terms (no device sync)."""
+    if data.augment is not None:
+        batch = {name: value.to(device, non_blocking=True) for name, value in batch.items()}
+        batch = data.augment(batch, epoch)
+    images = model_images(batch["image"], device, bool(cfg.channels_last))
+    targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d")}
+    with torch.autocast(**autocast):
+        output = model(images)
+    loss, terms = loss_terms(output, targets, cfg.loss)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    scheduler.step()
+    return loss.detach(), terms
+
+
 def run_train(cfg: DictConfig, log=print) -> dict:
     """Train a model on a hupbench dataset.
 
@@ -342,7 +462,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         dict with "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen",
         "train_seconds", "wall_seconds", "val_mpjpe_mm" (last validation) and "first_val_mpjpe_mm".
     """
-    from hupbench.data import HUPDataset, read_manifest, resize_intrinsics
+    from hupbench.data import read_manifest, resize_intrinsics
 
     world, rank, local_rank = _dist_env()
     device = _device(cfg, local_rank)
@@ -355,10 +475,8 @@ def run_train(cfg: DictConfig, log=print) -> dict:
 
     # -- everything that can be wrong is checked before the first step
     manifest = read_manifest(root, needs="the models are built for")
-    reader = build(cfg.data.reader)
-    train_set = HUPDataset(root, cfg.data.train_split, reader)
-    val_reader = type(reader)(input_size=reader.input_size, rotate_deg=0.0, photometric=0.0, seed=reader.seed)
-    val_set = HUPDataset(root, cfg.data.val_split, val_reader)
+    data = setup_data(cfg, world, rank, device, log)
+    train_ann = data.train_set.ann
     resume_path = _resume_path(cfg, run_dir)
     resolved = OmegaConf.to_container(cfg, resolve=True)
     checkpoint = None
@@ -368,30 +486,15 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         if diff:
             raise ValueError(f"checkpoint {resume_path} was trained with another config; differences: "
                              + "; ".join(diff))
-        mean_layout = checkpoint["model_config"].get("points3d_mean")
-    else:
-        # the prior: the training split's mean camera-frame layout, (29, 3) metres
-        mean_layout = train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
-    torch.manual_seed(int(cfg.seed))  # the initial weights are a function of the seed
-    model = build(OmegaConf.create({**OmegaConf.to_container(cfg.model, resolve=True), "points3d_mean": mean_layout}))
-    if model.config["n_keypoints"] != kp.NUM_KEYPOINTS:
-        raise ValueError(f"model.n_keypoints={model.config['n_keypoints']} but the dataset has {kp.NUM_KEYPOINTS} "
-                         "keypoints")
-    if checkpoint is not None:
-        from models.build import load_checkpoint_state
+    input_size = int(cfg.data.reader.input_size)
+    K_input = resize_intrinsics(train_ann["K"][0], input_size / int(manifest["image_size"][0]))
+    model = build_run_model(cfg, train_ann, K_input, checkpoint, resume_path)
 
-        if checkpoint["model_config"].get("name") != model.config["name"]:
-            raise ValueError(f"checkpoint {resume_path} holds a {checkpoint['model_config'].get('name')!r} model, "
-                             f"this run builds {model.config['name']!r}")
-        load_checkpoint_state(model, checkpoint["model"])
-
-    batch_size = int(cfg.data.batch_size)
-    sampler = EpochSampler(len(train_set), batch_size, int(cfg.seed), world, rank)
-    steps_per_epoch = sampler.batches_per_epoch
+    steps_per_epoch = data.sampler.batches_per_epoch
     total_steps = int(cfg.train.max_steps) if cfg.train.max_steps else int(cfg.train.epochs) * steps_per_epoch
     if total_steps < 1:
         raise ValueError(f"the run has no steps (train.max_steps={cfg.train.max_steps}, epochs={cfg.train.epochs})")
-    optimizer = build(cfg.optim.optimizer)(model.parameters())
+    optimizer = build(cfg.optim.optimizer)(model.parameters(), lr=learning_rate(cfg, world))
     scheduler = build(cfg.optim.scheduler)(optimizer, total_steps=total_steps)
 
     model.to(device)
@@ -404,15 +507,14 @@ def run_train(cfg: DictConfig, log=print) -> dict:
             torch.distributed.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
         train_model = torch.nn.parallel.DistributedDataParallel(
             model, device_ids=[device.index] if device.type == "cuda" else None)
+    if cfg.get("compile", False):
+        train_model = torch.compile(train_model)
 
-    step, samples_seen, train_seconds, wall_offset = 0, 0, 0.0, 0.0
-    best = math.inf
+    state = RunState()
     if checkpoint is not None:
         optimizer.load_state_dict(checkpoint["optimizer"])
         scheduler.load_state_dict(checkpoint["scheduler"])
-        step, samples_seen = int(checkpoint["step"]), int(checkpoint["samples_seen"])
-        train_seconds, wall_offset = float(checkpoint["train_seconds"]), float(checkpoint["wall_seconds"])
-        best = float(checkpoint.get("best_val_mpjpe_mm", math.inf))
+        state = RunState.from_checkpoint(checkpoint)
         torch.set_rng_state(checkpoint["rng"]["torch"])
 
     is_main = rank == 0
@@ -421,124 +523,180 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         write_json(run_dir / "run.json", run_info(cfg, verb="train", world_size=world,
                                                   hardware=hardware_description(device), resumed_from=(
                                                       str(resume_path) if resume_path else None)))
-    logger = _Log(run_dir, is_main, bool(cfg.train.tensorboard), step if checkpoint is not None else None)
-    loader_args = {"batch_size": batch_size, "num_workers": int(cfg.data.num_workers),
-                   "pin_memory": device.type == "cuda"}
-    val_indices = np.arange(len(val_set))
-    if cfg.data.val_frames is not None and cfg.data.val_frames < len(val_set):
-        val_indices = np.linspace(0, len(val_set) - 1, int(cfg.data.val_frames)).round().astype(int)
-    val_loader = torch.utils.data.DataLoader(
-        torch.utils.data.Subset(val_set, val_indices[rank::world].tolist()), shuffle=False, **loader_args)
-    bn_loader = None
-    if cfg.train.bn_recompute_frames:
-        # un-augmented training frames, a fixed draw: the statistics the model meets at test time
-        plain_train = HUPDataset(root, cfg.data.train_split, val_reader)
-        n_bn = min(int(cfg.train.bn_recompute_frames), len(plain_train))
-        bn_indices = np.random.default_rng(int(cfg.seed)).choice(len(plain_train), n_bn, replace=False)
-        bn_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(plain_train, sorted(bn_indices.tolist())),
-                                                shuffle=False, **loader_args)
-
-    K_input = resize_intrinsics(train_set.ann["K"][0], reader.input_size / int(manifest["image_size"][0]))
-    base = {"K_input": K_input.tolist(), "input_size": reader.input_size, "config": resolved,
+    logger = _Log(run_dir, is_main, bool(cfg.train.tensorboard), state.step if checkpoint is not None else None)
+    base = {"K_input": K_input.tolist(), "input_size": input_size, "config": resolved,
             "dataset": {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / "manifest.json")}}
+    run = _Run(cfg, model, optimizer, scheduler, data, state, logger, run_dir, base, device, autocast, world,
+               is_main, steps_per_epoch)
 
-    def save(name: str, val: dict | None) -> None:
-        save_checkpoint(run_dir / "checkpoints" / name, {
-            **base, "model_config": model.config, "model": model.state_dict(),
-            "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(), "step": step,
-            "epoch": step / steps_per_epoch, "samples_seen": samples_seen, "train_seconds": train_seconds,
-            "wall_seconds": wall_offset + time.perf_counter() - start, "best_val_mpjpe_mm": best,
-            "val_mpjpe_mm": val, "rng": {"torch": torch.get_rng_state()}, "world_size": world})
-
-    def run_validation() -> dict:
-        nonlocal best
-        if bn_loader is not None and step > 0:
-            recompute_bn_statistics(model, bn_loader, device, autocast)
-        val = validate(model, val_loader, device, autocast, world)
-        record = {"event": "val", "step": step, "epoch": step / steps_per_epoch, "samples_seen": samples_seen,
-                  "wall_s": wall_offset + time.perf_counter() - start, "train_wall_s": train_seconds,
-                  "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]}
-        logger(record)
-        if is_main and val["all"] < best:
-            best = val["all"]
-            save("best.pt", val)
-        return val
-
-    start = time.perf_counter()
     if is_main:
-        log(f"training {model.config['name']} ({model.config['backbone']}, {reader.input_size} px) on {root}: "
-            f"{len(train_set)} train frames, {len(val_indices)} val frames, {total_steps} steps of "
-            f"{batch_size * world} on {device}{f' x {world} processes' if world > 1 else ''}; run folder {run_dir}")
-    first_val = run_validation() if checkpoint is None else checkpoint.get("first_val_mpjpe_mm")
-    base["first_val_mpjpe_mm"] = first_val
-    last_val = checkpoint.get("val_mpjpe_mm") if checkpoint is not None else first_val
-    progress = None
-    if is_main and cfg.train.progress:
-        from tqdm import tqdm
-
-        progress = tqdm(total=total_steps, initial=step, unit="step", dynamic_ncols=True)
-    model.train()
-    while step < total_steps:
-        epoch, start_batch = divmod(step, steps_per_epoch)
-        train_set.set_epoch(epoch)
-        sampler.set_position(epoch, start_batch)
-        loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
-        for batch in loader:
-            t0 = time.perf_counter()
-            images = batch["image"].to(device, non_blocking=True)
-            if cfg.channels_last:
-                images = images.contiguous(memory_format=torch.channels_last)
-            targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d")}
-            with torch.autocast(**autocast):
-                output = train_model(images)
-            loss, terms = hopenet_loss(output, targets, cfg.loss)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"loss became {float(loss)} at step {step}; terms {terms}")
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            scheduler.step()
-            step += 1
-            samples_seen += batch_size * world
-            if device.type == "cuda":
-                torch.cuda.synchronize(device)
-            train_seconds += time.perf_counter() - t0
-            if progress is not None:
-                progress.update(1)
-                progress.set_postfix(loss=f"{float(loss.detach()):.4f}", val_mm=f"{last_val['all']:.1f}" if last_val else "-")
-            if step % cfg.train.log_every == 0 or step == 1:
-                logger({"event": "train", "step": step, "samples_seen": samples_seen,
-                        "wall_s": wall_offset + time.perf_counter() - start, "train_wall_s": train_seconds,
-                        "loss": float(loss.detach()), **terms, "lr": scheduler.get_last_lr()[0]})
-            validated = step % cfg.train.val_every == 0 or step == total_steps
-            if validated:
-                last_val = run_validation()
-            stopping = cfg.train.stop_after is not None and step >= int(cfg.train.stop_after)
-            if step % cfg.train.ckpt_every == 0 or step == total_steps or stopping:
-                if bn_loader is not None and not validated:
-                    recompute_bn_statistics(model, bn_loader, device, autocast)  # eval-ready weights
-                if is_main:
-                    save("last.pt", last_val)
-            if step >= total_steps or stopping:
-                break
-        if cfg.train.stop_after is not None and step >= int(cfg.train.stop_after):
-            break
-    if progress is not None:
-        progress.close()
+        log(f"training {model.config['name']} ({model.config['backbone']}, {input_size} px) on {root}: "
+            f"{len(data.train_set)} train frames, {len(data.val_loader.dataset)} val frames, {total_steps} steps of "
+            f"{int(cfg.data.batch_size) * world} on {device}{f' x {world} processes' if world > 1 else ''}; "
+            f"run folder {run_dir}")
+    state.first_val = run.validation() if checkpoint is None else checkpoint.get("first_val_mpjpe_mm")
+    base["first_val_mpjpe_mm"] = state.first_val
+    run.loop(train_model, total_steps)
     logger.close()
-    wall = wall_offset + time.perf_counter() - start
+    wall = state.wall_offset + time.perf_counter() - run.start
     result = {"run_dir": str(run_dir), "checkpoint": str(run_dir / "checkpoints" / "last.pt"),
-              "best_checkpoint": str(run_dir / "checkpoints" / "best.pt"), "steps": step,
-              "samples_seen": samples_seen, "epochs": step / steps_per_epoch, "train_seconds": train_seconds,
-              "wall_seconds": wall, "val_mpjpe_mm": last_val, "first_val_mpjpe_mm": first_val,
-              "best_val_mpjpe_mm": best, "world_size": world, "complete": True}
-    if step < total_steps:
+              "best_checkpoint": str(run_dir / "checkpoints" / "best.pt"), "steps": state.step,
+              "samples_seen": state.samples_seen, "epochs": state.step / steps_per_epoch,
+              "train_seconds": state.train_seconds, "wall_seconds": wall, "val_mpjpe_mm": state.last_val,
+              "first_val_mpjpe_mm": state.first_val, "best_val_mpjpe_mm": state.best, "world_size": world,
+              "complete": True}
+    if state.step < total_steps:
         if is_main:
-            log(f"stopped at step {step} of {total_steps} (train.stop_after); rerun with train.resume=auto to continue")
+            log(f"stopped at step {state.step} of {total_steps} (train.stop_after); rerun with train.resume=auto "
+                "to continue")
         return result | {"complete": False}
     if is_main:
         write_json(run_dir / "summary.json", result)
-        log(f"finished {step} steps in {wall / 60:.1f} min ({samples_seen / max(train_seconds, 1e-9):.1f} img/s "
-            f"training); val MPJPE {first_val['all']:.1f} -> {last_val['all']:.1f} mm "
-            f"(hand {last_val['hand']:.1f}, probe {last_val['probe']:.1f})")
+        first, last = state.first_val, state.last_val
+        log(f"finished {state.step} steps in {wall / 60:.1f} min ({state.samples_seen / max(state.train_seconds, 1e-9):.1f} "
+            f"img/s training); val MPJPE {first['all']:.1f} -> {last['all']:.1f} mm "
+            f"(hand {last['hand']:.1f}, probe {last['probe']:.1f})")
     return result
+
+
+def build_run_model(cfg: DictConfig, train_ann: dict, K_input: np.ndarray, checkpoint: dict | None,
+                    resume_path: Path | None) -> torch.nn.Module:
+    """The run's model: built from its config with the training split's mean layout as its 3D prior
+    (and the input camera for models that unproject through it), or the checkpoint's when resuming."""
+    if checkpoint is not None:
+        mean_layout = checkpoint["model_config"].get("points3d_mean")
+    else:
+        # the prior: the training split's mean camera-frame layout, (29, 3) metres
+        mean_layout = train_ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
+    model_cfg = {**OmegaConf.to_container(cfg.model, resolve=True), "points3d_mean": mean_layout}
+    # models that unproject through the input camera get it from the data (config value null)
+    if "K_input" in model_cfg and model_cfg["K_input"] is None:
+        model_cfg["K_input"] = np.asarray(K_input, dtype=np.float64).tolist()
+    if "input_size" in model_cfg and model_cfg["input_size"] is None:
+        model_cfg["input_size"] = int(cfg.data.reader.input_size)
+    torch.manual_seed(int(cfg.seed))  # the initial weights are a function of the seed
+    model = build(OmegaConf.create(model_cfg))
+    if model.config["n_keypoints"] != kp.NUM_KEYPOINTS:
+        raise ValueError(f"model.n_keypoints={model.config['n_keypoints']} but the dataset has {kp.NUM_KEYPOINTS} "
+                         "keypoints")
+    if checkpoint is not None:
+        from models.build import load_checkpoint_state
+
+        if checkpoint["model_config"].get("name") != model.config["name"]:
+            raise ValueError(f"checkpoint {resume_path} holds a {checkpoint['model_config'].get('name')!r} model, "
+                             f"this run builds {model.config['name']!r}")
+        load_checkpoint_state(model, checkpoint["model"])
+    return model
+
+
+@dataclass
+class RunState:
+    """Counters of a run that a checkpoint carries across a resume."""
+
+    step: int = 0
+    samples_seen: int = 0
+    train_seconds: float = 0.0
+    wall_offset: float = 0.0
+    best: float = math.inf
+    first_val: dict | None = None
+    last_val: dict | None = None
+
+    @classmethod
+    def from_checkpoint(cls, checkpoint: dict) -> "RunState":
+        return cls(int(checkpoint["step"]), int(checkpoint["samples_seen"]), float(checkpoint["train_seconds"]),
+                   float(checkpoint["wall_seconds"]), float(checkpoint.get("best_val_mpjpe_mm", math.inf)),
+                   checkpoint.get("first_val_mpjpe_mm"), checkpoint.get("val_mpjpe_mm"))
+
+
+class _Run:
+    """The loop of one run: steps, logging, validation and checkpoints (state in :class:`RunState`)."""
+
+    def __init__(self, cfg, model, optimizer, scheduler, data: TrainData, state: RunState, logger, run_dir: Path,
+                 base: dict, device, autocast, world: int, is_main: bool, steps_per_epoch: int) -> None:
+        self.cfg, self.model, self.optimizer, self.scheduler, self.data = cfg, model, optimizer, scheduler, data
+        self.state, self.logger, self.run_dir, self.base = state, logger, run_dir, base
+        self.device, self.autocast, self.world, self.is_main = device, autocast, world, is_main
+        self.steps_per_epoch = steps_per_epoch
+        self.start = time.perf_counter()
+
+    def wall(self) -> float:
+        return self.state.wall_offset + time.perf_counter() - self.start
+
+    def save(self, name: str) -> None:
+        s = self.state
+        save_checkpoint(self.run_dir / "checkpoints" / name, {
+            **self.base, "model_config": self.model.config, "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": s.step,
+            "epoch": s.step / self.steps_per_epoch, "samples_seen": s.samples_seen, "train_seconds": s.train_seconds,
+            "wall_seconds": self.wall(), "best_val_mpjpe_mm": s.best, "val_mpjpe_mm": s.last_val,
+            "rng": {"torch": torch.get_rng_state()}, "world_size": self.world})
+
+    def validation(self) -> dict:
+        s = self.state
+        if self.data.bn_loader is not None and s.step > 0:
+            recompute_bn_statistics(self.model, self.data.bn_loader, self.device, self.autocast)
+        val = validate(self.model, self.data.val_loader, self.device, self.autocast, self.world)
+        self.logger({"event": "val", "step": s.step, "epoch": s.step / self.steps_per_epoch,
+                     "samples_seen": s.samples_seen, "wall_s": self.wall(), "train_wall_s": s.train_seconds,
+                     "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]})
+        s.last_val = val
+        if self.is_main and val["all"] < s.best:
+            s.best = val["all"]
+            self.save("best.pt")
+        return val
+
+    def loop(self, train_model, total_steps: int) -> None:
+        """Train until ``total_steps`` (or ``train.stop_after``). The device is waited for only when a
+        number is read: at log, validation and checkpoint steps (``train_seconds`` counts the time
+        between them, data loading included, validation and checkpoints excluded)."""
+        cfg, s, train = self.cfg, self.state, self.cfg.train
+        stop_after = None if train.stop_after is None else int(train.stop_after)
+        progress = None
+        if self.is_main and train.progress:
+            from tqdm import tqdm
+
+            progress = tqdm(total=total_steps, initial=s.step, unit="step", dynamic_ncols=True)
+        batch_size = int(cfg.data.batch_size) * self.world
+        self.model.train()
+        segment = time.perf_counter()
+        while s.step < total_steps and (stop_after is None or s.step < stop_after):
+            epoch, start_batch = divmod(s.step, self.steps_per_epoch)
+            if hasattr(self.data.train_set, "set_epoch"):
+                self.data.train_set.set_epoch(epoch)
+            self.data.sampler.set_position(epoch, start_batch)
+            for batch in self.data.train_loader:
+                loss, terms = train_step(train_model, self.optimizer, self.scheduler, batch, epoch, self.data, cfg,
+                                         self.device, self.autocast)
+                s.step += 1
+                s.samples_seen += batch_size
+                if progress is not None:
+                    progress.update(1)
+                validating = s.step % train.val_every == 0 or s.step == total_steps
+                stopping = stop_after is not None and s.step >= stop_after
+                saving = s.step % train.ckpt_every == 0 or s.step == total_steps or stopping
+                logging = s.step % train.log_every == 0 or s.step == 1
+                if logging or validating or saving:
+                    if not torch.isfinite(loss):
+                        raise FloatingPointError(f"loss became {float(loss)} at step {s.step}; terms "
+                                                 f"{ {k: float(v) for k, v in terms.items()} }")
+                    s.train_seconds += time.perf_counter() - segment   # float(loss) above waited for the device
+                if logging:
+                    self.logger({"event": "train", "step": s.step, "samples_seen": s.samples_seen,
+                                 "wall_s": self.wall(), "train_wall_s": s.train_seconds, "loss": float(loss),
+                                 **{k: float(v) for k, v in terms.items()}, "lr": self.scheduler.get_last_lr()[0]})
+                    if progress is not None:
+                        progress.set_postfix(loss=f"{float(loss):.4f}",
+                                             val_mm=f"{s.last_val['all']:.1f}" if s.last_val else "-")
+                if validating:
+                    self.validation()
+                if saving:
+                    if self.data.bn_loader is not None and not validating:
+                        recompute_bn_statistics(self.model, self.data.bn_loader, self.device, self.autocast)
+                    if self.is_main:
+                        self.save("last.pt")
+                if logging or validating or saving:
+                    segment = time.perf_counter()
+                if s.step >= total_steps or stopping:
+                    break
+        if progress is not None:
+            progress.close()
