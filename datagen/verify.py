@@ -193,10 +193,11 @@ def verify(root, workers: int = 2, log=print) -> dict:
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "ok": not problems}
 
 
-def sample_sheet(root, split: str = "train", view: int = 20, tile_px: int = 128) -> np.ndarray:
+def sample_sheet(root, split: str = "train", view: int = 40, tile_px: int = 128) -> np.ndarray:
     """One frame per (background, glove) of a dataset: RGB, depth, mask and keypoints side by side.
 
-    Takes the split's first grasp at the first distance and the given view index.
+    Takes the split's first grasp at the first distance and the given view index (by default view
+    40 of the paper protocol's sphere: the grip and the probe's green orientation marker both show).
 
     Returns:
         (H, W, 3) uint8 RGB: one row per background, both gloves in a row.
