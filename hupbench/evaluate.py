@@ -67,7 +67,7 @@ K_MISMATCH_REL = 1e-3
 CORNER_SYMMETRY_REL_TOL = 1e-4
 #: corners of different frames, taken back to the probe frame, must agree within this (metres)
 CORNER_FRAME_TOL_M = 1e-5
-MODEL_LABELS = {"hopenet": "HOPE-Net", "resnet_regressor": "ResNet regressor"}
+MODEL_LABELS = {"hopenet": "HOPE-Net", "hupnet": "HUPNet", "resnet_regressor": "ResNet regressor"}
 
 
 def _backbone_label(name: str) -> str:

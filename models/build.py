@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from models.baseline import ResNetRegressor
+from models.heatmap import HUPNet
 from models.hopenet import HOPENet
 
 __all__ = ["MODEL_REGISTRY", "build_model", "load_checkpoint_state"]
@@ -23,6 +24,7 @@ __all__ = ["MODEL_REGISTRY", "build_model", "load_checkpoint_state"]
 #: config ``name`` -> model class; the remaining config keys are its constructor's arguments
 MODEL_REGISTRY: dict[str, type[nn.Module]] = {
     "hopenet": HOPENet,
+    "hupnet": HUPNet,
     "resnet_regressor": ResNetRegressor,
 }
 

@@ -27,7 +27,101 @@ from models.graph import GraphNet2D, GraphUNet
 from models.prior import PointPrior
 from models.resnet import resnet
 
-__all__ = ["HOPENet", "HOPENetOutput"]
+__all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetOutput", "normalized_intrinsics", "unproject_normalized"]
+
+#: how the Graph U-Net's output becomes camera-frame 3D (see :class:`GraphLifter`)
+LIFTS = ("direct", "camera")
+#: normalised image units per raw unit of the camera lift's 2D correction (0.64 px at 128 px)
+CAMERA_LIFT_UV_SCALE = 0.01
+
+
+def normalized_intrinsics(K_input, input_size: int) -> torch.Tensor:
+    """(4,) float32 (fx, fy, cx, cy) of a pixel-unit K in normalised image units (models/coords.py).
+
+    With x_norm = (2 u + 1) / S - 1: fx_norm = 2 fx / S and cx_norm = (2 cx + 1) / S - 1, so that
+    x_norm = fx_norm * X / Z + cx_norm for a camera-frame point (X, Y, Z).
+
+    Args:
+        K_input: (3, 3) intrinsics of the model input image, pixels (nested lists or array).
+        input_size: S, side of the square model input, pixels.
+    """
+    K = torch.as_tensor(K_input, dtype=torch.float64)
+    if K.shape != (3, 3) or not torch.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K_input must be a finite (3, 3) intrinsics matrix with fx, fy > 0, got {K.tolist()}")
+    if isinstance(input_size, bool) or not isinstance(input_size, int) or input_size < 1:
+        raise ValueError(f"input_size must be a positive int, got {input_size!r}")
+    S = float(input_size)
+    return torch.stack([2 * K[0, 0] / S, 2 * K[1, 1] / S, (2 * K[0, 2] + 1) / S - 1, (2 * K[1, 2] + 1) / S - 1]).float()
+
+
+def unproject_normalized(points2d: torch.Tensor, depth: torch.Tensor, intrinsics: torch.Tensor) -> torch.Tensor:
+    """Camera-frame points from normalised image points and their depths.
+
+    Args:
+        points2d: (B, N, 2) float, normalised image coordinates of the input image.
+        depth: (B, N) float, Z of each point (any length unit; the output has the same).
+        intrinsics: (4,) float, (fx, fy, cx, cy) in normalised units (:func:`normalized_intrinsics`).
+
+    Returns:
+        (B, N, 3) float: (X, Y, Z) with X = (x_norm - cx) / fx * Z, Y likewise, OpenCV camera frame.
+    """
+    f, c = intrinsics[:2].to(points2d.dtype), intrinsics[2:].to(points2d.dtype)
+    xy = (points2d - c) / f * depth.unsqueeze(-1)  # (B, N, 2)
+    return torch.cat([xy, depth.unsqueeze(-1)], dim=-1)
+
+
+class GraphLifter(nn.Module):
+    """HOPE-Net's adaptive Graph U-Net lifting 2D keypoints to camera-frame 3D, in one of two ways.
+
+    lift="direct" (HOPE-Net as published): the U-Net's 3 output channels are the 3D point, an offset
+    from the prior layout (``points3d = raw * scale + mean``).
+    lift="camera": the U-Net's output channels are a 2D correction (``CAMERA_LIFT_UV_SCALE``
+    normalised units per raw unit) and the depth (``Z = raw * scale + mean Z``); X and Y follow from
+    the corrected 2D point, its depth and the input camera (:func:`unproject_normalized`), so the 3D
+    point moves with the 2D point by construction (a pinhole camera, as the dataset's).
+
+    Args:
+        lift: "direct" or "camera".
+        n_keypoints, unet_channels, unet_node_counts, unet_bottleneck: the Graph U-Net's (see
+            :class:`models.graph.GraphUNet`).
+        points3d_mean: (N, 3) prior layout, target units (metres in training); None for zeros.
+        points3d_scale: target units per raw output unit.
+        K_input: (3, 3) intrinsics of the model input image, pixels; needed by lift="camera".
+        input_size: S, side of the square model input, pixels; needed by lift="camera".
+
+    Forward: points2d (B, N, 2) normalised -> points3d (B, N, 3) target units, camera frame.
+    """
+
+    def __init__(self, lift: str = "direct", n_keypoints: int = 29, unet_channels: Sequence[int] = (4, 8, 16, 32, 64),
+                 unet_node_counts: Sequence[int] | None = None, unet_bottleneck: int = 20,
+                 points3d_mean: Sequence[Sequence[float]] | None = None, points3d_scale: float = 1.0,
+                 K_input: Sequence[Sequence[float]] | None = None, input_size: int | None = None) -> None:
+        super().__init__()
+        if lift not in LIFTS:
+            raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
+        self.lift = lift
+        self.unet = GraphUNet(in_features=2, out_features=3, n_nodes=n_keypoints, node_counts=unet_node_counts,
+                              channels=unet_channels, bottleneck=unet_bottleneck)
+        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
+        if lift == "camera":
+            if K_input is None or input_size is None:
+                raise ValueError("lift='camera' needs K_input (3 x 3, pixels of the model input) and input_size")
+            self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
+        else:
+            self.intrinsics = None
+
+    def forward(self, points2d: torch.Tensor) -> torch.Tensor:
+        """(B, N, 2) normalised 2D -> (B, N, 3) camera-frame 3D (target units)."""
+        return lift_points(self.unet(points2d), points2d, self.prior3d, self.lift, self.intrinsics)
+
+
+def lift_points(raw: torch.Tensor, points2d: torch.Tensor, prior3d: PointPrior, lift: str,
+                intrinsics: torch.Tensor | None) -> torch.Tensor:
+    """The Graph U-Net's raw output (B, N, 3) -> camera-frame 3D (B, N, 3) (see :class:`GraphLifter`)."""
+    if lift == "direct":
+        return prior3d(raw)
+    depth = prior3d.mean[:, 2].to(raw.dtype) + raw[..., 2] * prior3d.scale  # (B, N)
+    return unproject_normalized(points2d + raw[..., :2] * CAMERA_LIFT_UV_SCALE, depth, intrinsics)
 
 
 class HOPENetOutput(NamedTuple):
@@ -61,6 +155,11 @@ class HOPENet(nn.Module):
         points3d_mean: (N, 3) prior keypoint layout added to the 3D output (see
             :mod:`models.prior`), e.g. the training split's mean in metres; None for zeros.
         points3d_scale: target units per raw 3D output unit.
+        lift: "direct" (the published HOPE-Net: the U-Net outputs 3D points) or "camera" (the U-Net
+            outputs depth and a 2D correction, unprojected through the input camera; see
+            :class:`GraphLifter`).
+        K_input: (3, 3) intrinsics of the model input image, pixels (lift="camera").
+        input_size: S, side of the square model input, pixels (lift="camera").
     """
 
     def __init__(
@@ -74,6 +173,10 @@ class HOPENet(nn.Module):
         zero_init_residual: bool = False,
         points3d_mean: Sequence[Sequence[float]] | None = None,
         points3d_scale: float = 1.0,
+        lift: str = "direct",
+        K_input: Sequence[Sequence[float]] | None = None,
+        input_size: int | None = None,
+        unet_image_channels: int = 0,
     ) -> None:
         super().__init__()
         if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 2:
@@ -90,13 +193,20 @@ class HOPENet(nn.Module):
             "points3d_mean": PointPrior.config_value(points3d_mean),
             "points3d_scale": float(points3d_scale),
         }
+        if lift != "direct":  # a published HOPE-Net's config stays as it was
+            self._config.update(lift=lift, K_input=None if K_input is None else [[float(v) for v in row] for row in K_input],
+                                input_size=input_size)
+        if unet_image_channels:
+            self._config["unet_image_channels"] = int(unet_image_channels)
         self.n_keypoints = n_keypoints
         self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
         feature_dim = self.backbone.feature_dim
         self.head2d = nn.Linear(feature_dim, n_keypoints * 2)
         self.graphnet = GraphNet2D(feature_dim, n_keypoints, hidden=graph_hidden)
+        # optionally the U-Net also sees the image: the pooled feature squeezed to a few channels per node
+        self.unet_image = nn.Linear(feature_dim, unet_image_channels) if unet_image_channels else None
         self.unet = GraphUNet(
-            in_features=2,
+            in_features=2 + int(unet_image_channels),
             out_features=3,
             n_nodes=n_keypoints,
             node_counts=unet_node_counts,
@@ -104,6 +214,15 @@ class HOPENet(nn.Module):
             bottleneck=unet_bottleneck,
         )
         self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
+        if lift not in LIFTS:
+            raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
+        self.lift = lift
+        if lift == "camera":
+            if K_input is None or input_size is None:
+                raise ValueError("lift='camera' needs K_input (3 x 3, pixels of the model input) and input_size")
+            self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
+        else:
+            self.intrinsics = None
 
     @property
     def config(self) -> dict[str, Any]:
@@ -123,5 +242,15 @@ class HOPENet(nn.Module):
         features = self.backbone.features(images)  # (B, F)
         points2d_init = self.head2d(features).reshape(-1, self.n_keypoints, 2)  # (B, N * 2) -> (B, N, 2)
         points2d = self.graphnet(points2d_init, features)  # (B, N, 2)
-        points3d = self.prior3d(self.unet(points2d))  # (B, N, 3)
-        return HOPENetOutput(points2d_init, points2d, points3d)
+        return HOPENetOutput(points2d_init, points2d, self.lift_to_3d(points2d, features))
+
+    def lift_to_3d(self, points2d: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        """The Graph U-Net stage: (B, N, 2) refined 2D points and (B, F) pooled feature -> (B, N, 3) 3D.
+
+        The feature enters only when the model was built with ``unet_image_channels``.
+        """
+        unet_in = points2d
+        if self.unet_image is not None:
+            tiled = self.unet_image(features).unsqueeze(1).expand(-1, self.n_keypoints, -1)  # (B, C) -> (B, N, C)
+            unet_in = torch.cat([points2d, tiled], dim=-1)
+        return lift_points(self.unet(unet_in), points2d, self.prior3d, self.lift, self.intrinsics)  # (B, N, 3)

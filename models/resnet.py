@@ -150,6 +150,7 @@ class ResNet(nn.Module):
 
     Attributes:
         feature_dim: F, the width of the pooled feature (512 or 2048).
+        stage_channels: channels of the four stages' outputs (:meth:`feature_maps`).
     """
 
     def __init__(
@@ -184,6 +185,7 @@ class ResNet(nn.Module):
         self.layer1, self.layer2, self.layer3, self.layer4 = stages
         self.avgpool = nn.AdaptiveAvgPool2d(1)
         self.feature_dim = in_channels
+        self.stage_channels = tuple(planes * block.expansion for planes in (64, 128, 256, 512))
         self.fc = None if num_classes is None else nn.Linear(in_channels, num_classes)
 
         for module in self.modules():
@@ -210,6 +212,23 @@ class ResNet(nn.Module):
         x = self.maxpool(self.relu(self.bn1(self.conv1(images))))
         x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
         return torch.flatten(self.avgpool(x), 1)  # (B, F, 1, 1) -> (B, F)
+
+    def feature_maps(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The outputs of the four stages, for dense heads.
+
+        Args:
+            images: (B, 3, H, W) float, contiguous or channels_last.
+
+        Returns:
+            (C2, C3, C4, C5): (B, C_k, H / s, W / s) at strides s = 4, 8, 16, 32 (rounded up), with
+            C_k = 64, 128, 256, 512 times the block's expansion (1 basic, 4 bottleneck).
+        """
+        _check_images(images)
+        x = self.maxpool(self.relu(self.bn1(self.conv1(images))))
+        c2 = self.layer1(x)
+        c3 = self.layer2(c2)
+        c4 = self.layer3(c3)
+        return c2, c3, c4, self.layer4(c4)
 
     def forward(self, images: torch.Tensor) -> ResNetOutput:
         """Pooled feature and, when there is an ``fc``, class logits.

@@ -184,3 +184,20 @@ def test_export_regressor_without_2d_head(tiny_dataset, tmp_path):
     K = np.asarray(read_checkpoint(ckpt)["K_input"])
     uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
     np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-5)
+
+
+@pytest.mark.parametrize("model_cfg", [
+    {"name": "hupnet", "backbone": "resnet10", "canvas_margin": 0.25},
+    {"name": "hopenet", "backbone": "resnet10", "lift": "camera", "unet_image_channels": 8},
+], ids=["hupnet", "hopenet_camera_lift"])
+def test_export_models_that_unproject_through_the_camera(model_cfg, tiny_dataset, tmp_path):
+    """The models that carry K_input export with parity, and their ONNX 3D projects onto their ONNX 2D."""
+    K = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    ckpt = make_checkpoint(tmp_path / "cam.pt", tiny_dataset, **model_cfg, K_input=K.tolist(), input_size=INPUT_SIZE)
+    result = E.run_export(ckpt, log=lambda *_: None)
+    assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
+    points2d, points3d = E.ort_session(result["onnx"]).run(None, {"image": _images(tiny_dataset, 3).numpy()})
+    uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
+    if model_cfg["name"] == "hupnet":  # HOPE-Net's 3D carries the U-Net's own 2D correction
+        np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-4)
+    assert np.isfinite(points3d).all() and points3d.shape == (3, 29, 3)

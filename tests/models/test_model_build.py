@@ -3,11 +3,12 @@ import torch
 
 from models.baseline import ResNetRegressor
 from models.build import MODEL_REGISTRY, build_model, load_checkpoint_state
+from models.heatmap import HUPNet
 from models.hopenet import HOPENet
 
 
 def test_registry():
-    assert MODEL_REGISTRY == {"hopenet": HOPENet, "resnet_regressor": ResNetRegressor}
+    assert MODEL_REGISTRY == {"hopenet": HOPENet, "hupnet": HUPNet, "resnet_regressor": ResNetRegressor}
 
 
 @pytest.mark.parametrize(
@@ -45,7 +46,7 @@ def test_config_is_a_copy():
 
 
 def test_unknown_name_names_it_and_the_known_ones():
-    with pytest.raises(ValueError, match=r"unknown model 'posenet'; known: hopenet, resnet_regressor"):
+    with pytest.raises(ValueError, match=r"unknown model 'posenet'; known: hopenet, hupnet, resnet_regressor"):
         build_model({"name": "posenet"})
 
 

@@ -1,0 +1,190 @@
+"""HUPNet: 2.5D heatmaps with soft-argmax, lifted to absolute camera-frame 3D through the camera.
+
+What it follows:
+    - 2.5D pose (Iqbal et al., "Hand pose estimation via latent 2.5D heatmap regression",
+      ECCV 2018): each keypoint is a 2D location plus a depth relative to a root; absolute 3D
+      follows from the intrinsics K and the root's depth.
+    - Integral regression (Sun et al., "Integral human pose regression", ECCV 2018): the 2D
+      location is the expectation of a softmax-normalised heatmap (soft-argmax) and the relative
+      depth the same expectation over a per-keypoint depth map, so the network trains end to end
+      on coordinate losses, at sub-cell precision.
+    - A feature pyramid (Lin et al., FPN, CVPR 2017) brings the ResNet's stride-32 semantics down
+      to a stride-8 map, where the heatmaps live.
+
+What is our own: the heatmap canvas extends ``canvas_margin`` of the image width beyond every
+edge (zero-padded features plus coordinate channels, CoordConv-style), because the probe's box
+corners often lie outside the image; the root depth is one global regression from the pooled
+stride-32 feature, added to every keypoint's relative depth and to the training split's mean
+depth of that keypoint (the prior of :mod:`models.prior`).
+
+Convention:
+    2D points in normalised image coordinates of the input image (models/coords.py: [-1, 1]
+    across the image, pixel centres at integers); 3D points in the training target's units
+    (metres in training), OpenCV camera frame of the input camera ``K_input``. X and Y of every
+    3D point are its 2D point unprojected at its depth: the 3D output moves with the image.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from models.hopenet import normalized_intrinsics, unproject_normalized
+from models.prior import PointPrior
+from models.resnet import resnet
+
+__all__ = ["HUPNet", "HUPNetOutput", "soft_argmax"]
+
+
+class HUPNetOutput(NamedTuple):
+    """What :class:`HUPNet` returns (N = ``n_keypoints``).
+
+    Attributes:
+        points2d: (B, N, 2) float, normalised image coordinates of the input (may lie outside
+            [-1, 1] by up to the canvas margin).
+        points3d: (B, N, 3) float, the training target's units, OpenCV camera frame of K_input.
+    """
+
+    points2d: torch.Tensor
+    points3d: torch.Tensor
+
+
+def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor,
+                values: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Expected location (and value) under a softmax over each heatmap.
+
+    Args:
+        logits: (B, N, H, W) float heatmap logits.
+        grid_x: (W,) float, x coordinate of each column's cell centre.
+        grid_y: (H,) float, y coordinate of each row's cell centre.
+        values: optional (B, N, H, W) float maps whose expectation is also returned.
+
+    Returns:
+        ((B, N, 2) expected (x, y), (B, N) expected value or None). Softmax is taken in float32
+        at least, so bf16 autocast keeps the expectation precise.
+    """
+    if logits.ndim != 4:
+        raise ValueError(f"logits must be (B, N, H, W), got {tuple(logits.shape)}")
+    B, N, H, W = logits.shape
+    if grid_x.shape != (W,) or grid_y.shape != (H,):
+        raise ValueError(f"grid_x must be ({W},) and grid_y ({H},), got {tuple(grid_x.shape)}, {tuple(grid_y.shape)}")
+    dtype = torch.promote_types(logits.dtype, torch.float32)
+    prob = torch.softmax(logits.to(dtype).reshape(B, N, H * W), dim=-1).reshape(B, N, H, W)
+    x = (prob.sum(dim=2) * grid_x.to(dtype)).sum(dim=-1)  # (B, N, W) marginal -> (B, N)
+    y = (prob.sum(dim=3) * grid_y.to(dtype)).sum(dim=-1)  # (B, N, H) marginal -> (B, N)
+    expected = None if values is None else (prob * values.to(dtype)).sum(dim=(2, 3))
+    return torch.stack([x, y], dim=-1), expected
+
+
+def _conv_bn_relu(in_channels: int, out_channels: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(in_channels, out_channels, 3, padding=1, bias=False),
+                         nn.BatchNorm2d(out_channels), nn.ReLU(inplace=True))
+
+
+class HUPNet(nn.Module):
+    """ResNet + feature pyramid -> per-keypoint heatmaps and depth maps at stride 8 -> 3D via K.
+
+    Args:
+        backbone: ResNet name: "resnet10", "resnet18", "resnet34" or "resnet50".
+        n_keypoints: N (29 = 21 hand joints + 8 probe corners).
+        neck_channels: width D of the pyramid and heads.
+        canvas_margin: the heatmap canvas reaches this fraction of the input width beyond each
+            image edge (rounded to whole stride-8 cells), so points outside the image are found.
+        zero_init_residual: zero the last BN of each residual branch of the backbone.
+        points3d_mean: (N, 3) prior layout (training split's mean, target units); its z is each
+            keypoint's base depth. None for zeros.
+        points3d_scale: target units per raw depth unit.
+        K_input: (3, 3) intrinsics of the model input image, pixels (required).
+        input_size: S, side of the square model input, pixels (required; a multiple of 8).
+    """
+
+    STRIDE = 8
+
+    def __init__(
+        self,
+        backbone: str = "resnet18",
+        n_keypoints: int = 29,
+        neck_channels: int = 128,
+        canvas_margin: float = 0.25,
+        zero_init_residual: bool = False,
+        points3d_mean: Sequence[Sequence[float]] | None = None,
+        points3d_scale: float = 1.0,
+        K_input: Sequence[Sequence[float]] | None = None,
+        input_size: int | None = None,
+    ) -> None:
+        super().__init__()
+        if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 1:
+            raise ValueError(f"n_keypoints must be a positive int, got {n_keypoints!r}")
+        if not isinstance(neck_channels, int) or isinstance(neck_channels, bool) or neck_channels < 1:
+            raise ValueError(f"neck_channels must be a positive int, got {neck_channels!r}")
+        if not 0.0 <= float(canvas_margin) <= 2.0:
+            raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got {canvas_margin!r}")
+        if K_input is None or input_size is None:
+            raise ValueError("HUPNet unprojects through the input camera: it needs K_input (3 x 3, pixels of the "
+                             "model input) and input_size")
+        if isinstance(input_size, bool) or not isinstance(input_size, int) or input_size % self.STRIDE:
+            raise ValueError(f"input_size must be a positive multiple of {self.STRIDE}, got {input_size!r}")
+        self._config: dict[str, Any] = {
+            "name": "hupnet", "backbone": backbone, "n_keypoints": n_keypoints, "neck_channels": neck_channels,
+            "canvas_margin": float(canvas_margin), "zero_init_residual": zero_init_residual,
+            "points3d_mean": PointPrior.config_value(points3d_mean), "points3d_scale": float(points3d_scale),
+            "K_input": [[float(v) for v in row] for row in K_input], "input_size": input_size,
+        }
+        self.n_keypoints = n_keypoints
+        self.input_size = input_size
+        self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
+        _, c3, c4, c5 = self.backbone.stage_channels
+        D = neck_channels
+        self.lateral5, self.lateral4, self.lateral3 = nn.Conv2d(c5, D, 1), nn.Conv2d(c4, D, 1), nn.Conv2d(c3, D, 1)
+        self.smooth = nn.Sequential(_conv_bn_relu(D + 2, D), _conv_bn_relu(D, D))
+        self.heatmap = nn.Conv2d(D, n_keypoints, 1)
+        self.depthmap = nn.Conv2d(D, n_keypoints, 1)
+        self.root_depth = nn.Linear(c5, 1)
+        for head in (self.heatmap, self.depthmap, self.root_depth):
+            nn.init.normal_(head.weight, std=1e-3)
+            nn.init.zeros_(head.bias)
+        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
+        self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
+        cells = input_size // self.STRIDE
+        self.margin_cells = int(round(float(canvas_margin) * cells))
+        # normalised coordinate of each canvas cell's centre: cell j of the image covers pixels
+        # [8 j, 8 j + 8), centre 8 j + 3.5 -> (j + 0.5) / cells * 2 - 1
+        index = torch.arange(-self.margin_cells, cells + self.margin_cells, dtype=torch.float32)
+        self.register_buffer("grid", (index + 0.5) / cells * 2.0 - 1.0, persistent=False)
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The plain dict that :func:`models.build.build_model` rebuilds this model from."""
+        return dict(self._config)
+
+    def forward(self, images: torch.Tensor) -> HUPNetOutput:
+        """Predict 2D and 3D keypoints.
+
+        Args:
+            images: (B, 3, S, S) float in [0, 1], S = ``input_size``; contiguous or channels_last.
+
+        Returns:
+            :class:`HUPNetOutput`: points2d (B, N, 2) normalised, points3d (B, N, 3).
+        """
+        if images.ndim != 4 or images.shape[-1] != self.input_size or images.shape[-2] != self.input_size:
+            raise ValueError(f"images must be (B, 3, {self.input_size}, {self.input_size}) (the model's input size), "
+                             f"got {tuple(images.shape)}")
+        _, c3, c4, c5 = self.backbone.feature_maps(images)
+        p = self.lateral5(c5)                                                        # (B, D, S/32, S/32)
+        p = self.lateral4(c4) + F.interpolate(p, size=c4.shape[-2:], mode="nearest")  # (B, D, S/16, S/16)
+        p = self.lateral3(c3) + F.interpolate(p, size=c3.shape[-2:], mode="nearest")  # (B, D, S/8, S/8)
+        m = self.margin_cells
+        p = F.pad(p, (m, m, m, m))                                                   # the canvas beyond the image
+        B, _, H, W = p.shape
+        grid = self.grid.to(p.dtype)
+        coords = torch.stack([grid.view(1, W).expand(H, W), grid.view(H, 1).expand(H, W)])  # (2, H, W)
+        p = self.smooth(torch.cat([p, coords.unsqueeze(0).expand(B, -1, -1, -1)], dim=1))
+        points2d, relative = soft_argmax(self.heatmap(p), grid, grid, self.depthmap(p))  # (B, N, 2), (B, N)
+        root = self.root_depth(torch.flatten(self.backbone.avgpool(c5), 1))          # (B, 1)
+        depth = self.prior3d.mean[:, 2].to(relative.dtype) + (root.to(relative.dtype) + relative) * self.prior3d.scale
+        points3d = unproject_normalized(points2d, depth, self.intrinsics)
+        return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype))
