@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from hupbench import __version__
+
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
     "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
@@ -175,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         description="Synthetic hand + ultrasound-probe data, training and benchmarks (HUP-3D).",
         epilog="Config overrides are Hydra's key=value, e.g. hupbench quickstart camera.width=128",
     )
+    parser.add_argument("--version", action="version", version=f"hupbench {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, help_text in VERBS.items():
         # a verb that parses its own options (leading "--dir ...") gets them all: REMAINDER does not
@@ -194,7 +198,10 @@ def main(argv: list[str] | None = None) -> int:
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
                     "predict": _predict, "eval": _eval, "export": _export}
         return handlers[args.verb](args.overrides)
-    except (ValueError, TypeError, FileNotFoundError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
+    except (ValueError, TypeError, OSError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
+        # OSError covers a missing or unreadable file, a read-only folder and a full disk; its message names the path
+        if args.debug:
+            raise
         print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)
         return 1
 

@@ -49,3 +49,17 @@ def test_output_path_that_is_a_file(tmp_path, capsys):
 def test_verify_cli_on_a_folder_without_manifest(tmp_path, capsys):
     assert main(["verify", str(tmp_path)]) == 1
     assert "no manifest.json" in capsys.readouterr().err
+
+
+def test_version_and_debug_switch(tmp_path, capsys):
+    import hupbench
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"hupbench {hupbench.__version__}"
+    # an error is one line without --debug, the traceback (the exception itself) with it
+    assert main(["verify", str(tmp_path)]) == 1
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    with pytest.raises((FileNotFoundError, ValueError)):
+        main(["--debug", "verify", str(tmp_path)])
