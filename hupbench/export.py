@@ -27,8 +27,10 @@ file and raises, so no file that looks valid is left behind.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -198,10 +200,21 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
         raise ValueError(f"opset must be an int >= 18 (the dynamo exporter's minimum), got {opset!r}")
     size = module.input_size
     example = torch.rand(2, 3, size, size)
-    program = torch.onnx.export(
-        module.eval(), (example,), dynamo=True, opset_version=opset, verbose=False,
-        input_names=["image"], output_names=["points2d", "points3d"],
-        dynamic_shapes={"image": {0: torch.export.Dim("batch")}})
+    # two exporter messages that a user cannot act on, silenced here and only here: the registry's
+    # "torchvision is not installed. Skipping torchvision::roi_pool" (we use no torchvision operator)
+    # and torch's own FutureWarning about LeafSpec, raised inside torch.export
+    registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registry_log.level
+    registry_log.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
+            program = torch.onnx.export(
+                module.eval(), (example,), dynamo=True, opset_version=opset, verbose=False,
+                input_names=["image"], output_names=["points2d", "points3d"],
+                dynamic_shapes={"image": {0: torch.export.Dim("batch")}})
+    finally:
+        registry_log.setLevel(level)
     proto = program.model_proto
     for key, value in metadata.items():
         entry = proto.metadata_props.add()

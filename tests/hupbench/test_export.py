@@ -2,6 +2,9 @@
 
 import json
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -201,3 +204,21 @@ def test_export_models_that_unproject_through_the_camera(model_cfg, tiny_dataset
     if model_cfg["name"] == "hupnet":  # HOPE-Net's 3D carries the U-Net's own 2D correction
         np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-4)
     assert np.isfinite(points3d).all() and points3d.shape == (3, 29, 3)
+
+
+def test_export_prints_no_exporter_noise(tmp_path):
+    """The exporter's torchvision-registry message and torch's LeafSpec FutureWarning mean nothing to a
+    user (we use no torchvision operator): export_onnx shows neither. A fresh process, as torch's
+    loggers write to the stderr they found at import."""
+    script = (
+        "from hupbench import export as E\n"
+        "from models.build import build_model\n"
+        "net = build_model({'name': 'resnet_regressor', 'backbone': 'resnet10', 'n_keypoints': 29})\n"
+        "K = [[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]]\n"
+        f"E.export_onnx(E.ContractModule(net, K, 32), {str(tmp_path / 'm.onnx')!r}, {{}})\n")
+    done = subprocess.run([sys.executable, "-W", "default", "-c", script], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[2], timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "torchvision is not installed" not in done.stderr + done.stdout
+    assert "LeafSpec" not in done.stderr + done.stdout
+    assert (tmp_path / "m.onnx").is_file()
