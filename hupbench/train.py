@@ -452,6 +452,24 @@ def train_step(model, optimizer, scheduler, batch: dict, epoch: int, data: Train
     return loss.detach(), terms
 
 
+#: config fields that count steps or frames: each a whole number >= 1 (None allowed where listed)
+SCHEDULE_FIELDS = {"data.batch_size": False, "train.epochs": False, "train.max_steps": True,
+                   "train.stop_after": True, "train.log_every": False, "train.val_every": False,
+                   "train.ckpt_every": False}
+
+
+def check_schedule(cfg: DictConfig) -> None:
+    """Refuse a batch size or step count that is not a whole number >= 1 (0 used to divide by zero or,
+    for max_steps, to train the epochs default without a word), naming the field."""
+    for field, optional in SCHEDULE_FIELDS.items():
+        value = OmegaConf.select(cfg, field)
+        if value is None and optional:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            allowed = "a whole number >= 1" + (" or null" if optional else "")
+            raise ValueError(f"{field} must be {allowed}, got {value!r}")
+
+
 def run_train(cfg: DictConfig, log=print) -> dict:
     """Train a model on a hupbench dataset.
 
@@ -464,6 +482,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     """
     from hupbench.data import read_manifest, resize_intrinsics
 
+    check_schedule(cfg)
     world, rank, local_rank = _dist_env()
     device = _device(cfg, local_rank)
     if cfg.precision not in ("fp32", "bf16"):
@@ -491,7 +510,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     model = build_run_model(cfg, train_ann, K_input, checkpoint, resume_path)
 
     steps_per_epoch = data.sampler.batches_per_epoch
-    total_steps = int(cfg.train.max_steps) if cfg.train.max_steps else int(cfg.train.epochs) * steps_per_epoch
+    total_steps = int(cfg.train.max_steps) if cfg.train.max_steps is not None else int(cfg.train.epochs) * steps_per_epoch
     if total_steps < 1:
         raise ValueError(f"the run has no steps (train.max_steps={cfg.train.max_steps}, epochs={cfg.train.epochs})")
     optimizer = build(cfg.optim.optimizer)(model.parameters(), lr=learning_rate(cfg, world))

@@ -192,6 +192,11 @@ def test_sampler_ranks_are_disjoint_and_resume_mid_epoch():
     (["data.batch_size=64"], ValueError, "fewer than one batch of 64"),
     (["data.reader.input_size=8"], ValueError, "input_size must be an int >= 16"),
     (["model.n_keypoints=21"], ValueError, r"points3d_mean must be \(21, 3\)|n_keypoints"),
+    (["data.batch_size=0"], ValueError, "data.batch_size must be a whole number >= 1, got 0"),
+    (["train.val_every=0"], ValueError, "train.val_every must be a whole number >= 1, got 0"),
+    (["train.log_every=-5"], ValueError, "train.log_every must be a whole number >= 1, got -5"),
+    (["train.max_steps=0"], ValueError, r"train.max_steps must be a whole number >= 1 or null, got 0"),
+    (["train.ckpt_every=2.5"], ValueError, r"train.ckpt_every must be a whole number >= 1, got 2.5"),
 ])
 def test_bad_config_fails_before_training(tiny_dataset, tmp_path, overrides, error, match):
     run_dir = tmp_path / "run"
