@@ -70,6 +70,20 @@ def unproject_normalized(points2d: torch.Tensor, depth: torch.Tensor, intrinsics
     return torch.cat([xy, depth.unsqueeze(-1)], dim=-1)
 
 
+def set_lift(module: nn.Module, lift: str, K_input, input_size) -> None:
+    """Check ``lift`` and give ``module`` its ``lift`` and ``intrinsics`` (a buffer of the normalised
+    input camera for lift="camera", None for "direct"), as :func:`lift_points` takes them."""
+    if lift not in LIFTS:
+        raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
+    module.lift = lift
+    if lift == "camera":
+        if K_input is None or input_size is None:
+            raise ValueError("lift='camera' needs K_input (3 x 3, pixels of the model input) and input_size")
+        module.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
+    else:
+        module.intrinsics = None
+
+
 class GraphLifter(nn.Module):
     """HOPE-Net's adaptive Graph U-Net lifting 2D keypoints to camera-frame 3D, in one of two ways.
 
@@ -97,18 +111,10 @@ class GraphLifter(nn.Module):
                  points3d_mean: Sequence[Sequence[float]] | None = None, points3d_scale: float = 1.0,
                  K_input: Sequence[Sequence[float]] | None = None, input_size: int | None = None) -> None:
         super().__init__()
-        if lift not in LIFTS:
-            raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
-        self.lift = lift
+        set_lift(self, lift, K_input, input_size)
         self.unet = GraphUNet(in_features=2, out_features=3, n_nodes=n_keypoints, node_counts=unet_node_counts,
                               channels=unet_channels, bottleneck=unet_bottleneck)
         self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
-        if lift == "camera":
-            if K_input is None or input_size is None:
-                raise ValueError("lift='camera' needs K_input (3 x 3, pixels of the model input) and input_size")
-            self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
-        else:
-            self.intrinsics = None
 
     def forward(self, points2d: torch.Tensor) -> torch.Tensor:
         """(B, N, 2) normalised 2D -> (B, N, 3) camera-frame 3D (target units)."""
@@ -214,15 +220,7 @@ class HOPENet(nn.Module):
             bottleneck=unet_bottleneck,
         )
         self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
-        if lift not in LIFTS:
-            raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
-        self.lift = lift
-        if lift == "camera":
-            if K_input is None or input_size is None:
-                raise ValueError("lift='camera' needs K_input (3 x 3, pixels of the model input) and input_size")
-            self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
-        else:
-            self.intrinsics = None
+        set_lift(self, lift, K_input, input_size)
 
     @property
     def config(self) -> dict[str, Any]:
