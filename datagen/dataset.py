@@ -41,6 +41,7 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
+from datagen.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz, write_bytes, write_json
 from datagen.ray_launcher import RayOptions, check_launcher
@@ -55,10 +56,7 @@ from datagen.sphere import (
     viewpoints,
 )
 
-SCHEMA_VERSION = 1
 GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
-SPLITS = ("train", "val", "test")
-DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
 #: HUP-3D's lamp (REFERENCE.md), in the camera frame of the published renderer
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
@@ -320,11 +318,6 @@ def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.nd
     return out
 
 
-def frame_path(root: Path, split: str, modality: str, frame_id: int, rgb_format: str = "jpg") -> Path:
-    ext = rgb_format if modality == "rgb" else "png"
-    return Path(root) / split / modality / f"{frame_id:06d}.{ext}"
-
-
 # --- rendering chunks ----------------------------------------------------------------
 
 
@@ -458,15 +451,6 @@ def _render_chunk(args) -> tuple[int, int]:
     chunk, root, split, layout = args
     chunks = _worker["chunks"]
     return chunk, write_chunk(Path(root), chunks.render(chunk, split, layout), chunks.spec.rgb_format)
-
-
-ANNOTATION_DTYPES = {
-    "frame_id": np.int64, "keypoints_3d_cam": np.float32, "keypoints_2d": np.float32, "visible": bool,
-    "K": np.float64, "T_cam_world": np.float64, "grasp_id": np.int64, "grasp_index": np.int64,
-    "view_id": np.int64, "theta": np.float64, "phi": np.float64, "z_ego": np.float64, "background_id": np.int64,
-    "glove_id": np.int64, "hand_pose": np.float64, "hand_trans": np.float64, "light_position_cam": np.float64,
-    "light_color": np.float64, "light_energy_w": np.float64,
-}
 
 
 def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:

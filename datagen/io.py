@@ -1,30 +1,130 @@
-"""Atomic file writes: a temporary name in the same folder, then one rename.
+"""Safe file output: atomic writes, a clear full-disk error, stale temporary files, output locks.
 
-A killed process leaves either the old file or the new one, never half of
-one under the final name.
+Every file hupbench writes goes through :func:`atomic_output`: the data go to a temporary name in
+the same folder (``.NAME.tmpPID[.ext]``), then one rename puts them in place. A killed process
+leaves either the old file or the new one, never half of one under the final name; a failed write
+(a full disk, a read-only folder) removes its temporary file and raises an :class:`OSError` whose
+message names the file, and for a full disk the device: ``no space left on DEVICE writing FILE``.
+:func:`clean_stale_tmp` removes what killed processes left behind.
+
+:class:`OutputLock` gives one run at a time to an output folder (generate, training): a lock file
+naming the holder's pid, host and command, held by an ``flock`` that the kernel drops when the
+holder dies, so the lock of a killed run is taken over without asking.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import json
 import os
+import re
+import socket
+import sys
+import time
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 
+#: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
+TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
+LOCK_NAME = ".hupbench.lock"
 
-def _tmp_path(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+
+class DiskFullError(OSError):
+    """ENOSPC while writing ``path``; the message names the device (its mount point) and the file."""
+
+    def __init__(self, path: str | Path) -> None:
+        path = Path(path)
+        super().__init__(errno.ENOSPC, f"no space left on {mount_point(path)} writing {path}")
+        self.filename = str(path)
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+def mount_point(path: str | Path) -> str:
+    """The mount point holding ``path`` (or its nearest existing parent), e.g. ``/`` or ``/mnt/data``."""
+    path = Path(os.path.abspath(path))
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    while not os.path.ismount(path) and path != path.parent:
+        path = path.parent
+    return str(path)
+
+
+def tmp_path(path: str | Path, suffix: str = "") -> Path:
+    """The temporary name of ``path`` for this process: ``.NAME.tmpPID`` + ``suffix``."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
+
+
+def _explain(exc: OSError, path: Path) -> OSError:
+    if exc.errno == errno.ENOSPC:
+        return DiskFullError(path)
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return PermissionError(exc.errno, f"cannot write {path}: {exc.strerror}")
+    return exc
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path, suffix: str = "") -> Iterator[Path]:
+    """Yield a temporary path to write ``path``'s content to; rename it into place on success.
+
+    Creates the parent folders. On any error the temporary file is removed and an OSError is
+    re-raised with a message naming ``path`` (:class:`DiskFullError` for a full disk).
+
+    Args:
+        path: the final file.
+        suffix: appended to the temporary name, for writers that insist on an extension
+            (``np.savez`` appends ``.npz`` to any other name).
+    """
+    path = Path(path)
+    tmp = tmp_path(path, suffix)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _explain(exc, path) from exc
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_with(path: str | Path, writer: Callable[[Path], object], suffix: str = "") -> Path:
+    """Atomically write ``path`` with ``writer(tmp_path)`` (e.g. ``torch.save``); see :func:`atomic_output`.
+
+    Some writers (``torch.save``) report a full disk as a RuntimeError; any error while the disk
+    holding ``path`` has no free space left is reported as :class:`DiskFullError`.
+    """
+    path = Path(path)
+    with atomic_output(path, suffix) as tmp:
+        try:
+            writer(tmp)
+        except OSError:
+            raise
+        except Exception as exc:
+            if _disk_full(tmp.parent):
+                raise DiskFullError(path) from exc
+            raise
+    return path
+
+
+def _disk_full(folder: Path) -> bool:
+    try:
+        stats = os.statvfs(folder)
+    except OSError:
+        return False
+    return stats.f_bavail * stats.f_frsize < 64 * 1024
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Write bytes atomically, creating parent folders."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp_path(path)
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-    return path
+    return write_with(path, lambda tmp: tmp.write_bytes(data))
 
 
 def write_json(path: str | Path, data: dict) -> Path:
@@ -34,12 +134,7 @@ def write_json(path: str | Path, data: dict) -> Path:
 
 def save_npz(path: str | Path, arrays: dict) -> Path:
     """``np.savez`` atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.npz")  # savez appends .npz to other names
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
-    return path
+    return write_with(path, lambda tmp: np.savez(tmp, **arrays), suffix=".npz")
 
 
 def _plain(value):
@@ -48,3 +143,128 @@ def _plain(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
     return str(value)
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def clean_stale_tmp(folder: str | Path, recursive: bool = True) -> list[Path]:
+    """Remove the temporary files (:data:`TMP_PATTERN`) of processes that no longer run.
+
+    A file whose pid is alive belongs to a running writer and is kept.
+
+    Returns:
+        The removed paths.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    candidates = folder.rglob(".*.tmp*") if recursive else folder.glob(".*.tmp*")
+    for path in candidates:
+        match = TMP_PATTERN.match(path.name)
+        if match and path.is_file() and not pid_alive(int(match.group(1))):
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
+class LockedError(RuntimeError):
+    """Another live process holds the output folder's lock."""
+
+
+class OutputLock:
+    """One run at a time per output folder: ``FOLDER/.hupbench.lock``.
+
+    The lock file holds the holder's pid, host, start time and command line (JSON). It is held by an
+    exclusive ``flock``, which the kernel releases when the holder exits or is killed: a lock file
+    left by a dead run is stale and is taken over (``taken_over`` names its old holder).
+
+    Args:
+        folder: the output folder (created if needed).
+        what: the verb taking the lock, for the message ("generate", "training").
+
+    Raises:
+        LockedError: another live process holds the folder (the message names its pid and host).
+    """
+
+    def __init__(self, folder: str | Path, what: str) -> None:
+        self.folder = Path(folder)
+        self.what = what
+        self.path = self.folder / LOCK_NAME
+        self._fd: int | None = None
+        self.taken_over: dict | None = None
+
+    def holder(self) -> dict | None:
+        """The recorded holder ({"pid", "host", "what", "since", "command"}) or None."""
+        try:
+            return json.loads(self.path.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def acquire(self) -> "OutputLock":
+        for _ in range(100):
+            fd = self._open_locked()
+            # a holder that released between our open and our flock unlinked the file we locked
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        else:
+            raise LockedError(f"could not take the lock {self.path}: it keeps being replaced")
+        previous = self.holder()
+        if previous and previous.get("pid") not in (None, os.getpid()):
+            self.taken_over = previous
+        record = {"pid": os.getpid(), "host": socket.gethostname(), "what": self.what,
+                  "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "command": " ".join(sys.argv)}
+        data = (json.dumps(record, indent=2) + "\n").encode()
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, data, 0)
+        except OSError as exc:
+            os.close(fd)
+            raise _explain(exc, self.path) from exc
+        self._fd = fd
+        return self
+
+    def _open_locked(self) -> int:
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise _explain(exc, self.path) from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            held = self.holder() or {}
+            raise LockedError(
+                f"{self.folder} is in use by another {held.get('what', 'hupbench')} run (pid {held.get('pid', '?')} "
+                f"on {held.get('host', '?')}, since {held.get('since', '?')}); wait for it to finish, stop it, "
+                f"or choose another folder") from None
+        return fd
+
+    def release(self) -> None:
+        """Remove the lock file and drop the lock (the file goes first: nobody sees it unlocked)."""
+        if self._fd is None:
+            return
+        self.path.unlink(missing_ok=True)
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> "OutputLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -20,10 +20,9 @@ import numpy as np
 
 from datagen import gl
 from datagen.camera import Intrinsics, swap_gl_cv_axes
+from datagen.contract import MODALITIES, SEG_LABELS
 from datagen.geometry import _check_last, invert_transform
 
-MODALITIES = ("rgb", "depth", "seg")
-SEG_LABELS = {"background": 0, "hand": 1, "arm": 2, "probe": 3}
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 
 

@@ -18,7 +18,6 @@ Convention:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,9 +25,8 @@ import cv2
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
 from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part of the reader's API)
-from datagen.dataset import SPLITS, frame_path
+from datagen.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
 
 
 def rotation_about_optical_axis(angle: float) -> np.ndarray:
@@ -39,38 +37,6 @@ def rotation_about_optical_axis(angle: float) -> np.ndarray:
     """
     c, s = np.cos(-angle), np.sin(-angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def read_manifest(root, split: str | None = None, needs: str = "this reader expects") -> dict:
-    """Read a finished dataset's manifest and check what every consumer relies on.
-
-    Args:
-        root: dataset folder.
-        split: when given, it must be a split of the dataset with at least one frame.
-        needs: how the keypoint-count error names the consumer, e.g. "the models are built for".
-
-    Returns:
-        the manifest dict.
-    """
-    root = Path(root)
-    if not root.exists():
-        raise FileNotFoundError(f"dataset {root} does not exist")
-    manifest_path = root / "manifest.json"
-    if not manifest_path.is_file():
-        raise FileNotFoundError(f"{root} has no manifest.json: not a finished hupbench dataset "
-                                "(make one with `hupbench generate`)")
-    manifest = json.loads(manifest_path.read_text())
-    n = len(manifest.get("keypoint_names", []))
-    if n != kp.NUM_KEYPOINTS:
-        raise ValueError(f"dataset {root} has {n} keypoints; {needs} {kp.NUM_KEYPOINTS} "
-                         f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
-    if split is not None:
-        counts = manifest.get("counts", {})
-        if split not in SPLITS or split not in counts:
-            raise ValueError(f"split must be one of {sorted(counts) or list(SPLITS)}, got {split!r}")
-        if counts[split] == 0:
-            raise ValueError(f"split {split!r} of {root} is empty (counts: {counts})")
-    return manifest
 
 
 @dataclass(frozen=True)
@@ -118,8 +84,8 @@ class HUPDataset(torch.utils.data.Dataset):
         if "rgb" not in self.manifest["modalities"]:
             raise ValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
         self.split, self.config = split, config
-        with np.load(self.root / split / "annotations.npz") as data:
-            self.ann = {k: data[k] for k in ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K")}
+        self.ann = read_annotations(self.root, split, ("keypoints_3d_cam", "keypoints_2d", "visible", "K"),
+                                    self.manifest)
         self.epoch = 0
         self._jitter = None
         if config.photometric > 0:

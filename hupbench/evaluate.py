@@ -385,6 +385,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
               log, training_command: str | None = None, training_log: str | None = None,
               label: str | None = None) -> dict[str, Any]:
     from hupbench.checkpoint import file_sha256
+    from datagen.contract import read_annotations
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.provenance import git_commit
     from hupbench.results import blank_results, write_results
@@ -416,11 +417,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     if bad.any():
         raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
 
-    with np.load(dataset / split / "annotations.npz") as ann:
-        fields = {k: ann[k] for k in ("frame_id", "theta", "z_ego", "background_id", "keypoints_3d_cam",
-                                      "T_cam_world")}
-    if not np.array_equal(fields["frame_id"], np.concatenate(frame_ids)):
-        raise RuntimeError("the reader's frame order differs from the annotations' (dataset modified while reading?)")
+    fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world"),
+                                               reader.manifest)}
 
     errors = M.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
     width, height = (int(v) for v in manifest["image_size"])

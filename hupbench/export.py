@@ -237,13 +237,9 @@ def ort_session(path: str | Path, threads: int | None = None):
 
 def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
     """(B, 3, S, S) real images of the dataset (test split, else val, else train), B <= ``frames``."""
-    from hupbench.data import HUPDataset, ReaderConfig
+    from hupbench.data import HUPDataset, ReaderConfig, read_manifest
 
-    manifest = dataset / "manifest.json"
-    if not manifest.is_file():
-        raise FileNotFoundError(f"{dataset} has no manifest.json: not a finished hupbench dataset "
-                                f"(the parity check needs real images; pass --dataset)")
-    counts = json.loads(manifest.read_text()).get("counts", {})
+    counts = read_manifest(dataset)["counts"]
     split = next((s for s in ("test", "val", "train") if counts.get(s, 0) > 0), None)
     if split is None:
         raise ValueError(f"{dataset} has no frames in any split")

@@ -160,15 +160,10 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
 
 
 def _first_test_image(dataset: Path) -> Path:
-    import json
+    from datagen.contract import frame_path, read_annotations, read_manifest
 
-    import numpy as np
-
-    from datagen.dataset import frame_path
-
-    manifest = json.loads((dataset / "manifest.json").read_text())
-    with np.load(dataset / "test" / "annotations.npz") as data:
-        frame_id = int(data["frame_id"][0])
+    manifest = read_manifest(dataset, "test")
+    frame_id = int(read_annotations(dataset, "test", (), manifest)["frame_id"][0])
     return frame_path(dataset, "test", "rgb", frame_id, manifest["rgb_format"])
 
 

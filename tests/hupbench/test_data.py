@@ -66,6 +66,7 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
     no_val.mkdir()
     manifest = json.loads((tiny_dataset / "manifest.json").read_text())
     manifest["counts"]["val"] = 0
+    manifest["layout"]["shape"][0] -= 1  # one grasp fewer: a consistent dataset without validation frames
     (no_val / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ValueError, match="split 'val' .* is empty"):
         HUPDataset(no_val, "val")

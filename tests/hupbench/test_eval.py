@@ -230,7 +230,9 @@ def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
     short = _dataset_copy(tiny_dataset, tmp_path / "ds21", lambda m: m | {"keypoint_names": m["keypoint_names"][:21]})
     with pytest.raises(ValueError, match="has 21 keypoints; the benchmark needs 29"):
         EV.run_eval(ckpt, short, **out)
-    empty = _dataset_copy(tiny_dataset, tmp_path / "ds_empty", lambda m: m | {"counts": m["counts"] | {"test": 0}})
+    empty = _dataset_copy(tiny_dataset, tmp_path / "ds_empty", lambda m: m | {"counts": m["counts"] | {"test": 0},
+                                                                         # one grasp fewer: consistent counts
+                                                                         "layout": {"shape": [2, *m["layout"]["shape"][1:]]}})
     with pytest.raises(ValueError, match="split 'test' of .* is empty"):
         EV.run_eval(ckpt, empty, **out)
     with pytest.raises(ValueError, match="split must be one of"):

@@ -1,0 +1,250 @@
+"""The dataset on disk: the one contract between the generator and every reader (numpy only).
+
+DESIGN.md's layout::
+
+    DATASET/manifest.json                  written last: a dataset without it is not finished
+    DATASET/grasps.npz
+    DATASET/<split>/annotations.npz        ANNOTATION_DTYPES, one row per frame, sorted by frame_id
+    DATASET/<split>/rgb/<frame_id>.jpg     (or .png, manifest "rgb_format")
+    DATASET/<split>/depth/<frame_id>.png   uint16, metres = value * depth_scale_m, 0 = background
+    DATASET/<split>/seg/<frame_id>.png     uint8, SEG_LABELS
+
+The generator writes through these names; training, verify, eval, export and the quickstart read
+through :func:`read_manifest` and :func:`read_annotations`, which check what they return (the
+manifest's fields, the npz's integrity, every array's dtype and shape, the row count against the
+manifest) and raise ``ValueError`` naming the file and what was wrong. This module imports numpy
+and the keypoint order only: a reader never pulls in the renderer.
+
+Convention:
+    Annotations are in the OpenCV camera frame (x right, y down, z forward), metres; 2D keypoints
+    in pixels of the stored image (pixel centres at integers); K (3, 3) of the stored image.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from datagen import keypoints as kp
+
+SCHEMA_VERSION = 1
+SPLITS = ("train", "val", "test")
+MODALITIES = ("rgb", "depth", "seg")
+RGB_FORMATS = ("jpg", "png")
+SEG_LABELS = {"background": 0, "hand": 1, "arm": 2, "probe": 3}
+DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
+MANIFEST = "manifest.json"
+ANNOTATIONS = "annotations.npz"
+
+#: annotations.npz: array name -> (dtype, shape of one row); N rows, one per frame
+ANNOTATION_FIELDS: dict[str, tuple[type, tuple[int, ...]]] = {
+    "frame_id": (np.int64, ()),
+    "keypoints_3d_cam": (np.float32, (kp.NUM_KEYPOINTS, 3)),
+    "keypoints_2d": (np.float32, (kp.NUM_KEYPOINTS, 2)),
+    "visible": (np.bool_, (kp.NUM_KEYPOINTS,)),
+    "K": (np.float64, (3, 3)),
+    "T_cam_world": (np.float64, (4, 4)),
+    "grasp_id": (np.int64, ()),
+    "grasp_index": (np.int64, ()),
+    "view_id": (np.int64, ()),
+    "theta": (np.float64, ()),
+    "phi": (np.float64, ()),
+    "z_ego": (np.float64, ()),
+    "background_id": (np.int64, ()),
+    "glove_id": (np.int64, ()),
+    "hand_pose": (np.float64, (48,)),
+    "hand_trans": (np.float64, (3,)),
+    "light_position_cam": (np.float64, (3,)),
+    "light_color": (np.float64, (3,)),
+    "light_energy_w": (np.float64, ()),
+}
+ANNOTATION_DTYPES = {name: dtype for name, (dtype, _) in ANNOTATION_FIELDS.items()}
+#: arrays whose values must be finite
+FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
+
+
+def frame_path(root: str | Path, split: str, modality: str, frame_id: int, rgb_format: str = "jpg") -> Path:
+    """``root/<split>/<modality>/<frame_id:06d>.<ext>``: rgb takes ``rgb_format``, depth and seg PNG."""
+    ext = rgb_format if modality == "rgb" else "png"
+    return Path(root) / split / modality / f"{int(frame_id):06d}.{ext}"
+
+
+def annotations_path(root: str | Path, split: str) -> Path:
+    return Path(root) / split / ANNOTATIONS
+
+
+def _fail(path: Path, what: str) -> ValueError:
+    return ValueError(f"{path}: {what}")
+
+
+def _positive_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
+def read_manifest(root: str | Path, split: str | None = None, needs: str = "this reader expects") -> dict:
+    """Read a finished dataset's ``manifest.json`` and check every field a reader relies on.
+
+    Checks: valid JSON object; schema_version; counts per split (ints >= 0) adding up to the
+    layout's frames; keypoint_names equal to :mod:`datagen.keypoints`' 29 names in order;
+    image_size; K (3, 3) finite with positive focal lengths; modalities; rgb_format; depth_scale_m.
+
+    Args:
+        root: dataset folder.
+        split: when given, it must be a split of the dataset with at least one frame.
+        needs: how the keypoint error names the consumer, e.g. "the models are built for".
+
+    Returns:
+        The manifest dict.
+
+    Raises:
+        FileNotFoundError: no folder, or no manifest (an unfinished dataset).
+        ValueError: the manifest is not valid JSON or a field is missing or wrong (the message
+            names the file and the field).
+    """
+    root = Path(root)
+    if not root.exists():
+        raise FileNotFoundError(f"dataset {root} does not exist")
+    if not root.is_dir():
+        raise ValueError(f"dataset {root} is a file; a dataset is a folder holding {MANIFEST}")
+    path = root / MANIFEST
+    if not path.is_file():
+        raise FileNotFoundError(f"{root} has no {MANIFEST}: not a finished hupbench dataset "
+                                "(make one with `hupbench generate`, or finish it by running the same command again)")
+    try:
+        manifest = json.loads(path.read_text())
+    except UnicodeDecodeError as exc:
+        raise _fail(path, f"not a text file ({exc.reason})") from exc
+    except json.JSONDecodeError as exc:
+        raise _fail(path, f"not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from exc
+    if not isinstance(manifest, dict):
+        raise _fail(path, f"expected a JSON object, got {type(manifest).__name__}")
+    check_manifest(manifest, path, needs)
+    if split is not None:
+        counts = manifest["counts"]
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+        if counts.get(split, 0) == 0:
+            raise ValueError(f"split {split!r} of {root} is empty (counts: {counts})")
+    return manifest
+
+
+def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects") -> None:
+    """Raise ValueError naming ``path`` and the field for any field of ``manifest`` that is wrong."""
+    missing = [k for k in ("schema_version", "counts", "keypoint_names", "image_size", "K", "modalities",
+                           "rgb_format", "depth_scale_m", "layout") if k not in manifest]
+    if missing:
+        raise _fail(path, f"lacks {', '.join(missing)}")
+    if manifest["schema_version"] != SCHEMA_VERSION:
+        raise _fail(path, f"schema_version is {manifest['schema_version']!r}; this hupbench reads {SCHEMA_VERSION}")
+    names = manifest["keypoint_names"]
+    if not isinstance(names, list) or len(names) != kp.NUM_KEYPOINTS:
+        n = len(names) if isinstance(names, list) else type(names).__name__
+        raise _fail(path, f"keypoint_names: the dataset has {n} keypoints; {needs} {kp.NUM_KEYPOINTS} "
+                          f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+    if names != list(kp.KEYPOINT_NAMES):
+        i = next(i for i, (a, b) in enumerate(zip(names, kp.KEYPOINT_NAMES)) if a != b)
+        raise _fail(path, f"keypoint_names[{i}] is {names[i]!r}, expected {kp.KEYPOINT_NAMES[i]!r} "
+                          "(datagen.keypoints' order)")
+    counts = manifest["counts"]
+    if not isinstance(counts, dict) or set(counts) - set(SPLITS) or \
+            any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in counts.values()):
+        raise _fail(path, f"counts must map {list(SPLITS)} to frame counts >= 0, got {counts!r}")
+    size = manifest["image_size"]
+    if not (isinstance(size, list) and len(size) == 2 and all(_positive_int(v) for v in size)):
+        raise _fail(path, f"image_size must be [width, height] in pixels, got {size!r}")
+    try:
+        K = np.asarray(manifest["K"], dtype=np.float64)
+    except (TypeError, ValueError):
+        K = np.zeros(0)
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise _fail(path, f"K must be a finite 3 x 3 matrix with fx, fy > 0, got {manifest['K']!r}")
+    modalities = manifest["modalities"]
+    if not isinstance(modalities, list) or not modalities or any(m not in MODALITIES for m in modalities):
+        raise _fail(path, f"modalities must be a non-empty list from {list(MODALITIES)}, got {modalities!r}")
+    if manifest["rgb_format"] not in RGB_FORMATS:
+        raise _fail(path, f"rgb_format must be one of {list(RGB_FORMATS)}, got {manifest['rgb_format']!r}")
+    scale = manifest["depth_scale_m"]
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+        raise _fail(path, f"depth_scale_m must be a positive number, got {scale!r}")
+    shape = (manifest["layout"] or {}).get("shape") if isinstance(manifest["layout"], dict) else None
+    if not (isinstance(shape, list) and len(shape) == 5 and all(_positive_int(v) for v in shape)):
+        raise _fail(path, f"layout.shape must be 5 positive ints (grasp, z_ego, background, glove, view), "
+                          f"got {shape!r}")
+    if sum(counts.values()) != math.prod(shape):
+        raise _fail(path, f"counts {counts} add up to {sum(counts.values())} frames but layout.shape {shape} "
+                          f"holds {math.prod(shape)}")
+
+
+def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = None,
+                     manifest: dict | None = None) -> dict[str, np.ndarray]:
+    """Read and check ``<split>/annotations.npz``.
+
+    Every returned array is read in full (the zip's CRC is checked on the way), has the dtype and
+    row shape of :data:`ANNOTATION_FIELDS` and as many rows as the manifest counts for the split;
+    frame ids are unique and ascending and the geometric fields finite.
+
+    Args:
+        root: dataset folder.
+        split: "train", "val" or "test".
+        keys: the arrays to return (default: all of :data:`ANNOTATION_FIELDS`; "frame_id" is
+            always read and checked).
+        manifest: the dataset's manifest (read with :func:`read_manifest` when None).
+
+    Returns:
+        {name: array} with N rows each.
+
+    Raises:
+        FileNotFoundError: the file is missing. ValueError: it is damaged (not a zip, truncated,
+        bad CRC), an array is missing or has another dtype, shape or row count (the message names
+        the file and the array).
+    """
+    root = Path(root)
+    if manifest is None:
+        manifest = read_manifest(root)
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+    keys = list(ANNOTATION_FIELDS) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
+    unknown = [k for k in keys if k not in ANNOTATION_FIELDS]
+    if unknown:
+        raise ValueError(f"unknown annotation arrays {unknown}; the contract has {list(ANNOTATION_FIELDS)}")
+    path = annotations_path(root, split)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "
+                                f"{split} frames)")
+    arrays = {}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            absent = [k for k in keys if k not in data.files]
+            if absent:
+                raise _fail(path, f"lacks the arrays {absent}")
+            for key in keys:
+                arrays[key] = data[key]
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise _fail(path, f"damaged or not an annotations file ({exc})") from exc
+    except (zipfile.BadZipFile, EOFError, KeyError, OSError, zipfile.LargeZipFile) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise _fail(path, f"damaged ({type(exc).__name__}: {exc}); regenerate the dataset") from exc
+    expected_rows = manifest["counts"].get(split, 0)
+    for key in keys:
+        dtype, row_shape = ANNOTATION_FIELDS[key]
+        array = arrays[key]
+        if array.dtype != np.dtype(dtype):
+            raise _fail(path, f"{key} is {array.dtype}, expected {np.dtype(dtype)}")
+        if array.shape != (expected_rows, *row_shape):
+            raise _fail(path, f"{key} has shape {array.shape}, expected {(expected_rows, *row_shape)} "
+                              f"({expected_rows} rows as the manifest counts for {split!r})")
+        if key in FINITE_FIELDS and not np.isfinite(array).all():
+            bad = int((~np.isfinite(array.reshape(len(array), -1))).any(axis=1).sum())
+            raise _fail(path, f"{key} holds NaN or inf in {bad} rows")
+    ids = arrays["frame_id"]
+    if len(ids) > 1 and not (np.diff(ids) > 0).all():
+        raise _fail(path, "frame_id is not strictly ascending (repeated or shuffled rows)")
+    return arrays
