@@ -17,7 +17,7 @@ from datagen import keypoints as kp
 from datagen.camera import Intrinsics, look_at, project_points
 from datagen.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled, write_png
 from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle, transform_points
-from datagen.hand import anatomical_to_pose
+from datagen.hand_anatomy import anatomical_to_pose
 from datagen.render import MODALITIES, PointLight, Renderer, RenderSettings, check_modalities
 from datagen.scene import Grasp, SceneModels, keypoints_world, scene_parts
 

@@ -15,7 +15,8 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen.arm import ArmSpec, forearm_mesh
 from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation, transform_points
-from datagen.hand import HandSpec, build_hand, check_pose, clamp_pose
+from datagen.hand import build_hand
+from datagen.hand_anatomy import HandSpec, check_pose, clamp_pose
 from datagen.probe import ProbeSpec, build_probe
 from datagen.render import SEG_LABELS, MeshPart
 

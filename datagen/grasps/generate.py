@@ -26,7 +26,8 @@ from datagen.geometry import invert_transform, matrix_to_axis_angle
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
-from datagen.hand import HandSpec, anatomical_to_pose, build_hand
+from datagen.hand import build_hand
+from datagen.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.probe import ProbeSpec, build_probe
 
 SAMPLERS = ("random", "cvae")

@@ -36,7 +36,8 @@ import torch
 from datagen import keypoints as kp
 from datagen.arm import ArmSpec, _forearm_rest
 from datagen.geometry import axis_angle_to_matrix as aa_to_matrix_np
-from datagen.hand import HandModel, _bone_radii
+from datagen.hand import HandModel
+from datagen.hand_mesh import bone_radii
 from datagen.probe import Probe
 from datagen.rotations_torch import axis_angle_to_matrix
 
@@ -173,13 +174,13 @@ def hand_regions(hand: HandModel) -> HandRegions:
     if empty:
         raise RuntimeError(f"hand mesh has no pad vertices for {empty}")
     capsules, fingers, radii = [], [], []
-    bone_radii = _bone_radii(hand.spec)
+    bone_radii_m = bone_radii(hand.spec)
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
         start = kp.FINGER_START[finger]
         for k in range(3):
             capsules.append((start + k, start + k + 1))
             fingers.append(i)
-            radii.append(bone_radii[1 + 3 * i + k])
+            radii.append(bone_radii_m[1 + 3 * i + k])
     verts, _ = _forearm_rest(ArmSpec(scale=hand.spec.scale))
     # the near end overlaps the hand by design; keep points from 3 cm up the forearm
     forearm = verts[verts[:, 0] < -0.03][::3]

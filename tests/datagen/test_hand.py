@@ -4,12 +4,12 @@ import trimesh
 
 from datagen import keypoints as kp
 from datagen.geometry import axis_angle_to_matrix
-from datagen.hand import (
+from datagen.hand import build_hand
+from datagen.hand_anatomy import (
     POSE_DIM,
     HandSpec,
     anatomical_frames,
     anatomical_to_pose,
-    build_hand,
     clamp_pose,
     joint_limits_rad,
     pose_to_anatomical,

@@ -3,7 +3,8 @@ import pytest
 
 from datagen.grasps.refine import GraspBatch, GraspEnergy
 from datagen.grasps.scores import farthest_point_selection, force_closure_residual, score_grasps
-from datagen.hand import build_hand, pose_to_anatomical
+from datagen.hand import build_hand
+from datagen.hand_anatomy import pose_to_anatomical
 from datagen.geometry import axis_angle_to_matrix
 from datagen.preview import handset_grasp
 from datagen.probe import build_probe

@@ -1,0 +1,301 @@
+"""The hand's anatomy: bone lengths, joint limits, the rest skeleton and the pose parametrisation.
+
+Adult right hand, 50th percentile (REFERENCE.md); MANO's kinematic tree (16 joints) plus 5
+fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
+:mod:`datagen.hand_mesh` builds the skinned surface, :mod:`datagen.hand` the posable model.
+
+
+The hand has MANO's kinematic tree (16 joints: wrist; index, middle, little,
+ring, thumb, three joints each) plus 5 fingertips, adult bone lengths and
+anatomical joint limits, and a closed skinned mesh built here from an
+implicit surface (capsules and a rounded palm slab blended by smooth
+minimum, meshed by marching cubes, decimated, skinned by linear blend
+skinning). No MANO file is read.
+
+Convention:
+    Metres and radians. Hand frame (the rest pose): origin at the wrist
+    joint centre, +x distal (towards the middle finger), +y dorsal (back of
+    the hand), +z = x cross y, towards the little finger; the thumb lies on
+    the -z side. The rest pose is a flat hand.
+    Pose: 48 axis-angle values like MANO's: 3 global (hand frame -> world)
+    then 15 joints in MANO order (index 1-3, middle 4-6, little 7-9, ring
+    10-12, thumb 13-15), each the rotation of a joint relative to its parent,
+    expressed in the rest-pose axes. Translation: wrist position in the
+    world frame. Anatomical angles per joint are (flexion, abduction, twist)
+    about the joint's anatomical axes: intrinsic x-y-z Euler angles in the
+    frame whose z is the rest direction of the bone the joint moves, x the
+    flexion axis (positive flexion curls towards the palm) and y = z cross x.
+"""
+
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from datagen import keypoints as kp
+from datagen.geometry import (
+    _check_last,
+    axis_angle_to_matrix,
+    euler_to_matrix,
+    matrix_to_axis_angle,
+    matrix_to_euler_xyz,
+)
+
+MM = 1e-3
+NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
+POSE_DIM = 3 * NUM_JOINTS  # 48
+
+# --- adult right hand, 50th percentile (REFERENCE.md), millimetres -----------------
+# wrist-to-MCP distance and phalanx lengths (proximal, middle, distal to tip)
+FINGER_LENGTHS_MM = {
+    "index": (85.0, 46.0, 27.0, 18.0),
+    "middle": (84.0, 50.0, 32.0, 20.0),
+    "ring": (77.0, 46.0, 31.0, 20.0),
+    "little": (70.0, 39.0, 22.0, 18.0),
+}
+# CMC distance from the wrist, metacarpal, proximal, distal (ranges 36-47, 31-37, 27-30)
+THUMB_LENGTHS_MM = (22.0, 42.0, 34.0, 28.0)
+
+# MCP positions across the palm (z, mm) and palmar arch (y, mm); the x follows from the length
+_MCP_Z_MM = {"index": -24.0, "middle": -5.0, "ring": 13.0, "little": 29.0}
+_MCP_Y_MM = {"index": 0.0, "middle": 0.0, "ring": -2.0, "little": -5.0}
+# rest splay of each finger (z component of its direction before normalising)
+_SPLAY = {"index": -0.07, "middle": 0.0, "ring": 0.06, "little": 0.13}
+# thumb rest directions (hand frame): CMC from the wrist, then each bone
+_THUMB_DIRS = (
+    (0.55, -0.40, -0.73),
+    (0.70, -0.30, -0.65),
+    (0.80, -0.22, -0.56),
+    (0.86, -0.17, -0.48),
+)
+# capsule radii per bone (proximal, middle, distal), mm
+FINGER_RADII_MM = {
+    "index": (9.0, 8.0, 7.0),
+    "middle": (9.3, 8.3, 7.2),
+    "ring": (8.7, 7.8, 6.9),
+    "little": (7.8, 7.0, 6.3),
+}
+THUMB_RADII_MM = (12.5, 9.8, 8.8)  # metacarpal (thenar), proximal, distal
+
+# --- joint limits, degrees: (flexion, abduction, twist) x (min, max) -----------------
+_FINGER_LIMITS_DEG = (
+    ((-30.0, 90.0), (-20.0, 20.0), (-10.0, 10.0)),  # MCP
+    ((0.0, 105.0), (-5.0, 5.0), (-5.0, 5.0)),  # PIP
+    ((0.0, 90.0), (-5.0, 5.0), (-5.0, 5.0)),  # DIP
+)
+_THUMB_LIMITS_DEG = (
+    ((-20.0, 45.0), (-20.0, 45.0), (-30.0, 30.0)),  # CMC (twist: opposition)
+    ((-10.0, 60.0), (-10.0, 10.0), (-10.0, 10.0)),  # MCP
+    ((-15.0, 90.0), (-5.0, 5.0), (-5.0, 5.0)),  # IP
+)
+#: wrist flexion/extension and radial/ulnar deviation between forearm and hand
+WRIST_LIMITS_RAD = np.deg2rad((-45.0, 45.0))
+
+
+def joint_limits_rad() -> np.ndarray:
+    """Anatomical joint limits.
+
+    Returns:
+        (15, 3, 2) float64, radians: for each MANO joint 1..15, (flexion,
+        abduction, twist) x (min, max).
+    """
+    rows = []
+    for finger in kp.MANO_FINGER_ORDER:
+        rows.extend(_THUMB_LIMITS_DEG if finger == "thumb" else _FINGER_LIMITS_DEG)
+    return np.deg2rad(np.array(rows, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class HandSpec:
+    """Parameters of the procedural hand.
+
+    Attributes:
+        scale: overall size; 1.0 is the adult 50th-percentile hand of
+            REFERENCE.md, lengths and radii scale linearly.
+        voxel_m: marching-cubes grid step for the rest mesh, metres.
+        max_faces: triangle budget after decimation.
+    """
+
+    scale: float = 1.0
+    voxel_m: float = 0.0012
+    max_faces: int = 7800
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.scale) or not 0.5 <= self.scale <= 1.5:
+            raise ValueError(f"hand scale must be in [0.5, 1.5], got {self.scale!r}")
+        if not np.isfinite(self.voxel_m) or not 0.0003 <= self.voxel_m <= 0.004:
+            raise ValueError(f"voxel_m must be in [0.3, 4] mm, got {self.voxel_m!r} m")
+        if self.max_faces < 1000:
+            raise ValueError(f"max_faces must be at least 1000, got {self.max_faces}")
+
+
+def unit_vector(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def rest_skeleton(scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-pose joints and fingertips in the hand frame.
+
+    Args:
+        scale: hand size factor (1.0 = adult 50th percentile).
+
+    Returns:
+        joints_hand: (16, 3) float64, metres, MANO joint order.
+        tips_hand: (5, 3) float64, metres, MANO finger order (index, middle,
+            little, ring, thumb).
+    """
+    joints = np.zeros((NUM_JOINTS, 3))
+    tips = np.zeros((5, 3))
+    for i, finger in enumerate(kp.MANO_FINGER_ORDER):
+        if finger == "thumb":
+            d0, *bones = THUMB_LENGTHS_MM
+            chain = [unit_vector(_THUMB_DIRS[0]) * d0]
+            for length, direction in zip(bones, _THUMB_DIRS[1:]):
+                chain.append(chain[-1] + unit_vector(direction) * length)
+        else:
+            d0, *bones = FINGER_LENGTHS_MM[finger]
+            y, z = _MCP_Y_MM[finger], _MCP_Z_MM[finger]
+            mcp = np.array([np.sqrt(d0**2 - y**2 - z**2), y, z])
+            direction = unit_vector([1.0, 0.0, _SPLAY[finger]])
+            chain = [mcp]
+            for length in bones:
+                chain.append(chain[-1] + direction * length)
+        joints[1 + 3 * i : 4 + 3 * i] = chain[:3]
+        tips[i] = chain[3]
+    return joints * MM * scale, tips * MM * scale
+
+
+def child_of_joint(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    """(16, 3) rest position of the point each joint's bone ends at (child joint or tip)."""
+    ends = np.zeros_like(joints)
+    ends[0] = joints[kp.MANO_FINGER_ORDER.index("middle") * 3 + 1]  # wrist bone: to the middle MCP
+    for i in range(5):
+        ends[1 + 3 * i] = joints[2 + 3 * i]
+        ends[2 + 3 * i] = joints[3 + 3 * i]
+        ends[3 + 3 * i] = tips[i]
+    return ends
+
+
+def anatomical_frames(scale: float = 1.0) -> np.ndarray:
+    """Rest-pose anatomical axes of joints 1..15.
+
+    Returns:
+        (15, 3, 3) float64; column 0 the flexion axis, 1 the abduction axis,
+        2 the bone direction (twist axis), in the hand frame, right-handed.
+    """
+    joints, tips = rest_skeleton(scale)
+    ends = child_of_joint(joints, tips)
+    frames = np.zeros((15, 3, 3))
+    for j in range(1, NUM_JOINTS):
+        twist = unit_vector(ends[j] - joints[j])
+        is_thumb = j >= 13
+        # direction the pad faces: the palm (-y) for fingers; for the thumb, whose pad faces
+        # the index finger, mostly +z with some palmar tilt
+        palmar = unit_vector([0.0, -0.45, 1.0]) if is_thumb else np.array([0.0, -1.0, 0.0])
+        flex = unit_vector(np.cross(twist, palmar))
+        abd = np.cross(twist, flex)
+        frames[j - 1] = np.stack([flex, abd, twist], axis=1)
+    return frames
+
+
+def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
+    """Validate a hand pose.
+
+    Args:
+        pose: (48,) or (B, 48) float axis-angle, radians.
+
+    Returns:
+        the same as float64.
+    """
+    pose = np.asarray(pose, dtype=np.float64)
+    if pose.ndim not in (1, 2) or pose.shape[-1] != POSE_DIM:
+        raise ValueError(f"{name} must be ({POSE_DIM},) or (B, {POSE_DIM}) axis-angle, got {tuple(pose.shape)}")
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return pose
+
+
+def pose_to_anatomical(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Joint rotations as anatomical angles.
+
+    Args:
+        pose: (48,) or (B, 48) float axis-angle (see module Convention).
+        scale: hand size (the anatomical axes do not depend on it).
+
+    Returns:
+        (15, 3) or (B, 15, 3) float64 (flexion, abduction, twist), radians.
+    """
+    pose = check_pose(pose)
+    A = anatomical_frames(scale)
+    R = axis_angle_to_matrix(pose[..., 3:].reshape(pose.shape[:-1] + (15, 3)))  # (..., 15, 3, 3)
+    R_anat = np.swapaxes(A, -1, -2) @ R @ A
+    return matrix_to_euler_xyz(R_anat)
+
+
+def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+    """Build a 48-value pose from anatomical angles.
+
+    Args:
+        angles: (15, 3) or (B, 15, 3) float (flexion, abduction, twist), radians,
+            MANO joint order.
+        global_axis_angle: (3,) or (B, 3) float, hand frame -> world rotation.
+        scale: hand size (the anatomical axes do not depend on it).
+
+    Returns:
+        (48,) or (B, 48) float64 pose.
+    """
+    angles = _check_last(angles, (15, 3), "angles")
+    g = _check_last(global_axis_angle, (3,), "global_axis_angle")
+    A = anatomical_frames(scale)
+    R = A @ euler_to_matrix(angles, "xyz") @ np.swapaxes(A, -1, -2)
+    joints_aa = matrix_to_axis_angle(R).reshape(angles.shape[:-2] + (45,))
+    g = np.broadcast_to(g, joints_aa.shape[:-1] + (3,))
+    return np.concatenate([g, joints_aa], axis=-1)
+
+
+def clamp_pose(pose: np.ndarray, strict: bool = False, scale: float = 1.0) -> np.ndarray:
+    """Enforce the anatomical joint limits.
+
+    Args:
+        pose: (48,) or (B, 48) float axis-angle.
+        strict: raise instead of clamping when a joint is outside its limits.
+        scale: hand size (the anatomical axes do not depend on it).
+
+    Returns:
+        (48,) or (B, 48) float64 pose whose joints are within limits (the
+        global rotation is untouched).
+    """
+    pose = check_pose(pose)
+    angles = pose_to_anatomical(pose, scale)
+    limits = joint_limits_rad()
+    # a hair of slack so that poses built at a limit do not flicker across it
+    slack = 1e-9
+    low, high = limits[..., 0] - slack, limits[..., 1] + slack
+    outside = (angles < low) | (angles > high)
+    if not np.any(outside):
+        return pose.copy()
+    if strict:
+        names = joint_names()
+        axes = ("flexion", "abduction", "twist")
+        where = np.argwhere(outside)
+        msgs = []
+        for idx in where[:6]:
+            *b, j, a = idx
+            value = np.rad2deg(angles[tuple(idx)])
+            lo, hi = np.rad2deg(limits[j, a])
+            msgs.append(f"{names[j + 1]} {axes[a]} {value:.1f} deg not in [{lo:.0f}, {hi:.0f}]")
+        raise ValueError("pose outside joint limits: " + "; ".join(msgs))
+    clamped = np.clip(angles, limits[..., 0], limits[..., 1])
+    return anatomical_to_pose(clamped, pose[..., :3], scale)
+
+
+def joint_names() -> tuple[str, ...]:
+    """Names of the 16 MANO joints, in MANO order."""
+    names = ["wrist"]
+    for finger in kp.MANO_FINGER_ORDER:
+        for k in range(3):
+            names.append(kp.HAND_NAMES[kp.FINGER_START[finger] + k])
+    return tuple(names)
