@@ -19,7 +19,7 @@ from itertools import pairwise
 import torch
 from torch import nn
 
-from models.tolerances import ADJACENCY_DEGREE_EPS
+from models.model_tolerances import ADJACENCY_DEGREE_EPS
 
 __all__ = [
     "ACTIVATION_SLOPE",

@@ -14,7 +14,7 @@ from models.graph import (
     default_node_counts,
     normalized_adjacency,
 )
-from models.tolerances import ADJACENCY_DEGREE_EPS
+from models.model_tolerances import ADJACENCY_DEGREE_EPS
 
 
 def textbook(adjacency: torch.Tensor) -> torch.Tensor:

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from models.resnet import RESNET_SPECS, ResNet, ResNetOutput, resnet, strip_classifier
-from models.tolerances import CHANNELS_LAST_REL
+from models.model_tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:

@@ -3,7 +3,7 @@ import torch
 
 from models.baseline import RegressorOutput, ResNetRegressor
 from models.hopenet import HOPENetOutput
-from models.tolerances import CHANNELS_LAST_REL
+from models.model_tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:
