@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.backgrounds import (BASE_PX, BUILTIN_NAMES, BackgroundSet, builtin_background, composite)
+from datagen.background_scenes import BASE_PX
+from datagen.backgrounds import (BUILTIN_NAMES, BackgroundSet, builtin_background, composite)
 
 LUMA_REC709 = np.array([0.2126, 0.7152, 0.0722])
 
@@ -55,10 +56,10 @@ def test_builtins_are_cached_read_only_and_repeatable():
     assert builtin_background(3, 128, 96) is first
     with pytest.raises(ValueError):
         first[0, 0, 0] = 7  # read-only: a caller cannot corrupt the cache
-    from datagen import backgrounds
+    from datagen import background_scenes, backgrounds
 
     # repaint from scratch: the painting itself, not only the cache, must be deterministic
-    repainted = np.clip(np.rint(backgrounds._SCENES[3]() * 255.0), 0, 255).astype(np.uint8)
+    repainted = np.clip(np.rint(background_scenes.SCENES[3]() * 255.0), 0, 255).astype(np.uint8)
     np.testing.assert_array_equal(repainted, backgrounds._base_image(3))
 
 
