@@ -42,8 +42,6 @@ import json
 import math
 import os
 import tempfile
-import time
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -75,7 +73,7 @@ _FILE_FORMAT = "hupbench.grasp_cvae"
 _FILE_VERSION = 1
 #: the .npz entry holding the JSON header; state_dict keys never start with an underscore
 _HEADER_KEY = "__header__"
-_CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
+CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
 
 
 def _positive_int(name: str, value) -> None:
@@ -426,173 +424,6 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
     parts["recon"] = recon
     parts["total"] = recon + kl_weight * parts["kl"]
     return parts
-
-
-# --------------------------------------------------------------------------- training
-
-
-def check_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:
-    """Validate a training corpus and return its four arrays as float32.
-
-    Args:
-        corpus: mapping with "x" (M, 54) grasps, "bps" (M, n_bps) metres,
-            "init_rot6d" (M, 6), "init_trans" (M, 3) metres, all in the
-            generator frame; other keys are ignored.
-        n_bps: expected BPS length.
-
-    Returns:
-        dict of the four arrays, float32, C-contiguous.
-
-    Raises:
-        TypeError: corpus is not a mapping.
-        ValueError: a key missing, a wrong shape or dtype, row counts that
-            differ, fewer than 2 rows, NaN or inf (the message names the key).
-    """
-    if not isinstance(corpus, Mapping):
-        raise TypeError(f"corpus must be a dict of arrays, got {type(corpus).__name__}")
-    missing = [key for key in _CORPUS_KEYS if key not in corpus]
-    if missing:
-        raise ValueError(f"corpus is missing key(s) {missing}; expected {list(_CORPUS_KEYS)}")
-    widths = {"x": PARAM_DIM, "bps": n_bps, "init_rot6d": 6, "init_trans": 3}
-    arrays = {}
-    for key, width in widths.items():
-        value = corpus[key]
-        arr = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
-        if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"corpus[{key!r}] must be a real array, got dtype {arr.dtype}")
-        if arr.ndim != 2 or arr.shape[1] != width:
-            raise ValueError(f"corpus[{key!r}] must be (M, {width}), got {tuple(arr.shape)}")
-        bad_rows = np.flatnonzero(~np.isfinite(arr).all(axis=1))
-        if bad_rows.size:
-            raise ValueError(f"corpus[{key!r}] contains NaN or inf in {bad_rows.size} row(s), first row {bad_rows[0]}")
-        arrays[key] = np.ascontiguousarray(arr, dtype=np.float32)
-    rows = {key: arr.shape[0] for key, arr in arrays.items()}
-    if len(set(rows.values())) != 1:
-        raise ValueError(f"corpus arrays must have the same number of rows, got {rows}")
-    if rows["x"] < 2:
-        raise ValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {rows['x']}")
-    return arrays
-
-
-def _resolve_device(device) -> torch.device:
-    dev = torch.device(device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {str(device)!r} requested but CUDA is not available")
-    if dev.type == "mps" and not torch.backends.mps.is_available():
-        raise ValueError(f"device {str(device)!r} requested but MPS is not available")
-    return dev
-
-
-def _loss_weights(config: CVAEConfig) -> dict[str, float]:
-    return {name: getattr(config, name)
-            for name in ("kl_weight", "keypoint_weight", "rot_weight", "trans_weight", "joint_weight")}
-
-
-def _evaluate(model: GraspCVAE, data: dict[str, torch.Tensor], index: torch.Tensor, hand_model,
-              config: CVAEConfig) -> dict[str, float]:
-    """Loss parts on ``index`` with z = posterior mean, weighted by batch size."""
-    model.eval()
-    sums: dict[str, float] = {}
-    with torch.no_grad():
-        for start in range(0, len(index), config.batch_size):
-            idx = index[start:start + config.batch_size]
-            out = model(data["x"][idx], data["bps"][idx], data["init_rot6d"][idx], data["init_trans"][idx])
-            for name, value in cvae_loss(out, data["x"][idx], hand_model, **_loss_weights(config)).items():
-                sums[name] = sums.get(name, 0.0) + float(value) * len(idx)
-    return {name: total / len(index) for name, total in sums.items()}
-
-
-def train_cvae(corpus: Mapping[str, np.ndarray], config: CVAEConfig = CVAEConfig(),
-               log: Callable[[str], None] | None = print,
-               device: str | torch.device = "cpu") -> tuple[GraspCVAE, list[dict]]:
-    """Train the grasp CVAE with Adam on a corpus of (condition, grasp) pairs.
-
-    A seeded ``val_fraction`` of the rows is held out. Validation uses the
-    posterior mean (eval mode). The weights of the epoch with the lowest
-    validation total loss are restored at the end. Deterministic on CPU for
-    a given ``config.seed`` and torch thread count (initial weights, split,
-    shuffling and the reparameterisation noise are all seeded; the global
-    torch RNG is left as it was; a different thread count changes float
-    summation order in the last bits).
-
-    Args:
-        corpus: see :func:`check_corpus` ("x" (M, 54), "bps" (M, n_bps),
-            "init_rot6d" (M, 6), "init_trans" (M, 3), float, generator frame).
-        config: architecture and training hyperparameters.
-        log: called with one line per epoch; None for silence.
-        device: where to train, e.g. "cpu" or "cuda"; a device that is not
-            there is an error.
-
-    Returns:
-        (model in eval mode on ``device``, history): one dict per epoch with
-        "epoch", "lr", "seconds", and "train_<part>" / "val_<part>" for every
-        part of :func:`cvae_loss`.
-
-    Raises:
-        TypeError: config is not a CVAEConfig; corpus not a mapping.
-        ValueError: a bad corpus (see :func:`check_corpus`); an unavailable device.
-    """
-    if not isinstance(config, CVAEConfig):
-        raise TypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
-    arrays = check_corpus(corpus, config.n_bps)
-    dev = _resolve_device(device)
-    n_rows = arrays["x"].shape[0]
-    n_val = max(1, int(round(config.val_fraction * n_rows)))
-    perm = np.random.default_rng(config.seed).permutation(n_rows)
-    val_index = torch.as_tensor(perm[:n_val], device=dev)
-    train_index = torch.as_tensor(perm[n_val:], device=dev)
-    data = {key: torch.from_numpy(arr).to(dev) for key, arr in arrays.items()}
-
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(config.seed)
-        model = GraspCVAE(config).to(dev)
-    hand_model = None
-    if config.keypoint_weight > 0:
-        from datagen.hand import build_hand
-
-        hand_model = build_hand()
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs, eta_min=0.1 * config.lr)
-    shuffle_gen = torch.Generator().manual_seed(config.seed)
-    noise_gen = torch.Generator(device=dev).manual_seed(config.seed + 1)
-
-    history: list[dict] = []
-    best_total, best_state = math.inf, None
-    for epoch in range(1, config.epochs + 1):
-        started = time.perf_counter()
-        lr = optimiser.param_groups[0]["lr"]
-        model.train()
-        order = train_index[torch.randperm(len(train_index), generator=shuffle_gen).to(dev)]
-        sums: dict[str, float] = {}
-        for start in range(0, len(order), config.batch_size):
-            idx = order[start:start + config.batch_size]
-            out = model(data["x"][idx], data["bps"][idx], data["init_rot6d"][idx], data["init_trans"][idx],
-                        generator=noise_gen)
-            parts = cvae_loss(out, data["x"][idx], hand_model, **_loss_weights(config))
-            optimiser.zero_grad(set_to_none=True)
-            parts["total"].backward()
-            optimiser.step()
-            for name, value in parts.items():
-                sums[name] = sums.get(name, 0.0) + float(value.detach()) * len(idx)
-        schedule.step()
-        val = _evaluate(model, data, val_index, hand_model, config)
-        record = {"epoch": epoch, "lr": lr, **{f"train_{k}": v / len(order) for k, v in sums.items()},
-                  **{f"val_{k}": v for k, v in val.items()}, "seconds": time.perf_counter() - started}
-        history.append(record)
-        if val["total"] < best_total:
-            best_total = val["total"]
-            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-        if log is not None:
-            keypoints = f" kp {val['keypoint_mm']:.2f} mm" if "keypoint_mm" in val else ""
-            log(f"epoch {epoch:3d}/{config.epochs}: train {record['train_total']:.4f} | val {val['total']:.4f} "
-                f"(rot {val['rot']:.4f} trans {val['trans_cm']:.3f} cm joint {val['joint']:.4f}{keypoints} "
-                f"kl {val['kl']:.2f}) {record['seconds']:.1f} s")
-    model.load_state_dict(best_state)
-    model.eval()
-    if log is not None:
-        best = min(history, key=lambda r: r["val_total"])
-        log(f"restored epoch {best['epoch']} (val total {best['val_total']:.4f})")
-    return model, history
 
 
 # --------------------------------------------------------------------------- weights I/O

@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from datagen.grasps import bps
-from datagen.grasps.cvae import CVAEConfig, GraspCVAE, load_shipped_cvae, save_cvae, train_cvae
+from datagen.grasps.cvae import CVAEConfig, GraspCVAE, load_shipped_cvae, save_cvae
+from datagen.grasps.cvae_training import train_cvae
 from datagen.grasps.frames import T_gen_probe
 from datagen.grasps.params import pack, unit_to_angles, unpack
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine

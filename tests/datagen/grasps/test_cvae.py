@@ -20,8 +20,8 @@ from datagen.grasps.cvae import (
     load_shipped_cvae,
     residual_to_grasp,
     save_cvae,
-    train_cvae,
 )
+from datagen.grasps.cvae_training import train_cvae
 from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS
 from datagen.hand import build_hand
 from datagen.rotations_torch import axis_angle_to_matrix, matrix_to_rot6d, rot6d_to_matrix
