@@ -53,7 +53,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from datagen.grasps.cvae_sampling import sample_grasps
-    from datagen.grasps.generate import approach_azimuth
+    from datagen.grasps.approach import approach_azimuth
     from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, heuristic_starts, random_starts, refine
     from datagen.grasps.scores import score_grasps
     from datagen.hand import build_hand

@@ -19,17 +19,11 @@ import torch
 from datagen.grasps import bps
 from datagen.grasps.cvae import CVAEConfig, GraspCVAE, load_shipped_cvae, save_cvae
 from datagen.grasps.cvae_training import train_cvae
+from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe
 from datagen.grasps.params import pack, unit_to_angles, unpack
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.rotations_torch import matrix_to_rot6d
-
-
-def _generate_approach(theta, probe):
-    # imported here: generate imports this module lazily, and the approach rule lives there
-    from datagen.grasps.generate import approach_azimuth, to_generator_frame
-
-    return approach_azimuth(theta, probe), to_generator_frame
 
 
 def condition(starts: GraspBatch, theta, probe, basis: np.ndarray, bps_exact: bool) -> dict[str, np.ndarray]:
@@ -39,8 +33,7 @@ def condition(starts: GraspBatch, theta, probe, basis: np.ndarray, bps_exact: bo
         dict with "bps" (B, n) float32 metres, "init_rot6d" (B, 6), "init_trans" (B, 3) metres,
         both in the generator frame.
     """
-    _, to_gen = _generate_approach(theta, probe)
-    gen = to_gen(starts, T_gen_probe(theta, probe))
+    gen = to_generator_frame(starts, T_gen_probe(theta, probe))
     features = bps.encode_probe(probe, theta, basis, exact=bps_exact)
     R = torch.as_tensor(gen.R_global)
     return {
@@ -66,8 +59,7 @@ def sample_grasps(n: int, theta, probe, hand, rng: np.random.Generator,
     """
     net, _, meta = model or load_shipped_cvae()
     basis = bps.basis_points(meta["bps_n"], meta["bps_radius_m"], meta["bps_seed"])
-    azimuth, to_gen = _generate_approach(theta, probe)
-    starts = random_starts(n, rng, hand.limits_rad, azimuth)
+    starts = random_starts(n, rng, hand.limits_rad, approach_azimuth(theta, probe))
     cond = condition(starts, theta, probe, basis, meta["bps_exact"])
     generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
     net.eval()
@@ -78,7 +70,7 @@ def sample_grasps(n: int, theta, probe, hand, rng: np.random.Generator,
     angles = unit_to_angles(unit, hand.buffers(torch.float64)["limits"])
     gen = GraspBatch(R.numpy(), trans.numpy(), angles.numpy())
     T = T_gen_probe(theta, probe)
-    return to_gen(gen, np.linalg.inv(T))
+    return to_generator_frame(gen, np.linalg.inv(T))
 
 
 @dataclass(frozen=True)
@@ -130,14 +122,13 @@ def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.n
     start_time = time.perf_counter()
     refined_total = 0
     for k, theta in enumerate(thetas):
-        azimuth, to_gen = _generate_approach(theta, probe)
-        starts = random_starts(config.starts_per_orientation, rng, hand.limits_rad, azimuth)
+        starts = random_starts(config.starts_per_orientation, rng, hand.limits_rad, approach_azimuth(theta, probe))
         refined = refine(energy, starts)
         refined_total += len(refined)
         keep = score_grasps(energy, refined)["plausible"]
         if keep.any():
             cond = condition(starts.take(keep), theta, probe, basis, config.bps_exact)
-            gen = to_gen(refined.take(keep), T_gen_probe(theta, probe))
+            gen = to_generator_frame(refined.take(keep), T_gen_probe(theta, probe))
             unit = ((torch.as_tensor(gen.angles) - limits[..., 0]) / (limits[..., 1] - limits[..., 0])).clamp(0, 1)
             x = pack(torch.as_tensor(gen.R_global), torch.as_tensor(gen.trans), unit).numpy().astype(np.float32)
             for key, value in (("x", x), *cond.items(), ("theta", np.repeat(theta[None], len(x), 0))):

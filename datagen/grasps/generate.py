@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from datagen.geometry import invert_transform, matrix_to_axis_angle
+from datagen.geometry import matrix_to_axis_angle
+from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
@@ -31,8 +32,6 @@ from datagen.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.probe import ProbeSpec, build_probe
 
 SAMPLERS = ("random", "cvae")
-#: the operator stands on the generator frame's -y side
-APPROACH_GEN = np.array([0.0, -1.0, 0.0])
 
 
 @dataclass(frozen=True)
@@ -76,27 +75,6 @@ class GraspGenConfig:
             if not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
                 raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
             object.__setattr__(self, "pinned_ids", ids)
-
-
-def approach_azimuth(theta_vol_deg, probe) -> float:
-    """Azimuth (radians, about the probe's +z) of the operator's side in the probe frame."""
-    T = T_gen_probe(theta_vol_deg, probe)
-    a = T[:3, :3].T @ APPROACH_GEN  # the operator's side, in the probe frame
-    if np.hypot(a[0], a[1]) < 1e-6:
-        return 0.0  # looking straight along the handle: any side; keep the canonical one
-    # turn the canonical grip (hand on the probe's -y side) to the operator's side
-    return float(np.arctan2(a[1], a[0]) - np.arctan2(-1.0, 0.0))
-
-
-def to_generator_frame(grasps: GraspBatch, T_gen_probe_: np.ndarray) -> GraspBatch:
-    """Express probe-frame grasps in a generator frame (rotation about the wrist + move)."""
-    R = T_gen_probe_[:3, :3]
-    return GraspBatch(R @ grasps.R_global, grasps.trans @ R.T + T_gen_probe_[:3, 3], grasps.angles, grasps.energy)
-
-
-def to_probe_frame(grasps: GraspBatch, T_gen_probe_: np.ndarray) -> GraspBatch:
-    """Inverse of :func:`to_generator_frame`."""
-    return to_generator_frame(grasps, invert_transform(T_gen_probe_))
 
 
 def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspBatch:

@@ -4,7 +4,7 @@ import trimesh
 
 from datagen.geometry import transform_points
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset, volume_centroid
-from datagen.grasps.generate import to_generator_frame, to_probe_frame
+from datagen.grasps.approach import to_generator_frame, to_probe_frame
 from datagen.grasps.refine import GraspBatch
 from datagen.hand import build_hand
 from datagen.hand_anatomy import anatomical_to_pose
