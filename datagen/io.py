@@ -146,14 +146,19 @@ def _plain(value):
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether a process with this pid exists on this machine."""
+    """Whether a process with this pid runs on this machine (a zombie, dead but not reaped, does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, owned by someone else
-        return True
-    return True
+        pass
+    try:
+        # /proc/PID/stat: "pid (comm) state ..."; comm may hold spaces and parentheses
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except (OSError, IndexError):
+        return True  # no procfs (not Linux): the signal answer is all there is
+    return state not in ("Z", "X")
 
 
 def clean_stale_tmp(folder: str | Path, recursive: bool = True) -> list[Path]:

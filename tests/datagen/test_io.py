@@ -1,0 +1,126 @@
+"""datagen.io: atomic writes, the full-disk message, stale temporary files and the output lock."""
+
+import errno
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from datagen import io
+
+
+def test_atomic_write_leaves_old_file_on_failure(tmp_path):
+    target = tmp_path / "sub" / "a.json"
+    io.write_json(target, {"x": 1})
+    assert json.loads(target.read_text()) == {"x": 1}
+
+    def broken(tmp):
+        tmp.write_bytes(b"half")
+        raise RuntimeError("writer died")
+
+    with pytest.raises(RuntimeError, match="writer died"):
+        io.write_with(target, broken)
+    assert json.loads(target.read_text()) == {"x": 1}, "a failed write replaced the old file"
+    assert [p.name for p in target.parent.iterdir()] == ["a.json"], "the temporary file was left behind"
+    io.save_npz(tmp_path / "b.npz", {"a": np.arange(3)})
+    with np.load(tmp_path / "b.npz") as data:
+        np.testing.assert_array_equal(data["a"], np.arange(3))
+
+
+def test_enospc_names_device_and_file(tmp_path):
+    def full(tmp):
+        tmp.write_bytes(b"x")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    target = tmp_path / "big.bin"
+    with pytest.raises(io.DiskFullError) as info:
+        io.write_with(target, full)
+    assert str(info.value) == f"no space left on {io.mount_point(tmp_path)} writing {target}"
+    assert info.value.errno == errno.ENOSPC and not list(tmp_path.iterdir())
+
+
+def test_full_tmpfs_gives_the_message(tmp_path):
+    """A real full disk: a 64 KiB tmpfs in a private mount namespace (root only)."""
+    if shutil.which("unshare") is None or os.geteuid() != 0:
+        pytest.skip("needs root and unshare to mount a small tmpfs")
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    code = ("import sys; from datagen import io\n"
+            "try:\n    io.write_bytes(sys.argv[1] + '/x.bin', b'0' * 1_000_000)\n"
+            "except OSError as e:\n    print(e)\n")
+    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
+                           f"mount -t tmpfs -o size=64k tmpfs {mnt} && {sys.executable} -c \"$0\" {mnt} && ls -A {mnt}",
+                           code], capture_output=True, text=True, timeout=60, cwd=os.getcwd(),
+                          env={**os.environ, "PYTHONPATH": os.getcwd()})
+    if "mount:" in proc.stderr or proc.returncode != 0 and "permission" in proc.stderr.lower():
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    lines = proc.stdout.strip().splitlines()
+    assert lines == [f"no space left on {mnt} writing {mnt}/x.bin"], proc.stdout + proc.stderr
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_clean_stale_tmp_removes_only_dead_writers(tmp_path):
+    dead = _dead_pid()
+    (tmp_path / "d").mkdir()
+    stale = [tmp_path / f".a.json.tmp{dead}", tmp_path / "d" / f".b.tmp{dead}.npz"]
+    live = tmp_path / f".c.json.tmp{os.getpid()}"
+    other = tmp_path / ".hidden.tmpfile"  # not our pattern
+    for p in (*stale, live, other):
+        p.write_bytes(b"x")
+    removed = io.clean_stale_tmp(tmp_path)
+    assert sorted(removed) == sorted(stale)
+    assert live.exists() and other.exists()
+
+
+def test_zombie_counts_as_dead():
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    time.sleep(0.5)  # exited, not yet reaped: a zombie
+    try:
+        assert not io.pid_alive(proc.pid)
+    finally:
+        proc.wait()
+    assert io.pid_alive(os.getpid())
+
+
+def test_output_lock_refuses_a_second_holder_and_names_it(tmp_path):
+    with io.OutputLock(tmp_path, "generate") as lock:
+        held = json.loads(lock.path.read_text())
+        assert held["pid"] == os.getpid() and held["host"] == socket.gethostname() and held["what"] == "generate"
+        with pytest.raises(io.LockedError, match=rf"in use by another generate run \(pid {os.getpid()} on "
+                                                 rf"{socket.gethostname()}"):
+            io.OutputLock(tmp_path, "training").acquire()
+    assert not lock.path.exists()
+    io.OutputLock(tmp_path, "training").acquire().release()
+
+
+def test_killed_holder_lock_is_taken_over(tmp_path):
+    code = ("import sys, time; from datagen import io\n"
+            "io.OutputLock(sys.argv[1], 'training').acquire(); print('locked', flush=True); time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": os.getcwd()})
+    try:
+        assert proc.stdout.readline().strip() == "locked"
+        with pytest.raises(io.LockedError, match=f"pid {proc.pid}"):
+            io.OutputLock(tmp_path, "training").acquire()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    finally:
+        proc.kill()
+    lock = io.OutputLock(tmp_path, "training").acquire()
+    try:
+        assert lock.taken_over is not None and lock.taken_over["pid"] == proc.pid
+        assert json.loads(lock.path.read_text())["pid"] == os.getpid()
+    finally:
+        lock.release()
