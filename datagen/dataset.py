@@ -24,6 +24,7 @@ Convention:
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import io
 import json
@@ -31,6 +32,9 @@ import math
 import multiprocessing
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -440,9 +444,44 @@ def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:
 
 # the local launcher's per-process state: one ChunkRenderer per worker process
 _worker: dict = {}
+#: how often a worker's watchdog looks for its parent, seconds
+PARENT_POLL_S = 0.2
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None) -> None:
+def die_with_parent(parent_pid: int) -> None:
+    """End this process (SIGKILL) as soon as ``parent_pid``, its parent, dies.
+
+    A worker that outlives a killed ``generate`` would go on writing chunks into the folder, beside
+    (and racing) the next run there. On Linux the kernel sends the signal (``PR_SET_PDEATHSIG``);
+    a watchdog thread that polls ``os.getppid()`` covers the other systems and a parent that died
+    before this was called. Anything a killed worker was writing is a temporary file, removed by the
+    next run (:func:`datagen.io.clean_stale_tmp`).
+
+    Args:
+        parent_pid: the pid of the process that started this one.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl here: the watchdog below does the job, a little later
+    if os.getppid() != parent_pid:  # the parent died before the kernel was asked to tell us
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
+
+
+def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None,
+                 parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
     _worker["chunks"] = ChunkRenderer(spec, grasps_path, backgrounds_dir, platform)
 
 
@@ -581,7 +620,7 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
                 bar.update(count)
         else:
             ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, initializer=_worker_init, initargs=init) as pool:
+            with ctx.Pool(workers, initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
                 for _, count in pool.imap_unordered(_render_chunk, jobs):
                     rendered += count
                     bar.update(count)
