@@ -4,6 +4,7 @@ one run per output folder, SIGKILL at random points then the same command, a ful
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -11,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import write_grasps  # noqa: E402  (tests/ is on sys.path)
+from conftest import assert_clean_error, run_cli, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 REPO = Path(__file__).resolve().parents[2]
 #: conftest.TINY_SPEC as `hupbench generate` overrides (64 px, 10 views, chunks of 10 frames)
@@ -79,8 +80,9 @@ def wait_for(predicate, timeout_s, what):
 
 
 @pytest.mark.matrix
-def test_fault_generate_workers_die_with_parent(tmp_path, grasps):
-    """SIGKILL of generate's main process: its worker processes exit within 2 s and write nothing after."""
+def test_fault_generate_workers_die_with_parent(tmp_path, grasps, capsys):
+    """SIGKILL of generate's main process: its worker processes exit within 2 s and write nothing after.
+    While it runs, a second generate on its folder is refused, naming it."""
     out = tmp_path / "ds"
     # the default sphere (90 views): chunks of 90 frames, seconds each, so that the other worker is
     # mid-chunk when the first chunk lands (a worker used to finish its chunk, write it, then exit)
@@ -91,6 +93,8 @@ def test_fault_generate_workers_die_with_parent(tmp_path, grasps):
         wait_for(lambda: list(out.glob("*/.chunks/*.npz")), 180, "the first chunk")
         workers = children(proc.pid)
         assert len(workers) >= 2, workers  # two workers (and multiprocessing's resource tracker)
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        assert_clean_error(answer, str(out), f"pid {proc.pid}", socket.gethostname(), "in use")
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         killed_at = time.monotonic()
@@ -126,3 +130,66 @@ def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def hold_lock(folder, what="generate"):
+    """A process holding an OutputLock on ``folder`` until killed (what a generate run holds)."""
+    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from datagen.io import OutputLock; "
+            f"OutputLock({str(folder)!r}, {what!r}).acquire(); print('held', flush=True); time.sleep(120)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def cli_argv(out, grasps, *overrides):
+    return ["generate", f"out_dir={out}", f"grasps_path={grasps}", *TINY_OVERRIDES, "workers=1", *overrides]
+
+
+@pytest.mark.matrix
+def test_fault_generate_second_run_on_a_folder(tmp_path, grasps, capsys):
+    """A live run's lock refuses a second run (one line naming its pid and host); once the holder
+    is killed, the same command takes the stale lock over and finishes."""
+    out = tmp_path / "ds"
+    holder = hold_lock(out)
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        line = assert_clean_error(answer, str(out), f"pid {holder.pid}", socket.gethostname(), "in use")
+        assert line.startswith("hupbench generate: error:")
+        assert sorted(p.name for p in out.iterdir()) == [".hupbench.lock"]  # nothing written by the refused run
+    finally:
+        holder.kill()
+        holder.wait()
+    answer = run_cli(capsys, *cli_argv(out, grasps))
+    assert answer.rc == 0, answer
+    assert f"took over the lock of a generate run that is gone (pid {holder.pid}" in answer.out
+    assert "dataset complete" in answer.out and (out / "manifest.json").is_file()
+    assert not (out / ".hupbench.lock").exists() and not list(out.rglob(".*.tmp*"))
+
+
+@pytest.mark.matrix
+def test_fault_generate_shards_and_locks(tmp_path, grasps, capsys):
+    """Shards of one dataset run side by side (a lock each); an unsharded run is refused while a shard
+    runs, and a shard while an unsharded run holds the folder; the last shard finishes the dataset."""
+    out = tmp_path / "ds"
+    holder = hold_lock(out / ".locks" / "shard-1-of-2", "generate shard 1/2")
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=0/2"))
+        assert answer.rc == 0 and "partial (other shards pending)" in answer.out, answer
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        assert_clean_error(answer, "shard-1-of-2", f"pid {holder.pid}", "generate shard 1/2")
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+        assert_clean_error(answer, "shard-1-of-2", f"pid {holder.pid}")
+    finally:
+        holder.kill()
+        holder.wait()
+    unsharded = hold_lock(out)
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+        assert_clean_error(answer, str(out), f"pid {unsharded.pid}", "in use")
+    finally:
+        unsharded.kill()
+        unsharded.wait()
+    answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+    assert answer.rc == 0 and "dataset complete" in answer.out, answer
+    assert not (out / ".locks").exists() and not (out / ".hupbench.lock").exists()
+    assert not list(out.rglob(".*.tmp*"))
