@@ -24,6 +24,8 @@ Convention:
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import hashlib
 import io
 import json
@@ -31,9 +33,13 @@ import math
 import multiprocessing
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import cv2
 import numpy as np
@@ -43,7 +49,7 @@ from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
 from datagen.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
-from datagen.io import save_npz, write_bytes, write_json
+from datagen.io import TMP_PATTERN, LockedError, OutputLock, save_npz, write_bytes, write_json, write_with
 from datagen.ray_launcher import RayOptions, check_launcher
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
 from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
@@ -440,9 +446,44 @@ def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:
 
 # the local launcher's per-process state: one ChunkRenderer per worker process
 _worker: dict = {}
+#: how often a worker's watchdog looks for its parent, seconds
+PARENT_POLL_S = 0.2
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None) -> None:
+def die_with_parent(parent_pid: int) -> None:
+    """End this process (SIGKILL) as soon as ``parent_pid``, its parent, dies.
+
+    A worker that outlives a killed ``generate`` would go on writing chunks into the folder, beside
+    (and racing) the next run there. On Linux the kernel sends the signal (``PR_SET_PDEATHSIG``);
+    a watchdog thread that polls ``os.getppid()`` covers the other systems and a parent that died
+    before this was called. Anything a killed worker was writing is a temporary file, removed by the
+    next run (:func:`datagen.io.clean_stale_tmp`).
+
+    Args:
+        parent_pid: the pid of the process that started this one.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl here: the watchdog below does the job, a little later
+    if os.getppid() != parent_pid:  # the parent died before the kernel was asked to tell us
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
+
+
+def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None,
+                 parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
     _worker["chunks"] = ChunkRenderer(spec, grasps_path, backgrounds_dir, platform)
 
 
@@ -476,7 +517,7 @@ def check_output_dir(out_dir: Path) -> None:
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        probe_file = out_dir / f".write_test{os.getpid()}"
+        probe_file = out_dir / f".write_test.tmp{os.getpid()}"  # a temporary name: a killed run's is cleaned
         probe_file.write_bytes(b"")
         probe_file.unlink()
     except OSError as exc:
@@ -496,56 +537,164 @@ def parse_shard(shard: str | None) -> tuple[int, int]:
     return k, n
 
 
+LOCKS_DIR = ".locks"
+
+
+def shard_lock_folder(out_dir: Path, k: int, n: int) -> Path:
+    """Where shard ``k/n`` of a dataset keeps its lock (an unsharded run locks ``out_dir`` itself)."""
+    return Path(out_dir) / LOCKS_DIR / f"shard-{k}-of-{n}"
+
+
+@contextlib.contextmanager
+def run_lock(out_dir: Path, shard: str | None = None) -> Iterator[OutputLock]:
+    """Hold the output folder for one generate run (see :class:`datagen.io.OutputLock`).
+
+    An unsharded run holds ``out_dir`` itself and refuses to start while a shard run is live there.
+    Shard ``k/n`` holds its own lock, so that several machines can render the shards of one dataset
+    into one (shared) folder at once, and refuses to start while an unsharded run holds the folder;
+    the shard that finds every chunk done takes the folder's lock to write the annotations and the
+    manifest.
+
+    Raises:
+        LockedError: another live run holds what this one needs; the message names its pid and host.
+    """
+    out_dir = Path(out_dir)
+    k, n = parse_shard(shard)
+    if n == 1:
+        with OutputLock(out_dir, "generate") as lock:
+            for folder in sorted((out_dir / LOCKS_DIR).glob("shard-*")):
+                with OutputLock(folder, "generate"):  # a live shard's lock raises; a dead one's is removed
+                    pass
+            yield lock
+    else:
+        with OutputLock(shard_lock_folder(out_dir, k, n), f"generate shard {k}/{n}") as lock:
+            with OutputLock(out_dir, "generate"):  # an unsharded run on the folder raises
+                pass
+            yield lock
+    if (out_dir / "manifest.json").is_file():
+        _remove_lock_folders(out_dir)
+
+
+def _remove_lock_folders(out_dir: Path) -> None:
+    """Remove the empty shard-lock folders of a finished dataset (a live shard's stays)."""
+    for folder in sorted((out_dir / LOCKS_DIR).glob("shard-*")):
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+    with contextlib.suppress(OSError):
+        (out_dir / LOCKS_DIR).rmdir()
+
+
+def _remove_all_tmp(out_dir: Path) -> list[Path]:
+    """Remove every temporary file (:data:`datagen.io.TMP_PATTERN`) under ``out_dir``.
+
+    Only called while this run holds the folder and no worker of it is running: every such file
+    is then the remains of a killed writer, whatever its pid (a pid can be reused, or belong to
+    another machine sharing the folder).
+    """
+    removed = []
+    for path in out_dir.rglob(".*.tmp*"):
+        if TMP_PATTERN.match(path.name) and path.is_file():
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
+def _file_digest(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,
              backgrounds_dir: str | None = None, workers: int = 1, shard: str | None = None,
              platform: str | None = None, progress: bool = True, log=print, launcher: str = "local",
-             ray: RayOptions | None = None) -> dict:
+             ray: RayOptions | None = None, lock: OutputLock | None = None) -> dict:
     """Render (or resume) a dataset. See the module docstring for the layout and the guarantees.
+
+    Everything is checked before anything is written; then the run holds the output folder
+    (:func:`run_lock`) until it returns, removes the temporary files of killed runs, and renders
+    what is missing.
 
     Args:
         launcher: "local" renders in ``workers`` processes on this machine; "ray" on Ray actors
             (:mod:`datagen.ray_launcher`, options in ``ray``). Both write the same files.
         ray: :class:`datagen.ray_launcher.RayOptions` (None: the defaults, a private runtime
             with ``workers`` actors).
+        lock: the lock of this run when the caller already holds it (``with run_lock(out_dir,
+            shard) as lock``); None takes it here.
 
     Returns:
         dict with "out_dir", "frames_total", "frames_rendered" (this run), "seconds",
         "complete" (manifest written) and "counts" per split.
+
+    Raises:
+        LockedError: another live generate run holds the folder (or this shard).
     """
     from datagen.backgrounds import BackgroundSet
     check_launcher(launcher)
     if ray is not None and not isinstance(ray, RayOptions):
         raise TypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
+    if not isinstance(spec, DatasetSpec):
+        raise TypeError(f"spec must be a DatasetSpec, got {type(spec).__name__}")
     out_dir = Path(out_dir)
     k, n = parse_shard(shard)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive int, got {workers!r}")
     backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
     if len(backgrounds) < spec.n_backgrounds:
-        raise ValueError(f"{spec.n_backgrounds} backgrounds asked for but the set holds {len(backgrounds)}")
+        raise ValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
+                         f"{len(backgrounds)} image(s)" + (f" ({backgrounds_dir})" if backgrounds_dir else ""))
     check_output_dir(out_dir)
     grasps = GraspSet(grasps_path)
     splits = split_of_grasps(spec, len(grasps))
     view_ids, _ = viewpoints(spec.sphere)
     layout = Layout(len(grasps), len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
     chash = config_hash(resolved_config)
+    with contextlib.ExitStack() as stack:
+        if lock is None:
+            lock = stack.enter_context(run_lock(out_dir, shard))
+        elif lock.folder.resolve() != (out_dir if n == 1 else shard_lock_folder(out_dir, k, n)).resolve():
+            raise ValueError(f"the lock given holds {lock.folder}, not this run's folder {out_dir} (shard {k}/{n})")
+        if lock.taken_over:
+            log(f"took over the lock of a generate run that is gone (pid {lock.taken_over.get('pid')} on "
+                f"{lock.taken_over.get('host')})")
+        result = _generate_locked(spec, out_dir, Path(grasps_path), grasps, splits, layout, chash, resolved_config,
+                                  backgrounds, backgrounds_dir, workers, k, n, platform, progress, log, launcher,
+                                  ray, stack)
+    return result
+
+
+def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, resolved_config, backgrounds,
+                     backgrounds_dir, workers, k, n, platform, progress, log, launcher, ray, stack) -> dict:
+    """The part of :func:`generate` that runs while it holds the folder (or its shard)."""
+    if n == 1:
+        # no other run is live here (the lock): whatever temporary files lie around are a killed run's.
+        # A shard leaves them to the finishing run, since other shards may be writing theirs
+        _remove_all_tmp(out_dir)
     progress_file = out_dir / ".progress.json"
-    if (out_dir / "manifest.json").is_file():
-        manifest = json.loads((out_dir / "manifest.json").read_text())
-        if manifest.get("config_hash") != chash:
-            raise ValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
-        return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
-                "complete": True, "counts": manifest["counts"]}
+    manifest_file = out_dir / "manifest.json"
+    if manifest_file.is_file():
+        return _finished(out_dir, layout, chash)
     if progress_file.is_file():
-        started = json.loads(progress_file.read_text())
-        if started.get("config_hash") != chash:
+        try:
+            started = json.loads(progress_file.read_text())
+        except ValueError as exc:
+            raise ValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
+                             "again") from None
+        if not isinstance(started, dict) or started.get("config_hash") != chash:
             raise ValueError(f"{out_dir} holds a partial dataset started with another config; "
                              "resume it with the same config or choose a new out_dir")
+        copied = out_dir / "grasps.npz"
+        if copied.is_file() and copied.resolve() != grasps_path.resolve() \
+                and _file_digest(copied) != _file_digest(grasps_path):
+            raise ValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
+                             "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
     else:
         write_json(progress_file, {"config_hash": chash, "layout": asdict(layout)})
-    if not (out_dir / "grasps.npz").is_file() or Path(grasps_path).resolve() != (out_dir / "grasps.npz").resolve():
-        shutil.copyfile(grasps_path, out_dir / ".grasps.npz.tmp")
-        os.replace(out_dir / ".grasps.npz.tmp", out_dir / "grasps.npz")
+    if not (out_dir / "grasps.npz").is_file() or grasps_path.resolve() != (out_dir / "grasps.npz").resolve():
+        write_with(out_dir / "grasps.npz", lambda tmp: shutil.copyfile(grasps_path, tmp))
 
     split_of = {g: s for s, gs in splits.items() for g in gs}
     chunk_split = [split_of[layout.tuple(c * layout.chunk_size)[0]] for c in range(layout.n_chunks)]
@@ -561,7 +710,7 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
             (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
         jobs = [(c, str(out_dir), chunk_split[c], layout) for c in todo]
         init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
-        bar = _progress(len(todo) * layout.chunk_size, progress)
+        bar = _progress(len(todo) * layout.chunk_size, progress, "rendering")
         if launcher == "ray":
             from datagen.ray_launcher import render_chunks
 
@@ -581,26 +730,47 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
                 bar.update(count)
         else:
             ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, initializer=_worker_init, initargs=init) as pool:
+            with ctx.Pool(workers, initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
                 for _, count in pool.imap_unordered(_render_chunk, jobs):
                     rendered += count
                     bar.update(count)
         bar.close()
     seconds = time.perf_counter() - start
+    partial = {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered,
+               "seconds": seconds, "complete": False, "counts": {}}
+    if n > 1:
+        # the shards that find every chunk done race to finish the dataset: one at a time, and once
+        try:
+            stack.enter_context(OutputLock(out_dir, "generate"))
+        except LockedError as exc:
+            log(f"not finishing the dataset: {exc}")
+            return partial
+        if manifest_file.is_file():
+            return {**_finished(out_dir, layout, chash), "frames_rendered": rendered, "seconds": seconds}
     missing = [c for c in range(layout.n_chunks) if not _chunk_path(out_dir, chunk_split[c], c).is_file()]
     if missing:
         log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
-        return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered,
-                "seconds": seconds, "complete": False, "counts": {}}
+        return partial
     counts = _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps)
     return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered, "seconds": seconds,
             "complete": True, "counts": counts}
 
 
-def _progress(total: int, enabled: bool):
+def _finished(out_dir: Path, layout: Layout, chash: str) -> dict:
+    """The answer for a folder whose manifest exists: done if it is this config's dataset."""
+    from datagen.contract import read_manifest
+
+    manifest = read_manifest(out_dir)
+    if manifest.get("config_hash") != chash:
+        raise ValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
+    return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
+            "complete": True, "counts": manifest["counts"]}
+
+
+def _progress(total: int, enabled: bool, desc: str | None = None, unit: str = "frame"):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="frame", disable=not enabled, smoothing=0.1, dynamic_ncols=True)
+    return tqdm(total=total, unit=unit, desc=desc, disable=not enabled, smoothing=0.1, dynamic_ncols=True)
 
 
 def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps) -> dict:
@@ -655,7 +825,6 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
     # left by killed runs are scaffolding
     for split in SPLITS:
         shutil.rmtree(out_dir / split / ".chunks", ignore_errors=True)
-        for stray in (out_dir / split).glob("*/.*.tmp*"):
-            stray.unlink(missing_ok=True)
+    _remove_all_tmp(out_dir)
     (out_dir / ".progress.json").unlink(missing_ok=True)
     return counts

@@ -130,7 +130,11 @@ class Renderer:
         self._light_nodes: list[object] = []
 
     def set_parts(self, parts: Sequence[MeshPart]) -> None:
-        """Replace the scene's meshes."""
+        """Replace the scene's meshes.
+
+        Parts are drawn in the order given: where two parts meet at exactly the same depth, the
+        earlier one keeps the pixel (its label and colour), in every process.
+        """
         pyrender = self._pyrender
         names = [p.name for p in parts]
         if len(set(names)) != len(names):
@@ -139,13 +143,14 @@ class Renderer:
             self._scene.remove_node(node)
         self._part_nodes.clear()
         self._labels.clear()
-        for part in parts:
+        for rank, part in enumerate(parts):
             material = pyrender.MetallicRoughnessMaterial(
                 baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic,
                 emissiveFactor=list(part.emissive)
             )
             mesh = pyrender.Mesh.from_trimesh(part.mesh, material=material, smooth=part.smooth)
             node = self._scene.add(mesh, name=part.name)
+            setattr(node, gl.DRAW_RANK, rank)
             self._part_nodes[part.name] = node
             self._labels[node] = (part.label,) * 3
 

@@ -20,7 +20,7 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
         :func:`datagen.dataset.generate`'s dict.
     """
     from datagen.backgrounds import BackgroundSet
-    from datagen.dataset import check_output_dir, generate, parse_shard
+    from datagen.dataset import check_output_dir, generate, parse_shard, run_lock
     from datagen.ray_launcher import check_launcher
 
     # everything that can be wrong with the config fails here, before any rendering
@@ -33,22 +33,29 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
     out_dir = Path(cfg.out_dir)
     check_output_dir(out_dir)
     grasps_path = Path(cfg.grasps_path) if cfg.grasps_path else out_dir / "grasps" / "grasps.npz"
-    if cfg.grasps_path is None and not grasps_path.is_file():
+    make_grasps = cfg.grasps_path is None and not grasps_path.is_file()
+    if make_grasps:
         from hupbench.config import compose
-        from hupbench.grasps import run_grasps
 
         grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
         n_grasps = grasps_cfg.generate.n_select
         if sum(spec.splits.values()) != n_grasps:
             raise ValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
                              f"grasps config selects {n_grasps}")
-        log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
-        run_grasps(grasps_cfg, log=log)
+    elif not grasps_path.is_file():
+        raise FileNotFoundError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
-    return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
-                    workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
-                    log=log, launcher=cfg.launcher, ray=ray_options)
+    # one run per folder (or shard), from the default grasps to the manifest
+    with run_lock(out_dir, cfg.shard) as lock:
+        if make_grasps and not grasps_path.is_file():
+            from hupbench.grasps import run_grasps
+
+            log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
+            run_grasps(grasps_cfg, log=log)
+        return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
+                        workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
+                        log=log, launcher=cfg.launcher, ray=ray_options, lock=lock)
 
 
 def run_verify(dataset: str | Path, workers: int = 2, log=print) -> dict:

@@ -1,0 +1,195 @@
+"""Faults of `hupbench generate` (docs/robustness.md, ## generate): workers that die with their parent,
+one run per output folder, SIGKILL at random points then the same command, a full disk."""
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import assert_clean_error, run_cli, write_grasps  # noqa: E402  (tests/ is on sys.path)
+
+REPO = Path(__file__).resolve().parents[2]
+#: conftest.TINY_SPEC as `hupbench generate` overrides (64 px, 10 views, chunks of 10 frames)
+TINY_OVERRIDES = ["dataset.splits={train:1,val:0,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=2",
+                  "dataset.n_gloves=1", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]",
+                  "dataset.width=64", "dataset.height=64", "dataset.fx=120.0", "dataset.fy=120.0",
+                  "dataset.cx=32.0", "dataset.cy=32.0", "progress=false"]
+
+
+def generate_argv(out, grasps, *overrides):
+    return [sys.executable, "-m", "hupbench.cli", "generate", f"out_dir={out}", f"grasps_path={grasps}",
+            *TINY_OVERRIDES, *overrides]
+
+
+def env():
+    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def children(pid):
+    """Pids whose parent is ``pid`` (from /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def running(pid):
+    """Alive and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def snapshot(folder):
+    """{relative path: (size, mtime_ns)} of every file under ``folder``."""
+    out = {}
+    for p in Path(folder).rglob("*"):
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            continue
+        if p.is_file():
+            out[p.relative_to(folder).as_posix()] = (st.st_size, st.st_mtime_ns)
+    return out
+
+
+@pytest.fixture(scope="module")
+def grasps(tmp_path_factory):
+    return write_grasps(tmp_path_factory.mktemp("fault_grasps") / "grasps.npz", n=2)
+
+
+def wait_for(predicate, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+@pytest.mark.matrix
+def test_fault_generate_workers_die_with_parent(tmp_path, grasps, capsys):
+    """SIGKILL of generate's main process: its worker processes exit within 2 s and write nothing after.
+    While it runs, a second generate on its folder is refused, naming it."""
+    out = tmp_path / "ds"
+    # the default sphere (90 views): chunks of 90 frames, seconds each, so that the other worker is
+    # mid-chunk when the first chunk lands (a worker used to finish its chunk, write it, then exit)
+    proc = subprocess.Popen(generate_argv(out, grasps, "workers=2", "dataset.sphere.r_circ_m=0.15",
+                                          "dataset.sphere.exclude=[elbow]"), env=env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: list(out.glob("*/.chunks/*.npz")), 180, "the first chunk")
+        workers = children(proc.pid)
+        assert len(workers) >= 2, workers  # two workers (and multiprocessing's resource tracker)
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        assert_clean_error(answer, str(out), f"pid {proc.pid}", socket.gethostname(), "in use")
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        killed_at = time.monotonic()
+        wait_for(lambda: not any(running(w) for w in workers), 2.0, f"workers {workers} to exit")
+        print(f"workers gone {time.monotonic() - killed_at:.2f} s after the kill")
+        before = snapshot(out)
+        time.sleep(2.0)
+        assert snapshot(out) == before, "files changed after the workers should have died"
+        assert not (out / "manifest.json").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for pid in children(proc.pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("platform", ["linux", "other"])
+def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
+    """A process that called die_with_parent(ppid) is gone soon after its parent is SIGKILLed, by the
+    kernel's parent-death signal on Linux and by the watchdog thread elsewhere."""
+    child_code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); import os; "
+                  "from datagen.dataset import die_with_parent; "
+                  f"sys.platform = {'linux' if platform == 'linux' else 'darwin'!r}; die_with_parent(os.getppid()); "
+                  f"open({str(tmp_path / 'ready')!r}, 'w').close(); time.sleep(60)")
+    parent_code = f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {child_code!r}]); time.sleep(60)"
+    parent = subprocess.Popen([sys.executable, "-c", parent_code])
+    try:
+        wait_for(lambda: (tmp_path / "ready").exists() or parent.poll() is not None, 60, "the child")
+        (child,) = children(parent.pid)
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+        wait_for(lambda: not running(child), 2.0, "the child to exit")
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def hold_lock(folder, what="generate"):
+    """A process holding an OutputLock on ``folder`` until killed (what a generate run holds)."""
+    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from datagen.io import OutputLock; "
+            f"OutputLock({str(folder)!r}, {what!r}).acquire(); print('held', flush=True); time.sleep(120)")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def cli_argv(out, grasps, *overrides):
+    return ["generate", f"out_dir={out}", f"grasps_path={grasps}", *TINY_OVERRIDES, "workers=1", *overrides]
+
+
+@pytest.mark.matrix
+def test_fault_generate_second_run_on_a_folder(tmp_path, grasps, capsys):
+    """A live run's lock refuses a second run (one line naming its pid and host); once the holder
+    is killed, the same command takes the stale lock over and finishes."""
+    out = tmp_path / "ds"
+    holder = hold_lock(out)
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        line = assert_clean_error(answer, str(out), f"pid {holder.pid}", socket.gethostname(), "in use")
+        assert line.startswith("hupbench generate: error:")
+        assert sorted(p.name for p in out.iterdir()) == [".hupbench.lock"]  # nothing written by the refused run
+    finally:
+        holder.kill()
+        holder.wait()
+    answer = run_cli(capsys, *cli_argv(out, grasps))
+    assert answer.rc == 0, answer
+    assert f"took over the lock of a generate run that is gone (pid {holder.pid}" in answer.out
+    assert "dataset complete" in answer.out and (out / "manifest.json").is_file()
+    assert not (out / ".hupbench.lock").exists() and not list(out.rglob(".*.tmp*"))
+
+
+@pytest.mark.matrix
+def test_fault_generate_shards_and_locks(tmp_path, grasps, capsys):
+    """Shards of one dataset run side by side (a lock each); an unsharded run is refused while a shard
+    runs, and a shard while an unsharded run holds the folder; the last shard finishes the dataset."""
+    out = tmp_path / "ds"
+    holder = hold_lock(out / ".locks" / "shard-1-of-2", "generate shard 1/2")
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=0/2"))
+        assert answer.rc == 0 and "partial (other shards pending)" in answer.out, answer
+        answer = run_cli(capsys, *cli_argv(out, grasps))
+        assert_clean_error(answer, "shard-1-of-2", f"pid {holder.pid}", "generate shard 1/2")
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+        assert_clean_error(answer, "shard-1-of-2", f"pid {holder.pid}")
+    finally:
+        holder.kill()
+        holder.wait()
+    unsharded = hold_lock(out)
+    try:
+        answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+        assert_clean_error(answer, str(out), f"pid {unsharded.pid}", "in use")
+    finally:
+        unsharded.kill()
+        unsharded.wait()
+    answer = run_cli(capsys, *cli_argv(out, grasps, "shard=1/2"))
+    assert answer.rc == 0 and "dataset complete" in answer.out, answer
+    assert not (out / ".locks").exists() and not (out / ".hupbench.lock").exists()
+    assert not list(out.rglob(".*.tmp*"))
