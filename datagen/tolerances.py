@@ -37,3 +37,25 @@ VERIFY_KEYPOINT_M = 1e-4
 VERIFY_LOOK_AT_M = 1e-6
 #: verify: probe pixels (eroded mask), unprojected with their depth, lie this close to the probe surface
 VERIFY_PROBE_SURFACE_M = 0.003
+#: verify: the annotations' K must equal the manifest's within this
+VERIFY_K_PX = 1e-6
+#: verify: away from the mask's edge, depth and mask agree on foreground; more disagreeing pixels
+#: than this means one of them is another frame's (measured: see docs/robustness.md, section verify)
+VERIFY_MASK_DEPTH_PX = 24
+#: verify: an RGB pixel the mask calls background differs from the background image when a channel
+#: is more than this many levels off (JPEG at quality 95 stays within 12 levels 1 pixel from the edge)
+VERIFY_BACKGROUND_LEVELS = 40
+#: verify: more such pixels than this means the RGB image or the mask is another frame's
+VERIFY_BACKGROUND_PX = 16
+#: verify glove colour: stored levels at or above this (and their neighbours) may be clipped by the renderer
+VERIFY_GLOVE_CLIPPED_LEVEL = 235
+#: verify glove colour: pixels with a channel below this level carry no colour to speak of
+VERIFY_GLOVE_DARK_LEVEL = 8
+#: verify glove colour: JPEG noise of a stored pixel, levels (scales the plane distances)
+VERIFY_GLOVE_NOISE_LEVELS = 2.0
+#: verify glove colour: plane distances (in noise units) are clipped here before squaring
+VERIFY_GLOVE_CLIP = 10.0
+#: verify glove colour: fewer usable hand pixels than this leave the glove unchecked
+VERIFY_GLOVE_MIN_PX = 30
+#: verify glove colour: the frame's glove may cost at most this fraction of the best other glove's
+VERIFY_GLOVE_FIT_RATIO = 0.25
