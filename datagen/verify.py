@@ -31,7 +31,7 @@ verify reads through :mod:`datagen.contract`. Two kinds of answer:
   ``probe_depth``       probe pixels unprojected with their depth are off the probe surface by more
                         than max(3 mm, 1.5 pixel footprints)
   ``mask_depth``        depth and seg disagree on foreground away from the silhouette's edge: one of
-                        them belongs to another frame (the two checks above are then skipped)
+                        them belongs to another frame
   ``rgb_mismatch``      the RGB image does not show this frame: pixels the mask calls background
                         differ from the frame's background image, or the hand's colour is explained
                         better by another glove than by the frame's glove under the frame's lamp
@@ -70,6 +70,8 @@ KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "f
          "probe_depth", "mask_depth", "rgb_mismatch")
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
+#: fewer frames than this are checked in this process (starting workers would take longer)
+POOL_MIN_FRAMES = 64
 #: the renderer's white ambient light (datagen.dataset.ChunkRenderer: RenderSettings(ambient=0.3))
 RENDER_AMBIENT = 0.3
 #: pyrender's output encoding: stored value = linear ** (1 / 2.2), clamped to [0, 1]
@@ -348,46 +350,91 @@ def mask_depth_mismatch_px(depth: np.ndarray, seg: np.ndarray) -> int:
                + np.count_nonzero((depth == 0) & _shrink(foreground, 1)))
 
 
-def background_mismatch_px(rgb: np.ndarray, seg: np.ndarray, background: np.ndarray) -> int:
-    """Pixels the mask calls background (1 pixel or more from the foreground) whose colour is not the
-    background image's.
+def jpeg_reference(background: np.ndarray, quality: int | None) -> np.ndarray:
+    """What the background looks like after the dataset's JPEG encoding (OpenCV, as the generator).
+
+    Far from the rendered object an 8 x 8 block of the stored image holds only background, so it
+    decodes like the same block of the background encoded alone (measured: within 2 levels).
 
     Args:
-        rgb: (H, W, 3) uint8, the stored image. seg: (H, W) labels. background: (H, W, 3) uint8, the
-            frame's background image, same channel order as ``rgb``.
+        background: (H, W, 3) uint8 RGB. quality: the dataset's JPEG quality, None for PNG.
 
     Returns:
-        The number of such pixels differing by more than ``VERIFY_BACKGROUND_LEVELS`` in a channel.
+        (H, W, 3) uint8 RGB.
     """
-    away = ~_grow(seg != SEG_LABELS["background"], 1)
-    diff = np.abs(rgb.astype(np.int16) - background.astype(np.int16)).max(axis=-1)
-    return int(np.count_nonzero(away & (diff > tol.VERIFY_BACKGROUND_LEVELS)))
+    if quality is None:
+        return background
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(background[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {background.shape} background as JPEG")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+
+
+def _near_blocks(foreground: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose JPEG colour block (16 x 16, half-resolution chroma) or a neighbouring
+    one holds foreground (the decoder's chroma upsampling reads across block borders)."""
+    h, w = foreground.shape
+    bh, bw = -(-h // 16), -(-w // 16)
+    padded = np.zeros((bh * 16, bw * 16), dtype=bool)
+    padded[:h, :w] = foreground
+    blocks = padded.reshape(bh, 16, bw, 16).any(axis=(1, 3))
+    blocks = _grow(blocks, 1)
+    return np.kron(blocks, np.ones((16, 16), dtype=bool))[:h, :w]
+
+
+def background_mismatch_px(rgb: np.ndarray, seg: np.ndarray, reference: np.ndarray) -> int:
+    """Pixels the mask calls background whose colour is not the background's.
+
+    Two zones: in JPEG blocks near the object (:func:`_near_blocks`), but 1 pixel or more from it
+    (the renderer's anti-aliased edge), a channel more than ``VERIFY_BACKGROUND_LEVELS`` off counts
+    (the object's block is quantised with it); in blocks of background only, a channel more than
+    ``VERIFY_BACKGROUND_FAR_LEVELS`` off counts.
+
+    Args:
+        rgb: (H, W, 3) uint8, the stored image. seg: (H, W) labels. reference: (H, W, 3) uint8, the
+            frame's background as stored (:func:`jpeg_reference`), same channel order as ``rgb``.
+
+    Returns:
+        The number of such pixels.
+    """
+    foreground = seg != SEG_LABELS["background"]
+    near = _near_blocks(foreground)
+    away = ~_grow(foreground, 1)
+    diff = np.abs(rgb.astype(np.int16) - reference.astype(np.int16)).max(axis=-1)
+    return int(np.count_nonzero(away & near & (diff > tol.VERIFY_BACKGROUND_LEVELS))
+               + np.count_nonzero(~near & (diff > tol.VERIFY_BACKGROUND_FAR_LEVELS)))
 
 
 def glove_fit(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, light_color) -> tuple[np.ndarray, int]:
     """How well each glove colour explains the hand pixels of an image under the frame's lamp.
 
     In linear light an unclipped pixel of a glove of albedo ``a`` lies on the plane through
-    ``RENDER_AMBIENT * a`` spanned by ``a * light_color`` and ``light_color`` (module docstring).
-    Each usable hand pixel's distance to that plane is divided by the pixel's JPEG noise in linear
-    light (``VERIFY_GLOVE_NOISE_LEVELS`` stored levels), clipped at ``VERIFY_GLOVE_CLIP`` and squared.
+    ``RENDER_AMBIENT * a`` spanned by ``a * light_color`` and ``light_color`` (module docstring), and
+    so does the mean of a block of them. Means of ``VERIFY_GLOVE_BLOCK_PX``-square blocks of usable
+    hand pixels (averaging halves JPEG's chroma noise) are measured against each glove's plane, in
+    units of their noise (``VERIFY_GLOVE_NOISE_LEVELS`` stored levels per pixel), clipped at
+    ``VERIFY_GLOVE_CLIP`` and squared.
 
     Args:
         rgb: (H, W, 3) uint8 RGB. seg: (H, W) labels. gloves_rgb: (G, 3) albedos in [0, 1].
         light_color: (3,) the frame's lamp colour.
 
     Returns:
-        (G,) float64 costs (sum over the pixels; lower fits better; NaN for a glove whose plane is
-        undefined, i.e. an albedo proportional to nothing but the lamp), and the number of pixels used.
+        (G,) float64 costs (sums over the blocks; lower fits better; NaN for a glove whose plane is
+        undefined, an albedo that only scales the lamp's colour), and the number of blocks used.
     """
     gloves = np.asarray(gloves_rgb, dtype=np.float64).reshape(-1, 3)
     light = np.asarray(light_color, dtype=np.float64)
     hand = _shrink(seg == SEG_LABELS["hand"], 2)  # JPEG's half-resolution chroma bleeds 2 pixels
     clipped = _grow(rgb.max(axis=-1) >= tol.VERIFY_GLOVE_CLIPPED_LEVEL, 1)
     use = hand & ~clipped & (rgb.min(axis=-1) >= tol.VERIFY_GLOVE_DARK_LEVEL)
-    stored = rgb[use].astype(np.float64) / 255.0  # (P, 3)
-    linear = stored ** RENDER_GAMMA
-    noise = RENDER_GAMMA * stored.mean(axis=1) ** (RENDER_GAMMA - 1) * (tol.VERIFY_GLOVE_NOISE_LEVELS / 255.0)
+    b = tol.VERIFY_GLOVE_BLOCK_PX
+    h, w = (use.shape[0] // b) * b, (use.shape[1] // b) * b
+    whole = use[:h, :w].reshape(h // b, b, w // b, b).all(axis=(1, 3))  # blocks of usable pixels only
+    linear = (rgb[:h, :w].astype(np.float64) / 255.0) ** RENDER_GAMMA
+    linear = linear.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))[whole]  # (P, 3) block means
+    stored = linear.mean(axis=1) ** (1 / RENDER_GAMMA)
+    noise = RENDER_GAMMA * stored ** (RENDER_GAMMA - 1) * (tol.VERIFY_GLOVE_NOISE_LEVELS / 255.0) / b
     costs = np.full(len(gloves), np.nan)
     for g, albedo in enumerate(gloves):
         normal = np.cross(albedo * light, light)
@@ -396,19 +443,19 @@ def glove_fit(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, light_color) -> tupl
             continue
         distance = np.abs((linear - RENDER_AMBIENT * albedo) @ (normal / length)) / noise
         costs[g] = np.sum(np.minimum(distance, tol.VERIFY_GLOVE_CLIP) ** 2)
-    return costs, int(use.sum())
+    return costs, len(linear)
 
 
 def glove_fit_ratio(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, glove_id: int, light_color) -> tuple[float | None, int, int]:
     """The labelled glove's cost over the best other glove's (:func:`glove_fit`).
 
     Returns:
-        (ratio, best other glove, pixels used); ratio None when there is no other glove, too few
-        usable pixels (``VERIFY_GLOVE_MIN_PX``) or an undefined cost.
+        (ratio, best other glove, blocks used); ratio None when there is no other glove, too few
+        usable blocks (``VERIFY_GLOVE_MIN_BLOCKS``) or an undefined cost.
     """
     costs, n = glove_fit(rgb, seg, gloves_rgb, light_color)
     others = [g for g in range(len(costs)) if g != glove_id]
-    if not others or n < tol.VERIFY_GLOVE_MIN_PX or not np.isfinite(costs).all():
+    if not others or n < tol.VERIFY_GLOVE_MIN_BLOCKS or not np.isfinite(costs).all():
         return None, -1, n
     best = min(others, key=lambda g: costs[g])
     if costs[best] == 0:
@@ -540,21 +587,18 @@ def check_frame(job) -> list[dict]:
         both = f"{names['depth']} + {names['seg']}"
         off = mask_depth_mismatch_px(depth, seg)
         if off > tol.VERIFY_MASK_DEPTH_PX:
-            # one of them is another frame's: the keypoint checks below would only echo it
             problems.append(_problem(split, frame_id, "mask_depth",
                                      f"depth and seg disagree on {off} pixels away from the silhouette's edge "
                                      f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
                                      both))
-        else:
-            problems += _visibility_and_probe(row, depth.astype(np.float64) * manifest["depth_scale_m"], seg, split,
-                                              both)
+        problems += _visibility_and_probe(row, depth.astype(np.float64) * manifest["depth_scale_m"], seg, split, both)
     if "rgb" in images and "seg" in images:
         rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
         seg = images["seg"]
         backgrounds = _CONTEXT.get("backgrounds")
         if backgrounds is not None:
             b = int(row["background_id"])
-            off = background_mismatch_px(rgb, seg, backgrounds.image(b, *size))
+            off = background_mismatch_px(rgb, seg, _reference(b, size))
             if off > tol.VERIFY_BACKGROUND_PX:
                 problems.append(_problem(split, frame_id, "rgb_mismatch",
                                          f"{off} pixels the mask calls background are not background "
@@ -570,6 +614,29 @@ def check_frame(job) -> list[dict]:
                                          f"its lamp (cost ratio {ratio:.2f} > {tol.VERIFY_GLOVE_FIT_RATIO} over {n} "
                                          f"pixels): the RGB image belongs to another frame", names["rgb"]))
     return problems
+
+
+def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
+    """The frame's background as the dataset stores it, cached per process."""
+    cache = _CONTEXT.setdefault("references", {})
+    if background_id not in cache:
+        image = _CONTEXT["backgrounds"].image(background_id, *size)
+        cache[background_id] = jpeg_reference(image, _CONTEXT["jpeg_quality"])
+    return cache[background_id]
+
+
+def _jpeg_quality(manifest: dict) -> int | None:
+    """The dataset's JPEG quality (None for PNG images); the generator's default when not recorded."""
+    from datagen.dataset import DatasetSpec
+
+    if manifest["rgb_format"] == "png":
+        return None
+    config = manifest.get("config")
+    dataset = config.get("dataset") if isinstance(config, dict) else None
+    quality = dataset.get("jpeg_quality") if isinstance(dataset, dict) else None
+    if isinstance(quality, int) and not isinstance(quality, bool) and 0 <= quality <= 100:
+        return quality
+    return DatasetSpec.jpeg_quality
 
 
 def _collapse_image_size(problems: list[dict], frames: int, size: tuple[int, int]) -> list[dict]:
@@ -622,6 +689,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     manifest, problems = _read_manifest(root)
     _check_manifest_extras(manifest, root)
     skipped = []
+    backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
     if "rgb" in manifest["modalities"] and "seg" in manifest["modalities"]:
         backgrounds, why = _load_backgrounds(manifest)
         if why:
@@ -629,8 +697,10 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         gloves = manifest.get("gloves_rgb")
         if gloves is None:
             skipped.append("RGB against glove colours: the manifest records no gloves_rgb")
-    else:
-        backgrounds, gloves = None, None
+        elif len(gloves) > 1 and quality is not None and quality < tol.VERIFY_GLOVE_MIN_JPEG_QUALITY:
+            skipped.append(f"RGB against glove colours: at JPEG quality {quality} (below "
+                           f"{tol.VERIFY_GLOVE_MIN_JPEG_QUALITY}) the colours no longer tell the gloves apart")
+            gloves = None
     jobs, all_ids, complete = [], [], True
     for split in SPLITS:
         if manifest["counts"].get(split, 0) == 0:
@@ -658,14 +728,14 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     for note in skipped:
         log(f"not checked: {note}")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")
-    _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds,
+    _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality,
                     gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
     bar = tqdm(total=len(jobs), unit="frame", desc="verify", disable=not (sys.stderr.isatty() if progress is None
                                                                           else progress),
                dynamic_ncols=True, smoothing=0.1)
     frame_problems = []
     try:
-        if workers > 1 and len(jobs) > 64:
+        if workers > 1 and len(jobs) > POOL_MIN_FRAMES:
             with multiprocessing.get_context("fork").Pool(workers) as pool:
                 for result in pool.imap(check_frame, jobs, chunksize=64):
                     frame_problems += result
