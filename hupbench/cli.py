@@ -98,11 +98,6 @@ def _verify(args: list[str]) -> int:
                         help="progress bar with ETA on stderr (default: when stderr is a terminal)")
     ns = parser.parse_args(args)
     result = run_verify(ns.dataset, workers=ns.workers, progress=ns.progress)
-    if ns.sample_sheet:
-        from datagen.draw import write_png
-        from datagen.verify import sample_sheet
-
-        print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     for p in result["problems"][: ns.max_report]:
         where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
         frame = "" if p["frame_id"] is None else f" (frame {p['frame_id']})"
@@ -113,9 +108,15 @@ def _verify(args: list[str]) -> int:
     if not result["ok"]:
         counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
         print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
-        return 1
-    print(f"hupbench verify: OK, {result['frames']} frames checked")
-    return 0
+    else:
+        print(f"hupbench verify: OK, {result['frames']} frames checked")
+    if ns.sample_sheet:
+        # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
+        from datagen.draw import write_png
+        from datagen.verify import sample_sheet
+
+        print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
+    return 0 if result["ok"] else 1
 
 
 def _leaderboard(args: list[str]) -> int:

@@ -354,3 +354,43 @@ def test_verify_cli_passes_the_intact_dataset(tiny_dataset, tmp_path, capfd):
     assert answer.rc == 0, answer
     assert answer.out.strip().splitlines()[-1] == "hupbench verify: OK, 60 frames checked"
     assert answer.err == ""
+
+
+def _with_truncated_rgb(tiny_dataset, tmp_path, frames):
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset, root)
+    for fid in frames:
+        path = _path(root, "train", "rgb", fid)
+        path.write_bytes(path.read_bytes()[:100])
+    return root
+
+
+def test_verify_cli_max_report_says_how_many_it_left_out(tiny_dataset, tmp_path, capfd):
+    root = _with_truncated_rgb(tiny_dataset, tmp_path, (1, 2, 3))
+    answer = run_cli(capfd, "verify", root, "--workers", "1", "--max-report", "1")
+    problem_lines = [line for line in answer.out.splitlines() if line.startswith("  undecodable_file")]
+    assert answer.rc == 1 and problem_lines == ["  undecodable_file   train/rgb/000001.jpg (frame 1): truncated "
+                                                "(no JPEG end-of-image marker)"]
+    assert "  ... and 2 more (--max-report 3 prints all)" in answer.out.splitlines()
+    assert answer.out.splitlines()[-1] == "hupbench verify: FAILED, 3 problem(s) in 60 frames: undecodable_file 3"
+
+
+def test_verify_cli_progress_bar_on_request(tiny_dataset, capfd):
+    answer = run_cli(capfd, "verify", tiny_dataset, "--workers", "1", "--progress")
+    assert answer.rc == 0 and "verify: 100%" in answer.err and "60/60" in answer.err
+    assert answer.out.splitlines()[-1] == "hupbench verify: OK, 60 frames checked"
+
+
+def test_verify_cli_sample_sheet_after_the_report(tiny_dataset, tmp_path, capfd):
+    sheet = tmp_path / "sheet.png"
+    answer = run_cli(capfd, "verify", tiny_dataset, "--workers", "1", "--sample-sheet", sheet)
+    assert answer.rc == 0 and cv2.imread(str(sheet)) is not None
+    assert answer.out.splitlines()[-1] == f"sample sheet: {sheet}"
+    # a damaged train split: the report comes first, then the sheet's one-line error
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset, root)
+    (root / ANN).write_bytes(b"")
+    answer = run_cli(capfd, "verify", root, "--workers", "1", "--sample-sheet", tmp_path / "sheet2.png")
+    assert "hupbench verify: FAILED, 1 problem(s) in 40 frames: damaged_file 1" in answer.out
+    assert_clean_error(answer, "annotations.npz")
+    assert not (tmp_path / "sheet2.png").exists()
