@@ -277,6 +277,18 @@ def _load_backgrounds(manifest: dict):
 # --- image statistics ------------------------------------------------------------------------
 
 
+#: stored 8-bit level -> linear light (pyrender's output encoding inverted)
+_LINEAR = (np.arange(256) / 255.0) ** RENDER_GAMMA
+
+
+def _channel_max(image: np.ndarray) -> np.ndarray:
+    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+
+
+def _channel_min(image: np.ndarray) -> np.ndarray:
+    return np.minimum(np.minimum(image[..., 0], image[..., 1]), image[..., 2])
+
+
 def _grow(mask: np.ndarray, px: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)) > 0
 
@@ -412,7 +424,7 @@ def background_mismatch_px(rgb: np.ndarray, seg: np.ndarray, reference: np.ndarr
     foreground = seg != SEG_LABELS["background"]
     near = _near_blocks(foreground)
     away = ~_grow(foreground, 1)
-    diff = np.abs(rgb.astype(np.int16) - reference.astype(np.int16)).max(axis=-1)
+    diff = _channel_max(cv2.absdiff(rgb, reference))
     return int(np.count_nonzero(away & near & (diff > tol.VERIFY_BACKGROUND_LEVELS))
                + np.count_nonzero(~near & (diff > tol.VERIFY_BACKGROUND_FAR_LEVELS)))
 
@@ -438,13 +450,14 @@ def glove_fit(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, light_color) -> tupl
     gloves = np.asarray(gloves_rgb, dtype=np.float64).reshape(-1, 3)
     light = np.asarray(light_color, dtype=np.float64)
     hand = _shrink(seg == SEG_LABELS["hand"], 2)  # JPEG's half-resolution chroma bleeds 2 pixels
-    clipped = _grow(rgb.max(axis=-1) >= tol.VERIFY_GLOVE_CLIPPED_LEVEL, 1)
-    use = hand & ~clipped & (rgb.min(axis=-1) >= tol.VERIFY_GLOVE_DARK_LEVEL)
+    clipped = _grow(_channel_max(rgb) >= tol.VERIFY_GLOVE_CLIPPED_LEVEL, 1)
+    use = hand & ~clipped & (_channel_min(rgb) >= tol.VERIFY_GLOVE_DARK_LEVEL)
     b = tol.VERIFY_GLOVE_BLOCK_PX
     h, w = (use.shape[0] // b) * b, (use.shape[1] // b) * b
     whole = use[:h, :w].reshape(h // b, b, w // b, b).all(axis=(1, 3))  # blocks of usable pixels only
-    linear = (rgb[:h, :w].astype(np.float64) / 255.0) ** RENDER_GAMMA
-    linear = linear.reshape(h // b, b, w // b, b, 3).mean(axis=(1, 3))[whole]  # (P, 3) block means
+    rows, cols = np.nonzero(whole)
+    pixels = rgb[(rows[:, None] * b + np.arange(b)).repeat(b, axis=1), np.tile(cols[:, None] * b + np.arange(b), b)]
+    linear = _LINEAR[pixels].mean(axis=1)  # (P, 3) block means in linear light
     stored = linear.mean(axis=1) ** (1 / RENDER_GAMMA)
     noise = RENDER_GAMMA * stored ** (RENDER_GAMMA - 1) * (tol.VERIFY_GLOVE_NOISE_LEVELS / 255.0) / b
     costs = np.full(len(gloves), np.nan)
