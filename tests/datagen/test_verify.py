@@ -295,3 +295,19 @@ def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
     (broken / "train" / "annotations.npz").write_bytes(b"")
     with pytest.raises(ValueError, match="annotations.npz"):
         sample_sheet(broken)
+
+
+@pytest.mark.parametrize("modalities", [["rgb"], ["depth"], ["seg"], ["rgb", "depth"]])
+def test_datasets_with_some_modalities(tiny_dataset, tmp_path, modalities):
+    """Only the files a dataset has are checked, and only the comparisons its files allow."""
+    broken = _copy(tiny_dataset, tmp_path)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["modalities"] = modalities
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    for modality in {"rgb", "depth", "seg"} - set(modalities):
+        shutil.rmtree(broken / "train" / modality)
+    result = verify(broken, workers=1, log=quiet)
+    assert result["ok"] and result["frames"] == 60, result["problems"]
+    (broken / "train" / modalities[0] / ("000004.jpg" if modalities[0] == "rgb" else "000004.png")).write_bytes(b"")
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert [(p["kind"], p["frame_id"]) for p in problems] == [("undecodable_file", 4)]
