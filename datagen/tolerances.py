@@ -37,3 +37,36 @@ VERIFY_KEYPOINT_M = 1e-4
 VERIFY_LOOK_AT_M = 1e-6
 #: verify: probe pixels (eroded mask), unprojected with their depth, lie this close to the probe surface
 VERIFY_PROBE_SURFACE_M = 0.003
+#: verify: the annotations' K must equal the manifest's within this
+VERIFY_K_PX = 1e-6
+#: verify: away from the mask's edge, depth and mask agree on foreground; more disagreeing pixels
+#: than this means one of them is another frame's (correct frames: at most 11 at 64-256 px; a depth
+#: or seg file of another view: 71 or more at 64 px; docs/robustness.md, section verify)
+VERIFY_MASK_DEPTH_PX = 24
+#: verify: in a JPEG block near the object, an RGB pixel the mask calls background (1 pixel or more
+#: from it) differs from the background when a channel is more than this many levels off its JPEG
+#: encoding (correct frames: none above 40 at quality 95, a handful at 75 and 50)
+VERIFY_BACKGROUND_LEVELS = 40
+#: verify: in JPEG blocks of background only, the same with this many levels (correct frames: <= 2)
+VERIFY_BACKGROUND_FAR_LEVELS = 12
+#: verify: more such pixels than this means the RGB image or the mask is another frame's
+VERIFY_BACKGROUND_PX = 16
+#: verify glove colour: stored levels at or above this (and their neighbours) may be clipped by the renderer
+VERIFY_GLOVE_CLIPPED_LEVEL = 235
+#: verify glove colour: pixels with a channel below this level carry no colour to speak of
+VERIFY_GLOVE_DARK_LEVEL = 8
+#: verify glove colour: side of the pixel blocks whose mean colours are fitted (averaging halves
+#: JPEG's chroma noise: the worst swapped frame's ratio rose from 0.53 to 1.01 at quality 95)
+VERIFY_GLOVE_BLOCK_PX = 2
+#: verify glove colour: JPEG noise of a stored pixel, levels (scales the plane distances)
+VERIFY_GLOVE_NOISE_LEVELS = 2.0
+#: verify glove colour: plane distances (in noise units) are clipped here before squaring
+VERIFY_GLOVE_CLIP = 10.0
+#: verify glove colour: fewer usable blocks than this leave the glove unchecked
+VERIFY_GLOVE_MIN_BLOCKS = 4
+#: verify glove colour: the frame's glove may cost at most this fraction of the best other glove's
+#: (correct frames: <= 0.15 at quality 95, <= 0.24 at 90; RGB of the other glove: >= 0.98)
+VERIFY_GLOVE_FIT_RATIO = 0.45
+#: verify glove colour: below this JPEG quality the chroma no longer tells the gloves apart
+#: (quality 85: correct frames up to 0.74, swapped down to 0.95), and the check is skipped
+VERIFY_GLOVE_MIN_JPEG_QUALITY = 90

@@ -1,21 +1,70 @@
-"""Re-check a dataset against its manifest and against geometry.
+"""Re-check a dataset against its manifest, against geometry and against its own images.
 
-Failure kinds (each names the frame):
-    ``missing_file``, ``undecodable_file``, ``count_mismatch``, ``frame_ids``,
-    ``reprojection`` (2D != projection of 3D), ``pose_mismatch`` (3D != the
-    keypoints of the stored hand pose and probe corners seen by the stored
-    camera), ``look_at`` (the point the manifest's protocol aims at is not at
-    (0, 0, z_ego) in the camera frame), ``visible_not_on_hand`` (a visible
-    hand keypoint whose pixel is not hand in the mask or whose depth is not
-    just in front of it),
-    ``probe_depth`` (probe pixels unprojected with their depth are off the
-    probe surface by more than max(3 mm, 1.5 pixel footprints)). Thresholds are in :mod:`datagen.tolerances`.
+verify reads through :mod:`datagen.contract`. Two kinds of answer:
+
+* **fatal** (``ValueError`` / ``FileNotFoundError``, one error line from the CLI): nothing to check
+  against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
+  field is missing or malformed (:func:`datagen.contract.read_manifest`: keypoint names other than
+  the 29 of :mod:`datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
+  an unknown ``protocol.look_at`` and a malformed ``gloves_rgb``).
+* **problems**, reported with a kind, the split, the frame and the file; the other splits and
+  frames are still checked and the verdict is FAILED. Kinds:
+
+  ``count_mismatch``    the manifest's counts disagree with its layout, or a split's annotated
+                        frames with the manifest's count (the frames are still checked)
+  ``missing_file``      a file the manifest implies is absent (annotations.npz or an image)
+  ``damaged_file``      annotations.npz cannot be read whole: empty, truncated, not a zip, bad CRC
+  ``bad_annotations``   annotations.npz reads but breaks the contract: an array missing or of
+                        another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove or
+                        background id the manifest does not have
+  ``frame_ids``         frame ids repeated or out of order, or not the layout's ids
+  ``manifest_mismatch`` the manifest disagrees with the files: its K with the annotations' K, its
+                        image_size with every image
+  ``undecodable_file``  an image file that is empty, truncated (no end marker) or not a PNG/JPEG
+  ``image_format``      an image that decodes but has another size, bit depth or channel count
+                        than the contract, or seg labels outside ``SEG_LABELS``
+  ``reprojection``      2D keypoints != the projection of the 3D ones
+  ``pose_mismatch``     3D keypoints != those of the stored hand pose and probe seen by the stored camera
+  ``look_at``           the point the manifest's protocol aims at is not at (0, 0, z_ego) in the camera frame
+  ``visible_not_on_hand`` a visible hand keypoint whose pixel is not hand in the mask or whose depth
+                        is not just in front of it
+  ``probe_depth``       probe pixels unprojected with their depth are off the probe surface by more
+                        than max(3 mm, 1.5 pixel footprints)
+  ``mask_depth``        depth and seg disagree on foreground away from the silhouette's edge: one of
+                        them belongs to another frame
+  ``rgb_mismatch``      the RGB image does not show this frame: pixels the mask calls background
+                        differ from the frame's background image, or the hand's colour is explained
+                        better by another glove than by the frame's glove under the frame's lamp
+
+How the RGB checks work (thresholds and their measurements in :mod:`datagen.tolerances`):
+
+* background: the renderer composites the foreground over the background image bit for bit where
+  the mask is background, and OpenCV encodes the JPEG in independent 8 x 8 blocks (16 x 16 for the
+  half-resolution chroma). So in blocks of background only the stored RGB decodes like the
+  background image encoded alone at the dataset's quality (within 2 levels), and in blocks near the
+  object, 1 pixel or more from its anti-aliased edge, within JPEG's edge ringing (40 levels). The
+  background set is found by the manifest's fingerprint (built-in, or ``backgrounds.dir``); when it
+  is not here the check is skipped and said so.
+* glove: pyrender shades a glove of albedo ``a`` under white ambient light 0.3 and one point lamp
+  of colour ``c`` (the annotation ``light_color``) as ``0.3 a + k_d (a * c) + k_s c`` (k_d, k_s >= 0
+  per pixel), then stores ``value ** (1 / 2.2)``: in linear light every unclipped hand pixel, and
+  the mean of any block of them, lies on the plane through ``0.3 a`` spanned by ``a * c`` and
+  ``c``. A frame's hand must fit its own glove's plane much better than the other glove's. Below
+  JPEG quality 90 the chroma no longer separates the two gloves and the check is skipped.
+
+A frame that holds another frame's RGB image is found when the two differ in silhouette (its
+background shows the other's object), background or glove. When a smaller silhouette is nested in
+a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
+the frames involved does.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing
+import sys
+import zipfile
 from pathlib import Path
 
 import cv2
@@ -24,18 +73,422 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import project_points
-from datagen.dataset import SPLITS, frame_path, visibility
+from datagen.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, annotations_path, check_manifest, frame_path,
+                              read_annotations, read_manifest)
 from datagen.geometry import invert_transform, transform_points
-from datagen.render import SEG_LABELS
 
-KINDS = ("missing_file", "undecodable_file", "count_mismatch", "frame_ids", "reprojection", "pose_mismatch",
-         "look_at", "visible_not_on_hand", "probe_depth")
+KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
+         "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
+         "probe_depth", "mask_depth", "rgb_mismatch")
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
+#: fewer frames than this are checked in this process (starting workers would take longer)
+POOL_MIN_FRAMES = 64
+#: the renderer's white ambient light (datagen.dataset.ChunkRenderer: RenderSettings(ambient=0.3))
+RENDER_AMBIENT = 0.3
+#: pyrender's output encoding: stored value = linear ** (1 / 2.2), clamped to [0, 1]
+RENDER_GAMMA = 2.2
+#: annotation fields the per-frame checks use
+FRAME_KEYS = ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K", "T_cam_world", "background_id",
+              "glove_id", "light_color")
+#: per-row fields the contract does not require finite but the checks compute with
+ROW_FINITE = ("hand_pose", "hand_trans", "light_position_cam", "light_color", "light_energy_w")
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
 
 
-def _problem(split, frame_id, kind, detail) -> dict:
-    return {"split": split, "frame_id": None if frame_id is None else int(frame_id), "kind": kind, "detail": detail}
+def _problem(split, frame_id, kind, detail, file=None) -> dict:
+    return {"split": split, "frame_id": None if frame_id is None else int(frame_id), "kind": kind,
+            "file": None if file is None else str(file), "detail": detail}
+
+
+def _relative(split: str, modality: str, frame_id: int, rgb_format: str) -> str:
+    return frame_path("", split, modality, frame_id, rgb_format).as_posix()
+
+
+def _message(exc: Exception, path: Path) -> str:
+    """The contract's message without the absolute path it starts with (the problem names the file)."""
+    text = str(exc)
+    return text[len(str(path)) + 2:] if text.startswith(f"{path}: ") else text
+
+
+# --- reading the manifest and the annotations -----------------------------------------------
+
+
+def _manifest_but_for_counts(root: Path) -> dict | None:
+    """The manifest when its only fault is a counts total other than its layout's, else None."""
+    path = root / MANIFEST
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("counts"), dict) \
+            or not isinstance(manifest.get("layout"), dict):
+        return None
+    layout = manifest["layout"]
+    try:
+        # every other field passes with counts that fill the layout, and the counts themselves are
+        # well formed when they fill a layout of their own total
+        check_manifest(dict(manifest, counts={"train": math.prod(layout.get("shape"))}), path)
+        check_manifest(dict(manifest, layout=dict(layout, shape=[sum(manifest["counts"].values()), 1, 1, 1, 1])), path)
+    except (TypeError, ValueError):
+        return None
+    return manifest
+
+
+def _read_manifest(root: Path) -> tuple[dict, list[dict]]:
+    try:
+        return read_manifest(root, needs="verify checks"), []
+    except ValueError as exc:
+        manifest = _manifest_but_for_counts(root)
+        if manifest is None:
+            raise
+        # counts that disagree with the layout are what verify reports: each split is then checked
+        # against its own count
+        return manifest, [_problem(None, None, "count_mismatch", _message(exc, root / MANIFEST), MANIFEST)]
+
+
+def _check_manifest_extras(manifest: dict, root: Path) -> None:
+    """Manifest fields verify relies on beyond the contract's: protocol.look_at and gloves_rgb."""
+    path = root / MANIFEST
+    protocol = manifest.get("protocol")
+    if protocol is not None:
+        look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
+        if look_at != "box_centre" and look_at not in kp.KEYPOINT_NAMES:
+            raise ValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+    gloves = manifest.get("gloves_rgb")
+    if gloves is not None:
+        try:
+            array = np.asarray(gloves, dtype=np.float64)
+        except (TypeError, ValueError):
+            array = np.zeros((0, 0))
+        if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] != 3 or not np.isfinite(array).all() \
+                or array.min() < 0 or array.max() > 1:
+            raise ValueError(f"{path}: gloves_rgb must be a list of [r, g, b] colours in [0, 1], got {gloves!r}")
+
+
+def _frame_ids(path: Path) -> np.ndarray | None:
+    """The frame_id column of an annotations file the contract could open, or None."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            ids = data["frame_id"]
+    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile):
+        return None
+    return ids if ids.ndim == 1 and np.issubdtype(ids.dtype, np.integer) else None
+
+
+def _read_split(root: Path, split: str, manifest: dict) -> tuple[dict | None, list[dict]]:
+    """A split's annotations through the contract, or None and the problems that stopped it."""
+    path = annotations_path(root, split)
+    rel = f"{split}/{ANNOTATIONS}"
+    expected = manifest["counts"][split]
+    try:
+        return read_annotations(root, split, manifest=manifest), []
+    except FileNotFoundError:
+        return None, [_problem(split, None, "missing_file", f"missing (the manifest counts {expected} {split} frames)", rel)]
+    except ValueError as exc:
+        if exc.__cause__ is not None:  # the contract wraps what the zip, CRC and npy readers raised
+            return None, [_problem(split, None, "damaged_file", _message(exc, path), rel)]
+        rejected = exc
+    problems = []
+    ids = _frame_ids(path)
+    if ids is not None and len(ids) != expected:
+        problems.append(_problem(split, None, "count_mismatch",
+                                 f"{len(ids)} annotated frames, the manifest counts {expected}", rel))
+        try:
+            counted = dict(manifest, counts=dict(manifest["counts"], **{split: len(ids)}))
+            return read_annotations(root, split, manifest=counted), problems
+        except ValueError as exc:
+            rejected = exc
+    if ids is not None and len(ids) > 1 and not (np.diff(ids) > 0).all():
+        repeated = len(ids) - len(np.unique(ids))
+        problems.append(_problem(split, None, "frame_ids", f"frame_id is not strictly ascending ({repeated} repeated, "
+                                                           f"{len(ids)} rows)", rel))
+    else:
+        problems.append(_problem(split, None, "bad_annotations", _message(rejected, path), rel))
+    return None, problems
+
+
+def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.ndarray]:
+    """Row values the contract does not check: finiteness of the pose and lamp, glove and background
+    ids within the manifest's, K equal to the manifest's.
+
+    Returns:
+        problems, and (N,) bool: the rows the geometry and image checks can use.
+    """
+    rel = f"{split}/{ANNOTATIONS}"
+    problems = []
+    usable = np.ones(len(ann["frame_id"]), dtype=bool)
+    for key in ROW_FINITE:
+        bad = ~np.isfinite(ann[key].reshape(len(usable), -1)).all(axis=1)
+        for i in np.flatnonzero(bad):
+            problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
+                                     f"{key} of frame {int(ann['frame_id'][i]):06d} holds NaN or inf", rel))
+        usable &= ~bad
+    limits = {"glove_id": ("gloves_rgb", manifest.get("gloves_rgb")),
+              "background_id": ("backgrounds.names", (manifest.get("backgrounds") or {}).get("names")
+                                if isinstance(manifest.get("backgrounds"), dict) else None)}
+    for key, (field, values) in limits.items():
+        if not isinstance(values, list):
+            continue  # an older manifest without the record: nothing to compare with
+        bad = (ann[key] < 0) | (ann[key] >= len(values))
+        for i in np.flatnonzero(bad):
+            problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
+                                     f"{key} {int(ann[key][i])} of frame {int(ann['frame_id'][i]):06d} is not one of "
+                                     f"the manifest's {len(values)} ({field})", rel))
+        usable &= ~bad
+    K = np.asarray(manifest["K"], dtype=np.float64)
+    off = np.abs(ann["K"] - K).max(axis=(1, 2))
+    differ = np.flatnonzero(off > tol.VERIFY_K_PX)
+    if len(differ):
+        i = differ[0]
+        problems.append(_problem(split, None, "manifest_mismatch",
+                                 f"K of {len(differ)} frames (first {int(ann['frame_id'][i]):06d}) differs from the "
+                                 f"manifest's K by up to {off[differ].max():.4g} px", rel))
+    return problems, usable
+
+
+def _load_backgrounds(manifest: dict):
+    """The BackgroundSet the dataset was rendered with (its fingerprint matches), or None and why."""
+    from datagen.backgrounds import BackgroundSet
+
+    record = manifest.get("backgrounds")
+    if not isinstance(record, dict) or not isinstance(record.get("fingerprint"), str):
+        return None, "the manifest records no backgrounds fingerprint"
+    config = manifest.get("config")
+    folder = None
+    if isinstance(config, dict) and isinstance(config.get("backgrounds"), dict):
+        folder = config["backgrounds"].get("dir")
+    candidates = [("the built-in backgrounds", BackgroundSet.builtin)]
+    if isinstance(folder, str):
+        candidates.insert(0, (f"backgrounds.dir {folder}", lambda: BackgroundSet.from_dir(folder)))
+    for _, make in candidates:
+        try:
+            backgrounds = make()
+        except ValueError:  # the photographs' folder is gone or unreadable here
+            continue
+        if backgrounds.fingerprint() == record["fingerprint"]:
+            return backgrounds, None
+    tried = " or ".join(what for what, _ in candidates)
+    return None, f"the backgrounds it was rendered with are not here (fingerprint differs from {tried})"
+
+
+# --- image statistics ------------------------------------------------------------------------
+
+
+#: stored 8-bit level -> linear light (pyrender's output encoding inverted)
+_LINEAR = (np.arange(256) / 255.0) ** RENDER_GAMMA
+
+
+def _channel_max(image: np.ndarray) -> np.ndarray:
+    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+
+
+def _channel_min(image: np.ndarray) -> np.ndarray:
+    return np.minimum(np.minimum(image[..., 0], image[..., 1]), image[..., 2])
+
+
+def _grow(mask: np.ndarray, px: int) -> np.ndarray:
+    return cv2.dilate(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)) > 0
+
+
+def _shrink(mask: np.ndarray, px: int) -> np.ndarray:
+    return cv2.erode(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)) > 0
+
+
+def read_image(path: Path, modality: str) -> tuple[np.ndarray | None, str | None]:
+    """Read one image file of a frame, refusing damaged files before the decoder sees them.
+
+    A JPEG without its end-of-image marker decodes to a partly grey image (libjpeg only warns on
+    stderr), so the end markers are checked first.
+
+    Args:
+        path: the file. modality: "rgb" (read as 3-channel BGR, uint8) or "depth"/"seg" (as stored).
+
+    Returns:
+        (image, None), or (None, why): "missing" or a description of the damage.
+    """
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None, "missing"
+    except OSError as exc:
+        return None, f"unreadable ({exc.strerror or exc})"
+    if not data:
+        return None, "empty (0 bytes)"
+    if path.suffix == ".png":
+        if not data.startswith(PNG_SIGNATURE):
+            return None, "not a PNG (no PNG signature)"
+        if not data.endswith(PNG_END):
+            return None, "truncated (no PNG end chunk)"
+    elif path.suffix == ".jpg":
+        if not data.startswith(JPEG_START):
+            return None, "not a JPEG (no JPEG start marker)"
+        if not data.endswith(JPEG_END):
+            return None, "truncated (no JPEG end-of-image marker)"
+    flags = cv2.IMREAD_COLOR if modality == "rgb" else cv2.IMREAD_UNCHANGED
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if image is None:
+        return None, f"not decodable as {path.suffix[1:].upper()}"
+    return image, None
+
+
+def image_format_problem(image: np.ndarray, modality: str, size: tuple[int, int]) -> str | None:
+    """What is wrong with a decoded image against the contract (None when nothing).
+
+    Args:
+        image: as :func:`read_image` returns it. modality: "rgb", "depth" or "seg".
+        size: the manifest's image_size (width, height).
+    """
+    w, h = size
+    if image.shape[:2] != (h, w):
+        return f"{image.shape[1]} x {image.shape[0]} pixels, the manifest's image_size is {w} x {h}"
+    if modality == "depth" and (image.dtype != np.uint16 or image.ndim != 2):
+        return f"{image.dtype} with {1 if image.ndim == 2 else image.shape[2]} channel(s), expected single-channel uint16"
+    if modality == "seg":
+        if image.dtype != np.uint8 or image.ndim != 2:
+            return f"{image.dtype} with {1 if image.ndim == 2 else image.shape[2]} channel(s), expected single-channel uint8"
+        present = np.flatnonzero(np.bincount(image.ravel(), minlength=256))
+        unknown = sorted(set(present.tolist()) - set(SEG_LABELS.values()))
+        if unknown:
+            return f"labels {unknown[:8]} outside {SEG_LABELS}"
+    return None
+
+
+def mask_depth_mismatch_px(depth: np.ndarray, seg: np.ndarray) -> int:
+    """Pixels where depth and mask disagree on foreground, away from the silhouette's edge.
+
+    The depth and the mask come from two rasterisations that differ on edge pixels only, so a
+    1-pixel band around the mask's edge is not counted.
+
+    Args:
+        depth: (H, W) stored depth (0 = background). seg: (H, W) labels (0 = background).
+
+    Returns:
+        The number of pixels with depth outside the grown mask plus those without depth inside
+        the shrunk mask.
+    """
+    foreground = seg != SEG_LABELS["background"]
+    return int(np.count_nonzero((depth > 0) & ~_grow(foreground, 1))
+               + np.count_nonzero((depth == 0) & _shrink(foreground, 1)))
+
+
+def jpeg_reference(background: np.ndarray, quality: int | None) -> np.ndarray:
+    """What the background looks like after the dataset's JPEG encoding (OpenCV, as the generator).
+
+    Far from the rendered object an 8 x 8 block of the stored image holds only background, so it
+    decodes like the same block of the background encoded alone (measured: within 2 levels).
+
+    Args:
+        background: (H, W, 3) uint8 RGB. quality: the dataset's JPEG quality, None for PNG.
+
+    Returns:
+        (H, W, 3) uint8 RGB.
+    """
+    if quality is None:
+        return background
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(background[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {background.shape} background as JPEG")
+    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+
+
+def _near_blocks(foreground: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose JPEG colour block (16 x 16, half-resolution chroma) or a neighbouring
+    one holds foreground (the decoder's chroma upsampling reads across block borders)."""
+    h, w = foreground.shape
+    bh, bw = -(-h // 16), -(-w // 16)
+    padded = np.zeros((bh * 16, bw * 16), dtype=bool)
+    padded[:h, :w] = foreground
+    blocks = padded.reshape(bh, 16, bw, 16).any(axis=(1, 3))
+    blocks = _grow(blocks, 1)
+    return np.kron(blocks, np.ones((16, 16), dtype=bool))[:h, :w]
+
+
+def background_mismatch_px(rgb: np.ndarray, seg: np.ndarray, reference: np.ndarray) -> int:
+    """Pixels the mask calls background whose colour is not the background's.
+
+    Two zones: in JPEG blocks near the object (:func:`_near_blocks`), but 1 pixel or more from it
+    (the renderer's anti-aliased edge), a channel more than ``VERIFY_BACKGROUND_LEVELS`` off counts
+    (the object's block is quantised with it); in blocks of background only, a channel more than
+    ``VERIFY_BACKGROUND_FAR_LEVELS`` off counts.
+
+    Args:
+        rgb: (H, W, 3) uint8, the stored image. seg: (H, W) labels. reference: (H, W, 3) uint8, the
+            frame's background as stored (:func:`jpeg_reference`), same channel order as ``rgb``.
+
+    Returns:
+        The number of such pixels.
+    """
+    foreground = seg != SEG_LABELS["background"]
+    near = _near_blocks(foreground)
+    away = ~_grow(foreground, 1)
+    diff = _channel_max(cv2.absdiff(rgb, reference))
+    return int(np.count_nonzero(away & near & (diff > tol.VERIFY_BACKGROUND_LEVELS))
+               + np.count_nonzero(~near & (diff > tol.VERIFY_BACKGROUND_FAR_LEVELS)))
+
+
+def glove_fit(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, light_color) -> tuple[np.ndarray, int]:
+    """How well each glove colour explains the hand pixels of an image under the frame's lamp.
+
+    In linear light an unclipped pixel of a glove of albedo ``a`` lies on the plane through
+    ``RENDER_AMBIENT * a`` spanned by ``a * light_color`` and ``light_color`` (module docstring), and
+    so does the mean of a block of them. Means of ``VERIFY_GLOVE_BLOCK_PX``-square blocks of usable
+    hand pixels (averaging halves JPEG's chroma noise) are measured against each glove's plane, in
+    units of their noise (``VERIFY_GLOVE_NOISE_LEVELS`` stored levels per pixel), clipped at
+    ``VERIFY_GLOVE_CLIP`` and squared.
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB. seg: (H, W) labels. gloves_rgb: (G, 3) albedos in [0, 1].
+        light_color: (3,) the frame's lamp colour.
+
+    Returns:
+        (G,) float64 costs (sums over the blocks; lower fits better; NaN for a glove whose plane is
+        undefined, an albedo that only scales the lamp's colour), and the number of blocks used.
+    """
+    gloves = np.asarray(gloves_rgb, dtype=np.float64).reshape(-1, 3)
+    light = np.asarray(light_color, dtype=np.float64)
+    hand = _shrink(seg == SEG_LABELS["hand"], 2)  # JPEG's half-resolution chroma bleeds 2 pixels
+    clipped = _grow(_channel_max(rgb) >= tol.VERIFY_GLOVE_CLIPPED_LEVEL, 1)
+    use = hand & ~clipped & (_channel_min(rgb) >= tol.VERIFY_GLOVE_DARK_LEVEL)
+    b = tol.VERIFY_GLOVE_BLOCK_PX
+    h, w = (use.shape[0] // b) * b, (use.shape[1] // b) * b
+    whole = use[:h, :w].reshape(h // b, b, w // b, b).all(axis=(1, 3))  # blocks of usable pixels only
+    rows, cols = np.nonzero(whole)
+    pixels = rgb[(rows[:, None] * b + np.arange(b)).repeat(b, axis=1), np.tile(cols[:, None] * b + np.arange(b), b)]
+    linear = _LINEAR[pixels].mean(axis=1)  # (P, 3) block means in linear light
+    stored = linear.mean(axis=1) ** (1 / RENDER_GAMMA)
+    noise = RENDER_GAMMA * stored ** (RENDER_GAMMA - 1) * (tol.VERIFY_GLOVE_NOISE_LEVELS / 255.0) / b
+    costs = np.full(len(gloves), np.nan)
+    for g, albedo in enumerate(gloves):
+        normal = np.cross(albedo * light, light)
+        length = np.linalg.norm(normal)
+        if length < 1e-9:
+            continue
+        distance = np.abs((linear - RENDER_AMBIENT * albedo) @ (normal / length)) / noise
+        costs[g] = np.sum(np.minimum(distance, tol.VERIFY_GLOVE_CLIP) ** 2)
+    return costs, len(linear)
+
+
+def glove_fit_ratio(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, glove_id: int, light_color) -> tuple[float | None, int, int]:
+    """The labelled glove's cost over the best other glove's (:func:`glove_fit`).
+
+    Returns:
+        (ratio, best other glove, blocks used); ratio None when there is no other glove, too few
+        usable blocks (``VERIFY_GLOVE_MIN_BLOCKS``) or an undefined cost.
+    """
+    costs, n = glove_fit(rgb, seg, gloves_rgb, light_color)
+    others = [g for g in range(len(costs)) if g != glove_id]
+    if not others or n < tol.VERIFY_GLOVE_MIN_BLOCKS or not np.isfinite(costs).all():
+        return None, -1, n
+    best = min(others, key=lambda g: costs[g])
+    if costs[best] == 0:
+        return (math.inf if costs[glove_id] > 0 else 1.0), best, n
+    return float(costs[glove_id] / costs[best]), best, n
+
+
+# --- the checks ------------------------------------------------------------------------------
 
 
 def check_geometry(ann: dict, split: str) -> list[dict]:
@@ -43,11 +496,15 @@ def check_geometry(ann: dict, split: str) -> list[dict]:
     from datagen.hand import build_hand
     from datagen.probe import build_probe
 
+    rel = f"{split}/{ANNOTATIONS}"
     problems = []
+    if not len(ann["frame_id"]):
+        return problems
     uv = project_points(ann["keypoints_3d_cam"].astype(np.float64), ann["K"], behind="nan")
     err = np.abs(uv - ann["keypoints_2d"]).max(axis=(1, 2))
     for i in np.flatnonzero(~(err <= tol.VERIFY_REPROJECTION_PX)):
-        problems.append(_problem(split, ann["frame_id"][i], "reprojection", f"2D off the projection by {err[i]:.4f} px"))
+        problems.append(_problem(split, ann["frame_id"][i], "reprojection", f"2D off the projection by {err[i]:.4f} px",
+                                 rel))
     hand, probe = build_hand(), build_probe()
     world = np.concatenate([hand.keypoints(ann["hand_pose"], ann["hand_trans"], clamp=False),
                             np.broadcast_to(probe.corners_probe, (len(ann["frame_id"]), 8, 3))], axis=1)
@@ -55,7 +512,7 @@ def check_geometry(ann: dict, split: str) -> list[dict]:
     err3 = np.linalg.norm(cam - ann["keypoints_3d_cam"], axis=-1).max(axis=1)
     for i in np.flatnonzero(~(err3 <= tol.VERIFY_KEYPOINT_M)):
         problems.append(_problem(split, ann["frame_id"][i], "pose_mismatch",
-                                 f"3D keypoints {1000 * err3[i]:.2f} mm from the stored pose"))
+                                 f"3D keypoints {1000 * err3[i]:.2f} mm from the stored pose", rel))
     return problems
 
 
@@ -76,62 +533,39 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
     err = np.linalg.norm(point - expected, axis=1)
     return [_problem(split, ann["frame_id"][i], "look_at",
                      f"{look_at} at {np.round(1000 * point[i], 3).tolist()} mm, expected (0, 0, z_ego) "
-                     f"({1000 * err[i]:.4f} mm off)")
+                     f"({1000 * err[i]:.4f} mm off)", f"{split}/{ANNOTATIONS}")
             for i in np.flatnonzero(~(err <= tol.VERIFY_LOOK_AT_M))]
 
 
-def _read(path: Path, flags):
-    if not path.is_file():
-        return None, "missing_file"
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        return None, "undecodable_file"
-    return image, None
+#: what the per-frame checks share (set before the worker processes fork, so it is not pickled per frame)
+_CONTEXT: dict = {}
 
 
-def check_frame(args) -> list[dict]:
-    """Image checks of one frame (files, mask and depth against the keypoints and the probe)."""
-    root, split, manifest, row = args
-    problems = []
+def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split: str, files: str) -> list[dict]:
+    """The stored visibility flags against the stored depth and mask, and probe pixels against the probe."""
+    from datagen.dataset import visibility
+    from datagen.probe import build_probe
+
+    manifest = _CONTEXT["manifest"]
     frame_id = int(row["frame_id"])
-    images = {}
-    for m in manifest["modalities"]:
-        path = frame_path(Path(root), split, m, frame_id, manifest["rgb_format"])
-        flags = cv2.IMREAD_COLOR if m == "rgb" else cv2.IMREAD_UNCHANGED
-        image, kind = _read(path, flags)
-        w, h = manifest["image_size"]
-        if kind is None and image.shape[:2] != (h, w):
-            kind = "undecodable_file"
-        if kind is None and m == "depth" and image.dtype != np.uint16:
-            kind = "undecodable_file"
-        if kind:
-            problems.append(_problem(split, frame_id, kind, f"{m}: {path.name}"))
-        else:
-            images[m] = image
-    if "depth" not in images or "seg" not in images:
-        return problems
-    depth = images["depth"].astype(np.float64) * manifest["depth_scale_m"]
-    seg = images["seg"]
+    problems = []
     h, w = seg.shape
-    # the stored flags must follow the documented rule on the stored images
-    seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64), depth, seg,
+    seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64), depth_m, seg,
                       slack_m=manifest["depth_scale_m"])
     uv = np.round(row["keypoints_2d"]).astype(np.int64)
     for i in np.flatnonzero(row["visible"][: kp.NUM_HAND] & ~seen[: kp.NUM_HAND]):
         u, v = np.clip(uv[i], 0, [w - 1, h - 1])
         problems.append(_problem(split, frame_id, "visible_not_on_hand",
-                                 f"{kp.KEYPOINT_NAMES[i]}: label {int(seg[v, u])}, depth {depth[v, u]:.4f} m "
-                                 f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m"))
-    probe_mask = cv2.erode((seg == SEG_LABELS["probe"]).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    ys, xs = np.nonzero(probe_mask & (depth > 0))
+                                 f"{kp.KEYPOINT_NAMES[i]}: label {int(seg[v, u])}, depth {depth_m[v, u]:.4f} m "
+                                 f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m", files))
+    probe_mask = _shrink(seg == SEG_LABELS["probe"], 1)
+    ys, xs = np.nonzero(probe_mask & (depth_m > 0))
     if len(xs):
         pick = np.linspace(0, len(xs) - 1, min(len(xs), 200)).astype(int)
         K = np.asarray(row["K"])
-        z = depth[ys[pick], xs[pick]]
+        z = depth_m[ys[pick], xs[pick]]
         cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
         world = transform_points(invert_transform(row["T_cam_world"]), cam)
-        from datagen.probe import build_probe
-
         off = np.abs(build_probe().signed_distance(world))
         # a pixel's depth stands for its whole footprint (z / f metres wide): on slanted
         # surfaces that footprint, not the geometry, bounds the error
@@ -139,101 +573,263 @@ def check_frame(args) -> list[dict]:
         bad = np.mean(off > limit)
         if bad > PROBE_BAD_FRACTION:
             problems.append(_problem(split, frame_id, "probe_depth",
-                                     f"{100 * bad:.0f}% of probe pixels off the probe surface (max {1000 * off.max():.1f} mm)"))
+                                     f"{100 * bad:.0f}% of probe pixels off the probe surface "
+                                     f"(max {1000 * off.max():.1f} mm)", files))
     return problems
 
 
-def verify(root, workers: int = 2, log=print) -> dict:
-    """Verify a dataset folder.
+def check_frame(job) -> list[dict]:
+    """All image checks of one frame: its files, then depth against mask, the labels against the
+    keypoints and the probe, and the RGB image against the mask, background and glove.
+
+    Args:
+        job: (split, row) with row the frame's :data:`FRAME_KEYS` annotation values; the manifest,
+            the dataset root and the backgrounds come from the module's context (:func:`verify`).
+    """
+    split, row = job
+    root, manifest = _CONTEXT["root"], _CONTEXT["manifest"]
+    frame_id = int(row["frame_id"])
+    size = tuple(manifest["image_size"])
+    problems, images, names = [], {}, {}
+    for m in manifest["modalities"]:
+        rel = _relative(split, m, frame_id, manifest["rgb_format"])
+        names[m] = rel
+        image, why = read_image(root / rel, m)
+        if image is None:
+            problems.append(_problem(split, frame_id, "missing_file" if why == "missing" else "undecodable_file",
+                                     why, rel))
+            continue
+        wrong = image_format_problem(image, m, size)
+        if wrong:
+            problem = _problem(split, frame_id, "image_format", wrong, rel)
+            if image.shape[:2] != size[::-1]:
+                problem["_size"] = (m, image.shape[1], image.shape[0])
+            problems.append(problem)
+            continue
+        images[m] = image
+    if "depth" in images and "seg" in images:
+        seg, depth = images["seg"], images["depth"]
+        both = f"{names['depth']} + {names['seg']}"
+        off = mask_depth_mismatch_px(depth, seg)
+        if off > tol.VERIFY_MASK_DEPTH_PX:
+            problems.append(_problem(split, frame_id, "mask_depth",
+                                     f"depth and seg disagree on {off} pixels away from the silhouette's edge "
+                                     f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
+                                     both))
+        problems += _visibility_and_probe(row, depth.astype(np.float64) * manifest["depth_scale_m"], seg, split, both)
+    if "rgb" in images and "seg" in images:
+        rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
+        seg = images["seg"]
+        backgrounds = _CONTEXT.get("backgrounds")
+        if backgrounds is not None:
+            b = int(row["background_id"])
+            off = background_mismatch_px(rgb, seg, _reference(b, size))
+            if off > tol.VERIFY_BACKGROUND_PX:
+                problems.append(_problem(split, frame_id, "rgb_mismatch",
+                                         f"{off} pixels the mask calls background are not background "
+                                         f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
+                                         f"image or the mask belongs to another frame", names["rgb"]))
+        gloves = _CONTEXT.get("gloves")
+        if gloves is not None and len(gloves) > 1:
+            g = int(row["glove_id"])
+            ratio, best, n = glove_fit_ratio(rgb, seg, gloves, g, row["light_color"])
+            if ratio is not None and ratio > tol.VERIFY_GLOVE_FIT_RATIO:
+                problems.append(_problem(split, frame_id, "rgb_mismatch",
+                                         f"the hand's colour fits glove {best} better than the frame's glove {g} under "
+                                         f"its lamp (cost ratio {ratio:.2f} > {tol.VERIFY_GLOVE_FIT_RATIO} over {n} "
+                                         f"pixels): the RGB image belongs to another frame", names["rgb"]))
+    return problems
+
+
+def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
+    """The frame's background as the dataset stores it, cached per process."""
+    cache = _CONTEXT.setdefault("references", {})
+    if background_id not in cache:
+        image = _CONTEXT["backgrounds"].image(background_id, *size)
+        cache[background_id] = jpeg_reference(image, _CONTEXT["jpeg_quality"])
+    return cache[background_id]
+
+
+def _jpeg_quality(manifest: dict) -> int | None:
+    """The dataset's JPEG quality (None for PNG images); the generator's default when not recorded."""
+    from datagen.dataset import DatasetSpec
+
+    if manifest["rgb_format"] == "png":
+        return None
+    config = manifest.get("config")
+    dataset = config.get("dataset") if isinstance(config, dict) else None
+    quality = dataset.get("jpeg_quality") if isinstance(dataset, dict) else None
+    if isinstance(quality, int) and not isinstance(quality, bool) and 0 <= quality <= 100:
+        return quality
+    return DatasetSpec.jpeg_quality
+
+
+def _collapse_image_size(problems: list[dict], frames: int, size: tuple[int, int]) -> list[dict]:
+    """Every image of a modality with the same other size: one manifest_mismatch on image_size."""
+    sizes: dict[str, set] = {}
+    counts: dict[str, int] = {}
+    for p in problems:
+        if "_size" in p:
+            m, w, h = p["_size"]
+            sizes.setdefault(m, set()).add((w, h))
+            counts[m] = counts.get(m, 0) + 1
+    whole = {m for m in sizes if len(sizes[m]) == 1 and counts[m] == frames and frames > 0}
+    out = [p for p in problems if p.get("_size", (None,))[0] not in whole]
+    for m in sorted(whole):
+        (w, h), = sizes[m]
+        out.append(_problem(None, None, "manifest_mismatch", f"image_size is {size[0]} x {size[1]} but all {frames} "
+                                                             f"{m} images are {w} x {h}", MANIFEST))
+    for p in out:
+        p.pop("_size", None)
+    return out
+
+
+def check_workers(workers) -> int:
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}")
+    return workers
+
+
+def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> dict:
+    """Verify a dataset folder (module docstring: what is fatal, what is a problem).
+
+    Args:
+        root: the dataset folder.
+        workers: processes for the per-frame image checks (>= 1).
+        log: where the progress lines go.
+        progress: a progress bar with ETA on stderr; None: when stderr is a terminal.
 
     Returns:
-        dict with "frames" checked, "problems" (list of dicts with split, frame_id, kind, detail),
-        "by_kind" counts and "ok".
+        dict with "frames" (frames whose images were checked), "problems" (dicts with split,
+        frame_id, kind, file, detail), "by_kind" counts, "skipped" (checks that could not run, and
+        why) and "ok".
+
+    Raises:
+        FileNotFoundError, ValueError: nothing to verify against (module docstring).
     """
+    from tqdm import tqdm
+
+    check_workers(workers)
     root = Path(root)
-    manifest_path = root / "manifest.json"
-    if not manifest_path.is_file():
-        raise FileNotFoundError(f"{root} has no manifest.json: not a finished dataset")
-    manifest = json.loads(manifest_path.read_text())
-    problems, jobs, all_ids = [], [], []
+    manifest, problems = _read_manifest(root)
+    _check_manifest_extras(manifest, root)
+    skipped = []
+    backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
+    if "rgb" in manifest["modalities"] and "seg" in manifest["modalities"]:
+        backgrounds, why = _load_backgrounds(manifest)
+        if why:
+            skipped.append(f"RGB against background images: {why}")
+        gloves = manifest.get("gloves_rgb")
+        if gloves is None:
+            skipped.append("RGB against glove colours: the manifest records no gloves_rgb")
+        elif len(gloves) > 1 and quality is not None and quality < tol.VERIFY_GLOVE_MIN_JPEG_QUALITY:
+            skipped.append(f"RGB against glove colours: at JPEG quality {quality} (below "
+                           f"{tol.VERIFY_GLOVE_MIN_JPEG_QUALITY}) the colours no longer tell the gloves apart")
+            gloves = None
+    jobs, all_ids, complete = [], [], True
     for split in SPLITS:
-        expected = manifest["counts"].get(split, 0)
-        path = root / split / "annotations.npz"
-        if expected == 0:
+        if manifest["counts"].get(split, 0) == 0:
             continue
-        if not path.is_file():
-            problems.append(_problem(split, None, "missing_file", "annotations.npz"))
+        ann, found = _read_split(root, split, manifest)
+        problems += found
+        if ann is None:
+            complete = False
             continue
-        with np.load(path) as data:
-            ann = {k: data[k] for k in data.files}
-        if len(ann["frame_id"]) != expected:
-            problems.append(_problem(split, None, "count_mismatch",
-                                     f"{len(ann['frame_id'])} annotated frames, manifest says {expected}"))
         all_ids.append(ann["frame_id"])
+        found, usable = _check_rows(ann, split, manifest)
+        problems += found
+        ann = {k: v[usable] for k, v in ann.items()}
         problems += check_geometry(ann, split)
         # datasets made before the manifest recorded a protocol have no look-at to check
         if "protocol" in manifest:
             problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
-        for i in range(len(ann["frame_id"])):
-            jobs.append((str(root), split, manifest, {k: v[i] for k, v in ann.items()}))
-    ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)
-    total = int(np.prod(manifest["layout"]["shape"]))
-    if len(np.unique(ids)) != len(ids) or len(ids) != total:
-        problems.append(_problem(None, None, "frame_ids", f"{len(ids)} frame ids, {len(np.unique(ids))} unique, "
-                                                          f"layout holds {total}"))
+        jobs += [(split, {k: ann[k][i] for k in FRAME_KEYS}) for i in range(len(ann["frame_id"]))]
+    if complete:
+        ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)
+        total = math.prod(manifest["layout"]["shape"])
+        if len(np.unique(ids)) != len(ids) or len(ids) != total or (len(ids) and (ids.min() < 0 or ids.max() >= total)):
+            problems.append(_problem(None, None, "frame_ids", f"{len(ids)} frame ids, {len(np.unique(ids))} unique, "
+                                                              f"the layout holds ids 0 to {total - 1}"))
+    for note in skipped:
+        log(f"not checked: {note}")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")
-    if workers > 1 and len(jobs) > 64:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            for result in pool.imap(check_frame, jobs, chunksize=64):
-                problems += result
-    else:
-        for job in jobs:
-            problems += check_frame(job)
+    _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality,
+                    gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
+    bar = tqdm(total=len(jobs), unit="frame", desc="verify", disable=not (sys.stderr.isatty() if progress is None
+                                                                          else progress),
+               dynamic_ncols=True, smoothing=0.1)
+    frame_problems = []
+    try:
+        if workers > 1 and len(jobs) > POOL_MIN_FRAMES:
+            with multiprocessing.get_context("fork").Pool(workers) as pool:
+                for result in pool.imap(check_frame, jobs, chunksize=64):
+                    frame_problems += result
+                    bar.update()
+        else:
+            for job in jobs:
+                frame_problems += check_frame(job)
+                bar.update()
+    finally:
+        bar.close()
+        _CONTEXT.clear()
+    problems += _collapse_image_size(frame_problems, len(jobs), tuple(manifest["image_size"]))
     by_kind = {kind: sum(p["kind"] == kind for p in problems) for kind in KINDS}
-    return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "ok": not problems}
+    return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "skipped": skipped, "ok": not problems}
 
 
-def sample_sheet(root, split: str = "train", view: int = 40, tile_px: int = 128) -> np.ndarray:
+def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: int = 128) -> np.ndarray:
     """One frame per (background, glove) of a dataset: RGB, depth, mask and keypoints side by side.
 
-    Takes the split's first grasp at the first distance and the given view index (by default view
-    40 of the paper protocol's sphere: the grip and the probe's green orientation marker both show).
+    Takes the split's first grasp at the first distance and the given view index (default: view
+    40 of the paper protocol's sphere, where the grip and the probe's green orientation marker both
+    show, or the middle view of a sphere with fewer views).
 
     Returns:
         (H, W, 3) uint8 RGB: one row per background, both gloves in a row.
+
+    Raises:
+        ValueError: the dataset lacks a modality, the split or a readable image (the message names it).
     """
     from datagen.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled
 
     root = Path(root)
-    manifest = json.loads((root / "manifest.json").read_text())
+    manifest = read_manifest(root, split=split)
     missing = {"rgb", "depth", "seg"} - set(manifest["modalities"])
     if missing:
         raise ValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
-    with np.load(root / split / "annotations.npz") as data:
-        ann = {k: data[k] for k in ("frame_id", "keypoints_2d", "visible", "background_id", "glove_id",
-                                    "grasp_index", "z_ego")}
+    ann = read_annotations(root, split, keys=("frame_id", "keypoints_2d", "visible", "background_id", "glove_id",
+                                              "grasp_index", "z_ego"), manifest=manifest)
     n_view = manifest["layout"]["shape"][4]
+    if view is None:
+        view = 40 if n_view > 40 else n_view // 2
     if not 0 <= view < n_view:
         raise ValueError(f"view must be in [0, {n_view}), got {view}")
     first = (ann["grasp_index"] == ann["grasp_index"].min()) & (ann["z_ego"] == ann["z_ego"].min())
-    names = manifest["backgrounds"]["names"]
+    names = (manifest.get("backgrounds") or {}).get("names") or []
     tiles = []
     scale = tile_px / manifest["image_size"][0]
     for b in sorted(set(ann["background_id"].tolist())):
         for glove in sorted(set(ann["glove_id"].tolist())):
             rows = np.flatnonzero(first & (ann["background_id"] == b) & (ann["glove_id"] == glove))
+            if not len(rows):
+                continue
             i = rows[min(view, len(rows) - 1)]
             fid = int(ann["frame_id"][i])
-            rgb = cv2.imread(str(frame_path(root, split, "rgb", fid, manifest["rgb_format"])))[..., ::-1]
-            depth = cv2.imread(str(frame_path(root, split, "depth", fid)), cv2.IMREAD_UNCHANGED)
-            seg = cv2.imread(str(frame_path(root, split, "seg", fid)), cv2.IMREAD_UNCHANGED)
+            images = {}
+            for m in ("rgb", "depth", "seg"):
+                path = frame_path(root, split, m, fid, manifest["rgb_format"])
+                images[m], why = read_image(path, m)
+                if images[m] is None:
+                    raise ValueError(f"{path}: {why}")
+            rgb = images["rgb"][..., ::-1]
             size = (tile_px, tile_px)
             panels = [cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA),
-                      cv2.resize(colorize_depth(depth * manifest["depth_scale_m"]), size, interpolation=cv2.INTER_NEAREST),
-                      cv2.resize(colorize_labels(seg), size, interpolation=cv2.INTER_NEAREST)]
+                      cv2.resize(colorize_depth(images["depth"] * manifest["depth_scale_m"]), size,
+                                 interpolation=cv2.INTER_NEAREST),
+                      cv2.resize(colorize_labels(images["seg"]), size, interpolation=cv2.INTER_NEAREST)]
             kps = draw_keypoints(panels[0], ann["keypoints_2d"][i] * scale + 0.5 * (scale - 1), ann["visible"][i],
                                  radius=1.5)
-            label = f"{names[b]} / glove {glove}"
+            label = f"{names[b] if b < len(names) else b} / glove {glove}"
             tiles += [titled(panels[0], label[:22]), titled(panels[1], "depth"), titled(panels[2], "mask"),
                       titled(kps, f"frame {fid}")]
     return grid(tiles, columns=8)

@@ -72,29 +72,51 @@ def _generate(overrides: list[str]) -> int:
     return 0
 
 
+def _count(minimum: int):
+    """An argparse type: a whole number >= ``minimum`` (the message names what came)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}")
+        return value
+    return parse
+
+
 def _verify(args: list[str]) -> int:
     from hupbench.generate import run_verify
 
-    parser = argparse.ArgumentParser(prog="hupbench verify")
+    parser = argparse.ArgumentParser(prog="hupbench verify", description="Re-check a dataset: files, counts, "
+                                     "projections, depth, masks, and each RGB image against its own labels.")
     parser.add_argument("dataset")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--max-report", type=int, default=50, help="problems printed in full")
+    parser.add_argument("--workers", type=_count(1), default=2, help="processes for the per-frame checks")
+    parser.add_argument("--max-report", type=_count(0), default=50, help="problems printed in full")
     parser.add_argument("--sample-sheet", metavar="PNG", help="also write one frame per background and glove")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="progress bar with ETA on stderr (default: when stderr is a terminal)")
     ns = parser.parse_args(args)
-    result = run_verify(ns.dataset, workers=ns.workers)
+    result = run_verify(ns.dataset, workers=ns.workers, progress=ns.progress)
+    for p in result["problems"][: ns.max_report]:
+        where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
+        frame = "" if p["frame_id"] is None else f" (frame {p['frame_id']})"
+        print(f"  {p['kind']:18s} {where}{frame}: {p['detail']}")
+    hidden = len(result["problems"]) - ns.max_report
+    if hidden > 0:
+        print(f"  ... and {hidden} more (--max-report {len(result['problems'])} prints all)")
+    if not result["ok"]:
+        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
+        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
+    else:
+        print(f"hupbench verify: OK, {result['frames']} frames checked")
     if ns.sample_sheet:
+        # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
         from datagen.draw import write_png
         from datagen.verify import sample_sheet
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
-    for p in result["problems"][: ns.max_report]:
-        print(f"  {p['kind']:20s} split={p['split']} frame={p['frame_id']}: {p['detail']}")
-    if not result["ok"]:
-        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
-        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
-        return 1
-    print(f"hupbench verify: OK, {result['frames']} frames checked")
-    return 0
+    return 0 if result["ok"] else 1
 
 
 def _leaderboard(args: list[str]) -> int:

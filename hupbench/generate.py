@@ -58,8 +58,16 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
                         log=log, launcher=cfg.launcher, ray=ray_options, lock=lock)
 
 
-def run_verify(dataset: str | Path, workers: int = 2, log=print) -> dict:
-    """Verify a dataset folder (see :mod:`datagen.verify`)."""
+def run_verify(dataset: str | Path, workers: int = 2, log=print, progress: bool | None = None) -> dict:
+    """Verify a dataset folder (see :mod:`datagen.verify`: what stops it, what it reports).
+
+    Args:
+        dataset: the dataset folder. workers: processes for the per-frame checks (>= 1).
+        log: progress lines. progress: a progress bar with ETA (None: when stderr is a terminal).
+
+    Returns:
+        :func:`datagen.verify.verify`'s dict.
+    """
     from datagen.verify import verify
 
-    return verify(dataset, workers=workers, log=log)
+    return verify(dataset, workers=workers, log=log, progress=progress)

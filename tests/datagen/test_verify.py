@@ -1,0 +1,313 @@
+"""datagen.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
+verify's own options (workers, progress, the pool path, checks that cannot run)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import TINY_SPEC, write_grasps
+from datagen import tolerances as tol
+from datagen import verify as V
+from datagen.contract import read_annotations, read_manifest
+from datagen.verify import (background_mismatch_px, glove_fit_ratio, image_format_problem, mask_depth_mismatch_px,
+                            read_image, verify)
+
+GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.scene.GLOVE_RGB
+
+
+def quiet(*_):
+    pass
+
+
+# --- files -----------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def images(tmp_path):
+    rng = np.random.default_rng(1)
+    rgb = rng.integers(0, 256, (32, 40, 3), dtype=np.uint8)
+    depth = rng.integers(0, 65535, (32, 40), dtype=np.uint16)
+    paths = {"rgb": tmp_path / "a.jpg", "depth": tmp_path / "a.png"}
+    assert cv2.imwrite(str(paths["rgb"]), rgb) and cv2.imwrite(str(paths["depth"]), depth)
+    return paths, depth
+
+
+def test_read_image_reads_whole_files(images):
+    paths, depth = images
+    image, why = read_image(paths["depth"], "depth")
+    assert why is None and image.dtype == np.uint16
+    np.testing.assert_array_equal(image, depth)
+    image, why = read_image(paths["rgb"], "rgb")
+    assert why is None and image.shape == (32, 40, 3) and image.dtype == np.uint8
+
+
+@pytest.mark.parametrize("damage, why", [
+    (lambda b: b"", "empty (0 bytes)"),
+    (lambda b: b[: len(b) - 40], "truncated"),
+    (lambda b: b"GIF89a" + b[6:], "not a"),
+])
+@pytest.mark.parametrize("modality", ["rgb", "depth"])
+def test_read_image_refuses_damaged_files_without_decoder_noise(images, capfd, damage, why, modality):
+    paths, _ = images
+    path = paths[modality]
+    path.write_bytes(damage(path.read_bytes()))
+    capfd.readouterr()
+    image, answer = read_image(path, modality)
+    assert image is None and why in answer
+    # libjpeg warns "Premature end of JPEG file" on stderr when it decodes a truncated JPEG: it must not run
+    assert capfd.readouterr().err == ""
+
+
+def test_read_image_missing(tmp_path):
+    assert read_image(tmp_path / "no.png", "seg") == (None, "missing")
+
+
+def test_image_format_problem():
+    size = (40, 32)
+    assert image_format_problem(np.zeros((32, 40), np.uint16), "depth", size) is None
+    assert image_format_problem(np.zeros((32, 40, 3), np.uint8), "rgb", size) is None
+    assert image_format_problem(np.zeros((40, 32), np.uint16), "depth", size) == \
+        "32 x 40 pixels, the manifest's image_size is 40 x 32"
+    assert "expected single-channel uint16" in image_format_problem(np.zeros((32, 40), np.uint8), "depth", size)
+    assert "expected single-channel uint8" in image_format_problem(np.zeros((32, 40), np.uint16), "seg", size)
+    seg = np.zeros((32, 40), np.uint8)
+    seg[3, 4], seg[5, 6] = 3, 200
+    assert image_format_problem(seg, "seg", size).startswith("labels [200] outside")
+
+
+# --- statistics on known inputs ----------------------------------------------------------------
+
+
+def test_mask_depth_mismatch_counts_only_off_the_edge():
+    seg = np.zeros((48, 48), np.uint8)
+    seg[10:30, 10:30] = 1
+    depth = np.where(seg > 0, 5000, 0).astype(np.uint16)
+    assert mask_depth_mismatch_px(depth, seg) == 0
+    # a 1-pixel disagreement all along the edge is how two rasterisations differ: not counted
+    grown = cv2.dilate(seg, np.ones((3, 3), np.uint8))
+    assert mask_depth_mismatch_px(np.where(grown > 0, 5000, 0).astype(np.uint16), seg) == 0
+    # depth shifted down 5 rows: rows 31-34 have depth outside the grown mask (4 x 20), rows 11-14 of
+    # the shrunk mask (cols 11-28) have none (4 x 18)
+    shifted = np.zeros_like(depth)
+    shifted[15:35, 10:30] = 5000
+    assert mask_depth_mismatch_px(shifted, seg) == 4 * 20 + 4 * 18
+
+
+def _off_by(image, y, x, channel, levels):
+    value = int(image[y, x, channel])
+    image[y, x, channel] = value + levels if value < 128 else value - levels
+
+
+def test_background_mismatch_counts_changed_background_pixels():
+    rng = np.random.default_rng(2)
+    background = rng.integers(0, 256, (80, 80, 3), dtype=np.uint8)
+    seg = np.zeros((80, 80), np.uint8)
+    seg[10:20, 10:20] = 2  # JPEG blocks (16 px) 0-1 hold it; with their neighbours, rows and columns 0-47 are near
+    rgb = background.copy()
+    rgb[10:20, 10:20] = 0  # the object: not counted
+    assert background_mismatch_px(rgb, seg, background) == 0
+    near, far = tol.VERIFY_BACKGROUND_LEVELS, tol.VERIFY_BACKGROUND_FAR_LEVELS
+    _off_by(rgb, 30, 30, 0, near + 1)  # near the object: counted
+    _off_by(rgb, 33, 5, 2, near)  # near, within the JPEG tolerance of an edge block: not counted
+    rgb[20, 15] = 255 - background[20, 15]  # in the 1-pixel band next to the object: not counted
+    _off_by(rgb, 70, 70, 1, far + 1)  # in a block of background only: counted
+    _off_by(rgb, 60, 75, 1, far)  # not counted
+    assert background_mismatch_px(rgb, seg, background) == 2
+
+
+def test_jpeg_reference_is_the_background_as_stored():
+    from datagen.backgrounds import builtin_background
+
+    background = builtin_background(2, 64, 64)
+    np.testing.assert_array_equal(V.jpeg_reference(background, None), background)
+    ok, buf = cv2.imencode(".jpg", background[..., ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    np.testing.assert_array_equal(V.jpeg_reference(background, 80), cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    assert np.abs(V.jpeg_reference(background, 80).astype(int) - background).max() > 0
+
+
+def _shade(albedo, light, k_diffuse, k_specular):
+    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.verify)."""
+    linear = V.RENDER_AMBIENT * albedo + k_diffuse[:, None] * (albedo * light) + k_specular[:, None] * light
+    return np.round(255 * np.clip(linear, 0, 1) ** (1 / V.RENDER_GAMMA)).astype(np.uint8)
+
+
+@pytest.mark.parametrize("light", [(1.0, 1.0, 1.0), (0.6, 0.6, 1.0), (1.0, 1.0, 0.6)])
+def test_glove_fit_tells_the_gloves_apart_on_the_shading_model(light):
+    """Pixels shaded by the renderer's model fit their own glove and not the other, whatever the lamp's colour."""
+    light = np.array(light)
+    rng = np.random.default_rng(3)
+    n = 24 * 24
+    seg = np.zeros((32, 32), np.uint8)
+    seg[4:28, 4:28] = 1  # shrunk by 2 pixels inside glove_fit: 20 x 20 pixels used
+    for g in (0, 1):
+        rgb = np.zeros((32, 32, 3), np.uint8)
+        rgb[4:28, 4:28] = _shade(GLOVES[g], light, rng.uniform(0, 0.5, n), rng.uniform(0, 0.05, n)).reshape(24, 24, 3)
+        assert rgb.max() < tol.VERIFY_GLOVE_CLIPPED_LEVEL
+        ratio, best, used = glove_fit_ratio(rgb, seg, GLOVES, g, light)
+        assert used == 100 and best == 1 - g  # 2 x 2 blocks
+        assert ratio < 0.05, ratio
+        wrong, best, _ = glove_fit_ratio(rgb, seg, GLOVES, 1 - g, light)
+        assert best == g and wrong > 20, wrong
+
+
+def test_glove_fit_needs_another_glove_and_enough_pixels():
+    seg = np.zeros((32, 32), np.uint8)
+    seg[4:28, 4:28] = 1
+    rgb = np.full((32, 32, 3), 120, np.uint8)
+    assert glove_fit_ratio(rgb, seg, GLOVES[:1], 0, np.ones(3))[0] is None  # one glove: nothing to compare with
+    seg[:] = 0
+    seg[10:17, 10:17] = 1  # 3 x 3 pixels after shrinking: one whole 2 x 2 block
+    ratio, _, used = glove_fit_ratio(rgb, seg, GLOVES, 0, np.ones(3))
+    assert ratio is None and used == 1
+
+
+# --- rendered frames with two gloves ---------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_gloves(tmp_path_factory):
+    """20 frames at 128 px: one grasp, one background, both gloves, 10 views (frame = glove * 10 + view)."""
+    from datagen.dataset import DatasetSpec, generate
+
+    folder = tmp_path_factory.mktemp("two_gloves")
+    grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
+    spec = DatasetSpec(**(TINY_SPEC | dict(splits={"train": 1, "val": 0, "test": 0}, n_gloves=2, n_backgrounds=1,
+                                           width=128, height=128, fx=240.0, fy=240.0, cx=64.0, cy=64.0)))
+    generate(spec, root, grasps, {"test": "two_gloves"}, progress=False, log=quiet)
+    return root
+
+
+def _copy(root, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(root, out)
+    return out
+
+
+def _swap(root, a, b, modality="rgb", ext="jpg"):
+    pa, pb = (root / "train" / modality / f"{f:06d}.{ext}" for f in (a, b))
+    data = pa.read_bytes()
+    pa.write_bytes(pb.read_bytes())
+    pb.write_bytes(data)
+
+
+def _glove_ratios(root):
+    """{frame id: glove fit ratio of its own files} (None: too few usable hand pixels)."""
+    manifest = read_manifest(root)
+    ann = read_annotations(root, "train", manifest=manifest)
+    out = {}
+    for i, fid in enumerate(ann["frame_id"]):
+        rgb, _ = read_image(root / "train" / "rgb" / f"{fid:06d}.jpg", "rgb")
+        seg, _ = read_image(root / "train" / "seg" / f"{fid:06d}.png", "seg")
+        out[int(fid)] = glove_fit_ratio(rgb[..., ::-1], seg, manifest["gloves_rgb"], int(ann["glove_id"][i]),
+                                        ann["light_color"][i])[0]
+    return out
+
+
+def test_correct_two_glove_frames_pass(two_gloves):
+    result = verify(two_gloves, workers=1, log=quiet)
+    assert result["ok"], result["problems"]
+    assert result["frames"] == 20 and result["skipped"] == []
+    ratios = _glove_ratios(two_gloves)
+    checked = [r for r in ratios.values() if r is not None]
+    assert len(checked) >= 16 and max(checked) < tol.VERIFY_GLOVE_FIT_RATIO
+
+
+def test_rgb_swapped_between_gloves_of_the_same_view_is_found(two_gloves, tmp_path):
+    """The two frames share geometry, mask, depth and background: only the glove colour tells them apart."""
+    ratios = _glove_ratios(two_gloves)
+    views = [v for v in range(10) if ratios[v] is not None and ratios[10 + v] is not None][:3]
+    assert len(views) == 3
+    broken = _copy(two_gloves, tmp_path)
+    for v in views:
+        _swap(broken, v, 10 + v)
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    found = {(p["kind"], p["frame_id"]) for p in problems}
+    assert found == {("rgb_mismatch", f) for v in views for f in (v, 10 + v)}, problems
+    assert all("fits glove" in p["detail"] and p["file"].startswith("train/rgb/") for p in problems)
+
+
+@pytest.mark.parametrize("a, b", [(2, 15), (4, 6)], ids=["other-glove-other-view", "same-glove-other-view"])
+def test_rgb_swapped_between_views_is_found(two_gloves, tmp_path, a, b):
+    broken = _copy(two_gloves, tmp_path)
+    _swap(broken, a, b)
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert {p["frame_id"] for p in problems} == {a, b} and {p["kind"] for p in problems} == {"rgb_mismatch"}
+
+
+# --- verify's options and what it cannot check ---------------------------------------------------
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, "2", True])
+def test_verify_refuses_bad_worker_counts(tiny_dataset, workers):
+    with pytest.raises(ValueError, match=r"workers must be a whole number >= 1, got"):
+        verify(tiny_dataset, workers=workers, log=quiet)
+
+
+def test_worker_processes_find_what_one_process_finds(tiny_dataset, tmp_path, monkeypatch):
+    broken = _copy(tiny_dataset, tmp_path)
+    _swap(broken, 2, 7)
+    (broken / "test" / "seg" / "000045.png").write_bytes(b"")
+    one = verify(broken, workers=1, log=quiet)
+    monkeypatch.setattr(V, "POOL_MIN_FRAMES", 0)  # the pool serves datasets of more than 64 frames
+    two = verify(broken, workers=2, log=quiet)
+    assert two["problems"] == one["problems"] and two["frames"] == one["frames"] == 60
+    assert {(p["kind"], p["frame_id"]) for p in one["problems"]} == \
+        {("rgb_mismatch", 2), ("rgb_mismatch", 7), ("undecodable_file", 45)}
+
+
+def test_progress_bar_only_when_asked_or_on_a_terminal(tiny_dataset, capsys):
+    verify(tiny_dataset, workers=1, log=quiet)  # stderr is not a terminal under pytest
+    assert capsys.readouterr().err == ""
+    verify(tiny_dataset, workers=1, log=quiet, progress=True)
+    bar = capsys.readouterr().err
+    assert "verify: 100%" in bar and "60/60" in bar and "frame/s" in bar
+
+
+def test_checks_that_cannot_run_are_named(tiny_dataset, tmp_path):
+    """Photographs that are not here, or a manifest without glove colours: those checks are skipped, said so."""
+    broken = _copy(tiny_dataset, tmp_path)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["backgrounds"]["fingerprint"] = "0" * 64
+    manifest["config"]["backgrounds"] = {"dir": str(tmp_path / "photos_gone")}
+    del manifest["gloves_rgb"]
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    lines = []
+    result = verify(broken, workers=1, log=lines.append)
+    assert result["ok"] and result["frames"] == 60
+    assert result["skipped"] == [
+        "RGB against background images: the backgrounds it was rendered with are not here (fingerprint differs "
+        f"from backgrounds.dir {tmp_path / 'photos_gone'} or the built-in backgrounds)",
+        "RGB against glove colours: the manifest records no gloves_rgb"]
+    assert [line for line in lines if line.startswith("not checked:")] == [f"not checked: {s}" for s in result["skipped"]]
+
+
+def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
+    from datagen.verify import sample_sheet
+
+    sheet = sample_sheet(tiny_dataset, view=3, tile_px=32)
+    assert sheet.dtype == np.uint8 and sheet.ndim == 3
+    broken = _copy(tiny_dataset, tmp_path)
+    (broken / "train" / "annotations.npz").write_bytes(b"")
+    with pytest.raises(ValueError, match="annotations.npz"):
+        sample_sheet(broken)
+
+
+@pytest.mark.parametrize("modalities", [["rgb"], ["depth"], ["seg"], ["rgb", "depth"]])
+def test_datasets_with_some_modalities(tiny_dataset, tmp_path, modalities):
+    """Only the files a dataset has are checked, and only the comparisons its files allow."""
+    broken = _copy(tiny_dataset, tmp_path)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    manifest["modalities"] = modalities
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    for modality in {"rgb", "depth", "seg"} - set(modalities):
+        shutil.rmtree(broken / "train" / modality)
+    result = verify(broken, workers=1, log=quiet)
+    assert result["ok"] and result["frames"] == 60, result["problems"]
+    (broken / "train" / modalities[0] / ("000004.jpg" if modalities[0] == "rgb" else "000004.png")).write_bytes(b"")
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert [(p["kind"], p["frame_id"]) for p in problems] == [("undecodable_file", 4)]
