@@ -39,7 +39,7 @@ pytestmark = pytest.mark.matrix
 
 
 def run_in_namespace(argv: list[str], *, read_only: tuple[Path, ...] = (), tmpfs: tuple[Path, int] | None = None,
-                     setup: str = "", listing: Path | None = None, timeout: int = 300) -> CliAnswer:
+                     setup: str = "", listing: Path | None = None, after: str = "", timeout: int = 300) -> CliAnswer:
     """Run ``python3 -m hupbench.cli ARGV`` in a private mount namespace (needs root; skips otherwise).
 
     Args:
@@ -49,6 +49,7 @@ def run_in_namespace(argv: list[str], *, read_only: tuple[Path, ...] = (), tmpfs
         setup: shell commands run after mounting, before hupbench (e.g. copy an old file in).
         listing: a file outside the mounts that receives ``find``'s list of the tmpfs folder
             (relative path and size per line) after the run, since the tmpfs dies with the namespace.
+        after: shell commands run after hupbench, still in the namespace (the exit code stays hupbench's).
     """
     q = shlex.quote
     lines = []
@@ -62,6 +63,7 @@ def run_in_namespace(argv: list[str], *, read_only: tuple[Path, ...] = (), tmpfs
     lines.append("rc=$?")
     if listing is not None and tmpfs is not None:
         lines.append(f"find {q(str(tmpfs[0]))} -mindepth 1 -printf '%P %s\\n' > {q(str(listing))}")
+    lines.append(after)
     lines.append("exit $rc")
     try:
         proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", "\n".join(lines)],
