@@ -131,6 +131,17 @@ def _leaderboard(args: list[str]) -> int:
     return 0
 
 
+def _whole_number_at_least_1(text: str) -> int:
+    """argparse type: an integer >= 1 (argparse names the option in its error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
 def _predict(args: list[str]) -> int:
     # only hupbench.predict: the inference path must run without torch
     from hupbench.predict import DEFAULT_BATCH_SIZE, run_predict
@@ -143,9 +154,11 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--K", metavar="fx,fy,cx,cy", help="intrinsics of the original images, pixels "
                         "(default: the training camera scaled to each image)")
     parser.add_argument("--no-overlay", action="store_true", help="write the JSON only")
-    parser.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE, help="images per onnxruntime call")
+    parser.add_argument("--batch-size", type=_whole_number_at_least_1, default=DEFAULT_BATCH_SIZE,
+                        help="images per onnxruntime call")
     ns = parser.parse_args(args)
-    result = run_predict(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay, batch_size=ns.batch_size)
+    result = run_predict(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay, batch_size=ns.batch_size,
+                         progress=True)
     print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed; "
           f"{result['json']}" + (f" and {len(result['overlays'])} overlay PNG(s)" if result["overlays"] else ""))
     return 1 if result["failed"] else 0

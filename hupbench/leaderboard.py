@@ -7,6 +7,19 @@ and regenerates ``README.md`` (the table, notes and per-row details),
 frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
 training wall time, from the training logs under ``logs/``).
 
+Every broken input is an error naming the file (and line or field), and nothing is rewritten: a
+bad results file is not skipped, because a row that silently drops out of the committed table is a
+wrong leaderboard nobody notices. Refused: a missing ``--dir`` or one that is a file or has no
+``results/``; a results file that is empty, not JSON, breaks the schema (missing or unknown fields,
+non-finite or negative errors, latencies and times, an AUC outside [0, 1]), is not named after its
+run, or whose run name differs from another only in letter case (the two files collide on
+case-insensitive file systems); a training log that is missing, not UTF-8, has a line that is not
+JSON (a truncated copy), a validation line without finite numbers, or a step logged twice (two
+trainings appending to one log); a folder the new files cannot be written to. Files in
+``results/`` that are not ``*.json`` are not results and are ignored. The three outputs are written
+under temporary names and renamed into place only once all three are written, so a full disk or a
+kill leaves the old set or the new one; temporary files of killed runs are removed.
+
 Rebuilding from the same files gives the same bytes: rows are sorted, every
 number is formatted explicitly, nothing depends on the clock, and the plots
 are drawn with matplotlib's default style at a fixed size and dpi with a
@@ -19,13 +32,15 @@ seconds inside and minutes or hours on the plot axes.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from datagen.io import write_bytes
+from datagen.io import atomic_output, clean_stale_tmp
 from hupbench.results import load_results
 
 README = "README.md"
@@ -62,6 +77,12 @@ def load_rows(results_dir: str | Path) -> list[dict]:
     paths = sorted(results_dir.glob("*.json"))
     if not paths:
         raise ValueError(f"no results files (*.json) in {results_dir}")
+    by_folded_name: dict[str, Path] = {}
+    for path in paths:
+        twin = by_folded_name.setdefault(path.stem.casefold(), path)
+        if twin != path:
+            raise ValueError(f"{twin} and {path}: run names must differ in more than letter case (the two files "
+                             "collide on case-insensitive file systems such as macOS's and Windows')")
     rows = []
     for path in paths:
         row = load_results(path)
@@ -120,8 +141,10 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
     """Validation MPJPE against training time from a training log (JSON lines).
 
-    Only lines with ``"event": "val"`` are read; their ``train_wall_s`` (training only, validation
-    passes excluded) and ``val_mpjpe_mm["all"]`` must be finite non-negative numbers.
+    Only lines with ``"event": "val"`` are plotted; their ``train_wall_s`` (training only, validation
+    passes excluded) and ``val_mpjpe_mm["all"]`` must be finite non-negative numbers. Every line is
+    checked: a step logged twice for one event (two trainings appending to one log; a resumed run
+    drops the lines after its checkpoint before it logs again) is an error.
 
     Args:
         path: the log, one JSON object per line (``metrics.jsonl`` of a training run).
@@ -131,22 +154,34 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
 
     Raises:
         FileNotFoundError: the log does not exist.
-        ValueError: a line is not a JSON object, a validation line lacks a field, or there is no
-            validation line; the message names the file and line.
+        ValueError: the log is not UTF-8, a line is not a JSON object, a validation line lacks a
+            field, a step appears twice, or there is no validation line; the message names the file
+            and line.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"training log not found: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file (byte {exc.start}): not a training log") from None
     curve = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    seen: dict[tuple, int] = {}  # (event, step) -> line
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:
             record = json.loads(line)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}:{lineno}: not a JSON line: {exc}") from exc
+            raise ValueError(f"{path}:{lineno}: not a JSON line (a truncated or damaged copy?): {exc}") from None
         if not isinstance(record, dict):
             raise ValueError(f"{path}:{lineno}: expected a JSON object, got {type(record).__name__}")
+        step = record.get("step")
+        if isinstance(step, int) and not isinstance(step, bool):
+            first = seen.setdefault((record.get("event"), step), lineno)
+            if first != lineno:
+                raise ValueError(f"{path}:{lineno}: {record.get('event')!r} step {step} is logged twice (lines {first} "
+                                 f"and {lineno}): two trainings wrote to this log; keep one run's lines")
         if record.get("event") != "val":
             continue
         seconds = record.get("train_wall_s")
@@ -547,8 +582,11 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
             log_path = Path(leaderboard_dir) / row["training"]["log"]
             try:
                 curves.append((row, read_validation_curve(log_path)))
-            except (ValueError, FileNotFoundError) as exc:
-                raise type(exc)(f"results/{row['run_name']}.json: training log: {exc}") from exc
+            except FileNotFoundError as exc:
+                raise FileNotFoundError(f"results/{row['run_name']}.json: training log: {exc}") from exc
+            except ValueError as exc:
+                # not type(exc)(...): a UnicodeDecodeError is a ValueError that takes five arguments
+                raise ValueError(f"results/{row['run_name']}.json: training log: {exc}") from exc
     longest_s = max((s for _, curve in curves for s, _ in curve), default=0.0)
     hours = longest_s > 2 * 3600
     scale, unit = (3600.0, "h") if hours else (60.0, "min")
@@ -589,6 +627,34 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
 
 # ----------------------------------------------------------------------------- verb
 
+def _check_writable(root: Path) -> None:
+    if os.access(root, os.W_OK | os.X_OK):
+        return
+    try:
+        read_only = bool(os.statvfs(root).f_flag & os.ST_RDONLY)
+    except OSError:
+        read_only = False
+    raise PermissionError(f"cannot write into leaderboard folder {root}: "
+                          + ("it is on a read-only file system" if read_only else "no write permission"))
+
+
+def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
+    """Write every file under its temporary name, then rename them all: a failure (a full disk) or a
+    kill before the renames leaves the old set whole; the renames themselves need no space."""
+    try:
+        with contextlib.ExitStack() as stack:
+            for name, data in files.items():
+                stack.enter_context(atomic_output(root / name)).write_bytes(data)
+    except OSError as exc:
+        # every enclosing atomic_output explains the error again with its own file's name: the innermost
+        # explanation names the file whose write failed
+        failed = exc
+        while isinstance(failed.__cause__, type(exc)):
+            failed = failed.__cause__
+        raise failed from None
+    return [root / name for name in files]
+
+
 def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
     """Rebuild README.md and both plots in ``dir`` from ``dir/results/*.json``.
 
@@ -600,15 +666,24 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
 
     Raises:
         FileNotFoundError, ValueError: a missing folder or log, or a bad results file, named.
+        PermissionError: the folder cannot be written.
+        OSError: a full disk (``no space left on MOUNT writing FILE``); the old files stay.
     """
     root = Path(dir)
+    if not root.exists():
+        raise FileNotFoundError(f"leaderboard folder (--dir) {root} does not exist")
+    if not root.is_dir():
+        raise ValueError(f"leaderboard folder (--dir) {root} is not a folder")
+    if not (root / "results").is_dir():
+        raise FileNotFoundError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
+                                "leaderboard folder?")
+    _check_writable(root)
+    clean_stale_tmp(root, recursive=False)
     rows = load_rows(root / "results")
     # render everything before writing anything, so a bad log leaves the old files in place
-    readme = render_readme(rows).encode("utf-8")
-    latency_png = plot_latency(rows)
-    training_png = plot_training(rows, root)
-    paths = [write_bytes(root / README, readme), write_bytes(root / LATENCY_PLOT, latency_png),
-             write_bytes(root / TRAINING_PLOT, training_png)]
+    files = {README: render_readme(rows).encode("utf-8"), LATENCY_PLOT: plot_latency(rows),
+             TRAINING_PLOT: plot_training(rows, root)}
+    paths = _write_together(root, files)
     measured = sum(row["kind"] == "measured" for row in rows)
     return {"rows": len(rows), "measured": measured, "reported": len(rows) - measured, "readme": paths[0],
             "plots": paths[1:]}

@@ -9,10 +9,16 @@ coordinates of the input image and ``points3d`` (B, N, 3) metres in the OpenCV c
 model-input camera ``K_input``; metadata ``hupbench.*`` (input size, K_input, keypoint names,
 skeleton edges, run name). A file without that metadata is refused.
 
-Images: PNG or JPEG of any size, recognised by content (not by name). 8- and 16-bit samples are
-scaled to [0, 1]; a grey image becomes three equal channels; an alpha channel is composited over
-the padding grey (so transparent areas look like the padding to the network); JPEG EXIF orientation
-is applied (OpenCV's ``IMREAD_COLOR``).
+Images: PNG or JPEG, recognised by content (not by name), from MIN_IMAGE_SIDE (16) px on the
+shorter side to MAX_IMAGE_SIDE (8192) px on the longer side. Smaller images hold too few pixels for 29
+keypoints; larger ones are refused from their header, before decoding, because the padded square
+would need gigabytes (a 20000 x 20000 PNG decodes into 1.2 GB, 4.8 GB as float32): downscale them
+first. 8- and 16-bit samples are scaled to [0, 1]; a grey image becomes three equal channels; an
+alpha channel is composited over the padding grey (so transparent areas look like the padding to the
+network); JPEG EXIF orientation is applied (OpenCV's ``IMREAD_COLOR``). What libpng and libjpeg
+print about a damaged file does not reach the terminal: it becomes part of that file's error, or a
+note naming the file when the image still decodes whole (e.g. extraneous bytes in a JPEG); a JPEG
+whose data end early ("premature end of data segment", decoded with its lower part grey) is refused.
 
 Geometry (pad to square, then resize):
     An H x W image is padded to a centred L x L square, L = max(H, W), with
@@ -44,20 +50,35 @@ Camera:
     the reported 3D points project through the user's K exactly onto the reported 2D points.
     One ``--K`` applies to every image of the call.
 
-Outputs (``OUT/``): ``predictions.json`` (written atomically) with, per image, the path, ok/error,
+Outputs (``OUT/``): ``predictions.json`` (written atomically, and last) with, per image, the path, ok/error,
 image size, the camera and its K (original image pixels), the keypoint names, ``keypoints_2d_px``
 (N, 2) original image pixels (from ``points2d``), ``keypoints_3d_m`` (N, 3) metres in the camera
 frame of that K, and the model's run name; and ``OUT/<stem>_overlay.png`` per image (the hand
 skeleton and the probe box on the original image; ``<stem>_<k>_overlay.png`` when two inputs share
 a stem). A file that cannot be read as an image gets an error in its record and on stderr; the
 others are still processed.
+
+Refused before anything is written (one error line): a model that is missing, empty, not ONNX (a
+PyTorch checkpoint is named as one), without hupbench metadata, whose metadata disagree with its
+graph (input size, keypoint count) or whose graph fails on the input size its metadata declare;
+``--K`` that is not four finite numbers with 0 < fx, fy <= MAX_FOCAL_PX and |cx|, |cy| <= MAX_FOCAL_PX;
+a batch size below 1; an ``--out`` that is a file or lies on a read-only file system; inputs with no
+image file. Writing: stale temporary files of killed runs are removed, an earlier run's
+``predictions.json`` is removed before the first new file is written, and a run that fails while
+writing (a full disk: ``no space left on MOUNT writing FILE``) removes the overlays it wrote, so a
+folder with a ``predictions.json`` always holds one finished run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
+import re
+import struct
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,7 +91,7 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 from datagen.camera import resize_intrinsics, resize_points
 from datagen.draw import write_png
-from datagen.io import write_bytes
+from datagen.io import clean_stale_tmp, write_bytes
 from hupbench.overlay import draw_prediction
 
 SCHEMA_VERSION = 1
@@ -78,6 +99,11 @@ ONNX_SCHEMA = "1"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
 DEFAULT_BATCH_SIZE = 16
+MIN_IMAGE_SIDE = 16  # pixels, shorter side: below it a hand is a few pixels, its 21 joints indistinguishable
+MAX_IMAGE_SIDE = 8192  # pixels, longer side: a 48-megapixel phone photo (8000 x 6000) passes
+# a focal length or principal point beyond a million pixels is a typo (1e6 px on a 4000 px photo is a 0.2
+# degree field of view) and 1e308 overflows the 3D points to infinity
+MAX_FOCAL_PX = 1e6
 CAMERA_ASSUMED = "assumed training camera"
 CAMERA_USER = "user K"
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -88,6 +114,10 @@ _DECIMALS_K = 6
 # onnxruntime raises its own exception types (not RuntimeError) for unreadable or invalid models
 _ORT_LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph,
                     ort_errors.InvalidArgument, ort_errors.NoSuchFile, ort_errors.NotImplemented)
+_ORT_RUN_ERRORS = (ort_errors.Fail, ort_errors.InvalidArgument, ort_errors.RuntimeException,
+                   ort_errors.NotImplemented, ort_errors.EPFail)
+_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's format since PyTorch 1.6
+_PICKLE_MAGIC = b"\x80\x02"  # torch.save's legacy format
 
 PREPROCESSING = (
     "pad the H x W image to a centred L x L square (L = max(H, W), pad_left = (L - W) // 2, "
@@ -199,7 +229,20 @@ def parse_intrinsics(text: str) -> np.ndarray:
         fx, fy, cx, cy = (float(p) for p in parts)
     except ValueError:
         raise ValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
-    return _check_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
+    return check_user_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
+
+
+def check_user_K(K: Any, name: str = "K") -> np.ndarray:
+    """A user's (3, 3) intrinsics, pixels of the original image: finite, 0 < fx, fy <= MAX_FOCAL_PX,
+    |cx|, |cy| <= MAX_FOCAL_PX (beyond that a value is a typo; see the constant)."""
+    K = _check_K(K, name)
+    if K[0, 0] > MAX_FOCAL_PX or K[1, 1] > MAX_FOCAL_PX:
+        raise ValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
+                         f"fy={K[1, 1]:g}")
+    if abs(K[0, 2]) > MAX_FOCAL_PX or abs(K[1, 2]) > MAX_FOCAL_PX:
+        raise ValueError(f"{name}: cx and cy must be in [-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got "
+                         f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
+    return K
 
 
 def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
@@ -239,15 +282,104 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
 # ---------------------------------------------------------------- images
 
 
-def decode_image(data: bytes, source: str = "image") -> np.ndarray:
+_JPEG_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
+
+
+def image_size_from_header(data: bytes) -> tuple[int, int] | None:
+    """(width, height) that a PNG's IHDR or a JPEG's frame header (SOFn) declares, without decoding.
+
+    Args:
+        data: the file's bytes.
+
+    Returns:
+        ``(width, height)`` in pixels (before any EXIF rotation), or None when the header is not found.
+    """
+    if data.startswith(_PNG_MAGIC):
+        if len(data) >= 24 and data[12:16] == b"IHDR":
+            width, height = struct.unpack(">II", data[16:24])
+            return width, height
+        return None
+    if not data.startswith(_JPEG_MAGIC):
+        return None
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            pos += 1
+        elif marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            pos += 2
+        elif marker in (0xD9, 0xDA):  # end of image, or scan data before any frame header
+            return None
+        elif marker in _JPEG_SOF_MARKERS:
+            if pos + 9 > len(data):
+                return None
+            height, width = struct.unpack(">HH", data[pos + 5:pos + 9])
+            return width, height
+        else:
+            (length,) = struct.unpack(">H", data[pos + 2:pos + 4])
+            pos += 2 + length
+    return None
+
+
+def check_image_size(width: int, height: int, source: str = "image") -> None:
+    """Refuse images smaller than MIN_IMAGE_SIDE or larger than MAX_IMAGE_SIDE (module docstring)."""
+    if min(width, height) < MIN_IMAGE_SIDE:
+        raise ValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
+                         "on each side")
+    if max(width, height) > MAX_IMAGE_SIDE:
+        raise ValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
+                         f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
+
+
+_OPENCV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:[^\]]*\]\s*(global\s+\S+\s+\S+\s+)?")
+
+
+@contextlib.contextmanager
+def _c_library_messages():
+    """Collect what C libraries (libpng, libjpeg, OpenCV's logger) print to file descriptor 2 meanwhile.
+
+    They print straight to the process's stderr, not through Python, and a line such as
+    "libpng error: PNG input buffer is incomplete" names no file: the caller turns the lines into
+    its own message, which does. Yields a list filled with the non-empty lines on exit.
+    """
+    lines: list[str] = []
+    try:
+        saved = os.dup(2)
+    except OSError:  # no file descriptor 2 (a detached process): nothing to collect
+        yield lines
+        return
+    with tempfile.TemporaryFile() as sink:
+        sys.stderr.flush()
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", errors="replace")
+            for line in text.splitlines():
+                line = _OPENCV_LOG_PREFIX.sub("", line.strip())
+                if line and line not in lines:
+                    lines.append(line)
+
+
+def decode_image(data: bytes, source: str = "image", notes: list[str] | None = None) -> np.ndarray:
     """Decode PNG or JPEG bytes to RGB float32.
 
     Args:
         data: the file's bytes.
         source: name for error messages (the path).
+        notes: receives what the decoder said about a damaged file that still decoded whole.
 
     Returns:
         (H, W, 3) float32 RGB in [0, 1].
+
+    Raises:
+        ValueError: empty, not PNG or JPEG, outside the size limits, undecodable or truncated; the
+            message starts with ``source``.
     """
     if not data:
         raise ValueError(f"{source}: empty file (0 bytes), not an image")
@@ -257,9 +389,20 @@ def decode_image(data: bytes, source: str = "image") -> np.ndarray:
         kind, flags = "JPEG", cv2.IMREAD_COLOR  # applies the EXIF orientation of photos
     else:
         raise ValueError(f"{source}: not a PNG or JPEG image (the file starts with {data[:8]!r})")
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    declared = image_size_from_header(data)
+    if declared is not None:
+        check_image_size(*declared, source)  # before decoding: a 20000 x 20000 file would take gigabytes
+    with _c_library_messages() as said:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    detail = "; ".join(said)
     if image is None or image.size == 0:
-        raise ValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file)")
+        raise ValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
+                         + (f": {detail})" if detail else ")"))
+    if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
+        raise ValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
+    if detail and notes is not None:
+        notes.append(f"{kind} decoder: {detail}")
+    check_image_size(image.shape[1], image.shape[0], source)
     if image.dtype == np.uint8:
         image = image.astype(np.float32) / 255.0
     elif image.dtype == np.uint16:
@@ -281,11 +424,12 @@ def decode_image(data: bytes, source: str = "image") -> np.ndarray:
     return np.ascontiguousarray(image, dtype=np.float32)
 
 
-def read_image(path: str | Path) -> np.ndarray:
+def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     """Read a PNG or JPEG file (recognised by content) as RGB float32.
 
     Args:
         path: image file.
+        notes: receives what the decoder said about a damaged file that still decoded whole.
 
     Returns:
         (H, W, 3) float32 RGB in [0, 1].
@@ -299,7 +443,7 @@ def read_image(path: str | Path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
-    return decode_image(data, str(path))
+    return decode_image(data, str(path), notes)
 
 
 def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, InputGeometry]:
@@ -452,24 +596,39 @@ def load_onnx_model(path: str | Path) -> PredictModel:
         The :class:`PredictModel`.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"model {path} is a folder, not an .onnx file")
     if not path.is_file():
         raise FileNotFoundError(f"model {path} does not exist")
     data = path.read_bytes()
+    if not data:
+        raise ValueError(f"model {path} is an empty file (0 bytes), not an ONNX model")
+    if data.startswith((_ZIP_MAGIC, _PICKLE_MAGIC)):
+        raise ValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
+                         f"export it first with `hupbench export {path}`")
     try:
         session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
     except _ORT_LOAD_ERRORS as exc:
-        raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from None
+        reason = " ".join(str(exc).split())[:200]
+        raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {reason}") from None
     meta = parse_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
     inputs = {i.name: i for i in session.get_inputs()}
-    outputs = {o.name for o in session.get_outputs()}
-    if "image" not in inputs or not {"points2d", "points3d"} <= outputs:
+    outputs = {o.name: o for o in session.get_outputs()}
+    if "image" not in inputs or not {"points2d", "points3d"} <= set(outputs):
         raise ValueError(f"{path}: expected input 'image' and outputs 'points2d', 'points3d', got inputs "
                          f"{sorted(inputs)} and outputs {sorted(outputs)}")
-    shape = list(inputs["image"].shape)
+    shape = list(inputs["image"].shape or [])
     S = meta["input_size"]
     if len(shape) != 4 or shape[1:] != [3, S, S]:
         raise ValueError(f"{path}: input 'image' must be (batch, 3, {S}, {S}) as hupbench.input_size says, "
                          f"got {shape}")
+    n = len(meta["keypoint_names"])
+    for name, width in (("points2d", 2), ("points3d", 3)):
+        declared = list(outputs[name].shape or [])
+        # symbolic dimensions (strings) are checked on the first batch by run_model
+        if len(declared) == 3 and isinstance(declared[1], int) and declared[1] != n:
+            raise ValueError(f"{path}: output {name!r} has {declared[1]} keypoints (shape {declared}) but "
+                             f"hupbench.keypoint_names has {n} keypoint names")
     return PredictModel(path=path, session=session, sha256=hashlib.sha256(data).hexdigest(), **meta)
 
 
@@ -488,7 +647,14 @@ def run_model(model: PredictModel, images: np.ndarray) -> tuple[np.ndarray, np.n
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[1:] != (3, S, S) or images.dtype != np.float32:
         raise ValueError(f"images must be (B, 3, {S}, {S}) float32, got {images.shape} {images.dtype}")
-    points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
+    try:
+        points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
+    except _ORT_RUN_ERRORS as exc:
+        # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
+        # something else: a model made for another input size whose header was edited, or a broken graph
+        reason = " ".join(str(exc).split())[:240]
+        raise RuntimeError(f"{model.path}: onnxruntime could not run the model on a {tuple(images.shape)} batch at "
+                           f"the input size its metadata declare ({S} px): {type(exc).__name__}: {reason}") from None
     n, b = len(model.keypoint_names), images.shape[0]
     if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
         raise RuntimeError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
@@ -547,10 +713,47 @@ def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometr
             "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
 
 
+def check_out_dir(out_dir: str | Path) -> Path:
+    """The output folder (``--out``) must be a folder, or not exist yet, on a writable file system.
+
+    Checked before any inference, so that a run that cannot write its results does not compute them.
+
+    Raises:
+        ValueError: ``out_dir`` is a file.
+        PermissionError: the folder (or its nearest existing parent) is read-only or not writable.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"output folder (--out) {out_dir} is not a folder: a file of that name exists")
+    existing = out_dir
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        try:
+            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
+        except OSError:
+            read_only = False
+        why = "it is on a read-only file system" if read_only else "no write permission"
+        where = "" if existing == out_dir else f" (its parent {existing})"
+        raise PermissionError(f"cannot write into output folder (--out) {out_dir}{where}: {why}")
+    return out_dir
+
+
+def _progress_bar(total: int, enabled: bool):
+    """A tqdm bar over images on stderr that shows itself only when the run lasts more than 2 s."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="image", desc="hupbench predict", disable=not enabled, delay=2.0,
+                dynamic_ncols=True, file=sys.stderr)
+
+
 def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: str | Path = "predictions",
                 K: str | np.ndarray | None = None, overlay: bool = True, batch_size: int = DEFAULT_BATCH_SIZE,
-                log: Callable[[str], None] = _stderr) -> dict[str, Any]:
+                log: Callable[[str], None] = _stderr, progress: bool = False) -> dict[str, Any]:
     """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays.
+
+    Everything that can be checked before inference is (module docstring); a failure while writing
+    removes this run's overlays and leaves no ``predictions.json``.
 
     Args:
         model_path: ``.onnx`` file from ``hupbench export``.
@@ -561,72 +764,103 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
         overlay: write ``<stem>_overlay.png`` per image.
         batch_size: images per onnxruntime call.
         log: receives per-file errors and notes (default: stderr).
+        progress: a progress bar with ETA on stderr for runs longer than 2 s.
 
     Returns:
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
         "records": [per-image dicts as in the JSON]}``.
     """
     if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
-    K_user = parse_intrinsics(K) if isinstance(K, str) else (None if K is None else _check_K(K, "K"))
+        raise ValueError(f"batch_size (--batch-size) must be an integer >= 1, got {batch_size!r}")
+    K_user = parse_intrinsics(K) if isinstance(K, str) else (None if K is None else check_user_K(K, "K"))
+    out_dir = check_out_dir(out_dir)
     model = load_onnx_model(model_path)
     files, skipped = expand_inputs(inputs)
-    for item in skipped:
-        log(f"hupbench predict: note: {item['path']}: {item['reason']}")
     if not files:
-        raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {[str(i) for i in inputs]}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+        raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {', '.join(str(i) for i in inputs)}"
+                         + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
 
     names = list(model.keypoint_names)
     records: list[dict[str, Any]] = []
     overlays: list[Path] = []
     used_stems: set[str] = set()
-    for start in range(0, len(files), batch_size):
-        chunk_records = [_empty_record(path, names, model.run_name) for path in files[start : start + batch_size]]
-        loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
-        for record in chunk_records:
-            try:
-                image = read_image(record["path"])
-            except (ValueError, FileNotFoundError) as exc:
-                record["error"] = str(exc)
-                log(f"hupbench predict: error: {exc}")
-                continue
-            model_input, geometry = preprocess(image, model.input_size)
-            loaded.append((record, image, model_input, geometry))
-        if loaded:
-            points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
-            for b, (record, image, _, geometry) in enumerate(loaded):
-                result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
-                record.update(
-                    ok=True, image_size={"width": geometry.width, "height": geometry.height},
-                    camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
-                    K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
-                    keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
-                    keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
-                )
-                if overlay:
-                    stem = _unique_stem(Path(record["path"]).stem, used_stems)
-                    drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
-                    record["overlay"] = str(write_png(out_dir / f"{stem}_overlay.png", drawn))
-                    overlays.append(Path(record["overlay"]))
-        records.extend(chunk_records)
+    finished = False
+    bar = _progress_bar(len(files), progress)
+    if progress and log is _stderr:
+        def log(line: str) -> None:
+            # above the bar once it shows; tqdm.write before that would print a stray carriage return
+            if bar.last_print_t >= bar.start_t + bar.delay:
+                bar.write(line, file=sys.stderr)
+            else:
+                _stderr(line)
+    for item in skipped:
+        log(f"hupbench predict: note: {item['path']}: {item['reason']}")
+    try:
+        if out_dir.is_dir():
+            clean_stale_tmp(out_dir, recursive=False)
+            # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
+            # now, and this run's is written last
+            (out_dir / "predictions.json").unlink(missing_ok=True)
+        for start in range(0, len(files), batch_size):
+            chunk_records = [_empty_record(path, names, model.run_name) for path in files[start : start + batch_size]]
+            loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
+            for record in chunk_records:
+                notes: list[str] = []
+                try:
+                    image = read_image(record["path"], notes)
+                except (ValueError, FileNotFoundError) as exc:
+                    record["error"] = str(exc)
+                    log(f"hupbench predict: error: {exc}")
+                    continue
+                for note in notes:
+                    log(f"hupbench predict: note: {record['path']}: {note}")
+                model_input, geometry = preprocess(image, model.input_size)
+                loaded.append((record, image, model_input, geometry))
+            if loaded:
+                points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
+                for b, (record, image, _, geometry) in enumerate(loaded):
+                    if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
+                        record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
+                        log(f"hupbench predict: error: {record['error']}")
+                        continue
+                    result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
+                    record.update(
+                        ok=True, image_size={"width": geometry.width, "height": geometry.height},
+                        camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
+                        K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
+                        keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
+                        keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
+                    )
+                    if overlay:
+                        stem = _unique_stem(Path(record["path"]).stem, used_stems)
+                        drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
+                        overlays.append(write_png(out_dir / f"{stem}_overlay.png", drawn))
+                        record["overlay"] = str(overlays[-1])
+            records.extend(chunk_records)
+            bar.update(len(chunk_records))
 
-    failed = sum(not r["ok"] for r in records)
-    document = {
-        "schema_version": SCHEMA_VERSION,
-        "tool": "hupbench predict",
-        "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
-                  "git_commit": model.git_commit, "input_size": model.input_size,
-                  "K_input": model.K_input.tolist()},
-        "keypoint_names": names,
-        "skeleton_edges": [list(e) for e in model.skeleton_edges],
-        "preprocessing": PREPROCESSING,
-        "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
-        "skipped": skipped,
-        "images": records,
-    }
-    json_path = write_bytes(out_dir / "predictions.json", (_compact_json(document) + "\n").encode())
+        failed = sum(not r["ok"] for r in records)
+        document = {
+            "schema_version": SCHEMA_VERSION,
+            "tool": "hupbench predict",
+            "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
+                      "git_commit": model.git_commit, "input_size": model.input_size,
+                      "K_input": model.K_input.tolist()},
+            "keypoint_names": names,
+            "skeleton_edges": [list(e) for e in model.skeleton_edges],
+            "preprocessing": PREPROCESSING,
+            "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
+            "skipped": skipped,
+            "images": records,
+        }
+        json_path = write_bytes(out_dir / "predictions.json", (_compact_json(document) + "\n").encode())
+        finished = True
+    finally:
+        bar.close()
+        if not finished:  # a full disk, a model that fails on a later batch, an interrupt
+            for path in overlays:
+                with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
+                    path.unlink(missing_ok=True)
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
             "overlays": overlays, "skipped": skipped, "records": records}
 

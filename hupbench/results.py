@@ -313,12 +313,17 @@ def load_results(path: str | Path) -> dict:
         ValueError: the file is not JSON or breaks the schema; the message starts with the file's path.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise ValueError(f"{path}: not a file (a results file is one JSON file)")
     if not path.is_file():
         raise FileNotFoundError(f"results file not found: {path}")
+    data = path.read_bytes()
+    if not data.strip():
+        raise ValueError(f"{path}: empty file, not valid JSON (a results file is one JSON object)")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(data.decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON: {exc}") from exc
+        raise ValueError(f"{path}: not valid JSON: {exc}") from None
     try:
         return upgrade_results(data)
     except ValueError as exc:

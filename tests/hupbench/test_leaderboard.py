@@ -309,8 +309,10 @@ def test_missing_log_is_named(synthetic_board):
 
 
 def test_empty_or_missing_folder(tmp_path):
-    with pytest.raises(FileNotFoundError, match="results folder not found"):
+    with pytest.raises(FileNotFoundError, match="has no results/ folder"):
         run_leaderboard(tmp_path)
+    with pytest.raises(FileNotFoundError, match="results folder not found"):
+        load_rows(tmp_path / "results")
     (tmp_path / "results").mkdir()
     with pytest.raises(ValueError, match=r"no results files \(\*\.json\)"):
         run_leaderboard(tmp_path)

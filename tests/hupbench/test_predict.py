@@ -255,12 +255,12 @@ def _encode(ext: str, image: np.ndarray) -> bytes:
 
 
 def test_decode_grey_16bit_alpha_and_colour_order():
-    grey = decode_image(_encode(".png", np.full((5, 7), 51, np.uint8)))
-    assert grey.shape == (5, 7, 3)
+    grey = decode_image(_encode(".png", np.full((16, 18), 51, np.uint8)))  # 16 px: the smallest side predict reads
+    assert grey.shape == (16, 18, 3)
     np.testing.assert_allclose(grey, 0.2, atol=1e-6)
-    deep = decode_image(_encode(".png", np.full((4, 4), 65535 // 5, np.uint16)))
+    deep = decode_image(_encode(".png", np.full((16, 16), 65535 // 5, np.uint16)))
     np.testing.assert_allclose(deep, (65535 // 5) / 65535, atol=1e-6)
-    bgra = np.zeros((3, 3, 4), np.uint8)
+    bgra = np.zeros((16, 16, 4), np.uint8)
     bgra[..., 2] = 255  # red
     bgra[0, 0, 3] = 255  # only one opaque pixel; the rest is transparent
     rgba = decode_image(_encode(".png", bgra))
