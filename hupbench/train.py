@@ -21,6 +21,7 @@ import json
 import math
 import os
 import platform
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -576,6 +577,25 @@ def run_train(cfg: DictConfig, log=print) -> dict:
             f"img/s training); val MPJPE {first['all']:.1f} -> {last['all']:.1f} mm "
             f"(hand {last['hand']:.1f}, probe {last['probe']:.1f})")
     return result
+
+
+#: what train.py answers in one line (its exit code 1) instead of a traceback
+CLI_ERRORS = (ValueError, TypeError, FileNotFoundError, RuntimeError)
+
+
+def main(cfg: DictConfig, log=print) -> float:
+    """The body of ``python train.py``: :func:`run_train`, with a bad input or a failure answered as one
+    line on stderr, ``train.py: error: ...``, and exit code 1 (SystemExit).
+
+    Returns:
+        The last validation MPJPE (all keypoints, mm): what a Hydra sweeper minimises.
+    """
+    try:
+        result = run_train(cfg, log)
+    except CLI_ERRORS as exc:
+        print(f"train.py: error: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None
+    return result["val_mpjpe_mm"]["all"]
 
 
 def build_run_model(cfg: DictConfig, train_ann: dict, K_input: np.ndarray, checkpoint: dict | None,
