@@ -639,11 +639,13 @@ def check_frame(job) -> list[dict]:
             problems.append(problem)
             continue
         images[m] = image
+    labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
     if "depth" in images and "seg" in images:
         seg, depth = images["seg"], images["depth"]
         both = f"{names['depth']} + {names['seg']}"
         off = mask_depth_mismatch_px(depth, seg)
         if off > tol.VERIFY_MASK_DEPTH_PX:
+            labels_agree = False
             problems.append(_problem(split, frame_id, "mask_depth",
                                      f"depth and seg disagree on {off} pixels away from the silhouette's edge "
                                      f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
@@ -653,16 +655,20 @@ def check_frame(job) -> list[dict]:
         rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
         seg = images["seg"]
         backgrounds = _CONTEXT.get("backgrounds")
+        rgb_fits_mask = True
         if backgrounds is not None:
             b = int(row["background_id"])
             off = background_mismatch_px(rgb, seg, _reference(b, size))
             if off > tol.VERIFY_BACKGROUND_PX:
+                rgb_fits_mask = False
                 problems.append(_problem(split, frame_id, "rgb_mismatch",
                                          f"{off} pixels the mask calls background are not background "
                                          f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
                                          f"image or the mask belongs to another frame", names["rgb"]))
         partner = row.get("partner")
-        if partner is not None:
+        # the glove test reads both images through this frame's mask: only when the mask is this
+        # frame's and its image belongs to it (otherwise that is reported above)
+        if partner is not None and labels_agree and rgb_fits_mask:
             problems += _check_glove_pair(split, row, partner, rgb, seg)
     return problems
 
@@ -676,6 +682,10 @@ def _check_glove_pair(split: str, row: dict, partner: dict, rgb: np.ndarray, seg
     if other is None or image_format_problem(other, "rgb", tuple(manifest["image_size"])):
         return []  # the partner's own check reports its file
     other = np.ascontiguousarray(other[..., ::-1])
+    if _CONTEXT.get("backgrounds") is not None and \
+            background_mismatch_px(other, seg, _reference(int(row["background_id"]), tuple(manifest["image_size"]))) \
+            > tol.VERIFY_BACKGROUND_PX:
+        return []  # the partner's image is not of this view (the partner's own check reports it)
     ratio, limit, (ratio_a, ratio_b) = glove_pair_ratio(rgb, other, seg, _CONTEXT["gloves"], int(row["glove_id"]),
                                                          int(partner["glove_id"]), row["light_color"],
                                                          partner["light_color"])
