@@ -49,8 +49,11 @@ How the RGB checks work (thresholds and their measurements in :mod:`datagen.tole
   of colour ``c`` (the annotation ``light_color``) as ``0.3 a + k_d (a * c) + k_s c`` (k_d, k_s >= 0
   per pixel), then stores ``value ** (1 / 2.2)``: in linear light every unclipped hand pixel, and
   the mean of any block of them, lies on the plane through ``0.3 a`` spanned by ``a * c`` and
-  ``c``. A frame's hand must fit its own glove's plane much better than the other glove's. Below
-  JPEG quality 90 the chroma no longer separates the two gloves and the check is skipped.
+  ``c``. Two frames of one view (grasp, distance, background) in the two gloves share one mask and
+  differ in glove and lamp only: each image must fit its own frame's glove and lamp much better
+  than the other frame's (:func:`glove_pair_ratio`). This runs when the mask agrees with the depth
+  and both images fit the mask's background, so a file from another view does not implicate the
+  other glove's frame.
 
 A frame that holds another frame's RGB image is found when the two differ in silhouette (its
 background shows the other's object), background or glove. When a smaller silhouette is nested in

@@ -251,6 +251,16 @@ def test_rgb_copied_from_the_other_glove_is_found(two_gloves, tmp_path):
     assert "frame 000013" in problems[0]["detail"]
 
 
+@pytest.mark.parametrize("modality, ext", [("seg", "png"), ("rgb", "jpg")])
+def test_a_file_from_another_view_does_not_implicate_the_other_glove(two_gloves, tmp_path, modality, ext):
+    """Frames 1 and 5 hold each other's seg (or RGB): their glove partners 11 and 15 are not named (read
+    through frame 5's new mask, the images of frames 5 and 15 had made frame 15 the stranger)."""
+    broken = _copy(two_gloves, tmp_path)
+    _swap(broken, 1, 5, modality, ext)
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert {p["frame_id"] for p in problems} == {1, 5}, problems
+
+
 @pytest.mark.parametrize("a, b", [(2, 15), (4, 6)], ids=["other-glove-other-view", "same-glove-other-view"])
 def test_rgb_swapped_between_views_is_found(two_gloves, tmp_path, a, b):
     broken = _copy(two_gloves, tmp_path)
