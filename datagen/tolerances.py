@@ -56,17 +56,20 @@ VERIFY_GLOVE_CLIPPED_LEVEL = 235
 #: verify glove colour: pixels with a channel below this level carry no colour to speak of
 VERIFY_GLOVE_DARK_LEVEL = 8
 #: verify glove colour: side of the pixel blocks whose mean colours are fitted (averaging halves
-#: JPEG's chroma noise: the worst swapped frame's ratio rose from 0.53 to 1.01 at quality 95)
+#: JPEG's chroma noise)
 VERIFY_GLOVE_BLOCK_PX = 2
 #: verify glove colour: JPEG noise of a stored pixel, levels (scales the plane distances)
 VERIFY_GLOVE_NOISE_LEVELS = 2.0
 #: verify glove colour: plane distances (in noise units) are clipped here before squaring
 VERIFY_GLOVE_CLIP = 10.0
-#: verify glove colour: fewer usable blocks than this leave the glove unchecked
+#: verify glove colour: the two frames of a view need this many usable blocks together
+VERIFY_GLOVE_MIN_PAIR_BLOCKS = 8
+#: verify glove colour: ... and this many each for the tighter limit below
 VERIFY_GLOVE_MIN_BLOCKS = 4
-#: verify glove colour: the frame's glove may cost at most this fraction of the best other glove's
-#: (correct frames: <= 0.15 at quality 95, <= 0.24 at 90; RGB of the other glove: >= 0.98)
-VERIFY_GLOVE_FIT_RATIO = 0.45
-#: verify glove colour: below this JPEG quality the chroma no longer tells the gloves apart
-#: (quality 85: correct frames up to 0.74, swapped down to 0.95), and the check is skipped
-VERIFY_GLOVE_MIN_JPEG_QUALITY = 90
+#: verify glove colour: a view's two frames fail when their own gloves and lamps cost more than this
+#: fraction of the exchanged ones' (correct pairs: at most 0.30 over 4,093 pairs of 256 px frames
+#: at JPEG quality 95, 0.31 at quality 50; a copied image gives 1, swapped images 3.2 or more)
+VERIFY_GLOVE_PAIR_RATIO = 0.55
+#: verify glove colour: the limit when one of the two hands shows fewer than VERIFY_GLOVE_MIN_BLOCKS
+#: (correct pairs then up to 0.44, swapped from 2.3)
+VERIFY_GLOVE_PAIR_RATIO_FEW = 1.0

@@ -49,8 +49,11 @@ How the RGB checks work (thresholds and their measurements in :mod:`datagen.tole
   of colour ``c`` (the annotation ``light_color``) as ``0.3 a + k_d (a * c) + k_s c`` (k_d, k_s >= 0
   per pixel), then stores ``value ** (1 / 2.2)``: in linear light every unclipped hand pixel, and
   the mean of any block of them, lies on the plane through ``0.3 a`` spanned by ``a * c`` and
-  ``c``. A frame's hand must fit its own glove's plane much better than the other glove's. Below
-  JPEG quality 90 the chroma no longer separates the two gloves and the check is skipped.
+  ``c``. Two frames of one view (grasp, distance, background) in the two gloves share one mask and
+  differ in glove and lamp only: each image must fit its own frame's glove and lamp much better
+  than the other frame's (:func:`glove_pair_ratio`). This runs when the mask agrees with the depth
+  and both images fit the mask's background, so a file from another view does not implicate the
+  other glove's frame.
 
 A frame that holds another frame's RGB image is found when the two differ in silhouette (its
 background shows the other's object), background or glove. When a smaller silhouette is nested in
@@ -429,63 +432,95 @@ def background_mismatch_px(rgb: np.ndarray, seg: np.ndarray, reference: np.ndarr
                + np.count_nonzero(~near & (diff > tol.VERIFY_BACKGROUND_FAR_LEVELS)))
 
 
-def glove_fit(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, light_color) -> tuple[np.ndarray, int]:
-    """How well each glove colour explains the hand pixels of an image under the frame's lamp.
+def hand_blocks(rgb: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean linear colours of the usable hand pixel blocks of an image, and their JPEG noise.
 
-    In linear light an unclipped pixel of a glove of albedo ``a`` lies on the plane through
-    ``RENDER_AMBIENT * a`` spanned by ``a * light_color`` and ``light_color`` (module docstring), and
-    so does the mean of a block of them. Means of ``VERIFY_GLOVE_BLOCK_PX``-square blocks of usable
-    hand pixels (averaging halves JPEG's chroma noise) are measured against each glove's plane, in
-    units of their noise (``VERIFY_GLOVE_NOISE_LEVELS`` stored levels per pixel), clipped at
-    ``VERIFY_GLOVE_CLIP`` and squared.
+    Usable: hand in the mask shrunk by 2 pixels (JPEG's half-resolution chroma bleeds that far),
+    not within a pixel of a clipped level (``VERIFY_GLOVE_CLIPPED_LEVEL``), no channel darker than
+    ``VERIFY_GLOVE_DARK_LEVEL``. Blocks are ``VERIFY_GLOVE_BLOCK_PX`` square, usable throughout;
+    averaging halves JPEG's chroma noise.
 
     Args:
-        rgb: (H, W, 3) uint8 RGB. seg: (H, W) labels. gloves_rgb: (G, 3) albedos in [0, 1].
-        light_color: (3,) the frame's lamp colour.
+        rgb: (H, W, 3) uint8 RGB. seg: (H, W) labels.
 
     Returns:
-        (G,) float64 costs (sums over the blocks; lower fits better; NaN for a glove whose plane is
-        undefined, an albedo that only scales the lamp's colour), and the number of blocks used.
+        (P, 3) float64 block means in linear light, and (P,) their noise in linear light
+        (``VERIFY_GLOVE_NOISE_LEVELS`` stored levels per pixel, through the display curve).
     """
-    gloves = np.asarray(gloves_rgb, dtype=np.float64).reshape(-1, 3)
-    light = np.asarray(light_color, dtype=np.float64)
-    hand = _shrink(seg == SEG_LABELS["hand"], 2)  # JPEG's half-resolution chroma bleeds 2 pixels
+    hand = _shrink(seg == SEG_LABELS["hand"], 2)
     clipped = _grow(_channel_max(rgb) >= tol.VERIFY_GLOVE_CLIPPED_LEVEL, 1)
     use = hand & ~clipped & (_channel_min(rgb) >= tol.VERIFY_GLOVE_DARK_LEVEL)
     b = tol.VERIFY_GLOVE_BLOCK_PX
     h, w = (use.shape[0] // b) * b, (use.shape[1] // b) * b
-    whole = use[:h, :w].reshape(h // b, b, w // b, b).all(axis=(1, 3))  # blocks of usable pixels only
+    whole = use[:h, :w].reshape(h // b, b, w // b, b).all(axis=(1, 3))
     rows, cols = np.nonzero(whole)
     pixels = rgb[(rows[:, None] * b + np.arange(b)).repeat(b, axis=1), np.tile(cols[:, None] * b + np.arange(b), b)]
-    linear = _LINEAR[pixels].mean(axis=1)  # (P, 3) block means in linear light
+    linear = _LINEAR[pixels].mean(axis=1)  # (P, 3)
     stored = linear.mean(axis=1) ** (1 / RENDER_GAMMA)
     noise = RENDER_GAMMA * stored ** (RENDER_GAMMA - 1) * (tol.VERIFY_GLOVE_NOISE_LEVELS / 255.0) / b
-    costs = np.full(len(gloves), np.nan)
-    for g, albedo in enumerate(gloves):
-        normal = np.cross(albedo * light, light)
-        length = np.linalg.norm(normal)
-        if length < 1e-9:
-            continue
-        distance = np.abs((linear - RENDER_AMBIENT * albedo) @ (normal / length)) / noise
-        costs[g] = np.sum(np.minimum(distance, tol.VERIFY_GLOVE_CLIP) ** 2)
-    return costs, len(linear)
+    return linear, noise
 
 
-def glove_fit_ratio(rgb: np.ndarray, seg: np.ndarray, gloves_rgb, glove_id: int, light_color) -> tuple[float | None, int, int]:
-    """The labelled glove's cost over the best other glove's (:func:`glove_fit`).
+def glove_cost(linear: np.ndarray, noise: np.ndarray, albedo, light_color) -> float:
+    """How badly one glove under one lamp explains hand blocks (:func:`hand_blocks`).
+
+    In linear light a glove of albedo ``a`` under the lamp colour ``c`` gives colours on the plane
+    through ``RENDER_AMBIENT * a`` spanned by ``a * c`` and ``c`` (module docstring). Each block's
+    distance to that plane, in units of its noise, is clipped at ``VERIFY_GLOVE_CLIP`` and squared.
+
+    Args:
+        linear: (P, 3) block means. noise: (P,). albedo: (3,) in [0, 1]. light_color: (3,).
 
     Returns:
-        (ratio, best other glove, blocks used); ratio None when there is no other glove, too few
-        usable blocks (``VERIFY_GLOVE_MIN_BLOCKS``) or an undefined cost.
+        The sum over the blocks (0 for no blocks); NaN when the plane is undefined (an albedo that
+        only scales the lamp's colour).
     """
-    costs, n = glove_fit(rgb, seg, gloves_rgb, light_color)
-    others = [g for g in range(len(costs)) if g != glove_id]
-    if not others or n < tol.VERIFY_GLOVE_MIN_BLOCKS or not np.isfinite(costs).all():
-        return None, -1, n
-    best = min(others, key=lambda g: costs[g])
-    if costs[best] == 0:
-        return (math.inf if costs[glove_id] > 0 else 1.0), best, n
-    return float(costs[glove_id] / costs[best]), best, n
+    albedo = np.asarray(albedo, dtype=np.float64)
+    light = np.asarray(light_color, dtype=np.float64)
+    normal = np.cross(albedo * light, light)
+    length = np.linalg.norm(normal)
+    if length < 1e-9:
+        return math.nan
+    distance = np.abs((linear - RENDER_AMBIENT * albedo) @ (normal / length)) / noise
+    return float(np.sum(np.minimum(distance, tol.VERIFY_GLOVE_CLIP) ** 2))
+
+
+def glove_pair_ratio(rgb_a: np.ndarray, rgb_b: np.ndarray, seg: np.ndarray, gloves_rgb, glove_a: int, glove_b: int,
+                     light_a, light_b) -> tuple[float | None, float, tuple[float, float]]:
+    """Do two frames of one view in the two gloves show their own gloves and lamps?
+
+    The two frames share the geometry (one mask) and differ in glove and lamp. The pair's ratio:
+    the cost of each image under its own frame's glove and lamp, summed, over the same with the
+    images exchanged; small when each image is its own frame's, 1 when both are one frame's image,
+    large when they are swapped. Each frame's own ratio (its image under its own glove and lamp
+    over under the other frame's) says which image is the stranger.
+
+    Args:
+        rgb_a, rgb_b: (H, W, 3) uint8 RGB of the two frames. seg: (H, W) their mask.
+        gloves_rgb: (G, 3) albedos. glove_a, glove_b: the frames' glove ids. light_a, light_b: (3,)
+            the frames' lamp colours.
+
+    Returns:
+        (ratio, limit, (ratio_a, ratio_b)): ratio None when the hands show too few usable blocks
+        (``VERIFY_GLOVE_MIN_PAIR_BLOCKS`` together) or a cost is undefined; limit the ratio above
+        which the pair fails (``VERIFY_GLOVE_PAIR_RATIO``, or ``VERIFY_GLOVE_PAIR_RATIO_FEW`` when
+        one frame has fewer than ``VERIFY_GLOVE_MIN_BLOCKS`` blocks).
+    """
+    gloves = np.asarray(gloves_rgb, dtype=np.float64).reshape(-1, 3)
+    blocks_a, blocks_b = hand_blocks(rgb_a, seg), hand_blocks(rgb_b, seg)
+    n_a, n_b = len(blocks_a[0]), len(blocks_b[0])
+    limit = tol.VERIFY_GLOVE_PAIR_RATIO if min(n_a, n_b) >= tol.VERIFY_GLOVE_MIN_BLOCKS else tol.VERIFY_GLOVE_PAIR_RATIO_FEW
+    if n_a + n_b < tol.VERIFY_GLOVE_MIN_PAIR_BLOCKS:
+        return None, limit, (math.nan, math.nan)
+    a_own, a_other = glove_cost(*blocks_a, gloves[glove_a], light_a), glove_cost(*blocks_a, gloves[glove_b], light_b)
+    b_own, b_other = glove_cost(*blocks_b, gloves[glove_b], light_b), glove_cost(*blocks_b, gloves[glove_a], light_a)
+    if not all(math.isfinite(c) for c in (a_own, a_other, b_own, b_other)):
+        return None, limit, (math.nan, math.nan)
+
+    def ratio(own: float, other: float) -> float:
+        return own / other if other > 0 else (math.inf if own > 0 else 1.0)
+
+    return ratio(a_own + b_own, a_other + b_other), limit, (ratio(a_own, a_other), ratio(b_own, b_other))
 
 
 # --- the checks ------------------------------------------------------------------------------
@@ -607,11 +642,13 @@ def check_frame(job) -> list[dict]:
             problems.append(problem)
             continue
         images[m] = image
+    labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
     if "depth" in images and "seg" in images:
         seg, depth = images["seg"], images["depth"]
         both = f"{names['depth']} + {names['seg']}"
         off = mask_depth_mismatch_px(depth, seg)
         if off > tol.VERIFY_MASK_DEPTH_PX:
+            labels_agree = False
             problems.append(_problem(split, frame_id, "mask_depth",
                                      f"depth and seg disagree on {off} pixels away from the silhouette's edge "
                                      f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
@@ -621,24 +658,52 @@ def check_frame(job) -> list[dict]:
         rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
         seg = images["seg"]
         backgrounds = _CONTEXT.get("backgrounds")
+        rgb_fits_mask = True
         if backgrounds is not None:
             b = int(row["background_id"])
             off = background_mismatch_px(rgb, seg, _reference(b, size))
             if off > tol.VERIFY_BACKGROUND_PX:
+                rgb_fits_mask = False
                 problems.append(_problem(split, frame_id, "rgb_mismatch",
                                          f"{off} pixels the mask calls background are not background "
                                          f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
                                          f"image or the mask belongs to another frame", names["rgb"]))
-        gloves = _CONTEXT.get("gloves")
-        if gloves is not None and len(gloves) > 1:
-            g = int(row["glove_id"])
-            ratio, best, n = glove_fit_ratio(rgb, seg, gloves, g, row["light_color"])
-            if ratio is not None and ratio > tol.VERIFY_GLOVE_FIT_RATIO:
-                problems.append(_problem(split, frame_id, "rgb_mismatch",
-                                         f"the hand's colour fits glove {best} better than the frame's glove {g} under "
-                                         f"its lamp (cost ratio {ratio:.2f} > {tol.VERIFY_GLOVE_FIT_RATIO} over {n} "
-                                         f"pixels): the RGB image belongs to another frame", names["rgb"]))
+        partner = row.get("partner")
+        # the glove test reads both images through this frame's mask: only when the mask is this
+        # frame's and its image belongs to it (otherwise that is reported above)
+        if partner is not None and labels_agree and rgb_fits_mask:
+            problems += _check_glove_pair(split, row, partner, rgb, seg)
     return problems
+
+
+def _check_glove_pair(split: str, row: dict, partner: dict, rgb: np.ndarray, seg: np.ndarray) -> list[dict]:
+    """The glove test of a frame and its partner (same view, other glove): problems for the frame(s)
+    whose image is the stranger."""
+    manifest = _CONTEXT["manifest"]
+    rel = _relative(split, "rgb", int(partner["frame_id"]), manifest["rgb_format"])
+    other, _ = read_image(_CONTEXT["root"] / rel, "rgb")
+    if other is None or image_format_problem(other, "rgb", tuple(manifest["image_size"])):
+        return []  # the partner's own check reports its file
+    other = np.ascontiguousarray(other[..., ::-1])
+    if _CONTEXT.get("backgrounds") is not None and \
+            background_mismatch_px(other, seg, _reference(int(row["background_id"]), tuple(manifest["image_size"]))) \
+            > tol.VERIFY_BACKGROUND_PX:
+        return []  # the partner's image is not of this view (the partner's own check reports it)
+    ratio, limit, (ratio_a, ratio_b) = glove_pair_ratio(rgb, other, seg, _CONTEXT["gloves"], int(row["glove_id"]),
+                                                         int(partner["glove_id"]), row["light_color"],
+                                                         partner["light_color"])
+    if ratio is None or ratio <= limit:
+        return []
+    a, b = int(row["frame_id"]), int(partner["frame_id"])
+    # the frames whose image fits the other frame's glove and lamp better than its own; when neither
+    # does on its own, the worse of the two
+    strangers = [(f, g, r) for f, g, r in ((a, b, ratio_a), (b, a, ratio_b)) if r > 1] or \
+        [max((a, b, ratio_a), (b, a, ratio_b), key=lambda t: t[2])]
+    return [_problem(split, f, "rgb_mismatch",
+                     f"the RGB image fits the glove and lamp of frame {g:06d} (same view, other glove) better than "
+                     f"its own (pair cost ratio {ratio:.2f} > {limit}, this frame's {r:.2f}): swapped with or copied "
+                     f"from that frame", _relative(split, "rgb", f, manifest["rgb_format"]))
+            for f, g, r in strangers]
 
 
 def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
@@ -648,6 +713,17 @@ def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
         image = _CONTEXT["backgrounds"].image(background_id, *size)
         cache[background_id] = jpeg_reference(image, _CONTEXT["jpeg_quality"])
     return cache[background_id]
+
+
+def _glove_partners(ann: dict) -> dict[int, int]:
+    """{row: partner row} for frames of one view (grasp, distance, background, view) in two gloves;
+    each pair once, from its lower frame id."""
+    groups: dict[tuple, list[int]] = {}
+    for i, key in enumerate(zip(ann["grasp_index"].tolist(), ann["z_ego"].tolist(), ann["background_id"].tolist(),
+                                ann["view_id"].tolist())):
+        groups.setdefault(key, []).append(i)
+    return {rows[0]: rows[1] for rows in groups.values()
+            if len(rows) == 2 and ann["glove_id"][rows[0]] != ann["glove_id"][rows[1]]}
 
 
 def _jpeg_quality(manifest: dict) -> int | None:
@@ -722,10 +798,6 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         gloves = manifest.get("gloves_rgb")
         if gloves is None:
             skipped.append("RGB against glove colours: the manifest records no gloves_rgb")
-        elif len(gloves) > 1 and quality is not None and quality < tol.VERIFY_GLOVE_MIN_JPEG_QUALITY:
-            skipped.append(f"RGB against glove colours: at JPEG quality {quality} (below "
-                           f"{tol.VERIFY_GLOVE_MIN_JPEG_QUALITY}) the colours no longer tell the gloves apart")
-            gloves = None
     jobs, all_ids, complete = [], [], True
     for split in SPLITS:
         if manifest["counts"].get(split, 0) == 0:
@@ -743,7 +815,12 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         # datasets made before the manifest recorded a protocol have no look-at to check
         if "protocol" in manifest:
             problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
-        jobs += [(split, {k: ann[k][i] for k in FRAME_KEYS}) for i in range(len(ann["frame_id"]))]
+        partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
+        for i in range(len(ann["frame_id"])):
+            row = {k: ann[k][i] for k in FRAME_KEYS}
+            p = partners.get(i)
+            row["partner"] = None if p is None else {k: ann[k][p] for k in ("frame_id", "glove_id", "light_color")}
+            jobs.append((split, row))
     if complete:
         ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)
         total = math.prod(manifest["layout"]["shape"])

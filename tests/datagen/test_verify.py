@@ -14,7 +14,7 @@ from conftest import TINY_SPEC, write_grasps
 from datagen import tolerances as tol
 from datagen import verify as V
 from datagen.contract import read_annotations, read_manifest
-from datagen.verify import (background_mismatch_px, glove_fit_ratio, image_format_problem, mask_depth_mismatch_px,
+from datagen.verify import (background_mismatch_px, image_format_problem, mask_depth_mismatch_px,
                             read_image, verify)
 
 GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.scene.GLOVE_RGB
@@ -136,34 +136,47 @@ def _shade(albedo, light, k_diffuse, k_specular):
     return np.round(255 * np.clip(linear, 0, 1) ** (1 / V.RENDER_GAMMA)).astype(np.uint8)
 
 
-@pytest.mark.parametrize("light", [(1.0, 1.0, 1.0), (0.6, 0.6, 1.0), (1.0, 1.0, 0.6)])
-def test_glove_fit_tells_the_gloves_apart_on_the_shading_model(light):
-    """Pixels shaded by the renderer's model fit their own glove and not the other, whatever the lamp's colour."""
-    light = np.array(light)
-    rng = np.random.default_rng(3)
+def _hand_image(glove, light, seed):
+    """A 32 x 32 image whose 24 x 24 hand (20 x 20 after shrinking: 100 blocks) is shaded by the model."""
+    rng = np.random.default_rng(seed)
     n = 24 * 24
-    seg = np.zeros((32, 32), np.uint8)
-    seg[4:28, 4:28] = 1  # shrunk by 2 pixels inside glove_fit: 20 x 20 pixels used
+    rgb = np.zeros((32, 32, 3), np.uint8)
+    rgb[4:28, 4:28] = _shade(GLOVES[glove], np.asarray(light), rng.uniform(0, 0.5, n), rng.uniform(0, 0.05, n)).reshape(24, 24, 3)
+    assert rgb.max() < tol.VERIFY_GLOVE_CLIPPED_LEVEL
+    return rgb
+
+
+SEG_HAND = np.pad(np.ones((24, 24), np.uint8), 4)
+
+
+@pytest.mark.parametrize("light", [(1.0, 1.0, 1.0), (0.6, 0.6, 1.0), (1.0, 1.0, 0.6)])
+def test_glove_cost_tells_the_gloves_apart_on_the_shading_model(light):
+    """Pixels shaded by the renderer's model fit their own glove's plane and not the other's, whatever the lamp."""
     for g in (0, 1):
-        rgb = np.zeros((32, 32, 3), np.uint8)
-        rgb[4:28, 4:28] = _shade(GLOVES[g], light, rng.uniform(0, 0.5, n), rng.uniform(0, 0.05, n)).reshape(24, 24, 3)
-        assert rgb.max() < tol.VERIFY_GLOVE_CLIPPED_LEVEL
-        ratio, best, used = glove_fit_ratio(rgb, seg, GLOVES, g, light)
-        assert used == 100 and best == 1 - g  # 2 x 2 blocks
-        assert ratio < 0.05, ratio
-        wrong, best, _ = glove_fit_ratio(rgb, seg, GLOVES, 1 - g, light)
-        assert best == g and wrong > 20, wrong
+        blocks, noise = V.hand_blocks(_hand_image(g, light, seed=g), SEG_HAND)
+        assert blocks.shape == (100, 3) and noise.shape == (100,)
+        own, other = V.glove_cost(blocks, noise, GLOVES[g], light), V.glove_cost(blocks, noise, GLOVES[1 - g], light)
+        assert own < 0.05 * other, (own, other)
 
 
-def test_glove_fit_needs_another_glove_and_enough_pixels():
+def test_glove_pair_ratio_own_copied_swapped():
+    light_a, light_b = (0.9, 0.9, 0.65), (0.62, 0.62, 0.95)
+    a, b = _hand_image(0, light_a, 1), _hand_image(1, light_b, 2)
+    ratio, limit, (ra, rb) = V.glove_pair_ratio(a, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    assert limit == tol.VERIFY_GLOVE_PAIR_RATIO and ratio < 0.05 and ra < 0.05 and rb < 0.05
+    swapped, _, (ra, rb) = V.glove_pair_ratio(b, a, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    assert swapped > 20 and ra > 20 and rb > 20
+    copied, _, (ra, rb) = V.glove_pair_ratio(b, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    assert copied == pytest.approx(1.0) and ra > 20 and rb < 0.05  # frame a holds b's image
+
+
+def test_glove_pair_ratio_needs_enough_blocks():
     seg = np.zeros((32, 32), np.uint8)
-    seg[4:28, 4:28] = 1
+    seg[10:17, 10:17] = 1  # 3 x 3 pixels after shrinking: one whole 2 x 2 block per frame
     rgb = np.full((32, 32, 3), 120, np.uint8)
-    assert glove_fit_ratio(rgb, seg, GLOVES[:1], 0, np.ones(3))[0] is None  # one glove: nothing to compare with
-    seg[:] = 0
-    seg[10:17, 10:17] = 1  # 3 x 3 pixels after shrinking: one whole 2 x 2 block
-    ratio, _, used = glove_fit_ratio(rgb, seg, GLOVES, 0, np.ones(3))
-    assert ratio is None and used == 1
+    assert len(V.hand_blocks(rgb, seg)[0]) == 1
+    ratio, limit, _ = V.glove_pair_ratio(rgb, rgb, seg, GLOVES, 0, 1, np.ones(3), np.ones(3))
+    assert ratio is None and limit == tol.VERIFY_GLOVE_PAIR_RATIO_FEW
 
 
 # --- rendered frames with two gloves ---------------------------------------------------------------
@@ -195,16 +208,17 @@ def _swap(root, a, b, modality="rgb", ext="jpg"):
     pb.write_bytes(data)
 
 
-def _glove_ratios(root):
-    """{frame id: glove fit ratio of its own files} (None: too few usable hand pixels)."""
+def _pair_ratios(root):
+    """{view: (pair ratio, limit)} of the frames v (glove 0) and 10 + v (glove 1)."""
     manifest = read_manifest(root)
     ann = read_annotations(root, "train", manifest=manifest)
     out = {}
-    for i, fid in enumerate(ann["frame_id"]):
-        rgb, _ = read_image(root / "train" / "rgb" / f"{fid:06d}.jpg", "rgb")
-        seg, _ = read_image(root / "train" / "seg" / f"{fid:06d}.png", "seg")
-        out[int(fid)] = glove_fit_ratio(rgb[..., ::-1], seg, manifest["gloves_rgb"], int(ann["glove_id"][i]),
-                                        ann["light_color"][i])[0]
+    for v in range(10):
+        rgb = [read_image(root / "train" / "rgb" / f"{f:06d}.jpg", "rgb")[0][..., ::-1].copy() for f in (v, 10 + v)]
+        seg, _ = read_image(root / "train" / "seg" / f"{v:06d}.png", "seg")
+        assert ann["glove_id"][v] == 0 and ann["glove_id"][10 + v] == 1
+        out[v] = V.glove_pair_ratio(*rgb, seg, manifest["gloves_rgb"], 0, 1, ann["light_color"][v],
+                                    ann["light_color"][10 + v])[:2]
     return out
 
 
@@ -212,23 +226,39 @@ def test_correct_two_glove_frames_pass(two_gloves):
     result = verify(two_gloves, workers=1, log=quiet)
     assert result["ok"], result["problems"]
     assert result["frames"] == 20 and result["skipped"] == []
-    ratios = _glove_ratios(two_gloves)
-    checked = [r for r in ratios.values() if r is not None]
-    assert len(checked) >= 16 and max(checked) < tol.VERIFY_GLOVE_FIT_RATIO
+    ratios = _pair_ratios(two_gloves)
+    assert all(r is not None and r < 0.5 * limit for r, limit in ratios.values()), ratios
 
 
 def test_rgb_swapped_between_gloves_of_the_same_view_is_found(two_gloves, tmp_path):
-    """The two frames share geometry, mask, depth and background: only the glove colour tells them apart."""
-    ratios = _glove_ratios(two_gloves)
-    views = [v for v in range(10) if ratios[v] is not None and ratios[10 + v] is not None][:3]
-    assert len(views) == 3
+    """The two frames share geometry, mask, depth and background: only glove and lamp tell them apart."""
     broken = _copy(two_gloves, tmp_path)
+    views = (1, 4, 6)
     for v in views:
         _swap(broken, v, 10 + v)
     problems = verify(broken, workers=1, log=quiet)["problems"]
     found = {(p["kind"], p["frame_id"]) for p in problems}
     assert found == {("rgb_mismatch", f) for v in views for f in (v, 10 + v)}, problems
-    assert all("fits glove" in p["detail"] and p["file"].startswith("train/rgb/") for p in problems)
+    assert all("swapped with or copied from that frame" in p["detail"] and p["file"].startswith("train/rgb/")
+               for p in problems)
+
+
+def test_rgb_copied_from_the_other_glove_is_found(two_gloves, tmp_path):
+    broken = _copy(two_gloves, tmp_path)
+    (broken / "train" / "rgb" / "000003.jpg").write_bytes((broken / "train" / "rgb" / "000013.jpg").read_bytes())
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert [(p["kind"], p["frame_id"]) for p in problems] == [("rgb_mismatch", 3)], problems
+    assert "frame 000013" in problems[0]["detail"]
+
+
+@pytest.mark.parametrize("modality, ext", [("seg", "png"), ("rgb", "jpg")])
+def test_a_file_from_another_view_does_not_implicate_the_other_glove(two_gloves, tmp_path, modality, ext):
+    """Frames 1 and 5 hold each other's seg (or RGB): their glove partners 11 and 15 are not named (read
+    through frame 5's new mask, the images of frames 5 and 15 had made frame 15 the stranger)."""
+    broken = _copy(two_gloves, tmp_path)
+    _swap(broken, 1, 5, modality, ext)
+    problems = verify(broken, workers=1, log=quiet)["problems"]
+    assert {p["frame_id"] for p in problems} == {1, 5}, problems
 
 
 @pytest.mark.parametrize("a, b", [(2, 15), (4, 6)], ids=["other-glove-other-view", "same-glove-other-view"])
