@@ -68,6 +68,10 @@ ANNOTATION_DTYPES = {name: dtype for name, (dtype, _) in ANNOTATION_FIELDS.items
 FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
 
 
+class DamagedFileError(ValueError):
+    """A dataset file cannot be read at all (not an archive, truncated, bad CRC): regenerate it."""
+
+
 def frame_path(root: str | Path, split: str, modality: str, frame_id: int, rgb_format: str = "jpg") -> Path:
     """``root/<split>/<modality>/<frame_id:06d>.<ext>``: rgb takes ``rgb_format``, depth and seg PNG."""
     ext = rgb_format if modality == "rgb" else "png"
@@ -199,9 +203,9 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         {name: array} with N rows each.
 
     Raises:
-        FileNotFoundError: the file is missing. ValueError: it is damaged (not a zip, truncated,
-        bad CRC), an array is missing or has another dtype, shape or row count (the message names
-        the file and the array).
+        FileNotFoundError: the file is missing. DamagedFileError (a ValueError): it cannot be read
+        (not a zip, truncated, bad CRC). ValueError: an array is missing or has another dtype, shape
+        or row count (the message names the file and the array).
     """
     root = Path(root)
     if manifest is None:
@@ -217,6 +221,10 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         raise FileNotFoundError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "
                                 f"{split} frames)")
     arrays = {}
+    if not zipfile.is_zipfile(path):
+        size = path.stat().st_size
+        what = "empty" if size == 0 else f"{size} bytes, no zip directory"
+        raise DamagedFileError(f"{path}: not an npz archive ({what}); regenerate the dataset")
     try:
         with np.load(path, allow_pickle=False) as data:
             absent = [k for k in keys if k not in data.files]
@@ -227,11 +235,11 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
-        raise _fail(path, f"damaged or not an annotations file ({exc})") from exc
+        raise DamagedFileError(f"{path}: damaged or not an annotations file ({exc})") from exc
     except (zipfile.BadZipFile, EOFError, KeyError, OSError, zipfile.LargeZipFile) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
-        raise _fail(path, f"damaged ({type(exc).__name__}: {exc}); regenerate the dataset") from exc
+        raise DamagedFileError(f"{path}: damaged ({type(exc).__name__}: {exc}); regenerate the dataset") from exc
     expected_rows = manifest["counts"].get(split, 0)
     for key in keys:
         dtype, row_shape = ANNOTATION_FIELDS[key]

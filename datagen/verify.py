@@ -76,8 +76,8 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import project_points
-from datagen.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, annotations_path, check_manifest, frame_path,
-                              read_annotations, read_manifest)
+from datagen.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, DamagedFileError, annotations_path,
+                              check_manifest, frame_path, read_annotations, read_manifest)
 from datagen.geometry import invert_transform, transform_points
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
@@ -190,9 +190,9 @@ def _read_split(root: Path, split: str, manifest: dict) -> tuple[dict | None, li
         return read_annotations(root, split, manifest=manifest), []
     except FileNotFoundError:
         return None, [_problem(split, None, "missing_file", f"missing (the manifest counts {expected} {split} frames)", rel)]
+    except DamagedFileError as exc:
+        return None, [_problem(split, None, "damaged_file", _message(exc, path), rel)]
     except ValueError as exc:
-        if exc.__cause__ is not None:  # the contract wraps what the zip, CRC and npy readers raised
-            return None, [_problem(split, None, "damaged_file", _message(exc, path), rel)]
         rejected = exc
     problems = []
     ids = _frame_ids(path)
