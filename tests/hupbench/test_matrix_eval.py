@@ -243,3 +243,23 @@ def test_fault_eval_sigkill_then_rerun(exported, tiny_dataset, tmp_path, capsys)
         reference.pop(field), again.pop(field)
     assert again == reference
     assert sorted(p.name for p in out.parent.iterdir()) == ["r.json"]
+
+
+@pytest.mark.matrix
+def test_fault_eval_stale_tmp_removed(exported, tiny_dataset, tmp_path, capsys):
+    """Temporary files of killed evaluations in the results folder (the results JSON, the ONNX file timed
+    for latency) are removed by the next eval; a live writer's are kept."""
+    import os
+
+    from test_train_faults import dead_pid
+
+    ckpt, _ = exported
+    out = tmp_path / "out" / "r.json"
+    pid = dead_pid()
+    stale = [out.with_name(f".r.json.tmp{pid}"), out.with_name(f".r.json.tmp{pid}.onnx")]
+    live = out.with_name(f".other.json.tmp{os.getpid()}")
+    for path in [*stale, live]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"\0" * 1000)
+    assert run_cli(capsys, "eval", ckpt, tiny_dataset, "--no-latency", "--out", out).rc == 0
+    assert sorted(p.name for p in out.parent.iterdir()) == sorted([live.name, "r.json"])

@@ -136,3 +136,21 @@ def test_fault_export_sigkill_then_rerun(exported, tmp_path):
     delay, _ = run_killed_then_again(argv, tmp_path, seed=15, window_s=30.0)
     assert out.read_bytes() == onnx_path.read_bytes(), f"the export differs after a kill at {delay:.1f} s"
     assert sorted(p.name for p in out.parent.iterdir()) == ["model.onnx"]
+
+
+@pytest.mark.matrix
+def test_fault_export_stale_tmp_removed(exported, tmp_path, capsys):
+    """Temporary files of killed exports in the output folder are removed by the next export; a live
+    writer's are kept."""
+    from test_train_faults import dead_pid
+
+    ckpt, onnx_path = exported
+    out = tmp_path / "out" / "model.onnx"
+    stale = out.with_name(f".model.onnx.tmp{dead_pid()}")
+    live = out.with_name(f".other.onnx.tmp{os.getpid()}")
+    for path in (stale, live):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"\0" * 1000)
+    assert run_cli(capsys, "export", ckpt, "--out", out).rc == 0
+    assert sorted(p.name for p in out.parent.iterdir()) == sorted([live.name, "model.onnx"])
+    assert out.read_bytes() == onnx_path.read_bytes()

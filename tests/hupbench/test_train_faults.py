@@ -222,3 +222,35 @@ def test_fault_train_sigkill_many_times(seed, tiny_dataset, tmp_path, reference)
     cache build, validation, steps, checkpoint and log writes: wherever they land), then the same command."""
     _sigkill_then_resume(tiny_dataset, tmp_path, reference, seed=seed, kills=3, after_training_line=False,
                          window_s=20.0 + reference.wall_s)
+
+
+def dead_pid() -> int:
+    """The pid of a process that has exited (what a killed writer's temporary name carries)."""
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
+
+
+@pytest.mark.matrix
+def test_fault_train_stale_tmp_removed(tiny_dataset, tmp_path, reference, capsys):
+    """Temporary files that killed runs left (measured before: 23 MB of .last.pt.tmpNNN and .best.pt.tmpNNN
+    that survived a later successful resume) are removed when training starts; a live writer's are kept."""
+    from hupbench import train
+    from hupbench.config import compose
+
+    run_dir, cache = tmp_path / "run", tmp_path / "cache"
+    pid = dead_pid()
+    stale = [run_dir / "checkpoints" / f".last.pt.tmp{pid}", run_dir / "checkpoints" / f".best.pt.tmp{pid}",
+             run_dir / f".metrics.jsonl.tmp{pid}", cache / f".train_64px.npy.tmp{pid}"]
+    live = run_dir / f".notes.txt.tmp{os.getpid()}"  # this process is alive: a writer still at work
+    for path in [*stale, live]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"\0" * 1000)
+    train.main(compose("train", overrides(tiny_dataset, run_dir, cache)))
+    out = capsys.readouterr().out
+    for path in stale[:3]:
+        assert not path.exists() and f"removed {path}, a temporary file of a run that was killed" in out
+    assert not stale[3].exists()  # the frame cache build cleans its own folder
+    assert live.exists()
+    live.unlink()
+    assert_whole_run(run_dir, reference, cache)
