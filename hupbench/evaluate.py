@@ -114,16 +114,22 @@ def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch:
     return statistics.median(times) * 1000.0 / batch
 
 
-def _latencies(torch_module, onnx_path, input_size: int, threads: int, log,
-               progress: bool = True) -> dict[str, dict[str, float | None]]:
+def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, progress: bool = True,
+               export: Callable[[], object] | None = None) -> dict[str, dict[str, float | None]]:
+    """Latency medians of both runtimes; ``export()``, when given, first writes ``onnx_path`` (a stage of the
+    progress bar: the exporter takes as long as the timings)."""
     from tqdm import tqdm
 
     from hupbench.export import ort_run, ort_session
 
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
     runtimes = (["pytorch"] if torch_module is not None else []) + ["onnxruntime"]
-    with tqdm(total=len(runtimes) * len(LATENCY_RUNS), unit="timing", desc="latency", dynamic_ncols=True,
-              leave=False, disable=None if progress else True) as bar:
+    with tqdm(total=len(runtimes) * len(LATENCY_RUNS) + (export is not None), unit="step", desc="latency",
+              dynamic_ncols=True, leave=False, disable=None if progress else True) as bar:
+        if export is not None:
+            bar.set_postfix_str("ONNX export for onnxruntime")
+            export()
+            bar.update(1)
         if torch_module is not None:
             def run_torch(images):
                 with torch.inference_mode():
@@ -494,13 +500,15 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
             # not in a folder of the system's: a killed eval leaves it where the next one removes it
             onnx_path = tmp_path(out_path, ".onnx")
             out_path.parent.mkdir(parents=True, exist_ok=True)
-            try:
+            def export():
                 try:
                     export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit()))
                 except OSError as exc:
                     raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
+
+            try:
                 results["latency_ms_per_image"] = _latencies(net.module, onnx_path, net.input_size,
-                                                             torch.get_num_threads(), log, progress)
+                                                             torch.get_num_threads(), log, progress, export)
             finally:
                 onnx_path.unlink(missing_ok=True)
     results["device"] = hardware_description(torch.device("cpu"))

@@ -562,6 +562,7 @@ def error_line(exc: BaseException) -> str:
         last = [line for line in text.splitlines() if line.strip()][-1].strip()
         match = re.match(r"^[A-Za-z_][\w.]*: (.*)$", last)
         text = match.group(1) if match else last
+    text = re.sub(r"^\[Errno \d+\] ", "", text)  # an OSError's number means nothing to the user; its text stays
     return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(exc).__name__
 
 

@@ -408,3 +408,17 @@ def test_compiled_training_matches_eager(tiny_dataset, tmp_path):
     a = [r["loss"] for r in read_log(eager) if r["event"] == "train"]
     b = [r["loss"] for r in read_log(compiled) if r["event"] == "train"]
     assert len(a) == len(b) == 3 and a == pytest.approx(b, rel=1e-3)
+
+
+def test_error_line_is_one_line_naming_the_file():
+    """train.py's error line: a DataLoader worker's exception (re-raised by torch with the worker's traceback
+    in its message) becomes the worker's own message; an OSError loses its "[Errno N]"; lines are joined."""
+    from hupbench.train import error_line
+
+    worker = RuntimeError("Caught FileNotFoundError in DataLoader worker process 0.\nOriginal Traceback (most recent "
+                          "call last):\n  File \"data.py\", line 9, in __getitem__\n    raise FileNotFoundError(...)\n"
+                          "FileNotFoundError: /d/train/rgb/000000.jpg does not exist (a frame the annotations list)\n")
+    assert error_line(worker) == "/d/train/rgb/000000.jpg does not exist (a frame the annotations list)"
+    assert error_line(PermissionError(30, "cannot write /r/.hupbench.lock: Read-only file system")) == \
+        "cannot write /r/.hupbench.lock: Read-only file system"
+    assert error_line(ValueError("first\n  second\n")) == "first second"
