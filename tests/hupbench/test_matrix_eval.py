@@ -194,27 +194,31 @@ def test_fault_eval_disk_full(exported, tiny_dataset, tmp_path):
     assert answer.rc == 1 and not tmp and files == [f"{disk}/filler"], (tmp, files)
 
 
-def run_killed_then_again(argv: list[str], cwd: Path, seed: int, window_s: float) -> tuple[float, str]:
-    """Run ``argv``, SIGKILL it at a seeded random moment within ``window_s`` s of its start, then run it again
-    to the end. Returns (the delay of the kill, negative when the first run had already finished; the second
-    run's stderr)."""
+def run_killed_then_again(argv: list[str], cwd: Path, seed: int, folder: Path, pattern: str,
+                          window_s: float) -> list[str]:
+    """Run ``argv``; once a file matching ``pattern`` appears in ``folder`` (a temporary file: the run is
+    writing), SIGKILL it at a seeded random moment within ``window_s`` s; then run it again to the end.
+
+    Returns:
+        The names in ``folder`` right after the kill (what the killed run left).
+    """
     import os
     import signal
     import subprocess
     import time
 
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
-    delay = float(np.random.default_rng(seed).uniform(0.0, window_s))
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd, env=env)
-    time.sleep(delay)
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGKILL)
-    else:
-        delay = -delay
+    while not list(folder.glob(pattern)) and proc.poll() is None:
+        time.sleep(0.005)
+    time.sleep(float(np.random.default_rng(seed).uniform(0.0, window_s)))
+    assert proc.poll() is None, "the run finished before its kill"
+    proc.send_signal(signal.SIGKILL)
     proc.wait()
+    left = sorted(p.name for p in folder.iterdir())
     done = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=900)
-    assert done.returncode == 0, f"killed after {delay:.1f} s, then: {done.stderr[-3000:]}"
-    return delay, done.stderr
+    assert done.returncode == 0, f"killed leaving {left}, then: {done.stderr[-3000:]}"
+    return left
 
 
 #: results fields that differ between two evaluations of one model on one dataset: when it ran, and timings
@@ -223,9 +227,9 @@ RERUN_FREE_FIELDS = ("created_utc", "latency_ms_per_image")
 
 @pytest.mark.matrix
 def test_fault_eval_sigkill_then_rerun(exported, tiny_dataset, tmp_path, capsys):
-    """SIGKILL at a seeded random point of a checkpoint eval with latency timing (the model pass, the temporary
-    ONNX export beside the results, the timings, the write), then the same command: the results equal an
-    uninterrupted eval's but for created_utc and the latencies, and no temporary file is left."""
+    """SIGKILL at a seeded random point of a checkpoint eval while it times latency (its temporary ONNX file
+    beside the results being written or timed), then the same command: the results equal an uninterrupted
+    eval's but for created_utc and the latencies, and no temporary file is left."""
     import time
 
     ckpt, _ = exported
@@ -235,8 +239,11 @@ def test_fault_eval_sigkill_then_rerun(exported, tiny_dataset, tmp_path, capsys)
     assert run_cli(capsys, *argv, "--out", tmp_path / "ref" / "r.json").rc == 0
     took = time.perf_counter() - start
     out = tmp_path / "killed" / "r.json"
-    run_killed_then_again([sys.executable, "-m", "hupbench.cli", *argv, "--out", str(out)], tmp_path, seed=15,
-                          window_s=5.0 + took)
+    out.parent.mkdir()
+    # killed while the ONNX file timed for latency exists (the exporter is writing it, or the timings run)
+    left = run_killed_then_again([sys.executable, "-m", "hupbench.cli", *argv, "--out", str(out)], tmp_path,
+                                 seed=15, folder=out.parent, pattern=".r.json.tmp*.onnx", window_s=min(took / 4, 3.0))
+    assert left and all(name.startswith(".r.json.tmp") for name in left), left
     reference = json.loads((tmp_path / "ref" / "r.json").read_text())
     again = json.loads(out.read_text())
     for field in RERUN_FREE_FIELDS:
