@@ -124,9 +124,15 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
             if frames.shape == (len(frame_ids), input_size, input_size, 3) and frames.dtype == np.uint8:
                 return frames
         log(f"frame cache {npy_path} is stale (the dataset or the reader changed); rebuilding it")
-    # the key file goes first so that no reader trusts a half-replaced cache
-    key_path.unlink(missing_ok=True)
-    cache_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        # the key file goes first so that no reader trusts a half-replaced cache
+        key_path.unlink(missing_ok=True)
+        cache_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):  # e.g. the default <dataset>/cache of a shared dataset
+            raise PermissionError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
+                                             "data.cache_dir to a writable folder") from exc
+        raise
     clean_stale_tmp(cache_dir, recursive=False)  # builds of killed runs
     n = len(frame_ids)
     # written under a temporary name, renamed when whole; a failure removes it (a full disk says so)

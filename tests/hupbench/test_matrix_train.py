@@ -374,6 +374,8 @@ CLI_CASES = {
     "rgb-undecodable-in-worker": (["data.root=DAMAGED:rgb-undecodable", "data.pipeline=jpeg", "data.num_workers=1"],
                                   ("000000.jpg", "cannot decode")),
     "run-dir-read-only": (["data.root=DATASET"], ("run", "read-only")),
+    # a dataset on a read-only mount: its default frame cache folder (DATASET/cache) cannot be made
+    "dataset-read-only": (["data.root=RO/dataset", "data.cache_dir=null"], ("ro/dataset/cache", "data.cache_dir")),
 }
 
 
@@ -392,6 +394,12 @@ def test_matrix_train_cli(case, tiny_dataset, tmp_path):
         ro = tmp_path / "ro"
         args = " ".join(f"'{a}'" for a in [*common, f"run_dir={ro}/run", *argv])
         rc, output = private_mount("ro", ro, f'"{sys.executable}" train.py {args}')
+        answer = CliAnswer(rc, "", output)
+    elif case == "dataset-read-only":
+        ro = tmp_path / "ro"
+        args = " ".join(f"'{a.replace('RO', str(ro))}'" for a in [*common, f"run_dir={tmp_path}/run", *argv])
+        rc, output = private_mount("size=8m", ro, f'cp -r "{tiny_dataset}" "$D/dataset" && rm -rf "$D/dataset/cache" '
+                                                   f'&& mount -o remount,ro "$D" && "{sys.executable}" train.py {args}')
         answer = CliAnswer(rc, "", output)
     else:  # the case's overrides last: Hydra takes the last value of a key given twice
         answer = train_py(*common, f"run_dir={tmp_path}/run", *argv, cwd=tmp_path)
