@@ -23,13 +23,15 @@ Format (``torch.save`` of a dict, loaded with ``weights_only=True``: no pickled 
 from __future__ import annotations
 
 import hashlib
-import os
+import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
+from datagen.io import write_with
 from models.build import build_model, load_checkpoint_state
 
 FORMAT = "hupbench-checkpoint"
@@ -47,12 +49,10 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     missing = [k for k in REQUIRED_KEYS if k not in payload and k not in ("format", "version")]
     if missing:
         raise ValueError(f"checkpoint payload lacks {', '.join(missing)}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save({"format": FORMAT, "version": VERSION, **payload}, tmp)
-    os.replace(tmp, path)
-    return path
+    payload = {"format": FORMAT, "version": VERSION, **payload}
+    # torch.save reports a full disk as "[enforce fail at inline_container.cc] . unexpected pos": write_with
+    # names the device and the file instead, and removes the temporary file of any failed write
+    return write_with(path, lambda tmp: torch.save(payload, tmp))
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -60,10 +60,16 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes): not a readable torch checkpoint")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several unrelated types for a corrupt or foreign file
-        raise ValueError(f"{path} is not a readable torch checkpoint: {type(exc).__name__}: {exc}") from exc
+        # the first sentence only: torch's unpickling errors go on for lines about weights_only=False,
+        # which is not the cure for a damaged file
+        first = next((line for line in str(exc).splitlines() if line.strip()), "").split(". ")[0][:200]
+        raise ValueError(f"{path} is not a readable torch checkpoint (damaged, truncated or not written by "
+                         f"torch.save): {type(exc).__name__}: {first}") from exc
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path} is not a hupbench checkpoint (no format={FORMAT!r} field)")
     if payload.get("version") != VERSION:
@@ -71,7 +77,32 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED_KEYS if k not in payload]
     if missing:
         raise ValueError(f"checkpoint {path} lacks {', '.join(missing)}")
+    _check_fields(payload, path)
     return payload
+
+
+def _check_fields(payload: dict, path: Path) -> None:
+    """The fields every consumer relies on, checked before anything is built from them."""
+    if not isinstance(payload["model_config"], Mapping) or not isinstance(payload["model_config"].get("name"), str):
+        raise ValueError(f"checkpoint {path}: model_config must be a mapping with a model 'name', "
+                         f"got {type(payload['model_config']).__name__}")
+    if not isinstance(payload["model"], Mapping):
+        raise ValueError(f"checkpoint {path}: model must be a state dict (name -> tensor), "
+                         f"got {type(payload['model']).__name__}")
+    size = payload["input_size"]
+    if isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= 2048:
+        raise ValueError(f"checkpoint {path}: input_size must be an int from 16 to 2048, got {size!r}")
+    K = payload["K_input"]
+    try:
+        values = [float(v) for row in K for v in row] if len(K) == 3 and all(len(row) == 3 for row in K) else None
+    except (TypeError, ValueError):
+        values = None
+    if values is None or not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[4] <= 0:
+        raise ValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal lengths, "
+                         f"got {K!r:.80}")
+    step = payload["step"]
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise ValueError(f"checkpoint {path}: step must be an int >= 0, got {step!r}")
 
 
 def load_model(path: str | Path) -> tuple[nn.Module, dict[str, Any]]:
@@ -81,8 +112,22 @@ def load_model(path: str | Path) -> tuple[nn.Module, dict[str, Any]]:
         (model in eval mode on the CPU, the checkpoint dict).
     """
     payload = read_checkpoint(path)
-    model = load_checkpoint_state(build_model(payload["model_config"]), payload["model"])
-    return model.eval(), payload
+    return load_checkpoint_model(payload, path).eval(), payload
+
+
+def load_checkpoint_model(payload: dict[str, Any], path: str | Path) -> nn.Module:
+    """The model of a checked checkpoint dict, built from its model_config with its weights loaded strictly;
+    a config that builds no model, or weights that do not fit it, raise ValueError naming ``path``."""
+    name = payload["model_config"].get("name")
+    try:
+        model = build_model(payload["model_config"])
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"checkpoint {path}: its model_config builds no model: {exc}") from exc
+    try:
+        return load_checkpoint_state(model, payload["model"])
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"checkpoint {path}: its weights do not fit its model_config (a {name!r} model): "
+                         f"{exc}") from exc
 
 
 def file_sha256(path: str | Path) -> str:

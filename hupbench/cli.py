@@ -167,24 +167,38 @@ def _predict(args: list[str]) -> int:
 def _eval(args: list[str]) -> int:
     from hupbench.evaluate import run_eval
 
+    def _positive_int(text: str) -> int:
+        """argparse type of --batch-size, --threads: a whole number >= 1 (argparse names the option)."""
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text!r}") from None
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text!r}")
+        return value
+
     parser = argparse.ArgumentParser(prog="hupbench eval")
     parser.add_argument("model", help="a hupbench checkpoint (.pt) or an exported ONNX model (.onnx)")
     parser.add_argument("dataset", help="a finished dataset folder (with manifest.json)")
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
     parser.add_argument("--out", help="results JSON (default leaderboard/results/<run name>.json); its stem is the run name")
     parser.add_argument("--run-name", help="default: the training run name, the ONNX metadata's, or the stem of --out")
-    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--batch-size", type=_positive_int, default=32)
     parser.add_argument("--latency", action=argparse.BooleanOptionalAction, default=True,
                         help="time PyTorch and onnxruntime at batch 1 and 32")
-    parser.add_argument("--threads", type=int, help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
+    parser.add_argument("--threads", type=_positive_int,
+                        help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
     parser.add_argument("--training-command", help="the committed command that reproduces the training run")
     parser.add_argument("--training-log", help="the run's metrics.jsonl relative to the leaderboard folder")
     parser.add_argument("--label", help="the model's name in the results (default: the run's label, else "
                         "model, backbone and input size)")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
+                        help="progress bars with ETA on a terminal")
     ns = parser.parse_args(args)
     result = run_eval(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
                       batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
-                      training_command=ns.training_command, training_log=ns.training_log, label=ns.label)
+                      training_command=ns.training_command, training_log=ns.training_log, label=ns.label,
+                      progress=ns.progress)
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
     return 0
@@ -199,8 +213,11 @@ def _export(args: list[str]) -> int:
     parser.add_argument("--dataset", help="dataset for the parity images (default: the checkpoint's training dataset)")
     parser.add_argument("--opset", type=int, default=OPSET)
     parser.add_argument("--run-name", help="hupbench.run_name metadata (default: the training run name)")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
+                        help="a progress bar over the stages on a terminal")
     ns = parser.parse_args(args)
-    result = run_export(ns.checkpoint, out=ns.out, dataset=ns.dataset, opset=ns.opset, run_name=ns.run_name)
+    result = run_export(ns.checkpoint, out=ns.out, dataset=ns.dataset, opset=ns.opset, run_name=ns.run_name,
+                        progress=ns.progress)
     print(f"hupbench export: {result['onnx']} (opset {result['opset']}, parity max |ORT - PyTorch|: "
           f"points3d {result['parity']['points3d_mm']:.2e} mm, points2d {result['parity']['points2d_px']:.2e} px)")
     return 0

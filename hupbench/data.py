@@ -29,6 +29,39 @@ from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part
 from datagen.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
 
 
+#: the model input side, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a
+#: split's frame cache (N x S x S x 3 bytes) outgrows any disk long before a model could use the detail
+MIN_INPUT_SIZE, MAX_INPUT_SIZE = 16, 2048
+
+
+def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
+    """A stored frame as (H, W, 3) uint8 RGB, checked: it exists, decodes, and has the manifest's size.
+
+    Args:
+        path: the image file.
+        image_size: (width, height) the manifest gives for every frame, or None to skip that check.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: not a decodable image, or another size (the message
+        names the file; a frame of another size would put every label in the wrong place).
+    """
+    path = Path(path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path} does not exist (a frame the annotations list)") from None
+    # imdecode, not imread: imread prints OpenCV's own warning for a missing or foreign file before
+    # returning None, which a user cannot act on (the error below names the file)
+    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if image is None:
+        raise ValueError(f"cannot decode {path} as an image ({data.size} bytes): damaged or not a JPG/PNG")
+    if image_size is not None:
+        width, height = (int(v) for v in image_size)
+        if image.shape[:2] != (height, width):
+            raise ValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
+    return np.ascontiguousarray(image[..., ::-1])
+
+
 def rotation_about_optical_axis(angle: float) -> np.ndarray:
     """(3, 3) camera-frame rotation that turns the image content by ``angle`` about the principal point.
 
@@ -56,12 +89,14 @@ class ReaderConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if isinstance(self.input_size, bool) or not isinstance(self.input_size, int) or self.input_size < 16:
-            raise ValueError(f"input_size must be an int >= 16, got {self.input_size!r}")
-        if not 0.0 <= self.rotate_deg <= 180.0:
-            raise ValueError(f"rotate_deg must be in [0, 180], got {self.rotate_deg!r}")
-        if not 0.0 <= self.photometric <= 1.0:
-            raise ValueError(f"photometric must be in [0, 1], got {self.photometric!r}")
+        if (isinstance(self.input_size, bool) or not isinstance(self.input_size, int)
+                or not MIN_INPUT_SIZE <= self.input_size <= MAX_INPUT_SIZE):
+            raise ValueError(f"input_size must be an int >= {MIN_INPUT_SIZE} and <= {MAX_INPUT_SIZE}, "
+                             f"got {self.input_size!r}")
+        for name, high in (("rotate_deg", 180.0), ("photometric", 1.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= high:
+                raise ValueError(f"{name} must be a number in [0, {high:g}], got {value!r}")
 
 
 class HUPDataset(torch.utils.data.Dataset):
@@ -104,10 +139,7 @@ class HUPDataset(torch.utils.data.Dataset):
     def __getitem__(self, index: int) -> dict:
         frame_id = int(self.ann["frame_id"][index])
         path = frame_path(self.root, self.split, "rgb", frame_id, self.manifest["rgb_format"])
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise FileNotFoundError(f"cannot read {path}")
-        image = image[..., ::-1]
+        image = read_rgb(path, self.manifest["image_size"])
         size = self.config.input_size
         scale = size / image.shape[1]
         if image.shape[0] != image.shape[1]:

@@ -37,9 +37,9 @@ What the numbers are:
 
 from __future__ import annotations
 
+import errno
 import json
 import statistics
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -114,20 +114,36 @@ def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch:
     return statistics.median(times) * 1000.0 / batch
 
 
-def _latencies(torch_module, onnx_path, input_size: int, threads: int, log) -> dict[str, dict[str, float | None]]:
-    from hupbench.export import ort_session
+def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, progress: bool = True,
+               export: Callable[[], object] | None = None) -> dict[str, dict[str, float | None]]:
+    """Latency medians of both runtimes; ``export()``, when given, first writes ``onnx_path`` (a stage of the
+    progress bar: the exporter takes as long as the timings)."""
+    from tqdm import tqdm
+
+    from hupbench.export import ort_run, ort_session
 
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
-    if torch_module is not None:
-        def run_torch(images):
-            with torch.inference_mode():
-                torch_module(torch.from_numpy(images))
+    runtimes = (["pytorch"] if torch_module is not None else []) + ["onnxruntime"]
+    with tqdm(total=len(runtimes) * len(LATENCY_RUNS) + (export is not None), unit="step", desc="latency",
+              dynamic_ncols=True, leave=False, disable=None if progress else True) as bar:
+        if export is not None:
+            bar.set_postfix_str("ONNX export for onnxruntime")
+            export()
+            bar.update(1)
+        if torch_module is not None:
+            def run_torch(images):
+                with torch.inference_mode():
+                    torch_module(torch.from_numpy(images))
+            for batch, (warmup, repeats) in LATENCY_RUNS.items():
+                bar.set_postfix_str(f"PyTorch batch {batch}")
+                out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats)
+                bar.update(1)
+        session = ort_session(onnx_path, threads)
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
-            out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats)
-    session = ort_session(onnx_path, threads)
-    for batch, (warmup, repeats) in LATENCY_RUNS.items():
-        out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
-            lambda images: session.run(None, {"image": images}), input_size, batch, warmup, repeats)
+            bar.set_postfix_str(f"onnxruntime batch {batch}")
+            out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
+                lambda images: ort_run(session, onnx_path, images), input_size, batch, warmup, repeats)
+            bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
     return out
@@ -189,7 +205,7 @@ class _Model:
             self._load_onnx(path)
         n = self.model_config.get("n_keypoints", kp.NUM_KEYPOINTS)
         if n != kp.NUM_KEYPOINTS:
-            raise ValueError(f"the model predicts {n} keypoints; the dataset and the benchmark have "
+            raise ValueError(f"{path}: the model predicts {n} keypoints; the dataset and the benchmark have "
                              f"{kp.NUM_KEYPOINTS}")
 
     def _load_checkpoint(self, path: Path) -> None:
@@ -200,7 +216,10 @@ class _Model:
         self.format = "pytorch"
         self.payload = payload
         self.model_config = dict(payload["model_config"])
-        self.module = contract_model(model, payload)
+        try:
+            self.module = contract_model(model, payload)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from exc
         self.input_size = self.module.input_size
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
@@ -229,7 +248,9 @@ class _Model:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
             return points2d.double().numpy(), points3d.double().numpy()
-        points2d, points3d = self.session.run(["points2d", "points3d"], {"image": images.numpy()})
+        from hupbench.export import ort_run
+
+        points2d, points3d = ort_run(self.session, self.onnx_path, images.numpy())
         return points2d.astype(np.float64), points3d.astype(np.float64)
 
     def cost(self) -> tuple[int, int]:
@@ -341,7 +362,7 @@ def _spread_ratio(pred3d: np.ndarray, gt3d: np.ndarray, log) -> dict[str, float 
 def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
              run_name: str | None = None, batch_size: int = 32, latency: bool = True,
              threads: int | None = None, training_command: str | None = None, training_log: str | None = None,
-             label: str | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
+             label: str | None = None, log: Callable[[str], None] = print, progress: bool = True) -> dict[str, Any]:
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
     Args:
@@ -363,9 +384,15 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         label: the model's name in the results (default: the training config's ``label``, else
             model, backbone and input size).
         log: called with progress lines.
+        progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
 
     Returns:
         {"results": the validated results dict, "out": str path, "table": str}
+
+    Raises:
+        ValueError: a bad argument, model file or dataset (the message names it). OSError: a missing file,
+        an unwritable output, a full disk. RuntimeError: the model fails or outputs NaN. In every case no
+        results file is written.
     """
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
@@ -376,25 +403,35 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         torch.set_num_threads(threads)
     try:
         return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log,
-                         training_command, training_log, label)
+                         training_command, training_log, label, progress)
     finally:
         torch.set_num_threads(previous_threads)
 
 
 def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
               log, training_command: str | None = None, training_log: str | None = None,
-              label: str | None = None) -> dict[str, Any]:
-    from hupbench.checkpoint import file_sha256
+              label: str | None = None, progress: bool = True) -> dict[str, Any]:
+    from tqdm import tqdm
+
     from datagen.contract import read_annotations
+    from datagen.io import DiskFullError, clean_stale_tmp, tmp_path
+    from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
+    from hupbench.export import check_output_file
     from hupbench.provenance import git_commit
     from hupbench.results import blank_results, write_results
     from hupbench.train import hardware_description
 
     _model_format(model_path)
+    if out is not None:  # an unwritable --out is refused before minutes of work
+        _resolve_out(out, run_name, "")
+        check_output_file(out)
     manifest = _check_dataset(dataset, split)
     net = _Model(model_path)
     out_path, run_name = _resolve_out(out, run_name, net.run_name)
+    check_output_file(out_path)
+    if out_path.parent.is_dir():
+        clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
 
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size))
     K_eval = reader[0]["K"].double().numpy()
@@ -404,7 +441,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     loader = torch.utils.data.DataLoader(reader, batch_size=batch_size, shuffle=False, num_workers=0)
     pred2d, pred3d, gt2d, gt3d, frame_ids = [], [], [], [], []
     start = time.perf_counter()
-    for batch in loader:
+    for batch in tqdm(loader, unit="batch", desc=f"eval {split}", dynamic_ncols=True, leave=False,
+                      disable=None if progress else True):  # None: only on a terminal
         p2, p3 = net.predict(batch["image"])
         pred2d.append(p2)
         pred3d.append(p3)
@@ -454,15 +492,25 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     if latency:
         if net.format == "onnx":
             results["latency_ms_per_image"] = _latencies(None, net.onnx_path, net.input_size,
-                                                         torch.get_num_threads(), log)
+                                                         torch.get_num_threads(), log, progress)
         else:
             from hupbench.export import export_onnx, onnx_metadata
 
-            with tempfile.TemporaryDirectory(prefix="hupbench_eval_") as tmp:
-                onnx_path = export_onnx(net.module, Path(tmp) / "model.onnx",
-                                        onnx_metadata(net.payload, run_name, git_commit()))
+            # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``),
+            # not in a folder of the system's: a killed eval leaves it where the next one removes it
+            onnx_path = tmp_path(out_path, ".onnx")
+            out_path.parent.mkdir(parents=True, exist_ok=True)
+            def export():
+                try:
+                    export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit()))
+                except OSError as exc:
+                    raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
+
+            try:
                 results["latency_ms_per_image"] = _latencies(net.module, onnx_path, net.input_size,
-                                                             torch.get_num_threads(), log)
+                                                             torch.get_num_threads(), log, progress, export)
+            finally:
+                onnx_path.unlink(missing_ok=True)
     results["device"] = hardware_description(torch.device("cpu"))
     results["training"] = _training_block(model_path, net.payload)
     results["training"]["command"] = training_command

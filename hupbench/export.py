@@ -29,7 +29,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -54,6 +53,9 @@ __all__ = [
 
 #: the ONNX opset of every exported file (fixed: the contract with ``hupbench predict``)
 OPSET = 18
+#: opsets ``--opset`` may ask for: the dynamo exporter's minimum to the newest torch's exporter writes
+#: (torch.onnx._constants.ONNX_MAX_OPSET, 23 in torch 2.13)
+OPSET_MIN = 18
 #: ONNX schema version written into metadata_props["hupbench.onnx_schema"]
 ONNX_SCHEMA = "1"
 #: largest allowed |onnxruntime - PyTorch| of points3d, millimetres
@@ -162,22 +164,69 @@ def read_onnx_metadata(path: str | Path) -> dict[str, Any]:
     except Exception as exc:  # onnx raises DecodeError, OSError and others for a foreign file
         raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from exc
     props = {p.key: p.value for p in proto.metadata_props}
+    if not props and path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty: not a hupbench ONNX export")
     if props.get(META + "onnx_schema") != ONNX_SCHEMA:
         raise ValueError(f"{path} is not a hupbench ONNX export (metadata hupbench.onnx_schema is "
                          f"{props.get(META + 'onnx_schema')!r}, expected {ONNX_SCHEMA!r})")
-    try:
-        meta = {
-            "input_size": int(props[META + "input_size"]),
-            "K_input": json.loads(props[META + "K_input"]),
-            "model_config": json.loads(props[META + "model_config"]),
-            "keypoint_names": json.loads(props[META + "keypoint_names"]),
-            "skeleton_edges": json.loads(props[META + "skeleton_edges"]),
-            "run_name": props.get(META + "run_name", ""),
-            "git_commit": props.get(META + "git_commit", ""),
-        }
-    except (KeyError, ValueError) as exc:
-        raise ValueError(f"{path}: bad or missing hupbench metadata: {type(exc).__name__}: {exc}") from exc
+    meta = {"run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
+    for key, parse in (("input_size", int), ("K_input", json.loads), ("model_config", json.loads),
+                       ("keypoint_names", json.loads), ("skeleton_edges", json.loads)):
+        if META + key not in props:
+            raise ValueError(f"{path}: the hupbench metadata lacks {META + key}")
+        try:
+            meta[key] = parse(props[META + key])
+        except ValueError as exc:
+            raise ValueError(f"{path}: metadata {META + key} is not valid ({type(exc).__name__}: {exc}): "
+                             f"{props[META + key][:80]!r}") from exc
+    _check_metadata(meta, path)
+    _check_graph(proto.graph, meta["input_size"], path)
     return meta
+
+
+def _check_metadata(meta: dict, path: Path) -> None:
+    size = meta["input_size"]
+    if not 16 <= size <= 2048:
+        raise ValueError(f"{path}: metadata hupbench.input_size must be from 16 to 2048, got {size}")
+    try:
+        K = np.asarray(meta["K_input"], dtype=np.float64)
+    except (TypeError, ValueError):
+        K = None
+    if K is None or K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"{path}: metadata hupbench.K_input must be a finite 3 x 3 matrix with positive focal "
+                         f"lengths, got {meta['K_input']!r:.80}")
+    if not isinstance(meta["model_config"], dict):
+        raise ValueError(f"{path}: metadata hupbench.model_config must be a JSON object, got "
+                         f"{type(meta['model_config']).__name__}")
+
+
+def _dims(value_info) -> list:
+    """The declared dimensions of a graph input or output: ints, names of dynamic axes, or None."""
+    dims = []
+    for dim in value_info.type.tensor_type.shape.dim:
+        dims.append(dim.dim_value if dim.HasField("dim_value") else (dim.dim_param or None))
+    return dims
+
+
+def _check_graph(graph, input_size: int, path: Path) -> None:
+    """The graph's declared input and outputs against the contract and the metadata's input size: a file
+    whose metadata and graph disagree would otherwise fail deep inside onnxruntime on the first batch."""
+    inputs = {v.name: _dims(v) for v in graph.input}
+    outputs = {v.name: _dims(v) for v in graph.output}
+    expected = {"image": [3, input_size, input_size]}
+    if "image" not in inputs:
+        raise ValueError(f"{path}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
+    for name, width in (("points3d", 3), ("points2d", 2)):
+        if name not in outputs:
+            raise ValueError(f"{path}: the graph has no output {name!r} (outputs {sorted(outputs)})")
+        expected[name] = [kp.NUM_KEYPOINTS, width]
+    for name, tail in expected.items():
+        dims = inputs.get(name, outputs.get(name))
+        if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
+            shown = ", ".join(str(d) for d in dims)
+            raise ValueError(f"{path}: the graph's {name} is ({shown}), expected (batch, {', '.join(map(str, tail))})"
+                             + (f" for the metadata's hupbench.input_size {input_size}" if name == "image" else
+                                f" ({kp.NUM_KEYPOINTS} keypoints)"))
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
@@ -196,8 +245,7 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     """
     import onnx
 
-    if isinstance(opset, bool) or not isinstance(opset, int) or opset < 18:
-        raise ValueError(f"opset must be an int >= 18 (the dynamo exporter's minimum), got {opset!r}")
+    check_opset(opset)
     size = module.input_size
     example = torch.rand(2, 3, size, size)
     # two exporter messages that a user cannot act on, silenced here and only here: the registry's
@@ -225,14 +273,68 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     return path
 
 
+def check_opset(opset) -> int:
+    """``opset`` when the exporter writes it: an int from :data:`OPSET_MIN` to torch's newest."""
+    from torch.onnx._constants import ONNX_MAX_OPSET
+
+    if isinstance(opset, bool) or not isinstance(opset, int) or not OPSET_MIN <= opset <= ONNX_MAX_OPSET:
+        raise ValueError(f"opset must be an int from {OPSET_MIN} (the dynamo exporter's minimum) to {ONNX_MAX_OPSET} "
+                         f"(the newest this torch writes), got {opset!r}")
+    return opset
+
+
+def check_output_file(path: str | Path, option: str = "--out") -> Path:
+    """Check, before any work, that ``path`` can be written: not a folder, and its folder (or the nearest
+    one that exists, where the missing ones will be made) writable.
+
+    Raises:
+        ValueError: ``path`` is a folder. PermissionError: its folder is read-only or not writable.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a folder; expected a file path")
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ValueError(f"{option} {path}: {folder} is a file, not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        readonly = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+        raise PermissionError(f"cannot write {path}: {folder} is " + ("on a read-only file system" if readonly
+                                                                       else "not writable (permission denied)"))
+    return path
+
+
 def ort_session(path: str | Path, threads: int | None = None):
-    """An onnxruntime CPU session; ``threads`` intra-op threads (default: torch's thread count, for a fair timing)."""
+    """An onnxruntime CPU session; ``threads`` intra-op threads (default: torch's thread count, for a fair timing).
+
+    Raises:
+        ValueError: onnxruntime cannot load the file (its message follows the file name).
+    """
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = int(threads or torch.get_num_threads())
     options.log_severity_level = 3
-    return ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
+    try:
+        return ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's errors (Fail, InvalidGraph, ...) derive from Exception only
+        raise ValueError(f"onnxruntime cannot load {path}: {_first_line(exc)}") from exc
+
+
+def ort_run(session, path: str | Path, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points2d, points3d) of an onnxruntime session on (B, 3, S, S) float32 images; onnxruntime's own
+    errors (a graph that does not take these images) become RuntimeError naming ``path``."""
+    try:
+        points2d, points3d = session.run(["points2d", "points3d"], {"image": images})
+    except Exception as exc:  # onnxruntime's errors (InvalidArgument, Fail, ...) derive from Exception only
+        raise RuntimeError(f"onnxruntime failed on {path} with images of shape {tuple(images.shape)}: "
+                           f"{_first_line(exc)}") from exc
+    return points2d, points3d
+
+
+def _first_line(exc: BaseException) -> str:
+    return next((line.strip() for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
 
 
 def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
@@ -257,7 +359,7 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
     """
     with torch.inference_mode():
         ref2d, ref3d = module(images)
-    got2d, got3d = ort_session(onnx_path).run(["points2d", "points3d"], {"image": images.numpy()})
+    got2d, got3d = ort_run(ort_session(onnx_path), onnx_path, images.numpy())
     d3 = float(np.max(np.abs(got3d.astype(np.float64) - ref3d.numpy().astype(np.float64)))) * 1000.0
     d2 = float(np.max(np.abs(got2d.astype(np.float64) - ref2d.numpy().astype(np.float64))))
     if not (np.isfinite(d3) and np.isfinite(d2)):
@@ -268,64 +370,88 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
 
 def run_export(checkpoint: str | Path, out: str | Path | None = None, dataset: str | Path | None = None,
                opset: int = OPSET, run_name: str | None = None, parity_frames: int = PARITY_FRAMES,
-               log=print) -> dict[str, Any]:
+               log=print, progress: bool = True) -> dict[str, Any]:
     """Export a checkpoint to ONNX and check onnxruntime against PyTorch on real images.
+
+    Everything is checked before the export starts (the opset, the output path and its folder, the
+    checkpoint, the dataset and its parity images). The file is written under a temporary name in the
+    output folder and renamed only after the parity check passed; temporary files of killed exports
+    there are removed first.
 
     Args:
         checkpoint: a hupbench checkpoint (``.pt``).
-        out: destination ``.onnx`` (default: the checkpoint path with suffix ``.onnx``).
+        out: destination ``.onnx`` (default: the checkpoint path with suffix ``.onnx``); missing folders
+            are made.
         dataset: dataset for the parity images (default: the checkpoint's training dataset).
         opset: ONNX opset (18).
         run_name: "hupbench.run_name" metadata (default: :func:`default_run_name`).
         parity_frames: images compared (from the test split, else val, else train).
         log: called with progress lines.
+        progress: a progress bar over the stages (export, parity) on a terminal.
 
     Returns:
         {"onnx": str path, "parity": {"points3d_mm", "points2d_norm", "points2d_px", "frames"},
          "dataset": str, "opset": int, "run_name": str, "metadata": dict}
 
     Raises:
-        RuntimeError: the 3D outputs differ by more than ``PARITY_MAX_3D_MM``; no file is left at ``out``.
+        ValueError: a bad argument, checkpoint or dataset (the message names it). OSError: a missing
+        file, an unwritable output folder, a full disk. RuntimeError: the 3D outputs differ by more
+        than ``PARITY_MAX_3D_MM``. In every case no file is left at ``out``.
     """
+    from tqdm import tqdm
+
+    from datagen.io import atomic_output, clean_stale_tmp
     from hupbench.checkpoint import load_model
     from hupbench.provenance import git_commit
 
+    check_opset(opset)
     checkpoint = Path(checkpoint)
     if checkpoint.suffix.lower() not in (".pt", ".pth"):
         raise ValueError(f"export needs a hupbench checkpoint (.pt), got {checkpoint.name!r}")
-    model, payload = load_model(checkpoint)
-    module = contract_model(model, payload)
     out = Path(out) if out is not None else checkpoint.with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
         raise ValueError(f"--out must end in .onnx, got {out.name!r}")
+    check_output_file(out)
+    model, payload = load_model(checkpoint)
+    try:
+        module = contract_model(model, payload)
+    except ValueError as exc:
+        raise ValueError(f"checkpoint {checkpoint}: {exc}") from exc
     if dataset is None:
         recorded = (payload.get("dataset") or {}).get("path")
         if not recorded:
-            raise ValueError("the checkpoint records no dataset for the parity check; pass --dataset")
+            raise ValueError(f"checkpoint {checkpoint} records no dataset for the parity check; pass --dataset")
         dataset = recorded
     dataset = Path(dataset)
-    if not dataset.is_dir():
+    if not dataset.exists():
         raise FileNotFoundError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
     images = _parity_images(dataset, module.input_size, parity_frames)
     run_name = run_name or default_run_name(checkpoint, payload)
     metadata = onnx_metadata(payload, run_name, git_commit())
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    if out.parent.is_dir():
+        clean_stale_tmp(out.parent, recursive=False)  # exports that were killed
+    bar = tqdm(total=2, unit="stage", desc=f"export {out.name}", dynamic_ncols=True, leave=False,
+               disable=None if progress else True)  # None: only on a terminal
     try:
-        export_onnx(module, tmp, metadata, opset)
-        diff = parity(module, tmp, images)
-        log(f"parity on {diff['frames']} real images of {dataset}: max |ORT - PyTorch| points3d "
-            f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
-            f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
-        if diff["points3d_mm"] > PARITY_MAX_3D_MM:
-            raise RuntimeError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} mm "
-                               f"(> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written to {out}")
-        os.replace(tmp, out)
+        # the ONNX file under a temporary name beside ``out``: renamed only when its parity passed, removed
+        # on any failure (a full disk says so); plain open() gives it the mode of every other output
+        with atomic_output(out) as tmp:
+            bar.set_postfix_str("torch.onnx.export")
+            export_onnx(module, tmp, metadata, opset)
+            bar.update(1)
+            bar.set_postfix_str(f"parity on {len(images)} images")
+            diff = parity(module, tmp, images)
+            bar.update(1)
+            bar.close()
+            log(f"parity on {diff['frames']} real images of {dataset}: max |ORT - PyTorch| points3d "
+                f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
+                f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
+            if diff["points3d_mm"] > PARITY_MAX_3D_MM:
+                raise RuntimeError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
+                                   f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
+                                   f"to {out}")
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        bar.close()
     return {"onnx": str(out), "parity": diff, "dataset": str(dataset), "opset": opset, "run_name": run_name,
             "metadata": metadata}

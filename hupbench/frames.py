@@ -28,6 +28,7 @@ Convention:
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -38,7 +39,7 @@ import cv2
 import numpy as np
 import torch
 
-from datagen.io import write_json
+from datagen.io import atomic_output, clean_stale_tmp, write_json
 
 __all__ = ["CACHE_FORMAT", "BatchAugment", "CachedFrames", "cache_paths", "model_images", "open_frame_cache"]
 
@@ -65,20 +66,31 @@ def _cache_key(manifest_sha256: str, split: str, input_size: int, frame_ids: np.
             "frame_ids_sha256": hashlib.sha256(ids.tobytes()).hexdigest()}
 
 
-def _decode_resized(path: Path, size: int) -> np.ndarray:
-    """(S, S, 3) uint8 RGB: the stored image decoded and resized as the reference reader does."""
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FileNotFoundError(f"cannot read image {path}")
+def _decode_resized(path: Path, size: int, image_size=None) -> np.ndarray:
+    """(S, S, 3) uint8 RGB: the stored image decoded (and checked, :func:`hupbench.data.read_rgb`) and
+    resized as the reference reader does."""
+    from hupbench.data import read_rgb
+
+    image = read_rgb(path, image_size)
     if image.shape[0] != image.shape[1]:
         raise ValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
-    image = np.ascontiguousarray(image[..., ::-1])
     return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def _reserve(path: Path) -> None:
+    """Allocate the whole file now: pages of a sparse memory map that find the disk full kill the process
+    with SIGBUS when written (measured on a full tmpfs); allocated here, a full disk is an OSError (ENOSPC)."""
+    with open(path, "r+b") as f:
+        try:
+            os.posix_fallocate(f.fileno(), 0, os.fstat(f.fileno()).st_size)
+        except OSError as exc:
+            if exc.errno not in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):  # not supported: write as before
+                raise
 
 
 def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, rgb_format: str,
                      manifest_sha256: str, cache_dir=None, progress: bool = True, threads: int = 2,
-                     log=print) -> np.ndarray:
+                     log=print, image_size=None) -> np.ndarray:
     """The split's frames at the input size, memory-mapped; built (or rebuilt when stale) first.
 
     Args:
@@ -92,6 +104,7 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
         cache_dir: where the cache lives; None for ``<root>/cache``.
         progress: show a progress bar while building.
         threads: decoding threads while building (OpenCV releases the GIL).
+        image_size: (width, height) of every stored frame (the manifest's), checked while building.
 
     Returns:
         (N, S, S, 3) uint8 read-only memory map, RGB.
@@ -111,13 +124,21 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
             if frames.shape == (len(frame_ids), input_size, input_size, 3) and frames.dtype == np.uint8:
                 return frames
         log(f"frame cache {npy_path} is stale (the dataset or the reader changed); rebuilding it")
-    # the key file goes first so that no reader trusts a half-replaced cache
-    key_path.unlink(missing_ok=True)
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    tmp = npy_path.with_name(f".{npy_path.name}.tmp{os.getpid()}")
-    n = len(frame_ids)
     try:
+        # the key file goes first so that no reader trusts a half-replaced cache
+        key_path.unlink(missing_ok=True)
+        cache_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):  # e.g. the default <dataset>/cache of a shared dataset
+            raise PermissionError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
+                                             "data.cache_dir to a writable folder") from exc
+        raise
+    clean_stale_tmp(cache_dir, recursive=False)  # builds of killed runs
+    n = len(frame_ids)
+    # written under a temporary name, renamed when whole; a failure removes it (a full disk says so)
+    with atomic_output(npy_path) as tmp:
         out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(n, input_size, input_size, 3))
+        _reserve(tmp)
         bar = None
         if progress:
             from tqdm import tqdm
@@ -128,20 +149,19 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
             stop = min(n, start + _BUILD_CHUNK)
             for row in range(start, stop):
                 path = frame_path(root, split, "rgb", int(frame_ids[row]), rgb_format)
-                out[row] = _decode_resized(path, input_size)
+                out[row] = _decode_resized(path, input_size, image_size)
             return stop - start
 
-        with ThreadPoolExecutor(max_workers=max(1, int(threads))) as pool:
-            for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
-                if bar is not None:
-                    bar.update(done)
-        if bar is not None:
-            bar.close()
+        try:
+            with ThreadPoolExecutor(max_workers=max(1, int(threads))) as pool:
+                for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
+                    if bar is not None:
+                        bar.update(done)
+        finally:
+            if bar is not None:
+                bar.close()
         out.flush()
         del out
-        os.replace(tmp, npy_path)
-    finally:
-        tmp.unlink(missing_ok=True)
     write_json(key_path, key)
     return np.load(npy_path, mmap_mode="r")
 
@@ -171,7 +191,8 @@ class CachedFrames(torch.utils.data.Dataset):
         self.ann = ann = dataset.ann
         self.frames = open_frame_cache(dataset.root, dataset.split, self.size, ann["frame_id"],
                                        dataset.manifest["rgb_format"], file_sha256(dataset.root / "manifest.json"),
-                                       cache_dir=cache_dir, progress=progress, log=log)
+                                       cache_dir=cache_dir, progress=progress, log=log,
+                                       image_size=dataset.manifest["image_size"])
         scale = self.size / int(dataset.manifest["image_size"][0])
         labels = input_labels(ann, scale, self.size)
         self.labels = {name: torch.from_numpy(np.ascontiguousarray(array)) for name, array in labels.items()}

@@ -17,10 +17,12 @@ Run folder (``run_dir``):
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
 import platform
+import re
 import sys
 import time
 from collections.abc import Iterator
@@ -33,13 +35,15 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from datagen import keypoints as kp
-from datagen.io import write_bytes, write_json
+from datagen.io import DiskFullError, OutputLock, clean_stale_tmp, write_bytes, write_json
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
 from hupbench.frames import model_images
 from hupbench.provenance import run_info
 
 # config keys that may differ between a run and the run it resumes
+#: config differences a refused resume lists (a checkpoint of another project differs everywhere)
+MAX_DIFFS_SHOWN = 8
 RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers",
                     "data.cache_dir", "label")
 
@@ -210,7 +214,7 @@ def _resume_path(cfg: DictConfig, run_dir: Path) -> Path | None:
         return last if last.exists() else None
     path = Path(mode)
     if not path.is_file():
-        raise FileNotFoundError(f"train.resume={mode}: no such checkpoint")
+        raise FileNotFoundError(f"train.resume={mode}: checkpoint {path} does not exist")
     return path
 
 
@@ -298,22 +302,39 @@ class _Log:
         if not enabled:
             return
         if resume_step is None:
-            self.path.write_text("")
+            write_bytes(self.path, b"")
         elif self.path.exists():
             # drop lines a killed run wrote after its last checkpoint: they are about to be redone
-            kept = [line for line in self.path.read_text().splitlines()
-                    if line.strip() and json.loads(line)["step"] <= resume_step]
+            kept = [line for line in self._records() if json.loads(line)["step"] <= resume_step]
             write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
             self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=resume_step)
 
+    def _records(self) -> list[str]:
+        """The file's JSON lines; a last line cut short (a run killed while writing it, a full disk) is dropped."""
+        lines = [line for line in self.path.read_text().splitlines() if line.strip()]
+        for i, line in enumerate(lines):
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                record = None
+            if not isinstance(record, dict) or not isinstance(record.get("step"), int):
+                if i == len(lines) - 1:
+                    return lines[:-1]
+                raise ValueError(f"{self.path}: line {i + 1} is not a metrics record (JSON with a 'step'); "
+                                 "the log was edited or damaged: move it away to start the log afresh")
+        return lines
+
     def __call__(self, record: dict) -> None:
         if not self.enabled:
             return
-        with open(self.path, "a") as f:
-            f.write(json.dumps(record, sort_keys=True) + "\n")
+        try:
+            with open(self.path, "a") as f:
+                f.write(json.dumps(record, sort_keys=True) + "\n")
+        except OSError as exc:
+            raise (DiskFullError(self.path) if exc.errno == errno.ENOSPC else exc) from exc
         if self.writer is not None:
             step = record["step"]
             for key, value in record.items():
@@ -457,18 +478,92 @@ def train_step(model, optimizer, scheduler, batch: dict, epoch: int, data: Train
 SCHEDULE_FIELDS = {"data.batch_size": False, "train.epochs": False, "train.max_steps": True,
                    "train.stop_after": True, "train.log_every": False, "train.val_every": False,
                    "train.ckpt_every": False}
+#: the most steps, epochs or frames per batch a run may ask for: 10^9 steps take years at any speed
+#: measured here, so a larger number is a typo (train.max_steps=1e12 would train until killed)
+MAX_COUNT = 1_000_000_000
+#: learning rates above this make every model here diverge within a few steps
+MAX_LR = 1.0
+
+
+def _whole(cfg: DictConfig, field: str, low: int, optional: bool = False, high: int = MAX_COUNT) -> None:
+    value = OmegaConf.select(cfg, field)
+    if value is None and optional:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{field} must be a whole number >= {low}{' or null' if optional else ''}, got {value!r}")
+    if value > high:
+        raise ValueError(f"{field} must be at most {high:,}, got {value:,}")
+
+
+def _number(cfg: DictConfig, field: str, low: float, high: float | None = None, low_open: bool = False) -> None:
+    value = OmegaConf.select(cfg, field)
+    ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+          and (value > low if low_open else value >= low) and (high is None or value <= high))
+    if not ok:
+        interval = (f"in {'(' if low_open else '['}{low:g}, {high:g}]" if high is not None
+                    else f"{'>' if low_open else '>='} {low:g}")
+        raise ValueError(f"{field} must be a finite number {interval}, got {value!r}")
+
+
+def _choice(cfg: DictConfig, field: str, choices, default=None) -> None:
+    value = OmegaConf.select(cfg, field, default=default)
+    if value not in choices:
+        raise ValueError(f"{field} must be {' or '.join(repr(c) for c in choices)}, got {value!r}")
 
 
 def check_schedule(cfg: DictConfig) -> None:
-    """Refuse a batch size or step count that is not a whole number >= 1 (0 used to divide by zero or,
-    for max_steps, to train the epochs default without a word), naming the field."""
+    """Refuse a batch size or step count that is not a whole number from 1 to :data:`MAX_COUNT` (0 used to
+    divide by zero or, for max_steps, to train the epochs default without a word), naming the field."""
     for field, optional in SCHEDULE_FIELDS.items():
-        value = OmegaConf.select(cfg, field)
-        if value is None and optional:
-            continue
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            allowed = "a whole number >= 1" + (" or null" if optional else "")
-            raise ValueError(f"{field} must be {allowed}, got {value!r}")
+        _whole(cfg, field, 1, optional)
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Every number and choice of a training config that the run uses, checked before anything is read or
+    written; the error names the field and what it must be (Hydra passes ``data.batch_size=abc`` on as a
+    string, ``optim.optimizer.lr=nan`` as a float)."""
+    from hupbench.data import MAX_INPUT_SIZE, MIN_INPUT_SIZE
+    from hupbench.metrics import PROBE_SYMMETRIES
+
+    check_schedule(cfg)
+    _whole(cfg, "data.num_workers", 0, high=1024)
+    _whole(cfg, "threads", 1, optional=True, high=4096)
+    _whole(cfg, "seed", 0, high=2**31 - 1)
+    _whole(cfg, "data.val_frames", 1, optional=True)
+    _whole(cfg, "train.bn_recompute_frames", 0)
+    _whole(cfg, "data.reader.input_size", MIN_INPUT_SIZE, high=MAX_INPUT_SIZE)
+    _number(cfg, "data.reader.rotate_deg", 0.0, 180.0)
+    _number(cfg, "data.reader.photometric", 0.0, 1.0)
+    _number(cfg, "optim.optimizer.lr", 0.0, MAX_LR, low_open=True)
+    for weight in ("w2d_init", "w2d", "w3d"):
+        _number(cfg, f"loss.{weight}", 0.0)
+    _number(cfg, "loss.unit_3d_m", 0.0, low_open=True)
+    _choice(cfg, "loss.probe_symmetry", sorted(PROBE_SYMMETRIES), default="none")
+    _choice(cfg, "device", ("cpu", "cuda"))
+    _choice(cfg, "precision", ("fp32", "bf16"))
+    _choice(cfg, "data.pipeline", ("cache", "jpeg"), default="cache")
+
+
+#: what train.py answers in one line (exit code 1) instead of a traceback: bad input (ValueError,
+#: TypeError), a missing or unwritable file or a full disk (OSError), a run that cannot go on
+#: (RuntimeError: another run holds the folder, CUDA missing), a diverged loss (ArithmeticError)
+CLI_ERRORS = (ValueError, TypeError, OSError, RuntimeError, ArithmeticError)
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line the user sees for ``exc``.
+
+    A DataLoader worker's exception reaches the training process re-raised by torch with the worker's
+    whole traceback in its message ("Caught FileNotFoundError in DataLoader worker process 0. Original
+    Traceback ..."); its last line is the original message, which names the file.
+    """
+    text = str(exc)
+    if "Original Traceback" in text:
+        last = [line for line in text.splitlines() if line.strip()][-1].strip()
+        match = re.match(r"^[A-Za-z_][\w.]*: (.*)$", last)
+        text = match.group(1) if match else last
+    text = re.sub(r"^\[Errno \d+\] ", "", text)  # an OSError's number means nothing to the user; its text stays
+    return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(exc).__name__
 
 
 def run_train(cfg: DictConfig, log=print) -> dict:
@@ -477,17 +572,24 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     Args:
         cfg: the composed ``train`` config (conf/train.yaml).
 
+    The run folder is held by one run at a time (``datagen.io.OutputLock``, rank 0 only: a second run
+    on it is refused naming the holder's pid and host; the lock of a killed run is taken over), and the
+    temporary files that killed runs left in it are removed first.
+
     Returns:
         dict with "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen",
         "train_seconds", "wall_seconds", "val_mpjpe_mm" (last validation) and "first_val_mpjpe_mm".
-    """
-    from hupbench.data import read_manifest, resize_intrinsics
 
-    check_schedule(cfg)
+    Raises:
+        ValueError: a config value, the dataset or a checkpoint to resume is wrong (the message names
+        the field or file). OSError: a file is missing or cannot be written (a full disk names the
+        device). datagen.io.LockedError: another run holds the run folder.
+    """
+    from hupbench.data import read_manifest
+
+    check_config(cfg)
     world, rank, local_rank = _dist_env()
     device = _device(cfg, local_rank)
-    if cfg.precision not in ("fp32", "bf16"):
-        raise ValueError(f"precision must be 'fp32' or 'bf16', got {cfg.precision!r}")
     if cfg.threads is not None:
         torch.set_num_threads(int(cfg.threads))
     run_dir = Path(cfg.run_dir) if cfg.run_dir else Path(cfg.out_root) / cfg.run_name
@@ -495,6 +597,32 @@ def run_train(cfg: DictConfig, log=print) -> dict:
 
     # -- everything that can be wrong is checked before the first step
     manifest = read_manifest(root, needs="the models are built for")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"run_dir {run_dir} is a file; expected a folder for the run (or a path to make one)")
+    # one run per folder: a second run would append every step to metrics.jsonl a second time and
+    # overwrite the first's checkpoints. Rank 0 writes every file of a run, so it alone holds the lock
+    made = not run_dir.exists()
+    lock = OutputLock(run_dir, "training").acquire() if rank == 0 else None
+    try:
+        if lock is not None:
+            for stale in clean_stale_tmp(run_dir):
+                log(f"removed {stale}, a temporary file of a run that was killed")
+            if lock.taken_over:
+                log(f"took over {run_dir} from a run that is gone (pid {lock.taken_over.get('pid')} on "
+                    f"{lock.taken_over.get('host')})")
+        return _run_locked(cfg, log, world, rank, device, run_dir, root, manifest)
+    finally:
+        if lock is not None:
+            lock.release()
+            if made and run_dir.is_dir() and not any(run_dir.iterdir()):
+                run_dir.rmdir()  # a run refused before it wrote anything leaves no folder
+
+
+def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.device, run_dir: Path, root: Path,
+                manifest: dict) -> dict:
+    """:func:`run_train` once the run folder is this run's."""
+    from hupbench.data import resize_intrinsics
+
     data = setup_data(cfg, world, rank, device, log)
     train_ann = data.train_set.ann
     resume_path = _resume_path(cfg, run_dir)
@@ -504,8 +632,9 @@ def run_train(cfg: DictConfig, log=print) -> dict:
         checkpoint = read_checkpoint(resume_path)
         diff = _config_diff(checkpoint["config"], resolved)
         if diff:
-            raise ValueError(f"checkpoint {resume_path} was trained with another config; differences: "
-                             + "; ".join(diff))
+            shown = "; ".join(diff[:MAX_DIFFS_SHOWN]) + (f"; and {len(diff) - MAX_DIFFS_SHOWN} more"
+                                                         if len(diff) > MAX_DIFFS_SHOWN else "")
+            raise ValueError(f"checkpoint {resume_path} was trained with another config; differences: {shown}")
     input_size = int(cfg.data.reader.input_size)
     K_input = resize_intrinsics(train_ann["K"][0], input_size / int(manifest["image_size"][0]))
     model = build_run_model(cfg, train_ann, K_input, checkpoint, resume_path)
@@ -579,21 +708,23 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     return result
 
 
-#: what train.py answers in one line (its exit code 1) instead of a traceback
-CLI_ERRORS = (ValueError, TypeError, FileNotFoundError, RuntimeError)
-
-
-def main(cfg: DictConfig, log=print) -> float:
+def main(cfg: DictConfig, log=print, debug: bool = False) -> float:
     """The body of ``python train.py``: :func:`run_train`, with a bad input or a failure answered as one
-    line on stderr, ``train.py: error: ...``, and exit code 1 (SystemExit).
+    line on stderr, ``train.py: error: ...``, and exit code 1 (SystemExit); ``debug`` (train.py passes
+    Hydra's HYDRA_FULL_ERROR=1) lets the traceback through instead.
 
     Returns:
         The last validation MPJPE (all keypoints, mm): what a Hydra sweeper minimises.
     """
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
     try:
         result = run_train(cfg, log)
-    except CLI_ERRORS as exc:
-        print(f"train.py: error: {exc}", file=sys.stderr)
+    except (*CLI_ERRORS, HydraException, OmegaConfBaseException) as exc:
+        if debug:
+            raise
+        print(f"train.py: error: {error_line(exc)}", file=sys.stderr)
         raise SystemExit(1) from None
     return result["val_mpjpe_mm"]["all"]
 
@@ -624,7 +755,10 @@ def build_run_model(cfg: DictConfig, train_ann: dict, K_input: np.ndarray, check
         if checkpoint["model_config"].get("name") != model.config["name"]:
             raise ValueError(f"checkpoint {resume_path} holds a {checkpoint['model_config'].get('name')!r} model, "
                              f"this run builds {model.config['name']!r}")
-        load_checkpoint_state(model, checkpoint["model"])
+        try:
+            load_checkpoint_state(model, checkpoint["model"])
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"checkpoint {resume_path}: {exc}") from exc
     return model
 
 

@@ -149,7 +149,7 @@ def test_a_killed_build_leaves_no_trusted_cache(tiny_dataset, tmp_path, monkeypa
     with np.load(tiny_dataset / "val" / "annotations.npz") as data:
         ids = data["frame_id"]
 
-    def broken(path, size):
+    def broken(path, size, image_size=None):
         raise OSError(f"disk gone reading {path}")
 
     monkeypatch.setattr(frames_module, "_decode_resized", broken)

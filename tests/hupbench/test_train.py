@@ -190,7 +190,9 @@ def test_sampler_ranks_are_disjoint_and_resume_mid_epoch():
     (["device=cuda"], RuntimeError, "device=cuda was asked for but CUDA is not available"),
     (["precision=fp16"], ValueError, "precision must be 'fp32' or 'bf16', got 'fp16'"),
     (["data.batch_size=64"], ValueError, "fewer than one batch of 64"),
-    (["data.reader.input_size=8"], ValueError, "input_size must be an int >= 16"),
+    (["data.reader.input_size=8"], ValueError, "data.reader.input_size must be a whole number >= 16, got 8"),
+    (["train.max_steps=1000000000000"], ValueError, "train.max_steps must be at most 1,000,000,000"),
+    (["optim.optimizer.lr=nan"], ValueError, r"optim.optimizer.lr must be a finite number in \(0, 1\], got nan"),
     (["model.n_keypoints=21"], ValueError, r"points3d_mean must be \(21, 3\)|n_keypoints"),
     (["data.batch_size=0"], ValueError, "data.batch_size must be a whole number >= 1, got 0"),
     (["train.val_every=0"], ValueError, "train.val_every must be a whole number >= 1, got 0"),
@@ -218,6 +220,26 @@ def test_dataset_problems_fail_before_training(tiny_dataset, tmp_path):
     with pytest.raises(ValueError, match="has 21 keypoints; the models are built for 29"):
         run_train(tiny_cfg(bad, tmp_path / "run2"), log=lambda *_: None)
     assert not (tmp_path / "run").exists() and not (tmp_path / "run2").exists()
+
+
+def test_resume_drops_a_log_line_cut_short(tiny_dataset, tmp_path):
+    """A run killed (or stopped by a full disk) while appending to metrics.jsonl leaves half a line; the resumed
+    run drops it with the lines after its checkpoint instead of failing on it or keeping it."""
+    run_dir = tmp_path / "run"
+    run_train(tiny_cfg(tiny_dataset, run_dir, "train.stop_after=2"), log=lambda *_: None)
+    with open(run_dir / "metrics.jsonl", "a") as f:
+        f.write('{"event": "train", "loss": 0.5, "st')
+    result = run_train(tiny_cfg(tiny_dataset, run_dir), log=lambda *_: None)
+    assert result["complete"]
+    log = read_log(run_dir)
+    assert [(r["event"], r["step"]) for r in log] == [("val", 0), ("train", 1), ("train", 2), ("val", 2),
+                                                      ("train", 3), ("train", 4), ("val", 4)]
+    # a damaged line in the middle is not a cut: refused, naming the file and the line
+    lines = (run_dir / "metrics.jsonl").read_text().splitlines()
+    (run_dir / "metrics.jsonl").write_text("\n".join([lines[0], "garbage", *lines[1:]]) + "\n")
+    (run_dir / "summary.json").unlink()
+    with pytest.raises(ValueError, match=r"metrics.jsonl: line 2 is not a metrics record"):
+        run_train(tiny_cfg(tiny_dataset, run_dir), log=lambda *_: None)
 
 
 def test_unknown_model_is_named():
@@ -386,3 +408,17 @@ def test_compiled_training_matches_eager(tiny_dataset, tmp_path):
     a = [r["loss"] for r in read_log(eager) if r["event"] == "train"]
     b = [r["loss"] for r in read_log(compiled) if r["event"] == "train"]
     assert len(a) == len(b) == 3 and a == pytest.approx(b, rel=1e-3)
+
+
+def test_error_line_is_one_line_naming_the_file():
+    """train.py's error line: a DataLoader worker's exception (re-raised by torch with the worker's traceback
+    in its message) becomes the worker's own message; an OSError loses its "[Errno N]"; lines are joined."""
+    from hupbench.train import error_line
+
+    worker = RuntimeError("Caught FileNotFoundError in DataLoader worker process 0.\nOriginal Traceback (most recent "
+                          "call last):\n  File \"data.py\", line 9, in __getitem__\n    raise FileNotFoundError(...)\n"
+                          "FileNotFoundError: /d/train/rgb/000000.jpg does not exist (a frame the annotations list)\n")
+    assert error_line(worker) == "/d/train/rgb/000000.jpg does not exist (a frame the annotations list)"
+    assert error_line(PermissionError(30, "cannot write /r/.hupbench.lock: Read-only file system")) == \
+        "cannot write /r/.hupbench.lock: Read-only file system"
+    assert error_line(ValueError("first\n  second\n")) == "first second"
