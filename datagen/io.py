@@ -45,6 +45,13 @@ class DiskFullError(OSError):
         return self.strerror
 
 
+class WriteRefusedError(PermissionError):
+    """A folder or file that may not be written (permissions, a read-only file system); says which."""
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
 def mount_point(path: str | Path) -> str:
     """The mount point holding ``path`` (or its nearest existing parent), e.g. ``/`` or ``/mnt/data``."""
     path = Path(os.path.abspath(path))
@@ -65,7 +72,7 @@ def _explain(exc: OSError, path: Path) -> OSError:
     if exc.errno == errno.ENOSPC:
         return DiskFullError(path)
     if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        return PermissionError(exc.errno, f"cannot write {path}: {exc.strerror}")
+        return WriteRefusedError(exc.errno, f"cannot write {path}: {exc.strerror}")
     return exc
 
 
