@@ -224,7 +224,7 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     if not zipfile.is_zipfile(path):
         size = path.stat().st_size
         what = "empty" if size == 0 else f"{size} bytes, no zip directory"
-        raise DamagedFileError(f"{path}: not an npz archive ({what}); regenerate the dataset")
+        raise DamagedFileError(f"{path}: damaged, not an npz archive ({what}); regenerate the dataset")
     try:
         with np.load(path, allow_pickle=False) as data:
             absent = [k for k in keys if k not in data.files]
