@@ -32,11 +32,14 @@ import json
 import math
 import multiprocessing
 import os
+import pickle
 import shutil
 import signal
 import sys
 import threading
 import time
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -49,7 +52,7 @@ from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
 from datagen.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
-from datagen.io import TMP_PATTERN, LockedError, OutputLock, save_npz, write_bytes, write_json, write_with
+from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, save_npz, write_bytes, write_json, write_with
 from datagen.ray_launcher import RayOptions, check_launcher
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
 from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
@@ -207,6 +210,91 @@ def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:
             "energy_w": np.array(rng.uniform(50.0, 300.0))}
 
 
+#: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
+GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id": ("i", ())}
+
+
+def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
+    """Read and check the arrays a dataset is rendered from, out of a grasps.npz (``hupbench grasps``).
+
+    Every array of :data:`GRASP_FIELDS` is read in full (the zip's CRC is checked on the way) and
+    checked: a float (pose, translation) or integer (ids) dtype, the row shape, one row per grasp
+    in each, at least one grasp, finite values, unique ids.
+
+    Args:
+        path: the file, or its bytes (what a Ray actor on another machine is sent).
+
+    Returns:
+        {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres,
+        "grasp_id": (G,) int64}.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: anything else wrong; the message names the
+        file and what was expected.
+    """
+    if isinstance(path, bytes):
+        name, source = "grasps (bytes)", io.BytesIO(path)
+    else:
+        path = Path(path)
+        name, source = str(path), path
+        if path.is_dir():
+            raise ValueError(f"grasps file {path} is a folder; expected a grasps.npz written by `hupbench grasps`")
+        if not path.is_file():
+            raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
+        if path.stat().st_size == 0:
+            raise ValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
+    arrays = {}
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            if not hasattr(data, "files"):
+                raise ValueError(f"grasps file {name} holds a single array, not an .npz archive of the arrays "
+                                 f"{list(GRASP_FIELDS)}")
+            absent = [k for k in GRASP_FIELDS if k not in data.files]
+            if absent:
+                raise ValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
+                                 "expected a grasps.npz written by `hupbench grasps`")
+            for key in GRASP_FIELDS:
+                try:
+                    arrays[key] = data[key]
+                except ValueError as exc:  # object arrays: numpy refuses to unpickle them
+                    raise ValueError(f"grasps file {name}: {key} cannot be read as a numeric array ({exc})") from None
+    except ValueError as exc:
+        if str(exc).startswith("grasps file"):
+            raise
+        raise ValueError(f"grasps file {name} is not an .npz archive ({exc})") from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, KeyError, zlib.error, OSError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise ValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
+                         "write it again with `hupbench grasps`") from None
+    rows = {k: a.shape[0] if a.ndim else None for k, a in arrays.items()}
+    for key, (kind, row_shape) in GRASP_FIELDS.items():
+        array = arrays[key]
+        if array.dtype.kind not in (("f", "i", "u") if kind == "f" else ("i", "u")):
+            raise ValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
+                             + ("float numbers" if kind == "f" else "integer ids"))
+        if array.ndim != 1 + len(row_shape) or array.shape[1:] != row_shape:
+            raise ValueError(f"grasps file {name}: {key} has shape {array.shape}, expected (G, "
+                             + ", ".join(str(v) for v in row_shape) + ")" if row_shape else f"grasps file {name}: "
+                             f"{key} has shape {array.shape}, expected (G,)")
+    if len(set(rows.values())) != 1:
+        raise ValueError(f"grasps file {name}: the arrays have different numbers of rows {rows}; expected one row "
+                         "per grasp in each")
+    if rows["hand_pose"] == 0:
+        raise ValueError(f"grasps file {name} holds no grasps (0 rows)")
+    out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
+           "grasp_id": arrays["grasp_id"].astype(np.int64)}
+    for key in ("hand_pose", "hand_trans"):
+        bad = ~np.isfinite(out[key]).all(axis=1)
+        if bad.any():
+            raise ValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
+                             "hold NaN or inf")
+    ids, counts = np.unique(out["grasp_id"], return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"grasps file {name}: grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat")
+    return out
+
+
 class GraspSet:
     """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry.
 
@@ -218,18 +306,9 @@ class GraspSet:
         from datagen.hand import build_hand
         from datagen.probe import build_probe
 
-        if isinstance(path, bytes):
-            source, path = io.BytesIO(path), None
-        else:
-            path = Path(path)
-            if not path.is_file():
-                raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
-            source = path
-        with np.load(source) as data:
-            self.hand_pose = np.asarray(data["hand_pose"], dtype=np.float64)
-            self.hand_trans = np.asarray(data["hand_trans"], dtype=np.float64)
-            self.grasp_id = np.asarray(data["grasp_id"], dtype=np.int64)
-        self.path = path
+        arrays = read_grasps(path)
+        self.hand_pose, self.hand_trans, self.grasp_id = arrays["hand_pose"], arrays["hand_trans"], arrays["grasp_id"]
+        self.path = None if isinstance(path, bytes) else Path(path)
         hand, probe = build_hand(), build_probe()
         self.keypoints_world = np.concatenate(
             [hand.keypoints(self.hand_pose, self.hand_trans, clamp=False),
@@ -494,6 +573,29 @@ def _render_chunk(args) -> tuple[int, int]:
     return chunk, write_chunk(Path(root), chunks.render(chunk, split, layout), chunks.spec.rgb_format)
 
 
+class _WorkerDiskFull(Exception):
+    """A worker's :class:`DiskFullError` on its way to the parent (args: the file's path).
+
+    DiskFullError does not survive pickling (its constructor takes the path, pickle gives it
+    OSError's arguments), and a result the pool cannot unpickle stops its result thread: the
+    parent would wait forever.
+    """
+
+
+def _render_chunk_in_worker(args) -> tuple[int, int]:
+    """:func:`_render_chunk` in a pool worker, raising only exceptions that reach the parent intact."""
+    try:
+        return _render_chunk(args)
+    except DiskFullError as exc:
+        raise _WorkerDiskFull(exc.filename) from None
+    except Exception as exc:
+        try:
+            pickle.loads(pickle.dumps(exc))
+        except Exception:  # any failure to round-trip would hang the parent: send the message instead
+            raise RuntimeError(f"{type(exc).__name__}: {exc}") from None
+        raise
+
+
 def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:
     return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dt) for k, dt in ANNOTATION_DTYPES.items()}
 
@@ -597,6 +699,16 @@ def _remove_all_tmp(out_dir: Path) -> list[Path]:
             path.unlink(missing_ok=True)
             removed.append(path)
     return removed
+
+
+def _remove_tmp_of(out_dir: Path, pids: set[int] | None) -> None:
+    """After a failed run: remove the temporary files of ``pids`` (None: all of them, for a run that
+    holds the whole folder). The write that failed removed its own; the workers stopped with it
+    may have been in the middle of one."""
+    for path in out_dir.rglob(".*.tmp*"):
+        match = TMP_PATTERN.match(path.name)
+        if match and (pids is None or int(match.group(1)) in pids):
+            path.unlink(missing_ok=True)
 
 
 def _file_digest(path: Path) -> str:
@@ -711,30 +823,43 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
         jobs = [(c, str(out_dir), chunk_split[c], layout) for c in todo]
         init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
         bar = _progress(len(todo) * layout.chunk_size, progress, "rendering")
-        if launcher == "ray":
-            from datagen.ray_launcher import render_chunks
+        writers = {os.getpid()}
+        try:
+            if launcher == "ray":
+                from datagen.ray_launcher import render_chunks
 
-            def on_chunk(output: ChunkOutput) -> None:
-                nonlocal rendered
-                count = write_chunk(out_dir, output, spec.rgb_format)
-                rendered += count
-                bar.update(count)
-
-            render_chunks([(c, chunk_split[c]) for c in todo], layout, spec, (out_dir / "grasps.npz").read_bytes(),
-                          backgrounds_dir, platform, ray or RayOptions(), workers, on_chunk, log=log)
-        elif workers == 1:
-            _worker_init(*init)
-            results = map(_render_chunk, jobs)
-            for _, count in results:
-                rendered += count
-                bar.update(count)
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(workers, initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
-                for _, count in pool.imap_unordered(_render_chunk, jobs):
+                def on_chunk(output: ChunkOutput) -> None:
+                    nonlocal rendered
+                    count = write_chunk(out_dir, output, spec.rgb_format)
                     rendered += count
                     bar.update(count)
-        bar.close()
+
+                render_chunks([(c, chunk_split[c]) for c in todo], layout, spec,
+                              (out_dir / "grasps.npz").read_bytes(), backgrounds_dir, platform, ray or RayOptions(),
+                              workers, on_chunk, log=log)
+            elif workers == 1:
+                _worker_init(*init)
+                for _, count in map(_render_chunk, jobs):
+                    rendered += count
+                    bar.update(count)
+            else:
+                ctx = multiprocessing.get_context("spawn")
+                with ctx.Pool(workers, initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
+                    writers.update(p.pid for p in multiprocessing.active_children())
+                    try:
+                        for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
+                            rendered += count
+                            bar.update(count)
+                    except _WorkerDiskFull as exc:
+                        raise DiskFullError(exc.args[0]) from None
+                    finally:
+                        writers.update(p.pid for p in multiprocessing.active_children())
+                # leaving the pool stopped its workers (SIGTERM), maybe in the middle of a file
+        except BaseException:
+            _remove_tmp_of(out_dir, None if n == 1 else writers)
+            raise
+        finally:
+            bar.close()
     seconds = time.perf_counter() - start
     partial = {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered,
                "seconds": seconds, "complete": False, "counts": {}}
@@ -763,6 +888,7 @@ def _finished(out_dir: Path, layout: Layout, chash: str) -> dict:
     manifest = read_manifest(out_dir)
     if manifest.get("config_hash") != chash:
         raise ValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
+    _remove_scaffolding(out_dir)
     return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
             "complete": True, "counts": manifest["counts"]}
 
@@ -821,10 +947,15 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
         "arm_rgb": list(ARM_RGB),
     }
     write_json(out_dir / "manifest.json", manifest)
-    # the manifest is the completion mark; the chunk rows, the progress file and temporary files
-    # left by killed runs are scaffolding
+    _remove_scaffolding(out_dir)
+    return counts
+
+
+def _remove_scaffolding(out_dir: Path) -> None:
+    """The manifest is the completion mark; the chunk rows, the progress file and temporary files
+    left by killed runs are scaffolding. Also called on a finished folder: a run killed between the
+    manifest and this leaves some behind."""
     for split in SPLITS:
         shutil.rmtree(out_dir / split / ".chunks", ignore_errors=True)
     _remove_all_tmp(out_dir)
     (out_dir / ".progress.json").unlink(missing_ok=True)
-    return counts

@@ -1,6 +1,7 @@
 """Faults of `hupbench generate` (docs/robustness.md, ## generate): workers that die with their parent,
 one run per output folder, SIGKILL at random points then the same command, a full disk."""
 
+import json
 import os
 import shutil
 import signal
@@ -10,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import assert_clean_error, run_cli, write_grasps  # noqa: E402  (tests/ is on sys.path)
@@ -193,3 +195,157 @@ def test_fault_generate_shards_and_locks(tmp_path, grasps, capsys):
     assert answer.rc == 0 and "dataset complete" in answer.out, answer
     assert not (out / ".locks").exists() and not (out / ".hupbench.lock").exists()
     assert not list(out.rglob(".*.tmp*"))
+
+
+def dataset_files(root):
+    """{relative path: bytes} of every file of a dataset folder."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(Path(root).rglob("*")) if p.is_file()}
+
+
+def comparable_manifest(data: bytes) -> dict:
+    """A manifest without what differs between two runs of one config: the out_dir, the time and the
+    number of workers (which does not change a byte of the frames)."""
+    manifest = json.loads(data)
+    for key in ("out_dir", "workers"):
+        manifest["config"].pop(key)
+    manifest["config"]["_provenance"].pop("time_utc")
+    return manifest
+
+
+def assert_same_dataset(out, reference):
+    """Every file of ``out`` has the bytes of ``reference``'s (the manifest up to out_dir, time and
+    workers), and no scaffolding is left."""
+    ours, theirs = dataset_files(out), dataset_files(reference)
+    assert sorted(ours) == sorted(theirs), sorted(set(ours) ^ set(theirs))
+    different = [name for name in ours if name != "manifest.json" and ours[name] != theirs[name]]
+    assert not different, different
+    assert comparable_manifest(ours["manifest.json"]) == comparable_manifest(theirs["manifest.json"])
+    assert not list(Path(out).rglob(".*.tmp*")) and not (Path(out) / ".hupbench.lock").exists()
+
+
+def kill(proc, until, poll_s=0.02):
+    """SIGKILL ``proc`` when ``until()`` is true (or it ended by itself); wait for its children to exit.
+
+    Returns:
+        Whether it had finished by itself.
+    """
+    pids = set()
+    while not until() and proc.poll() is None:
+        pids.update(children(proc.pid))
+        time.sleep(poll_s)
+    finished = proc.poll() is not None
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    # a worker killed while it starts (importing) dies when its start-up ends, before rendering
+    wait_for(lambda: not any(running(p) for p in pids), 30.0, f"the workers {sorted(pids)} to exit")
+    return finished
+
+
+@pytest.mark.matrix
+def test_fault_generate_sigkill_once(tmp_path, grasps, capsys):
+    """SIGKILL after a seeded random number of files written (any phase: start-up, chunks, annotations,
+    manifest), then the same dataset again: the uninterrupted run's bytes, no temporary file."""
+    reference, out = tmp_path / "reference", tmp_path / "ds"
+    assert run_cli(capsys, *cli_argv(reference, grasps)).rc == 0
+    n_files = len(dataset_files(reference)) + 4 + 2  # + the chunk marks, the progress file and the annotations
+    target = int(np.random.default_rng(3).integers(0, n_files))
+    proc = subprocess.Popen(generate_argv(out, grasps, "workers=2"), env=env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    finished = kill(proc, lambda: len(snapshot(out)) > target if out.exists() else target < 0)
+    assert not finished and not (out / "manifest.json").exists()
+    answer = run_cli(capsys, *cli_argv(out, grasps))
+    assert answer.rc == 0 and "dataset complete" in answer.out, answer
+    assert_same_dataset(out, reference)
+
+
+@pytest.mark.matrix
+def test_fault_generate_killed_after_the_manifest(tmp_path, grasps, capsys):
+    """A run killed between the manifest and the clean-up left chunk rows, the progress file and a
+    temporary file: the same command removes them and the dataset is the uninterrupted run's."""
+    reference, out = tmp_path / "reference", tmp_path / "ds"
+    assert run_cli(capsys, *cli_argv(reference, grasps)).rc == 0
+    shutil.copytree(reference, out)
+    (out / "train" / ".chunks").mkdir()
+    (out / "train" / ".chunks" / "00000.npz").write_bytes(b"rows")
+    (out / ".progress.json").write_text("{}")
+    (out / "test" / "rgb" / ".000020.jpg.tmp999999").write_bytes(b"half")
+    answer = run_cli(capsys, *cli_argv(out, grasps))
+    assert answer.rc == 0 and "dataset complete" in answer.out, answer
+    # the manifest is the reference's copy: compare it as it is
+    assert dataset_files(out) == dataset_files(reference)
+
+
+def kill_and_resume(tmp_path, grasps, seed, kills, overrides=("workers=2",)):
+    """Run the same `hupbench generate` command ``kills`` times, each SIGKILLed after a seeded delay
+    drawn over an uninterrupted run's duration, then once to the end; compare with the uninterrupted run."""
+    reference, out = tmp_path / "reference", tmp_path / "ds"
+    start = time.monotonic()
+    subprocess.run(generate_argv(reference, grasps, *overrides), env=env(), check=True, capture_output=True)
+    duration = time.monotonic() - start
+    rng = np.random.default_rng(seed)
+    seen = []
+    for delay in rng.uniform(0.2, duration, size=kills):
+        proc = subprocess.Popen(generate_argv(out, grasps, *overrides), env=env(), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + delay
+        finished = kill(proc, lambda: time.monotonic() >= deadline)
+        seen.append({"delay_s": round(float(delay), 2), "finished": finished,
+                     "manifest": (out / "manifest.json").exists(),
+                     "tmp": sorted(p.name for p in out.rglob(".*.tmp*")) if out.exists() else []})
+    final = subprocess.run(generate_argv(out, grasps, *overrides), env=env(), capture_output=True, text=True)
+    assert final.returncode == 0, (final.stderr[-3000:], seen)
+    assert "dataset complete" in final.stdout
+    assert_same_dataset(out, reference)
+    return seen
+
+
+@pytest.mark.matrix
+@pytest.mark.slow
+def test_fault_generate_sigkill_random_points(tmp_path, grasps):
+    """Four SIGKILLs in a row at seeded random points of the same command, then the command to its end."""
+    print(kill_and_resume(tmp_path, grasps, seed=15, kills=4))
+
+
+def in_small_tmpfs(mount, size, script):
+    """Run a shell ``script`` with a ``size`` tmpfs on ``mount``, in a private mount namespace (root only).
+
+    Returns:
+        The CompletedProcess; the test is skipped where the namespace or the mount cannot be made.
+    """
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare(1) is not installed")
+    mount.mkdir(parents=True, exist_ok=True)
+    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
+                            f"mount -t tmpfs -o size={size} tmpfs {mount}"], capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs in a private mount namespace here (not root?): {probe.stderr.strip()}")
+    return subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
+                           f"mount -t tmpfs -o size={size} tmpfs {mount} && {script}"],
+                          capture_output=True, text=True, env=env(), timeout=600)
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("workers", [1, 2])
+def test_fault_generate_full_disk(tmp_path, grasps, workers):
+    """A 96 KiB disk fills while the chunks are written: one line 'no space left on MOUNT writing FILE',
+    exit 1, no manifest, no temporary file; with room (the same tmpfs made larger), the same command
+    finishes the dataset."""
+    import shlex
+
+    mount = tmp_path / "small"
+    argv = " ".join(shlex.quote(a) for a in generate_argv(mount / "ds", grasps, f"workers={workers}"))
+    script = (f"{argv}; echo rc=$?; find {mount} -name '.*.tmp*' | sed 's/^/tmp: /'; "
+              f"test -e {mount}/ds/manifest.json && echo 'manifest: yes'; "
+              f"mount -o remount,size=64m {mount} && {argv} > /dev/null 2>&1; echo rc2=$?; "
+              f"test -e {mount}/ds/manifest.json && echo 'manifest2: yes'; "
+              f"find {mount} -name '.*.tmp*' | sed 's/^/tmp2: /'")
+    proc = in_small_tmpfs(mount, "96k", script)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.splitlines()
+    assert "rc=1" in lines, proc
+    errors = [line for line in proc.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert errors[0].startswith(f"hupbench generate: error: no space left on {mount} writing {mount}/ds/"), errors
+    assert not [line for line in lines if line.startswith(("tmp:", "manifest:"))], lines
+    assert "rc2=0" in lines and "manifest2: yes" in lines, lines
+    assert not [line for line in lines if line.startswith("tmp2:")], lines
