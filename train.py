@@ -6,13 +6,13 @@ unknown key or config option) as well as the run's. HYDRA_FULL_ERROR=1 shows the
 """
 
 import os
-import re
 import sys
 
 import hydra
 from omegaconf import DictConfig, open_dict
 
 from hupbench.config import HYDRA_VERSION_BASE
+from hupbench.errors import hydra_error_line
 
 # the user's own request for tracebacks, read before this script sets the variable for itself below
 DEBUG = os.environ.get("HYDRA_FULL_ERROR") == "1"
@@ -28,27 +28,6 @@ def main(cfg: DictConfig) -> float:
         with open_dict(cfg):
             cfg.run_dir = HydraConfig.get().runtime.output_dir
     return train.main(cfg, debug=DEBUG)
-
-
-def hydra_error_line(exc: BaseException) -> str:
-    """Hydra's multi-line report of a malformed override, an unknown key or config option as one line."""
-    from hydra.errors import OverrideParseException
-
-    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    # drop Hydra's pointers (grammar link, config search path) and OmegaConf's key details
-    for stop in ("See https://hydra.cc", "Config search path:"):
-        lines = lines[: next((i for i, line in enumerate(lines) if line.startswith(stop)), len(lines))]
-    text = " ".join(lines)
-    if isinstance(exc, OverrideParseException):
-        if exc.override and repr(exc.override) not in text:
-            text = f"cannot parse override {exc.override!r}: {text}"
-        return f"{text} (overrides are key=value, e.g. model=hopenet)"
-    key = re.search(r"Could not override '([^']+)'", text)
-    if key and "is not in struct" in str(exc.__cause__ or ""):
-        append = re.search(r"use (\+\S+)", text)
-        return (f"cannot override {key.group(1)!r}: the key is not in the config (conf/train.yaml and its groups "
-                f"list the keys{f'; {append.group(1)} adds it as a new key' if append else ''})")
-    return text
 
 
 if __name__ == "__main__":

@@ -47,12 +47,14 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from datagen import gl
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
 from datagen.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, save_npz, write_bytes, write_json, write_with
+from datagen.processes import check_workers as check_processes
 from datagen.ray_launcher import RayOptions, check_launcher
 from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
 from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
@@ -77,6 +79,31 @@ PAPER_LOOK_AT = "middle_mcp"
 #: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
 #: exposes a gloved hand at 0.5 m like the preview
 LAMP_INTENSITY_PER_WATT = 0.0075
+
+
+#: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
+#: camera plane (z_ego 0.001: 8 keypoints behind it), beyond 10 m they cover a few pixels
+Z_EGO_RANGE_M = (0.1, 10.0)
+#: the largest image side the renderer is asked for (as predict's largest input)
+MAX_IMAGE_SIDE = 8192
+
+
+def _whole(name: str, value, low: int, high: int | None) -> None:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"dataset.{name} must be a whole number, got {value!r}")
+    if value < low or (high is not None and value > high):
+        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"dataset.{name} must be {bound}, got {value}")
+
+
+def _distances(z_ego_m) -> tuple:
+    low, high = Z_EGO_RANGE_M
+    values = list(z_ego_m) if not isinstance(z_ego_m, (str, bytes)) and hasattr(z_ego_m, "__iter__") else None
+    if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                             and low <= v <= high for v in values):
+        raise ValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
+                         f"(e.g. [0.5, 0.8]), got {z_ego_m if values is None else values!r}")
+    return tuple(float(v) for v in values)
 
 
 @dataclass(frozen=True)
@@ -116,10 +143,10 @@ class DatasetSpec:
     n_gloves: int = 2
 
     def __post_init__(self) -> None:
-        z = tuple(float(v) for v in self.z_ego_m)
-        if not z or any(not math.isfinite(v) or v <= 0 for v in z):
-            raise ValueError(f"z_ego_m must be positive distances, got {list(self.z_ego_m)}")
-        object.__setattr__(self, "z_ego_m", z)
+        object.__setattr__(self, "z_ego_m", _distances(self.z_ego_m))
+        for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", 1, MAX_IMAGE_SIDE),
+                                ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
+            _whole(name, getattr(self, name), low, high)
         splits = dict(self.splits)
         if set(splits) - set(SPLITS) or any(isinstance(v, bool) or not isinstance(v, int) or v < 0
                                             for v in splits.values()):
@@ -128,13 +155,9 @@ class DatasetSpec:
         object.__setattr__(self, "modalities", check_modalities(self.modalities))
         if self.rgb_format not in ("jpg", "png"):
             raise ValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
-        if not 0 <= self.jpeg_quality <= 100:
-            raise ValueError(f"jpeg_quality must be in [0, 100], got {self.jpeg_quality}")
         Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
         if self.n_gloves not in (1, 2):
             raise ValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
-        if self.n_backgrounds < 1:
-            raise ValueError(f"n_backgrounds must be >= 1, got {self.n_backgrounds}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
             raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
                              f"got {self.look_at!r}")
@@ -617,6 +640,8 @@ def config_hash(resolved: dict) -> str:
 def check_output_dir(out_dir: Path) -> None:
     """Fail early (before rendering) if the output folder cannot be written."""
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"out_dir {out_dir} is a file, not a folder")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         probe_file = out_dir / f".write_test.tmp{os.getpid()}"  # a temporary name: a killed run's is cleaned
@@ -719,6 +744,15 @@ def _file_digest(path: Path) -> str:
     return digest.hexdigest()
 
 
+def check_workers(workers, launcher: str = "local") -> None:
+    """Refuse a worker count that is not a whole number >= 1, or, for the local launcher, more processes
+    than :func:`datagen.processes.check_workers` allows (Ray actors may live on other machines)."""
+    if launcher == "local":
+        check_processes(workers)
+    elif isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}")
+
+
 def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,
              backgrounds_dir: str | None = None, workers: int = 1, shard: str | None = None,
              platform: str | None = None, progress: bool = True, log=print, launcher: str = "local",
@@ -752,8 +786,12 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
         raise TypeError(f"spec must be a DatasetSpec, got {type(spec).__name__}")
     out_dir = Path(out_dir)
     k, n = parse_shard(shard)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive int, got {workers!r}")
+    check_workers(workers, launcher)
+    if platform is not None and platform not in gl.PLATFORMS:
+        raise ValueError(f"render.platform must be one of {', '.join(gl.PLATFORMS)} or null (automatic), "
+                         f"got {platform!r}")
+    if not isinstance(progress, bool):
+        raise ValueError(f"progress must be true or false, got {progress!r}")
     backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
     if len(backgrounds) < spec.n_backgrounds:
         raise ValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
@@ -844,7 +882,7 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
                     bar.update(count)
             else:
                 ctx = multiprocessing.get_context("spawn")
-                with ctx.Pool(workers, initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
+                with ctx.Pool(min(workers, len(jobs)), initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
                     writers.update(p.pid for p in multiprocessing.active_children())
                     try:
                         for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):

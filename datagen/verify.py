@@ -79,6 +79,7 @@ from datagen.camera import project_points
 from datagen.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, DamagedFileError, annotations_path,
                               check_manifest, frame_path, read_annotations, read_manifest)
 from datagen.geometry import invert_transform, transform_points
+from datagen.processes import check_workers
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
@@ -758,12 +759,6 @@ def _collapse_image_size(problems: list[dict], frames: int, size: tuple[int, int
     for p in out:
         p.pop("_size", None)
     return out
-
-
-def check_workers(workers) -> int:
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}")
-    return workers
 
 
 def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> dict:

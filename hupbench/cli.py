@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from hupbench import __version__
+from hupbench.errors import USER_ERRORS, error_line, hydra_error_line
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
@@ -250,11 +251,12 @@ def main(argv: list[str] | None = None) -> int:
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
                     "predict": _predict, "eval": _eval, "export": _export}
         return handlers[args.verb](args.overrides)
-    except (ValueError, TypeError, OSError, RuntimeError, HydraException, OmegaConfBaseException) as exc:
-        # OSError covers a missing or unreadable file, a read-only folder and a full disk; its message names the path
+    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
         if args.debug:
             raise
-        print(f"hupbench {args.verb}: error: {exc}", file=sys.stderr)
+        hydra_error = isinstance(exc, (HydraException, OmegaConfBaseException))
+        line = hydra_error_line(exc, f"conf/{args.verb}.yaml", "out_dir=PATH") if hydra_error else error_line(exc)
+        print(f"hupbench {args.verb}: error: {line}", file=sys.stderr)
         return 1
 
 

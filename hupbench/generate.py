@@ -20,13 +20,14 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
         :func:`datagen.dataset.generate`'s dict.
     """
     from datagen.backgrounds import BackgroundSet
-    from datagen.dataset import check_output_dir, generate, parse_shard, run_lock
+    from datagen.dataset import check_output_dir, check_workers, generate, parse_shard, run_lock
     from datagen.ray_launcher import check_launcher
 
     # everything that can be wrong with the config fails here, before any rendering
     spec = build(cfg.dataset)
     parse_shard(cfg.shard)
     check_launcher(cfg.launcher)
+    check_workers(cfg.workers, cfg.launcher)
     ray_options = build(cfg.ray)
     if cfg.backgrounds.dir is not None:
         BackgroundSet.from_dir(cfg.backgrounds.dir)
@@ -42,6 +43,9 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
         if sum(spec.splits.values()) != n_grasps:
             raise ValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
                              f"grasps config selects {n_grasps}")
+    elif grasps_path.is_dir():
+        raise ValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
+                         f"writes)")
     elif not grasps_path.is_file():
         raise FileNotFoundError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
     resolved = OmegaConf.to_container(cfg, resolve=True)

@@ -22,7 +22,6 @@ import json
 import math
 import os
 import platform
-import re
 import sys
 import time
 from collections.abc import Iterator
@@ -36,6 +35,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from datagen import keypoints as kp
 from datagen.io import DiskFullError, OutputLock, clean_stale_tmp, write_bytes, write_json
+from hupbench.errors import USER_ERRORS, error_line
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
 from hupbench.frames import model_images
@@ -544,28 +544,6 @@ def check_config(cfg: DictConfig) -> None:
     _choice(cfg, "data.pipeline", ("cache", "jpeg"), default="cache")
 
 
-#: what train.py answers in one line (exit code 1) instead of a traceback: bad input (ValueError,
-#: TypeError), a missing or unwritable file or a full disk (OSError), a run that cannot go on
-#: (RuntimeError: another run holds the folder, CUDA missing), a diverged loss (ArithmeticError)
-CLI_ERRORS = (ValueError, TypeError, OSError, RuntimeError, ArithmeticError)
-
-
-def error_line(exc: BaseException) -> str:
-    """The one line the user sees for ``exc``.
-
-    A DataLoader worker's exception reaches the training process re-raised by torch with the worker's
-    whole traceback in its message ("Caught FileNotFoundError in DataLoader worker process 0. Original
-    Traceback ..."); its last line is the original message, which names the file.
-    """
-    text = str(exc)
-    if "Original Traceback" in text:
-        last = [line for line in text.splitlines() if line.strip()][-1].strip()
-        match = re.match(r"^[A-Za-z_][\w.]*: (.*)$", last)
-        text = match.group(1) if match else last
-    text = re.sub(r"^\[Errno \d+\] ", "", text)  # an OSError's number means nothing to the user; its text stays
-    return " ".join(line.strip() for line in text.splitlines() if line.strip()) or type(exc).__name__
-
-
 def run_train(cfg: DictConfig, log=print) -> dict:
     """Train a model on a hupbench dataset.
 
@@ -721,7 +699,7 @@ def main(cfg: DictConfig, log=print, debug: bool = False) -> float:
 
     try:
         result = run_train(cfg, log)
-    except (*CLI_ERRORS, HydraException, OmegaConfBaseException) as exc:
+    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
         if debug:
             raise
         print(f"train.py: error: {error_line(exc)}", file=sys.stderr)

@@ -1,0 +1,29 @@
+"""Worker-process counts: one rule for every verb that starts processes (imports nothing heavy)."""
+
+from __future__ import annotations
+
+import os
+
+#: processes per usable CPU core a verb may start; far more only thrashes (measured: ``workers=100000``
+#: spawned processes until the machine stalled)
+MAX_WORKERS_PER_CORE = 4
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the OS has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def check_workers(workers, what: str = "workers") -> int:
+    """``workers`` when it is a whole number from 1 to :data:`MAX_WORKERS_PER_CORE` x the usable cores.
+
+    Raises:
+        ValueError: naming ``what``, the value and the limit.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"{what} must be a whole number >= 1, got {workers!r}")
+    cores = usable_cores()
+    if workers > MAX_WORKERS_PER_CORE * cores:
+        raise ValueError(f"{what}={workers} is more than {MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this "
+                         f"process may use ({MAX_WORKERS_PER_CORE * cores}); each worker is a process")
+    return workers
