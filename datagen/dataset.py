@@ -266,6 +266,12 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
             raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
         if path.stat().st_size == 0:
             raise ValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
+    if not zipfile.is_zipfile(source):
+        size = len(path) if isinstance(path, bytes) else path.stat().st_size
+        raise ValueError(f"grasps file {name} is not an .npz archive ({size} bytes, no zip directory); expected a "
+                         "grasps.npz written by `hupbench grasps`")
+    if isinstance(source, io.BytesIO):
+        source.seek(0)  # is_zipfile read the end of the buffer
     arrays = {}
     try:
         with np.load(source, allow_pickle=False) as data:
