@@ -878,7 +878,7 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
                     rendered += count
                     bar.update(count)
 
-                render_chunks([(c, chunk_split[c]) for c in todo], layout, spec,
+                render_chunks(f"{__name__}:ChunkRenderer", [(c, chunk_split[c]) for c in todo], layout, spec,
                               (out_dir / "grasps.npz").read_bytes(), backgrounds_dir, platform, ray or RayOptions(),
                               workers, on_chunk, log=log)
             elif workers == 1:

@@ -20,6 +20,7 @@ only when this launcher runs.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import os
@@ -102,24 +103,34 @@ def require_ray():
     return ray
 
 
+def resolve_factory(factory: str) -> Callable:
+    """``"package.module:Name"`` -> the object it names (imported now)."""
+    module, _, name = factory.partition(":")
+    if not module or not name:
+        raise ValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
+    return getattr(importlib.import_module(module), name)
+
+
 class ChunkActor:
-    """A Ray actor: one :class:`datagen.dataset.ChunkRenderer`, built once, rendering chunks.
+    """A Ray actor: one chunk renderer (the dataset writer's ``ChunkRenderer``), built once, rendering chunks.
 
     Wrapped by ``ray.remote`` in :func:`render_chunks` (so this module imports without Ray).
 
     Args:
-        spec, grasps_npz (the grasps file's bytes), backgrounds_dir, platform: as for ChunkRenderer.
+        factory: ``"package.module:Name"`` of the renderer class, called as
+            ``Name(spec, grasps_npz, backgrounds_dir, platform)``. A name rather than the class: the
+            class's module imports the renderer, and the actor must choose its GL platform first.
+        spec, grasps_npz (the grasps file's bytes), backgrounds_dir, platform: the factory's arguments.
     """
 
-    def __init__(self, spec, grasps_npz: bytes, backgrounds_dir: str | None, platform: str | None) -> None:
+    def __init__(self, factory: str, spec, grasps_npz: bytes, backgrounds_dir: str | None,
+                 platform: str | None) -> None:
         from datagen import gl
 
         # an actor is its own process: fix PYOPENGL_PLATFORM here, before anything imports
         # pyrender or PyOpenGL (each node picks what works on it when platform is None)
         self.platform = gl.configure(platform)
-        from datagen.dataset import ChunkRenderer
-
-        self._chunks = ChunkRenderer(spec, grasps_npz, backgrounds_dir, self.platform)
+        self._chunks = resolve_factory(factory)(spec, grasps_npz, backgrounds_dir, self.platform)
 
     def info(self) -> dict:
         """{"pid", "host", "platform"} of this actor."""
@@ -130,12 +141,13 @@ class ChunkActor:
         return self._chunks.render(chunk, split, layout)
 
 
-def render_chunks(jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes, backgrounds_dir: str | None,
-                  platform: str | None, options: RayOptions, default_workers: int,
+def render_chunks(factory: str, jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes,
+                  backgrounds_dir: str | None, platform: str | None, options: RayOptions, default_workers: int,
                   on_chunk: Callable[[object], None], log=print) -> dict:
     """Render chunks on Ray actors and hand each result to ``on_chunk`` in the driver.
 
     Args:
+        factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
         jobs: (chunk, split) pairs to render.
         layout: the dataset's :class:`datagen.dataset.Layout`.
         spec: the :class:`datagen.dataset.DatasetSpec`.
@@ -166,7 +178,7 @@ def render_chunks(jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes, 
         def new_actor():
             # the arguments travel with the actor's creation task (a grasps file is kilobytes), so a
             # restarted actor does not depend on an object-store entry staying alive
-            return remote_cls.remote(spec, grasps_npz, backgrounds_dir, platform)
+            return remote_cls.remote(factory, spec, grasps_npz, backgrounds_dir, platform)
 
         actors = [new_actor() for _ in range(n_actors)]
         for i, info in enumerate(_wait_started(ray, actors, options.start_timeout_s)):
