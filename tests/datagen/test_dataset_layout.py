@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from datagen.dataset import DatasetSpec, Layout, lamp, parse_shard, protocol, split_of_grasps, view_directions_arm
-from datagen.sphere import SphereSpec, viewpoints
+from datagen.dataset.writer import DatasetSpec, Layout, lamp, parse_shard, protocol, split_of_grasps, view_directions_arm
+from datagen.dataset.sphere import SphereSpec, viewpoints
 
 
 def test_bijection_covers_every_frame_once():

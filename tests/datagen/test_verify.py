@@ -1,4 +1,4 @@
-"""datagen.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
+"""datagen.dataset.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
 verify's own options (workers, progress, the pool path, checks that cannot run)."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import pytest
 
 from conftest import TINY_SPEC, write_grasps
 from datagen import tolerances as tol
-from datagen import verify as V
-from datagen.contract import read_annotations, read_manifest
-from datagen.verify import (background_mismatch_px, image_format_problem, mask_depth_mismatch_px,
+from datagen.dataset import verify as V
+from datagen.dataset.contract import read_annotations, read_manifest
+from datagen.dataset.verify import (background_mismatch_px, image_format_problem, mask_depth_mismatch_px,
                             read_image, verify)
 
-GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.scene.GLOVE_RGB
+GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.render.scene.GLOVE_RGB
 
 
 def quiet(*_):
@@ -121,7 +121,7 @@ def test_background_mismatch_counts_changed_background_pixels():
 
 
 def test_jpeg_reference_is_the_background_as_stored():
-    from datagen.backgrounds import builtin_background
+    from datagen.assets.backgrounds import builtin_background
 
     background = builtin_background(2, 64, 64)
     np.testing.assert_array_equal(V.jpeg_reference(background, None), background)
@@ -131,7 +131,7 @@ def test_jpeg_reference_is_the_background_as_stored():
 
 
 def _shade(albedo, light, k_diffuse, k_specular):
-    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.verify)."""
+    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.dataset.verify)."""
     linear = V.RENDER_AMBIENT * albedo + k_diffuse[:, None] * (albedo * light) + k_specular[:, None] * light
     return np.round(255 * np.clip(linear, 0, 1) ** (1 / V.RENDER_GAMMA)).astype(np.uint8)
 
@@ -185,7 +185,7 @@ def test_glove_pair_ratio_needs_enough_blocks():
 @pytest.fixture(scope="module")
 def two_gloves(tmp_path_factory):
     """20 frames at 128 px: one grasp, one background, both gloves, 10 views (frame = glove * 10 + view)."""
-    from datagen.dataset import DatasetSpec, generate
+    from datagen.dataset.writer import DatasetSpec, generate
 
     folder = tmp_path_factory.mktemp("two_gloves")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
@@ -317,7 +317,7 @@ def test_checks_that_cannot_run_are_named(tiny_dataset, tmp_path):
 
 
 def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
-    from datagen.verify import sample_sheet
+    from datagen.dataset.verify import sample_sheet
 
     sheet = sample_sheet(tiny_dataset, view=3, tile_px=32)
     assert sheet.dtype == np.uint8 and sheet.ndim == 3

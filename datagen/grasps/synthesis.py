@@ -27,9 +27,9 @@ from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
-from datagen.hand import build_hand
-from datagen.hand_anatomy import HandSpec, anatomical_to_pose
-from datagen.probe import ProbeSpec, build_probe
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
+from datagen.assets.probe import ProbeSpec, build_probe
 
 SAMPLERS = ("random", "cvae")
 

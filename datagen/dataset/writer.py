@@ -13,7 +13,7 @@ annotation rows, also atomically: a chunk whose rows exist is done, any
 other is rendered again on resume (overwriting, never duplicating).
 ``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. Chunks are
 rendered by :class:`ChunkRenderer`, in local worker processes or on Ray actors
-(:mod:`datagen.ray_launcher`), and written by :func:`write_chunk`. When every
+(:mod:`datagen.dataset.ray_launcher`), and written by :func:`write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
 ``manifest.json`` is written last.
 
@@ -47,18 +47,18 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from datagen import gl
+from datagen.render import gl
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import Intrinsics, project_points
-from datagen.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
+from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, save_npz, write_bytes, write_json, write_with
 from datagen.processes import check_workers as check_processes
-from datagen.ray_launcher import RayOptions, check_launcher
-from datagen.render import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
-from datagen.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
-from datagen.sphere import (
+from datagen.dataset.ray_launcher import RayOptions, check_launcher
+from datagen.render.renderer import MODALITIES, SEG_LABELS, PointLight, RenderSettings, check_modalities
+from datagen.render.scene import ARM_RGB, GLOVE_RGB, Grasp, scene_parts
+from datagen.dataset.sphere import (
     SphereSpec,
     camera_pose,
     excluded_view_ids,
@@ -332,8 +332,8 @@ class GraspSet:
     """
 
     def __init__(self, path: str | Path | bytes) -> None:
-        from datagen.hand import build_hand
-        from datagen.probe import build_probe
+        from datagen.assets.hand import build_hand
+        from datagen.assets.probe import build_probe
 
         arrays = read_grasps(path)
         self.hand_pose, self.hand_trans, self.grasp_id = arrays["hand_pose"], arrays["hand_trans"], arrays["grasp_id"]
@@ -377,7 +377,7 @@ def view_directions_arm(sphere: SphereSpec, angles: np.ndarray) -> np.ndarray:
     """(V, 3) float64 unit vectors from the target to the camera in the arm frame.
 
     The arm frame's columns are hand -> elbow, dorsal and their cross product (the thumb side of
-    a right hand), :func:`datagen.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
+    a right hand), :func:`datagen.dataset.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
     """
     # the sphere frame of an arm frame equal to the identity gives the sphere's axes in arm coordinates
     frame = sphere_frame(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), sphere.axis)
@@ -455,19 +455,19 @@ class ChunkRenderer:
     """Renders chunks of a dataset; owns one GL renderer (build one per process and reuse it).
 
     Both launchers use it: the local worker processes and the Ray actors
-    (:mod:`datagen.ray_launcher`), so a frame comes out the same whichever ran it.
+    (:mod:`datagen.dataset.ray_launcher`), so a frame comes out the same whichever ran it.
 
     Args:
         spec: the dataset spec.
         grasps: path of the dataset's grasps.npz, or its bytes (a Ray actor on another machine).
         backgrounds_dir: folder of background photographs, None for the built-ins.
-        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.gl`.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.render.gl`.
     """
 
     def __init__(self, spec: DatasetSpec, grasps: str | Path | bytes, backgrounds_dir: str | None,
                  platform: str | None) -> None:
-        from datagen.backgrounds import BackgroundSet
-        from datagen.render import Renderer
+        from datagen.assets.backgrounds import BackgroundSet
+        from datagen.render.renderer import Renderer
 
         import torch
 
@@ -488,7 +488,7 @@ class ChunkRenderer:
         Returns:
             The chunk's encoded image files and annotation rows.
         """
-        from datagen.backgrounds import composite
+        from datagen.assets.backgrounds import composite
 
         spec, grasps, renderer = self.spec, self.grasps, self.renderer
         rows, files = [], []
@@ -771,8 +771,8 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
 
     Args:
         launcher: "local" renders in ``workers`` processes on this machine; "ray" on Ray actors
-            (:mod:`datagen.ray_launcher`, options in ``ray``). Both write the same files.
-        ray: :class:`datagen.ray_launcher.RayOptions` (None: the defaults, a private runtime
+            (:mod:`datagen.dataset.ray_launcher`, options in ``ray``). Both write the same files.
+        ray: :class:`datagen.dataset.ray_launcher.RayOptions` (None: the defaults, a private runtime
             with ``workers`` actors).
         lock: the lock of this run when the caller already holds it (``with run_lock(out_dir,
             shard) as lock``); None takes it here.
@@ -784,7 +784,7 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     Raises:
         LockedError: another live generate run holds the folder (or this shard).
     """
-    from datagen.backgrounds import BackgroundSet
+    from datagen.assets.backgrounds import BackgroundSet
     check_launcher(launcher)
     if ray is not None and not isinstance(ray, RayOptions):
         raise TypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
@@ -870,7 +870,7 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
         writers = {os.getpid()}
         try:
             if launcher == "ray":
-                from datagen.ray_launcher import render_chunks
+                from datagen.dataset.ray_launcher import render_chunks
 
                 def on_chunk(output: ChunkOutput) -> None:
                     nonlocal rendered
@@ -927,7 +927,7 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
 
 def _finished(out_dir: Path, layout: Layout, chash: str) -> dict:
     """The answer for a folder whose manifest exists: done if it is this config's dataset."""
-    from datagen.contract import read_manifest
+    from datagen.dataset.contract import read_manifest
 
     manifest = read_manifest(out_dir)
     if manifest.get("config_hash") != chash:

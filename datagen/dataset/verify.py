@@ -1,10 +1,10 @@
 """Re-check a dataset against its manifest, against geometry and against its own images.
 
-verify reads through :mod:`datagen.contract`. Two kinds of answer:
+verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
 
 * **fatal** (``ValueError`` / ``FileNotFoundError``, one error line from the CLI): nothing to check
   against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
-  field is missing or malformed (:func:`datagen.contract.read_manifest`: keypoint names other than
+  field is missing or malformed (:func:`datagen.dataset.contract.read_manifest`: keypoint names other than
   the 29 of :mod:`datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
   an unknown ``protocol.look_at`` and a malformed ``gloves_rgb``).
 * **problems**, reported with a kind, the split, the frame and the file; the other splits and
@@ -76,7 +76,7 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import project_points
-from datagen.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, DamagedFileError, annotations_path,
+from datagen.dataset.contract import (ANNOTATIONS, MANIFEST, SEG_LABELS, SPLITS, DamagedFileError, annotations_path,
                               check_manifest, frame_path, read_annotations, read_manifest)
 from datagen.geometry import invert_transform, transform_points
 from datagen.processes import check_workers
@@ -88,7 +88,7 @@ KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "f
 PROBE_BAD_FRACTION = 0.05
 #: fewer frames than this are checked in this process (starting workers would take longer)
 POOL_MIN_FRAMES = 64
-#: the renderer's white ambient light (datagen.dataset.ChunkRenderer: RenderSettings(ambient=0.3))
+#: the renderer's white ambient light (datagen.dataset.writer.ChunkRenderer: RenderSettings(ambient=0.3))
 RENDER_AMBIENT = 0.3
 #: pyrender's output encoding: stored value = linear ** (1 / 2.2), clamped to [0, 1]
 RENDER_GAMMA = 2.2
@@ -255,7 +255,7 @@ def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.n
 
 def _load_backgrounds(manifest: dict):
     """The BackgroundSet the dataset was rendered with (its fingerprint matches), or None and why."""
-    from datagen.backgrounds import BackgroundSet
+    from datagen.assets.backgrounds import BackgroundSet
 
     record = manifest.get("backgrounds")
     if not isinstance(record, dict) or not isinstance(record.get("fingerprint"), str):
@@ -529,8 +529,8 @@ def glove_pair_ratio(rgb_a: np.ndarray, rgb_b: np.ndarray, seg: np.ndarray, glov
 
 def check_geometry(ann: dict, split: str) -> list[dict]:
     """Checks that need no image: reprojection and the stored pose."""
-    from datagen.hand import build_hand
-    from datagen.probe import build_probe
+    from datagen.assets.hand import build_hand
+    from datagen.assets.probe import build_probe
 
     rel = f"{split}/{ANNOTATIONS}"
     problems = []
@@ -579,8 +579,8 @@ _CONTEXT: dict = {}
 
 def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split: str, files: str) -> list[dict]:
     """The stored visibility flags against the stored depth and mask, and probe pixels against the probe."""
-    from datagen.dataset import visibility
-    from datagen.probe import build_probe
+    from datagen.dataset.writer import visibility
+    from datagen.assets.probe import build_probe
 
     manifest = _CONTEXT["manifest"]
     frame_id = int(row["frame_id"])
@@ -729,7 +729,7 @@ def _glove_partners(ann: dict) -> dict[int, int]:
 
 def _jpeg_quality(manifest: dict) -> int | None:
     """The dataset's JPEG quality (None for PNG images); the generator's default when not recorded."""
-    from datagen.dataset import DatasetSpec
+    from datagen.dataset.writer import DatasetSpec
 
     if manifest["rgb_format"] == "png":
         return None
@@ -862,7 +862,7 @@ def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: i
     Raises:
         ValueError: the dataset lacks a modality, the split or a readable image (the message names it).
     """
-    from datagen.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled
+    from datagen.render.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled
 
     root = Path(root)
     manifest = read_manifest(root, split=split)
