@@ -66,7 +66,8 @@ def _rate_after_start_up(out: Path, chunk_size: int, workers: int) -> float | No
 def generation(args: argparse.Namespace) -> None:
     import ray
 
-    from datagen.dataset.writer import DatasetSpec, generate
+    from datagen.dataset.spec import DatasetSpec
+    from datagen.dataset.writer import generate
     from datagen.dataset.ray_launcher import RayOptions
     from datagen.dataset.sphere import SphereSpec
 

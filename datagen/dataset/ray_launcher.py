@@ -1,10 +1,10 @@
 """Rendering a dataset's chunks on Ray: one actor per worker, each owning a renderer.
 
 ``hupbench generate launcher=ray`` hands the chunks that :func:`datagen.dataset.writer.generate`
-still needs to Ray actors. Each actor builds one :class:`datagen.dataset.writer.ChunkRenderer`
+still needs to Ray actors. Each actor builds one :class:`datagen.dataset.chunks.ChunkRenderer`
 (the same class the local worker processes use) when it starts, renders the chunks it is
 given and returns them encoded; the driver writes them with
-:func:`datagen.dataset.writer.write_chunk`. So the output folder only has to exist where the
+:func:`datagen.dataset.chunks.write_chunk`. So the output folder only has to exist where the
 driver runs, and a Ray run writes exactly the files a local run writes, through the same
 resumable chunk mechanism.
 
@@ -137,7 +137,7 @@ class ChunkActor:
         return {"pid": os.getpid(), "host": socket.gethostname(), "platform": self.platform}
 
     def render(self, chunk: int, split: str, layout):
-        """Render one chunk; returns a :class:`datagen.dataset.writer.ChunkOutput`."""
+        """Render one chunk; returns a :class:`datagen.dataset.chunks.ChunkOutput`."""
         return self._chunks.render(chunk, split, layout)
 
 
@@ -149,8 +149,8 @@ def render_chunks(factory: str, jobs: list[tuple[int, str]], layout, spec, grasp
     Args:
         factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
         jobs: (chunk, split) pairs to render.
-        layout: the dataset's :class:`datagen.dataset.writer.Layout`.
-        spec: the :class:`datagen.dataset.writer.DatasetSpec`.
+        layout: the dataset's :class:`datagen.dataset.spec.Layout`.
+        spec: the :class:`datagen.dataset.spec.DatasetSpec`.
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
         backgrounds_dir: folder of background photographs (must exist on every node), or None.
         platform: GL platform for every actor, or None (each picks its own).

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from datagen.dataset.writer import DatasetSpec, Layout, lamp, parse_shard, protocol, split_of_grasps, view_directions_arm
+from datagen.dataset.spec import DatasetSpec, Layout, lamp, protocol, split_of_grasps, view_directions_arm
+from datagen.dataset.writer import parse_shard
 from datagen.dataset.sphere import SphereSpec, viewpoints
 
 

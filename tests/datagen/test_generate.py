@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.dataset.writer import DatasetSpec, generate
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import generate
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz
 from datagen.dataset.verify import verify

@@ -10,7 +10,10 @@ import numpy as np
 import pytest
 
 from datagen.render import gl
-from datagen.dataset.writer import DatasetSpec, GraspSet, Layout, frame_camera, generate
+from datagen.dataset.chunks import frame_camera
+from datagen.dataset.grasps_file import GraspSet
+from datagen.dataset.spec import DatasetSpec, Layout
+from datagen.dataset.writer import generate
 from datagen.render.renderer import Renderer
 from datagen.render.scene import Grasp, scene_parts
 from datagen.dataset.sphere import viewpoints

@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from datagen.dataset.writer import DatasetSpec, generate
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import generate
 from datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
 from datagen.dataset.verify import verify
 from hupbench.cli import main
