@@ -1,6 +1,6 @@
 """python train.py model=hopenet [key=value ...]   (-m for a sweep; torchrun for several processes)
 
-The Hydra entry point: composes conf/train.yaml and calls hupbench.train.main (run_train, errors in one line).
+The Hydra entry point: composes conf/train.yaml and calls hupbench.training.loop.main (run_train, errors in one line).
 Every error is one line, ``train.py: error: ...``, with exit code 1: Hydra's own (a malformed override, an
 unknown key or config option) as well as the run's. HYDRA_FULL_ERROR=1 shows the traceback instead.
 """
@@ -22,7 +22,7 @@ DEBUG = os.environ.get("HYDRA_FULL_ERROR") == "1"
 def main(cfg: DictConfig) -> float:
     from hydra.core.hydra_config import HydraConfig
 
-    from hupbench import train
+    from hupbench.training import loop as train
 
     if cfg.run_dir is None:
         with open_dict(cfg):

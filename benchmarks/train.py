@@ -1,6 +1,6 @@
 """Training throughput of the whole input pipeline: loader + augmentation + optimiser step, images/s.
 
-Runs the training code's own pieces (``hupbench.train.setup_data`` and ``train_step``) on a real
+Runs the training code's own pieces (``hupbench.training.inputs.setup_data`` and ``train_step``) on a real
 dataset for each pipeline side by side in one process: ``jpeg`` (the reference reader: JPEG decode,
 resize, rotation and colour jitter per image in loader workers) and ``cache`` (frames decoded once
 into the memory-mapped frame cache, augmentation per batch on the training device). For each it
@@ -30,7 +30,9 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     import torch
 
     from hupbench.config import build, compose
-    from hupbench.train import build_run_model, learning_rate, setup_data, train_step
+    from hupbench.training.inputs import setup_data
+    from hupbench.training.loop import build_run_model, train_step
+    from hupbench.training.schedule import learning_rate
 
     cfg = compose("train", [f"model={model_name}", f"data.root={dataset}", f"data.pipeline={pipeline}",
                             f"data.num_workers={workers}", f"data.batch_size={args.batch}", f"device={args.device}",

@@ -420,7 +420,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     from hupbench.export import check_output_file
     from hupbench.provenance import git_commit
     from hupbench.results import blank_results, write_results
-    from hupbench.train import hardware_description
+    from hupbench.training.run_log import hardware_description
 
     _model_format(model_path)
     if out is not None:  # an unwritable --out is refused before minutes of work

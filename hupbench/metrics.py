@@ -31,7 +31,7 @@ Symmetry:
     now carry the marker, so the half turn can be read from the image and the plain probe MPJPE is
     the benchmark number; the symmetric one shows whether a model reads the marker (and is the
     fair score on data rendered before the marker existed).
-    ``hupbench.train.hopenet_loss`` can take the same minimum in training (``loss.probe_symmetry``).
+    ``hupbench.training.losses.hopenet_loss`` can take the same minimum in training (``loss.probe_symmetry``).
 
 Spread (collapse guard):
     :func:`spread_ratios` compares how much the predicted 3D keypoints vary across frames with how

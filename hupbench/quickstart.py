@@ -98,7 +98,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
     from hupbench.generate import run_generate, run_verify
     from hupbench.grasps import run_grasps
     from hupbench.predict import run_predict
-    from hupbench.train import run_train
+    from hupbench.training.loop import run_train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
     out: dict = {}

@@ -138,6 +138,48 @@ def _validate_mpjpe_triplet(m: dict, parts: tuple, keys: tuple, *, all_nullable:
     _number(m, parts + ("probe",), nullable=True)
 
 
+def _validate_metrics(metrics, version: int) -> None:
+    """``results['metrics']``: MPJPE by part, the other errors, and (version 2) the probe-symmetric MPJPE
+    and the spread ratios."""
+    _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
+    _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
+    _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
+    _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
+    _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
+    _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
+    _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
+    if version >= 2:
+        _number(metrics, ("metrics", "probe_symmetric_mpjpe_mm"), nullable=True)
+        symmetric, probe = metrics["probe_symmetric_mpjpe_mm"], metrics["mpjpe_mm"]["probe"]
+        if symmetric is not None and probe is not None and symmetric > probe + _SYMMETRIC_SLACK_MM:
+            _fail(("metrics", "probe_symmetric_mpjpe_mm"),
+                  f"at most the plain probe MPJPE ({probe!r}: a minimum over a group that holds the identity)",
+                  symmetric)
+        _keys(metrics["spread_ratio"], ("metrics", "spread_ratio"), _SPREAD_KEYS)
+        for axis in _SPREAD_KEYS:
+            _number(metrics["spread_ratio"], ("metrics", "spread_ratio", axis), nullable=True)
+
+
+def _validate_breakdowns(breakdowns) -> None:
+    """``results['breakdowns']``: axis -> bucket label -> {"frames", "mpjpe_mm"}."""
+    if not isinstance(breakdowns, dict):
+        _fail(("breakdowns",), "a dict (empty when none were computed)", breakdowns)
+    unknown = sorted(str(k) for k in breakdowns if k not in BREAKDOWNS)
+    if unknown:
+        raise ValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(BREAKDOWNS)}")
+    for axis, buckets in breakdowns.items():
+        if not isinstance(buckets, dict):
+            _fail(("breakdowns", axis), "a dict of bucket label -> {'frames', 'mpjpe_mm'}", buckets)
+        for label, bucket in buckets.items():
+            if not isinstance(label, str) or not label:
+                _fail(("breakdowns", axis), "keyed by non-empty bucket labels", label)
+            parts = ("breakdowns", axis, label)
+            _keys(bucket, parts, _BUCKET_KEYS)
+            _integer(bucket, parts + ("frames",), nullable=False)
+            _validate_mpjpe_triplet(bucket["mpjpe_mm"], parts + ("mpjpe_mm",), _BUCKET_MPJPE_KEYS,
+                                    all_nullable=True)
+
+
 def validate_results(d: dict) -> dict:
     """Check a results dict against its schema version (2, or 1 for files written before).
 
@@ -180,42 +222,8 @@ def validate_results(d: dict) -> dict:
     _integer(dataset, ("dataset", "frames"), nullable=True)
     _string(dataset, ("dataset", "name"), nullable=False)
 
-    metrics = d["metrics"]
-    _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
-    _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
-    _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
-    _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
-    _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
-    _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
-    _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
-    if version >= 2:
-        _number(metrics, ("metrics", "probe_symmetric_mpjpe_mm"), nullable=True)
-        symmetric, probe = metrics["probe_symmetric_mpjpe_mm"], metrics["mpjpe_mm"]["probe"]
-        if symmetric is not None and probe is not None and symmetric > probe + _SYMMETRIC_SLACK_MM:
-            _fail(("metrics", "probe_symmetric_mpjpe_mm"),
-                  f"at most the plain probe MPJPE ({probe!r}: a minimum over a group that holds the identity)",
-                  symmetric)
-        _keys(metrics["spread_ratio"], ("metrics", "spread_ratio"), _SPREAD_KEYS)
-        for axis in _SPREAD_KEYS:
-            _number(metrics["spread_ratio"], ("metrics", "spread_ratio", axis), nullable=True)
-
-    breakdowns = d["breakdowns"]
-    if not isinstance(breakdowns, dict):
-        _fail(("breakdowns",), "a dict (empty when none were computed)", breakdowns)
-    unknown = sorted(str(k) for k in breakdowns if k not in BREAKDOWNS)
-    if unknown:
-        raise ValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(BREAKDOWNS)}")
-    for axis, buckets in breakdowns.items():
-        if not isinstance(buckets, dict):
-            _fail(("breakdowns", axis), "a dict of bucket label -> {'frames', 'mpjpe_mm'}", buckets)
-        for label, bucket in buckets.items():
-            if not isinstance(label, str) or not label:
-                _fail(("breakdowns", axis), "keyed by non-empty bucket labels", label)
-            parts = ("breakdowns", axis, label)
-            _keys(bucket, parts, _BUCKET_KEYS)
-            _integer(bucket, parts + ("frames",), nullable=False)
-            _validate_mpjpe_triplet(bucket["mpjpe_mm"], parts + ("mpjpe_mm",), _BUCKET_MPJPE_KEYS,
-                                    all_nullable=True)
+    _validate_metrics(d["metrics"], version)
+    _validate_breakdowns(d["breakdowns"])
 
     latency = d["latency_ms_per_image"]
     _keys(latency, ("latency_ms_per_image",), _LATENCY_RUNTIMES)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from hupbench.data import HUPDataset, ReaderConfig
-from hupbench.frames import BatchAugment, CachedFrames, cache_paths, model_images, open_frame_cache
+from hupbench.training.frame_cache import BatchAugment, CachedFrames, cache_paths, model_images, open_frame_cache
 
 SIZE = 48
 
@@ -144,7 +144,7 @@ def test_cache_is_built_once_and_rebuilt_when_stale(tiny_dataset, tmp_path):
 
 
 def test_a_killed_build_leaves_no_trusted_cache(tiny_dataset, tmp_path, monkeypatch):
-    import hupbench.frames as frames_module
+    import hupbench.training.frame_cache as frames_module
 
     with np.load(tiny_dataset / "val" / "annotations.npz") as data:
         ids = data["frame_id"]

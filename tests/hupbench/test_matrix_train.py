@@ -2,7 +2,7 @@
 
 Every case gives one line ``train.py: error: ...`` naming the file or the field and what was expected,
 exit code 1, no traceback, and nothing that looks complete (no summary.json, no temporary file).
-Most cases run in this process through :func:`hupbench.train.main` (train.py's body, the same answer
+Most cases run in this process through :func:`hupbench.training.loop.main` (train.py's body, the same answer
 its command line prints); a few run ``python train.py`` itself, for Hydra's own errors (malformed
 overrides) and for a read-only run folder (a read-only tmpfs in a private mount namespace).
 
@@ -262,7 +262,7 @@ def tiny_cfg(dataset, run_dir, cache_dir, *extra):
 
 
 def train_answer(capsys, cfg) -> CliAnswer:
-    from hupbench import train
+    from hupbench.training import loop as train
 
     return answer_of(capsys, lambda: train.main(cfg), limit_s=120)
 
@@ -270,7 +270,7 @@ def train_answer(capsys, cfg) -> CliAnswer:
 @pytest.fixture(scope="module")
 def trained(tiny_dataset, tmp_path_factory):
     """(last.pt of a finished 2-step run, the frame cache folder it used): the resume cases' config."""
-    from hupbench.train import run_train
+    from hupbench.training.loop import run_train
 
     folder = tmp_path_factory.mktemp("trained")
     cache = folder / "cache"

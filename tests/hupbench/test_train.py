@@ -9,7 +9,9 @@ import torch
 
 from hupbench.checkpoint import load_model, read_checkpoint
 from hupbench.config import compose
-from hupbench.train import EpochSampler, hopenet_loss, run_train, warmup_cosine
+from hupbench.training.loop import run_train
+from hupbench.training.losses import hopenet_loss
+from hupbench.training.schedule import EpochSampler, warmup_cosine
 from models.hopenet import HOPENetOutput
 
 REPO = Path(__file__).resolve().parents[2]
@@ -78,7 +80,7 @@ def test_resume_gives_the_same_next_losses(tiny_dataset, tmp_path):
 
 
 def test_recompute_bn_statistics_gives_exact_averages():
-    from hupbench.train import recompute_bn_statistics
+    from hupbench.training.validation import recompute_bn_statistics
 
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4))
@@ -380,7 +382,7 @@ def test_short_run_lowers_validation_mpjpe(small_dataset, tmp_path):
 
 
 def test_learning_rate_scales_linearly_with_the_global_batch():
-    from hupbench.train import learning_rate
+    from hupbench.training.schedule import learning_rate
 
     base = compose("train", ["data.batch_size=32"])
     assert learning_rate(base, world=1) == pytest.approx(1e-3)            # reference_batch null: as given

@@ -69,7 +69,7 @@ class Reference(dict):
 def reference(tiny_dataset, tmp_path_factory) -> Reference:
     """One uninterrupted run (in this process: the same code and thread count as train.py's)."""
     from hupbench.config import compose
-    from hupbench.train import run_train
+    from hupbench.training.loop import run_train
 
     folder = tmp_path_factory.mktemp("reference")
     result = run_train(compose("train", overrides(tiny_dataset, folder / "run", folder / "cache")),
@@ -111,7 +111,7 @@ def test_fault_train_second_run_refused(tiny_dataset, tmp_path):
 def test_fault_train_stale_lock_taken_over(tiny_dataset, tmp_path, reference, capsys):
     """The lock file of a run killed with SIGKILL stays behind; the next run takes it over, says so, and
     finishes as an uninterrupted run would."""
-    from hupbench import train
+    from hupbench.training import loop as train
     from hupbench.config import compose
 
     run_dir, cache = tmp_path / "run", tmp_path / "cache"
@@ -244,7 +244,7 @@ def dead_pid() -> int:
 def test_fault_train_stale_tmp_removed(tiny_dataset, tmp_path, reference, capsys):
     """Temporary files that killed runs left (measured before: 23 MB of .last.pt.tmpNNN and .best.pt.tmpNNN
     that survived a later successful resume) are removed when training starts; a live writer's are kept."""
-    from hupbench import train
+    from hupbench.training import loop as train
     from hupbench.config import compose
 
     run_dir, cache = tmp_path / "run", tmp_path / "cache"

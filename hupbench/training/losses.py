@@ -1,0 +1,65 @@
+"""The training loss: HOPE-Net's weighted MSE terms (2D init, 2D, 3D), probe-symmetry aware."""
+from __future__ import annotations
+
+from omegaconf import DictConfig
+
+import torch
+
+
+def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """HOPE-Net's weighted MSE over whichever outputs the model has.
+
+    With ``probe_symmetry: half_turn`` the probe corners' labels are taken up to the half turn about
+    the probe's long axis: per sample, the true corners are relabelled by the element of
+    ``hupbench.metrics.PROBE_SYMMETRIES`` (identity or half turn) whose 3D corner MSE against the
+    prediction is smaller, and the same relabelling is applied to the 2D targets, so all terms agree
+    on which corner is which (PoseCNN's ShapeMatch idea for a discrete group). The 3D term is then the
+    minimum over the group of the corner MSE plus the unchanged hand MSE; the choice itself carries
+    no gradient.
+
+    Args:
+        output: HOPENetOutput (points2d_init, points2d, points3d) or RegressorOutput (points2d or
+            None, points3d); 2D (B, 29, 2) normalised image units, 3D (B, 29, 3) metres.
+        batch: "keypoints_2d" (B, 29, 2) normalised, "keypoints_3d" (B, 29, 3) metres, camera frame.
+        weights: w2d_init, w2d, w3d, unit_3d_m (the 3D loss is measured in that many metres) and
+            optionally probe_symmetry ("none", the default, or "half_turn").
+
+    Returns:
+        (total loss, {term name: 0-dim detached tensor on the loss's device}) with the unweighted
+        terms for logging (tensors, so that the training loop reads them without waiting for the
+        device at every step); with half_turn also "probe_half_turned", the fraction of samples
+        whose corners were relabelled.
+    """
+    from hupbench.metrics import PROBE_SYMMETRIES, permute_keypoints, symmetry_costs
+
+    target_2d = batch["keypoints_2d"]
+    target_3d = batch["keypoints_3d"] / weights["unit_3d_m"]
+    symmetry = weights.get("probe_symmetry", "none")
+    if symmetry not in PROBE_SYMMETRIES:
+        raise ValueError(f"loss.probe_symmetry must be one of {sorted(PROBE_SYMMETRIES)}, got {symmetry!r}")
+    choice = None
+    if symmetry != "none":
+        group = PROBE_SYMMETRIES[symmetry]
+        with torch.no_grad():
+            costs = symmetry_costs(output.points3d.float() / weights["unit_3d_m"], target_3d, group, squared=True)
+            choice = costs.argmin(dim=1)                                            # (B,) group element
+        target_3d = permute_keypoints(target_3d, group, choice)
+        target_2d = permute_keypoints(target_2d, group, choice)
+    terms = {"loss_3d": torch.nn.functional.mse_loss(output.points3d.float() / weights["unit_3d_m"], target_3d)}
+    total = weights["w3d"] * terms["loss_3d"]
+    if getattr(output, "points2d_init", None) is not None:
+        terms["loss_2d_init"] = torch.nn.functional.mse_loss(output.points2d_init.float(), target_2d)
+        total = total + weights["w2d_init"] * terms["loss_2d_init"]
+    if output.points2d is not None:
+        terms["loss_2d"] = torch.nn.functional.mse_loss(output.points2d.float(), target_2d)
+        total = total + weights["w2d"] * terms["loss_2d"]
+    logged = {name: value.detach() for name, value in terms.items()}
+    if choice is not None:
+        logged["probe_half_turned"] = (choice != 0).float().mean()
+    return total, logged
+
+
+def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, float]]:
+    """:func:`loss_terms` with the logged terms as Python floats."""
+    total, terms = loss_terms(output, batch, weights)
+    return total, {name: float(value) for name, value in terms.items()}

@@ -1,0 +1,84 @@
+"""A run's log: ``metrics.jsonl`` (train and val events, written atomically, resumable), TensorBoard scalars, progress lines, and the hardware it ran on."""
+from __future__ import annotations
+
+import errno
+import json
+import platform
+from pathlib import Path
+
+import torch
+
+from datagen.io import DiskFullError, write_bytes
+
+
+class MetricsLog:
+    """metrics.jsonl (append, flushed per line) + TensorBoard, on rank 0 only."""
+
+    def __init__(self, run_dir: Path, enabled: bool, tensorboard: bool, resume_step: int | None) -> None:
+        self.enabled = enabled
+        self.path = run_dir / "metrics.jsonl"
+        self.writer = None
+        if not enabled:
+            return
+        if resume_step is None:
+            write_bytes(self.path, b"")
+        elif self.path.exists():
+            # drop lines a killed run wrote after its last checkpoint: they are about to be redone
+            kept = [line for line in self._records() if json.loads(line)["step"] <= resume_step]
+            write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=resume_step)
+
+    def _records(self) -> list[str]:
+        """The file's JSON lines; a last line cut short (a run killed while writing it, a full disk) is dropped."""
+        lines = [line for line in self.path.read_text().splitlines() if line.strip()]
+        for i, line in enumerate(lines):
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                record = None
+            if not isinstance(record, dict) or not isinstance(record.get("step"), int):
+                if i == len(lines) - 1:
+                    return lines[:-1]
+                raise ValueError(f"{self.path}: line {i + 1} is not a metrics record (JSON with a 'step'); "
+                                 "the log was edited or damaged: move it away to start the log afresh")
+        return lines
+
+    def __call__(self, record: dict) -> None:
+        if not self.enabled:
+            return
+        try:
+            with open(self.path, "a") as f:
+                f.write(json.dumps(record, sort_keys=True) + "\n")
+        except OSError as exc:
+            raise (DiskFullError(self.path) if exc.errno == errno.ENOSPC else exc) from exc
+        if self.writer is not None:
+            step = record["step"]
+            for key, value in record.items():
+                if isinstance(value, dict):
+                    for sub, v in value.items():
+                        if isinstance(v, float):
+                            self.writer.add_scalar(f"{record['event']}/{key}_{sub}", v, step)
+                elif isinstance(value, float) and key not in ("wall_s", "train_wall_s", "epoch"):
+                    self.writer.add_scalar(f"{record['event']}/{key}", value, step)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def hardware_description(device: torch.device) -> str:
+    """One line naming the machine a run used (the leaderboard's hardware column)."""
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} (CUDA {torch.version.cuda})"
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"CPU: {cpu}, {torch.get_num_threads()} threads"

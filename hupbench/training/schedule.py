@@ -1,0 +1,77 @@
+"""What the optimiser sees when: Adam's warm-up and cosine learning rate, and the epoch order of the frames."""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from omegaconf import DictConfig
+
+import torch
+
+
+def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
+                  final_lr_fraction: float = 0.02) -> torch.optim.lr_scheduler.LambdaLR:
+    """Linear warm-up to the base learning rate, then cosine decay to ``final_lr_fraction`` of it.
+
+    Args:
+        optimizer: the optimiser whose learning rates are scaled.
+        total_steps: optimiser steps in the whole run.
+        warmup_steps: steps of linear warm-up (shortened to a tenth of the run for short runs).
+        final_lr_fraction: learning rate at the last step, as a fraction of the base rate.
+    """
+    if total_steps < 1:
+        raise ValueError(f"total_steps must be >= 1, got {total_steps}")
+    if not 0.0 <= final_lr_fraction <= 1.0:
+        raise ValueError(f"final_lr_fraction must be in [0, 1], got {final_lr_fraction}")
+    warmup = max(0, min(int(warmup_steps), total_steps // 10))
+
+    def factor(step: int) -> float:
+        if step < warmup:
+            return (step + 1) / warmup
+        progress = min(1.0, (step - warmup) / max(1, total_steps - warmup))
+        return final_lr_fraction + (1.0 - final_lr_fraction) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+
+
+class EpochSampler(torch.utils.data.Sampler):
+    """A seeded permutation per epoch, sliced for this rank, starting at a batch offset (for resume).
+
+    Every rank draws the same permutation from (seed, epoch) and takes every world-th index, so
+    the ranks see disjoint frames; the tail that does not fill a whole global batch is dropped.
+    """
+
+    def __init__(self, n: int, batch_size: int, seed: int, world: int = 1, rank: int = 0) -> None:
+        self.n, self.batch_size, self.seed, self.world, self.rank = n, batch_size, seed, world, rank
+        self.epoch, self.start_batch = 0, 0
+        self.batches_per_epoch = n // (batch_size * world)
+        if self.batches_per_epoch < 1:
+            raise ValueError(f"the training split has {n} frames, fewer than one batch of {batch_size} x {world} "
+                             "processes; lower data.batch_size")
+
+    def set_position(self, epoch: int, start_batch: int) -> None:
+        self.epoch, self.start_batch = epoch, start_batch
+
+    def __iter__(self) -> Iterator[int]:
+        order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed * 100_003 + self.epoch))
+        used = order[: self.batches_per_epoch * self.batch_size * self.world]
+        mine = used[self.rank:: self.world]
+        return iter(mine[self.start_batch * self.batch_size:].tolist())
+
+    def __len__(self) -> int:
+        return (self.batches_per_epoch - self.start_batch) * self.batch_size
+
+
+def learning_rate(cfg: DictConfig, world: int) -> float:
+    """The optimiser's learning rate for this run's global batch.
+
+    ``optim.reference_batch`` null: ``optim.optimizer.lr`` as given. A number N: linear scaling
+    (Goyal et al. 2017, "Accurate, large minibatch SGD"), lr x global batch / N, which the
+    scheduler's linear warm-up makes safe in the first steps.
+    """
+    lr = float(cfg.optim.optimizer.lr)
+    reference = cfg.optim.get("reference_batch")
+    if reference is None:
+        return lr
+    if isinstance(reference, bool) or not isinstance(reference, int) or reference < 1:
+        raise ValueError(f"optim.reference_batch must be null or a positive int, got {reference!r}")
+    return lr * int(cfg.data.batch_size) * world / reference
