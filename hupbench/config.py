@@ -11,6 +11,25 @@ from omegaconf import DictConfig, OmegaConf
 HYDRA_VERSION_BASE = "1.3"
 
 
+def _focal_px(focal_mm: float, sensor_mm: float, width: int, height: int) -> float:
+    """``${focal_px:FOCAL_MM,SENSOR_MM,WIDTH,HEIGHT}``: the focal length in pixels of a lens on a sensor
+    fitted to the larger image side (:meth:`datagen.camera.Intrinsics.from_lens`)."""
+    from datagen.camera import Intrinsics
+
+    return Intrinsics.from_lens(float(focal_mm), float(sensor_mm), int(width), int(height)).fx
+
+
+def _centre_px(side: int) -> float:
+    """``${centre_px:SIDE}``: the principal point of an image side, pixels (its middle)."""
+    return int(side) / 2.0
+
+
+# the camera configs derive fx, fy, cx, cy from the lens and the image size, so that changing the image
+# size keeps the field of view (the values were typed by hand four times before)
+OmegaConf.register_new_resolver("focal_px", _focal_px, replace=True)
+OmegaConf.register_new_resolver("centre_px", _centre_px, replace=True)
+
+
 def config_dir() -> Path:
     """Directory holding the Hydra configs (``conf/`` of the source tree, shipped as ``hupbench.conf``).
 
