@@ -38,10 +38,19 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from hupbench.config import compose
+    from datagen.grasps.generate import check_run_options
+    from hupbench.config import build, compose
     from hupbench.grasps import run_grasps
 
-    result = run_grasps(compose("grasps", overrides))
+    cfg = compose("grasps", overrides)
+    # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
+    for group in ("generate", "refine"):
+        try:
+            build(cfg[group])
+        except ValueError as exc:  # the config class names its field, not the group it came from
+            raise ValueError(f"{group}: {exc}") from None
+    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
+    result = run_grasps(cfg)
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
           f"{result['candidates']} candidates plausible, {result['selected']} selected")
     for key in ("grasps_npz", "grasps_json", "contact_sheet"):
@@ -241,7 +250,10 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
     args = parser.parse_args(argv)
     if args.verb is None:
+        # the help lists the verbs; the error line says what was missing (argparse's usage errors exit 2 too)
         parser.print_help()
+        print(f"hupbench: error: a verb is required, one of: {', '.join(VERBS)} (hupbench VERB --help describes "
+              f"one)", file=sys.stderr)
         return 2
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
