@@ -30,7 +30,8 @@ def _quickstart(args: list[str]) -> int:
                                      "conf/quickstart.yaml, e.g. out_dir=/tmp/qs stop_after=dataset")
     parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version")
     parser.add_argument("overrides", nargs="*", metavar="key=value")
-    ns = parser.parse_args(args)
+    # intermixed: `--fast` may stand anywhere among the overrides (after one, argparse refused the rest)
+    ns = parser.parse_intermixed_args(args)
     overrides = [*ns.overrides, "fast=true"] if ns.fast else ns.overrides
     result = run_quickstart(compose("quickstart", overrides))
     print("\n".join(summary_lines(result)))

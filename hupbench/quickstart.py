@@ -12,6 +12,7 @@ chunks and the training continues from its last checkpoint.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from pathlib import Path
@@ -112,7 +113,27 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
     return check_output_folder(cfg.out_dir), intrinsics, view
 
 
-def _stage_configs(work: Path, overrides: dict) -> tuple[DictConfig, DictConfig, DictConfig]:
+@contextlib.contextmanager
+def _stage_errors(stage: str, fast: bool):
+    """Name the stage (and its list of overrides) in an error of a later stage's config: the config classes
+    name their field, the CLI would name conf/quickstart.yaml, where the key is not looked up."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from hupbench.errors import hydra_error_line
+
+    config_name = {"dataset": "generate"}.get(stage, stage)
+    listed = f"fast_overrides.{stage}" if fast else stage
+    where = f"{stage} stage (conf/quickstart.yaml's {listed} list over conf/{config_name}.yaml)"
+    try:
+        yield
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ValueError(f"{where}: {hydra_error_line(exc, f'conf/{config_name}.yaml', 'key=value')}") from exc
+    except (ValueError, TypeError) as exc:
+        raise type(exc)(f"{where}: {exc}") from exc
+
+
+def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig, DictConfig, DictConfig]:
     """Compose the grasps, generate and train configs of the later stages and check every value each
     verb checks before its work (so a bad stage override fails before the preview renders)."""
     from datagen.dataset import check_workers, parse_shard
@@ -120,24 +141,28 @@ def _stage_configs(work: Path, overrides: dict) -> tuple[DictConfig, DictConfig,
     from datagen.ray_launcher import check_launcher
     from hupbench.train import check_config as check_train_config
 
-    grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
-    for group in ("generate", "refine"):
-        try:
-            build(grasps_cfg[group])
-        except ValueError as exc:  # the config class names its field, not the group it came from
-            raise ValueError(f"grasps stage: {group}: {exc}") from None
-    check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform, grasps_cfg.out_dir)
+    with _stage_errors("grasps", fast):
+        grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
+        for group in ("generate", "refine"):
+            try:
+                build(grasps_cfg[group])
+            except ValueError as exc:  # the config class names its field, not the group it came from
+                raise ValueError(f"{group}: {exc}") from None
+        check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform,
+                          grasps_cfg.out_dir)
     dataset_dir = work / "dataset"
-    generate_cfg = compose("generate", [*overrides["dataset"], f"out_dir={dataset_dir}",
-                                        f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
-    build(generate_cfg.dataset)
-    parse_shard(generate_cfg.shard)
-    check_launcher(generate_cfg.launcher)
-    check_workers(generate_cfg.workers, generate_cfg.launcher)
-    train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
-                                  "run_name=quickstart"])
-    check_train_config(train_cfg)
-    build(train_cfg.data.reader)
+    with _stage_errors("dataset", fast):
+        generate_cfg = compose("generate", [*overrides["dataset"], f"out_dir={dataset_dir}",
+                                            f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
+        build(generate_cfg.dataset)
+        parse_shard(generate_cfg.shard)
+        check_launcher(generate_cfg.launcher)
+        check_workers(generate_cfg.workers, generate_cfg.launcher)
+    with _stage_errors("train", fast):
+        train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
+                                      "run_name=quickstart"])
+        check_train_config(train_cfg)
+        build(train_cfg.data.reader)
     return grasps_cfg, generate_cfg, train_cfg
 
 
@@ -163,7 +188,7 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
     last = STAGES.index(cfg.stop_after) if cfg.stop_after else len(STAGES) - 1
     work = out_dir / ("fast" if cfg.fast else "full")
     overrides = _stage_overrides(cfg)
-    grasps_cfg, generate_cfg, train_cfg = _stage_configs(work, overrides)
+    grasps_cfg, generate_cfg, train_cfg = _stage_configs(work, overrides, cfg.fast)
 
     result: dict = {"out_dir": str(out_dir), "stages": {}}
     n = last + 1
