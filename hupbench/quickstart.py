@@ -75,6 +75,13 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
             if not (OmegaConf.is_list(value) and all(isinstance(v, str) for v in value)):
                 raise ValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
                                  f"(e.g. {source}{stage}=[a.b=1]), got {value!r}")
+    if cfg.fast:
+        # the fast run reads fast_overrides.*: a changed grasps/dataset/train list would be ignored without a word
+        packaged = compose("quickstart")
+        for key in ("grasps", "dataset", "train", "eval_latency"):
+            if cfg[key] != packaged[key]:
+                raise ValueError(f"{key} is not used by the fast quickstart (fast=true reads fast_overrides.{key}); "
+                                 f"set fast_overrides.{key} instead, or leave fast off")
     if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
         raise ValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
     for key in ("fx", "fy", "cx", "cy"):

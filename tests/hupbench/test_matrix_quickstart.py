@@ -78,6 +78,8 @@ CASES = {
     "train-unknown-key": lambda t: (["train=['train.colour=1']"], ["train stage", "train.colour", "conf/train.yaml"]),
     "fast-stage-list-bad": lambda t: (["--fast", "fast_overrides.train=['train.max_steps=-1']"],
                                       ["train stage", "fast_overrides.train list", "train.max_steps", ">= 1"]),
+    "fast-with-stage-list": lambda t: (["--fast", "grasps=['generate.n_select=2']"],
+                                       ["grasps", "not used by the fast quickstart", "fast_overrides.grasps"]),
     # the output folder
     "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
     "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'qs'}"], ["out_dir", "file is a file"]),
