@@ -3,7 +3,7 @@
 #   1. the Debian packages of the offscreen renderer: Mesa EGL (libegl1 + libegl-mesa0, the DRI drivers
 #      with llvmpipe in libgl1-mesa-dri, and libopengl0, the GL library without GLX/X11 that PyOpenGL's
 #      EGL platform loads) and OSMesa as the fallback (libosmesa6). No X11 client library is needed:
-#      datagen.gl imports pyrender without its pyglet viewer;
+#      datagen.render.gl imports pyrender without its pyglet viewer;
 #   2. the package itself with its test extras into the current Python (pip), plus the optional extras
 #      asked for with --with (e.g. `./install.sh --with ray` for `hupbench generate launcher=ray`);
 #   3. PyOpenGL 3.1.10 over pyrender's pinned 3.1.0: EGL works with both, OSMesa only with >= 3.1.7

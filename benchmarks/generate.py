@@ -27,7 +27,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
 
-    from datagen.dataset import DatasetSpec, generate
+    from datagen.dataset.spec import DatasetSpec
+    from datagen.dataset.writer import generate
     from datagen.io import save_npz
 
     with np.load(args.grasps) as data:

@@ -56,8 +56,8 @@ def main() -> None:
     from datagen.grasps.approach import approach_azimuth
     from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, heuristic_starts, random_starts, refine
     from datagen.grasps.scores import score_grasps
-    from datagen.hand import build_hand
-    from datagen.probe import build_probe
+    from datagen.assets.hand import build_hand
+    from datagen.assets.probe import build_probe
     from datagen.grasps.cvae import load_shipped_cvae
 
     hand, probe = build_hand(), build_probe()

@@ -25,9 +25,9 @@ def main() -> None:
         parser.error("--frames, --repeats and --size must be positive")
 
     from datagen.camera import Intrinsics, look_at
-    from datagen.preview import handset_grasp
-    from datagen.render import Renderer
-    from datagen.scene import keypoints_world, scene_parts
+    from datagen.render.preview import handset_grasp
+    from datagen.render.renderer import Renderer
+    from datagen.render.scene import keypoints_world, scene_parts
 
     intrinsics = Intrinsics.from_lens(60.0, 32.0, args.size, args.size)
     grasp = handset_grasp()

@@ -123,8 +123,8 @@ def _verify(args: list[str]) -> int:
         print(f"hupbench verify: OK, {result['frames']} frames checked")
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
-        from datagen.draw import write_png
-        from datagen.verify import sample_sheet
+        from datagen.render.draw import write_png
+        from datagen.dataset.verify import sample_sheet
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part of the reader's API)
-from datagen.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
+from datagen.dataset.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
 
 
 #: the model input side, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a

@@ -413,7 +413,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
               label: str | None = None, progress: bool = True) -> dict[str, Any]:
     from tqdm import tqdm
 
-    from datagen.contract import read_annotations
+    from datagen.dataset.contract import read_annotations
     from datagen.io import DiskFullError, clean_stale_tmp, tmp_path
     from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig

@@ -109,7 +109,7 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
     Returns:
         (N, S, S, 3) uint8 read-only memory map, RGB.
     """
-    from datagen.dataset import frame_path
+    from datagen.dataset.contract import frame_path
 
     cache_dir = Path(root) / "cache" if cache_dir is None else Path(cache_dir)
     npy_path, key_path = cache_paths(cache_dir, split, input_size)

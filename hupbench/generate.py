@@ -17,11 +17,11 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
         cfg: the composed ``generate`` config.
 
     Returns:
-        :func:`datagen.dataset.generate`'s dict.
+        :func:`datagen.dataset.writer.generate`'s dict.
     """
-    from datagen.backgrounds import BackgroundSet
-    from datagen.dataset import check_output_dir, check_workers, generate, parse_shard, run_lock
-    from datagen.ray_launcher import check_launcher
+    from datagen.assets.backgrounds import BackgroundSet
+    from datagen.dataset.writer import check_output_dir, check_workers, generate, parse_shard, run_lock
+    from datagen.dataset.ray_launcher import check_launcher
 
     # everything that can be wrong with the config fails here, before any rendering
     spec = build(cfg.dataset)
@@ -63,15 +63,15 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
 
 
 def run_verify(dataset: str | Path, workers: int = 2, log=print, progress: bool | None = None) -> dict:
-    """Verify a dataset folder (see :mod:`datagen.verify`: what stops it, what it reports).
+    """Verify a dataset folder (see :mod:`datagen.dataset.verify`: what stops it, what it reports).
 
     Args:
         dataset: the dataset folder. workers: processes for the per-frame checks (>= 1).
         log: progress lines. progress: a progress bar with ETA (None: when stderr is a terminal).
 
     Returns:
-        :func:`datagen.verify.verify`'s dict.
+        :func:`datagen.dataset.verify.verify`'s dict.
     """
-    from datagen.verify import verify
+    from datagen.dataset.verify import verify
 
     return verify(dataset, workers=workers, log=log, progress=progress)

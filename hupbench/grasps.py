@@ -23,11 +23,11 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
     Returns:
         dict with the output paths, counts and timings.
     """
-    from datagen.draw import write_png
-    from datagen.grasps.generate import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
+    from datagen.render.draw import write_png
+    from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from datagen.grasps.sheet import contact_sheet
-    from datagen.hand import build_hand
-    from datagen.probe import build_probe
+    from datagen.assets.hand import build_hand
+    from datagen.assets.probe import build_probe
 
     import torch
 
@@ -73,8 +73,8 @@ def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
 
     from datagen.grasps.cvae import SHIPPED_WEIGHTS
     from datagen.grasps.cvae_sampling import train_sampler
-    from datagen.hand import build_hand
-    from datagen.probe import build_probe
+    from datagen.assets.hand import build_hand
+    from datagen.assets.probe import build_probe
 
     # CPU results are bit-reproducible only at a fixed thread count
     torch.set_num_threads(cfg.threads)

@@ -407,7 +407,7 @@ def render_readme(rows: list[dict]) -> str:
          "(ix, iy, iz) of the box becomes (1 − ix, 1 − iy, iz)), whichever is closer, as the BOP benchmark scores "
          "symmetric objects. It never exceeds the plain probe MPJPE; the gap is the error of confusing the two ends "
          "of the probe's transducer array. The probe carries an orientation marker on the +x end of its head "
-         "(`datagen/probe.py`), so the two ends can be told apart in the image and the plain probe MPJPE is the "
+         "(`datagen/assets/probe.py`), so the two ends can be told apart in the image and the plain probe MPJPE is the "
          "benchmark number; datasets rendered before the marker was added do not show it."),
         ("- Spread ratio x / y / z: for each camera axis, the standard deviation across the test frames of a "
          "predicted 3D coordinate, averaged over the 29 keypoints, divided by the same for the truth. 1 means the "

@@ -21,7 +21,7 @@ Averaging:
 
 Symmetry:
     The probe's 8 box corners are only defined up to the box's symmetries that also map the probe
-    onto itself. Without its orientation marker (datagen/probe.py) the probe is unchanged by the half
+    onto itself. Without its orientation marker (datagen/assets/probe.py) the probe is unchanged by the half
     turn about its long axis z, (x, y, z) -> (-x, -y, z), which maps corner (ix, iy, iz) to
     (1 - ix, 1 - iy, iz) of its axis-centred box; the BOP benchmark (Hodan et al.) scores such objects
     by minimising the error over the symmetry group (MSSD, MSPD). :func:`probe_symmetric_mpjpe_mm`
@@ -413,7 +413,7 @@ def pixel_error_px(pred_px, gt_px, mask=None):
 def latitude_labels(theta_rad) -> np.ndarray:
     """Camera-latitude bucket of each frame: "egocentric" or "non_egocentric".
 
-    The viewpoint sphere's polar axis is the forearm (datagen/sphere.py): north (theta = 0) points
+    The viewpoint sphere's polar axis is the forearm (datagen/dataset/sphere.py): north (theta = 0) points
     from the hand towards the elbow. A head-mounted (egocentric) camera of the person holding the
     probe looks at the hand from the arm's side, so we call a view egocentric when the camera is
     on the elbow's hemisphere, theta < pi/2 (``EGOCENTRIC_MAX_THETA_RAD``); the views at or beyond
@@ -477,7 +477,7 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
 
     Args:
         points_m: (K, 3) float, metres, the points in the object's own frame (e.g. the probe's box
-            corners in the probe frame, ``datagen.probe.Probe.corners_probe``).
+            corners in the probe frame, ``datagen.assets.probe.Probe.corners_probe``).
         rotation: (3, 3) a proper rotation about that frame's origin (e.g. :data:`HALF_TURN_Z`).
         rel_tol: largest allowed distance between a rotated point and its match, relative to the
             set's size (its largest distance from its centroid).

@@ -1,7 +1,7 @@
 """``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
 
 Only onnxruntime, numpy and OpenCV run here (plus the torch-free ``datagen.keypoints``,
-``datagen.draw`` and ``datagen.io``), so a deployment needs neither PyTorch nor the training code.
+``datagen.render.draw`` and ``datagen.io``), so a deployment needs neither PyTorch nor the training code.
 
 Model: an ``.onnx`` file written by ``hupbench export`` (the ONNX contract in the notes): input
 ``image`` (B, 3, S, S) float32 RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1]
@@ -90,7 +90,7 @@ import onnxruntime as ort
 from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 from datagen.camera import resize_intrinsics, resize_points
-from datagen.draw import write_png
+from datagen.render.draw import write_png
 from datagen.io import clean_stale_tmp, write_bytes
 from hupbench.overlay import draw_prediction
 

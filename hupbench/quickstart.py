@@ -186,8 +186,8 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
         "metrics" (test MPJPE mm: all / hand / probe), "val_mpjpe_mm" (first and last validation),
         "parity" (ONNX vs PyTorch), "render_platform", "keypoints_in_view", "run_info" and "seconds".
     """
-    from datagen import gl
-    from datagen.preview import handset_grasp, preview
+    from datagen.render import gl
+    from datagen.render.preview import handset_grasp, preview
 
     start = time.perf_counter()
     # compose (and so check) every stage's config before anything runs or is written
@@ -293,7 +293,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
 
 
 def _first_test_image(dataset: Path) -> Path:
-    from datagen.contract import frame_path, read_annotations, read_manifest
+    from datagen.dataset.contract import frame_path, read_annotations, read_manifest
 
     manifest = read_manifest(dataset, "test")
     frame_id = int(read_annotations(dataset, "test", (), manifest)["frame_id"][0])

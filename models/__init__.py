@@ -4,5 +4,8 @@ Modules: ``resnet`` (torchvision-named ResNet-10/18/34/50), ``graph`` (GraphConv
 node pooling, the adaptive Graph U-Net, the 2D refinement), ``hopenet``,
 ``baseline`` (ResNetRegressor), ``build`` (registry, ``build_model``, strict
 checkpoint loading), ``coords`` (pixels <-> normalised image coordinates) and
-``tolerances``. Nothing here imports ``datagen`` or ``hupbench``.
+``model_tolerances``.
+
+May import: torch, numpy and itself. Never ``datagen`` or ``hupbench``: a model is built from
+numbers (keypoint count, input size, the prior layout), not from the generator or the CLI.
 """

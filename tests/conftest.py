@@ -5,8 +5,8 @@ import pytest
 
 from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from datagen.io import save_npz
-from datagen.preview import handset_grasp
-from datagen.sphere import SphereSpec
+from datagen.render.preview import handset_grasp
+from datagen.dataset.sphere import SphereSpec
 
 # a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so
 # coarse a sphere is near the elbow, so the default exclusion would keep all 12), 64 x 64 images; the
@@ -47,7 +47,8 @@ def tiny_grasps(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory):
     """A finished 64 x 64 dataset with 20 frames in each of train, val and test (one grasp each). Read only."""
-    from datagen.dataset import DatasetSpec, generate
+    from datagen.dataset.spec import DatasetSpec
+    from datagen.dataset.writer import generate
 
     grasps = write_grasps(tmp_path_factory.mktemp("grasps3") / "grasps.npz", n=3)
     root = tmp_path_factory.mktemp("tiny") / "dataset"

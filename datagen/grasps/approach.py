@@ -2,7 +2,7 @@
 
 For each probe orientation Theta_Vol the hand approaches from the same side of the generator
 frame (the operator's side, -y), so the orientation decides which face of the handle it meets.
-Both the generator (:mod:`datagen.grasps.generate`) and the CVAE sampler
+Both the generator (:mod:`datagen.grasps.synthesis`) and the CVAE sampler
 (:mod:`datagen.grasps.cvae_sampling`) follow this rule.
 
 Convention:

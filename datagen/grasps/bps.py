@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from datagen.grasps.frames import T_gen_probe, check_euler_deg
-from datagen.probe import Probe
+from datagen.assets.probe import Probe
 
 #: GrabNet's ball radius: large enough to hold a hand grasping a 165 mm probe at its centroid
 DEFAULT_RADIUS_M = 0.15
@@ -67,7 +67,7 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
 
 def _check_probe(probe) -> None:
     if not isinstance(probe, Probe):
-        raise TypeError(f"probe must be a datagen.probe.Probe (see build_probe), got {type(probe).__name__}")
+        raise TypeError(f"probe must be a datagen.assets.probe.Probe (see build_probe), got {type(probe).__name__}")
 
 
 def _check_basis(basis: np.ndarray) -> np.ndarray:
@@ -104,7 +104,7 @@ def encode_probe(probe: Probe, theta_vol_deg, basis: np.ndarray, exact: bool = F
     it was trained with. ``exact=True`` costs about 40 us a point.
 
     Args:
-        probe: the :class:`datagen.probe.Probe` (see ``build_probe``).
+        probe: the :class:`datagen.assets.probe.Probe` (see ``build_probe``).
         theta_vol_deg: (3,) Euler angles Theta_Vol, degrees, intrinsic x-y-z.
         basis: (n, 3) float, metres, generator frame (see :func:`basis_points`).
         exact: use the exact mesh distance instead of the grid.
@@ -129,7 +129,7 @@ def encode_many(probe: Probe, thetas_deg, basis: np.ndarray, exact: bool = False
     """:func:`encode_probe` for several orientations, in one batched distance query.
 
     Args:
-        probe: the :class:`datagen.probe.Probe`.
+        probe: the :class:`datagen.assets.probe.Probe`.
         thetas_deg: (N, 3) Euler angles Theta_Vol, degrees, N >= 1.
         basis: (n, 3) float, metres, generator frame.
         exact: as in :func:`encode_probe`.

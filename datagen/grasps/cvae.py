@@ -373,7 +373,7 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
     Args:
         model_out: :class:`CVAEOutput` of :meth:`GraspCVAE.forward`.
         x: (B, 54) target grasps, generator frame.
-        hand_model: a :class:`datagen.hand.HandModel` for the keypoint term;
+        hand_model: a :class:`datagen.assets.hand.HandModel` for the keypoint term;
             None (or ``keypoint_weight == 0``) leaves it out. Joint units are
             clamped to [0, 1] before they become angles.
         kl_weight, keypoint_weight, rot_weight, trans_weight, joint_weight:

@@ -137,7 +137,7 @@ def train_cvae(corpus: Mapping[str, np.ndarray], config: CVAEConfig = CVAEConfig
         model = GraspCVAE(config).to(dev)
     hand_model = None
     if config.keypoint_weight > 0:
-        from datagen.hand import build_hand
+        from datagen.assets.hand import build_hand
 
         hand_model = build_hand()
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)

@@ -74,7 +74,7 @@ def T_gen_probe(theta_vol_deg, probe) -> np.ndarray:
 
     Args:
         theta_vol_deg: (3,) Euler angles Theta_Vol, degrees.
-        probe: a :class:`datagen.probe.Probe`.
+        probe: a :class:`datagen.assets.probe.Probe`.
 
     Returns:
         (4, 4) float64 ``T_gen_probe``.

@@ -34,11 +34,11 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from datagen.arm import ArmSpec, _forearm_rest
+from datagen.assets.arm import ArmSpec, _forearm_rest
 from datagen.geometry import axis_angle_to_matrix as aa_to_matrix_np
-from datagen.hand import HandModel
-from datagen.hand_mesh import bone_radii
-from datagen.probe import Probe
+from datagen.assets.hand import HandModel
+from datagen.assets.hand_mesh import bone_radii
+from datagen.assets.probe import Probe
 from datagen.rotations_torch import axis_angle_to_matrix
 
 #: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours

@@ -32,7 +32,7 @@ from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
 from datagen.geometry import matrix_to_axis_angle
-from datagen.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
+from datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
 
 CONTACT_MM = 5.0

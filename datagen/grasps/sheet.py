@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from datagen.camera import Intrinsics, look_at
-from datagen.draw import grid, titled
+from datagen.render.draw import grid, titled
 from datagen.geometry import axis_angle_to_matrix
-from datagen.render import PointLight, Renderer, RenderSettings
-from datagen.scene import Grasp, scene_parts
+from datagen.render.renderer import PointLight, Renderer, RenderSettings
+from datagen.render.scene import Grasp, scene_parts
 
 VIEW_DISTANCE_M = 0.42
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from datagen.arm import ArmSpec, forearm_mesh, wrist_rotation
+from datagen.assets.arm import ArmSpec, forearm_mesh, wrist_rotation
 from datagen.geometry import axis_angle_to_matrix
 
 

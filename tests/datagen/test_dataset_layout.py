@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from datagen.dataset import DatasetSpec, Layout, lamp, parse_shard, protocol, split_of_grasps, view_directions_arm
-from datagen.sphere import SphereSpec, viewpoints
+from datagen.dataset.spec import DatasetSpec, Layout, lamp, protocol, split_of_grasps, view_directions_arm
+from datagen.dataset.writer import parse_shard
+from datagen.dataset.sphere import SphereSpec, viewpoints
 
 
 def test_bijection_covers_every_frame_once():
@@ -53,11 +54,11 @@ def test_lamp_is_a_pure_function_of_seed_and_index():
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(z_ego_m=(0.5, 0.0)), "z_ego_m must be positive"),
-    (dict(z_ego_m=(-0.5,)), "z_ego_m must be positive"),
+    (dict(z_ego_m=(0.5, 0.0)), "z_ego_m must be a non-empty list of camera distances from 0.1 to 10.0 m"),
+    (dict(z_ego_m=(-0.5,)), "z_ego_m must be a non-empty list of camera distances from 0.1 to 10.0 m"),
     (dict(modalities=("rgb", "normals")), "unknown modality 'normals'"),
     (dict(splits={"train": 7, "dev": 4}), "splits must map"),
-    (dict(width=0), "image width must be a positive int"),
+    (dict(width=0), r"dataset.width must be in \[1, 8192\]"),
     (dict(rgb_format="bmp"), "rgb_format"),
     (dict(look_at="centre"), "look_at must be 'box_centre' or a keypoint name .* got 'centre'"),
 ])

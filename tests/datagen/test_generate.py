@@ -13,10 +13,11 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.dataset import DatasetSpec, generate
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import generate
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz
-from datagen.verify import verify
+from datagen.dataset.verify import verify
 
 from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
@@ -218,7 +219,7 @@ def test_paper_protocol_puts_the_middle_mcp_at_the_principal_point(tiny):
 def test_earlier_protocol_is_an_option_and_verifies(tiny, tmp_path):
     """axis=forearm + look_at=box_centre: the cameras hupbench made before issue 13."""
     from datagen.camera import look_at
-    from datagen.sphere import SphereSpec
+    from datagen.dataset.sphere import SphereSpec
 
     _, grasps, _ = tiny
     out = tmp_path / "earlier"

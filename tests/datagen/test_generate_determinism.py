@@ -9,11 +9,14 @@ differs between processes. Parts are now drawn in the order given to ``Renderer.
 import numpy as np
 import pytest
 
-from datagen import gl
-from datagen.dataset import DatasetSpec, GraspSet, Layout, frame_camera, generate
-from datagen.render import Renderer
-from datagen.scene import Grasp, scene_parts
-from datagen.sphere import viewpoints
+from datagen.render import gl
+from datagen.dataset.chunks import frame_camera
+from datagen.dataset.grasps_file import GraspSet
+from datagen.dataset.spec import DatasetSpec, Layout
+from datagen.dataset.writer import generate
+from datagen.render.renderer import Renderer
+from datagen.render.scene import Grasp, scene_parts
+from datagen.dataset.sphere import viewpoints
 
 from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
 

@@ -118,7 +118,7 @@ def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
     """A process that called die_with_parent(ppid) is gone soon after its parent is SIGKILLed, by the
     kernel's parent-death signal on Linux and by the watchdog thread elsewhere."""
     child_code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); import os; "
-                  "from datagen.dataset import die_with_parent; "
+                  "from datagen.dataset.chunks import die_with_parent; "
                   f"sys.platform = {'linux' if platform == 'linux' else 'darwin'!r}; die_with_parent(os.getppid()); "
                   f"open({str(tmp_path / 'ready')!r}, 'w').close(); time.sleep(60)")
     parent_code = f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {child_code!r}]); time.sleep(60)"

@@ -11,9 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from datagen.dataset import DatasetSpec, generate
-from datagen.ray_launcher import RAY_MISSING, RayOptions
-from datagen.verify import verify
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import generate
+from datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
+from datagen.dataset.verify import verify
 from hupbench.cli import main
 from hupbench.config import compose
 from hupbench.generate import run_generate

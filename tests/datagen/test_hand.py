@@ -4,8 +4,8 @@ import trimesh
 
 from datagen import keypoints as kp
 from datagen.geometry import axis_angle_to_matrix
-from datagen.hand import build_hand
-from datagen.hand_anatomy import (
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import (
     POSE_DIM,
     HandSpec,
     anatomical_frames,

@@ -1,4 +1,4 @@
-"""Tests for the procedural ultrasound probe (datagen/probe.py).
+"""Tests for the procedural ultrasound probe (datagen/assets/probe.py).
 
 trimesh is the independent ground truth for the signed distance: the probe
 computes its own exact point-to-triangle distances and signs, trimesh uses
@@ -15,7 +15,7 @@ import torch
 import trimesh
 
 from datagen.keypoints import CORNER_BITS
-from datagen.probe import (
+from datagen.assets.probe import (
     FEATURE_EAB,
     FEATURE_FACE,
     FEATURE_VA,

@@ -1,4 +1,4 @@
-"""datagen.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
+"""datagen.dataset.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
 verify's own options (workers, progress, the pool path, checks that cannot run)."""
 
 from __future__ import annotations
@@ -12,12 +12,13 @@ import pytest
 
 from conftest import TINY_SPEC, write_grasps
 from datagen import tolerances as tol
-from datagen import verify as V
-from datagen.contract import read_annotations, read_manifest
-from datagen.verify import (background_mismatch_px, image_format_problem, mask_depth_mismatch_px,
-                            read_image, verify)
+from datagen.dataset import verify as V
+from datagen.dataset import verify_images as VI
+from datagen.dataset.contract import read_annotations, read_manifest
+from datagen.dataset.verify import verify
+from datagen.dataset.verify_images import background_mismatch_px, image_format_problem, mask_depth_mismatch_px, read_image
 
-GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.scene.GLOVE_RGB
+GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.render.scene.GLOVE_RGB
 
 
 def quiet(*_):
@@ -121,19 +122,19 @@ def test_background_mismatch_counts_changed_background_pixels():
 
 
 def test_jpeg_reference_is_the_background_as_stored():
-    from datagen.backgrounds import builtin_background
+    from datagen.assets.backgrounds import builtin_background
 
     background = builtin_background(2, 64, 64)
-    np.testing.assert_array_equal(V.jpeg_reference(background, None), background)
+    np.testing.assert_array_equal(VI.jpeg_reference(background, None), background)
     ok, buf = cv2.imencode(".jpg", background[..., ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 80])
-    np.testing.assert_array_equal(V.jpeg_reference(background, 80), cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
-    assert np.abs(V.jpeg_reference(background, 80).astype(int) - background).max() > 0
+    np.testing.assert_array_equal(VI.jpeg_reference(background, 80), cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    assert np.abs(VI.jpeg_reference(background, 80).astype(int) - background).max() > 0
 
 
 def _shade(albedo, light, k_diffuse, k_specular):
-    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.verify)."""
-    linear = V.RENDER_AMBIENT * albedo + k_diffuse[:, None] * (albedo * light) + k_specular[:, None] * light
-    return np.round(255 * np.clip(linear, 0, 1) ** (1 / V.RENDER_GAMMA)).astype(np.uint8)
+    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.dataset.verify)."""
+    linear = VI.RENDER_AMBIENT * albedo + k_diffuse[:, None] * (albedo * light) + k_specular[:, None] * light
+    return np.round(255 * np.clip(linear, 0, 1) ** (1 / VI.RENDER_GAMMA)).astype(np.uint8)
 
 
 def _hand_image(glove, light, seed):
@@ -153,20 +154,20 @@ SEG_HAND = np.pad(np.ones((24, 24), np.uint8), 4)
 def test_glove_cost_tells_the_gloves_apart_on_the_shading_model(light):
     """Pixels shaded by the renderer's model fit their own glove's plane and not the other's, whatever the lamp."""
     for g in (0, 1):
-        blocks, noise = V.hand_blocks(_hand_image(g, light, seed=g), SEG_HAND)
+        blocks, noise = VI.hand_blocks(_hand_image(g, light, seed=g), SEG_HAND)
         assert blocks.shape == (100, 3) and noise.shape == (100,)
-        own, other = V.glove_cost(blocks, noise, GLOVES[g], light), V.glove_cost(blocks, noise, GLOVES[1 - g], light)
+        own, other = VI.glove_cost(blocks, noise, GLOVES[g], light), VI.glove_cost(blocks, noise, GLOVES[1 - g], light)
         assert own < 0.05 * other, (own, other)
 
 
 def test_glove_pair_ratio_own_copied_swapped():
     light_a, light_b = (0.9, 0.9, 0.65), (0.62, 0.62, 0.95)
     a, b = _hand_image(0, light_a, 1), _hand_image(1, light_b, 2)
-    ratio, limit, (ra, rb) = V.glove_pair_ratio(a, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    ratio, limit, (ra, rb) = VI.glove_pair_ratio(a, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
     assert limit == tol.VERIFY_GLOVE_PAIR_RATIO and ratio < 0.05 and ra < 0.05 and rb < 0.05
-    swapped, _, (ra, rb) = V.glove_pair_ratio(b, a, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    swapped, _, (ra, rb) = VI.glove_pair_ratio(b, a, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
     assert swapped > 20 and ra > 20 and rb > 20
-    copied, _, (ra, rb) = V.glove_pair_ratio(b, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
+    copied, _, (ra, rb) = VI.glove_pair_ratio(b, b, SEG_HAND, GLOVES, 0, 1, light_a, light_b)
     assert copied == pytest.approx(1.0) and ra > 20 and rb < 0.05  # frame a holds b's image
 
 
@@ -174,8 +175,8 @@ def test_glove_pair_ratio_needs_enough_blocks():
     seg = np.zeros((32, 32), np.uint8)
     seg[10:17, 10:17] = 1  # 3 x 3 pixels after shrinking: one whole 2 x 2 block per frame
     rgb = np.full((32, 32, 3), 120, np.uint8)
-    assert len(V.hand_blocks(rgb, seg)[0]) == 1
-    ratio, limit, _ = V.glove_pair_ratio(rgb, rgb, seg, GLOVES, 0, 1, np.ones(3), np.ones(3))
+    assert len(VI.hand_blocks(rgb, seg)[0]) == 1
+    ratio, limit, _ = VI.glove_pair_ratio(rgb, rgb, seg, GLOVES, 0, 1, np.ones(3), np.ones(3))
     assert ratio is None and limit == tol.VERIFY_GLOVE_PAIR_RATIO_FEW
 
 
@@ -185,7 +186,8 @@ def test_glove_pair_ratio_needs_enough_blocks():
 @pytest.fixture(scope="module")
 def two_gloves(tmp_path_factory):
     """20 frames at 128 px: one grasp, one background, both gloves, 10 views (frame = glove * 10 + view)."""
-    from datagen.dataset import DatasetSpec, generate
+    from datagen.dataset.spec import DatasetSpec
+    from datagen.dataset.writer import generate
 
     folder = tmp_path_factory.mktemp("two_gloves")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
@@ -217,7 +219,7 @@ def _pair_ratios(root):
         rgb = [read_image(root / "train" / "rgb" / f"{f:06d}.jpg", "rgb")[0][..., ::-1].copy() for f in (v, 10 + v)]
         seg, _ = read_image(root / "train" / "seg" / f"{v:06d}.png", "seg")
         assert ann["glove_id"][v] == 0 and ann["glove_id"][10 + v] == 1
-        out[v] = V.glove_pair_ratio(*rgb, seg, manifest["gloves_rgb"], 0, 1, ann["light_color"][v],
+        out[v] = VI.glove_pair_ratio(*rgb, seg, manifest["gloves_rgb"], 0, 1, ann["light_color"][v],
                                     ann["light_color"][10 + v])[:2]
     return out
 
@@ -317,7 +319,7 @@ def test_checks_that_cannot_run_are_named(tiny_dataset, tmp_path):
 
 
 def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
-    from datagen.verify import sample_sheet
+    from datagen.dataset.verify import sample_sheet
 
     sheet = sample_sheet(tiny_dataset, view=3, tile_px=32)
     assert sheet.dtype == np.uint8 and sheet.ndim == 3

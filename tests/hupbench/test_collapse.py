@@ -58,7 +58,8 @@ def short_training(model: str, dataset, steps: int = STEPS):
     return net.eval()
 
 
-@pytest.mark.parametrize("model", MODEL_CONFIGS)
+# the ResNet-50 backbones take 50 to 100 s each here (200 of the default set's ~900 s): they run with -m slow
+@pytest.mark.parametrize("model", [pytest.param(m, marks=pytest.mark.slow) if "50" in m else m for m in MODEL_CONFIGS])
 def test_short_training_follows_the_image(model, tiny_dataset):
     net = short_training(model, tiny_dataset, STEPS_BY_MODEL.get(model, STEPS))
     frames = HUPDataset(tiny_dataset, "train", ReaderConfig(input_size=INPUT_SIZE))

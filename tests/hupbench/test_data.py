@@ -5,7 +5,8 @@ import pytest
 
 from conftest import TINY_SPEC
 from datagen.camera import project_points
-from datagen.dataset import DatasetSpec, generate
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import generate
 from hupbench.data import HUPDataset, ReaderConfig, resize_intrinsics, resize_points, rotate_in_plane
 
 

@@ -250,7 +250,7 @@ def test_half_turn_permutation_is_read_from_the_corners():
 
 
 def test_the_probe_box_is_symmetric_under_the_half_turn():
-    from datagen.probe import build_probe
+    from datagen.assets.probe import build_probe
 
     corners = build_probe().corners_probe
     assert M.symmetry_permutation(corners, M.HALF_TURN_Z) == HALF_TURN_PERM

@@ -22,7 +22,7 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from datagen import keypoints as kp
-from datagen.draw import FINGER_RGB, PROBE_RGB
+from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.predict import (

@@ -340,11 +340,12 @@ def small_dataset(tmp_path_factory):
     training grasps, which a few minutes of training can learn."""
     import numpy as np
 
-    from datagen.dataset import DatasetSpec, generate
+    from datagen.dataset.spec import DatasetSpec
+    from datagen.dataset.writer import generate
     from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
     from datagen.io import save_npz
-    from datagen.preview import handset_grasp
-    from datagen.sphere import SphereSpec
+    from datagen.render.preview import handset_grasp
+    from datagen.dataset.sphere import SphereSpec
 
     from conftest import TINY_SPEC
 

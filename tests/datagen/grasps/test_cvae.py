@@ -23,7 +23,7 @@ from datagen.grasps.cvae import (
 )
 from datagen.grasps.cvae_training import train_cvae
 from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS
-from datagen.hand import build_hand
+from datagen.assets.hand import build_hand
 from datagen.rotations_torch import axis_angle_to_matrix, matrix_to_rot6d, rot6d_to_matrix
 
 #: small enough to train in about a second, with the default latent size

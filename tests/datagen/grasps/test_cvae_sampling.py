@@ -3,9 +3,9 @@ import pytest
 
 from datagen.grasps.cvae import SHIPPED_WEIGHTS, load_shipped_cvae
 from datagen.grasps.cvae_sampling import CorpusConfig, sample_grasps
-from datagen.hand import build_hand
-from datagen.hand_anatomy import joint_limits_rad
-from datagen.probe import build_probe
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import joint_limits_rad
+from datagen.assets.probe import build_probe
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ from datagen.geometry import transform_points
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset, volume_centroid
 from datagen.grasps.approach import to_generator_frame, to_probe_frame
 from datagen.grasps.refine import GraspBatch
-from datagen.hand import build_hand
-from datagen.hand_anatomy import anatomical_to_pose
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import anatomical_to_pose
 from datagen.geometry import matrix_to_axis_angle
-from datagen.probe import build_probe
+from datagen.assets.probe import build_probe
 
 
 @pytest.fixture(scope="module")

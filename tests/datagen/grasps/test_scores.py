@@ -3,11 +3,11 @@ import pytest
 
 from datagen.grasps.refine import GraspBatch, GraspEnergy
 from datagen.grasps.scores import farthest_point_selection, force_closure_residual, score_grasps
-from datagen.hand import build_hand
-from datagen.hand_anatomy import pose_to_anatomical
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import pose_to_anatomical
 from datagen.geometry import axis_angle_to_matrix
-from datagen.preview import handset_grasp
-from datagen.probe import build_probe
+from datagen.render.preview import handset_grasp
+from datagen.assets.probe import build_probe
 
 
 def test_force_closure_known_values():

@@ -3,7 +3,7 @@
 Convention:
     World = probe frame (the probe at the origin, as in HUP-3D) unless a
     ``T_world_probe`` is given. Hand pose and translation are in the world
-    frame (see :mod:`datagen.hand`). Metres.
+    frame (see :mod:`datagen.assets.hand`). Metres.
 """
 
 from __future__ import annotations
@@ -13,19 +13,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from datagen import keypoints as kp
-from datagen.arm import ArmSpec, forearm_mesh
+from datagen.assets.arm import ArmSpec, forearm_mesh
 from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation, transform_points
-from datagen.hand import build_hand
-from datagen.hand_anatomy import HandSpec, check_pose, clamp_pose
-from datagen.probe import ProbeSpec, build_probe
-from datagen.render import SEG_LABELS, MeshPart
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import HandSpec, check_pose, clamp_pose
+from datagen.assets.probe import ProbeSpec, build_probe
+from datagen.render.renderer import SEG_LABELS, MeshPart
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
 ARM_RGB = (1.0, 0.6784, 0.3765)
 PROBE_BODY_RGB = (0.86, 0.86, 0.84)
 PROBE_LENS_RGB = (0.18, 0.19, 0.21)
-#: the probe's orientation marker (datagen.probe.ProbeSpec): the saturated green of a marker light, far
+#: the probe's orientation marker (datagen.assets.probe.ProbeSpec): the saturated green of a marker light, far
 #: from the grey housing, the dark lens, both glove colours, the arm and the skin tones of the backgrounds;
 #: it also glows (PROBE_MARKER_EMISSIVE) like the light it stands for, so it stays green in the shadow of
 #: the hand or away from the lamp
@@ -38,7 +38,7 @@ class Grasp:
     """A hand holding the probe.
 
     Attributes:
-        hand_pose: (48,) float axis-angle, radians (``datagen.hand`` Convention).
+        hand_pose: (48,) float axis-angle, radians (``datagen.assets.hand`` Convention).
         hand_trans: (3,) float, metres, wrist position in the world frame.
         wrist_flexion, wrist_deviation: forearm -> hand angles, radians.
         T_world_probe: (4, 4) float probe pose; identity puts the probe at the origin.
@@ -93,7 +93,7 @@ def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels()) -> np.nda
 
 def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLOVE_RGB[0],
                 arm_rgb=ARM_RGB) -> list[MeshPart]:
-    """Posed, coloured meshes of a grasp, ready for :class:`datagen.render.Renderer`.
+    """Posed, coloured meshes of a grasp, ready for :class:`datagen.render.renderer.Renderer`.
 
     Args:
         grasp: the hand and probe placement.

@@ -18,9 +18,9 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from datagen import gl
+from datagen.render import gl
 from datagen.camera import Intrinsics, swap_gl_cv_axes
-from datagen.contract import MODALITIES, SEG_LABELS
+from datagen.dataset.contract import MODALITIES, SEG_LABELS
 from datagen.geometry import _check_last, invert_transform
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
@@ -109,7 +109,7 @@ class Renderer:
 
     Args:
         intrinsics: camera intrinsics and image size.
-        platform: "egl", "osmesa" or None for automatic (see :mod:`datagen.gl`).
+        platform: "egl", "osmesa" or None for automatic (see :mod:`datagen.render.gl`).
     """
 
     def __init__(self, intrinsics: Intrinsics, platform: str | None = None) -> None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation
-from datagen.hand_anatomy import WRIST_LIMITS_RAD
+from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
 
 MM = 1e-3
 

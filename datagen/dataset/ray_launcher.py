@@ -1,10 +1,10 @@
 """Rendering a dataset's chunks on Ray: one actor per worker, each owning a renderer.
 
-``hupbench generate launcher=ray`` hands the chunks that :func:`datagen.dataset.generate`
-still needs to Ray actors. Each actor builds one :class:`datagen.dataset.ChunkRenderer`
+``hupbench generate launcher=ray`` hands the chunks that :func:`datagen.dataset.writer.generate`
+still needs to Ray actors. Each actor builds one :class:`datagen.dataset.chunks.ChunkRenderer`
 (the same class the local worker processes use) when it starts, renders the chunks it is
 given and returns them encoded; the driver writes them with
-:func:`datagen.dataset.write_chunk`. So the output folder only has to exist where the
+:func:`datagen.dataset.chunks.write_chunk`. So the output folder only has to exist where the
 driver runs, and a Ray run writes exactly the files a local run writes, through the same
 resumable chunk mechanism.
 
@@ -20,6 +20,7 @@ only when this launcher runs.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import os
@@ -102,43 +103,54 @@ def require_ray():
     return ray
 
 
+def resolve_factory(factory: str) -> Callable:
+    """``"package.module:Name"`` -> the object it names (imported now)."""
+    module, _, name = factory.partition(":")
+    if not module or not name:
+        raise ValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
+    return getattr(importlib.import_module(module), name)
+
+
 class ChunkActor:
-    """A Ray actor: one :class:`datagen.dataset.ChunkRenderer`, built once, rendering chunks.
+    """A Ray actor: one chunk renderer (the dataset writer's ``ChunkRenderer``), built once, rendering chunks.
 
     Wrapped by ``ray.remote`` in :func:`render_chunks` (so this module imports without Ray).
 
     Args:
-        spec, grasps_npz (the grasps file's bytes), backgrounds_dir, platform: as for ChunkRenderer.
+        factory: ``"package.module:Name"`` of the renderer class, called as
+            ``Name(spec, grasps_npz, backgrounds_dir, platform)``. A name rather than the class: the
+            class's module imports the renderer, and the actor must choose its GL platform first.
+        spec, grasps_npz (the grasps file's bytes), backgrounds_dir, platform: the factory's arguments.
     """
 
-    def __init__(self, spec, grasps_npz: bytes, backgrounds_dir: str | None, platform: str | None) -> None:
-        from datagen import gl
+    def __init__(self, factory: str, spec, grasps_npz: bytes, backgrounds_dir: str | None,
+                 platform: str | None) -> None:
+        from datagen.render import gl
 
         # an actor is its own process: fix PYOPENGL_PLATFORM here, before anything imports
         # pyrender or PyOpenGL (each node picks what works on it when platform is None)
         self.platform = gl.configure(platform)
-        from datagen.dataset import ChunkRenderer
-
-        self._chunks = ChunkRenderer(spec, grasps_npz, backgrounds_dir, self.platform)
+        self._chunks = resolve_factory(factory)(spec, grasps_npz, backgrounds_dir, self.platform)
 
     def info(self) -> dict:
         """{"pid", "host", "platform"} of this actor."""
         return {"pid": os.getpid(), "host": socket.gethostname(), "platform": self.platform}
 
     def render(self, chunk: int, split: str, layout):
-        """Render one chunk; returns a :class:`datagen.dataset.ChunkOutput`."""
+        """Render one chunk; returns a :class:`datagen.dataset.chunks.ChunkOutput`."""
         return self._chunks.render(chunk, split, layout)
 
 
-def render_chunks(jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes, backgrounds_dir: str | None,
-                  platform: str | None, options: RayOptions, default_workers: int,
+def render_chunks(factory: str, jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes,
+                  backgrounds_dir: str | None, platform: str | None, options: RayOptions, default_workers: int,
                   on_chunk: Callable[[object], None], log=print) -> dict:
     """Render chunks on Ray actors and hand each result to ``on_chunk`` in the driver.
 
     Args:
+        factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
         jobs: (chunk, split) pairs to render.
-        layout: the dataset's :class:`datagen.dataset.Layout`.
-        spec: the :class:`datagen.dataset.DatasetSpec`.
+        layout: the dataset's :class:`datagen.dataset.spec.Layout`.
+        spec: the :class:`datagen.dataset.spec.DatasetSpec`.
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
         backgrounds_dir: folder of background photographs (must exist on every node), or None.
         platform: GL platform for every actor, or None (each picks its own).
@@ -166,7 +178,7 @@ def render_chunks(jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes, 
         def new_actor():
             # the arguments travel with the actor's creation task (a grasps file is kilobytes), so a
             # restarted actor does not depend on an object-store entry staying alive
-            return remote_cls.remote(spec, grasps_npz, backgrounds_dir, platform)
+            return remote_cls.remote(factory, spec, grasps_npz, backgrounds_dir, platform)
 
         actors = [new_actor() for _ in range(n_actors)]
         for i, info in enumerate(_wait_started(ray, actors, options.start_timeout_s)):

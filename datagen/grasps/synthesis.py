@@ -30,9 +30,9 @@ from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
 from datagen.grasps.refine import MAX_ITERATIONS, GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
-from datagen.hand import build_hand
-from datagen.hand_anatomy import HandSpec, anatomical_to_pose
-from datagen.probe import ProbeSpec, build_probe
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
+from datagen.assets.probe import ProbeSpec, build_probe
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch (10^9 asked 67 GiB for the first array)

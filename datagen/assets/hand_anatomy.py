@@ -2,7 +2,7 @@
 
 Adult right hand, 50th percentile (REFERENCE.md); MANO's kinematic tree (16 joints) plus 5
 fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
-:mod:`datagen.hand_mesh` builds the skinned surface, :mod:`datagen.hand` the posable model.
+:mod:`datagen.assets.hand_mesh` builds the skinned surface, :mod:`datagen.assets.hand` the posable model.
 
 
 The hand has MANO's kinematic tree (16 joints: wrist; index, middle, little,

@@ -15,11 +15,11 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.camera import Intrinsics, look_at, project_points
-from datagen.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled, write_png
+from datagen.render.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled, write_png
 from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle, transform_points
-from datagen.hand_anatomy import anatomical_to_pose
-from datagen.render import MODALITIES, PointLight, Renderer, RenderSettings, check_modalities
-from datagen.scene import Grasp, SceneModels, keypoints_world, scene_parts
+from datagen.assets.hand_anatomy import anatomical_to_pose
+from datagen.render.renderer import MODALITIES, PointLight, Renderer, RenderSettings, check_modalities
+from datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         view: camera placement around the grasp.
         models: model specs.
         modalities: which of "rgb", "depth", "seg" to render (and show).
-        platform: GL platform, see :mod:`datagen.gl`.
+        platform: GL platform, see :mod:`datagen.render.gl`.
 
     Returns:
         dict with "sheet" (H, W, 3) uint8, the rendered modalities,
@@ -132,7 +132,7 @@ def preview(path: str | Path, grasp: Grasp | None = None, intrinsics: Intrinsics
         intrinsics: camera; default HUP-3D's 256 x 256, fx = fy = 480.
         view: camera placement around the grasp.
         modalities: which of "rgb", "depth", "seg" to render.
-        platform: GL platform, see :mod:`datagen.gl`.
+        platform: GL platform, see :mod:`datagen.render.gl`.
 
     Returns:
         :func:`render_preview`'s dict plus "path".

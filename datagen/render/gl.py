@@ -125,7 +125,7 @@ def configure(platform: str | None = None) -> str:
             )
         return _chosen
     if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") not in PLATFORMS:
-        raise RuntimeError("OpenGL was imported before datagen.gl.configure(); import hupbench renderers first")
+        raise RuntimeError("OpenGL was imported before datagen.render.gl.configure(); import hupbench renderers first")
     if requested == "egl" and not _egl_works():
         raise RuntimeError(
             f"EGL was requested but does not work here (no EGL display initialises, or no libOpenGL/libGL): "
@@ -172,7 +172,7 @@ def load_pyrender() -> types.ModuleType:
     A pyrender the process had already imported is returned as it is.
     """
     if _chosen is None:
-        raise RuntimeError("datagen.gl.configure() must choose the platform before pyrender is imported")
+        raise RuntimeError("datagen.render.gl.configure() must choose the platform before pyrender is imported")
     if "pyrender" not in sys.modules:
         viewer = types.ModuleType("pyrender.viewer", "hupbench stand-in for pyrender's X11 viewer (offscreen only)")
         viewer.Viewer = _OffscreenOnlyViewer

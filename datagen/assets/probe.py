@@ -1,7 +1,7 @@
 """The procedural convex-array abdominal ultrasound probe and its signed distance.
 
-:func:`build_probe` assembles the probe: the swept shape of :mod:`datagen.probe_shape` with the
-orientation marker of :mod:`datagen.probe_marker`, its box corners (keypoints 21-28), regions
+:func:`build_probe` assembles the probe: the swept shape of :mod:`datagen.assets.probe_shape` with the
+orientation marker of :mod:`datagen.assets.probe_marker`, its box corners (keypoints 21-28), regions
 and a gridded signed distance.
 
 The signed distance is gridded: exact point-to-triangle distances
@@ -41,8 +41,8 @@ from datagen.mesh_distance import (  # noqa: F401  (re-exported: part of the pro
     MeshDistance,
     closest_points_on_triangles,
 )
-from datagen.probe_marker import add_marker
-from datagen.probe_shape import ProbeSpec, RegionZ, build_rings, lens_sag, ring_faces
+from datagen.assets.probe_marker import add_marker
+from datagen.assets.probe_shape import ProbeSpec, RegionZ, build_rings, lens_sag, ring_faces
 
 __all__ = [
     "ProbeSpec",

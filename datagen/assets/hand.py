@@ -32,7 +32,7 @@ import torch
 
 from datagen import keypoints as kp
 from datagen.geometry import _check_last, axis_angle_to_matrix
-from datagen.hand_anatomy import (
+from datagen.assets.hand_anatomy import (
     NUM_JOINTS,
     POSE_DIM,
     HandSpec,
@@ -42,7 +42,7 @@ from datagen.hand_anatomy import (
     joint_limits_rad,
     rest_skeleton,
 )
-from datagen.hand_mesh import build_mesh
+from datagen.assets.hand_mesh import build_mesh
 
 def forward_kinematics_torch(R_local: torch.Tensor, trans: torch.Tensor, joints_rest: torch.Tensor):
     """World rotations and positions of the 16 joints (differentiable).

@@ -1,0 +1,278 @@
+"""Rendering one chunk of frames and writing it.
+
+A chunk is one (grasp, z_ego, background) block: n_glove x n_view frames sharing the meshes. Its
+image files are written atomically, then its annotation rows, also atomically: a chunk whose rows exist
+is done. :class:`ChunkRenderer` renders chunks in the local worker processes (which die with their
+parent) and on Ray actors (:mod:`datagen.dataset.ray_launcher`); :func:`write_chunk` writes them.
+
+Convention:
+    Annotations are in the OpenCV camera frame, metres; 2D in pixels of the stored image. World =
+    probe frame.
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import pickle
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from datagen.camera import project_points
+from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
+from datagen.dataset.grasps_file import GraspSet
+from datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
+from datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
+from datagen.geometry import invert_transform, transform_points
+from datagen.io import DiskFullError, save_npz, write_bytes
+from datagen.render.renderer import MODALITIES, SEG_LABELS, PointLight, RenderSettings
+from datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
+from datagen import keypoints as kp
+from datagen import tolerances as tol
+
+
+def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
+    """Camera and annotation geometry of one frame (no rendering)."""
+    g, z, b, c, v = layout.tuple(index)
+    view_ids, angles = viewpoints(spec.sphere)
+    theta, phi = angles[v]
+    frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g], spec.sphere.axis)
+    T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.look_at_points(spec.look_at)[g], frame,
+                              spec.sphere.axis)
+    keypoints_cam = transform_points(T_cam_world, grasps.keypoints_world[g])
+    return {"grasp": g, "z": z, "background": b, "glove": c, "view": v, "view_id": int(view_ids[v]),
+            "theta": theta, "phi": phi, "T_cam_world": T_cam_world, "keypoints_cam": keypoints_cam,
+            "keypoints_2d": project_points(keypoints_cam, spec.intrinsics.K)}
+
+
+def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.ndarray, seg: np.ndarray,
+               slack_m: float = 0.0) -> np.ndarray:
+    """(29,) bool: inside the image and not occluded (definitions in :mod:`datagen.tolerances`).
+
+    Args:
+        keypoints_cam: (29, 3) metres, camera frame. keypoints_2d: (29, 2) pixels.
+        depth: (H, W) metres, 0 = background. seg: (H, W) labels.
+        slack_m: widens the depth bounds (a stored depth map is quantised).
+    """
+    h, w = depth.shape
+    uv = np.round(keypoints_2d).astype(np.int64)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    out = np.zeros(kp.NUM_KEYPOINTS, dtype=bool)
+    for i in np.flatnonzero(inside):
+        d, label, z = depth[uv[i, 1], uv[i, 0]], seg[uv[i, 1], uv[i, 0]], keypoints_cam[i, 2]
+        if i < kp.NUM_HAND:
+            out[i] = (label == SEG_LABELS["hand"]
+                      and z - tol.VISIBLE_HAND_DEPTH_M - slack_m <= d <= z + tol.VISIBLE_HAND_BEHIND_M + slack_m)
+        else:
+            out[i] = d == 0 or d >= z - tol.VISIBLE_CORNER_DEPTH_M - slack_m
+    return out
+
+
+# --- rendering chunks ----------------------------------------------------------------
+
+
+@dataclass
+class ChunkOutput:
+    """One rendered chunk, encoded and ready to write.
+
+    Attributes:
+        chunk: chunk index. split: the split its grasp belongs to.
+        files: (modality, frame_id, encoded bytes) per image file, in frame order.
+        rows: annotation rows, ``ANNOTATION_DTYPES`` keys, each (chunk_size, ...).
+    """
+
+    chunk: int
+    split: str
+    files: list[tuple[str, int, bytes]]
+    rows: dict[str, np.ndarray]
+
+
+class ChunkRenderer:
+    """Renders chunks of a dataset; owns one GL renderer (build one per process and reuse it).
+
+    Both launchers use it: the local worker processes and the Ray actors
+    (:mod:`datagen.dataset.ray_launcher`), so a frame comes out the same whichever ran it.
+
+    Args:
+        spec: the dataset spec.
+        grasps: path of the dataset's grasps.npz, or its bytes (a Ray actor on another machine).
+        backgrounds_dir: folder of background photographs, None for the built-ins.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.render.gl`.
+    """
+
+    def __init__(self, spec: DatasetSpec, grasps: str | Path | bytes, backgrounds_dir: str | None,
+                 platform: str | None) -> None:
+        from datagen.assets.backgrounds import BackgroundSet
+        from datagen.render.renderer import Renderer
+
+        import torch
+
+        # one torch thread per renderer process: the parallelism is across processes (or actors)
+        torch.set_num_threads(1)
+        self.spec = spec
+        self.grasps = GraspSet(grasps)
+        self.backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
+        self.renderer = Renderer(spec.intrinsics, platform=platform)
+        self._grasp_loaded = None
+
+    def render(self, chunk: int, split: str, layout: Layout) -> ChunkOutput:
+        """Render and encode every frame of one chunk (nothing is written).
+
+        Args:
+            chunk: chunk index in ``range(layout.n_chunks)``. split: its split. layout: the frame layout.
+
+        Returns:
+            The chunk's encoded image files and annotation rows.
+        """
+        from datagen.assets.backgrounds import composite
+
+        spec, grasps, renderer = self.spec, self.grasps, self.renderer
+        rows, files = [], []
+        for index in layout.chunk_frames(chunk):
+            cam = frame_camera(spec, grasps, layout, index)
+            g = cam["grasp"]
+            if self._grasp_loaded != g:
+                renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
+                self._grasp_loaded = g
+            renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+            light = lamp(spec, index)
+            T_world_cam = invert_transform(cam["T_cam_world"])
+            position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
+            settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[
+                PointLight(position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
+            wanted = set(spec.modalities) | {"depth", "seg"}  # depth and labels decide visibility
+            frames = renderer.render(cam["T_cam_world"], tuple(m for m in MODALITIES if m in wanted), settings,
+                                     alpha=True)
+            if "rgb" in spec.modalities:
+                background = self.backgrounds.image(cam["background"], spec.width, spec.height)
+                rgb = composite(frames["rgb"], background)
+                ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
+                params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
+                files.append(("rgb", index, _encode(ext, rgb[..., ::-1], params)))
+            if "depth" in spec.modalities:
+                depth_u16 = np.round(frames["depth"] / DEPTH_SCALE_M).astype(np.uint16)
+                files.append(("depth", index, _encode(".png", depth_u16)))
+            if "seg" in spec.modalities:
+                files.append(("seg", index, _encode(".png", frames["seg"])))
+            rows.append({
+                "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
+                "visible": visibility(cam["keypoints_cam"], cam["keypoints_2d"], frames["depth"], frames["seg"]),
+                "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
+                "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
+                "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
+                "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
+                "light_position_cam": light["position_cam"], "light_color": light["color"],
+                "light_energy_w": light["energy_w"],
+            })
+        return ChunkOutput(chunk, split, files, _stack_rows(rows))
+
+
+def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
+    ok, buf = cv2.imencode(ext, image, params or [])
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
+    return buf.tobytes()
+
+
+def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:
+    """Write a rendered chunk: its image files atomically, then its annotation rows (the done mark).
+
+    Writing a chunk twice (a retried range) overwrites the same files with the same bytes.
+
+    Returns:
+        The number of frames written.
+    """
+    for modality, frame_id, data in output.files:
+        write_bytes(frame_path(root, output.split, modality, frame_id, rgb_format), data)
+    save_npz(_chunk_path(root, output.split, output.chunk), output.rows)
+    return len(output.rows["frame_id"])
+
+
+# the local launcher's per-process state: one ChunkRenderer per worker process
+_worker: dict = {}
+#: how often a worker's watchdog looks for its parent, seconds
+PARENT_POLL_S = 0.2
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """End this process (SIGKILL) as soon as ``parent_pid``, its parent, dies.
+
+    A worker that outlives a killed ``generate`` would go on writing chunks into the folder, beside
+    (and racing) the next run there. On Linux the kernel sends the signal (``PR_SET_PDEATHSIG``);
+    a watchdog thread that polls ``os.getppid()`` covers the other systems and a parent that died
+    before this was called. Anything a killed worker was writing is a temporary file, removed by the
+    next run (:func:`datagen.io.clean_stale_tmp`).
+
+    Args:
+        parent_pid: the pid of the process that started this one.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl here: the watchdog below does the job, a little later
+    if os.getppid() != parent_pid:  # the parent died before the kernel was asked to tell us
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
+
+
+def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None,
+                 parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
+    _worker["chunks"] = ChunkRenderer(spec, grasps_path, backgrounds_dir, platform)
+
+
+def _render_chunk(args) -> tuple[int, int]:
+    """Render and write one chunk in a local worker; return (chunk, frames written)."""
+    chunk, root, split, layout = args
+    chunks = _worker["chunks"]
+    return chunk, write_chunk(Path(root), chunks.render(chunk, split, layout), chunks.spec.rgb_format)
+
+
+class _WorkerDiskFull(Exception):
+    """A worker's :class:`DiskFullError` on its way to the parent (args: the file's path).
+
+    DiskFullError does not survive pickling (its constructor takes the path, pickle gives it
+    OSError's arguments), and a result the pool cannot unpickle stops its result thread: the
+    parent would wait forever.
+    """
+
+
+def _render_chunk_in_worker(args) -> tuple[int, int]:
+    """:func:`_render_chunk` in a pool worker, raising only exceptions that reach the parent intact."""
+    try:
+        return _render_chunk(args)
+    except DiskFullError as exc:
+        raise _WorkerDiskFull(exc.filename) from None
+    except Exception as exc:
+        try:
+            pickle.loads(pickle.dumps(exc))
+        except Exception:  # any failure to round-trip would hang the parent: send the message instead
+            raise RuntimeError(f"{type(exc).__name__}: {exc}") from None
+        raise
+
+
+def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:
+    return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dt) for k, dt in ANNOTATION_DTYPES.items()}
+
+
+def _chunk_path(root: Path, split: str, chunk: int) -> Path:
+    return Path(root) / split / ".chunks" / f"{chunk:05d}.npz"
+
+
+# --- the run -------------------------------------------------------------------------

@@ -1,0 +1,139 @@
+"""The grasps file a dataset is rendered from (``grasps.npz``, written by ``hupbench grasps``): read and checked."""
+from __future__ import annotations
+
+import io
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from datagen.dataset.spec import BOX_CENTRE
+from datagen.geometry import axis_angle_to_matrix
+from datagen import keypoints as kp
+
+
+#: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
+GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id": ("i", ())}
+
+
+def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
+    """Read and check the arrays a dataset is rendered from, out of a grasps.npz (``hupbench grasps``).
+
+    Every array of :data:`GRASP_FIELDS` is read in full (the zip's CRC is checked on the way) and
+    checked: a float (pose, translation) or integer (ids) dtype, the row shape, one row per grasp
+    in each, at least one grasp, finite values, unique ids.
+
+    Args:
+        path: the file, or its bytes (what a Ray actor on another machine is sent).
+
+    Returns:
+        {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres,
+        "grasp_id": (G,) int64}.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: anything else wrong; the message names the
+        file and what was expected.
+    """
+    if isinstance(path, bytes):
+        name, source = "grasps (bytes)", io.BytesIO(path)
+    else:
+        path = Path(path)
+        name, source = str(path), path
+        if path.is_dir():
+            raise ValueError(f"grasps file {path} is a folder; expected a grasps.npz written by `hupbench grasps`")
+        if not path.is_file():
+            raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
+        if path.stat().st_size == 0:
+            raise ValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
+    if not zipfile.is_zipfile(source):
+        size = len(path) if isinstance(path, bytes) else path.stat().st_size
+        raise ValueError(f"grasps file {name} is not an .npz archive ({size} bytes, no zip directory); expected a "
+                         "grasps.npz written by `hupbench grasps`")
+    if isinstance(source, io.BytesIO):
+        source.seek(0)  # is_zipfile read the end of the buffer
+    arrays = {}
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            if not hasattr(data, "files"):
+                raise ValueError(f"grasps file {name} holds a single array, not an .npz archive of the arrays "
+                                 f"{list(GRASP_FIELDS)}")
+            absent = [k for k in GRASP_FIELDS if k not in data.files]
+            if absent:
+                raise ValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
+                                 "expected a grasps.npz written by `hupbench grasps`")
+            for key in GRASP_FIELDS:
+                try:
+                    arrays[key] = data[key]
+                except ValueError as exc:  # object arrays: numpy refuses to unpickle them
+                    raise ValueError(f"grasps file {name}: {key} cannot be read as a numeric array ({exc})") from None
+    except ValueError as exc:
+        if str(exc).startswith("grasps file"):
+            raise
+        raise ValueError(f"grasps file {name} is not an .npz archive ({exc})") from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, KeyError, zlib.error, OSError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise ValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
+                         "write it again with `hupbench grasps`") from None
+    rows = {k: a.shape[0] if a.ndim else None for k, a in arrays.items()}
+    for key, (kind, row_shape) in GRASP_FIELDS.items():
+        array = arrays[key]
+        if array.dtype.kind not in (("f", "i", "u") if kind == "f" else ("i", "u")):
+            raise ValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
+                             + ("float numbers" if kind == "f" else "integer ids"))
+        if array.ndim != 1 + len(row_shape) or array.shape[1:] != row_shape:
+            raise ValueError(f"grasps file {name}: {key} has shape {array.shape}, expected (G, "
+                             + ", ".join(str(v) for v in row_shape) + ")" if row_shape else f"grasps file {name}: "
+                             f"{key} has shape {array.shape}, expected (G,)")
+    if len(set(rows.values())) != 1:
+        raise ValueError(f"grasps file {name}: the arrays have different numbers of rows {rows}; expected one row "
+                         "per grasp in each")
+    if rows["hand_pose"] == 0:
+        raise ValueError(f"grasps file {name} holds no grasps (0 rows)")
+    out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
+           "grasp_id": arrays["grasp_id"].astype(np.int64)}
+    for key in ("hand_pose", "hand_trans"):
+        bad = ~np.isfinite(out[key]).all(axis=1)
+        if bad.any():
+            raise ValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
+                             "hold NaN or inf")
+    ids, counts = np.unique(out["grasp_id"], return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"grasps file {name}: grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat")
+    return out
+
+
+class GraspSet:
+    """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry.
+
+    Args:
+        path: a grasps.npz, or its bytes (what a Ray actor on another machine is sent).
+    """
+
+    def __init__(self, path: str | Path | bytes) -> None:
+        from datagen.assets.hand import build_hand
+        from datagen.assets.probe import build_probe
+
+        arrays = read_grasps(path)
+        self.hand_pose, self.hand_trans, self.grasp_id = arrays["hand_pose"], arrays["hand_trans"], arrays["grasp_id"]
+        self.path = None if isinstance(path, bytes) else Path(path)
+        hand, probe = build_hand(), build_probe()
+        self.keypoints_world = np.concatenate(
+            [hand.keypoints(self.hand_pose, self.hand_trans, clamp=False),
+             np.broadcast_to(probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
+        R = axis_angle_to_matrix(self.hand_pose[:, :3])
+        self.forearm_axis = -R[:, :, 0]
+        self.dorsal = R[:, :, 1]
+        self.box_centre = 0.5 * (self.keypoints_world.min(axis=1) + self.keypoints_world.max(axis=1))
+
+    def __len__(self) -> int:
+        return len(self.hand_pose)
+
+    def look_at_points(self, look_at: str) -> np.ndarray:
+        """(G, 3) float64, metres, world frame: each grasp's camera target (see ``DatasetSpec.look_at``)."""
+        if look_at == BOX_CENTRE:
+            return self.box_centre
+        if look_at not in kp.KEYPOINT_NAMES:
+            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name, got {look_at!r}")
+        return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]

@@ -1,0 +1,223 @@
+"""What a dataset is: its spec (the config), the frame layout, the lamp per frame and the protocol record.
+
+The frame index is the mixed-radix number of (grasp, z_ego, background, glove, view), viewpoints fastest:
+
+    i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view
+
+and frame ``i`` is a pure function of (config, i): its camera comes from the sphere, its lamp from a
+generator seeded with (seed, i).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from datagen.camera import Intrinsics
+from datagen.dataset.contract import SPLITS
+from datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
+from datagen.render.renderer import MODALITIES, check_modalities
+from datagen import keypoints as kp
+
+
+GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
+#: HUP-3D's lamp (REFERENCE.md), in the camera frame of the published renderer
+LAMP_LOW = np.array([-0.6, 0.1, 0.5])
+LAMP_HIGH = np.array([0.6, 0.4, 0.5])
+#: what the camera can aim at besides a keypoint (by name): the centre of the 29 keypoints' box in
+#: the world (probe) frame, hupbench's aim before issue 13
+BOX_CENTRE = "box_centre"
+#: the published renderer's aim: the right middle-finger MCP (SMPL-H joint 40, our keypoint 9)
+PAPER_LOOK_AT = "middle_mcp"
+#: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
+#: exposes a gloved hand at 0.5 m like the preview
+LAMP_INTENSITY_PER_WATT = 0.0075
+
+
+#: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
+#: camera plane (z_ego 0.001: 8 keypoints behind it), beyond 10 m they cover a few pixels
+Z_EGO_RANGE_M = (0.1, 10.0)
+#: the largest image side the renderer is asked for (as predict's largest input)
+MAX_IMAGE_SIDE = 8192
+
+
+def _whole(name: str, value, low: int, high: int | None) -> None:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"dataset.{name} must be a whole number, got {value!r}")
+    if value < low or (high is not None and value > high):
+        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"dataset.{name} must be {bound}, got {value}")
+
+
+def _distances(z_ego_m) -> tuple:
+    low, high = Z_EGO_RANGE_M
+    values = list(z_ego_m) if not isinstance(z_ego_m, (str, bytes)) and hasattr(z_ego_m, "__iter__") else None
+    if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                             and low <= v <= high for v in values):
+        raise ValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
+                         f"(e.g. [0.5, 0.8]), got {z_ego_m if values is None else values!r}")
+    return tuple(float(v) for v in values)
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """Everything that determines the frames.
+
+    Attributes:
+        z_ego_m: camera distances to the grasp, metres.
+        splits: grasps per split, in the order of the grasps file (train, val, test).
+        modalities: which of rgb, depth, seg to write.
+        rgb_format: "jpg" or "png". jpeg_quality: 0-100.
+        seed: lamp randomisation seed.
+        sphere: the viewpoint sphere.
+        look_at: the point each camera looks at from distance z_ego, which lands at
+            (0, 0, z_ego) in the camera frame: a keypoint name (default "middle_mcp", keypoint 9,
+            as the published renderer) or "box_centre" (centre of the 29 keypoints' box in the
+            world frame).
+        width, height, fx, fy, cx, cy: the camera.
+        n_backgrounds, n_gloves: counts (backgrounds come from the background set).
+    """
+
+    z_ego_m: tuple = (0.5, 0.8)
+    splits: dict = field(default_factory=lambda: {"train": 7, "val": 2, "test": 2})
+    modalities: tuple = MODALITIES
+    rgb_format: str = "jpg"
+    jpeg_quality: int = 95
+    seed: int = 0
+    sphere: SphereSpec = SphereSpec()
+    look_at: str = PAPER_LOOK_AT
+    width: int = 256
+    height: int = 256
+    fx: float = 480.0
+    fy: float = 480.0
+    cx: float = 128.0
+    cy: float = 128.0
+    n_backgrounds: int = 8
+    n_gloves: int = 2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "z_ego_m", _distances(self.z_ego_m))
+        for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", 1, MAX_IMAGE_SIDE),
+                                ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
+            _whole(name, getattr(self, name), low, high)
+        splits = dict(self.splits)
+        if set(splits) - set(SPLITS) or any(isinstance(v, bool) or not isinstance(v, int) or v < 0
+                                            for v in splits.values()):
+            raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
+        object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
+        object.__setattr__(self, "modalities", check_modalities(self.modalities))
+        if self.rgb_format not in ("jpg", "png"):
+            raise ValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
+        Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
+        if self.n_gloves not in (1, 2):
+            raise ValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
+        if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
+            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
+                             f"got {self.look_at!r}")
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The frame index <-> (grasp, z, background, glove, view) bijection."""
+
+    n_grasps: int
+    n_z: int
+    n_backgrounds: int
+    n_gloves: int
+    n_views: int
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.n_grasps, self.n_z, self.n_backgrounds, self.n_gloves, self.n_views)
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def chunk_size(self) -> int:
+        return self.n_gloves * self.n_views
+
+    @property
+    def n_chunks(self) -> int:
+        return self.n_grasps * self.n_z * self.n_backgrounds
+
+    def index(self, grasp: int, z: int, background: int, glove: int, view: int) -> int:
+        """Frame index of a tuple (each component in range)."""
+        return int(np.ravel_multi_index((grasp, z, background, glove, view), self.shape))
+
+    def tuple(self, index: int) -> tuple[int, int, int, int, int]:
+        """Inverse of :meth:`index`."""
+        if not 0 <= index < self.size:
+            raise ValueError(f"frame index {index} out of range [0, {self.size})")
+        return tuple(int(v) for v in np.unravel_index(index, self.shape))
+
+    def chunk_frames(self, chunk: int) -> range:
+        return range(chunk * self.chunk_size, (chunk + 1) * self.chunk_size)
+
+
+def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
+    """Grasp indices of each split: consecutive in the grasps file, train first."""
+    total = sum(spec.splits.values())
+    if total != n_grasps:
+        raise ValueError(f"splits {spec.splits} add up to {total} grasps but the grasps file holds {n_grasps}")
+    out, start = {}, 0
+    for name in SPLITS:
+        out[name] = list(range(start, start + spec.splits[name]))
+        start += spec.splits[name]
+    return out
+
+
+def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:
+    """The frame's lamp, a pure function of (seed, frame index).
+
+    Returns:
+        "position_cam" (3,) metres in the OpenCV camera frame (HUP-3D's box with y up
+        turned to y down), "color" (3,) = (c, c, b), "energy_w" Blender watts.
+    """
+    rng = np.random.default_rng([spec.seed, index])
+    x, y, z = rng.uniform(LAMP_LOW, LAMP_HIGH)
+    c, b = rng.uniform(0.6, 1.0, size=2)
+    return {"position_cam": np.array([x, -y, z]), "color": np.array([c, c, b]),
+            "energy_w": np.array(rng.uniform(50.0, 300.0))}
+
+
+def view_directions_arm(sphere: SphereSpec, angles: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 unit vectors from the target to the camera in the arm frame.
+
+    The arm frame's columns are hand -> elbow, dorsal and their cross product (the thumb side of
+    a right hand), :func:`datagen.dataset.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
+    """
+    # the sphere frame of an arm frame equal to the identity gives the sphere's axes in arm coordinates
+    frame = sphere_frame(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), sphere.axis)
+    return unit_directions(angles) @ frame.T
+
+
+def protocol(spec: DatasetSpec) -> dict:
+    """The viewing protocol of a dataset, for its manifest.
+
+    "name" is "paper" when the sphere, its exclusions and the look-at are the published
+    renderer's, "forearm_box_centre" when they are hupbench's before issue 13, else "custom".
+    """
+    s = spec.sphere
+    geometry = (s.r_sph_m, s.r_circ_m, s.variant) == (0.8, 0.15, "ceil")
+    if geometry and s.axis == "body" and s.exclude == ("elbow",) and s.elbow_cone_deg == 10.0 \
+            and spec.look_at == PAPER_LOOK_AT:
+        name = "paper"
+    elif geometry and s.axis == "forearm" and s.exclude == ("poles",) and spec.look_at == BOX_CENTRE:
+        name = "forearm_box_centre"
+    else:
+        name = "custom"
+    polar = {"body": "dorsal (back of the hand: the body's vertical, perpendicular to the forearm)",
+             "forearm": "forearm (north = hand -> elbow)"}[s.axis]
+    up = {"body": "towards the north pole along the meridian (the body's vertical), defined at the poles",
+          "forearm": "the fingers (-north); at the poles the dorsal direction"}[s.axis]
+    return {"name": name, "sphere_axis": s.axis, "polar_axis": polar, "image_up": up,
+            "exclude": list(s.exclude), "elbow_cone_deg": s.elbow_cone_deg,
+            "excluded_view_ids": list(excluded_view_ids(s)), "look_at": spec.look_at,
+            "look_at_index": None if spec.look_at == BOX_CENTRE else kp.KEYPOINT_NAMES.index(spec.look_at)}

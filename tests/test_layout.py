@@ -1,0 +1,164 @@
+"""The package layout stays readable: no import cycles, no upward imports, no giant files or functions.
+
+DESIGN.md: data flows conf -> datagen -> dataset on disk -> hupbench -> models' predictions -> metrics;
+``models`` never imports ``datagen`` or ``hupbench``; ``datagen`` never imports ``models`` or ``hupbench``;
+the inference path (``hupbench.inference.predict``) imports no torch. Each subpackage's ``__init__``
+docstring says what it may import; this test holds the rules that can be read from the code.
+"""
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("datagen", "models", "hupbench")
+#: package -> packages it must never import
+FORBIDDEN = {"datagen": ("models", "hupbench"), "models": ("datagen", "hupbench")}
+MAX_FILE_LINES = 700
+MAX_FUNCTION_LINES = 100
+#: a file or function may stay longer with this marker and a reason on the line of its start
+LONG_OK = "layout: long because"
+
+
+def project_modules() -> dict[str, Path]:
+    modules = {}
+    for package in PACKAGES:
+        for path in (REPO / package).rglob("*.py"):
+            parts = path.relative_to(REPO).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            modules[name] = path
+    return modules
+
+
+def imports_of(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Project modules ``name`` imports (at module level or inside functions)."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([node.module] if node.module else []))
+            targets = [base] + [f"{base}.{alias.name}" for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            # "from datagen import keypoints" imports the module datagen.keypoints, not datagen
+            if target in modules and target != name:
+                found.add(target)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = project_modules()
+    graph = {name: imports_of(name, path, modules) for name, path in modules.items()}
+    # importing a package's submodule runs the package's __init__: not an edge of interest
+    return {name: {t for t in targets if not name.startswith(t + ".")} for name, targets in graph.items()}
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle():
+    found = cycles(import_graph())
+    assert not found, f"import cycles among project modules: {found}"
+
+
+def test_no_upward_import():
+    bad = [f"{name} imports {target}" for name, targets in import_graph().items() for target in targets
+           if target.split(".")[0] in FORBIDDEN.get(name.split(".")[0], ())]
+    assert not bad, bad
+
+
+#: subpackage -> modules (prefixes) it must never import, as its __init__ docstring says
+NEVER = {
+    "datagen.assets": ("datagen.render", "datagen.dataset", "datagen.grasps"),
+    "datagen.render": ("datagen.grasps", "datagen.dataset.writer", "datagen.dataset.verify",
+                       "datagen.dataset.ray_launcher", "datagen.dataset.sphere"),
+    "datagen.dataset": ("datagen.grasps",),
+    "datagen.grasps": ("datagen.dataset",),
+}
+#: datagen's shared modules at the top import no datagen subpackage
+SHARED_TOP = ("datagen.keypoints", "datagen.geometry", "datagen.rotations_torch", "datagen.mesh_distance",
+              "datagen.camera", "datagen.tolerances", "datagen.io", "datagen.processes")
+
+
+def test_subpackages_import_only_what_their_docstring_allows():
+    graph = import_graph()
+    bad = []
+    for name, targets in graph.items():
+        for package, never in NEVER.items():
+            if name == package or name.startswith(package + "."):
+                bad += [f"{name} imports {t}" for t in targets if any(t == n or t.startswith(n + ".") for n in never)]
+        if name in SHARED_TOP:
+            bad += [f"{name} imports {t}" for t in targets if t.count(".") >= 2]
+    assert not bad, bad
+
+
+def test_every_subpackage_says_what_it_owns_and_may_import():
+    for init in sorted(p for package in PACKAGES for p in (REPO / package).rglob("__init__.py")):
+        doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+        assert "May import" in doc, f"{init.relative_to(REPO)}: its docstring must say what the package may import"
+
+
+def test_no_file_or_function_too_long():
+    too_long = []
+    for name, path in sorted(project_modules().items()):
+        lines = path.read_text().splitlines()
+        if len(lines) > MAX_FILE_LINES and not any(LONG_OK in line for line in lines[:40]):
+            too_long.append(f"{path.relative_to(REPO)}: {len(lines)} lines")
+        for node in ast.walk(ast.parse("\n".join(lines))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = node.end_lineno - node.lineno + 1
+                if length > MAX_FUNCTION_LINES and LONG_OK not in lines[node.lineno - 1]:
+                    too_long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name}(): {length} lines")
+    assert not too_long, too_long
+
+
+def test_no_two_source_files_share_a_name():
+    by_name = defaultdict(list)
+    for path in project_modules().values():
+        if path.name != "__init__.py":
+            by_name[path.name].append(str(path.relative_to(REPO)))
+    clashes = {k: v for k, v in by_name.items() if len(v) > 1}
+    assert not clashes, clashes
