@@ -39,7 +39,7 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from datagen.grasps.generate import check_run_options
+    from datagen.grasps.synthesis import check_run_options
     from hupbench.config import build, compose
     from hupbench.grasps import run_grasps
 

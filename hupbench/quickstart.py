@@ -58,10 +58,10 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
         ValueError / TypeError naming the key, what came and what was expected; PermissionError for an
         out_dir that cannot be written.
     """
-    from datagen.contract import MODALITIES
-    from datagen.gl import PLATFORMS
-    from datagen.grasps.generate import check_output_folder
-    from datagen.render import check_modalities
+    from datagen.dataset.contract import MODALITIES
+    from datagen.render.gl import PLATFORMS
+    from datagen.grasps.synthesis import check_output_folder
+    from datagen.render.renderer import check_modalities
 
     if cfg.stop_after is not None and cfg.stop_after not in STAGES:
         raise ValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
@@ -143,9 +143,9 @@ def _stage_errors(stage: str, fast: bool):
 def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig, DictConfig, DictConfig]:
     """Compose the grasps, generate and train configs of the later stages and check every value each
     verb checks before its work (so a bad stage override fails before the preview renders)."""
-    from datagen.dataset import check_workers, parse_shard
-    from datagen.grasps.generate import check_run_options
-    from datagen.ray_launcher import check_launcher
+    from datagen.dataset.writer import check_workers, parse_shard
+    from datagen.grasps.synthesis import check_run_options
+    from datagen.dataset.ray_launcher import check_launcher
     from hupbench.train import check_config as check_train_config
 
     with _stage_errors("grasps", fast):

@@ -127,7 +127,7 @@ def check_run_options(threads, tile_px, platform, out_dir) -> Path:
         ValueError: naming the option, what came and what was expected. PermissionError: ``out_dir``
             (or its nearest existing parent) cannot be written.
     """
-    from datagen.gl import PLATFORMS
+    from datagen.render.gl import PLATFORMS
     from datagen.processes import MAX_WORKERS_PER_CORE, usable_cores
 
     cores = usable_cores()
