@@ -39,17 +39,19 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from datagen.grasps.synthesis import check_run_options
+    from datagen.grasps.synthesis import check_run_options, check_selection
     from hupbench.config import build, compose
     from hupbench.grasps import run_grasps
 
     cfg = compose("grasps", overrides)
     # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
+    built = {}
     for group in ("generate", "refine"):
         try:
-            build(cfg[group])
+            built[group] = build(cfg[group])
         except ValueError as exc:  # the config class names its field, not the group it came from
             raise ValueError(f"{group}: {exc}") from None
+    check_selection(built["generate"])
     check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     result = run_grasps(cfg)
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "

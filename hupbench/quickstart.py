@@ -143,18 +143,20 @@ def _stage_errors(stage: str, fast: bool):
 def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig, DictConfig, DictConfig]:
     """Compose the grasps, generate and train configs of the later stages and check every value each
     verb checks before its work (so a bad stage override fails before the preview renders)."""
-    from datagen.dataset.writer import check_workers, parse_shard
-    from datagen.grasps.synthesis import check_run_options
     from datagen.dataset.ray_launcher import check_launcher
+    from datagen.dataset.writer import check_workers, parse_shard
+    from datagen.grasps.synthesis import check_run_options, check_selection
     from hupbench.train import check_config as check_train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
+        built = {}
         for group in ("generate", "refine"):
             try:
-                build(grasps_cfg[group])
+                built[group] = build(grasps_cfg[group])
             except ValueError as exc:  # the config class names its field, not the group it came from
                 raise ValueError(f"{group}: {exc}") from None
+        check_selection(built["generate"])
         check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform,
                           grasps_cfg.out_dir)
     dataset_dir = work / "dataset"

@@ -91,22 +91,33 @@ class GraspGenConfig:
         v = self.seed
         if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
             raise ValueError(f"seed must be a whole number from 0 to {MAX_SEED}, got {v!r}")
-        candidates = len(theta) * self.starts_per_theta
         if self.pinned_ids is not None:
             ids = tuple(self.pinned_ids) if isinstance(self.pinned_ids, (list, tuple)) else ()
             if not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
                 raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
-            # checked here, not after minutes of refinement: the candidates' count is known now
-            unknown = [i for i in ids if not 0 <= i < candidates]
-            if unknown:
-                raise ValueError(f"pinned_ids: unknown grasp id(s) {unknown}: the {len(theta)} x "
-                                 f"{self.starts_per_theta} candidates are numbered 0..{candidates - 1}")
             if len(set(ids)) != len(ids):
                 raise ValueError(f"pinned_ids must be unique, got {list(ids)}")
             object.__setattr__(self, "pinned_ids", ids)
-        elif self.n_select > candidates:
-            raise ValueError(f"cannot select {self.n_select} grasps (n_select): there are only {len(theta)} x "
-                             f"{self.starts_per_theta} = {candidates} candidates (theta_vol_deg x starts_per_theta)")
+
+
+def check_selection(config: GraspGenConfig) -> None:
+    """n_select, or the pinned ids, against the number of candidates the config makes: checked before the
+    refinement (``hupbench grasps`` found them wrong only after minutes of it). Not in
+    :class:`GraspGenConfig` itself, whose candidates are also made without a selection.
+
+    Raises:
+        ValueError: naming n_select or pinned_ids and the candidates' count.
+    """
+    n_theta, starts = len(config.theta_vol_deg), config.starts_per_theta
+    candidates = n_theta * starts
+    if config.pinned_ids is not None:
+        unknown = [i for i in config.pinned_ids if not 0 <= i < candidates]
+        if unknown:
+            raise ValueError(f"pinned_ids: unknown grasp id(s) {unknown}: the {n_theta} x {starts} candidates are "
+                             f"numbered 0..{candidates - 1}")
+    elif config.n_select > candidates:
+        raise ValueError(f"cannot select {config.n_select} grasps (n_select): there are only {n_theta} x {starts} = "
+                         f"{candidates} candidates (theta_vol_deg x starts_per_theta)")
 
 
 def check_run_options(threads, tile_px, platform, out_dir) -> Path:
