@@ -30,7 +30,8 @@ def _quickstart(args: list[str]) -> int:
                                      "conf/quickstart.yaml, e.g. out_dir=/tmp/qs stop_after=dataset")
     parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version")
     parser.add_argument("overrides", nargs="*", metavar="key=value")
-    ns = parser.parse_args(args)
+    # intermixed: `--fast` may stand anywhere among the overrides (after one, argparse refused the rest)
+    ns = parser.parse_intermixed_args(args)
     overrides = [*ns.overrides, "fast=true"] if ns.fast else ns.overrides
     result = run_quickstart(compose("quickstart", overrides))
     print("\n".join(summary_lines(result)))
@@ -38,10 +39,21 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from hupbench.config import compose
+    from datagen.grasps.synthesis import check_run_options, check_selection
+    from hupbench.config import build, compose
     from hupbench.grasps import run_grasps
 
-    result = run_grasps(compose("grasps", overrides))
+    cfg = compose("grasps", overrides)
+    # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
+    built = {}
+    for group in ("generate", "refine"):
+        try:
+            built[group] = build(cfg[group])
+        except ValueError as exc:  # the config class names its field, not the group it came from
+            raise ValueError(f"{group}: {exc}") from None
+    check_selection(built["generate"])
+    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
+    result = run_grasps(cfg)
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
           f"{result['candidates']} candidates plausible, {result['selected']} selected")
     for key in ("grasps_npz", "grasps_json", "contact_sheet"):
@@ -241,7 +253,10 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
     args = parser.parse_args(argv)
     if args.verb is None:
+        # the help lists the verbs; the error line says what was missing (argparse's usage errors exit 2 too)
         parser.print_help()
+        print(f"hupbench: error: a verb is required, one of: {', '.join(VERBS)} (hupbench VERB --help describes "
+              f"one)", file=sys.stderr)
         return 2
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException

@@ -12,22 +12,167 @@ chunks and the training continues from its last checkpoint.
 
 from __future__ import annotations
 
+import contextlib
+import math
 import time
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from datagen.io import write_json
 from hupbench.config import build, compose
 from hupbench.provenance import run_info
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
+#: the preview camera's largest image side, pixels (it renders offscreen at that size)
+MAX_PREVIEW_SIDE = 4096
+#: the preview camera's farthest distance from the probe, metres (as generate's z_ego_m)
+MAX_VIEW_DISTANCE_M = 10.0
 
 
 def _stage_overrides(cfg: DictConfig) -> dict:
     source = cfg.fast_overrides if cfg.fast else cfg
     return {"grasps": list(source.grasps), "dataset": list(source.dataset), "train": list(source.train),
             "eval_latency": bool(source.eval_latency)}
+
+
+def _is_number(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _is_whole(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int)
+
+
+def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
+    """Check the quickstart's own options (stop_after, fast, the stage lists, camera, view, render,
+    out_dir) before anything runs; nothing is created.
+
+    Hydra passes ``fast=maybe`` on as the string 'maybe' and ``camera.fx=nan`` as a float, so types are
+    checked here; the camera and the view then check their own ranges.
+
+    Returns:
+        (out_dir, the preview camera's :class:`datagen.camera.Intrinsics`, its :class:`datagen.preview.PreviewView`).
+
+    Raises:
+        ValueError / TypeError naming the key, what came and what was expected; PermissionError for an
+        out_dir that cannot be written.
+    """
+    from datagen.dataset.contract import MODALITIES
+    from datagen.render.gl import PLATFORMS
+    from datagen.grasps.synthesis import check_output_folder
+    from datagen.render.renderer import check_modalities
+
+    if cfg.stop_after is not None and cfg.stop_after not in STAGES:
+        raise ValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
+    for key in ("fast", "eval_latency", "fast_overrides.eval_latency"):
+        value = OmegaConf.select(cfg, key)
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be true or false, got {value!r}")
+    for source in ("", "fast_overrides."):
+        for stage in ("grasps", "dataset", "train"):
+            value = OmegaConf.select(cfg, source + stage)
+            if not (OmegaConf.is_list(value) and all(isinstance(v, str) for v in value)):
+                raise ValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
+                                 f"(e.g. {source}{stage}=[a.b=1]), got {value!r}")
+    if cfg.fast:
+        # the fast run reads fast_overrides.*: a changed grasps/dataset/train list would be ignored without a word
+        packaged = compose("quickstart")
+        for key in ("grasps", "dataset", "train", "eval_latency"):
+            if cfg[key] != packaged[key]:
+                raise ValueError(f"{key} is not used by the fast quickstart (fast=true reads fast_overrides.{key}); "
+                                 f"set fast_overrides.{key} instead, or leave fast off")
+    if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
+        raise ValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
+    for key in ("fx", "fy", "cx", "cy"):
+        if not _is_number(cfg.camera[key]):
+            raise ValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
+    for key in ("width", "height"):
+        value = cfg.camera[key]
+        if not _is_whole(value):
+            raise ValueError(f"camera.{key} must be a whole number of pixels, got {value!r}")
+        if value > MAX_PREVIEW_SIDE:
+            # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
+            raise ValueError(f"camera.{key} must be at most {MAX_PREVIEW_SIDE} px, got {value}")
+    for key in ("distance_m", "azimuth_deg", "elevation_deg"):
+        if not _is_number(cfg.view[key]):
+            raise ValueError(f"view.{key} must be a finite number, got {cfg.view[key]!r}")
+    if cfg.view.distance_m > MAX_VIEW_DISTANCE_M:
+        raise ValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
+                         f"a few pixels beyond), got {cfg.view.distance_m:g}")
+    built = {}
+    for key in ("camera", "view"):
+        try:
+            built[key] = build(cfg[key])
+        except ValueError as exc:  # the dataclass names the field, not the config key it came from
+            raise ValueError(f"{key}: {exc}") from None
+    intrinsics, view = built["camera"], built["view"]
+    if cfg.render.platform is not None and cfg.render.platform not in PLATFORMS:
+        raise ValueError(f"render.platform must be one of {', '.join(PLATFORMS)} or null (automatic), "
+                         f"got {cfg.render.platform!r}")
+    modalities = cfg.render.modalities
+    if not (OmegaConf.is_list(modalities) and all(isinstance(m, str) for m in modalities)):
+        raise ValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
+    try:
+        check_modalities(list(modalities))
+    except ValueError as exc:
+        raise ValueError(f"render.modalities: {exc}") from None
+    return check_output_folder(cfg.out_dir), intrinsics, view
+
+
+@contextlib.contextmanager
+def _stage_errors(stage: str, fast: bool):
+    """Name the stage (and its list of overrides) in an error of a later stage's config: the config classes
+    name their field, the CLI would name conf/quickstart.yaml, where the key is not looked up."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from hupbench.errors import hydra_error_line
+
+    config_name = {"dataset": "generate"}.get(stage, stage)
+    listed = f"fast_overrides.{stage}" if fast else stage
+    where = f"{stage} stage (conf/quickstart.yaml's {listed} list over conf/{config_name}.yaml)"
+    try:
+        yield
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ValueError(f"{where}: {hydra_error_line(exc, f'conf/{config_name}.yaml', 'key=value')}") from exc
+    except (ValueError, TypeError) as exc:
+        raise type(exc)(f"{where}: {exc}") from exc
+
+
+def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig, DictConfig, DictConfig]:
+    """Compose the grasps, generate and train configs of the later stages and check every value each
+    verb checks before its work (so a bad stage override fails before the preview renders)."""
+    from datagen.dataset.ray_launcher import check_launcher
+    from datagen.dataset.writer import check_workers, parse_shard
+    from datagen.grasps.synthesis import check_run_options, check_selection
+    from hupbench.train import check_config as check_train_config
+
+    with _stage_errors("grasps", fast):
+        grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
+        built = {}
+        for group in ("generate", "refine"):
+            try:
+                built[group] = build(grasps_cfg[group])
+            except ValueError as exc:  # the config class names its field, not the group it came from
+                raise ValueError(f"{group}: {exc}") from None
+        check_selection(built["generate"])
+        check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform,
+                          grasps_cfg.out_dir)
+    dataset_dir = work / "dataset"
+    with _stage_errors("dataset", fast):
+        generate_cfg = compose("generate", [*overrides["dataset"], f"out_dir={dataset_dir}",
+                                            f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
+        build(generate_cfg.dataset)
+        parse_shard(generate_cfg.shard)
+        check_launcher(generate_cfg.launcher)
+        check_workers(generate_cfg.workers, generate_cfg.launcher)
+    with _stage_errors("train", fast):
+        train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
+                                      "run_name=quickstart"])
+        check_train_config(train_cfg)
+        build(train_cfg.data.reader)
+    return grasps_cfg, generate_cfg, train_cfg
 
 
 def run_quickstart(cfg: DictConfig, log=print) -> dict:
@@ -47,22 +192,12 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
     from datagen.render.preview import handset_grasp, preview
 
     start = time.perf_counter()
-    if cfg.stop_after is not None and cfg.stop_after not in STAGES:
-        raise ValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
+    # compose (and so check) every stage's config before anything runs or is written
+    out_dir, intrinsics, view = check_config(cfg)
     last = STAGES.index(cfg.stop_after) if cfg.stop_after else len(STAGES) - 1
-    out_dir = Path(cfg.out_dir)
     work = out_dir / ("fast" if cfg.fast else "full")
     overrides = _stage_overrides(cfg)
-    # compose (and so check) every stage's config before anything runs
-    intrinsics, view = build(cfg.camera), build(cfg.view)
-    grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
-    dataset_dir = work / "dataset"
-    generate_cfg = compose("generate", [*overrides["dataset"], f"out_dir={dataset_dir}",
-                                        f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
-    build(generate_cfg.dataset)
-    train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
-                                  "run_name=quickstart"])
-    build(train_cfg.data.reader)
+    grasps_cfg, generate_cfg, train_cfg = _stage_configs(work, overrides, cfg.fast)
 
     result: dict = {"out_dir": str(out_dir), "stages": {}}
     n = last + 1

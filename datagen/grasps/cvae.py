@@ -42,6 +42,8 @@ import json
 import math
 import os
 import tempfile
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -499,8 +501,19 @@ def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no grasp CVAE weights at {path}")
-    with np.load(path, allow_pickle=False) as npz:
-        entries = {name: npz[name] for name in npz.files}
+    size = path.stat().st_size
+    if size == 0:
+        raise ValueError(f"{path} is empty (0 bytes): not a grasp CVAE weights file")
+    if not zipfile.is_zipfile(path):
+        # np.load reads any other bytes as a pickle and answers with a message about allow_pickle
+        raise ValueError(f"{path} is not a grasp CVAE weights file: not a zip (.npz) archive ({size} bytes; "
+                         f"damaged, truncated or another kind of file)")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            entries = {name: npz[name] for name in npz.files}
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, zlib.error) as exc:
+        # a member whose bytes do not match its CRC, or cut short inside the archive
+        raise ValueError(f"{path}: damaged grasp CVAE weights file ({type(exc).__name__}: {exc})") from exc
     if _HEADER_KEY not in entries:
         raise ValueError(f"{path} is not a grasp CVAE weights file: no {_HEADER_KEY!r} entry")
     try:

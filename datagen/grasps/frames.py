@@ -47,6 +47,10 @@ def probe_z_offset(probe) -> float:
     return float(volume_centroid(probe.mesh.vertices, probe.mesh.faces)[2])
 
 
+#: Theta_Vol angles beyond one turn either way are refused
+MAX_EULER_DEG = 360.0
+
+
 def check_euler_deg(theta_vol) -> np.ndarray:
     """Validate one Theta_Vol triple or a list of them: (3,) or (N, 3) finite degrees."""
     try:
@@ -57,6 +61,11 @@ def check_euler_deg(theta_vol) -> np.ndarray:
         raise ValueError(f"Theta_Vol must be [alpha, beta, gamma] degrees or a list of them, got shape {theta.shape}")
     if not np.all(np.isfinite(theta)):
         raise ValueError(f"Theta_Vol must be finite, got {theta.tolist()}")
+    if np.any(np.abs(theta) > MAX_EULER_DEG):
+        # an angle beyond a turn is a typo (radians, a lost sign or decimal point); far beyond, float64
+        # degrees lose the precision of the rotation
+        raise ValueError(f"Theta_Vol angles must be degrees in [-{MAX_EULER_DEG:g}, {MAX_EULER_DEG:g}], "
+                         f"got {theta.tolist()}")
     return theta
 
 

@@ -41,6 +41,9 @@ from datagen.assets.hand_mesh import bone_radii
 from datagen.assets.probe import Probe
 from datagen.rotations_torch import axis_angle_to_matrix
 
+#: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours
+#: per orientation on a CPU, 10^9 (measured: accepted before) would never end
+MAX_ITERATIONS = 100_000
 PADS = ("thumb", "index", "middle", "ring", "little", "palm")
 MM = 1000.0
 
@@ -74,8 +77,11 @@ class RefineConfig:
     min_contact_z_m: float | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.iterations, int) or self.iterations < 0:
-            raise ValueError(f"iterations must be an int >= 0, got {self.iterations!r}")
+        v = self.iterations
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"iterations must be an int >= 0, got {v!r}")
+        if v > MAX_ITERATIONS:
+            raise ValueError(f"iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
         for name in ("lr_rotation", "lr_translation", "lr_joints", "clip_norm", "clinical_margin_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -84,6 +90,9 @@ class RefineConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+        v = self.min_contact_z_m
+        if v is not None and not (not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)):
+            raise ValueError(f"min_contact_z_m must be a finite height in metres or null, got {v!r}")
 
 
 @dataclass

@@ -16,8 +16,11 @@ Convention:
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, fields
+from pathlib import Path
+
 import numpy as np
 import torch
 
@@ -25,13 +28,20 @@ from datagen import keypoints as kp
 from datagen.geometry import matrix_to_axis_angle
 from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
-from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
+from datagen.grasps.refine import MAX_ITERATIONS, GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
 from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 
 SAMPLERS = ("random", "cvae")
+#: starts per orientation at most: they are refined as one batch (10^9 asked 67 GiB for the first array)
+MAX_STARTS_PER_THETA = 4096
+#: seeds are whole numbers that numpy's and torch's generators both take
+MAX_SEED = 2**32 - 1
+#: contact-sheet tiles: below 32 px a hand is a few pixels; above 4096 px the three tiles of a grasp
+#: exceed the framebuffer offscreen GL drivers guarantee
+MIN_TILE_PX, MAX_TILE_PX = 32, 4096
 
 
 @dataclass(frozen=True)
@@ -57,7 +67,10 @@ class GraspGenConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        theta = check_euler_deg(self.theta_vol_deg)
+        try:
+            theta = check_euler_deg(self.theta_vol_deg)
+        except ValueError as exc:
+            raise ValueError(f"theta_vol_deg: {exc}") from None
         if theta.ndim != 2 or len(theta) == 0:
             raise ValueError(f"theta_vol_deg must be a non-empty list of [alpha, beta, gamma], got {self.theta_vol_deg!r}")
         object.__setattr__(self, "theta_vol_deg", tuple(tuple(map(float, t)) for t in theta))
@@ -67,14 +80,106 @@ class GraspGenConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive int, got {v!r}")
+        if self.starts_per_theta > MAX_STARTS_PER_THETA:
+            raise ValueError(f"starts_per_theta must be at most {MAX_STARTS_PER_THETA:,} (one orientation's starts "
+                             f"are refined as one batch), got {self.starts_per_theta:,}")
         v = self.short_refine_iterations
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             raise ValueError(f"short_refine_iterations must be an int >= 0, got {v!r}")
+        if v > MAX_ITERATIONS:
+            raise ValueError(f"short_refine_iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
+        v = self.seed
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
+            raise ValueError(f"seed must be a whole number from 0 to {MAX_SEED}, got {v!r}")
         if self.pinned_ids is not None:
-            ids = tuple(self.pinned_ids)
+            ids = tuple(self.pinned_ids) if isinstance(self.pinned_ids, (list, tuple)) else ()
             if not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
                 raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
+            if len(set(ids)) != len(ids):
+                raise ValueError(f"pinned_ids must be unique, got {list(ids)}")
             object.__setattr__(self, "pinned_ids", ids)
+
+
+def check_selection(config: GraspGenConfig) -> None:
+    """n_select, or the pinned ids, against the number of candidates the config makes: checked before the
+    refinement (``hupbench grasps`` found them wrong only after minutes of it). Not in
+    :class:`GraspGenConfig` itself, whose candidates are also made without a selection.
+
+    Raises:
+        ValueError: naming n_select or pinned_ids and the candidates' count.
+    """
+    n_theta, starts = len(config.theta_vol_deg), config.starts_per_theta
+    candidates = n_theta * starts
+    if config.pinned_ids is not None:
+        unknown = [i for i in config.pinned_ids if not 0 <= i < candidates]
+        if unknown:
+            raise ValueError(f"pinned_ids: unknown grasp id(s) {unknown}: the {n_theta} x {starts} candidates are "
+                             f"numbered 0..{candidates - 1}")
+    elif config.n_select > candidates:
+        raise ValueError(f"cannot select {config.n_select} grasps (n_select): there are only {n_theta} x {starts} = "
+                         f"{candidates} candidates (theta_vol_deg x starts_per_theta)")
+
+
+def check_run_options(threads, tile_px, platform, out_dir) -> Path:
+    """Check the options of a ``hupbench grasps`` run besides :class:`GraspGenConfig` and
+    :class:`RefineConfig`, before the refinement starts (and so before minutes of work end in a
+    failed write). Nothing is created.
+
+    Args:
+        threads: torch CPU threads, a whole number from 1 to 4 x the usable cores.
+        tile_px: contact-sheet tile side, pixels, from :data:`MIN_TILE_PX` to :data:`MAX_TILE_PX`.
+        platform: "egl", "osmesa" or None (automatic).
+        out_dir: the output folder: a folder or a path that can be made, on a writable file system.
+
+    Returns:
+        ``out_dir`` as a Path.
+
+    Raises:
+        ValueError: naming the option, what came and what was expected. PermissionError: ``out_dir``
+            (or its nearest existing parent) cannot be written.
+    """
+    from datagen.render.gl import PLATFORMS
+    from datagen.processes import MAX_WORKERS_PER_CORE, usable_cores
+
+    cores = usable_cores()
+    most = MAX_WORKERS_PER_CORE * cores
+    # torch starts that many threads at once; threads=100000 failed deep inside a later import
+    if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= most:
+        raise ValueError(f"threads must be a whole number from 1 to {most} ({MAX_WORKERS_PER_CORE} x the {cores} "
+                         f"CPU core(s) this process may use), got {threads!r}")
+    if isinstance(tile_px, bool) or not isinstance(tile_px, int) or not MIN_TILE_PX <= tile_px <= MAX_TILE_PX:
+        raise ValueError(f"sheet.tile_px must be a whole number of pixels from {MIN_TILE_PX} to {MAX_TILE_PX}, "
+                         f"got {tile_px!r}")
+    if platform is not None and platform not in PLATFORMS:
+        raise ValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got {platform!r}")
+    if not isinstance(out_dir, (str, Path)) or not str(out_dir).strip():
+        raise ValueError(f"out_dir must be a folder path, got {out_dir!r}")
+    return check_output_folder(out_dir)
+
+
+def check_output_folder(out_dir, what: str = "out_dir") -> Path:
+    """``out_dir`` is a folder, or can be made, on a writable file system; nothing is created.
+
+    Raises:
+        ValueError: ``out_dir`` or one of its parents is a file. PermissionError: the nearest existing
+            folder is read-only or not writable.
+    """
+    out_dir = Path(out_dir)
+    existing = out_dir
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        where = "" if existing == out_dir else f": {existing} is a file"
+        raise ValueError(f"{what} {out_dir} is not a folder{where or ' (a file of that name exists)'}")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        try:
+            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
+        except OSError:
+            read_only = False
+        why = "on a read-only file system" if read_only else "not writable (permission denied)"
+        where = "" if existing == out_dir else f" (its parent {existing})"
+        raise PermissionError(f"cannot write {what} {out_dir}{where}: {why}")
+    return out_dir
 
 
 def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspBatch:

@@ -1,0 +1,78 @@
+"""The top-level `hupbench` command: bad input (docs/robustness.md, ## hupbench (CLI)), --version,
+--debug and each verb's --help.
+
+Bad input to the command itself is argparse's business: a usage line on stderr, then one line
+`hupbench: error: ...` naming what was wrong and what was expected, exit 2, no traceback.
+"""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from hupbench import __version__
+from hupbench.cli import VERBS
+
+REPO = Path(__file__).resolve().parents[2]
+
+# id -> (argv, needles)
+CASES = {
+    # before: the help on stdout and exit 2, with no line saying what was wrong
+    "no-verb": ([], ["a verb is required", *VERBS]),
+    "unknown-verb": (["frobnicate"], ["invalid choice: 'frobnicate'", *VERBS]),
+    "misspelt-verb": (["generat", "out_dir=x"], ["invalid choice: 'generat'", "generate"]),
+    "unknown-option": (["--frobnicate"], ["unrecognized arguments", "--frobnicate"]),
+    "unknown-option-of-verb": (["grasps", "--frobnicate"], ["unrecognized arguments", "--frobnicate"]),
+    "debug-after-the-verb": (["grasps", "--debug", "threads=0"], ["unrecognized arguments", "--debug"]),
+}
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("case", list(CASES))
+def test_matrix_cli(case, capsys):
+    argv, needles = CASES[case]
+    answer = run_cli(capsys, *argv)
+    assert_clean_error(answer, *needles, prefix="hupbench: error:")
+    assert answer.rc == 2, answer
+    # argparse's usage line (or, without a verb, the whole help) says how to call the command
+    assert "usage: hupbench" in answer.err + answer.out, answer
+
+
+def test_no_verb_prints_the_verbs_on_stdout(capsys):
+    answer = run_cli(capsys)
+    assert answer.rc == 2
+    listed = re.findall(r"^    (\S+)", answer.out, flags=re.M)
+    assert listed == list(VERBS), answer.out
+
+
+def test_version(capsys):
+    answer = run_cli(capsys, "--version")
+    assert answer.rc == 0 and answer.err == ""
+    assert answer.out.strip() == f"hupbench {__version__}"
+    assert re.fullmatch(r"\d+\.\d+\.\d+", __version__), __version__
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    """--debug (before the verb) lets the traceback of a bad input through; without it, one line."""
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    argv = [sys.executable, "-m", "hupbench.cli", "grasps", f"out_dir={tmp_path / 'g'}", "threads=0"]
+    plain = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120)
+    debug = subprocess.run([*argv[:3], "--debug", *argv[3:]], capture_output=True, text=True, env=env, timeout=120)
+    assert plain.returncode == 1 and "Traceback" not in plain.stderr, plain.stderr
+    assert plain.stderr.strip().startswith("hupbench grasps: error: threads must be a whole number"), plain.stderr
+    assert debug.returncode == 1, debug
+    assert "Traceback (most recent call last)" in debug.stderr, debug.stderr
+    assert debug.stderr.strip().splitlines()[-1].startswith("ValueError: threads must be a whole number"), debug.stderr
+    assert not (tmp_path / "g").exists()
+
+
+@pytest.mark.parametrize("verb", list(VERBS))
+def test_verb_help(verb, capsys):
+    answer = run_cli(capsys, verb, "--help")
+    assert answer.rc == 0, answer
+    assert answer.out.startswith(f"usage: hupbench {verb}"), answer.out[:300]
+    assert "--help" in answer.out and answer.err == ""

@@ -1,0 +1,130 @@
+"""The bad-input matrix of `hupbench quickstart` (docs/robustness.md, ## quickstart).
+
+The quickstart composes and checks its own options and every later stage's config (grasps,
+generate, train) before its first stage renders the preview. Every case here must therefore fail
+at once: one line `hupbench quickstart: error: ...` naming the option and what was expected
+(argparse's usage errors exit 2, the rest 1), no traceback, no stage started (no "[1/8] preview"
+line) and nothing written under out_dir.
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+# id -> make(tmp) -> (arguments after out_dir, needles)
+CASES = {
+    # malformed overrides and options
+    "override-without-equals": lambda t: (["fast"], ["key=value", "fast"]),
+    "override-unknown-key": lambda t: (["camera.colour=red"], ["camera.colour", "not in the config"]),
+    "override-unknown-top-key": lambda t: (["colour=red"], ["colour", "not in the config"]),
+    "override-bad-syntax": lambda t: (["camera.width=[1"], ["camera.width=[1", "key=value"]),
+    "option-unknown": lambda t: (["--fastest"], ["unrecognized arguments", "--fastest"]),
+    # the quickstart's own options
+    "stop-after-unknown": lambda t: (["stop_after=deploy"], ["stop_after", "deploy", "preview, grasps"]),
+    "stop-after-number": lambda t: (["stop_after=3"], ["stop_after", "got 3"]),
+    "fast-maybe": lambda t: (["fast=maybe"], ["fast", "true or false", "'maybe'"]),
+    "fast-number": lambda t: (["fast=2"], ["fast", "true or false", "got 2"]),
+    "eval-latency-maybe": lambda t: (["eval_latency=maybe"], ["eval_latency", "true or false", "'maybe'"]),
+    # the preview camera
+    "camera-width-zero": lambda t: (["camera.width=0"], ["camera", "width", "positive"]),
+    "camera-width-huge": lambda t: (["camera.width=100000"], ["camera.width", "4096", "100000"]),
+    "camera-width-word": lambda t: (["camera.width=wide"], ["camera.width", "whole number", "'wide'"]),
+    "camera-width-fraction": lambda t: (["camera.width=255.5"], ["camera.width", "whole number", "255.5"]),
+    "camera-height-negative": lambda t: (["camera.height=-1"], ["camera", "height", "positive"]),
+    "camera-fx-nan": lambda t: (["camera.fx=nan"], ["camera.fx", "finite", "nan"]),
+    "camera-fx-zero": lambda t: (["camera.fx=0"], ["camera", "fx", "positive"]),
+    "camera-fy-word": lambda t: (["camera.fy=long"], ["camera.fy", "finite number", "'long'"]),
+    "camera-cx-inf": lambda t: (["camera.cx=inf"], ["camera.cx", "finite", "inf"]),
+    # the preview view
+    "view-distance-zero": lambda t: (["view.distance_m=0"], ["view", "distance_m", "positive"]),
+    "view-distance-nan": lambda t: (["view.distance_m=nan"], ["view.distance_m", "finite", "nan"]),
+    "view-distance-huge": lambda t: (["view.distance_m=1e9"], ["view.distance_m", "at most 10 m"]),
+    "view-elevation-100": lambda t: (["view.elevation_deg=100"], ["view", "elevation_deg", "[-90, 90]"]),
+    "view-azimuth-nan": lambda t: (["view.azimuth_deg=nan"], ["view.azimuth_deg", "finite", "nan"]),
+    "view-azimuth-word": lambda t: (["view.azimuth_deg=left"], ["view.azimuth_deg", "'left'"]),
+    # rendering
+    "render-platform-unknown": lambda t: (["render.platform=vulkan"], ["render.platform", "vulkan"]),
+    "render-modalities-unknown": lambda t: (["render.modalities=[rgb,thermal]"], ["render.modalities", "thermal"]),
+    "render-modalities-empty": lambda t: (["render.modalities=[]"], ["render.modalities", "at least one"]),
+    "render-modalities-not-a-list": lambda t: (["render.modalities=rgb"], ["render.modalities", "list of"]),
+    # the later stages' overrides (lists of key=value), checked as their own verbs check them
+    "stage-list-unquoted": lambda t: (["grasps=[generate.n_select=0]"], ["grasps=[generate.n_select=0]", "key=value"]),
+    "stage-list-not-a-list": lambda t: (["grasps=5"], ["grasps", "list of key=value", "got 5"]),
+    "stage-list-of-numbers": lambda t: (["train=[1,2]"], ["train", "list of key=value"]),
+    "grasps-n-select-zero": lambda t: (["grasps=['generate.n_select=0']"], ["grasps stage", "n_select", "positive"]),
+    "grasps-unknown-key": lambda t: (["grasps=['generate.colour=1']"], ["grasps stage", "generate.colour", "conf/grasps.yaml"]),
+    "grasps-threads-huge": lambda t: (["grasps=['threads=100000']"], ["grasps stage", "threads", "100000"]),
+    "grasps-sheet-tile-zero": lambda t: (["grasps=['sheet.tile_px=0']"], ["grasps stage", "sheet.tile_px", "32 to 4096"]),
+    "dataset-width-zero": lambda t: (["dataset=['dataset.width=0']"], ["dataset stage", "dataset.width", "[1, 8192]"]),
+    "dataset-workers-zero": lambda t: (["dataset=['workers=0']"], ["dataset stage", "workers", ">= 1"]),
+    "dataset-splits-negative": lambda t: (["dataset=['dataset.splits={train:3,val:-1,test:0}']"], ["dataset stage", "splits", ">= 0"]),
+    "train-max-steps-zero": lambda t: (["train=['train.max_steps=0']"], ["train stage", "conf/quickstart.yaml's train list", "train.max_steps", ">= 1"]),
+    "train-lr-nan": lambda t: (["train=['optim.optimizer.lr=nan']"], ["train stage", "optim.optimizer.lr", "nan"]),
+    "train-model-unknown": lambda t: (["train=['model=nope']"], ["train stage", "model/nope"]),
+    "train-unknown-key": lambda t: (["train=['train.colour=1']"], ["train stage", "train.colour", "conf/train.yaml"]),
+    "fast-stage-list-bad": lambda t: (["--fast", "fast_overrides.train=['train.max_steps=-1']"],
+                                      ["train stage", "fast_overrides.train list", "train.max_steps", ">= 1"]),
+    "fast-with-stage-list": lambda t: (["--fast", "grasps=['generate.n_select=2']"],
+                                       ["grasps", "not used by the fast quickstart", "fast_overrides.grasps"]),
+    # the output folder
+    "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
+    "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'qs'}"], ["out_dir", "file is a file"]),
+    "out-dir-empty": lambda t: (["out_dir="], ["out_dir", "folder path"]),
+}
+
+
+def _files(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("case", list(CASES))
+def test_matrix_quickstart(case, tmp_path, capsys):
+    arguments, needles = CASES[case](tmp_path)
+    before = _files(tmp_path)
+    answer = run_cli(capsys, "quickstart", f"out_dir={tmp_path / 'qs'}", *arguments)
+    assert_clean_error(answer, *needles, prefix="hupbench quickstart: error:")
+    assert answer.rc == (2 if case == "option-unknown" else 1), answer
+    # no stage started, nothing written or changed under out_dir (nor beside it)
+    assert "[1/" not in answer.out, answer
+    assert not (tmp_path / "qs").exists()
+    assert _files(tmp_path) == before
+
+
+@pytest.mark.matrix
+def test_matrix_quickstart_read_only_out_dir(tmp_path):
+    """out_dir on a read-only file system, refused before the preview (root writes through file modes,
+    so a read-only tmpfs in a private mount namespace; skipped where one cannot be mounted)."""
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare(1) is not installed")
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", f"mount -t tmpfs tmpfs {mount}"],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs in a private mount namespace here: {probe.stderr.strip()}")
+    argv = [sys.executable, "-m", "hupbench.cli", "quickstart", "--fast", f"out_dir={mount / 'qs'}"]
+    script = f"mount -t tmpfs -o ro,size=64k tmpfs {mount} && exec " + " ".join(f"'{a}'" for a in argv)
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert proc.returncode == 1, proc
+    errors = [line for line in proc.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert errors[0].startswith("hupbench quickstart: error:") and f"{mount / 'qs'}" in errors[0], errors
+    assert "read-only file system" in errors[0], errors
+    assert "[1/" not in proc.stdout, proc.stdout
