@@ -251,7 +251,11 @@ def main(argv: list[str] | None = None) -> int:
         own = verb in OWN_OPTION_VERBS
         p = sub.add_parser(verb, help=help_text, add_help=not own, prefix_chars="+" if own else "-")
         p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # --debug is hupbench's, wherever it stands (after the verb it would be taken as the verb's option)
+    debug = "--debug" in argv
+    args = parser.parse_args([a for a in argv if a != "--debug"])
+    args.debug = debug
     if args.verb is None:
         # the help lists the verbs; the error line says what was missing (argparse's usage errors exit 2 too)
         parser.print_help()

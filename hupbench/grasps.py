@@ -24,18 +24,22 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
         dict with the output paths, counts and timings.
     """
     from datagen.render.draw import write_png
-    from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
+    from datagen.grasps.synthesis import (check_run_options, check_selection, generate_candidates, grasp_arrays,
+                                          scores_json, select_grasps, take_rows)
     from datagen.grasps.sheet import contact_sheet
     from datagen.assets.hand import build_hand
     from datagen.assets.probe import build_probe
 
     import torch
 
+    gen_config = build(cfg.generate)
+    refine_config = build(cfg.refine)
+    # what would fail after minutes of refinement fails here (also for `hupbench generate`'s default grasps)
+    check_selection(gen_config)
+    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     # CPU results are bit-reproducible only at a fixed thread count
     torch.set_num_threads(cfg.threads)
     start = time.perf_counter()
-    gen_config = build(cfg.generate)
-    refine_config = build(cfg.refine)
     out_dir = Path(cfg.out_dir)
     log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
         f"({gen_config.sampler} sampler)")

@@ -146,7 +146,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig,
     from datagen.dataset.ray_launcher import check_launcher
     from datagen.dataset.writer import check_workers, parse_shard
     from datagen.grasps.synthesis import check_run_options, check_selection
-    from hupbench.train import check_config as check_train_config
+    from hupbench.training.checks import check_config as check_train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
