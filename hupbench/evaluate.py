@@ -408,13 +408,60 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         torch.set_num_threads(previous_threads)
 
 
+def _predict_split(net, reader, batch_size: int, split: str, progress: bool, log):
+    """The model's (N, 29, 2) normalised and (N, 29, 3) metre predictions over a split, with the labels
+    (float64), in frame order; a NaN or inf output is an error."""
+    from tqdm import tqdm
+
+    loader = torch.utils.data.DataLoader(reader, batch_size=batch_size, shuffle=False, num_workers=0)
+    pred2d, pred3d, gt2d, gt3d = [], [], [], []
+    start = time.perf_counter()
+    for batch in tqdm(loader, unit="batch", desc=f"eval {split}", dynamic_ncols=True, leave=False,
+                      disable=None if progress else True):  # None: only on a terminal
+        p2, p3 = net.predict(batch["image"])
+        pred2d.append(p2)
+        pred3d.append(p3)
+        gt2d.append(batch["keypoints_2d"].double().numpy())
+        gt3d.append(batch["keypoints_3d"].double().numpy())
+    pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
+    log(f"ran {net.format} model on {len(reader)} {split} frames in {time.perf_counter() - start:.1f} s")
+    bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
+    if bad.any():
+        raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+    return pred2d, pred3d, gt2d, gt3d
+
+
+def _measured_latency(net, out_path: Path, run_name: str, log, progress: bool) -> dict:
+    """Latency per image of PyTorch and onnxruntime at batch 1 and 32 (an ONNX model: onnxruntime only)."""
+    from datagen.io import DiskFullError, tmp_path
+    from hupbench.provenance import git_commit
+
+    if net.format == "onnx":
+        return _latencies(None, net.onnx_path, net.input_size, torch.get_num_threads(), log, progress)
+    from hupbench.export import export_onnx, onnx_metadata
+
+    # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
+    # a folder of the system's: a killed eval leaves it where the next one removes it
+    onnx_path = tmp_path(out_path, ".onnx")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+
+    def export():
+        try:
+            export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit()))
+        except OSError as exc:
+            raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
+
+    try:
+        return _latencies(net.module, onnx_path, net.input_size, torch.get_num_threads(), log, progress, export)
+    finally:
+        onnx_path.unlink(missing_ok=True)
+
+
 def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
               log, training_command: str | None = None, training_log: str | None = None,
               label: str | None = None, progress: bool = True) -> dict[str, Any]:
-    from tqdm import tqdm
-
     from datagen.dataset.contract import read_annotations
-    from datagen.io import DiskFullError, clean_stale_tmp, tmp_path
+    from datagen.io import clean_stale_tmp
     from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.export import check_output_file
@@ -438,22 +485,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
         log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "
             f"{net.K_input.round(3).tolist()}: its 3D output assumes the training camera")
-    loader = torch.utils.data.DataLoader(reader, batch_size=batch_size, shuffle=False, num_workers=0)
-    pred2d, pred3d, gt2d, gt3d, frame_ids = [], [], [], [], []
-    start = time.perf_counter()
-    for batch in tqdm(loader, unit="batch", desc=f"eval {split}", dynamic_ncols=True, leave=False,
-                      disable=None if progress else True):  # None: only on a terminal
-        p2, p3 = net.predict(batch["image"])
-        pred2d.append(p2)
-        pred3d.append(p3)
-        gt2d.append(batch["keypoints_2d"].double().numpy())
-        gt3d.append(batch["keypoints_3d"].double().numpy())
-        frame_ids.append(batch["frame_id"].numpy())
-    pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
-    log(f"ran {net.format} model on {len(reader)} {split} frames in {time.perf_counter() - start:.1f} s")
-    bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
-    if bad.any():
-        raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+    pred2d, pred3d, gt2d, gt3d = _predict_split(net, reader, batch_size, split, progress, log)
 
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world"),
                                                reader.manifest)}
@@ -490,27 +522,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         "background": M.breakdown_mpjpe_mm(errors, M.background_labels(fields["background_id"], background_names)),
     }
     if latency:
-        if net.format == "onnx":
-            results["latency_ms_per_image"] = _latencies(None, net.onnx_path, net.input_size,
-                                                         torch.get_num_threads(), log, progress)
-        else:
-            from hupbench.export import export_onnx, onnx_metadata
-
-            # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``),
-            # not in a folder of the system's: a killed eval leaves it where the next one removes it
-            onnx_path = tmp_path(out_path, ".onnx")
-            out_path.parent.mkdir(parents=True, exist_ok=True)
-            def export():
-                try:
-                    export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit()))
-                except OSError as exc:
-                    raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
-
-            try:
-                results["latency_ms_per_image"] = _latencies(net.module, onnx_path, net.input_size,
-                                                             torch.get_num_threads(), log, progress, export)
-            finally:
-                onnx_path.unlink(missing_ok=True)
+        results["latency_ms_per_image"] = _measured_latency(net, out_path, run_name, log, progress)
     results["device"] = hardware_description(torch.device("cpu"))
     results["training"] = _training_block(model_path, net.payload)
     results["training"]["command"] = training_command

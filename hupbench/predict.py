@@ -68,46 +68,38 @@ image file. Writing: stale temporary files of killed runs are removed, an earlie
 writing (a full disk: ``no space left on MOUNT writing FILE``) removes the overlays it wrote, so a
 folder with a ``predictions.json`` always holds one finished run.
 """
-
 from __future__ import annotations
 
 import contextlib
 import hashlib
 import json
 import os
-import re
-import struct
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+import onnxruntime as ort
+from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 import cv2
 import numpy as np
-import onnxruntime as ort
-from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 from datagen.camera import resize_intrinsics, resize_points
 from datagen.render.draw import write_png
 from datagen.io import clean_stale_tmp, write_bytes
 from hupbench.overlay import draw_prediction
+from hupbench.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
+
 
 SCHEMA_VERSION = 1
 ONNX_SCHEMA = "1"
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
 DEFAULT_BATCH_SIZE = 16
-MIN_IMAGE_SIDE = 16  # pixels, shorter side: below it a hand is a few pixels, its 21 joints indistinguishable
-MAX_IMAGE_SIDE = 8192  # pixels, longer side: a 48-megapixel phone photo (8000 x 6000) passes
 # a focal length or principal point beyond a million pixels is a typo (1e6 px on a 4000 px photo is a 0.2
 # degree field of view) and 1e308 overflows the 3D points to infinity
 MAX_FOCAL_PX = 1e6
 CAMERA_ASSUMED = "assumed training camera"
 CAMERA_USER = "user K"
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_JPEG_MAGIC = b"\xff\xd8\xff"
 _DECIMALS_M = 6  # 1 um: far below any model's error, keeps the JSON readable
 _DECIMALS_PX = 3
 _DECIMALS_K = 6
@@ -282,170 +274,6 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
 # ---------------------------------------------------------------- images
 
 
-_JPEG_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
-
-
-def image_size_from_header(data: bytes) -> tuple[int, int] | None:
-    """(width, height) that a PNG's IHDR or a JPEG's frame header (SOFn) declares, without decoding.
-
-    Args:
-        data: the file's bytes.
-
-    Returns:
-        ``(width, height)`` in pixels (before any EXIF rotation), or None when the header is not found.
-    """
-    if data.startswith(_PNG_MAGIC):
-        if len(data) >= 24 and data[12:16] == b"IHDR":
-            width, height = struct.unpack(">II", data[16:24])
-            return width, height
-        return None
-    if not data.startswith(_JPEG_MAGIC):
-        return None
-    pos = 2
-    while pos + 4 <= len(data):
-        if data[pos] != 0xFF:
-            return None
-        marker = data[pos + 1]
-        if marker == 0xFF:  # fill byte before a marker
-            pos += 1
-        elif marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
-            pos += 2
-        elif marker in (0xD9, 0xDA):  # end of image, or scan data before any frame header
-            return None
-        elif marker in _JPEG_SOF_MARKERS:
-            if pos + 9 > len(data):
-                return None
-            height, width = struct.unpack(">HH", data[pos + 5:pos + 9])
-            return width, height
-        else:
-            (length,) = struct.unpack(">H", data[pos + 2:pos + 4])
-            pos += 2 + length
-    return None
-
-
-def check_image_size(width: int, height: int, source: str = "image") -> None:
-    """Refuse images smaller than MIN_IMAGE_SIDE or larger than MAX_IMAGE_SIDE (module docstring)."""
-    if min(width, height) < MIN_IMAGE_SIDE:
-        raise ValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
-                         "on each side")
-    if max(width, height) > MAX_IMAGE_SIDE:
-        raise ValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
-                         f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
-
-
-_OPENCV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:[^\]]*\]\s*(global\s+\S+\s+\S+\s+)?")
-
-
-@contextlib.contextmanager
-def _c_library_messages():
-    """Collect what C libraries (libpng, libjpeg, OpenCV's logger) print to file descriptor 2 meanwhile.
-
-    They print straight to the process's stderr, not through Python, and a line such as
-    "libpng error: PNG input buffer is incomplete" names no file: the caller turns the lines into
-    its own message, which does. Yields a list filled with the non-empty lines on exit.
-    """
-    lines: list[str] = []
-    try:
-        saved = os.dup(2)
-    except OSError:  # no file descriptor 2 (a detached process): nothing to collect
-        yield lines
-        return
-    with tempfile.TemporaryFile() as sink:
-        sys.stderr.flush()
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield lines
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            sink.seek(0)
-            text = sink.read().decode("utf-8", errors="replace")
-            for line in text.splitlines():
-                line = _OPENCV_LOG_PREFIX.sub("", line.strip())
-                if line and line not in lines:
-                    lines.append(line)
-
-
-def decode_image(data: bytes, source: str = "image", notes: list[str] | None = None) -> np.ndarray:
-    """Decode PNG or JPEG bytes to RGB float32.
-
-    Args:
-        data: the file's bytes.
-        source: name for error messages (the path).
-        notes: receives what the decoder said about a damaged file that still decoded whole.
-
-    Returns:
-        (H, W, 3) float32 RGB in [0, 1].
-
-    Raises:
-        ValueError: empty, not PNG or JPEG, outside the size limits, undecodable or truncated; the
-            message starts with ``source``.
-    """
-    if not data:
-        raise ValueError(f"{source}: empty file (0 bytes), not an image")
-    if data.startswith(_PNG_MAGIC):
-        kind, flags = "PNG", cv2.IMREAD_UNCHANGED  # keep 16-bit samples and alpha
-    elif data.startswith(_JPEG_MAGIC):
-        kind, flags = "JPEG", cv2.IMREAD_COLOR  # applies the EXIF orientation of photos
-    else:
-        raise ValueError(f"{source}: not a PNG or JPEG image (the file starts with {data[:8]!r})")
-    declared = image_size_from_header(data)
-    if declared is not None:
-        check_image_size(*declared, source)  # before decoding: a 20000 x 20000 file would take gigabytes
-    with _c_library_messages() as said:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
-    detail = "; ".join(said)
-    if image is None or image.size == 0:
-        raise ValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
-                         + (f": {detail})" if detail else ")"))
-    if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
-        raise ValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
-    if detail and notes is not None:
-        notes.append(f"{kind} decoder: {detail}")
-    check_image_size(image.shape[1], image.shape[0], source)
-    if image.dtype == np.uint8:
-        image = image.astype(np.float32) / 255.0
-    elif image.dtype == np.uint16:
-        image = image.astype(np.float32) / 65535.0
-    else:
-        raise ValueError(f"{source}: {kind} with {image.dtype} samples is not supported (8 or 16 bit)")
-    if image.ndim == 2:
-        image = image[:, :, None]
-    channels = image.shape[2]
-    if channels in (2, 4):  # grey + alpha or BGRA: composite over the padding grey
-        alpha = image[:, :, -1:]
-        image = image[:, :, :-1] * alpha + PAD_VALUE * (1.0 - alpha)
-    if image.shape[2] == 1:
-        image = np.repeat(image, 3, axis=2)
-    elif image.shape[2] == 3:
-        image = image[:, :, ::-1]  # BGR -> RGB
-    else:
-        raise ValueError(f"{source}: {kind} with {channels} channels is not supported")
-    return np.ascontiguousarray(image, dtype=np.float32)
-
-
-def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
-    """Read a PNG or JPEG file (recognised by content) as RGB float32.
-
-    Args:
-        path: image file.
-        notes: receives what the decoder said about a damaged file that still decoded whole.
-
-    Returns:
-        (H, W, 3) float32 RGB in [0, 1].
-    """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    if not path.is_file():
-        raise ValueError(f"{path}: not a regular file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
-    return decode_image(data, str(path), notes)
-
-
 def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, InputGeometry]:
     """Pad an image to a centred square and resize it to the model input (module docstring).
 
@@ -468,41 +296,6 @@ def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, Inpu
     if geometry.side != input_size:
         square = cv2.resize(square, (input_size, input_size), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(square.transpose(2, 0, 1), dtype=np.float32), geometry
-
-
-def to_uint8(image_rgb: np.ndarray) -> np.ndarray:
-    """(H, W, 3) float in [0, 1] -> (H, W, 3) uint8."""
-    return np.clip(np.round(np.asarray(image_rgb) * 255.0), 0, 255).astype(np.uint8)
-
-
-def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[str, str]]]:
-    """Turn the command-line arguments into the list of files to process.
-
-    A directory expands to its image files (suffix .png, .jpg, .jpeg, any case; not recursive;
-    sorted by name); anything else in it is skipped with a note. A file named explicitly is
-    always processed (and fails on its own if it is no image); so is a missing path, which then
-    gets a per-file error.
-
-    Returns:
-        files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
-    """
-    if isinstance(inputs, (str, Path)):
-        raise TypeError("inputs must be a list of paths, got a single path")
-    files: list[Path] = []
-    skipped: list[dict[str, str]] = []
-    for item in inputs:
-        path = Path(item)
-        if not path.is_dir():
-            files.append(path)
-            continue
-        for entry in sorted(path.iterdir(), key=lambda p: p.name):
-            if entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
-                files.append(entry)
-            elif entry.is_dir():
-                skipped.append({"path": str(entry), "reason": "a directory (directories are not searched recursively)"})
-            else:
-                skipped.append({"path": str(entry), "reason": f"not an image file name ({', '.join(IMAGE_SUFFIXES)})"})
-    return files, skipped
 
 
 # ---------------------------------------------------------------- model
@@ -803,39 +596,7 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
             (out_dir / "predictions.json").unlink(missing_ok=True)
         for start in range(0, len(files), batch_size):
             chunk_records = [_empty_record(path, names, model.run_name) for path in files[start : start + batch_size]]
-            loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
-            for record in chunk_records:
-                notes: list[str] = []
-                try:
-                    image = read_image(record["path"], notes)
-                except (ValueError, FileNotFoundError) as exc:
-                    record["error"] = str(exc)
-                    log(f"hupbench predict: error: {exc}")
-                    continue
-                for note in notes:
-                    log(f"hupbench predict: note: {record['path']}: {note}")
-                model_input, geometry = preprocess(image, model.input_size)
-                loaded.append((record, image, model_input, geometry))
-            if loaded:
-                points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
-                for b, (record, image, _, geometry) in enumerate(loaded):
-                    if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
-                        record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
-                        log(f"hupbench predict: error: {record['error']}")
-                        continue
-                    result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
-                    record.update(
-                        ok=True, image_size={"width": geometry.width, "height": geometry.height},
-                        camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
-                        K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
-                        keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
-                        keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
-                    )
-                    if overlay:
-                        stem = _unique_stem(Path(record["path"]).stem, used_stems)
-                        drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
-                        overlays.append(write_png(out_dir / f"{stem}_overlay.png", drawn))
-                        record["overlay"] = str(overlays[-1])
+            _predict_batch(model, chunk_records, K_user, out_dir if overlay else None, used_stems, overlays, log)
             records.extend(chunk_records)
             bar.update(len(chunk_records))
 
@@ -863,6 +624,47 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
                     path.unlink(missing_ok=True)
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
             "overlays": overlays, "skipped": skipped, "records": records}
+
+
+def _predict_batch(model: PredictModel, chunk_records: list[dict[str, Any]], K_user: np.ndarray | None,
+                   overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log) -> None:
+    """Read, predict and record one batch of images in place: a bad image's record gets its error (and
+    the log a line), a good one its keypoints and, with ``overlay_dir``, its overlay (appended to
+    ``overlays``)."""
+    names = list(model.keypoint_names)
+    loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
+    for record in chunk_records:
+        notes: list[str] = []
+        try:
+            image = read_image(record["path"], notes)
+        except (ValueError, FileNotFoundError) as exc:
+            record["error"] = str(exc)
+            log(f"hupbench predict: error: {exc}")
+            continue
+        for note in notes:
+            log(f"hupbench predict: note: {record['path']}: {note}")
+        model_input, geometry = preprocess(image, model.input_size)
+        loaded.append((record, image, model_input, geometry))
+    if loaded:
+        points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
+        for b, (record, image, _, geometry) in enumerate(loaded):
+            if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
+                record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
+                log(f"hupbench predict: error: {record['error']}")
+                continue
+            result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
+            record.update(
+                ok=True, image_size={"width": geometry.width, "height": geometry.height},
+                camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
+                K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
+                keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
+                keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
+            )
+            if overlay_dir is not None:
+                stem = _unique_stem(Path(record["path"]).stem, used_stems)
+                drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
+                overlays.append(write_png(overlay_dir / f"{stem}_overlay.png", drawn))
+                record["overlay"] = str(overlays[-1])
 
 
 def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]:

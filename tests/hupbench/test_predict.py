@@ -25,14 +25,13 @@ from datagen import keypoints as kp
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.overlay import draw_prediction, keypoint_color, line_width
+from hupbench.images import decode_image, expand_inputs
 from hupbench.predict import (
     CAMERA_ASSUMED,
     CAMERA_USER,
     PAD_VALUE,
     InputGeometry,
     _compact_json,
-    decode_image,
-    expand_inputs,
     keypoints_for_image,
     load_onnx_model,
     parse_intrinsics,
