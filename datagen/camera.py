@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from datagen import tolerances as tol
-from datagen.geometry import _check_last, invert_transform, make_transform
+from datagen.geometry import check_last_axes, invert_transform, make_transform
 
 #: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -78,7 +78,7 @@ def swap_gl_cv_axes(T_world_cam: np.ndarray) -> np.ndarray:
     Returns:
         (..., 4, 4) float64 the same pose in the other convention.
     """
-    T_world_cam = _check_last(T_world_cam, (4, 4), "T_world_cam")
+    T_world_cam = check_last_axes(T_world_cam, (4, 4), "T_world_cam")
     return T_world_cam @ _FLIP_YZ
 
 
@@ -99,9 +99,9 @@ def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0,
     Returns:
         (4, 4) float64 ``T_cam_world`` (OpenCV axes).
     """
-    eye = _check_last(eye_world, (3,), "eye_world").reshape(3)
-    target = _check_last(target_world, (3,), "target_world").reshape(3)
-    up = _check_last(up_world, (3,), "up_world").reshape(3)
+    eye = check_last_axes(eye_world, (3,), "eye_world").reshape(3)
+    target = check_last_axes(target_world, (3,), "target_world").reshape(3)
+    up = check_last_axes(up_world, (3,), "up_world").reshape(3)
     forward = target - eye
     dist = np.linalg.norm(forward)
     if dist < tol.MIN_PROJECTION_DEPTH_M:
@@ -134,8 +134,8 @@ def project_points(points_cam: np.ndarray, K: np.ndarray, behind: str = "raise")
     """
     if behind not in ("raise", "nan"):
         raise ValueError(f"behind must be 'raise' or 'nan', got {behind!r}")
-    points_cam = _check_last(points_cam, (3,), "points_cam")
-    K = _check_last(K, (3, 3), "K")
+    points_cam = check_last_axes(points_cam, (3,), "points_cam")
+    K = check_last_axes(K, (3, 3), "K")
     z = points_cam[..., 2]
     bad = z < tol.MIN_PROJECTION_DEPTH_M
     if np.any(bad) and behind == "raise":

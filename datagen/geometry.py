@@ -14,7 +14,7 @@ import numpy as np
 from datagen import tolerances as tol
 
 
-def _check_last(x: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
+def check_last_axes(x: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     if x.ndim < len(shape) or x.shape[x.ndim - len(shape):] != shape:
         want = "(..., " + ", ".join(map(str, shape)) + ")"
@@ -33,7 +33,7 @@ def skew(v: np.ndarray) -> np.ndarray:
     Returns:
         (..., 3, 3) float64 with ``skew(v) @ u == cross(v, u)``.
     """
-    v = _check_last(v, (3,), "v")
+    v = check_last_axes(v, (3,), "v")
     out = np.zeros(v.shape[:-1] + (3, 3))
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
@@ -50,7 +50,7 @@ def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
     Returns:
         (..., 3, 3) float64 rotation matrices.
     """
-    r = _check_last(axis_angle, (3,), "axis_angle")
+    r = check_last_axes(axis_angle, (3,), "axis_angle")
     theta = np.linalg.norm(r, axis=-1)[..., None, None]
     K = skew(r)
     small = theta < tol.SMALL_ANGLE_RAD
@@ -63,7 +63,7 @@ def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
 
 def check_rotation(R: np.ndarray, name: str = "R") -> np.ndarray:
     """Validate (..., 3, 3) rotation matrices (orthonormal, det +1)."""
-    R = _check_last(R, (3, 3), name)
+    R = check_last_axes(R, (3, 3), name)
     err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
     if err > tol.ROTATION_ORTHONORMAL:
         raise ValueError(f"{name} is not orthonormal (max |R^T R - I| = {err:.2e})")
@@ -121,8 +121,8 @@ def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     Returns:
         (..., 4, 4) float64.
     """
-    R = _check_last(R, (3, 3), "R")
-    t = _check_last(t, (3,), "t")
+    R = check_last_axes(R, (3, 3), "R")
+    t = check_last_axes(t, (3,), "t")
     batch = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
     T = np.zeros(batch + (4, 4))
     T[..., :3, :3] = R
@@ -140,7 +140,7 @@ def invert_transform(T_a_b: np.ndarray) -> np.ndarray:
     Returns:
         (..., 4, 4) float64.
     """
-    T_a_b = _check_last(T_a_b, (4, 4), "T_a_b")
+    T_a_b = check_last_axes(T_a_b, (4, 4), "T_a_b")
     R = T_a_b[..., :3, :3]
     Rt = np.swapaxes(R, -1, -2)
     return make_transform(Rt, -np.einsum("...ij,...j->...i", Rt, T_a_b[..., :3, 3]))
@@ -156,8 +156,8 @@ def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
     Returns:
         (..., N, 3) float64 points in frame a.
     """
-    T_a_b = _check_last(T_a_b, (4, 4), "T_a_b")
-    points_b = _check_last(points_b, (3,), "points_b")
+    T_a_b = check_last_axes(T_a_b, (4, 4), "T_a_b")
+    points_b = check_last_axes(points_b, (3,), "points_b")
     return np.einsum("...ij,...nj->...ni", T_a_b[..., :3, :3], points_b) + T_a_b[..., None, :3, 3]
 
 
@@ -173,7 +173,7 @@ def euler_to_matrix(angles: np.ndarray, order: str = "xyz") -> np.ndarray:
     """
     if len(order) != 3 or set(order) - set("xyz"):
         raise ValueError(f"order must be three letters from 'xyz', got {order!r}")
-    angles = _check_last(angles, (3,), "angles")
+    angles = check_last_axes(angles, (3,), "angles")
     R = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
     for k, axis in enumerate(order):
         v = np.zeros(angles.shape[:-1] + (3,))

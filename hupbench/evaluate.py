@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from hupbench import metrics as M
+from hupbench import metrics
 
 __all__ = ["LATENCY_RUNS", "count_flops", "format_table", "measure_latency_ms", "run_eval"]
 
@@ -174,7 +174,7 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
     if drift > CORNER_FRAME_TOL_M:
         raise ValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
                          f"(probe) frame: the dataset does not place the probe at the world origin")
-    half_turn = M.symmetry_permutation(corners_world.mean(axis=0), M.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
+    half_turn = metrics.symmetry_permutation(corners_world.mean(axis=0), metrics.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
     return (tuple(range(kp.NUM_CORNERS)), half_turn)
 
 
@@ -195,7 +195,7 @@ def _model_format(path: Path) -> str:
     return "onnx" if suffix == ".onnx" else "pytorch"
 
 
-class _Model:
+class EvalModel:
     """What eval needs of either format: name, sizes, a batch predictor, and the objects to time."""
 
     def __init__(self, path: Path) -> None:
@@ -316,7 +316,7 @@ def format_table(results: dict) -> str:
                                      f"{f(m['mpjpe_mm']['probe'])} mm")),
         ("root-relative hand MPJPE", f"{f(m['root_relative_hand_mpjpe_mm'])} mm"),
         ("probe MPJPE, half-turn symmetric", f"{f(m['probe_symmetric_mpjpe_mm'])} mm"),
-        ("spread ratio x / y / z", " / ".join(f(m["spread_ratio"][a]) for a in M.SPREAD_AXES)),
+        ("spread ratio x / y / z", " / ".join(f(m["spread_ratio"][a]) for a in metrics.SPREAD_AXES)),
         ("PA-MPJPE hand", f"{f(m['pa_mpjpe_hand_mm'])} mm"),
         ("3D PCK AUC 0-50 mm", f(m["pck_auc_0_50mm"], "{:.3f}")),
         ("2D error", f"{f(m['pixel_error_px'])} px"),
@@ -340,8 +340,8 @@ def _symmetric_probe_error(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, l
     except ValueError as exc:
         log(f"warning: no half-turn symmetric probe error: {exc}")
         return None
-    errors, choice = M.probe_symmetric_errors_mm(pred3d, gt3d, group)
-    plain = float(M.keypoint_errors_mm(pred3d, gt3d)[:, kp.CORNER_SLICE].mean())
+    errors, choice = metrics.probe_symmetric_errors_mm(pred3d, gt3d, group)
+    plain = float(metrics.keypoint_errors_mm(pred3d, gt3d)[:, kp.CORNER_SLICE].mean())
     log(f"probe MPJPE {plain:.2f} mm; minimised over the half turn about the probe's long axis {errors.mean():.2f} mm "
         f"(the half-turned corner labels were closer on {100.0 * np.mean(choice != 0):.1f} % of frames)")
     return float(errors.mean())
@@ -349,12 +349,12 @@ def _symmetric_probe_error(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, l
 
 def _spread_ratio(pred3d: np.ndarray, gt3d: np.ndarray, log) -> dict[str, float | None]:
     """``metrics.spread_ratios``, logged, with a warning naming every axis below ``SPREAD_RATIO_WARN``."""
-    ratios = M.spread_ratios(pred3d, gt3d)
+    ratios = metrics.spread_ratios(pred3d, gt3d)
     shown = ", ".join(f"{a} {'-' if r is None else f'{r:.2f}'}" for a, r in ratios.items())
     log(f"spread ratio of predicted to true 3D keypoints across frames (1 = varies like the truth): {shown}")
-    for axis in M.collapsed_axes(ratios):
+    for axis in metrics.collapsed_axes(ratios):
         log(f"warning: predicted 3D keypoints barely vary along the camera {axis} axis across frames: spread ratio "
-            f"{ratios[axis]:.2f} < {M.SPREAD_RATIO_WARN} of the truth's "
+            f"{ratios[axis]:.2f} < {metrics.SPREAD_RATIO_WARN} of the truth's "
             f"(the model may give one {axis} for every image)")
     return ratios
 
@@ -467,14 +467,14 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     from hupbench.export import check_output_file
     from hupbench.provenance import git_commit
     from hupbench.results import blank_results, write_results
-    from hupbench.training.run_log import hardware_description
+    from hupbench.provenance import hardware_description
 
     _model_format(model_path)
     if out is not None:  # an unwritable --out is refused before minutes of work
         _resolve_out(out, run_name, "")
         check_output_file(out)
     manifest = _check_dataset(dataset, split)
-    net = _Model(model_path)
+    net = EvalModel(model_path)
     out_path, run_name = _resolve_out(out, run_name, net.run_name)
     check_output_file(out_path)
     if out_path.parent.is_dir():
@@ -490,10 +490,10 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world"),
                                                reader.manifest)}
 
-    errors = M.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
+    errors = metrics.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
     width, height = (int(v) for v in manifest["image_size"])
-    pixel_error = M.pixel_error_px(M.normalized_to_pixels(pred2d, width, height),
-                                   M.normalized_to_pixels(gt2d, width, height))
+    pixel_error = metrics.pixel_error_px(metrics.normalized_to_pixels(pred2d, width, height),
+                                   metrics.normalized_to_pixels(gt2d, width, height))
     background_names = (manifest.get("backgrounds") or {}).get("names")
     results = blank_results("measured", run_name)
     parameters, flops = net.cost()
@@ -508,18 +508,18 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
                           "split": split, "frames": len(reader), "name": f"hupbench {dataset.resolve().name} "
                                                                           f"({total:,} frames)"}
     results["metrics"] = {
-        "mpjpe_mm": M.split_from_errors_mm(errors) | {"all_averaging": M.ALL_AVERAGING},
-        "root_relative_hand_mpjpe_mm": M.root_relative_mpjpe_mm(pred3d, gt3d),
-        "pa_mpjpe_hand_mm": M.pa_mpjpe_mm(pred3d, gt3d),
-        "pck_auc_0_50mm": M.pck_auc_from_errors(errors),
+        "mpjpe_mm": metrics.split_from_errors_mm(errors) | {"all_averaging": metrics.ALL_AVERAGING},
+        "root_relative_hand_mpjpe_mm": metrics.root_relative_mpjpe_mm(pred3d, gt3d),
+        "pa_mpjpe_hand_mm": metrics.pa_mpjpe_mm(pred3d, gt3d),
+        "pck_auc_0_50mm": metrics.pck_auc_from_errors(errors),
         "pixel_error_px": pixel_error,
         "probe_symmetric_mpjpe_mm": _symmetric_probe_error(pred3d, gt3d, fields, log),
         "spread_ratio": _spread_ratio(pred3d, gt3d, log),
     }
     results["breakdowns"] = {
-        "latitude": M.breakdown_mpjpe_mm(errors, M.latitude_labels(fields["theta"])),
-        "z_ego": M.breakdown_mpjpe_mm(errors, M.z_ego_labels(fields["z_ego"])),
-        "background": M.breakdown_mpjpe_mm(errors, M.background_labels(fields["background_id"], background_names)),
+        "latitude": metrics.breakdown_mpjpe_mm(errors, metrics.latitude_labels(fields["theta"])),
+        "z_ego": metrics.breakdown_mpjpe_mm(errors, metrics.z_ego_labels(fields["z_ego"])),
+        "background": metrics.breakdown_mpjpe_mm(errors, metrics.background_labels(fields["background_id"], background_names)),
     }
     if latency:
         results["latency_ms_per_image"] = _measured_latency(net, out_path, run_name, log, progress)

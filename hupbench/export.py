@@ -62,7 +62,7 @@ ONNX_SCHEMA = "1"
 PARITY_MAX_3D_MM = 0.1
 #: points closer to the camera plane than this are projected as if at this depth (metres), so an
 #: untrained or diverged model's points2d stay finite
-MIN_PROJECTION_DEPTH_M = 1e-3
+EXPORT_DEPTH_CLAMP_M = 1e-3
 #: frames of real images the parity check runs
 PARITY_FRAMES = 8
 #: metadata key prefix
@@ -82,7 +82,7 @@ class ContractModule(nn.Module):
         image: (B, 3, S, S) float32 RGB in [0, 1].
         Returns ``(points2d, points3d)``: (B, N, 2) normalised [-1, 1] of the input image and
         (B, N, 3) metres, OpenCV camera frame of K_input. Without a 2D head, points2d is the
-        projection of points3d with K_input (depth clamped to >= ``MIN_PROJECTION_DEPTH_M``).
+        projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``).
     """
 
     def __init__(self, model: nn.Module, K_input, input_size: int) -> None:
@@ -103,7 +103,7 @@ class ContractModule(nn.Module):
         points2d = getattr(out, "points2d", None)
         if points2d is None:
             fx, fy, cx, cy = self.intrinsics.unbind(0)
-            z = points3d[..., 2].clamp(min=MIN_PROJECTION_DEPTH_M)            # (B, N)
+            z = points3d[..., 2].clamp(min=EXPORT_DEPTH_CLAMP_M)            # (B, N)
             u = fx * points3d[..., 0] / z + cx                                   # (B, N) pixels
             v = fy * points3d[..., 1] / z + cy
             points2d = torch.stack([u, v], dim=-1) * (2.0 / self.input_size) + (1.0 / self.input_size - 1.0)

@@ -3,6 +3,7 @@ decoded with OpenCV whose C-library complaints become the file's error or a note
 
 Numpy and OpenCV only (no torch): the inference path imports it.
 """
+
 from __future__ import annotations
 
 import contextlib

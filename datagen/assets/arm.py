@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation
+from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation
 from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
 
 MM = 1e-3
@@ -132,7 +132,7 @@ def forearm_mesh(R_world_hand: np.ndarray, wrist_world: np.ndarray, flexion: flo
     R_world_hand = check_rotation(R_world_hand, "R_world_hand")
     if R_world_hand.shape != (3, 3):
         raise ValueError(f"R_world_hand must be (3, 3), got {R_world_hand.shape}")
-    wrist_world = _check_last(wrist_world, (3,), "wrist_world").reshape(3)
+    wrist_world = check_last_axes(wrist_world, (3,), "wrist_world").reshape(3)
     verts, faces = _forearm_rest(spec)
     R_world_forearm = R_world_hand @ wrist_rotation(flexion, deviation).T
     return trimesh.Trimesh(verts @ R_world_forearm.T + wrist_world, faces, process=False)

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from datagen.geometry import _check_last, axis_angle_to_matrix
+from datagen.geometry import check_last_axes, axis_angle_to_matrix
 from datagen.assets.hand_anatomy import (
     NUM_JOINTS,
     POSE_DIM,
@@ -107,7 +107,7 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
         is where a rest-pose point ``p_rest`` rigidly attached to joint j goes.
     """
     pose = check_pose(pose)
-    trans = _check_last(trans, (3,), "trans")
+    trans = check_last_axes(trans, (3,), "trans")
     joints, _ = rest_skeleton(scale)
     batch = pose.shape[:-1]
     R = axis_angle_to_matrix(pose.reshape(batch + (NUM_JOINTS, 3)))  # (..., 16, 3, 3)

@@ -36,7 +36,7 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.geometry import (
-    _check_last,
+    check_last_axes,
     axis_angle_to_matrix,
     euler_to_matrix,
     matrix_to_axis_angle,
@@ -247,8 +247,8 @@ def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0), sc
     Returns:
         (48,) or (B, 48) float64 pose.
     """
-    angles = _check_last(angles, (15, 3), "angles")
-    g = _check_last(global_axis_angle, (3,), "global_axis_angle")
+    angles = check_last_axes(angles, (15, 3), "angles")
+    g = check_last_axes(global_axis_angle, (3,), "global_axis_angle")
     A = anatomical_frames(scale)
     R = A @ euler_to_matrix(angles, "xyz") @ np.swapaxes(A, -1, -2)
     joints_aa = matrix_to_axis_angle(R).reshape(angles.shape[:-2] + (45,))

@@ -9,6 +9,7 @@ Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the stored image. World =
     probe frame.
 """
+
 from __future__ import annotations
 
 import ctypes

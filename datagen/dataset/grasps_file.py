@@ -1,4 +1,5 @@
 """The grasps file a dataset is rendered from (``grasps.npz``, written by ``hupbench grasps``): read and checked."""
+
 from __future__ import annotations
 
 import io

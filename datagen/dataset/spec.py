@@ -7,6 +7,7 @@ The frame index is the mixed-radix number of (grasp, z_ego, background, glove, v
 and frame ``i`` is a pure function of (config, i): its camera comes from the sphere, its lamp from a
 generator seeded with (seed, i).
 """
+
 from __future__ import annotations
 
 import math

@@ -60,6 +60,7 @@ background shows the other's object), background or glove. When a smaller silhou
 a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
 the frames involved does.
 """
+
 from __future__ import annotations
 
 import json

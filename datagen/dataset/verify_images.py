@@ -2,6 +2,7 @@
 background and glove (the statistics and their measured margins: docs/robustness.md, section verify).
 
 Numpy and OpenCV only; :mod:`datagen.dataset.verify` runs them per frame."""
+
 from __future__ import annotations
 
 import math

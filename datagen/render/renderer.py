@@ -21,7 +21,7 @@ import numpy as np
 from datagen.render import gl
 from datagen.camera import Intrinsics, swap_gl_cv_axes
 from datagen.dataset.contract import MODALITIES, SEG_LABELS
-from datagen.geometry import _check_last, invert_transform
+from datagen.geometry import check_last_axes, invert_transform
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 
@@ -87,7 +87,7 @@ class PointLight:
     intensity: float = 2.0
 
     def __post_init__(self) -> None:
-        _check_last(self.position_world, (3,), "light position_world")
+        check_last_axes(self.position_world, (3,), "light position_world")
         if not np.isfinite(self.intensity) or self.intensity < 0:
             raise ValueError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
 
@@ -179,7 +179,7 @@ class Renderer:
         """
         pyrender = self._pyrender
         modalities = check_modalities(modalities)
-        T_cam_world = _check_last(T_cam_world, (4, 4), "T_cam_world")
+        T_cam_world = check_last_axes(T_cam_world, (4, 4), "T_cam_world")
         if T_cam_world.shape != (4, 4):
             raise ValueError(f"T_cam_world must be (4, 4), got {T_cam_world.shape}")
         if not self._part_nodes:

@@ -14,7 +14,7 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.assets.arm import ArmSpec, forearm_mesh
-from datagen.geometry import _check_last, axis_angle_to_matrix, check_rotation, transform_points
+from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation, transform_points
 from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, check_pose, clamp_pose
 from datagen.assets.probe import ProbeSpec, build_probe
@@ -54,10 +54,10 @@ class Grasp:
         self.hand_pose = check_pose(self.hand_pose, "hand_pose")
         if self.hand_pose.ndim != 1:
             raise ValueError(f"hand_pose must be (48,), got {self.hand_pose.shape}")
-        self.hand_trans = _check_last(self.hand_trans, (3,), "hand_trans")
+        self.hand_trans = check_last_axes(self.hand_trans, (3,), "hand_trans")
         if self.hand_trans.shape != (3,):
             raise ValueError(f"hand_trans must be (3,), got {self.hand_trans.shape}")
-        T = _check_last(self.T_world_probe, (4, 4), "T_world_probe")
+        T = check_last_axes(self.T_world_probe, (4, 4), "T_world_probe")
         if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
             raise ValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")
         check_rotation(T[:3, :3], "T_world_probe rotation")

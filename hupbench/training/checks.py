@@ -1,4 +1,5 @@
 """What a training config may hold, checked before anything is read (``train.py: error: FIELD ...``)."""
+
 from __future__ import annotations
 
 import math

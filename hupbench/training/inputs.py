@@ -1,4 +1,5 @@
 """The training run's inputs: the dataset read through the contract, the frame cache, the loaders and their threads."""
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -14,6 +14,7 @@ Run folder (``run_dir``):
     tb/                  TensorBoard scalars
     summary.json         written last, only when the run finished: final metrics and timings
 """
+
 from __future__ import annotations
 
 import math
@@ -33,12 +34,12 @@ from hupbench.errors import USER_ERRORS, error_line
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
 from hupbench.training.frame_cache import model_images
-from hupbench.provenance import run_info
+from hupbench.provenance import hardware_description, run_info
 from hupbench.training.checks import check_config
 from hupbench.training.losses import loss_terms
 from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
-from hupbench.training.run_log import MetricsLog, hardware_description
+from hupbench.training.run_log import MetricsLog
 from hupbench.training.inputs import TrainData, setup_data
 
 

@@ -1,4 +1,5 @@
 """The training loss: HOPE-Net's weighted MSE terms (2D init, 2D, 3D), probe-symmetry aware."""
+
 from __future__ import annotations
 
 from omegaconf import DictConfig

@@ -1,12 +1,11 @@
-"""A run's log: ``metrics.jsonl`` (train and val events, written atomically, resumable), TensorBoard scalars, progress lines, and the hardware it ran on."""
+"""A run's log: ``metrics.jsonl`` (train and val events, written atomically, resumable), TensorBoard
+scalars and progress lines."""
+
 from __future__ import annotations
 
 import errno
 import json
-import platform
 from pathlib import Path
-
-import torch
 
 from datagen.io import DiskFullError, write_bytes
 
@@ -67,18 +66,3 @@ class MetricsLog:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
-
-
-def hardware_description(device: torch.device) -> str:
-    """One line naming the machine a run used (the leaderboard's hardware column)."""
-    if device.type == "cuda":
-        return f"{torch.cuda.get_device_name(device)} (CUDA {torch.version.cuda})"
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"CPU: {cpu}, {torch.get_num_threads()} threads"

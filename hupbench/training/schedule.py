@@ -1,4 +1,5 @@
 """What the optimiser sees when: Adam's warm-up and cosine learning rate, and the epoch order of the frames."""
+
 from __future__ import annotations
 
 import math

@@ -1,4 +1,6 @@
-"""Validation: MPJPE of a model on a split (hand / probe / all, mm), and batch-norm statistics recomputed from un-augmented frames."""
+"""Validation: MPJPE of a model on a split (hand / probe / all, mm), and batch-norm statistics
+recomputed from un-augmented frames."""
+
 from __future__ import annotations
 
 import torch

@@ -98,7 +98,7 @@ def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, mo
         points2d = batch["keypoints_2d"].double().numpy() + np.array([2 * 3.0 / width, 0.0])  # 3 px of the stored image
         return points2d, points3d
 
-    monkeypatch.setattr(EV._Model, "predict", shifted_truth)
+    monkeypatch.setattr(EV.EvalModel, "predict", shifted_truth)
     r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "shifted.json", latency=False, batch_size=7, **QUIET)["results"]
     m = r["metrics"]
     assert m["mpjpe_mm"]["all"] == pytest.approx(5.2, abs=1e-4)
@@ -131,7 +131,7 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
         points3d[..., 0] = points3d[0, :, 0]  # the same x for every frame, per keypoint
         return batch["keypoints_2d"].double().numpy(), points3d
 
-    monkeypatch.setattr(EV._Model, "predict", turned_and_frozen)
+    monkeypatch.setattr(EV.EvalModel, "predict", turned_and_frozen)
     lines = []
     r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "turned.json", latency=False, batch_size=len(reader),
                     log=lines.append)["results"]
