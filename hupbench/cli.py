@@ -24,7 +24,7 @@ OWN_OPTION_VERBS = {"leaderboard", "predict", "eval", "export", "quickstart"}
 
 def _quickstart(args: list[str]) -> int:
     from hupbench.config import compose
-    from hupbench.quickstart import run_quickstart, summary_lines
+    from hupbench.verbs.quickstart import run_quickstart, summary_lines
 
     parser = argparse.ArgumentParser(prog="hupbench quickstart", epilog="overrides: Hydra key=value of "
                                      "conf/quickstart.yaml, e.g. out_dir=/tmp/qs stop_after=dataset")
@@ -41,7 +41,7 @@ def _quickstart(args: list[str]) -> int:
 def _grasps(overrides: list[str]) -> int:
     from datagen.grasps.synthesis import check_run_options, check_selection
     from hupbench.config import build, compose
-    from hupbench.grasps import run_grasps
+    from hupbench.verbs.grasps import run_grasps
 
     cfg = compose("grasps", overrides)
     # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
@@ -63,7 +63,7 @@ def _grasps(overrides: list[str]) -> int:
 
 def _train_grasp_sampler(overrides: list[str]) -> int:
     from hupbench.config import compose
-    from hupbench.grasps import run_train_grasp_sampler
+    from hupbench.verbs.grasps import run_train_grasp_sampler
 
     result = run_train_grasp_sampler(compose("train_grasp_sampler", overrides))
     print(f"hupbench train-grasp-sampler finished in {result['seconds']:.0f} s: {result['corpus_size']} "
@@ -73,7 +73,7 @@ def _train_grasp_sampler(overrides: list[str]) -> int:
 
 def _generate(overrides: list[str]) -> int:
     from hupbench.config import compose
-    from hupbench.generate import run_generate
+    from hupbench.verbs.generate import run_generate
 
     result = run_generate(compose("generate", overrides))
     rate = result["frames_rendered"] / result["seconds"] if result["seconds"] > 0 else 0.0
@@ -99,7 +99,7 @@ def _count(minimum: int):
 
 
 def _verify(args: list[str]) -> int:
-    from hupbench.generate import run_verify
+    from hupbench.verbs.generate import run_verify
 
     parser = argparse.ArgumentParser(prog="hupbench verify", description="Re-check a dataset: files, counts, "
                                      "projections, depth, masks, and each RGB image against its own labels.")
@@ -133,7 +133,7 @@ def _verify(args: list[str]) -> int:
 
 
 def _leaderboard(args: list[str]) -> int:
-    from hupbench.leaderboard import run_leaderboard
+    from hupbench.evaluation.leaderboard import run_leaderboard
 
     parser = argparse.ArgumentParser(prog="hupbench leaderboard")
     parser.add_argument("--dir", default="leaderboard", help="leaderboard folder holding results/ (and logs/)")
@@ -156,8 +156,8 @@ def _whole_number_at_least_1(text: str) -> int:
 
 
 def _predict(args: list[str]) -> int:
-    # only hupbench.predict: the inference path must run without torch
-    from hupbench.predict import DEFAULT_BATCH_SIZE, run_predict
+    # only hupbench.inference.predict: the inference path must run without torch
+    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, run_predict
 
     parser = argparse.ArgumentParser(prog="hupbench predict",
                                      description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.")
@@ -178,7 +178,7 @@ def _predict(args: list[str]) -> int:
 
 
 def _eval(args: list[str]) -> int:
-    from hupbench.evaluate import run_eval
+    from hupbench.evaluation.evaluate import run_eval
 
     def _positive_int(text: str) -> int:
         """argparse type of --batch-size, --threads: a whole number >= 1 (argparse names the option)."""
@@ -218,7 +218,7 @@ def _eval(args: list[str]) -> int:
 
 
 def _export(args: list[str]) -> int:
-    from hupbench.export import OPSET, run_export
+    from hupbench.inference.export import OPSET, run_export
 
     parser = argparse.ArgumentParser(prog="hupbench export")
     parser.add_argument("checkpoint", help="a hupbench checkpoint (.pt)")

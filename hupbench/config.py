@@ -16,12 +16,18 @@ def _focal_px(focal_mm: float, sensor_mm: float, width: int, height: int) -> flo
     fitted to the larger image side (:meth:`datagen.camera.Intrinsics.from_lens`)."""
     from datagen.camera import Intrinsics
 
+    if not all(_is_positive_whole(v) for v in (width, height)):
+        return float("nan")  # the config's own check names the bad width or height, which it checks first
     return Intrinsics.from_lens(float(focal_mm), float(sensor_mm), int(width), int(height)).fx
 
 
 def _centre_px(side: int) -> float:
     """``${centre_px:SIDE}``: the principal point of an image side, pixels (its middle)."""
-    return int(side) / 2.0
+    return int(side) / 2.0 if _is_positive_whole(side) else float("nan")
+
+
+def _is_positive_whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
 
 
 # the camera configs derive fx, fy, cx, cy from the lens and the image size, so that changing the image

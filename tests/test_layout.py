@@ -117,7 +117,14 @@ NEVER = {
                        "datagen.dataset.ray_launcher", "datagen.dataset.sphere"),
     "datagen.dataset": ("datagen.grasps",),
     "datagen.grasps": ("datagen.dataset",),
+    "hupbench.training": ("hupbench.evaluation", "hupbench.inference", "hupbench.verbs", "hupbench.cli"),
+    "hupbench.evaluation": ("hupbench.training", "hupbench.verbs", "hupbench.cli"),
+    "hupbench.inference": ("hupbench.training", "hupbench.evaluation", "hupbench.verbs", "hupbench.cli"),
+    "hupbench.verbs": ("hupbench.cli",),
 }
+#: the torch-free inference path (DESIGN.md: predict runs where torch is not installed)
+TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupbench.inference.overlay",
+              "hupbench.errors", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
 SHARED_TOP = ("datagen.keypoints", "datagen.geometry", "datagen.rotations_torch", "datagen.mesh_distance",
               "datagen.camera", "datagen.tolerances", "datagen.io", "datagen.processes")
@@ -162,3 +169,15 @@ def test_no_two_source_files_share_a_name():
             by_name[path.name].append(str(path.relative_to(REPO)))
     clashes = {k: v for k, v in by_name.items() if len(v) > 1}
     assert not clashes, clashes
+
+
+def test_the_inference_path_imports_no_torch():
+    """Importing the torch-free modules (in a fresh interpreter) loads no torch, at any depth."""
+    import subprocess
+    import sys
+
+    code = ("import sys, importlib; [importlib.import_module(m) for m in %r]; "
+            "sys.exit(3 if 'torch' in sys.modules else 0)" % (TORCH_FREE,))
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f"importing {TORCH_FREE} loaded torch (exit {proc.returncode}): {proc.stderr[-2000:]}"
+

@@ -17,7 +17,7 @@ from datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
 from datagen.dataset.verify import verify
 from hupbench.cli import main
 from hupbench.config import compose
-from hupbench.generate import run_generate
+from hupbench.verbs.generate import run_generate
 
 from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 

@@ -12,12 +12,12 @@ from test_export import (  # the session's one export, shared
     make_checkpoint,
 )
 
-from hupbench import evaluate as EV
+from hupbench.evaluation import evaluate as EV
 from hupbench import metrics as M
 from hupbench.checkpoint import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
-from hupbench.results import load_results
+from hupbench.evaluation.results import load_results
 
 QUIET = {"log": lambda *_: None}
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from datagen import keypoints as kp
-from hupbench import export as E
+from hupbench.inference import export as E
 from hupbench.checkpoint import (
     file_sha256,
     load_model,

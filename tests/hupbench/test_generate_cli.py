@@ -4,7 +4,7 @@ import pytest
 
 from hupbench.cli import main
 from hupbench.config import compose
-from hupbench.generate import run_generate
+from hupbench.verbs.generate import run_generate
 
 
 @pytest.mark.parametrize("override, message", [

@@ -4,7 +4,7 @@ import numpy as np
 
 from hupbench.cli import main
 from hupbench.config import compose
-from hupbench.grasps import run_grasps
+from hupbench.verbs.grasps import run_grasps
 
 # The refinement is chaotic: a last-digit difference between CPUs' kernels (ATen's AVX-512 / AVX2 / scalar
 # code, MKL's code paths) grows from 1e-7 to 1e-2 rad or m in its 40 steps and decides which candidates pass

@@ -12,7 +12,7 @@ import PIL
 import pytest
 
 from hupbench.cli import main
-from hupbench.leaderboard import (
+from hupbench.evaluation.leaderboard import (
     DPI,
     FIGSIZE_IN,
     LATENCY_PLOT,
@@ -27,7 +27,7 @@ from hupbench.leaderboard import (
     run_leaderboard,
     table_row,
 )
-from hupbench.results import blank_results, load_results, write_results
+from hupbench.evaluation.results import blank_results, load_results, write_results
 
 COMMITTED = Path(__file__).resolve().parents[2] / "leaderboard"
 OUTPUTS = (README, LATENCY_PLOT, TRAINING_PLOT)
@@ -147,7 +147,7 @@ def test_plots_have_fixed_size_and_no_date(synthetic_board):
 def test_rebuild_in_a_second_process_gives_identical_bytes(synthetic_board):
     run_leaderboard(synthetic_board)
     first = {name: (synthetic_board / name).read_bytes() for name in OUTPUTS}
-    code = f"from hupbench.leaderboard import run_leaderboard; run_leaderboard({str(synthetic_board)!r})"
+    code = f"from hupbench.evaluation.leaderboard import run_leaderboard; run_leaderboard({str(synthetic_board)!r})"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
     for name in OUTPUTS:
         assert (synthetic_board / name).read_bytes() == first[name], name
@@ -254,7 +254,8 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
 
 
 def test_spread_constants_match_the_metrics():
-    from hupbench import leaderboard, metrics
+    from hupbench.evaluation import leaderboard
+    from hupbench import metrics
 
     assert leaderboard.SPREAD_AXES == metrics.SPREAD_AXES
     assert leaderboard.SPREAD_RATIO_WARN == metrics.SPREAD_RATIO_WARN

@@ -26,8 +26,8 @@ from conftest import assert_clean_error, run_cli
 from test_leaderboard import COMMITTED, OUTPUTS, measured, write_log
 from test_matrix_predict import REPO, run_in_namespace
 
-from hupbench.leaderboard import run_leaderboard
-from hupbench.results import write_results
+from hupbench.evaluation.leaderboard import run_leaderboard
+from hupbench.evaluation.results import write_results
 
 pytestmark = pytest.mark.matrix
 

@@ -29,8 +29,8 @@ from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run
 from onnx import TensorProto, helper
 from test_predict import S, contract_metadata, dot_image, make_dot_model, photo_like
 
-from hupbench.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
-from hupbench.predict import InputGeometry
+from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
+from hupbench.inference.predict import InputGeometry
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.matrix

@@ -24,9 +24,9 @@ from onnx import TensorProto, helper, numpy_helper
 from datagen import keypoints as kp
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
-from hupbench.overlay import draw_prediction, keypoint_color, line_width
-from hupbench.images import decode_image, expand_inputs
-from hupbench.predict import (
+from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
+from hupbench.inference.images import decode_image, expand_inputs
+from hupbench.inference.predict import (
     CAMERA_ASSUMED,
     CAMERA_USER,
     PAD_VALUE,
@@ -564,7 +564,7 @@ def test_predict_does_not_import_torch(dot_model, image_set, tmp_path):
 @pytest.mark.slow
 def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path):
     """export an untrained HOPE-Net, predict on rendered frames, compare with PyTorch on the reader's inputs."""
-    export = pytest.importorskip("hupbench.export")
+    export = pytest.importorskip("hupbench.inference.export")
     import torch
 
     from hupbench.checkpoint import load_model, save_checkpoint

@@ -6,7 +6,7 @@ import pytest
 
 from hupbench.cli import main
 from hupbench.config import compose
-from hupbench.quickstart import run_quickstart
+from hupbench.verbs.quickstart import run_quickstart
 
 
 def test_quickstart_writes_preview_and_run_record(tmp_path):

@@ -2,7 +2,7 @@
 export, predict) prints no Python warning, no library chatter a user cannot act on.
 
 Warnings that mean nothing to the user are filtered at their source, only there (e.g. the ONNX
-exporter's in hupbench/export.py); this test runs the whole pipeline in a fresh interpreter with
+exporter's in hupbench/inference/export.py); this test runs the whole pipeline in a fresh interpreter with
 PYTHONWARNINGS unset, so a new one anywhere shows up. Measured on a 2-core CPU machine: 33 s and 40 s
 (export 9 s, dataset 11 s, train 6 s, grasps 5 s), 117 s while another process loaded both cores; so
 it runs in the default suite (the slow mark is for tests over a minute on an idle machine).

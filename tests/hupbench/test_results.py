@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hupbench.results import (
+from hupbench.evaluation.results import (
     SCHEMA_VERSION,
     blank_results,
     load_results,

@@ -53,7 +53,7 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
     # one run per folder (or shard), from the default grasps to the manifest
     with run_lock(out_dir, cfg.shard) as lock:
         if make_grasps and not grasps_path.is_file():
-            from hupbench.grasps import run_grasps
+            from hupbench.verbs.grasps import run_grasps
 
             log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
             run_grasps(grasps_cfg, log=log)

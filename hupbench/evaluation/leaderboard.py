@@ -1,7 +1,7 @@
 """The leaderboard: a table and two plots rebuilt from ``leaderboard/results/*.json``.
 
 ``hupbench leaderboard [--dir leaderboard]`` reads every results file
-(validated by :mod:`hupbench.results`; a bad file is an error naming it),
+(validated by :mod:`hupbench.evaluation.results`; a bad file is an error naming it),
 and regenerates ``README.md`` (the table, notes and per-row details),
 ``mpjpe_vs_latency.png`` (error against inference latency with the Pareto
 frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
@@ -41,7 +41,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from datagen.io import atomic_output, clean_stale_tmp
-from hupbench.results import load_results
+from hupbench.evaluation.results import load_results
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"

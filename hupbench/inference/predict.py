@@ -88,8 +88,8 @@ import numpy as np
 from datagen.camera import resize_intrinsics, resize_points
 from datagen.render.draw import write_png
 from datagen.io import clean_stale_tmp, write_bytes
-from hupbench.overlay import draw_prediction
-from hupbench.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
+from hupbench.inference.overlay import draw_prediction
+from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
 
 
 SCHEMA_VERSION = 1

@@ -2,8 +2,8 @@
 
 The model runs over one split of a dataset (``hupbench.data.HUPDataset`` at the model's input
 size, batched, under ``torch.inference_mode``), the metrics of :mod:`hupbench.metrics` are
-computed on all frames, and a results JSON in schema version 2 (:mod:`hupbench.results`) is
-written. A checkpoint runs through :class:`hupbench.export.ContractModule`, the same wrapper the
+computed on all frames, and a results JSON in schema version 2 (:mod:`hupbench.evaluation.results`) is
+written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the same wrapper the
 ONNX export uses, so both formats report the same quantities.
 
 What the numbers are:
@@ -120,7 +120,7 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
     progress bar: the exporter takes as long as the timings)."""
     from tqdm import tqdm
 
-    from hupbench.export import ort_run, ort_session
+    from hupbench.inference.export import ort_run, ort_session
 
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
     runtimes = (["pytorch"] if torch_module is not None else []) + ["onnxruntime"]
@@ -210,7 +210,7 @@ class EvalModel:
 
     def _load_checkpoint(self, path: Path) -> None:
         from hupbench.checkpoint import load_model
-        from hupbench.export import contract_model, default_run_name
+        from hupbench.inference.export import contract_model, default_run_name
 
         model, payload = load_model(path)
         self.format = "pytorch"
@@ -226,7 +226,7 @@ class EvalModel:
         self.session = None
 
     def _load_onnx(self, path: Path) -> None:
-        from hupbench.export import ort_session, read_onnx_metadata
+        from hupbench.inference.export import ort_session, read_onnx_metadata
 
         meta = read_onnx_metadata(path)
         if len(meta["keypoint_names"]) != kp.NUM_KEYPOINTS:
@@ -248,14 +248,14 @@ class EvalModel:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
             return points2d.double().numpy(), points3d.double().numpy()
-        from hupbench.export import ort_run
+        from hupbench.inference.export import ort_run
 
         points2d, points3d = ort_run(self.session, self.onnx_path, images.numpy())
         return points2d.astype(np.float64), points3d.astype(np.float64)
 
     def cost(self) -> tuple[int, int]:
         """(parameters, FLOPs per image) of the architecture, rebuilt from its config when needed."""
-        from hupbench.export import ContractModule
+        from hupbench.inference.export import ContractModule
         from models.build import build_model
 
         module = self.module
@@ -438,7 +438,7 @@ def _measured_latency(net, out_path: Path, run_name: str, log, progress: bool) -
 
     if net.format == "onnx":
         return _latencies(None, net.onnx_path, net.input_size, torch.get_num_threads(), log, progress)
-    from hupbench.export import export_onnx, onnx_metadata
+    from hupbench.inference.export import export_onnx, onnx_metadata
 
     # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
     # a folder of the system's: a killed eval leaves it where the next one removes it
@@ -464,9 +464,9 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     from datagen.io import clean_stale_tmp
     from hupbench.checkpoint import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
-    from hupbench.export import check_output_file
+    from hupbench.inference.export import check_output_file
     from hupbench.provenance import git_commit
-    from hupbench.results import blank_results, write_results
+    from hupbench.evaluation.results import blank_results, write_results
     from hupbench.provenance import hardware_description
 
     _model_format(model_path)

@@ -84,16 +84,19 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
                                  f"set fast_overrides.{key} instead, or leave fast off")
     if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
         raise ValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
-    for key in ("fx", "fy", "cx", "cy"):
-        if not _is_number(cfg.camera[key]):
-            raise ValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
+    # the image size first: fx, fy, cx, cy are derived from it (conf/quickstart.yaml)
     for key in ("width", "height"):
         value = cfg.camera[key]
         if not _is_whole(value):
             raise ValueError(f"camera.{key} must be a whole number of pixels, got {value!r}")
+        if value < 1:
+            raise ValueError(f"camera.{key} must be a positive whole number of pixels, got {value}")
         if value > MAX_PREVIEW_SIDE:
             # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
             raise ValueError(f"camera.{key} must be at most {MAX_PREVIEW_SIDE} px, got {value}")
+    for key in ("fx", "fy", "cx", "cy"):
+        if not _is_number(cfg.camera[key]):
+            raise ValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
     for key in ("distance_m", "azimuth_deg", "elevation_deg"):
         if not _is_number(cfg.view[key]):
             raise ValueError(f"view.{key} must be a finite number, got {cfg.view[key]!r}")
@@ -228,11 +231,11 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
 
 
 def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, done, log) -> dict:
-    from hupbench.evaluate import run_eval
-    from hupbench.export import run_export
-    from hupbench.generate import run_generate, run_verify
-    from hupbench.grasps import run_grasps
-    from hupbench.predict import run_predict
+    from hupbench.evaluation.evaluate import run_eval
+    from hupbench.inference.export import run_export
+    from hupbench.verbs.generate import run_generate, run_verify
+    from hupbench.verbs.grasps import run_grasps
+    from hupbench.inference.predict import run_predict
     from hupbench.training.loop import run_train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
