@@ -38,6 +38,7 @@ import torch
 from torch import nn
 
 from datagen import keypoints as kp
+from hupbench.inference.model_file import META, ONNX_SCHEMA
 
 __all__ = [
     "OPSET",
@@ -56,8 +57,6 @@ OPSET = 18
 #: opsets ``--opset`` may ask for: the dynamo exporter's minimum to the newest torch's exporter writes
 #: (torch.onnx._constants.ONNX_MAX_OPSET, 23 in torch 2.13)
 OPSET_MIN = 18
-#: ONNX schema version written into metadata_props["hupbench.onnx_schema"]
-ONNX_SCHEMA = "1"
 #: largest allowed |onnxruntime - PyTorch| of points3d, millimetres
 PARITY_MAX_3D_MM = 0.1
 #: points closer to the camera plane than this are projected as if at this depth (metres), so an
@@ -65,8 +64,6 @@ PARITY_MAX_3D_MM = 0.1
 EXPORT_DEPTH_CLAMP_M = 1e-3
 #: frames of real images the parity check runs
 PARITY_FRAMES = 8
-#: metadata key prefix
-META = "hupbench."
 
 
 class ContractModule(nn.Module):

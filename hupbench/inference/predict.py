@@ -88,12 +88,12 @@ import numpy as np
 from datagen.camera import resize_intrinsics, resize_points
 from datagen.render.draw import write_png
 from datagen.io import clean_stale_tmp, write_bytes
+from hupbench.inference.model_file import ONNX_SCHEMA
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
 
 
 SCHEMA_VERSION = 1
-ONNX_SCHEMA = "1"
 DEFAULT_BATCH_SIZE = 16
 # a focal length or principal point beyond a million pixels is a typo (1e6 px on a 4000 px photo is a 0.2
 # degree field of view) and 1e308 overflows the 3D points to infinity
