@@ -211,7 +211,7 @@ def test_export_prints_no_exporter_noise(tmp_path):
     user (we use no torchvision operator): export_onnx shows neither. A fresh process, as torch's
     loggers write to the stderr they found at import."""
     script = (
-        "from hupbench import export as E\n"
+        "from hupbench.inference import export as E\n"
         "from models.build import build_model\n"
         "net = build_model({'name': 'resnet_regressor', 'backbone': 'resnet10', 'n_keypoints': 29})\n"
         "K = [[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]]\n"
