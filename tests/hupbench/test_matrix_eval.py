@@ -195,27 +195,40 @@ def test_fault_eval_disk_full(exported, tiny_dataset, tmp_path):
 
 
 def run_killed_then_again(argv: list[str], cwd: Path, seed: int, folder: Path, pattern: str,
-                          window_s: float) -> list[str]:
+                          window_s: float, attempts: int = 5) -> list[str]:
     """Run ``argv``; once a file matching ``pattern`` appears in ``folder`` (a temporary file: the run is
     writing), SIGKILL it at a seeded random moment within ``window_s`` s; then run it again to the end.
 
+    A fast machine can finish writing inside the window (the kill then lands after the rename and tests
+    nothing): such an attempt is thrown away, ``folder`` emptied, and the kill tried again with half the
+    window, up to ``attempts`` times.
+
     Returns:
-        The names in ``folder`` right after the kill (what the killed run left).
+        The names in ``folder`` right after the kill (what the killed run left, a temporary file among them).
     """
     import os
+    import shutil
     import signal
     import subprocess
     import time
 
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd, env=env)
-    while not list(folder.glob(pattern)) and proc.poll() is None:
-        time.sleep(0.005)
-    time.sleep(float(np.random.default_rng(seed).uniform(0.0, window_s)))
-    assert proc.poll() is None, "the run finished before its kill"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    left = sorted(p.name for p in folder.iterdir())
+    rng = np.random.default_rng(seed)
+    for _ in range(attempts):
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd, env=env)
+        while not list(folder.glob(pattern)) and proc.poll() is None:
+            time.sleep(0.005)
+        time.sleep(float(rng.uniform(0.0, window_s)))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        left = sorted(p.name for p in folder.iterdir())
+        if list(folder.glob(pattern)):
+            break
+        for path in folder.iterdir():  # the run outran its kill: start over with a shorter window
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+        window_s /= 2
+    else:
+        raise AssertionError(f"{attempts} runs each finished writing before their kill: {argv}")
     done = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=900)
     assert done.returncode == 0, f"killed leaving {left}, then: {done.stderr[-3000:]}"
     return left
