@@ -8,8 +8,9 @@ Subpackages, in the order data flows:
 Shared modules at the top: ``keypoints`` (the one owner of keypoint names and order), ``geometry``
 (rotations and transforms), ``rotations_torch``, ``mesh_distance`` (exact point-to-triangle-mesh
 distances, free functions on ``(n, 3)`` arrays), ``camera`` (intrinsics and projection),
-``tolerances`` (every tolerance of datagen), ``io`` (atomic writes, locks) and ``processes``
-(worker counts).
+``tolerances`` (every tolerance of datagen), ``io`` (atomic writes, locks), ``processes``
+(worker counts) and ``input_checks`` (whole numbers, finite numbers and shapes, one wording for
+datagen and hupbench).
 
 May import: numpy, scipy, torch, trimesh, pyrender, OpenCV and itself. Never ``models`` or
 ``hupbench`` (data flows one way: datagen -> dataset on disk -> hupbench).

@@ -16,6 +16,7 @@ import numpy as np
 
 from datagen import tolerances as tol
 from datagen.geometry import check_last_axes, invert_transform, make_transform
+from datagen.input_checks import check_int
 
 #: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -38,9 +39,7 @@ class Intrinsics:
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-                raise ValueError(f"image {name} must be a positive int, got {v!r}")
+            check_int(getattr(self, name), f"image {name}", low=1)
         for name in ("fx", "fy"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:

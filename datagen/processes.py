@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+from datagen.input_checks import check_int
+
 #: processes per usable CPU core a verb may start; far more only thrashes (measured: ``workers=100000``
 #: spawned processes until the machine stalled)
 MAX_WORKERS_PER_CORE = 4
@@ -20,8 +22,7 @@ def check_workers(workers, what: str = "workers") -> int:
     Raises:
         ValueError: naming ``what``, the value and the limit.
     """
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"{what} must be a whole number >= 1, got {workers!r}")
+    check_int(workers, what, low=1)
     cores = usable_cores()
     if workers > MAX_WORKERS_PER_CORE * cores:
         raise ValueError(f"{what}={workers} is more than {MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this "

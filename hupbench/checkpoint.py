@@ -32,6 +32,8 @@ import torch
 from torch import nn
 
 from datagen.io import write_with
+from datagen.input_checks import check_int
+from hupbench.inference.model_file import INPUT_SIZE_RANGE
 from models.build import build_model, load_checkpoint_state
 
 FORMAT = "hupbench-checkpoint"
@@ -90,8 +92,7 @@ def _check_fields(payload: dict, path: Path) -> None:
         raise ValueError(f"checkpoint {path}: model must be a state dict (name -> tensor), "
                          f"got {type(payload['model']).__name__}")
     size = payload["input_size"]
-    if isinstance(size, bool) or not isinstance(size, int) or not 16 <= size <= 2048:
-        raise ValueError(f"checkpoint {path}: input_size must be an int from 16 to 2048, got {size!r}")
+    check_int(size, f"checkpoint {path}: input_size", *INPUT_SIZE_RANGE)
     K = payload["K_input"]
     try:
         values = [float(v) for row in K for v in row] if len(K) == 3 and all(len(row) == 3 for row in K) else None
@@ -101,8 +102,7 @@ def _check_fields(payload: dict, path: Path) -> None:
         raise ValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal lengths, "
                          f"got {K!r:.80}")
     step = payload["step"]
-    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
-        raise ValueError(f"checkpoint {path}: step must be an int >= 0, got {step!r}")
+    check_int(step, f"checkpoint {path}: step", low=0)
 
 
 def load_model(path: str | Path) -> tuple[nn.Module, dict[str, Any]]:

@@ -86,14 +86,14 @@ def _generate(overrides: list[str]) -> int:
 
 
 def _count(minimum: int):
-    """An argparse type: a whole number >= ``minimum`` (the message names what came)."""
+    """An argparse type: a whole number >= ``minimum`` (argparse names the option; the message, what came)."""
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}")
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"must be a whole number >= {minimum}, got {text!r}")
         return value
     return parse
 
@@ -144,17 +144,6 @@ def _leaderboard(args: list[str]) -> int:
     return 0
 
 
-def _whole_number_at_least_1(text: str) -> int:
-    """argparse type: an integer >= 1 (argparse names the option in its error)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return value
-
-
 def _predict(args: list[str]) -> int:
     # only hupbench.inference.predict: the inference path must run without torch
     from hupbench.inference.predict import DEFAULT_BATCH_SIZE, run_predict
@@ -167,7 +156,7 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--K", metavar="fx,fy,cx,cy", help="intrinsics of the original images, pixels "
                         "(default: the training camera scaled to each image)")
     parser.add_argument("--no-overlay", action="store_true", help="write the JSON only")
-    parser.add_argument("--batch-size", type=_whole_number_at_least_1, default=DEFAULT_BATCH_SIZE,
+    parser.add_argument("--batch-size", type=_count(1), default=DEFAULT_BATCH_SIZE,
                         help="images per onnxruntime call")
     ns = parser.parse_args(args)
     result = run_predict(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay, batch_size=ns.batch_size,
@@ -180,26 +169,16 @@ def _predict(args: list[str]) -> int:
 def _eval(args: list[str]) -> int:
     from hupbench.evaluation.evaluate import run_eval
 
-    def _positive_int(text: str) -> int:
-        """argparse type of --batch-size, --threads: a whole number >= 1 (argparse names the option)."""
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text!r}") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text!r}")
-        return value
-
     parser = argparse.ArgumentParser(prog="hupbench eval")
     parser.add_argument("model", help="a hupbench checkpoint (.pt) or an exported ONNX model (.onnx)")
     parser.add_argument("dataset", help="a finished dataset folder (with manifest.json)")
     parser.add_argument("--split", default="test", choices=("train", "val", "test"))
     parser.add_argument("--out", help="results JSON (default leaderboard/results/<run name>.json); its stem is the run name")
     parser.add_argument("--run-name", help="default: the training run name, the ONNX metadata's, or the stem of --out")
-    parser.add_argument("--batch-size", type=_positive_int, default=32)
+    parser.add_argument("--batch-size", type=_count(1), default=32)
     parser.add_argument("--latency", action=argparse.BooleanOptionalAction, default=True,
                         help="time PyTorch and onnxruntime at batch 1 and 32")
-    parser.add_argument("--threads", type=_positive_int,
+    parser.add_argument("--threads", type=_count(1),
                         help="intra-op threads of PyTorch and onnxruntime (default: torch's)")
     parser.add_argument("--training-command", help="the committed command that reproduces the training run")
     parser.add_argument("--training-log", help="the run's metrics.jsonl relative to the leaderboard folder")

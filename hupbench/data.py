@@ -27,11 +27,13 @@ import torch
 
 from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part of the reader's API)
 from datagen.dataset.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
+from datagen.input_checks import check_int
+from hupbench.inference.model_file import INPUT_SIZE_RANGE
 
 
 #: the model input side, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a
 #: split's frame cache (N x S x S x 3 bytes) outgrows any disk long before a model could use the detail
-MIN_INPUT_SIZE, MAX_INPUT_SIZE = 16, 2048
+MIN_INPUT_SIZE, MAX_INPUT_SIZE = INPUT_SIZE_RANGE
 
 
 def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
@@ -89,10 +91,7 @@ class ReaderConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if (isinstance(self.input_size, bool) or not isinstance(self.input_size, int)
-                or not MIN_INPUT_SIZE <= self.input_size <= MAX_INPUT_SIZE):
-            raise ValueError(f"input_size must be an int >= {MIN_INPUT_SIZE} and <= {MAX_INPUT_SIZE}, "
-                             f"got {self.input_size!r}")
+        check_int(self.input_size, "input_size", MIN_INPUT_SIZE, MAX_INPUT_SIZE)
         for name, high in (("rotate_deg", 180.0), ("photometric", 1.0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= high:

@@ -56,4 +56,8 @@ def hydra_error_line(exc: BaseException, config: str = "conf/train.yaml", exampl
         append = re.search(r"use (\+\S+)", text)
         return (f"cannot override {key.group(1)!r}: the key is not in the config ({config} and its groups "
                 f"list the keys{f'; {append.group(1)} adds it as a new key' if append else ''})")
+    missing = re.search(r"Missing mandatory value: ([\w.]+)", text)
+    if missing:  # a required value (??? in the config) that no config or override set
+        return (f"{missing.group(1)} is required ('???' in {config}) and nothing set it: give it as an override "
+                f"({missing.group(1)}=VALUE) or in the config that should set it")
     return text

@@ -128,7 +128,7 @@ TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupben
               "hupbench.errors", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
 SHARED_TOP = ("datagen.keypoints", "datagen.geometry", "datagen.rotations_torch", "datagen.mesh_distance",
-              "datagen.camera", "datagen.tolerances", "datagen.io", "datagen.processes")
+              "datagen.camera", "datagen.tolerances", "datagen.io", "datagen.processes", "datagen.input_checks")
 
 
 def test_subpackages_import_only_what_their_docstring_allows():

@@ -18,6 +18,7 @@ import numpy as np
 
 from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation
 from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
+from datagen.input_checks import check_shape
 
 MM = 1e-3
 
@@ -129,9 +130,7 @@ def forearm_mesh(R_world_hand: np.ndarray, wrist_world: np.ndarray, flexion: flo
     """
     import trimesh
 
-    R_world_hand = check_rotation(R_world_hand, "R_world_hand")
-    if R_world_hand.shape != (3, 3):
-        raise ValueError(f"R_world_hand must be (3, 3), got {R_world_hand.shape}")
+    R_world_hand = check_shape(check_rotation(R_world_hand, "R_world_hand"), (3, 3), "R_world_hand")
     wrist_world = check_last_axes(wrist_world, (3,), "wrist_world").reshape(3)
     verts, faces = _forearm_rest(spec)
     R_world_forearm = R_world_hand @ wrist_rotation(flexion, deviation).T

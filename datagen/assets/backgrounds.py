@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import numbers
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -39,6 +38,7 @@ import cv2
 import numpy as np
 
 from datagen.assets.background_scenes import SCENES
+from datagen.input_checks import check_int
 
 #: the built-in backgrounds; the position in this tuple is the background_id
 BUILTIN_NAMES: tuple[str, ...] = (
@@ -224,8 +224,7 @@ def composite(foreground_rgba: np.ndarray, background_rgb: np.ndarray) -> np.nda
 
 
 def _check_index(index, count: int, what: str) -> int:
-    if isinstance(index, bool) or not isinstance(index, numbers.Integral):
-        raise TypeError(f"{what} must be an int, got {type(index).__name__}")
+    check_int(index, what, error=TypeError)
     if not 0 <= index < count:
         raise ValueError(f"{what} {index} out of range, expected 0..{count - 1}")
     return int(index)
@@ -233,8 +232,7 @@ def _check_index(index, count: int, what: str) -> int:
 
 def _check_size(width, height) -> tuple[int, int]:
     for name, value in (("width", width), ("height", height)):
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise TypeError(f"{name} must be an int (pixels), got {type(value).__name__}")
+        check_int(value, f"{name} (pixels)", error=TypeError)
         if value < MIN_SIZE_PX:
             raise ValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
     return int(width), int(height)

@@ -36,6 +36,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from datagen import tolerances as tol
+from datagen.input_checks import check_int
 
 
 # --------------------------------------------------------------------------- spec
@@ -172,8 +173,7 @@ class ProbeSpec:
         for f in fields(self):
             v = getattr(self, f.name)
             if f.type in ("int", int):
-                if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                    raise ValueError(f"ProbeSpec.{f.name} must be an int, got {v!r}")
+                check_int(v, f"ProbeSpec.{f.name}")
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
                     raise ValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")

@@ -31,6 +31,7 @@ from typing import Iterable
 import numpy as np
 
 from datagen import keypoints as kp
+from datagen.input_checks import is_whole
 
 SCHEMA_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -87,7 +88,7 @@ def _fail(path: Path, what: str) -> ValueError:
 
 
 def _positive_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+    return is_whole(value) and value > 0
 
 
 def read_manifest(root: str | Path, split: str | None = None, needs: str = "this reader expects") -> dict:
@@ -156,7 +157,7 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
                           "(datagen.keypoints' order)")
     counts = manifest["counts"]
     if not isinstance(counts, dict) or set(counts) - set(SPLITS) or \
-            any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in counts.values()):
+            any(not is_whole(v) or v < 0 for v in counts.values()):
         raise _fail(path, f"counts must map {list(SPLITS)} to frame counts >= 0, got {counts!r}")
     size = manifest["image_size"]
     if not (isinstance(size, list) and len(size) == 2 and all(_positive_int(v) for v in size)):

@@ -29,6 +29,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from datagen.input_checks import check_int
+
 RAY_MISSING = "launcher=ray needs Ray: pip install 'hupbench[ray]'"
 LAUNCHERS = ("local", "ray")
 #: chunks queued on one actor at a time: one rendering, one waiting, so no actor idles
@@ -67,16 +69,12 @@ class RayOptions:
     def __post_init__(self) -> None:
         if self.address is not None and (not isinstance(self.address, str) or not self.address):
             raise ValueError(f"ray.address must be null, 'auto' or 'ray://host:port', got {self.address!r}")
-        if self.num_workers is not None and (isinstance(self.num_workers, bool) or not isinstance(self.num_workers, int)
-                                             or self.num_workers < 1):
-            raise ValueError(f"ray.num_workers must be null or a positive int, got {self.num_workers!r}")
+        check_int(self.num_workers, "ray.num_workers", low=1, optional=True)
         if isinstance(self.cpus_per_worker, bool) or not isinstance(self.cpus_per_worker, (int, float)) \
                 or not math.isfinite(self.cpus_per_worker) or self.cpus_per_worker <= 0:
             raise ValueError(f"ray.cpus_per_worker must be a positive number, got {self.cpus_per_worker!r}")
         for name in ("actor_restarts", "max_retries"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"ray.{name} must be an int >= 0, got {value!r}")
+            check_int(getattr(self, name), f"ray.{name}", low=0)
         if not isinstance(self.start_timeout_s, (int, float)) or not self.start_timeout_s > 0:
             raise ValueError(f"ray.start_timeout_s must be > 0 seconds, got {self.start_timeout_s!r}")
 

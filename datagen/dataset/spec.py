@@ -20,6 +20,7 @@ from datagen.dataset.contract import SPLITS
 from datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
 from datagen.render.renderer import MODALITIES, check_modalities
 from datagen import keypoints as kp
+from datagen.input_checks import check_int, is_whole
 
 
 GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
@@ -41,14 +42,6 @@ LAMP_INTENSITY_PER_WATT = 0.0075
 Z_EGO_RANGE_M = (0.1, 10.0)
 #: the largest image side the renderer is asked for (as predict's largest input)
 MAX_IMAGE_SIDE = 8192
-
-
-def _whole(name: str, value, low: int, high: int | None) -> None:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"dataset.{name} must be a whole number, got {value!r}")
-    if value < low or (high is not None and value > high):
-        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
-        raise ValueError(f"dataset.{name} must be {bound}, got {value}")
 
 
 def _distances(z_ego_m) -> tuple:
@@ -101,10 +94,9 @@ class DatasetSpec:
         object.__setattr__(self, "z_ego_m", _distances(self.z_ego_m))
         for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", 1, MAX_IMAGE_SIDE),
                                 ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
-            _whole(name, getattr(self, name), low, high)
+            check_int(getattr(self, name), f"dataset.{name}", low, high)
         splits = dict(self.splits)
-        if set(splits) - set(SPLITS) or any(isinstance(v, bool) or not isinstance(v, int) or v < 0
-                                            for v in splits.values()):
+        if set(splits) - set(SPLITS) or any(not is_whole(v) or v < 0 for v in splits.values()):
             raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
         object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
         object.__setattr__(self, "modalities", check_modalities(self.modalities))

@@ -54,6 +54,7 @@ import numpy as np
 
 from datagen.camera import look_at
 from datagen.geometry import invert_transform, make_transform
+from datagen.input_checks import check_shape, is_whole
 
 VARIANTS = ("ceil", "floor")
 AXES = ("body", "forearm")
@@ -105,7 +106,7 @@ class SphereSpec:
             if isinstance(e, str):
                 if e not in EXCLUDE_RULES:
                     raise ValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {e!r}")
-            elif isinstance(e, bool) or not isinstance(e, int):
+            elif not is_whole(e):
                 raise ValueError(f"sphere exclude entries must be view ids or one of {EXCLUDE_RULES}, got {e!r}")
         object.__setattr__(self, "exclude", exclude)
 
@@ -142,9 +143,7 @@ def unit_directions(angles: np.ndarray) -> np.ndarray:
         (V, 3) float64 unit vectors (longitude 0, longitude 90 deg, north components): the
         direction from the target to the camera.
     """
-    angles = np.asarray(angles, dtype=np.float64)
-    if angles.ndim != 2 or angles.shape[1] != 2:
-        raise ValueError(f"angles must be (V, 2) (theta, phi), got {angles.shape}")
+    angles = check_shape(np.asarray(angles, dtype=np.float64), ("V", 2), "angles (theta, phi)")
     theta, phi = angles[:, 0], angles[:, 1]
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)
 

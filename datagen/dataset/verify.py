@@ -76,6 +76,7 @@ import numpy as np
 from datagen import keypoints as kp
 from datagen import tolerances as tol
 from datagen.camera import project_points
+from datagen.input_checks import is_whole
 from datagen.dataset.contract import (
     ANNOTATIONS,
     MANIFEST,
@@ -500,7 +501,7 @@ def _jpeg_quality(manifest: dict) -> int | None:
     config = manifest.get("config")
     dataset = config.get("dataset") if isinstance(config, dict) else None
     quality = dataset.get("jpeg_quality") if isinstance(dataset, dict) else None
-    if isinstance(quality, int) and not isinstance(quality, bool) and 0 <= quality <= 100:
+    if is_whole(quality) and 0 <= quality <= 100:
         return quality
     return DatasetSpec.jpeg_quality
 

@@ -48,6 +48,7 @@ from datagen.render.renderer import SEG_LABELS
 from datagen.render.scene import ARM_RGB, GLOVE_RGB
 from datagen.render import gl
 from datagen import keypoints as kp
+from datagen.input_checks import check_int
 from datagen.dataset.chunks import (
     ChunkOutput,
     _WorkerDiskFull,
@@ -178,8 +179,8 @@ def check_workers(workers, launcher: str = "local") -> None:
     than :func:`datagen.processes.check_workers` allows (Ray actors may live on other machines)."""
     if launcher == "local":
         check_processes(workers)
-    elif isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}")
+    else:
+        check_int(workers, "workers", low=1)
 
 
 def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,

@@ -20,6 +20,7 @@ import numpy as np
 
 from datagen.grasps.frames import T_gen_probe, check_euler_deg
 from datagen.assets.probe import Probe
+from datagen.input_checks import check_int
 
 #: GrabNet's ball radius: large enough to hold a hand grasping a 165 mm probe at its centroid
 DEFAULT_RADIUS_M = 0.15
@@ -47,12 +48,9 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
         TypeError: ``n`` or ``seed`` is not an integer.
         ValueError: ``n < 1`` or ``radius_m`` not a finite positive number.
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
-        raise TypeError(f"n must be an int, got {type(n).__name__}")
-    if n < 1:
-        raise ValueError(f"n must be >= 1, got {n}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"seed must be an int, got {type(seed).__name__}")
+    check_int(n, "n", error=TypeError)
+    check_int(n, "n", low=1)
+    check_int(seed, "seed", error=TypeError)
     radius_m = float(radius_m)
     if not (np.isfinite(radius_m) and radius_m > 0.0):
         raise ValueError(f"radius_m must be a finite positive number of metres, got {radius_m}")

@@ -53,6 +53,7 @@ import torch
 from torch import nn
 
 from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
+from datagen.input_checks import check_int
 from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
 
 #: network input unit of the BPS distances (centimetres: features of 0..15 instead of 0..0.15)
@@ -79,10 +80,8 @@ CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
 
 
 def _positive_int(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(f"{name} must be an int, got {type(value).__name__}")
-    if value < 1:
-        raise ValueError(f"{name} must be >= 1, got {value}")
+    check_int(value, name, error=TypeError)
+    check_int(value, name, low=1)
 
 
 def _finite_float(name: str, value, minimum: float = 0.0, strict: bool = False) -> None:
@@ -136,8 +135,7 @@ class CVAEConfig:
     def __post_init__(self) -> None:
         for name in ("n_bps", "latent_dim", "hidden", "bps_embed", "epochs", "batch_size"):
             _positive_int(name, getattr(self, name))
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative int, got {self.seed!r}")
+        check_int(self.seed, "seed", low=0)
         _finite_float("lr", self.lr, strict=True)
         for name in ("kl_weight", "keypoint_weight", "rot_weight", "trans_weight", "joint_weight"):
             _finite_float(name, getattr(self, name))

@@ -23,6 +23,7 @@ from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe
 from datagen.grasps.params import pack, unit_to_angles, unpack
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
+from datagen.input_checks import check_int
 from datagen.rotations_torch import matrix_to_rot6d
 
 
@@ -97,9 +98,7 @@ class CorpusConfig:
 
     def __post_init__(self) -> None:
         for name in ("n_orientations", "starts_per_orientation", "bps_n"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be a positive int, got {v!r}")
+            check_int(getattr(self, name), name, low=1)
 
 
 def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.ndarray]:

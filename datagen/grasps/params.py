@@ -45,8 +45,3 @@ def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
 def unit_to_angles(joint_unit: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
     """(..., 15, 3) in [0, 1] -> anatomical angles, radians; limits (15, 3, 2)."""
     return limits[..., 0] + joint_unit * (limits[..., 1] - limits[..., 0])
-
-
-def angles_to_unit(angles: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`unit_to_angles` (not clamped)."""
-    return (angles - limits[..., 0]) / (limits[..., 1] - limits[..., 0])

@@ -39,6 +39,7 @@ from datagen.geometry import axis_angle_to_matrix as aa_to_matrix_np
 from datagen.assets.hand import HandModel
 from datagen.assets.hand_mesh import bone_radii
 from datagen.assets.probe import Probe
+from datagen.input_checks import check_int
 from datagen.rotations_torch import axis_angle_to_matrix
 
 #: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours
@@ -77,9 +78,7 @@ class RefineConfig:
     min_contact_z_m: float | None = None
 
     def __post_init__(self) -> None:
-        v = self.iterations
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ValueError(f"iterations must be an int >= 0, got {v!r}")
+        v = check_int(self.iterations, "iterations", low=0)
         if v > MAX_ITERATIONS:
             raise ValueError(f"iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
         for name in ("lr_rotation", "lr_translation", "lr_joints", "clip_norm", "clinical_margin_m"):

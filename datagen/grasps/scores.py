@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 from datagen.geometry import matrix_to_axis_angle
 from datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
+from datagen.input_checks import check_shape
 
 CONTACT_MM = 5.0
 LENS_CLEARANCE_MM = 10.0
@@ -186,9 +187,7 @@ def farthest_point_selection(features: np.ndarray, n: int, rng: np.random.Genera
     Returns:
         (n,) int64 row indices in the order picked.
     """
-    features = np.asarray(features, dtype=np.float64)
-    if features.ndim != 2:
-        raise ValueError(f"features must be (M, D), got {features.shape}")
+    features = check_shape(np.asarray(features, dtype=np.float64), ("M", "D"), "features")
     if not 1 <= n <= len(features):
         raise ValueError(f"cannot select {n} grasps from {len(features)} plausible ones")
     chosen = [int(rng.integers(len(features)))]

@@ -33,6 +33,7 @@ from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selecti
 from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.assets.probe import ProbeSpec, build_probe
+from datagen.input_checks import check_int, is_whole
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch (10^9 asked 67 GiB for the first array)
@@ -77,23 +78,17 @@ class GraspGenConfig:
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
         for name in ("starts_per_theta", "n_select"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be a positive int, got {v!r}")
+            check_int(getattr(self, name), name, low=1)
         if self.starts_per_theta > MAX_STARTS_PER_THETA:
             raise ValueError(f"starts_per_theta must be at most {MAX_STARTS_PER_THETA:,} (one orientation's starts "
                              f"are refined as one batch), got {self.starts_per_theta:,}")
-        v = self.short_refine_iterations
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ValueError(f"short_refine_iterations must be an int >= 0, got {v!r}")
+        v = check_int(self.short_refine_iterations, "short_refine_iterations", low=0)
         if v > MAX_ITERATIONS:
             raise ValueError(f"short_refine_iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
-        v = self.seed
-        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEED:
-            raise ValueError(f"seed must be a whole number from 0 to {MAX_SEED}, got {v!r}")
+        check_int(self.seed, "seed", 0, MAX_SEED)
         if self.pinned_ids is not None:
             ids = tuple(self.pinned_ids) if isinstance(self.pinned_ids, (list, tuple)) else ()
-            if not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
+            if not ids or not all(is_whole(i) for i in ids):
                 raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
             if len(set(ids)) != len(ids):
                 raise ValueError(f"pinned_ids must be unique, got {list(ids)}")
@@ -144,12 +139,9 @@ def check_run_options(threads, tile_px, platform, out_dir) -> Path:
     cores = usable_cores()
     most = MAX_WORKERS_PER_CORE * cores
     # torch starts that many threads at once; threads=100000 failed deep inside a later import
-    if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= most:
-        raise ValueError(f"threads must be a whole number from 1 to {most} ({MAX_WORKERS_PER_CORE} x the {cores} "
-                         f"CPU core(s) this process may use), got {threads!r}")
-    if isinstance(tile_px, bool) or not isinstance(tile_px, int) or not MIN_TILE_PX <= tile_px <= MAX_TILE_PX:
-        raise ValueError(f"sheet.tile_px must be a whole number of pixels from {MIN_TILE_PX} to {MAX_TILE_PX}, "
-                         f"got {tile_px!r}")
+    check_int(threads, "threads", 1, most,
+              hint=f" ({MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this process may use)")
+    check_int(tile_px, "sheet.tile_px", MIN_TILE_PX, MAX_TILE_PX, hint=" (pixels)")
     if platform is not None and platform not in PLATFORMS:
         raise ValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got {platform!r}")
     if not isinstance(out_dir, (str, Path)) or not str(out_dir).strip():
@@ -198,8 +190,8 @@ def generate_candidates(config: GraspGenConfig, hand_spec: HandSpec = HandSpec()
         "scores" (dict of (M,) arrays), "seconds" (float).
     """
     hand, probe = build_hand(hand_spec), build_probe(probe_spec)
-    rc = refine_config or RefineConfig()
-    energy = GraspEnergy(hand, probe, rc)
+    settings = refine_config or RefineConfig()
+    energy = GraspEnergy(hand, probe, settings)
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
     start_time = time.perf_counter()
@@ -210,7 +202,7 @@ def generate_candidates(config: GraspGenConfig, hand_spec: HandSpec = HandSpec()
             iterations = config.short_refine_iterations
         else:
             starts = random_starts(config.starts_per_theta, rng, hand.limits_rad, approach_azimuth(theta, probe))
-            iterations = rc.iterations
+            iterations = settings.iterations
         refined = refine(energy, starts, iterations=iterations)
         batches.append(refined)
         theta_index += [k] * len(refined)

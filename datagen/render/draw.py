@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from datagen import keypoints as kp
+from datagen.input_checks import check_shape
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -48,12 +49,9 @@ def draw_keypoints(image_rgb: np.ndarray, uv: np.ndarray, visible: np.ndarray | 
     image_rgb = np.asarray(image_rgb)
     if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
         raise ValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.shape != (kp.NUM_KEYPOINTS, 2):
-        raise ValueError(f"uv must be ({kp.NUM_KEYPOINTS}, 2), got {tuple(uv.shape)}")
+    uv = check_shape(np.asarray(uv, dtype=np.float64), (kp.NUM_KEYPOINTS, 2), "uv")
     visible = np.ones(kp.NUM_KEYPOINTS, dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
-    if visible.shape != (kp.NUM_KEYPOINTS,):
-        raise ValueError(f"visible must be ({kp.NUM_KEYPOINTS},), got {visible.shape}")
+    check_shape(visible, (kp.NUM_KEYPOINTS,), "visible")
     out = image_rgb.copy()
     ok = np.all(np.isfinite(uv), axis=1)
     fixed = np.round(np.where(ok[:, None], uv, 0.0) * (1 << _SHIFT)).astype(np.int64)

@@ -22,6 +22,7 @@ from datagen.render import gl
 from datagen.camera import Intrinsics, swap_gl_cv_axes
 from datagen.dataset.contract import MODALITIES, SEG_LABELS
 from datagen.geometry import check_last_axes, invert_transform
+from datagen.input_checks import check_shape
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 
@@ -179,9 +180,7 @@ class Renderer:
         """
         pyrender = self._pyrender
         modalities = check_modalities(modalities)
-        T_cam_world = check_last_axes(T_cam_world, (4, 4), "T_cam_world")
-        if T_cam_world.shape != (4, 4):
-            raise ValueError(f"T_cam_world must be (4, 4), got {T_cam_world.shape}")
+        T_cam_world = check_shape(check_last_axes(T_cam_world, (4, 4), "T_cam_world"), (4, 4), "T_cam_world")
         if not self._part_nodes:
             raise RuntimeError("the scene has no parts: call set_parts() first")
         T_world_cam_gl = swap_gl_cv_axes(invert_transform(T_cam_world))

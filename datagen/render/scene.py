@@ -19,6 +19,7 @@ from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, check_pose, clamp_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 from datagen.render.renderer import SEG_LABELS, MeshPart
+from datagen.input_checks import check_shape
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
@@ -51,12 +52,8 @@ class Grasp:
     T_world_probe: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self) -> None:
-        self.hand_pose = check_pose(self.hand_pose, "hand_pose")
-        if self.hand_pose.ndim != 1:
-            raise ValueError(f"hand_pose must be (48,), got {self.hand_pose.shape}")
-        self.hand_trans = check_last_axes(self.hand_trans, (3,), "hand_trans")
-        if self.hand_trans.shape != (3,):
-            raise ValueError(f"hand_trans must be (3,), got {self.hand_trans.shape}")
+        self.hand_pose = check_shape(check_pose(self.hand_pose, "hand_pose"), (48,), "hand_pose")
+        self.hand_trans = check_shape(check_last_axes(self.hand_trans, (3,), "hand_trans"), (3,), "hand_trans")
         T = check_last_axes(self.T_world_probe, (4, 4), "T_world_probe")
         if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
             raise ValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")

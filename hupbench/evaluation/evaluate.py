@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
+from datagen.input_checks import check_int
 from hupbench import metrics
 
 __all__ = ["LATENCY_RUNS", "count_flops", "format_table", "measure_latency_ms", "run_eval"]
@@ -232,6 +233,8 @@ class EvalModel:
         if len(meta["keypoint_names"]) != kp.NUM_KEYPOINTS:
             raise ValueError(f"{path} predicts {len(meta['keypoint_names'])} keypoints; the benchmark has "
                              f"{kp.NUM_KEYPOINTS}")
+        if not meta["model_config"]:  # eval rebuilds the architecture to count its parameters and FLOPs
+            raise ValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's cost")
         self.format = "onnx"
         self.payload = None
         self.model_config = meta["model_config"]
@@ -394,10 +397,8 @@ def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: s
         an unwritable output, a full disk. RuntimeError: the model fails or outputs NaN. In every case no
         results file is written.
     """
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    check_int(batch_size, "batch_size", low=1)
+    check_int(threads, "threads", low=1, optional=True)
     previous_threads = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)

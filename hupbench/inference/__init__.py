@@ -1,8 +1,9 @@
 """Inference: the exported model file and predictions on new images.
 
-Owns: the ONNX export with its metadata contract and parity check (``export``: needs torch; the
-contract's schema version and key prefix in ``model_file``, shared with ``predict``), and the
-torch-free path from an image file to 2D and 3D keypoints (``predict``, ``images``: reading and
+Owns: the model-file contract (``model_file``: the ONNX metadata's one writer and one reader, the
+check of the graph's declared input and outputs, and ``InputGeometry``, the pad-and-resize from an
+image to the model input as one 3 x 3 map), the ONNX export with its parity check (``export``: needs
+torch), and the torch-free path from an image file to 2D and 3D keypoints (``predict``, ``images``: reading and
 checking user images, ``overlay``: drawing the prediction).
 
 May import: ``models`` and ``hupbench`` top-level modules (``export`` only: it traces a checkpoint),

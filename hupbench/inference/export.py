@@ -26,7 +26,6 @@ file and raises, so no file that looks valid is left behind.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import warnings
@@ -38,7 +37,8 @@ import torch
 from torch import nn
 
 from datagen import keypoints as kp
-from hupbench.inference.model_file import META, ONNX_SCHEMA
+from datagen.input_checks import check_int
+from hupbench.inference.model_file import INPUT_SIZE_RANGE, check_io_shapes, read_metadata, write_metadata
 
 __all__ = [
     "OPSET",
@@ -87,8 +87,7 @@ class ContractModule(nn.Module):
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         if K.shape != (3, 3):
             raise ValueError(f"K_input must be (3, 3), got {tuple(K.shape)}")
-        if isinstance(input_size, bool) or not isinstance(input_size, int) or input_size < 1:
-            raise ValueError(f"input_size must be a positive int, got {input_size!r}")
+        check_int(input_size, "input_size", *INPUT_SIZE_RANGE)
         self.model = model
         self.input_size = input_size
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
@@ -131,25 +130,17 @@ def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
 
 
 def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str) -> dict[str, str]:
-    """The metadata_props of the ONNX contract, all strings (JSON where structured)."""
-    return {
-        META + "onnx_schema": ONNX_SCHEMA,
-        META + "input_size": str(int(payload["input_size"])),
-        META + "K_input": json.dumps(np.asarray(payload["K_input"], dtype=np.float64).tolist()),
-        META + "keypoint_names": json.dumps(list(kp.KEYPOINT_NAMES)),
-        META + "skeleton_edges": json.dumps([list(e) for e in kp.SKELETON_EDGES]),
-        META + "model_config": json.dumps(payload["model_config"], sort_keys=True),
-        META + "run_name": run_name,
-        META + "git_commit": git_commit,
-    }
+    """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`)."""
+    return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
+                          payload["model_config"], run_name, git_commit)
 
 
 def read_onnx_metadata(path: str | Path) -> dict[str, Any]:
-    """Read and check the hupbench metadata of an exported ONNX file (weights are not loaded).
+    """Read and check the hupbench metadata of an exported ONNX file and its graph's declared input and
+    outputs (weights are not loaded).
 
     Returns:
-        {"input_size": int, "K_input": (3, 3) list, "model_config": dict, "run_name": str,
-         "git_commit": str, "keypoint_names": list, "skeleton_edges": list}
+        :func:`model_file.read_metadata`'s dict.
     """
     import onnx
 
@@ -163,38 +154,10 @@ def read_onnx_metadata(path: str | Path) -> dict[str, Any]:
     props = {p.key: p.value for p in proto.metadata_props}
     if not props and path.stat().st_size == 0:
         raise ValueError(f"{path} is empty: not a hupbench ONNX export")
-    if props.get(META + "onnx_schema") != ONNX_SCHEMA:
-        raise ValueError(f"{path} is not a hupbench ONNX export (metadata hupbench.onnx_schema is "
-                         f"{props.get(META + 'onnx_schema')!r}, expected {ONNX_SCHEMA!r})")
-    meta = {"run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
-    for key, parse in (("input_size", int), ("K_input", json.loads), ("model_config", json.loads),
-                       ("keypoint_names", json.loads), ("skeleton_edges", json.loads)):
-        if META + key not in props:
-            raise ValueError(f"{path}: the hupbench metadata lacks {META + key}")
-        try:
-            meta[key] = parse(props[META + key])
-        except ValueError as exc:
-            raise ValueError(f"{path}: metadata {META + key} is not valid ({type(exc).__name__}: {exc}): "
-                             f"{props[META + key][:80]!r}") from exc
-    _check_metadata(meta, path)
-    _check_graph(proto.graph, meta["input_size"], path)
+    meta = read_metadata(props, str(path))
+    check_io_shapes({v.name: _dims(v) for v in proto.graph.input}, {v.name: _dims(v) for v in proto.graph.output},
+                    meta["input_size"], len(meta["keypoint_names"]), str(path))
     return meta
-
-
-def _check_metadata(meta: dict, path: Path) -> None:
-    size = meta["input_size"]
-    if not 16 <= size <= 2048:
-        raise ValueError(f"{path}: metadata hupbench.input_size must be from 16 to 2048, got {size}")
-    try:
-        K = np.asarray(meta["K_input"], dtype=np.float64)
-    except (TypeError, ValueError):
-        K = None
-    if K is None or K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"{path}: metadata hupbench.K_input must be a finite 3 x 3 matrix with positive focal "
-                         f"lengths, got {meta['K_input']!r:.80}")
-    if not isinstance(meta["model_config"], dict):
-        raise ValueError(f"{path}: metadata hupbench.model_config must be a JSON object, got "
-                         f"{type(meta['model_config']).__name__}")
 
 
 def _dims(value_info) -> list:
@@ -203,27 +166,6 @@ def _dims(value_info) -> list:
     for dim in value_info.type.tensor_type.shape.dim:
         dims.append(dim.dim_value if dim.HasField("dim_value") else (dim.dim_param or None))
     return dims
-
-
-def _check_graph(graph, input_size: int, path: Path) -> None:
-    """The graph's declared input and outputs against the contract and the metadata's input size: a file
-    whose metadata and graph disagree would otherwise fail deep inside onnxruntime on the first batch."""
-    inputs = {v.name: _dims(v) for v in graph.input}
-    outputs = {v.name: _dims(v) for v in graph.output}
-    expected = {"image": [3, input_size, input_size]}
-    if "image" not in inputs:
-        raise ValueError(f"{path}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
-    for name, width in (("points3d", 3), ("points2d", 2)):
-        if name not in outputs:
-            raise ValueError(f"{path}: the graph has no output {name!r} (outputs {sorted(outputs)})")
-        expected[name] = [kp.NUM_KEYPOINTS, width]
-    for name, tail in expected.items():
-        dims = inputs.get(name, outputs.get(name))
-        if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
-            shown = ", ".join(str(d) for d in dims)
-            raise ValueError(f"{path}: the graph's {name} is ({shown}), expected (batch, {', '.join(map(str, tail))})"
-                             + (f" for the metadata's hupbench.input_size {input_size}" if name == "image" else
-                                f" ({kp.NUM_KEYPOINTS} keypoints)"))
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
@@ -274,10 +216,8 @@ def check_opset(opset) -> int:
     """``opset`` when the exporter writes it: an int from :data:`OPSET_MIN` to torch's newest."""
     from torch.onnx._constants import ONNX_MAX_OPSET
 
-    if isinstance(opset, bool) or not isinstance(opset, int) or not OPSET_MIN <= opset <= ONNX_MAX_OPSET:
-        raise ValueError(f"opset must be an int from {OPSET_MIN} (the dynamo exporter's minimum) to {ONNX_MAX_OPSET} "
-                         f"(the newest this torch writes), got {opset!r}")
-    return opset
+    return check_int(opset, "opset", OPSET_MIN, ONNX_MAX_OPSET,
+                     hint=" (the dynamo exporter's minimum to the newest this torch writes)")
 
 
 def check_output_file(path: str | Path, option: str = "--out") -> Path:

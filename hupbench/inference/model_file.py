@@ -1,10 +1,266 @@
-"""The model-file contract's constants: what an exported ONNX file's ``metadata_props`` are called.
+"""The model-file contract: what ``hupbench export`` writes into an ONNX file, how every reader checks it,
+and how an image becomes the model's input.
 
-Imports nothing (the torch-free predict path and the torch exporter both read it), so the schema
-version a file is written with and the version a reader accepts are one number.
+Imports numpy, json and ``datagen.input_checks`` only: the torch-free predict path, the exporter and eval all read files through
+:func:`read_metadata` and :func:`check_io_shapes`, so the schema a file is written with and the schema a
+reader accepts cannot drift apart.
+
+Metadata (``metadata_props``, strings): ``hupbench.onnx_schema`` (ONNX_SCHEMA), ``hupbench.input_size``
+(S, an int from 16 to 2048), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model
+input), ``hupbench.keypoint_names`` and ``hupbench.skeleton_edges`` (JSON), ``hupbench.model_config``
+(JSON object), ``hupbench.run_name`` and ``hupbench.git_commit``. Graph: input ``image`` (B, 3, S, S);
+outputs ``points3d`` (B, N, 3) and ``points2d`` (B, N, 2) for the N keypoint names.
+
+Input geometry: an H x W image is padded to a centred L x L square (L = max(H, W)) and resized to S x S;
+with pixel centres at integers that is one affine map of the plane, the 3 x 3 matrix
+:attr:`InputGeometry.image_to_input`. It maps pixels (homogeneous points), intrinsics (``A @ K``) and,
+inverted, the model's predictions back onto the image.
 """
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from datagen.input_checks import check_int, is_whole
+
+__all__ = ["INPUT_SIZE_RANGE", "META", "ONNX_SCHEMA", "InputGeometry", "apply_affine", "check_intrinsics",
+           "check_io_shapes", "read_metadata", "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
 ONNX_SCHEMA = "1"
 #: prefix of every hupbench metadata key
 META = "hupbench."
+#: model input sides a file may declare, pixels (the training config's data.reader.input_size bounds)
+INPUT_SIZE_RANGE = (16, 2048)
+#: graph outputs and the width of their last axis, in the order they are checked
+OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
+_REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
+
+
+# ---------------------------------------------------------------- metadata
+
+
+def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
+                   run_name: str, git_commit: str) -> dict[str, str]:
+    """The ``metadata_props`` of an exported model (no time stamp: one checkpoint, one set of bytes).
+
+    Args:
+        input_size: S, pixels. K_input: (3, 3) intrinsics at the model input. keypoint_names: N names.
+        skeleton_edges: pairs (i, j) of keypoint indices. model_config: the architecture's config.
+        run_name, git_commit: provenance.
+
+    Returns:
+        String-to-string metadata that :func:`read_metadata` accepts (it is checked here).
+    """
+    props = {
+        META + "onnx_schema": ONNX_SCHEMA,
+        META + "input_size": str(int(input_size)),
+        META + "K_input": json.dumps(np.asarray(K_input, dtype=np.float64).tolist()),
+        META + "keypoint_names": json.dumps(list(keypoint_names)),
+        META + "skeleton_edges": json.dumps([list(e) for e in skeleton_edges]),
+        META + "model_config": json.dumps(model_config, sort_keys=True),
+        META + "run_name": run_name,
+        META + "git_commit": git_commit,
+    }
+    read_metadata(props, "the metadata being written")
+    return props
+
+
+def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any]:
+    """Read and check the ``hupbench.*`` metadata of an exported model.
+
+    Args:
+        props: the ONNX model's metadata_props (string to string).
+        source: the file's name, for error messages.
+
+    Returns:
+        ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str,
+        "skeleton_edges": tuple of (i, j), "model_config": dict ({} when absent), "run_name": str,
+        "git_commit": str}``.
+    """
+    if not isinstance(props, dict):
+        raise TypeError(f"metadata must be a dict of strings, got {type(props).__name__}")
+    if META + "onnx_schema" not in props:
+        raise ValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
+                         "not a hupbench ONNX export; predict and eval read models written by `hupbench export CKPT`")
+    if props[META + "onnx_schema"] != ONNX_SCHEMA:
+        raise ValueError(f"{source} has hupbench.onnx_schema {props[META + 'onnx_schema']!r}; this hupbench reads "
+                         f"{ONNX_SCHEMA!r}")
+    missing = [META + key for key in _REQUIRED if META + key not in props]
+    if missing:
+        raise ValueError(f"{source} lacks metadata {', '.join(missing)}")
+
+    def load(key: str) -> Any:
+        try:
+            return json.loads(props[META + key])
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{source}: metadata {META + key} is not JSON ({exc}): {props[META + key][:80]!r}") from None
+
+    try:
+        input_size = int(props[META + "input_size"])
+    except ValueError:
+        input_size = props[META + "input_size"]
+    check_int(input_size, f"{source}: metadata hupbench.input_size", *INPUT_SIZE_RANGE)
+    K_input = check_intrinsics(load("K_input"), f"{source}: metadata hupbench.K_input")
+    names = load("keypoint_names")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"{source}: hupbench.keypoint_names must be a non-empty JSON list of strings, got {names!r:.120}")
+    edges = load("skeleton_edges")
+    if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
+            or not all(is_whole(i) and 0 <= i < len(names) for e in edges for i in e)):
+        raise ValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
+                         f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
+    model_config = load("model_config") if META + "model_config" in props else {}
+    if not isinstance(model_config, dict):
+        raise ValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
+                         f"{type(model_config).__name__}")
+    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
+            "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
+            "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
+
+
+def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_size: int, num_keypoints: int,
+                    source: str = "model") -> None:
+    """The graph's declared input and outputs against the contract and the metadata.
+
+    A file whose metadata and graph disagree would otherwise fail deep inside onnxruntime on the first
+    batch, or be drawn with the wrong names.
+
+    Args:
+        inputs, outputs: name -> declared dimensions (ints; names or None for dynamic axes, which the
+            first batch checks).
+        input_size: S from the metadata. num_keypoints: N, the number of keypoint names.
+        source: the file's name, for error messages.
+    """
+    if "image" not in inputs:
+        raise ValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
+    expected = {"image": ([3, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}
+    for name, width in OUTPUT_WIDTHS.items():
+        if name not in outputs:
+            raise ValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")
+        expected[name] = ([num_keypoints, width], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
+    for name, (tail, why) in expected.items():
+        dims = list(inputs.get(name, outputs.get(name)) or [])
+        if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
+            shown = ", ".join(str(d) for d in dims)
+            raise ValueError(f"{source}: the graph's {name} is ({shown}), expected "
+                             f"(batch, {', '.join(map(str, tail))}){why}")
+
+
+def check_intrinsics(K: Any, name: str) -> np.ndarray:
+    """(3, 3) pinhole intrinsics: finite, fx, fy > 0, last row (0, 0, 1). Returns them as float64."""
+    try:
+        K = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a 3 x 3 matrix of numbers, got {K!r:.80}") from None
+    if K.shape != (3, 3):
+        raise ValueError(f"{name} must be (3, 3) intrinsics, got shape {K.shape}")
+    if not np.all(np.isfinite(K)):
+        raise ValueError(f"{name} must be finite, got {K.tolist()}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
+        raise ValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
+    return K
+
+
+# ---------------------------------------------------------------- input geometry
+
+
+def apply_affine(matrix: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(..., 2) points through a (3, 3) affine map of the plane (last row (0, 0, 1))."""
+    uv = np.asarray(uv, dtype=np.float64)
+    return uv @ matrix[:2, :2].T + matrix[:2, 2]
+
+
+@dataclass(frozen=True)
+class InputGeometry:
+    """How an H x W image becomes the S x S model input: centred padding to a square, then a resize.
+
+    With pixel centres at integers (OpenCV), s = S / L and pad = (pad_left, pad_top):
+    ``u_in = (u + pad_left + 0.5) * s - 0.5``, i.e. ``image_to_input`` = [[s, 0, s (pad_left + 0.5) - 0.5],
+    [0, s, s (pad_top + 0.5) - 0.5], [0, 0, 1]]; intrinsics map as ``K_in = image_to_input @ K``; the
+    model's normalised output maps to input pixels by ``normalized_to_input`` (x_n = (2 u_in + 1) / S - 1).
+
+    Attributes:
+        width: W, original image width, pixels.
+        height: H, original image height, pixels.
+        input_size: S, side of the model input, pixels.
+    """
+
+    width: int
+    height: int
+    input_size: int
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height", "input_size"):
+            check_int(getattr(self, name), name, low=1, hint=" (pixels)")
+
+    @property
+    def side(self) -> int:
+        """L = max(H, W), side of the padded square, original pixels."""
+        return max(self.width, self.height)
+
+    @property
+    def pad_left(self) -> int:
+        return (self.side - self.width) // 2
+
+    @property
+    def pad_top(self) -> int:
+        return (self.side - self.height) // 2
+
+    @property
+    def scale(self) -> float:
+        """s = S / L, model-input pixels per original pixel."""
+        return self.input_size / self.side
+
+    @property
+    def image_to_input(self) -> np.ndarray:
+        """(3, 3) original-image pixels -> model-input pixels (pad, then resize)."""
+        s = self.scale
+        return np.array([[s, 0.0, s * (self.pad_left + 0.5) - 0.5],
+                         [0.0, s, s * (self.pad_top + 0.5) - 0.5],
+                         [0.0, 0.0, 1.0]])
+
+    @property
+    def input_to_image(self) -> np.ndarray:
+        """(3, 3) model-input pixels -> original-image pixels: the inverse of :attr:`image_to_input`."""
+        s = self.scale
+        return np.array([[1.0 / s, 0.0, 0.5 / s - 0.5 - self.pad_left],
+                         [0.0, 1.0 / s, 0.5 / s - 0.5 - self.pad_top],
+                         [0.0, 0.0, 1.0]])
+
+    @property
+    def normalized_to_input(self) -> np.ndarray:
+        """(3, 3) normalised [-1, 1] input coordinates -> model-input pixels: u_in = ((x_n + 1) S - 1) / 2."""
+        half = self.input_size / 2.0
+        return np.array([[half, 0.0, half - 0.5], [0.0, half, half - 0.5], [0.0, 0.0, 1.0]])
+
+    def image_to_input_px(self, uv: np.ndarray) -> np.ndarray:
+        """(..., 2) original-image pixels -> (..., 2) model-input pixels."""
+        return apply_affine(self.image_to_input, uv)
+
+    def input_to_image_px(self, uv_in: np.ndarray) -> np.ndarray:
+        """(..., 2) model-input pixels -> (..., 2) original-image pixels."""
+        return apply_affine(self.input_to_image, uv_in)
+
+    def normalized_to_input_px(self, xy_norm: np.ndarray) -> np.ndarray:
+        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) model-input pixels."""
+        return apply_affine(self.normalized_to_input, xy_norm)
+
+    def normalized_to_image_px(self, xy_norm: np.ndarray) -> np.ndarray:
+        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) original-image pixels."""
+        return apply_affine(self.input_to_image @ self.normalized_to_input, xy_norm)
+
+    def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
+        """(3, 3) intrinsics of the original image -> (3, 3) intrinsics of the model input."""
+        return self.image_to_input @ check_intrinsics(K, "K")
+
+    def intrinsics_to_image(self, K_in: np.ndarray) -> np.ndarray:
+        """(3, 3) intrinsics of the model input -> (3, 3) intrinsics of the original image."""
+        return self.input_to_image @ check_intrinsics(K_in, "K_in")
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"side": self.side, "pad_left": self.pad_left, "pad_top": self.pad_top, "scale": self.scale}

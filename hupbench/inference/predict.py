@@ -85,10 +85,10 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 import cv2
 import numpy as np
 
-from datagen.camera import resize_intrinsics, resize_points
 from datagen.render.draw import write_png
+from datagen.input_checks import check_int, check_shape
 from datagen.io import clean_stale_tmp, write_bytes
-from hupbench.inference.model_file import ONNX_SCHEMA
+from hupbench.inference.model_file import InputGeometry, check_intrinsics, check_io_shapes, read_metadata
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
 
@@ -118,91 +118,7 @@ PREPROCESSING = (
 )
 
 
-# ---------------------------------------------------------------- geometry
-
-
-@dataclass(frozen=True)
-class InputGeometry:
-    """How an H x W image becomes the S x S model input: centred padding to a square, then a resize.
-
-    Attributes:
-        width: W, original image width, pixels.
-        height: H, original image height, pixels.
-        input_size: S, side of the model input, pixels.
-    """
-
-    width: int
-    height: int
-    input_size: int
-
-    def __post_init__(self) -> None:
-        for name in ("width", "height", "input_size"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be a positive int (pixels), got {value!r}")
-
-    @property
-    def side(self) -> int:
-        """L = max(H, W), side of the padded square, original pixels."""
-        return max(self.width, self.height)
-
-    @property
-    def pad_left(self) -> int:
-        return (self.side - self.width) // 2
-
-    @property
-    def pad_top(self) -> int:
-        return (self.side - self.height) // 2
-
-    @property
-    def scale(self) -> float:
-        """s = S / L, model-input pixels per original pixel."""
-        return self.input_size / self.side
-
-    def _offset(self) -> np.ndarray:
-        return np.array([self.pad_left, self.pad_top], dtype=np.float64)
-
-    def image_to_input_px(self, uv: np.ndarray) -> np.ndarray:
-        """(..., 2) original-image pixels -> (..., 2) model-input pixels."""
-        return resize_points(uv, self.scale, self._offset())
-
-    def input_to_image_px(self, uv_in: np.ndarray) -> np.ndarray:
-        """(..., 2) model-input pixels -> (..., 2) original-image pixels."""
-        return (np.asarray(uv_in, dtype=np.float64) + 0.5) / self.scale - 0.5 - self._offset()
-
-    def normalized_to_input_px(self, xy_norm: np.ndarray) -> np.ndarray:
-        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) model-input pixels."""
-        return ((np.asarray(xy_norm, dtype=np.float64) + 1.0) * self.input_size - 1.0) / 2.0
-
-    def normalized_to_image_px(self, xy_norm: np.ndarray) -> np.ndarray:
-        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) original-image pixels."""
-        return (np.asarray(xy_norm, dtype=np.float64) + 1.0) * self.side / 2.0 - 0.5 - self._offset()
-
-    def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
-        """(3, 3) intrinsics of the original image -> (3, 3) intrinsics of the model input."""
-        return resize_intrinsics(_check_K(K, "K"), self.scale, self._offset())
-
-    def intrinsics_to_image(self, K_in: np.ndarray) -> np.ndarray:
-        """(3, 3) intrinsics of the model input -> (3, 3) intrinsics of the original image."""
-        K_in = _check_K(K_in, "K_in")
-        out = K_in.copy()
-        out[:2, :] /= self.scale
-        out[:2, 2] = (K_in[:2, 2] + 0.5) / self.scale - 0.5 - self._offset()
-        return out
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"side": self.side, "pad_left": self.pad_left, "pad_top": self.pad_top, "scale": self.scale}
-
-
-def _check_K(K: Any, name: str) -> np.ndarray:
-    K = np.asarray(K, dtype=np.float64)
-    if K.shape != (3, 3):
-        raise ValueError(f"{name} must be (3, 3) intrinsics, got shape {K.shape}")
-    if not np.all(np.isfinite(K)):
-        raise ValueError(f"{name} must be finite, got {K.tolist()}")
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
-        raise ValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
-    return K
+# ---------------------------------------------------------------- camera
 
 
 def parse_intrinsics(text: str) -> np.ndarray:
@@ -227,7 +143,7 @@ def parse_intrinsics(text: str) -> np.ndarray:
 def check_user_K(K: Any, name: str = "K") -> np.ndarray:
     """A user's (3, 3) intrinsics, pixels of the original image: finite, 0 < fx, fy <= MAX_FOCAL_PX,
     |cx|, |cy| <= MAX_FOCAL_PX (beyond that a value is a typo; see the constant)."""
-    K = _check_K(K, name)
+    K = check_intrinsics(K, name)
     if K[0, 0] > MAX_FOCAL_PX or K[1, 1] > MAX_FOCAL_PX:
         raise ValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
                          f"fy={K[1, 1]:g}")
@@ -256,14 +172,10 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
     Returns:
         (N, 3) float64, metres, OpenCV camera frame of the user's camera.
     """
-    uv_in = np.asarray(uv_in, dtype=np.float64)
-    points3d_train = np.asarray(points3d_train, dtype=np.float64)
-    if uv_in.ndim != 2 or uv_in.shape[1] != 2:
-        raise ValueError(f"uv_in must be (N, 2), got {uv_in.shape}")
-    if points3d_train.shape != (uv_in.shape[0], 3):
-        raise ValueError(f"points3d_train must be ({uv_in.shape[0]}, 3) to match uv_in, got {points3d_train.shape}")
-    K_train = _check_K(K_train, "K_train")
-    K_user_in = _check_K(K_user_in, "K_user_in")
+    uv_in = check_shape(np.asarray(uv_in, dtype=np.float64), ("N", 2), "uv_in")
+    points3d_train = check_shape(np.asarray(points3d_train, dtype=np.float64), (len(uv_in), 3), "points3d_train")
+    K_train = check_intrinsics(K_train, "K_train")
+    K_user_in = check_intrinsics(K_user_in, "K_user_in")
     focal_ratio = np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
     z = points3d_train[:, 2] * focal_ratio
     x = (uv_in[:, 0] - K_user_in[0, 2]) * z / K_user_in[0, 0]
@@ -328,57 +240,6 @@ class PredictModel:
     sha256: str
 
 
-def parse_metadata(metadata: dict[str, str], source: str = "model") -> dict[str, Any]:
-    """Read and check the ``hupbench.*`` metadata_props of an exported model.
-
-    Args:
-        metadata: the ONNX model's metadata_props (string to string).
-        source: name for error messages.
-
-    Returns:
-        ``{"input_size": int, "K_input": (3, 3) ndarray, "keypoint_names": tuple,
-        "skeleton_edges": tuple of pairs, "run_name": str, "git_commit": str}``.
-    """
-    if not isinstance(metadata, dict):
-        raise TypeError(f"metadata must be a dict of strings, got {type(metadata).__name__}")
-    if "hupbench.onnx_schema" not in metadata:
-        raise ValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing); "
-                         "predict reads models written by `hupbench export CKPT`")
-    if metadata["hupbench.onnx_schema"] != ONNX_SCHEMA:
-        raise ValueError(f"{source} has hupbench.onnx_schema {metadata['hupbench.onnx_schema']!r}; "
-                         f"this hupbench reads {ONNX_SCHEMA!r}")
-    required = ("hupbench.input_size", "hupbench.K_input", "hupbench.keypoint_names", "hupbench.skeleton_edges")
-    missing = [key for key in required if key not in metadata]
-    if missing:
-        raise ValueError(f"{source} lacks metadata {', '.join(missing)}")
-
-    def load(key: str) -> Any:
-        try:
-            return json.loads(metadata[key])
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{source}: metadata {key} is not JSON ({exc}): {metadata[key][:80]!r}") from None
-
-    try:
-        input_size = int(metadata["hupbench.input_size"])
-    except ValueError:
-        raise ValueError(f"{source}: hupbench.input_size must be an int, got "
-                         f"{metadata['hupbench.input_size']!r}") from None
-    if input_size < 1:
-        raise ValueError(f"{source}: hupbench.input_size must be positive, got {input_size}")
-    K_input = _check_K(load("hupbench.K_input"), f"{source}: hupbench.K_input")
-    names = load("hupbench.keypoint_names")
-    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-        raise ValueError(f"{source}: hupbench.keypoint_names must be a non-empty JSON list of strings, got {names!r}")
-    edges = load("hupbench.skeleton_edges")
-    if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
-            or not all(isinstance(i, int) and 0 <= i < len(names) for e in edges for i in e)):
-        raise ValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
-                         f"0 <= i, j < {len(names)}, got {metadata['hupbench.skeleton_edges'][:120]!r}")
-    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
-            "skeleton_edges": tuple((int(a), int(b)) for a, b in edges),
-            "run_name": metadata.get("hupbench.run_name", ""), "git_commit": metadata.get("hupbench.git_commit", "")}
-
-
 def load_onnx_model(path: str | Path) -> PredictModel:
     """Open an exported model with onnxruntime (CPU) and check it against the ONNX contract.
 
@@ -404,24 +265,11 @@ def load_onnx_model(path: str | Path) -> PredictModel:
     except _ORT_LOAD_ERRORS as exc:
         reason = " ".join(str(exc).split())[:200]
         raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {reason}") from None
-    meta = parse_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
-    inputs = {i.name: i for i in session.get_inputs()}
-    outputs = {o.name: o for o in session.get_outputs()}
-    if "image" not in inputs or not {"points2d", "points3d"} <= set(outputs):
-        raise ValueError(f"{path}: expected input 'image' and outputs 'points2d', 'points3d', got inputs "
-                         f"{sorted(inputs)} and outputs {sorted(outputs)}")
-    shape = list(inputs["image"].shape or [])
-    S = meta["input_size"]
-    if len(shape) != 4 or shape[1:] != [3, S, S]:
-        raise ValueError(f"{path}: input 'image' must be (batch, 3, {S}, {S}) as hupbench.input_size says, "
-                         f"got {shape}")
-    n = len(meta["keypoint_names"])
-    for name, width in (("points2d", 2), ("points3d", 3)):
-        declared = list(outputs[name].shape or [])
-        # symbolic dimensions (strings) are checked on the first batch by run_model
-        if len(declared) == 3 and isinstance(declared[1], int) and declared[1] != n:
-            raise ValueError(f"{path}: output {name!r} has {declared[1]} keypoints (shape {declared}) but "
-                             f"hupbench.keypoint_names has {n} keypoint names")
+    meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
+    check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
+                    {o.name: list(o.shape or []) for o in session.get_outputs()},
+                    meta["input_size"], len(meta["keypoint_names"]), str(path))
+    meta.pop("model_config")  # the architecture: predict runs the graph, it never rebuilds the model
     return PredictModel(path=path, session=session, sha256=hashlib.sha256(data).hexdigest(), **meta)
 
 
@@ -563,8 +411,7 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
         "records": [per-image dicts as in the JSON]}``.
     """
-    if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
-        raise ValueError(f"batch_size (--batch-size) must be an integer >= 1, got {batch_size!r}")
+    check_int(batch_size, "batch_size (--batch-size)", low=1)
     K_user = parse_intrinsics(K) if isinstance(K, str) else (None if K is None else check_user_K(K, "K"))
     out_dir = check_out_dir(out_dir)
     model = load_onnx_model(model_path)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from omegaconf import DictConfig, OmegaConf
+
+from datagen.input_checks import check_int, check_number
 
 
 #: config fields that count steps or frames: each a whole number >= 1 (None allowed where listed)
@@ -25,20 +26,13 @@ def _whole(cfg: DictConfig, field: str, low: int, optional: bool = False, high: 
     value = OmegaConf.select(cfg, field)
     if value is None and optional:
         return
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{field} must be a whole number >= {low}{' or null' if optional else ''}, got {value!r}")
+    check_int(value, field, low, optional=optional)
     if value > high:
         raise ValueError(f"{field} must be at most {high:,}, got {value:,}")
 
 
 def _number(cfg: DictConfig, field: str, low: float, high: float | None = None, low_open: bool = False) -> None:
-    value = OmegaConf.select(cfg, field)
-    ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-          and (value > low if low_open else value >= low) and (high is None or value <= high))
-    if not ok:
-        interval = (f"in {'(' if low_open else '['}{low:g}, {high:g}]" if high is not None
-                    else f"{'>' if low_open else '>='} {low:g}")
-        raise ValueError(f"{field} must be a finite number {interval}, got {value!r}")
+    check_number(OmegaConf.select(cfg, field), field, low, high, low_open=low_open)
 
 
 def _choice(cfg: DictConfig, field: str, choices, default=None) -> None:

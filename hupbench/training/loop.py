@@ -236,10 +236,10 @@ def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.devic
                                                   hardware=hardware_description(device), resumed_from=(
                                                       str(resume_path) if resume_path else None)))
     logger = MetricsLog(run_dir, is_main, bool(cfg.train.tensorboard), state.step if checkpoint is not None else None)
-    base = {"K_input": K_input.tolist(), "input_size": input_size, "config": resolved,
+    checkpoint_fields = {"K_input": K_input.tolist(), "input_size": input_size, "config": resolved,
             "dataset": {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / "manifest.json")}}
-    run = _Run(cfg, model, optimizer, scheduler, data, state, logger, run_dir, base, device, autocast, world,
-               is_main, steps_per_epoch)
+    run = _Run(cfg, model, optimizer, scheduler, data, state, logger, run_dir, checkpoint_fields, device, autocast,
+               world, is_main, steps_per_epoch)
 
     if is_main:
         log(f"training {model.config['name']} ({model.config['backbone']}, {input_size} px) on {root}: "
@@ -247,7 +247,7 @@ def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.devic
             f"{int(cfg.data.batch_size) * world} on {device}{f' x {world} processes' if world > 1 else ''}; "
             f"run folder {run_dir}")
     state.first_val = run.validation() if checkpoint is None else checkpoint.get("first_val_mpjpe_mm")
-    base["first_val_mpjpe_mm"] = state.first_val
+    checkpoint_fields["first_val_mpjpe_mm"] = state.first_val
     run.loop(train_model, total_steps)
     logger.close()
     wall = state.wall_offset + time.perf_counter() - run.start
@@ -348,9 +348,9 @@ class _Run:
     """The loop of one run: steps, logging, validation and checkpoints (state in :class:`RunState`)."""
 
     def __init__(self, cfg, model, optimizer, scheduler, data: TrainData, state: RunState, logger, run_dir: Path,
-                 base: dict, device, autocast, world: int, is_main: bool, steps_per_epoch: int) -> None:
+                 checkpoint_fields: dict, device, autocast, world: int, is_main: bool, steps_per_epoch: int) -> None:
         self.cfg, self.model, self.optimizer, self.scheduler, self.data = cfg, model, optimizer, scheduler, data
-        self.state, self.logger, self.run_dir, self.base = state, logger, run_dir, base
+        self.state, self.logger, self.run_dir, self.checkpoint_fields = state, logger, run_dir, checkpoint_fields
         self.device, self.autocast, self.world, self.is_main = device, autocast, world, is_main
         self.steps_per_epoch = steps_per_epoch
         self.start = time.perf_counter()
@@ -361,7 +361,7 @@ class _Run:
     def save(self, name: str) -> None:
         s = self.state
         save_checkpoint(self.run_dir / "checkpoints" / name, {
-            **self.base, "model_config": self.model.config, "model": self.model.state_dict(),
+            **self.checkpoint_fields, "model_config": self.model.config, "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": s.step,
             "epoch": s.step / self.steps_per_epoch, "samples_seen": s.samples_seen, "train_seconds": s.train_seconds,
             "wall_seconds": self.wall(), "best_val_mpjpe_mm": s.best, "val_mpjpe_mm": s.last_val,

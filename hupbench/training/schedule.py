@@ -8,6 +8,8 @@ from omegaconf import DictConfig
 
 import torch
 
+from datagen.input_checks import check_int
+
 
 def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
                   final_lr_fraction: float = 0.02) -> torch.optim.lr_scheduler.LambdaLR:
@@ -73,6 +75,5 @@ def learning_rate(cfg: DictConfig, world: int) -> float:
     reference = cfg.optim.get("reference_batch")
     if reference is None:
         return lr
-    if isinstance(reference, bool) or not isinstance(reference, int) or reference < 1:
-        raise ValueError(f"optim.reference_batch must be null or a positive int, got {reference!r}")
+    check_int(reference, "optim.reference_batch", low=1)
     return lr * int(cfg.data.batch_size) * world / reference

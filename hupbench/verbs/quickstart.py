@@ -19,6 +19,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from datagen.input_checks import check_int
 from datagen.io import write_json
 from hupbench.config import build, compose
 from hupbench.provenance import run_info
@@ -38,10 +39,6 @@ def _stage_overrides(cfg: DictConfig) -> dict:
 
 def _is_number(value) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-
-
-def _is_whole(value) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int)
 
 
 def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
@@ -86,14 +83,8 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
         raise ValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
     # the image size first: fx, fy, cx, cy are derived from it (conf/quickstart.yaml)
     for key in ("width", "height"):
-        value = cfg.camera[key]
-        if not _is_whole(value):
-            raise ValueError(f"camera.{key} must be a whole number of pixels, got {value!r}")
-        if value < 1:
-            raise ValueError(f"camera.{key} must be a positive whole number of pixels, got {value}")
-        if value > MAX_PREVIEW_SIDE:
-            # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
-            raise ValueError(f"camera.{key} must be at most {MAX_PREVIEW_SIDE} px, got {value}")
+        # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
+        check_int(cfg.camera[key], f"camera.{key}", 1, MAX_PREVIEW_SIDE, hint=" (pixels)")
     for key in ("fx", "fy", "cx", "cy"):
         if not _is_number(cfg.camera[key]):
             raise ValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")

@@ -117,7 +117,7 @@ def test_builtin_bad_index(index):
 
 @pytest.mark.parametrize("index", [1.0, True, "1", None])
 def test_builtin_index_must_be_int(index):
-    with pytest.raises(TypeError, match="index must be an int"):
+    with pytest.raises(TypeError, match="index must be a whole number"):
         builtin_background(index, 64, 64)
 
 
@@ -128,7 +128,7 @@ def test_builtin_bad_size(width, height, name):
 
 
 def test_builtin_size_must_be_int():
-    with pytest.raises(TypeError, match="height must be an int"):
+    with pytest.raises(TypeError, match=r"height \(pixels\) must be a whole number"):
         builtin_background(1, 64, 64.0)
 
 

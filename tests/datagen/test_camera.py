@@ -14,7 +14,7 @@ def test_hup3d_lens_gives_paper_intrinsics():
 
 @pytest.mark.parametrize("size", [(0, 256), (256, -1), (256.0, 256)])
 def test_bad_image_size_raises(size):
-    with pytest.raises(ValueError, match="image (width|height) must be a positive int"):
+    with pytest.raises(ValueError, match="image (width|height) must be a whole number >= 1"):
         Intrinsics(480.0, 480.0, 128.0, 128.0, *size)
 
 

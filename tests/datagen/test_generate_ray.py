@@ -69,10 +69,10 @@ def test_missing_ray_fails_before_rendering_with_install_hint(tmp_path, monkeypa
 
 @pytest.mark.parametrize("override, message", [
     ("launcher=slurm", "launcher must be one of \\('local', 'ray'\\), got 'slurm'"),
-    ("ray.num_workers=0", "ray.num_workers must be null or a positive int, got 0"),
+    ("ray.num_workers=0", "ray.num_workers must be a whole number >= 1 or null, got 0"),
     ("ray.cpus_per_worker=-1", "ray.cpus_per_worker must be a positive number, got -1"),
-    ("ray.max_retries=-2", "ray.max_retries must be an int >= 0, got -2"),
-    ("ray.actor_restarts=1.5", "ray.actor_restarts must be an int >= 0, got 1.5"),
+    ("ray.max_retries=-2", "ray.max_retries must be a whole number >= 0, got -2"),
+    ("ray.actor_restarts=1.5", "ray.actor_restarts must be a whole number >= 0, got 1.5"),
 ])
 def test_bad_launcher_config_fails_before_rendering(tmp_path, override, message):
     out = tmp_path / "ds"

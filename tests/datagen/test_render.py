@@ -167,7 +167,7 @@ def test_bad_render_requests(renderer):
         MeshPart("x", trimesh.creation.box(), 3, color=(1.5, 0, 0))
     with pytest.raises(ValueError, match=r"part 'x': emissive must be 3 values in \[0, 1\], got \(0, 1\)"):
         MeshPart("x", trimesh.creation.box(), 3, emissive=(0, 1))
-    with pytest.raises(ValueError, match="image width must be a positive int"):
+    with pytest.raises(ValueError, match="image width must be a whole number >= 1"):
         Renderer(Intrinsics(480.0, 480.0, 0.0, 0.0, 0, 256))
 
 

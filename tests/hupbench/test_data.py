@@ -71,5 +71,5 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
     (no_val / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ValueError, match="split 'val' .* is empty"):
         HUPDataset(no_val, "val")
-    with pytest.raises(ValueError, match="input_size must be an int >= 16"):
+    with pytest.raises(ValueError, match="input_size must be a whole number from 16 to 2048"):
         ReaderConfig(input_size=8)

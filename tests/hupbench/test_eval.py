@@ -239,7 +239,7 @@ def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
         EV.run_eval(ckpt, tiny_dataset, split="holdout", **out)
     with pytest.raises(ValueError, match="must equal the results file stem"):
         EV.run_eval(ckpt, tiny_dataset, run_name="other", **out)
-    with pytest.raises(ValueError, match="batch_size must be a positive int"):
+    with pytest.raises(ValueError, match="batch_size must be a whole number >= 1"):
         EV.run_eval(ckpt, tiny_dataset, batch_size=0, **out)
     assert not (tmp_path / "r.json").exists()
     assert main(["eval", str(tmp_path / "notes.txt"), str(tiny_dataset), "--out", str(tmp_path / "r.json")]) == 1

@@ -105,10 +105,10 @@ ONNX_CASES = ["onnx-missing", "onnx-empty", "onnx-truncated", "onnx-random-bytes
 
 # argv after MODEL DATASET (OUT is the results path), what the error must name
 OPTION_CASES = {
-    "batch-size-zero": (["--batch-size", "0"], ("batch-size", "positive")),
-    "batch-size-negative": (["--batch-size", "-1"], ("batch-size", "positive")),
-    "batch-size-abc": (["--batch-size", "abc"], ("--batch-size", "positive whole number")),
-    "threads-zero": (["--threads", "0"], ("threads", "positive")),
+    "batch-size-zero": (["--batch-size", "0"], ("batch-size", "whole number >= 1")),
+    "batch-size-negative": (["--batch-size", "-1"], ("batch-size", "whole number >= 1")),
+    "batch-size-abc": (["--batch-size", "abc"], ("--batch-size", "whole number >= 1")),
+    "threads-zero": (["--threads", "0"], ("threads", "whole number >= 1")),
     "split-dev": (["--split", "dev"], ("--split", "invalid choice: 'dev'")),
     "out-not-json": (["--out", "OUTDIR/results.txt"], ("--out", ".json")),
     "out-is-a-folder": (["--out", "OUTDIR/folder.json"], ("folder.json", "is a folder")),

@@ -30,7 +30,7 @@ from onnx import TensorProto, helper
 from test_predict import S, contract_metadata, dot_image, make_dot_model, photo_like
 
 from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
-from hupbench.inference.predict import InputGeometry
+from hupbench.inference.model_file import InputGeometry
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.matrix
@@ -206,7 +206,7 @@ REFUSED = {
         ("badjson.onnx", "hupbench.K_input", "not JSON")),
     "model-metadata-input-size-not-a-number": (
         lambda t, m, g: (make_dot_model(t / "size.onnx", contract_metadata(**{"hupbench.input_size": "big"})), [g], []),
-        ("size.onnx", "hupbench.input_size", "int")),
+        ("size.onnx", "hupbench.input_size", "whole number")),
     "model-metadata-input-size-disagrees-with-graph": (
         lambda t, m, g: (make_dot_model(t / "wrong.onnx", contract_metadata(**{"hupbench.input_size": "64"})), [g], []),
         ("wrong.onnx", "hupbench.input_size", "64", f"{S}")),

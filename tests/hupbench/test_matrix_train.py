@@ -365,6 +365,8 @@ CLI_CASES = {
     "override-unknown-key": (["nosuch.key=1"], ("nosuch.key", "not in the config")),
     "override-unknown-group-option": (["model=hopenet_r99"], ("model/hopenet_r99", "hopenet")),
     "override-bad-value": (["data.batch_size=abc"], ("data.batch_size", "whole number")),
+    # conf/train.yaml's model_id is ??? (each model config sets it): a model config without one
+    "required-value-missing": (["model_id=???"], ("model_id is required", "???")),
     "dataset-missing": (["data.root=NOWHERE"], ("nowhere", "does not exist")),
     # the reference reader in a loader process reads an image only when a batch needs it; a separate
     # process also because a loader worker forked from a process that rendered (the tiny_dataset

@@ -26,16 +26,15 @@ from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.inference.images import decode_image, expand_inputs
+from hupbench.inference.model_file import InputGeometry, read_metadata
 from hupbench.inference.predict import (
     CAMERA_ASSUMED,
     CAMERA_USER,
     PAD_VALUE,
-    InputGeometry,
     _compact_json,
     keypoints_for_image,
     load_onnx_model,
     parse_intrinsics,
-    parse_metadata,
     preprocess,
     run_predict,
     user_camera_points,
@@ -293,18 +292,18 @@ def test_expand_inputs(tmp_path):
 
 
 def test_metadata_parsing_and_errors(tmp_path):
-    meta = parse_metadata(contract_metadata())
+    meta = read_metadata(contract_metadata())
     assert meta["input_size"] == S and meta["keypoint_names"] == kp.KEYPOINT_NAMES and meta["run_name"] == "dot-run"
     with pytest.raises(ValueError, match="no hupbench metadata"):
-        parse_metadata({"producer": "x"}, "m.onnx")
+        read_metadata({"producer": "x"}, "m.onnx")
     with pytest.raises(ValueError, match="onnx_schema '2'"):
-        parse_metadata(contract_metadata(**{"hupbench.onnx_schema": "2"}))
+        read_metadata(contract_metadata(**{"hupbench.onnx_schema": "2"}))
     with pytest.raises(ValueError, match="lacks metadata hupbench.K_input"):
-        parse_metadata(contract_metadata(**{"hupbench.K_input": None}))
+        read_metadata(contract_metadata(**{"hupbench.K_input": None}))
     with pytest.raises(ValueError, match="skeleton_edges"):
-        parse_metadata(contract_metadata(**{"hupbench.skeleton_edges": "[[0, 29]]"}))
+        read_metadata(contract_metadata(**{"hupbench.skeleton_edges": "[[0, 29]]"}))
     with pytest.raises(ValueError, match="K_input"):
-        parse_metadata(contract_metadata(**{"hupbench.K_input": "[[0, 0, 1], [0, 1, 1], [0, 0, 1]]"}))
+        read_metadata(contract_metadata(**{"hupbench.K_input": "[[0, 0, 1], [0, 1, 1], [0, 0, 1]]"}))
 
 
 def test_model_without_metadata_is_refused(tmp_path, capsys):
@@ -325,7 +324,7 @@ def test_model_without_metadata_is_refused(tmp_path, capsys):
 
 def test_model_input_size_must_match_metadata(tmp_path):
     wrong = make_dot_model(tmp_path / "wrong.onnx", metadata=contract_metadata(**{"hupbench.input_size": "64"}))
-    with pytest.raises(ValueError, match=r"must be \(batch, 3, 64, 64\)"):
+    with pytest.raises(ValueError, match=r"expected \(batch, 3, 64, 64\)"):
         load_onnx_model(wrong)
 
 

@@ -34,7 +34,7 @@ def test_quickstart_modalities_override(tmp_path):
 
 def test_cli_reports_bad_input(tmp_path, capsys):
     assert main(["quickstart", f"out_dir={tmp_path}", "camera.width=0"]) == 1
-    assert "camera.width must be a positive whole number of pixels, got 0" in capsys.readouterr().err
+    assert "camera.width must be a whole number from 1 to 4096 (pixels), got 0" in capsys.readouterr().err
     assert main(["quickstart", f"out_dir={tmp_path}", "render.modalities=[rgb,normals]"]) == 1
     assert "unknown modality 'normals'" in capsys.readouterr().err
     assert main(["quickstart", "no_such_key=1"]) == 1

@@ -389,7 +389,7 @@ def test_learning_rate_scales_linearly_with_the_global_batch():
     scaled = compose("train", ["data.batch_size=256", "optim.reference_batch=64"])
     assert learning_rate(scaled, world=1) == pytest.approx(4e-3)
     assert learning_rate(scaled, world=2) == pytest.approx(8e-3)           # global batch = 512
-    with pytest.raises(ValueError, match="optim.reference_batch must be null or a positive int, got 0"):
+    with pytest.raises(ValueError, match="optim.reference_batch must be a whole number >= 1, got 0"):
         learning_rate(compose("train", ["optim.reference_batch=0"]), world=1)
 
 

@@ -56,11 +56,11 @@ def test_basis_points_deterministic_by_seed():
 @pytest.mark.parametrize(
     ("kwargs", "error", "match"),
     [
-        ({"n": 0}, ValueError, "n must be >= 1"),
-        ({"n": 2.5}, TypeError, "n must be an int"),
+        ({"n": 0}, ValueError, "n must be a whole number >= 1"),
+        ({"n": 2.5}, TypeError, "n must be a whole number"),
         ({"radius_m": 0.0}, ValueError, "radius_m"),
         ({"radius_m": float("nan")}, ValueError, "radius_m"),
-        ({"seed": "a"}, TypeError, "seed must be an int"),
+        ({"seed": "a"}, TypeError, "seed must be a whole number"),
     ],
 )
 def test_basis_points_bad_input(kwargs, error, match):

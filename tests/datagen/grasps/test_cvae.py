@@ -345,8 +345,8 @@ def test_missing_device_is_an_error():
 @pytest.mark.parametrize(
     ("fields", "error", "match"),
     [
-        ({"latent_dim": 0}, ValueError, "latent_dim must be >= 1"),
-        ({"epochs": 1.5}, TypeError, "epochs must be an int"),
+        ({"latent_dim": 0}, ValueError, "latent_dim must be a whole number >= 1"),
+        ({"epochs": 1.5}, TypeError, "epochs must be a whole number"),
         ({"lr": 0.0}, ValueError, "lr must be finite and > 0"),
         ({"kl_weight": float("nan")}, ValueError, "kl_weight"),
         ({"val_fraction": 0.7}, ValueError, "val_fraction"),

@@ -38,5 +38,5 @@ def test_samples_are_valid_and_reproducible(shipped):
 
 
 def test_corpus_config_rejects_bad_values():
-    with pytest.raises(ValueError, match="n_orientations must be a positive int"):
+    with pytest.raises(ValueError, match="n_orientations must be a whole number >= 1"):
         CorpusConfig(n_orientations=0)

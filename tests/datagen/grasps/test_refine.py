@@ -107,7 +107,7 @@ def test_selection_errors_name_the_problem(models):
         (dict(theta_vol_deg=((0, 0),)), "Theta_Vol"),
         (dict(theta_vol_deg=()), "Theta_Vol"),
         (dict(sampler="gan"), "sampler must be one of"),
-        (dict(n_select=0), "n_select must be a positive int"),
+        (dict(n_select=0), "n_select must be a whole number >= 1"),
         (dict(pinned_ids=("a",)), "pinned_ids must be a non-empty list of ints"),
     ],
 )

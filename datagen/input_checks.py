@@ -1,0 +1,93 @@
+"""Input checks shared by datagen and hupbench: whole numbers, finite numbers and array shapes.
+
+Numpy only (the torch-free predict path uses it). One wording for every such error, so that a user
+reads the same sentence whichever verb refused the value: ``NAME must be a whole number >= 1, got 0``,
+``NAME must be a finite number in (0, 1], got nan``, ``NAME must be (N, 3), got (5, 2)``.
+``models/`` keeps its own few checks: it imports nothing of datagen (DESIGN.md).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+__all__ = ["check_int", "check_number", "check_shape", "is_whole"]
+
+
+def is_whole(value: Any) -> bool:
+    """True for a Python or numpy integer (not a bool, not an integral float such as 2.0)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def check_int(value: Any, name: str, low: int | None = None, high: int | None = None, *, optional: bool = False,
+              hint: str = "", error: type[Exception] = ValueError) -> int | None:
+    """``value`` when it is a whole number within [low, high] (either bound may be None).
+
+    Args:
+        value: what came. name: the field or option, as the user wrote it. low, high: inclusive bounds.
+        optional: None is accepted (and returned). hint: words after the range, e.g. " (4 x the 2 CPU
+            cores)". error: the exception type (TypeError where a caller's contract says so).
+
+    Returns:
+        ``int(value)``, or None when ``optional`` and ``value`` is None.
+    """
+    if value is None and optional:
+        return None
+    if is_whole(value) and (low is None or value >= low) and (high is None or value <= high):
+        return int(value)
+    if low is not None and high is not None:
+        bounds = f" from {low} to {high}"
+    elif low is not None:
+        bounds = f" >= {low}"
+    elif high is not None:
+        bounds = f" <= {high}"
+    else:
+        bounds = ""
+    raise error(f"{name} must be a whole number{bounds}{hint}{' or null' if optional else ''}, got {value!r}")
+
+
+def check_number(value: Any, name: str, low: float | None = None, high: float | None = None, *,
+                 low_open: bool = False, optional: bool = False) -> float | None:
+    """``value`` when it is a finite real number within its interval ((low, high] with ``low_open``)."""
+    if value is None and optional:
+        return None
+    ok = (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+          and (low is None or (value > low if low_open else value >= low)) and (high is None or value <= high))
+    if ok:
+        return float(value)
+    if low is not None and high is not None:
+        interval = f" in {'(' if low_open else '['}{low:g}, {high:g}]"
+    elif low is not None:
+        interval = f" {'>' if low_open else '>='} {low:g}"
+    elif high is not None:
+        interval = f" <= {high:g}"
+    else:
+        interval = ""
+    raise ValueError(f"{name} must be a finite number{interval}{' or null' if optional else ''}, got {value!r}")
+
+
+def check_shape(array: Any, shape: tuple, name: str) -> np.ndarray:
+    """``array`` as a numpy array when its shape matches ``shape`` (ints, or names such as "N" for any size;
+    a name used twice must take one size).
+
+    Args:
+        array: what came (anything ``np.asarray`` takes). shape: e.g. ``("N", 3)`` or ``(3, 3)``.
+        name: the argument, for the message.
+
+    Returns:
+        ``np.asarray(array)``.
+    """
+    array = np.asarray(array)
+    sizes: dict[str, int] = {}
+    ok = array.ndim == len(shape)
+    for got, want in zip(array.shape, shape):
+        if not ok:
+            break
+        ok = got == want if isinstance(want, int) else sizes.setdefault(want, got) == got
+    if not ok:
+        shown = ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "")
+        raise ValueError(f"{name} must be ({shown}), got {tuple(array.shape)}")
+    return array

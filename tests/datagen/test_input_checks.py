@@ -1,0 +1,64 @@
+"""datagen/input_checks.py: the one wording of whole-number, finite-number and shape errors."""
+
+import numpy as np
+import pytest
+
+from datagen.input_checks import check_int, check_number, check_shape, is_whole
+
+
+@pytest.mark.parametrize("value,whole", [(3, True), (np.int64(3), True), (True, False), (np.bool_(True), False),
+                                         (2.0, False), ("3", False), (None, False)])
+def test_is_whole(value, whole):
+    assert is_whole(value) is whole
+
+
+@pytest.mark.parametrize("value,kwargs,message", [
+    (0, dict(low=1), "workers must be a whole number >= 1, got 0"),
+    (2.5, dict(low=1), "workers must be a whole number >= 1, got 2.5"),
+    (True, dict(low=0), "workers must be a whole number >= 0, got True"),
+    ("two", dict(), "workers must be a whole number, got 'two'"),
+    (9, dict(low=1, high=8, hint=" (4 x the 2 CPU cores)"), "workers must be a whole number from 1 to 8 (4 x the 2 CPU cores), got 9"),
+    (0, dict(low=1, optional=True), "workers must be a whole number >= 1 or null, got 0"),
+    (11, dict(high=10), "workers must be a whole number <= 10, got 11"),
+])
+def test_check_int_refuses_naming_the_field(value, kwargs, message):
+    with pytest.raises(ValueError) as info:
+        check_int(value, "workers", **kwargs)
+    assert str(info.value) == message
+
+
+def test_check_int_accepts_and_returns_python_ints():
+    assert check_int(np.int32(4), "n", 1, 4) == 4 and type(check_int(np.int32(4), "n")) is int
+    assert check_int(None, "n", 1, optional=True) is None
+    with pytest.raises(TypeError, match="n must be a whole number, got 1.5"):
+        check_int(1.5, "n", error=TypeError)
+
+
+@pytest.mark.parametrize("value,kwargs,message", [
+    (float("nan"), dict(low=0.0, high=1.0, low_open=True), "lr must be a finite number in (0, 1], got nan"),
+    (0.0, dict(low=0.0, low_open=True), "lr must be a finite number > 0, got 0.0"),
+    (float("inf"), dict(), "lr must be a finite number, got inf"),
+    (True, dict(), "lr must be a finite number, got True"),
+    ("x", dict(low=0.0, optional=True), "lr must be a finite number >= 0 or null, got 'x'"),
+])
+def test_check_number_refuses_naming_the_field(value, kwargs, message):
+    with pytest.raises(ValueError) as info:
+        check_number(value, "lr", **kwargs)
+    assert str(info.value) == message
+
+
+def test_check_number_accepts_the_bounds():
+    assert check_number(1, "lr", 0.0, 1.0, low_open=True) == 1.0 and check_number(0, "w", low=0.0) == 0.0
+
+
+def test_check_shape_named_axes_take_one_size():
+    points = np.zeros((5, 3))
+    assert check_shape(points, ("N", 3), "points") is not None
+    check_shape(np.zeros((4, 4)), ("N", "N"), "T")
+    for array, shape, message in [(np.zeros((5, 2)), ("N", 3), "points must be (N, 3), got (5, 2)"),
+                                  (np.zeros((4, 3)), ("N", "N"), "points must be (N, N), got (4, 3)"),
+                                  (np.zeros(3), (3, 1), "points must be (3, 1), got (3,)"),
+                                  (np.zeros((2, 3)), (6,), "points must be (6,), got (2, 3)")]:
+        with pytest.raises(ValueError) as info:
+            check_shape(array, shape, "points")
+        assert str(info.value) == message
