@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from datagen import keypoints as kp
+from hupbench.inference.model_file import META
 from hupbench.inference import export as E
 from hupbench.checkpoint import (
     file_sha256,
@@ -76,7 +77,7 @@ def test_onnx_contract(exported, tiny_dataset):
     assert (inp.name, dims) == ("image", ["batch", 3, INPUT_SIZE, INPUT_SIZE])
     assert [o.name for o in proto.graph.output] == ["points2d", "points3d"]
     props = {p.key: p.value for p in proto.metadata_props}
-    assert sorted(props) == sorted(E.META + k for k in (
+    assert sorted(props) == sorted(META + k for k in (
         "onnx_schema", "input_size", "K_input", "keypoint_names", "skeleton_edges", "model_config", "run_name",
         "git_commit"))
     assert props["hupbench.onnx_schema"] == "1"
