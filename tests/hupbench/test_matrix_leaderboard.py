@@ -215,7 +215,7 @@ def test_fault_leaderboard_sigkill(built_board, tmp_path):
     killed = 0
     for _ in range(6):
         proc = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(0.3, 1.0) * full_s)
+        time.sleep(rng.uniform(0.2, 0.8) * full_s)
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
             killed += 1
