@@ -22,6 +22,16 @@ def is_whole(value: Any) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
 
 
+def _bounds(low, high, low_open: bool = False, fmt: str = "") -> str:
+    """The words of an interval: " from 1 to 8" / " in (0, 1]", " >= 1" / " > 0", " <= 8" or ""."""
+    if low is not None and high is not None:
+        return (f" in {'(' if low_open else '['}{low:{fmt}}, {high:{fmt}}]" if fmt or low_open
+                else f" from {low} to {high}")
+    if low is not None:
+        return f" {'>' if low_open else '>='} {low:{fmt}}"
+    return f" <= {high:{fmt}}" if high is not None else ""
+
+
 def check_int(value: Any, name: str, low: int | None = None, high: int | None = None, *, optional: bool = False,
               hint: str = "", error: type[Exception] = ValueError) -> int | None:
     """``value`` when it is a whole number within [low, high] (either bound may be None).
@@ -29,24 +39,19 @@ def check_int(value: Any, name: str, low: int | None = None, high: int | None = 
     Args:
         value: what came. name: the field or option, as the user wrote it. low, high: inclusive bounds.
         optional: None is accepted (and returned). hint: words after the range, e.g. " (4 x the 2 CPU
-            cores)". error: the exception type (TypeError where a caller's contract says so).
+            cores)". error: the exception for a value that is not a whole number (TypeError where a
+            caller's contract says so); a whole number out of range is always a ValueError.
 
     Returns:
         ``int(value)``, or None when ``optional`` and ``value`` is None.
     """
     if value is None and optional:
         return None
-    if is_whole(value) and (low is None or value >= low) and (high is None or value <= high):
+    whole = is_whole(value)
+    if whole and (low is None or value >= low) and (high is None or value <= high):
         return int(value)
-    if low is not None and high is not None:
-        bounds = f" from {low} to {high}"
-    elif low is not None:
-        bounds = f" >= {low}"
-    elif high is not None:
-        bounds = f" <= {high}"
-    else:
-        bounds = ""
-    raise error(f"{name} must be a whole number{bounds}{hint}{' or null' if optional else ''}, got {value!r}")
+    raise (ValueError if whole else error)(
+        f"{name} must be a whole number{_bounds(low, high)}{hint}{' or null' if optional else ''}, got {value!r}")
 
 
 def check_number(value: Any, name: str, low: float | None = None, high: float | None = None, *,
@@ -58,15 +63,8 @@ def check_number(value: Any, name: str, low: float | None = None, high: float | 
           and (low is None or (value > low if low_open else value >= low)) and (high is None or value <= high))
     if ok:
         return float(value)
-    if low is not None and high is not None:
-        interval = f" in {'(' if low_open else '['}{low:g}, {high:g}]"
-    elif low is not None:
-        interval = f" {'>' if low_open else '>='} {low:g}"
-    elif high is not None:
-        interval = f" <= {high:g}"
-    else:
-        interval = ""
-    raise ValueError(f"{name} must be a finite number{interval}{' or null' if optional else ''}, got {value!r}")
+    raise ValueError(f"{name} must be a finite number{_bounds(low, high, low_open, 'g')}"
+                     f"{' or null' if optional else ''}, got {value!r}")
 
 
 def check_shape(array: Any, shape: tuple, name: str) -> np.ndarray:

@@ -48,8 +48,7 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
         TypeError: ``n`` or ``seed`` is not an integer.
         ValueError: ``n < 1`` or ``radius_m`` not a finite positive number.
     """
-    check_int(n, "n", error=TypeError)
-    check_int(n, "n", low=1)
+    check_int(n, "n", low=1, error=TypeError)
     check_int(seed, "seed", error=TypeError)
     radius_m = float(radius_m)
     if not (np.isfinite(radius_m) and radius_m > 0.0):

@@ -79,11 +79,6 @@ _HEADER_KEY = "__header__"
 CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
 
 
-def _positive_int(name: str, value) -> None:
-    check_int(value, name, error=TypeError)
-    check_int(value, name, low=1)
-
-
 def _finite_float(name: str, value, minimum: float = 0.0, strict: bool = False) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"{name} must be a number, got {type(value).__name__}")
@@ -134,7 +129,7 @@ class CVAEConfig:
 
     def __post_init__(self) -> None:
         for name in ("n_bps", "latent_dim", "hidden", "bps_embed", "epochs", "batch_size"):
-            _positive_int(name, getattr(self, name))
+            check_int(getattr(self, name), name, low=1, error=TypeError)
         check_int(self.seed, "seed", low=0)
         _finite_float("lr", self.lr, strict=True)
         for name in ("kl_weight", "keypoint_weight", "rot_weight", "trans_weight", "joint_weight"):

@@ -1,9 +1,9 @@
 """The model-file contract: what ``hupbench export`` writes into an ONNX file, how every reader checks it,
 and how an image becomes the model's input.
 
-Imports numpy, json and ``datagen.input_checks`` only: the torch-free predict path, the exporter and eval all read files through
-:func:`read_metadata` and :func:`check_io_shapes`, so the schema a file is written with and the schema a
-reader accepts cannot drift apart.
+Imports numpy, json and datagen's numpy-only ``camera`` and ``input_checks``: the torch-free predict
+path, the exporter and eval all read files through :func:`read_metadata` and :func:`check_io_shapes`,
+so the schema a file is written with and the schema a reader accepts cannot drift apart.
 
 Metadata (``metadata_props``, strings): ``hupbench.onnx_schema`` (ONNX_SCHEMA), ``hupbench.input_size``
 (S, an int from 16 to 2048), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model
@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from datagen.camera import resize_intrinsics
 from datagen.input_checks import check_int, is_whole
 
 __all__ = ["INPUT_SIZE_RANGE", "META", "ONNX_SCHEMA", "InputGeometry", "apply_affine", "check_intrinsics",
@@ -218,19 +219,14 @@ class InputGeometry:
 
     @property
     def image_to_input(self) -> np.ndarray:
-        """(3, 3) original-image pixels -> model-input pixels (pad, then resize)."""
-        s = self.scale
-        return np.array([[s, 0.0, s * (self.pad_left + 0.5) - 0.5],
-                         [0.0, s, s * (self.pad_top + 0.5) - 0.5],
-                         [0.0, 0.0, 1.0]])
+        """(3, 3) original-image pixels -> model-input pixels (pad, then resize): the identity's intrinsics
+        under :func:`datagen.camera.resize_intrinsics`, so K and pixels follow the one formula."""
+        return resize_intrinsics(np.eye(3), self.scale, (self.pad_left, self.pad_top))
 
     @property
     def input_to_image(self) -> np.ndarray:
         """(3, 3) model-input pixels -> original-image pixels: the inverse of :attr:`image_to_input`."""
-        s = self.scale
-        return np.array([[1.0 / s, 0.0, 0.5 / s - 0.5 - self.pad_left],
-                         [0.0, 1.0 / s, 0.5 / s - 0.5 - self.pad_top],
-                         [0.0, 0.0, 1.0]])
+        return np.linalg.inv(self.image_to_input)
 
     @property
     def normalized_to_input(self) -> np.ndarray:

@@ -22,8 +22,9 @@ SIZES = [(640, 480, 128), (480, 640, 64), (100, 100, 100), (37, 301, 16), (2000,
 
 @pytest.mark.parametrize("width,height,S", SIZES)
 def test_geometry_matrix_equals_pad_then_resize(width, height, S):
-    """The 3 x 3 map against datagen.camera's pad-then-resize (independent formulas), its inverse, and
-    projection: projecting through the mapped K lands where the mapped pixel is."""
+    """The 3 x 3 map (built with datagen.camera.resize_intrinsics) against resize_points, a separate formula
+    of the same pad-then-resize; its inverse; and projection: projecting through the mapped K lands where
+    the mapped pixel is."""
     g = InputGeometry(width, height, S)
     offset = (g.pad_left, g.pad_top)
     uv = np.random.default_rng(0).uniform(-50, 700, (4, 7, 2))
@@ -35,6 +36,13 @@ def test_geometry_matrix_equals_pad_then_resize(width, height, S):
     points = np.random.default_rng(1).uniform([-0.2, -0.2, 0.3], [0.2, 0.2, 1.0], (9, 3))
     np.testing.assert_allclose(project_points(points, g.intrinsics_to_input(K)),
                                g.image_to_input_px(project_points(points, K)), atol=1e-8)
+
+
+def test_geometry_matrix_known_values():
+    """200 x 100 to 50 px: L = 200, s = 0.25, pad_top = 50; u_in = 0.25 (u + 0.5) - 0.5,
+    v_in = 0.25 (v + 50.5) - 0.5."""
+    np.testing.assert_allclose(InputGeometry(200, 100, 50).image_to_input,
+                               [[0.25, 0.0, -0.375], [0.0, 0.25, 12.125], [0.0, 0.0, 1.0]])
 
 
 def test_normalised_coordinates_map_to_pixel_centres():
