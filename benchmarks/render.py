@@ -1,8 +1,11 @@
-"""Render speed: frames per second for RGB + depth + segmentation at 256 x 256.
+"""Render speed per pass: frames per second of the colour pass (both shaders) and the label pass at 256 x 256.
 
 Renders the preview grasp (hand, forearm, probe) from cameras spread round a
-sphere, one process, and prints the median over repeats for each modality
-set. Usage: python benchmarks/render.py [--frames 100] [--repeats 5] [--platform egl]
+sphere, one process, and prints the median over repeats for each pass: the
+colour pass ("rgb") with our Blinn-Phong shader and with pyrender's physically
+based one, the label pass ("depth+seg", which the dataset renders once per view
+and shares between its backgrounds and gloves), and both together.
+Usage: python benchmarks/render.py [--frames 100] [--repeats 5] [--platform egl]
 """
 
 from __future__ import annotations
@@ -38,21 +41,24 @@ def main() -> None:
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     poses = [look_at(target + 0.5 * d, target) for d in directions]
 
-    with Renderer(intrinsics, platform=args.platform) as renderer:
-        renderer.set_parts(parts)
-        triangles = sum(len(p.mesh.faces) for p in parts)
-        print(f"renderer: {renderer.platform}, {args.size} x {args.size}, {triangles} triangles, "
-              f"{args.frames} frames x {args.repeats} repeats")
-        for modalities in (("rgb", "depth", "seg"), ("rgb", "depth"), ("seg",), ("depth",)):
-            renderer.render(poses[0], modalities)  # warm-up: shader compilation, uploads
-            rates = []
-            for _ in range(args.repeats):
-                start = time.perf_counter()
-                for T in poses:
-                    renderer.render(T, modalities)
-                rates.append(args.frames / (time.perf_counter() - start))
-            print(f"  {'+'.join(modalities):16s} median {statistics.median(rates):6.1f} frames/s "
-                  f"(min {min(rates):.1f}, max {max(rates):.1f})")
+    passes = {"blinn_phong": (("rgb",), ("depth", "seg"), ("rgb", "depth", "seg")), "pbr": (("rgb",),)}
+    for shading, modality_sets in passes.items():
+        with Renderer(intrinsics, platform=args.platform, shading=shading) as renderer:
+            renderer.set_parts(parts)
+            triangles = sum(len(p.mesh.faces) for p in parts)
+            print(f"renderer: {renderer.platform}, shading {shading}, {args.size} x {args.size}, {triangles} "
+                  f"triangles, {args.frames} frames x {args.repeats} repeats")
+            for modalities in modality_sets:
+                renderer.render(poses[0], modalities)  # warm-up: shader compilation, uploads
+                times = []
+                for _ in range(args.repeats):
+                    start = time.perf_counter()
+                    for T in poses:
+                        renderer.render(T, modalities)
+                    times.append((time.perf_counter() - start) / args.frames)
+                median = statistics.median(times)
+                print(f"  {'+'.join(modalities):16s} median {1e3 * median:6.2f} ms/frame = {1 / median:6.1f} frames/s "
+                      f"(min {1e3 * min(times):.2f}, max {1e3 * max(times):.2f} ms)")
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, l
 from datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
 from datagen.geometry import invert_transform, transform_points
 from datagen.io import DiskFullError, save_npz, write_bytes
-from datagen.render.renderer import MODALITIES, SEG_LABELS, PointLight, RenderSettings
+from datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
 from datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
 from datagen import keypoints as kp
 from datagen import tolerances as tol
@@ -121,6 +121,8 @@ class ChunkRenderer:
         self.backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
         self.renderer = Renderer(spec.intrinsics, platform=platform)
         self._grasp_loaded = None
+        #: (grasp, z, view) -> what the view's frames share (:meth:`_view`)
+        self._views: dict[tuple[int, int, int], dict] = {}
 
     def render(self, chunk: int, split: str, layout: Layout) -> ChunkOutput:
         """Render and encode every frame of one chunk (nothing is written).
@@ -141,29 +143,24 @@ class ChunkRenderer:
             if self._grasp_loaded != g:
                 renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
                 self._grasp_loaded = g
-            renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+            view = self._view(cam)
             light = lamp(spec, index)
-            T_world_cam = invert_transform(cam["T_cam_world"])
-            position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
-            settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[
-                PointLight(position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
-            wanted = set(spec.modalities) | {"depth", "seg"}  # depth and labels decide visibility
-            frames = renderer.render(cam["T_cam_world"], tuple(m for m in MODALITIES if m in wanted), settings,
-                                     alpha=True)
             if "rgb" in spec.modalities:
+                renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+                T_world_cam = invert_transform(cam["T_cam_world"])
+                position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
+                settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[PointLight(
+                    position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
+                rgba = renderer.render(cam["T_cam_world"], ("rgb",), settings, alpha=True)["rgb"]
                 background = self.backgrounds.image(cam["background"], spec.width, spec.height)
-                rgb = composite(frames["rgb"], background)
+                rgb = composite(rgba, background)
                 ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
                 params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
                 files.append(("rgb", index, _encode(ext, rgb[..., ::-1], params)))
-            if "depth" in spec.modalities:
-                depth_u16 = np.round(frames["depth"] / DEPTH_SCALE_M).astype(np.uint16)
-                files.append(("depth", index, _encode(".png", depth_u16)))
-            if "seg" in spec.modalities:
-                files.append(("seg", index, _encode(".png", frames["seg"])))
+            files.extend((modality, index, data) for modality, data in view["files"])
             rows.append({
                 "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
-                "visible": visibility(cam["keypoints_cam"], cam["keypoints_2d"], frames["depth"], frames["seg"]),
+                "visible": view["visible"],
                 "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
                 "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
                 "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
@@ -172,6 +169,23 @@ class ChunkRenderer:
                 "light_energy_w": light["energy_w"],
             })
         return ChunkOutput(chunk, split, files, _stack_rows(rows))
+
+    def _view(self, cam: dict) -> dict:
+        """What the frames of one view of the loaded grasp share: the label pass's depth and labels,
+        encoded as the spec asks, and the keypoints' visibility (backgrounds, gloves and lamps
+        change the colours only). Kept for the views of the current (grasp, z_ego)."""
+        key = (cam["grasp"], cam["z"], cam["view"])
+        if key not in self._views:
+            self._views = {k: v for k, v in self._views.items() if k[:2] == key[:2]}
+            labels = self.renderer.render(cam["T_cam_world"], ("depth", "seg"))
+            files = []
+            if "depth" in self.spec.modalities:
+                files.append(("depth", _encode(".png", np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16))))
+            if "seg" in self.spec.modalities:
+                files.append(("seg", _encode(".png", labels["seg"])))
+            self._views[key] = {"files": files, "visible": visibility(
+                cam["keypoints_cam"], cam["keypoints_2d"], labels["depth"], labels["seg"])}
+        return self._views[key]
 
 
 def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:

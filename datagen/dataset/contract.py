@@ -17,7 +17,11 @@ and the keypoint order only: a reader never pulls in the renderer.
 
 Convention:
     Annotations are in the OpenCV camera frame (x right, y down, z forward), metres; 2D keypoints
-    in pixels of the stored image (pixel centres at integers); K (3, 3) of the stored image.
+    in pixels of the stored image; K (3, 3) of the stored image. Pixel centres are at integers:
+    the pixel in row r, column c covers [c - 0.5, c + 0.5) x [r - 0.5, r + 0.5), and a camera-frame
+    point (x, y, z) is seen at u = fx x / z + cx, v = fy y / z + cy in those coordinates. The images
+    follow it (the renderer shifts GL's half-integer pixel centres by half a pixel), so the mask of
+    a small sphere centred on the optical axis has its centroid at (cx, cy).
 """
 
 from __future__ import annotations

@@ -24,7 +24,8 @@ from datagen.input_checks import check_int, is_whole
 
 
 GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
-#: HUP-3D's lamp (REFERENCE.md), in the camera frame of the published renderer
+#: HUP-3D's lamp box (REFERENCE.md), metres in the published renderer's camera frame: Blender's camera axes
+#: (x right, y up, looking down -z), so z = 0.5 is half a metre behind the camera
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
 #: what the camera can aim at besides a keypoint (by name): the centre of the 29 keypoints' box in
@@ -32,9 +33,9 @@ LAMP_HIGH = np.array([0.6, 0.4, 0.5])
 BOX_CENTRE = "box_centre"
 #: the published renderer's aim: the right middle-finger MCP (SMPL-H joint 40, our keypoint 9)
 PAPER_LOOK_AT = "middle_mcp"
-#: pyrender intensity per Blender watt, calibrated so the middle of HUP-3D's 50-300 W range
-#: exposes a gloved hand at 0.5 m like the preview
-LAMP_INTENSITY_PER_WATT = 0.0075
+#: pyrender intensity per Blender watt, calibrated with the lamp box behind the camera so that the
+#: median gloved-hand pixel of the default grasps' frames stores about 170 of 255
+LAMP_INTENSITY_PER_WATT = 0.015
 
 
 #: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
@@ -170,13 +171,14 @@ def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:
     """The frame's lamp, a pure function of (seed, frame index).
 
     Returns:
-        "position_cam" (3,) metres in the OpenCV camera frame (HUP-3D's box with y up
-        turned to y down), "color" (3,) = (c, c, b), "energy_w" Blender watts.
+        "position_cam" (3,) metres in the OpenCV camera frame: HUP-3D's box in Blender's camera axes
+        turned to OpenCV's (y and z negated), so the lamp is above the optical axis and 0.5 m behind
+        the camera; "color" (3,) = (c, c, b); "energy_w" Blender watts.
     """
     rng = np.random.default_rng([spec.seed, index])
     x, y, z = rng.uniform(LAMP_LOW, LAMP_HIGH)
     c, b = rng.uniform(0.6, 1.0, size=2)
-    return {"position_cam": np.array([x, -y, z]), "color": np.array([c, c, b]),
+    return {"position_cam": np.array([x, -y, -z]), "color": np.array([c, c, b]),
             "energy_w": np.array(rng.uniform(50.0, 300.0))}
 
 

@@ -7,6 +7,11 @@ flat-shaded label pass.
 Convention:
     Camera poses are given as ``T_cam_world`` in OpenCV axes and converted
     to pyrender's OpenGL axes by :func:`datagen.camera.swap_gl_cv_axes`.
+    Pixels follow the dataset contract (:mod:`datagen.dataset.contract`, "Convention"):
+    a point projected by ``K`` to (u, v) lands in the pixel whose centre is (u, v).
+    The colour pass shades with ``shaders/blinn_phong.frag`` (Lambert + Blinn-Phong
+    under point lamps, ambient, emissive) by default; ``shading="pbr"`` keeps pyrender's
+    physically based shader (about half the speed, a near-identical look: docs/rendering.md).
     Depth is the camera-frame z in metres (float32), 0 where no surface
     was hit. Labels: 0 background, 1 hand, 2 arm, 3 probe (``SEG_LABELS``).
 """
@@ -14,6 +19,7 @@ Convention:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -25,6 +31,11 @@ from datagen.geometry import check_last_axes, invert_transform
 from datagen.input_checks import check_shape
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
+#: the colour pass's fragment shader, in place of pyrender's mesh.frag (fed by pyrender's mesh.vert)
+COLOUR_SHADER = Path(__file__).with_name("shaders") / "blinn_phong.frag"
+SHADINGS = ("blinn_phong", "pbr")
+#: GL puts pixel centres at half-integers from the image's corner; the contract puts them at integers
+GL_PIXEL_CENTRE_OFFSET = 0.5
 
 
 def check_modalities(modalities: Iterable[str]) -> tuple[str, ...]:
@@ -102,6 +113,18 @@ class RenderSettings:
     lights: list[PointLight] = field(default_factory=list)
 
 
+def _colour_shader_cache(pyrender):
+    """pyrender's shader cache with :data:`COLOUR_SHADER` as the colour pass's fragment shader."""
+
+    class ColourShaderCache(pyrender.shader_program.ShaderProgramCache):
+        def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+            if fragment_shader == "mesh.frag":
+                fragment_shader = str(COLOUR_SHADER)  # an absolute path: joined to the shader folder, it wins
+            return super().get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+
+    return ColourShaderCache()
+
+
 class Renderer:
     """A reusable offscreen renderer for one image size.
 
@@ -111,19 +134,27 @@ class Renderer:
     Args:
         intrinsics: camera intrinsics and image size.
         platform: "egl", "osmesa" or None for automatic (see :mod:`datagen.render.gl`).
+        shading: the colour pass's shader, one of ``SHADINGS``: "blinn_phong" (ours) or "pbr"
+            (pyrender's own).
     """
 
-    def __init__(self, intrinsics: Intrinsics, platform: str | None = None) -> None:
+    def __init__(self, intrinsics: Intrinsics, platform: str | None = None, shading: str = "blinn_phong") -> None:
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+        if shading not in SHADINGS:
+            raise ValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
         self.platform = gl.configure(platform)
         pyrender = gl.load_pyrender()  # offscreen only: never pyglet's X11 window system
         self._pyrender = pyrender
         self.intrinsics = intrinsics
         self._renderer = pyrender.OffscreenRenderer(intrinsics.width, intrinsics.height)
+        self.shading = shading
+        if shading == "blinn_phong":
+            self._renderer._renderer._program_cache = _colour_shader_cache(pyrender)
         self._scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35] * 3)
         camera = pyrender.IntrinsicsCamera(
-            intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, znear=ZNEAR_M, zfar=ZFAR_M
+            intrinsics.fx, intrinsics.fy, intrinsics.cx + GL_PIXEL_CENTRE_OFFSET,
+            intrinsics.cy + GL_PIXEL_CENTRE_OFFSET, znear=ZNEAR_M, zfar=ZFAR_M
         )
         self._camera_node = self._scene.add(camera, pose=np.eye(4))
         self._part_nodes: dict[str, object] = {}
@@ -147,7 +178,8 @@ class Renderer:
         for rank, part in enumerate(parts):
             material = pyrender.MetallicRoughnessMaterial(
                 baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic,
-                emissiveFactor=list(part.emissive)
+                # pyrender's own shader adds the emissive factor squared, ours adds it once
+                emissiveFactor=list(np.sqrt(part.emissive) if self.shading == "pbr" else part.emissive)
             )
             mesh = pyrender.Mesh.from_trimesh(part.mesh, material=material, smooth=part.smooth)
             node = self._scene.add(mesh, name=part.name)

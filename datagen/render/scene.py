@@ -31,7 +31,7 @@ PROBE_LENS_RGB = (0.18, 0.19, 0.21)
 #: it also glows (PROBE_MARKER_EMISSIVE) like the light it stands for, so it stays green in the shadow of
 #: the hand or away from the lamp
 PROBE_MARKER_RGB = (0.05, 0.85, 0.25)
-PROBE_MARKER_EMISSIVE = (0.02, 0.45, 0.12)
+PROBE_MARKER_EMISSIVE = (0.0004, 0.2025, 0.0144)
 
 
 @dataclass

@@ -20,9 +20,9 @@ from datagen.dataset.sphere import viewpoints
 
 from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
-#: the tiny sphere at 256 px (the default camera): frame 1 (grasp 0, view 1) and frame 11 (grasp 1,
+#: the tiny sphere at 256 px (fx 480, principal point 127.5): frame 1 (grasp 0, view 1) and frame 11 (grasp 1,
 #: view 1) each hold one pixel where the hand and the forearm are at the same depth
-TIES_256 = TINY | dict(width=256, height=256, fx=480.0, fy=480.0, cx=128.0, cy=128.0, n_backgrounds=1)
+TIES_256 = TINY | dict(width=256, height=256, fx=480.0, fy=480.0, cx=127.5, cy=127.5, n_backgrounds=1)
 TIE_FRAME = 1
 
 
