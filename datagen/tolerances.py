@@ -39,6 +39,19 @@ VERIFY_LOOK_AT_M = 1e-6
 VERIFY_PROBE_SURFACE_M = 0.003
 #: verify: the annotations' K must equal the manifest's within this
 VERIFY_K_PX = 1e-6
+#: verify: the images sit this close to the labels (pixels, per axis): measured on correct 256 px frames
+#: within 0.07 px, a half-pixel shift 0.49-0.55 px (datagen.dataset.verify.image_shift_px)
+VERIFY_IMAGE_SHIFT_PX = 0.25
+#: verify: the shift is measured from at least this many probe pixels on the probe's surface ...
+VERIFY_SHIFT_MIN_PIXELS = 30
+#: ... whose normals pin it down: the least-squares design (columns scaled to unit length) must have a
+#: condition number below this
+VERIFY_SHIFT_MAX_COND = 50.0
+#: verify: finite-difference step for the probe's surface normals, metres
+VERIFY_SDF_STEP_M = 1e-5
+#: verify: the manifest's split floors must equal those the annotations give within this (mm; the same
+#: float32 keypoints, summed in another order)
+VERIFY_FLOOR_MM = 0.01
 #: verify: away from the mask's edge, depth and mask agree on foreground; more disagreeing pixels
 #: than this means one of them is another frame's (correct frames: at most 11 at 64-256 px; a depth
 #: or seg file of another view: 71 or more at 64 px; docs/robustness.md, section verify)

@@ -1,6 +1,7 @@
 """Rendering one chunk of frames and writing it.
 
-A chunk is one (grasp, z_ego, background) block: n_glove x n_view frames sharing the meshes. Its
+A chunk is the frames of one (grasp, z_ego, background) block in one split (:func:`datagen.dataset.spec.chunk_plan`),
+sharing the meshes. Its
 image files are written atomically, then its annotation rows, also atomically: a chunk whose rows exist
 is done. :class:`ChunkRenderer` renders chunks in the local worker processes (which die with their
 parent) and on Ray actors (:mod:`datagen.dataset.ray_launcher`); :func:`write_chunk` writes them.
@@ -124,11 +125,12 @@ class ChunkRenderer:
         #: (grasp, z, view) -> what the view's frames share (:meth:`_view`)
         self._views: dict[tuple[int, int, int], dict] = {}
 
-    def render(self, chunk: int, split: str, layout: Layout) -> ChunkOutput:
+    def render(self, chunk: int, split: str, frames: tuple[int, ...], layout: Layout) -> ChunkOutput:
         """Render and encode every frame of one chunk (nothing is written).
 
         Args:
-            chunk: chunk index in ``range(layout.n_chunks)``. split: its split. layout: the frame layout.
+            chunk: chunk number (:func:`datagen.dataset.spec.chunk_plan`). split: its split.
+            frames: its frame indices. layout: the frame layout.
 
         Returns:
             The chunk's encoded image files and annotation rows.
@@ -137,7 +139,7 @@ class ChunkRenderer:
 
         spec, grasps, renderer = self.spec, self.grasps, self.renderer
         rows, files = [], []
-        for index in layout.chunk_frames(chunk):
+        for index in frames:
             cam = frame_camera(spec, grasps, layout, index)
             g = cam["grasp"]
             if self._grasp_loaded != g:
@@ -254,9 +256,9 @@ def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | Non
 
 def _render_chunk(args) -> tuple[int, int]:
     """Render and write one chunk in a local worker; return (chunk, frames written)."""
-    chunk, root, split, layout = args
+    chunk, root, split, frames, layout = args
     chunks = _worker["chunks"]
-    return chunk, write_chunk(Path(root), chunks.render(chunk, split, layout), chunks.spec.rgb_format)
+    return chunk, write_chunk(Path(root), chunks.render(chunk, split, frames, layout), chunks.spec.rgb_format)
 
 
 class _WorkerDiskFull(Exception):

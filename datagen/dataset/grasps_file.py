@@ -16,6 +16,9 @@ from datagen import keypoints as kp
 
 #: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
 GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id": ("i", ())}
+#: what a dataset records of a grasps.npz when it is there: the probe orientation Theta_Vol (Euler
+#: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
+OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
 
 
 def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
@@ -30,7 +33,7 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
 
     Returns:
         {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres,
-        "grasp_id": (G,) int64}.
+        "grasp_id": (G,) int64}, and "probe_euler_deg" (G, 3) float64 degrees when the file holds it.
 
     Raises:
         FileNotFoundError: no such file. ValueError: anything else wrong; the message names the
@@ -63,7 +66,7 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
             if absent:
                 raise ValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
                                  "expected a grasps.npz written by `hupbench grasps`")
-            for key in GRASP_FIELDS:
+            for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files)]:
                 try:
                     arrays[key] = data[key]
                 except ValueError as exc:  # object arrays: numpy refuses to unpickle them
@@ -78,7 +81,9 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
         raise ValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
                          "write it again with `hupbench grasps`") from None
     rows = {k: a.shape[0] if a.ndim else None for k, a in arrays.items()}
-    for key, (kind, row_shape) in GRASP_FIELDS.items():
+    for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS).items():
+        if key not in arrays:
+            continue
         array = arrays[key]
         if array.dtype.kind not in (("f", "i", "u") if kind == "f" else ("i", "u")):
             raise ValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
@@ -94,7 +99,9 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
         raise ValueError(f"grasps file {name} holds no grasps (0 rows)")
     out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
            "grasp_id": arrays["grasp_id"].astype(np.int64)}
-    for key in ("hand_pose", "hand_trans"):
+    if "probe_euler_deg" in arrays:
+        out["probe_euler_deg"] = arrays["probe_euler_deg"].astype(np.float64)
+    for key in [k for k in out if k != "grasp_id"]:
         bad = ~np.isfinite(out[key]).all(axis=1)
         if bad.any():
             raise ValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
@@ -118,6 +125,8 @@ class GraspSet:
 
         arrays = read_grasps(path)
         self.hand_pose, self.hand_trans, self.grasp_id = arrays["hand_pose"], arrays["hand_trans"], arrays["grasp_id"]
+        #: (G, 3) degrees, the probe orientation each grasp was made for, or None per grasp when not recorded
+        self.probe_euler_deg = arrays.get("probe_euler_deg", [None] * len(self.hand_pose))
         self.path = None if isinstance(path, bytes) else Path(path)
         hand, probe = build_hand(), build_probe()
         self.keypoints_world = np.concatenate(

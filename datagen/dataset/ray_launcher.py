@@ -134,19 +134,19 @@ class ChunkActor:
         """{"pid", "host", "platform"} of this actor."""
         return {"pid": os.getpid(), "host": socket.gethostname(), "platform": self.platform}
 
-    def render(self, chunk: int, split: str, layout):
+    def render(self, chunk: int, split: str, frames: tuple[int, ...], layout):
         """Render one chunk; returns a :class:`datagen.dataset.chunks.ChunkOutput`."""
-        return self._chunks.render(chunk, split, layout)
+        return self._chunks.render(chunk, split, frames, layout)
 
 
-def render_chunks(factory: str, jobs: list[tuple[int, str]], layout, spec, grasps_npz: bytes,
+def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], layout, spec, grasps_npz: bytes,
                   backgrounds_dir: str | None, platform: str | None, options: RayOptions, default_workers: int,
                   on_chunk: Callable[[object], None], log=print) -> dict:
     """Render chunks on Ray actors and hand each result to ``on_chunk`` in the driver.
 
     Args:
         factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
-        jobs: (chunk, split) pairs to render.
+        jobs: (chunk, split, frame indices) of the chunks to render.
         layout: the dataset's :class:`datagen.dataset.spec.Layout`.
         spec: the :class:`datagen.dataset.spec.DatasetSpec`.
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
@@ -230,19 +230,19 @@ def _wait_started(ray, actors: list, timeout_s: float) -> list[dict]:
 def _schedule(ray, jobs, layout, actors: list, new_actor, max_retries: int, on_chunk, log) -> int:
     """Keep every actor fed with chunks until all are written; returns the number of lost results."""
     queue = deque(jobs)
-    attempts = {chunk: 0 for chunk, _ in jobs}
-    pending: dict = {}  # ObjectRef -> (chunk, split, slot, actor handle it went to)
+    attempts = {job[0]: 0 for job in jobs}
+    pending: dict = {}  # ObjectRef -> (chunk, split, frames, slot, actor handle it went to)
     load = [0] * len(actors)
     failures = 0
     while queue or pending:
         for slot, actor in enumerate(actors):
             while queue and load[slot] < CHUNKS_IN_FLIGHT_PER_ACTOR:
-                chunk, split = queue.popleft()
-                pending[actor.render.remote(chunk, split, layout)] = (chunk, split, slot, actor)
+                chunk, split, frames = queue.popleft()
+                pending[actor.render.remote(chunk, split, frames, layout)] = (chunk, split, frames, slot, actor)
                 load[slot] += 1
         done, _ = ray.wait(list(pending), num_returns=1)
         ref = done[0]
-        chunk, split, slot, actor = pending.pop(ref)
+        chunk, split, frames, slot, actor = pending.pop(ref)
         if actors[slot] is actor:
             load[slot] -= 1
         try:
@@ -265,7 +265,7 @@ def _schedule(ray, jobs, layout, actors: list, new_actor, max_retries: int, on_c
                 ray.kill(actor, no_restart=True)
                 actors[slot], load[slot] = new_actor(), 0
                 # chunks still queued on the dead actor fail the same way and come back here
-            queue.appendleft((chunk, split))
+            queue.appendleft((chunk, split, frames))
             continue
         on_chunk(output)
     return failures

@@ -23,7 +23,7 @@ from datagen import keypoints as kp
 from datagen.input_checks import check_int, is_whole
 
 
-GENERATOR_VERSION = "0.2.0"  # 0.2: the published renderer's sphere and look-at by default (issue 13)
+GENERATOR_VERSION = "0.3.0"
 #: HUP-3D's lamp box (REFERENCE.md), metres in the published renderer's camera frame: Blender's camera axes
 #: (x right, y up, looking down -z), so z = 0.5 is half a metre behind the camera
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
@@ -38,6 +38,9 @@ PAPER_LOOK_AT = "middle_mcp"
 LAMP_INTENSITY_PER_WATT = 0.015
 
 
+#: what the evaluation splits hold out: whole grasps (HUP-3D's protocol) or views of the sphere
+UNSEEN_GRASPS, UNSEEN_VIEWS = "unseen_grasps", "unseen_views"
+TRACKS = (UNSEEN_GRASPS, UNSEEN_VIEWS)
 #: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
 #: camera plane (z_ego 0.001: 8 keypoints behind it), beyond 10 m they cover a few pixels
 Z_EGO_RANGE_M = (0.1, 10.0)
@@ -61,7 +64,13 @@ class DatasetSpec:
 
     Attributes:
         z_ego_m: camera distances to the grasp, metres.
-        splits: grasps per split, in the order of the grasps file (train, val, test).
+        splits: grasps per split, in the order of the grasps file (train, val, test), on the
+            "unseen_grasps" track; None on the "unseen_views" track, where every grasp is in every split.
+        track: what the evaluation splits hold out (``TRACKS``): "unseen_grasps" (HUP-3D's protocol,
+            DexYCB's S3: whole grasps) or "unseen_views" (DexYCB's S2: every grasp in every split, the
+            views split by :func:`split_of_views`).
+        view_stride: on the "unseen_views" track, of every ``view_stride`` consecutive views of the
+            sphere one goes to test and one to val (:func:`split_of_views`).
         modalities: which of rgb, depth, seg to write.
         rgb_format: "jpg" or "png". jpeg_quality: 0-100.
         seed: lamp randomisation seed.
@@ -75,7 +84,9 @@ class DatasetSpec:
     """
 
     z_ego_m: tuple = (0.5, 0.8)
-    splits: dict = field(default_factory=lambda: {"train": 7, "val": 2, "test": 2})
+    splits: dict | None = field(default_factory=lambda: {"train": 7, "val": 2, "test": 2})
+    track: str = UNSEEN_GRASPS
+    view_stride: int = 5
     modalities: tuple = MODALITIES
     rgb_format: str = "jpg"
     jpeg_quality: int = 95
@@ -96,10 +107,21 @@ class DatasetSpec:
         for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", 1, MAX_IMAGE_SIDE),
                                 ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
             check_int(getattr(self, name), f"dataset.{name}", low, high)
-        splits = dict(self.splits)
-        if set(splits) - set(SPLITS) or any(not is_whole(v) or v < 0 for v in splits.values()):
-            raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
-        object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
+        if self.track not in TRACKS:
+            raise ValueError(f"dataset.track must be one of {', '.join(TRACKS)}, got {self.track!r}")
+        check_int(self.view_stride, "dataset.view_stride", 3, None)
+        if self.track == UNSEEN_VIEWS:
+            if self.splits is not None:
+                raise ValueError("dataset.splits counts grasps per split on the unseen_grasps track; the unseen_views "
+                                 "track puts every grasp in every split and holds out views (dataset.view_stride): "
+                                 "set dataset.splits=null, as `hupbench generate +track=unseen_views` does")
+        else:
+            if self.splits is None:
+                raise ValueError(f"dataset.splits must map {SPLITS} to grasp counts on the unseen_grasps track, got null")
+            splits = dict(self.splits)
+            if set(splits) - set(SPLITS) or any(not is_whole(v) or v < 0 for v in splits.values()):
+                raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
+            object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
         object.__setattr__(self, "modalities", check_modalities(self.modalities))
         if self.rgb_format not in ("jpg", "png"):
             raise ValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
@@ -156,7 +178,10 @@ class Layout:
 
 
 def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
-    """Grasp indices of each split: consecutive in the grasps file, train first."""
+    """Grasp indices of each split: consecutive in the grasps file, train first (unseen_grasps), or every
+    grasp in every split (unseen_views)."""
+    if spec.track == UNSEEN_VIEWS:
+        return {name: list(range(n_grasps)) for name in SPLITS}
     total = sum(spec.splits.values())
     if total != n_grasps:
         raise ValueError(f"splits {spec.splits} add up to {total} grasps but the grasps file holds {n_grasps}")
@@ -164,6 +189,46 @@ def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
     for name in SPLITS:
         out[name] = list(range(start, start + spec.splits[name]))
         start += spec.splits[name]
+    return out
+
+
+def split_of_views(spec: DatasetSpec, n_views: int) -> dict[str, list[int]]:
+    """View positions (into :func:`datagen.dataset.sphere.viewpoints`) of each split.
+
+    On the unseen_grasps track every split holds every view. On the unseen_views track the views,
+    in the sphere's order (pole, then ring by ring from north to south), are dealt in runs of
+    ``view_stride``: position ``stride // 2`` of each run goes to test, the last to val, the rest to
+    train, so every ring of at least ``view_stride`` views has test and val views, and no test or val
+    view is ever seen in training.
+    """
+    if spec.track == UNSEEN_GRASPS:
+        return {name: list(range(n_views)) for name in SPLITS}
+    stride = spec.view_stride
+    held_out = {stride // 2: "test", stride - 1: "val"}
+    out = {name: [] for name in SPLITS}
+    for position in range(n_views):
+        out[held_out.get(position % stride, "train")].append(position)
+    return out
+
+
+def chunk_plan(layout: Layout, grasps_of: dict[str, list[int]], views_of: dict[str, list[int]]
+               ) -> list[tuple[str, tuple[int, ...]]]:
+    """The chunks a dataset is rendered in: (split, frame indices) each, numbered by their place in the list.
+
+    A chunk is the frames of one (grasp, z_ego, background) block that belong to one split (the
+    split holding both the frame's grasp and its view): the whole block on the unseen_grasps track,
+    one chunk per split on the unseen_views track.
+    """
+    out = []
+    for block in range(layout.n_chunks):
+        frames = layout.chunk_frames(block)
+        grasp = layout.tuple(frames.start)[0]
+        for name in SPLITS:
+            if grasp in grasps_of[name]:
+                views = set(views_of[name])
+                chosen = tuple(i for i in frames if i % layout.n_views in views)
+                if chosen:
+                    out.append((name, chosen))
     return out
 
 
@@ -212,7 +277,8 @@ def protocol(spec: DatasetSpec) -> dict:
              "forearm": "forearm (north = hand -> elbow)"}[s.axis]
     up = {"body": "towards the north pole along the meridian (the body's vertical), defined at the poles",
           "forearm": "the fingers (-north); at the poles the dorsal direction"}[s.axis]
-    return {"name": name, "sphere_axis": s.axis, "polar_axis": polar, "image_up": up,
+    return {"name": name, "track": spec.track, "view_stride": spec.view_stride if spec.track == UNSEEN_VIEWS else None,
+            "sphere_axis": s.axis, "polar_axis": polar, "image_up": up,
             "exclude": list(s.exclude), "elbow_cone_deg": s.elbow_cone_deg,
             "excluded_view_ids": list(excluded_view_ids(s)), "look_at": spec.look_at,
             "look_at_index": None if spec.look_at == BOX_CENTRE else kp.KEYPOINT_NAMES.index(spec.look_at)}

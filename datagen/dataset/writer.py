@@ -31,7 +31,7 @@ import multiprocessing
 import os
 import shutil
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -40,7 +40,9 @@ import numpy as np
 from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS
 from datagen.dataset.grasps_file import GraspSet
 from datagen.dataset.ray_launcher import RayOptions, check_launcher
-from datagen.dataset.spec import DatasetSpec, GENERATOR_VERSION, Layout, protocol, split_of_grasps, view_directions_arm
+from datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
+from datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
+                                  split_of_views, view_directions_arm)
 from datagen.dataset.sphere import viewpoints
 from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, save_npz, write_json, write_with
 from datagen.processes import check_workers as check_processes
@@ -58,6 +60,15 @@ from datagen.dataset.chunks import (
     _worker_init,
     write_chunk,
 )
+
+
+@dataclass(frozen=True)
+class SplitPlan:
+    """Which grasps (indices into the grasps file) and views (positions in the sphere's view list) each
+    split holds; a frame is in the split that holds both its grasp and its view."""
+
+    grasps: dict[str, list[int]]
+    views: dict[str, list[int]]
 
 
 def config_hash(resolved: dict) -> str:
@@ -228,9 +239,9 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
                          f"{len(backgrounds)} image(s)" + (f" ({backgrounds_dir})" if backgrounds_dir else ""))
     check_output_dir(out_dir)
     grasps = GraspSet(grasps_path)
-    splits = split_of_grasps(spec, len(grasps))
     view_ids, _ = viewpoints(spec.sphere)
     layout = Layout(len(grasps), len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
+    splits = SplitPlan(split_of_grasps(spec, len(grasps)), split_of_views(spec, len(view_ids)))
     chash = config_hash(resolved_config)
     with contextlib.ExitStack() as stack:
         if lock is None:
@@ -282,21 +293,21 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
         return _finished(out_dir, layout, chash)
     _start_or_resume(out_dir, grasps_path, layout, chash)
 
-    split_of = {g: s for s, gs in splits.items() for g in gs}
-    chunk_split = [split_of[layout.tuple(c * layout.chunk_size)[0]] for c in range(layout.n_chunks)]
-    todo = [c for c in range(layout.n_chunks) if c % n == k and not _chunk_path(out_dir, chunk_split[c], c).is_file()]
+    chunks = chunk_plan(layout, splits.grasps, splits.views)
+    todo = [c for c in range(len(chunks)) if c % n == k and not _chunk_path(out_dir, chunks[c][0], c).is_file()]
     start = time.perf_counter()
     rendered = 0
     if todo:
-        log(f"rendering {len(todo) * layout.chunk_size} frames ({len(todo)} chunks) with "
+        n_frames = sum(len(chunks[c][1]) for c in todo)
+        log(f"rendering {n_frames} frames ({len(todo)} chunks) with "
             + (f"{workers} worker(s)" if launcher == "local" else "Ray") + (f", shard {k}/{n}" if n > 1 else ""))
         for split in SPLITS:
             for m in spec.modalities:
                 (out_dir / split / m).mkdir(parents=True, exist_ok=True)
             (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
-        jobs = [(c, str(out_dir), chunk_split[c], layout) for c in todo]
+        jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
         init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
-        bar = _progress(len(todo) * layout.chunk_size, progress, "rendering")
+        bar = _progress(n_frames, progress, "rendering")
         writers = {os.getpid()}
         try:
             if launcher == "ray":
@@ -308,7 +319,7 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
                     rendered += count
                     bar.update(count)
 
-                render_chunks("datagen.dataset.chunks:ChunkRenderer", [(c, chunk_split[c]) for c in todo], layout,
+                render_chunks("datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout,
                               spec, (out_dir / "grasps.npz").read_bytes(), backgrounds_dir, platform,
                               ray or RayOptions(), workers, on_chunk, log=log)
             elif workers == 1:
@@ -346,11 +357,11 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
             return partial
         if manifest_file.is_file():
             return {**_finished(out_dir, layout, chash), "frames_rendered": rendered, "seconds": seconds}
-    missing = [c for c in range(layout.n_chunks) if not _chunk_path(out_dir, chunk_split[c], c).is_file()]
+    missing = [c for c in range(len(chunks)) if not _chunk_path(out_dir, chunks[c][0], c).is_file()]
     if missing:
         log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
         return partial
-    counts = _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps)
+    counts = _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, backgrounds, grasps)
     return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered, "seconds": seconds,
             "complete": True, "counts": counts}
 
@@ -373,21 +384,22 @@ def _progress(total: int, enabled: bool, desc: str | None = None, unit: str = "f
     return tqdm(total=total, unit=unit, desc=desc, disable=not enabled, smoothing=0.1, dynamic_ncols=True)
 
 
-def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash, backgrounds, grasps) -> dict:
+def _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, backgrounds, grasps) -> dict:
     """Merge the chunk rows per split, then write the manifest (last)."""
-    counts = {}
+    counts, merged_splits = {}, {}
     for split in SPLITS:
-        chunks = [c for c in range(layout.n_chunks) if chunk_split[c] == split]
         parts = []
-        for c in chunks:
+        for c in (c for c, (chunk_split, _) in enumerate(chunks) if chunk_split == split):
             with np.load(_chunk_path(out_dir, split, c)) as data:
                 parts.append({key: data[key] for key in data.files})
         merged = {key: np.concatenate([p[key] for p in parts]) for key in ANNOTATION_DTYPES} if parts else \
             {key: np.zeros((0,), dtype=dt) for key, dt in ANNOTATION_DTYPES.items()}
         counts[split] = int(len(merged["frame_id"]))
+        merged_splits[split] = merged
         if counts[split]:
             save_npz(out_dir / split / "annotations.npz", merged)
     view_ids, angles = viewpoints(spec.sphere)
+    floors = split_floors(merged_splits) if counts["train"] else {}
     manifest = {
         "schema_version": SCHEMA_VERSION,
         "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
@@ -395,8 +407,10 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
         "config": resolved_config,
         "config_hash": chash,
         "counts": counts,
-        "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in splits.items()},
-        "grasp_indices": splits,
+        "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in splits.grasps.items()},
+        "grasp_indices": splits.grasps,
+        "grasp_theta_vol_deg": {str(int(i)): (None if e is None else [float(v) for v in e])
+                                for i, e in zip(grasps.grasp_id, grasps.probe_euler_deg)},
         "layout": {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(layout.shape),
                    "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
                    "chunk_size": layout.chunk_size},
@@ -413,8 +427,10 @@ def _finalise(out_dir, spec, layout, splits, chunk_split, resolved_config, chash
                        "sphere": asdict(spec.sphere),
                        # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
                        # the same for every grasp, whichever way the sphere is attached
-                       "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist()},
+                       "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
+                       "split_view_ids": {split: view_ids[positions].tolist() for split, positions in splits.views.items()}},
         "protocol": protocol(spec),
+        "split_floors": {"definition": FLOORS_DEFINITION, "track": spec.track, "splits": floors},
         "backgrounds": {"names": list(backgrounds.names[: spec.n_backgrounds]),
                         "fingerprint": backgrounds.fingerprint()},
         "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],

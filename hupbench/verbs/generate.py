@@ -40,7 +40,7 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
 
         grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
         n_grasps = grasps_cfg.generate.n_select
-        if sum(spec.splits.values()) != n_grasps:
+        if spec.splits is not None and sum(spec.splits.values()) != n_grasps:
             raise ValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
                              f"grasps config selects {n_grasps}")
     elif grasps_path.is_dir():
