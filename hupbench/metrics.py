@@ -74,6 +74,7 @@ __all__ = [
     "background_labels",
     "breakdown_mpjpe_mm",
     "collapsed_axes",
+    "grasp_labels",
     "keypoint_errors_mm",
     "latitude_labels",
     "mpjpe_mm",
@@ -94,6 +95,8 @@ __all__ = [
     "spread_ratios",
     "symmetry_costs",
     "symmetry_permutation",
+    "theta_vol_label",
+    "theta_vol_labels",
     "z_ego_labels",
 ]
 
@@ -121,6 +124,10 @@ SPREAD_AXES = ("x", "y", "z")
 SPREAD_RATIO_WARN = 0.5
 #: a truth whose spread along an axis is below this (metres) does not vary there: its ratio is None
 SPREAD_MIN_M = 1e-9
+#: the Theta_Vol bucket of frames whose grasp has no recorded probe orientation
+THETA_VOL_UNKNOWN = "unknown"
+#: Theta_Vol angles are rounded to this many decimals (degrees) in their bucket labels
+THETA_VOL_LABEL_DECIMALS = 3
 
 _MM_PER_M = 1000.0
 
@@ -446,6 +453,47 @@ def background_labels(background_id, names: Sequence[str] | None = None) -> np.n
             raise ValueError(f"background ids {bad} have no name among {len(names)} names")
         return np.array([str(names[i]) for i in ids])
     return np.array([f"background {i}" for i in ids])
+
+
+def grasp_labels(grasp_id) -> np.ndarray:
+    """Grasp bucket of each frame: its grasp id in decimal, e.g. "7" (annotations "grasp_id", int)."""
+    return np.array([str(int(g)) for g in np.asarray(grasp_id).reshape(-1)])
+
+
+def theta_vol_label(theta_vol_deg) -> str:
+    """The bucket label of one probe orientation Theta_Vol, e.g. "theta_vol_z=180".
+
+    z is always named; x and y only where they are not 0 ("theta_vol_x=30_z=90"), since the grasp
+    generator's orientations usually turn the probe about z alone. Angles are rounded to
+    ``THETA_VOL_LABEL_DECIMALS`` and written without trailing zeros; no angle is wrapped, so -90 and
+    270 are two labels, as the grasps file recorded them.
+
+    Args:
+        theta_vol_deg: (3,) Euler angles (x, y, z) of the probe, degrees, intrinsic x-y-z.
+
+    Returns:
+        The label.
+    """
+    x, y, z = (round(float(v), THETA_VOL_LABEL_DECIMALS) + 0.0 for v in theta_vol_deg)  # + 0.0: no "-0"
+    named = [(axis, v) for axis, v in (("x", x), ("y", y)) if v != 0.0] + [("z", z)]
+    return "theta_vol_" + "_".join(f"{axis}={v:.{THETA_VOL_LABEL_DECIMALS}f}".rstrip("0").rstrip(".")
+                                   for axis, v in named)
+
+
+def theta_vol_labels(grasp_id, theta_vol_deg_by_grasp: dict) -> np.ndarray:
+    """Probe-orientation bucket of each frame: the Theta_Vol label of its grasp (:func:`theta_vol_label`).
+
+    Args:
+        grasp_id: (N,) int, each frame's grasp id (annotations "grasp_id").
+        theta_vol_deg_by_grasp: {int grasp id: (3,) degrees, or None where the grasps file did not
+            record the orientation}; a grasp that is not a key counts as None.
+
+    Returns:
+        (N,) array of str; ``THETA_VOL_UNKNOWN`` for frames whose grasp has no orientation.
+    """
+    labels = {int(g): THETA_VOL_UNKNOWN if theta is None else theta_vol_label(theta)
+              for g, theta in theta_vol_deg_by_grasp.items()}
+    return np.array([labels.get(int(g), THETA_VOL_UNKNOWN) for g in np.asarray(grasp_id).reshape(-1)])
 
 
 def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:

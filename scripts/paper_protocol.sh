@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# The paper protocol for one experiment of conf/experiment/, end to end and rerunnable:
-#   bash scripts/paper_protocol.sh paper_hopenet_cpu      (or paper_resnet50_cpu)
-# 1. the full default dataset (31,680 frames, grasp split 7/2/2) unless it is there: hupbench generate
+# One experiment of conf/experiment/ on its track's full dataset, end to end and rerunnable:
+#   bash scripts/paper_protocol.sh paper_hopenet_cpu      (or paper_hupnet_cpu, paper_resnet50_cpu, views_hopenet_cpu)
+# 1. the experiment's dataset (data.root) unless it is there: the track of conf/track/ whose out_dir it is
+#    (hupbench_out/dataset: the paper's unseen grasps, 31,680 frames, grasp split 7/2/2;
+#    hupbench_out/dataset_unseen_views: the same frames, views split 3/1/1): hupbench generate +track=TRACK
 # 2. training: python train.py +experiment=NAME (resumes where a killed run stopped)
 # 3. evaluation on the test split -> leaderboard/results/<run_name>.json, its log -> leaderboard/logs/
 # 4. ONNX export (with the parity check) next to the checkpoint, and the leaderboard rebuilt
@@ -9,12 +11,18 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 experiment="${1:?usage: scripts/paper_protocol.sh EXPERIMENT (a file of conf/experiment/ without .yaml)}"
 [ -f "conf/experiment/$experiment.yaml" ] || { echo "no conf/experiment/$experiment.yaml" >&2; exit 1; }
-dataset=hupbench_out/dataset
+dataset=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).data.root)")
+track=$(python3 -c "
+from pathlib import Path
+from hupbench.config import compose
+tracks = [p.stem for p in sorted(Path('conf/track').glob('*.yaml')) if compose('generate', ['+track=' + p.stem]).out_dir == '$dataset']
+print(tracks[0] if tracks else '')")
+[ -n "$track" ] || { echo "data.root $dataset of $experiment is the out_dir of no track in conf/track/" >&2; exit 1; }
 run_name=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).run_name)")
 label=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).label or '')")
 run_dir=hupbench_out/runs/$run_name
 
-[ -f "$dataset/manifest.json" ] || hupbench generate out_dir="$dataset"
+[ -f "$dataset/manifest.json" ] || hupbench generate "+track=$track" progress=false
 python3 train.py "+experiment=$experiment"
 [ -f "$run_dir/summary.json" ] || { echo "training of $run_name did not finish" >&2; exit 1; }
 cp "$run_dir/metrics.jsonl" "leaderboard/logs/$run_name.jsonl"

@@ -2,7 +2,7 @@
 
 The model runs over one split of a dataset (``hupbench.data.HUPDataset`` at the model's input
 size, batched, under ``torch.inference_mode``), the metrics of :mod:`hupbench.metrics` are
-computed on all frames, and a results JSON in schema version 2 (:mod:`hupbench.evaluation.results`) is
+computed on all frames, and a results JSON in schema version 3 (:mod:`hupbench.evaluation.results`) is
 written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the same wrapper the
 ONNX export uses, so both formats report the same quantities.
 
@@ -26,7 +26,16 @@ What the numbers are:
     pixel_error_px      mean 2D error of all 29 keypoints (visible or not) in pixels of the stored
                         dataset image (e.g. 256 px), so that models of different input sizes compare.
     breakdowns          MPJPE by camera latitude (``metrics.latitude_labels``: egocentric = camera on
-                        the elbow's hemisphere, theta < 90 deg), by z_ego and by background name.
+                        the elbow's hemisphere, theta < 90 deg), by z_ego, by background name, by grasp
+                        (the grasp id) and by the grasp's probe orientation Theta_Vol
+                        (``metrics.theta_vol_labels``, e.g. "theta_vol_z=180"; from the manifest's
+                        ``grasp_theta_vol_deg``). Frames of grasps whose orientation the grasps file did
+                        not record fall in the "unknown" bucket; the Theta_Vol breakdown is left out
+                        when no evaluated grasp has one (older datasets).
+    track, split_floor  the dataset's track (manifest ``protocol.track``: "unseen_grasps" or
+                        "unseen_views") and the evaluated split's floor from the manifest's
+                        ``split_floors`` (what a model that only recalls training labels scores, overall
+                        and per grasp); null for datasets made before them and for the train split.
     latency             ms per image, median of timed runs after warm-up, batch 1 and 32, PyTorch
                         (checkpoints only) and onnxruntime (a checkpoint is exported to a temporary
                         ONNX file first); both use torch's intra-op thread count.
@@ -37,6 +46,7 @@ What the numbers are:
 
 from __future__ import annotations
 
+import copy
 import errno
 import json
 import statistics
@@ -51,8 +61,10 @@ import torch
 from datagen import keypoints as kp
 from datagen.input_checks import check_int
 from hupbench import metrics
+from hupbench.evaluation.results import FLOOR_NAMES, TRACKS, validate_grasp_theta_vol, validate_split_floor
 
-__all__ = ["LATENCY_RUNS", "count_flops", "format_table", "measure_latency_ms", "run_eval"]
+__all__ = ["LATENCY_RUNS", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval",
+           "split_floor"]
 
 #: (least warm-up runs, timed runs) per batch size for the latency medians
 LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
@@ -183,6 +195,85 @@ def _check_dataset(dataset: Path, split: str) -> dict:
     from hupbench.data import read_manifest
 
     return read_manifest(dataset, split, needs="the benchmark needs")
+
+
+def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dict[str, list[float] | None] | None:
+    """The probe orientation Theta_Vol of each evaluated grasp, from the manifest's ``grasp_theta_vol_deg``.
+
+    Args:
+        manifest: the dataset's manifest; ``grasp_theta_vol_deg`` is {str(grasp id): [x, y, z] degrees or
+            null}, null or absent where the grasps file did not record the orientations.
+        grasp_ids: the evaluated grasps (annotations ``grasp_id``).
+        where: the manifest's path, for errors.
+
+    Returns:
+        {str(grasp id): [x, y, z] degrees or None} for exactly ``grasp_ids`` (a grasp the map lacks is
+        None), or None when the manifest records no orientations.
+
+    Raises:
+        ValueError: the map is not grasp ids -> three finite numbers or null (the message names the manifest).
+    """
+    recorded = manifest.get("grasp_theta_vol_deg")
+    if recorded is None:
+        return None
+    validate_grasp_theta_vol(recorded, f"{where}: manifest['grasp_theta_vol_deg']")
+    return {str(g): recorded.get(str(g)) for g in grasp_ids}
+
+
+def _with_optional_floor_keys(entry):
+    """A manifest's floor entry with the keys a manifest may leave out set to None (unknown): the view floor
+    (split and per grasp), which exists only where every evaluated grasp is in training, and each grasp's frames."""
+    if not isinstance(entry, dict):
+        return entry
+    entry = {"nearest_train_view_mm": None} | entry
+    if isinstance(entry.get("per_grasp"), dict):
+        entry["per_grasp"] = {g: {"nearest_train_view_mm": None, "frames": None} | e if isinstance(e, dict) else e
+                              for g, e in entry["per_grasp"].items()}
+    return entry
+
+
+def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) -> tuple[str | None, dict | None]:
+    """The dataset's track and the evaluated split's floor, checked, as the results JSON holds them.
+
+    Args:
+        manifest: the dataset's manifest: ``protocol.track`` and ``split_floors`` = {"definition", "track",
+            "splits": {split: entry}} (see :func:`hupbench.evaluation.results.validate_split_floor`), both
+            absent in datasets made before them; the train split has no entry.
+        split: the evaluated split.
+        grasp_ids: the evaluated grasps (annotations ``grasp_id``): the entry's ``per_grasp`` must hold exactly them.
+        where: the manifest's path, for errors.
+
+    Returns:
+        (track or None, a copy of the split's entry or None).
+
+    Raises:
+        ValueError: a track that is not one of ``TRACKS``, two tracks that disagree, or a bad entry (the
+            message names the manifest and the field).
+    """
+    track = (manifest.get("protocol") or {}).get("track")
+    if track is not None and track not in TRACKS:
+        raise ValueError(f"{where}: manifest['protocol']['track'] must be one of {', '.join(TRACKS)}, got {track!r}")
+    floors = manifest.get("split_floors")
+    if floors is not None:
+        if not isinstance(floors, dict) or not isinstance(floors.get("splits"), dict):
+            raise ValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition', 'track' and "
+                             f"'splits' (split -> floor), got {str(floors)[:80]}")
+        if floors.get("track") not in TRACKS:
+            raise ValueError(f"{where}: manifest['split_floors']['track'] must be one of {', '.join(TRACKS)}, got "
+                             f"{floors.get('track')!r}")
+        if track is not None and floors["track"] != track:
+            raise ValueError(f"{where}: manifest['split_floors']['track'] {floors['track']!r} differs from "
+                             f"manifest['protocol']['track'] {track!r}")
+        track = floors["track"]
+    entry = None if floors is None else floors["splits"].get(split)
+    if entry is None:
+        return track, None
+    entry_where = f"{where}: manifest['split_floors']['splits'][{split!r}]"
+    entry = copy.deepcopy(validate_split_floor(_with_optional_floor_keys(entry), entry_where))
+    if set(entry["per_grasp"]) != {str(g) for g in grasp_ids}:
+        raise ValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
+                         f"{sorted(entry['per_grasp'], key=int)}")
+    return track, entry
 
 
 def _model_format(path: Path) -> str:
@@ -327,7 +418,13 @@ def format_table(results: dict) -> str:
                                 f"{f(None if results['model']['flops'] is None else results['model']['flops'] / 1e9, '{:.3f}')}")),
         ("latency PyTorch b1 / b32", f"{f(lat['pytorch']['batch1'])} / {f(lat['pytorch']['batch32'])} ms/image"),
         ("latency ORT b1 / b32", f"{f(lat['onnxruntime']['batch1'])} / {f(lat['onnxruntime']['batch32'])} ms/image"),
+        ("track", results["track"] or "-"),
     ]
+    floor = results["split_floor"]
+    if floor is not None:
+        mm = floor["floor_mm"]
+        rows.append(("split floor hand / probe / all",
+                     f"{f(mm['hand'])} / {f(mm['probe'])} / {f(mm['all'])} mm ({floor['floor_kind']})"))
     for axis, buckets in results["breakdowns"].items():
         for label, b in buckets.items():
             rows.append((f"  {axis}: {label}", (f"{f(b['mpjpe_mm']['all'])} mm all, {f(b['mpjpe_mm']['hand'])} hand, "
@@ -482,14 +579,17 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
 
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size))
+    fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
+                                                                "grasp_id"), reader.manifest)}
+    grasp_ids = sorted({int(g) for g in fields["grasp_id"]})
+    manifest_path = str(dataset / "manifest.json")
+    theta_vol_by_grasp = grasp_theta_vol_deg(manifest, grasp_ids, manifest_path)
+    track, floor = split_floor(manifest, split, grasp_ids, manifest_path)
     K_eval = reader[0]["K"].double().numpy()
     if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
         log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "
             f"{net.K_input.round(3).tolist()}: its 3D output assumes the training camera")
     pred2d, pred3d, gt2d, gt3d = _predict_split(net, reader, batch_size, split, progress, log)
-
-    fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world"),
-                                               reader.manifest)}
 
     errors = metrics.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
     width, height = (int(v) for v in manifest["image_size"])
@@ -507,7 +607,8 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     total = sum(int(v) for v in manifest["counts"].values())
     results["dataset"] = {"path": str(dataset.resolve()), "manifest_sha256": file_sha256(dataset / "manifest.json"),
                           "split": split, "frames": len(reader), "name": f"hupbench {dataset.resolve().name} "
-                                                                          f"({total:,} frames)"}
+                                                                          f"({total:,} frames)",
+                          "grasp_theta_vol_deg": theta_vol_by_grasp}
     results["metrics"] = {
         "mpjpe_mm": metrics.split_from_errors_mm(errors) | {"all_averaging": metrics.ALL_AVERAGING},
         "root_relative_hand_mpjpe_mm": metrics.root_relative_mpjpe_mm(pred3d, gt3d),
@@ -521,7 +622,18 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         "latitude": metrics.breakdown_mpjpe_mm(errors, metrics.latitude_labels(fields["theta"])),
         "z_ego": metrics.breakdown_mpjpe_mm(errors, metrics.z_ego_labels(fields["z_ego"])),
         "background": metrics.breakdown_mpjpe_mm(errors, metrics.background_labels(fields["background_id"], background_names)),
+        "grasp": metrics.breakdown_mpjpe_mm(errors, metrics.grasp_labels(fields["grasp_id"])),
     }
+    if theta_vol_by_grasp is not None and any(v is not None for v in theta_vol_by_grasp.values()):
+        by_grasp = {int(g): theta for g, theta in theta_vol_by_grasp.items()}
+        results["breakdowns"]["theta_vol"] = metrics.breakdown_mpjpe_mm(
+            errors, metrics.theta_vol_labels(fields["grasp_id"], by_grasp))
+    results["track"], results["split_floor"] = track, floor
+    if floor is not None:
+        model_mm = results["metrics"]["mpjpe_mm"]
+        log(f"{split} split floor: hand {floor['floor_mm']['hand']:.2f} / probe {floor['floor_mm']['probe']:.2f} / all "
+            f"{floor['floor_mm']['all']:.2f} mm ({FLOOR_NAMES[floor['floor_kind']]}); this model: hand "
+            f"{model_mm['hand']:.2f} / probe {model_mm['probe']:.2f} / all {model_mm['all']:.2f} mm")
     if latency:
         results["latency_ms_per_image"] = _measured_latency(net, out_path, run_name, log, progress)
     results["device"] = hardware_description(torch.device("cpu"))

@@ -1,8 +1,9 @@
-"""The leaderboard: a table and two plots rebuilt from ``leaderboard/results/*.json``.
+"""The leaderboard: a table per track and two plots rebuilt from ``leaderboard/results/*.json``.
 
 ``hupbench leaderboard [--dir leaderboard]`` reads every results file
 (validated by :mod:`hupbench.evaluation.results`; a bad file is an error naming it),
-and regenerates ``README.md`` (the table, notes and per-row details),
+and regenerates ``README.md`` (one table per track, each with the test split's floor beside the rows,
+notes, and per-row details with a per-grasp table),
 ``mpjpe_vs_latency.png`` (error against inference latency with the Pareto
 frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
 training wall time, from the training logs under ``logs/``).
@@ -37,11 +38,12 @@ import io
 import json
 import math
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 from datagen.io import atomic_output, clean_stale_tmp
-from hupbench.evaluation.results import load_results
+from hupbench.evaluation.results import FLOOR_KINDS, FLOOR_NAMES, SCHEMA_VERSION, TRACKS, load_results
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"
@@ -52,6 +54,17 @@ MISSING = "—"
 NUM_HAND, NUM_PROBE = 21, 8
 # "all" that differs from the keypoint-weighted mean by more than the two-decimal rounding of the inputs
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
+#: the track of rows whose results name none: the paper's rows and results of datasets made before tracks,
+#: which all hold out whole grasps
+PAPER_TRACK = "unseen_grasps"
+#: each track's table heading and what it holds out
+TRACK_TITLES = {
+    "unseen_grasps": ("Unseen grasps", "the test split's grasps are not in the training split (the HUP-3D paper's "
+                      "protocol). Rows whose results name no track (the paper's, and results of datasets made "
+                      "before tracks) belong here."),
+    "unseen_views": ("Unseen views", "every grasp is in the training split; the test split's camera views of the "
+                     "sphere are not."),
+}
 
 
 # ----------------------------------------------------------------------------- rows
@@ -228,9 +241,9 @@ def _code(text: str | None) -> str:
 
 
 TABLE_COLUMNS = ("model", "kind", "test data", "input (px)", "params (M)", "MPJPE all (mm)", "MPJPE hand (mm)",
-                 "MPJPE probe (mm)", "MPJPE probe, half-turn symmetric (mm)", "PA-MPJPE hand (mm)", "AUC 0-50 mm",
-                 "spread ratio x / y / z", "training (time, hardware)", "latency ONNX Runtime (ms/image, batch 1)",
-                 "latency PyTorch (ms/image, batch 1)", "command")
+                 "MPJPE probe (mm)", "split floor hand / probe / all (mm)", "MPJPE probe, half-turn symmetric (mm)",
+                 "PA-MPJPE hand (mm)", "AUC 0-50 mm", "spread ratio x / y / z", "training (time, hardware)",
+                 "latency ONNX Runtime (ms/image, batch 1)", "latency PyTorch (ms/image, batch 1)", "command")
 #: the axes and threshold of the spread ratios (hupbench.metrics.SPREAD_AXES, SPREAD_RATIO_WARN), kept
 #: here as plain values so that the leaderboard does not import torch
 SPREAD_AXES = ("x", "y", "z")
@@ -240,6 +253,18 @@ SPREAD_RATIO_WARN = 0.5
 # numbers right-aligned, text left
 _ALIGN = {c: "---" if c in ("model", "kind", "test data", "training (time, hardware)", "command") else "---:"
           for c in TABLE_COLUMNS}
+
+
+def triplet_cell(mm: dict | None) -> str:
+    """``"12.00 / 30.00 / 17.00"``: hand / probe / all (mm) of a {"hand", "probe", "all"} dict (None: missing mark)."""
+    if mm is None:
+        return MISSING
+    return " / ".join(_number(mm[part]) for part in ("hand", "probe", "all"))
+
+
+def row_track(row: dict) -> str:
+    """The track whose table holds the row: its results' track, else ``PAPER_TRACK``."""
+    return row["track"] or PAPER_TRACK
 
 
 def spread_cell(row: dict) -> str:
@@ -276,6 +301,7 @@ def table_row(row: dict) -> list[str]:
         _number(mpjpe["all"]),
         _number(mpjpe["hand"]),
         _number(mpjpe["probe"]),
+        triplet_cell(None if row["split_floor"] is None else row["split_floor"]["floor_mm"]),
         _number(metrics["probe_symmetric_mpjpe_mm"]),
         _number(metrics["pa_mpjpe_hand_mm"]),
         _number(metrics["pck_auc_0_50mm"], 3),
@@ -349,7 +375,105 @@ def _details(row: dict) -> list[str]:
         lines.append(f"- git commit `{row['git_commit']}`" + (f", evaluated {row['created_utc']}" if row["created_utc"] else ""))
     if row["source"] is not None:
         lines.append(f"- source: {_cell(row['source'])}")
-    return lines + [""]
+    return lines + [""] + _grasp_details(row)
+
+
+def _natural_key(label: str) -> list:
+    """Sort key that orders the numbers inside labels by value: "theta_vol_z=45" before "theta_vol_z=180"."""
+    return [(0, float(part), "") if i % 2 else (1, 0.0, part)
+            for i, part in enumerate(re.split(r"(-?\d+(?:\.\d+)?)", label))]
+
+
+GRASP_COLUMNS = ("grasp", "Theta_Vol x, y, z (deg)", "frames", "MPJPE hand (mm)", "MPJPE probe (mm)", "MPJPE all (mm)",
+                 "floor hand / probe / all (mm)", "nearest training grasp")
+
+
+def grasp_rows(row: dict) -> list[list[str]]:
+    """The per-grasp table of one results row: one line per grasp that its grasp breakdown or its floor names.
+
+    Args:
+        row: a validated results dict.
+
+    Returns:
+        One list of cells per :data:`GRASP_COLUMNS`, grasps in increasing id; empty when the row has neither
+        a grasp breakdown nor per-grasp floors.
+    """
+    measured = row["breakdowns"].get("grasp", {})
+    floors = {} if row["split_floor"] is None else row["split_floor"]["per_grasp"]
+    theta_vol = row["dataset"]["grasp_theta_vol_deg"] or {}
+    out = []
+    for grasp in sorted(set(measured) | set(floors), key=int):
+        bucket, floor = measured.get(grasp), floors.get(grasp)
+        mpjpe = {} if bucket is None else bucket["mpjpe_mm"]
+        angles = theta_vol.get(grasp)
+        nearest = None if floor is None else floor["nearest_train_grasp_id"]
+        out.append([grasp, MISSING if angles is None else ", ".join(f"{a:g}" for a in angles),
+                    MISSING if bucket is None else str(bucket["frames"]),
+                    _number(mpjpe.get("hand")), _number(mpjpe.get("probe")), _number(mpjpe.get("all")),
+                    triplet_cell(None if floor is None else floor["floor_mm"]),
+                    MISSING if nearest is None else str(nearest)])
+    return out
+
+
+def _grasp_details(row: dict) -> list[str]:
+    """The row's per-grasp table and its MPJPE by probe orientation, or a line saying they are not recorded."""
+    table = grasp_rows(row)
+    if not table:
+        if row["kind"] != "measured":
+            return []
+        return [f"Per grasp: {MISSING} (the results file records no grasp breakdown: it was written before results "
+                f"schema version {SCHEMA_VERSION}; `hupbench eval` adds it).", ""]
+    floor = row["split_floor"]
+    lines = ["Per test grasp" + ("" if floor is None else f" (floor: {FLOOR_NAMES[floor['floor_kind']]})") + ":",
+             "", "| " + " | ".join(GRASP_COLUMNS) + " |",
+             "|" + "|".join("---:" for _ in GRASP_COLUMNS) + "|"]
+    lines += ["| " + " | ".join(cells) + " |" for cells in table]
+    lines.append("")
+    by_theta = row["breakdowns"].get("theta_vol")
+    if by_theta:
+        shown = "; ".join(f"{_cell(label)} {triplet_cell(by_theta[label]['mpjpe_mm'])} ({by_theta[label]['frames']} "
+                          f"frames)" for label in sorted(by_theta, key=_natural_key))
+        lines += [f"MPJPE by probe orientation Theta_Vol, hand / probe / all (mm): {shown}.", ""]
+    return lines
+
+
+def _floor_lines(rows: list[dict]) -> list[str]:
+    """The test split's floor of each dataset the rows were evaluated on, named by what it is."""
+    floors: dict[str, dict[tuple, dict]] = {}  # floor kind -> (dataset name, manifest sha256) -> floor_mm
+    for row in rows:
+        if row["split_floor"] is not None:
+            key = (row["dataset"]["name"], row["dataset"]["manifest_sha256"] or "")
+            floors.setdefault(row["split_floor"]["floor_kind"], {}).setdefault(key, row["split_floor"]["floor_mm"])
+    if not floors:
+        return [f"Split floor: {MISSING} for every row here (results files written before results schema version "
+                f"{SCHEMA_VERSION}, datasets made before split floors, and the paper record none).", ""]
+    lines = []
+    for kind in (k for k in FLOOR_KINDS if k in floors):
+        lines += [f"Split floor, hand / probe / all (mm; column *split floor*): {FLOOR_NAMES[kind]}.", ""]
+        for (name, sha), mm in sorted(floors[kind].items()):
+            lines.append(f"- {_cell(name)}" + (f" (manifest sha256 `{sha[:12]}`)" if sha else "")
+                         + f", test split: {triplet_cell(mm)}")
+        lines.append("")
+    return lines
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _track_section(track: str, rows: list[dict]) -> list[str]:
+    """One track's heading, what it holds out, its floors and its table (rows already sorted)."""
+    title, holds_out = TRACK_TITLES[track]
+    n_measured = sum(row["kind"] == "measured" for row in rows)
+    out = [f"## Track: {title} (`{track}`)", "", f"{title}: {holds_out}", ""]
+    out += _floor_lines(rows)
+    out += [f"{_count(len(rows), 'row')} ({n_measured} measured, {len(rows) - n_measured} reported), sorted by MPJPE "
+            f"all, then run name. {MISSING} means not measured or not reported.",
+            "",
+            "| " + " | ".join(TABLE_COLUMNS) + " |",
+            "|" + "|".join(_ALIGN[c] for c in TABLE_COLUMNS) + "|"]
+    out += ["| " + " | ".join(table_row(row)) + " |" for row in rows]
+    return out + [""]
 
 
 def render_readme(rows: list[dict]) -> str:
@@ -362,6 +486,7 @@ def render_readme(rows: list[dict]) -> str:
         Markdown text ending in one newline; a pure function of ``rows``.
     """
     n_measured = sum(row["kind"] == "measured" for row in rows)
+    tracks = [t for t in TRACKS if any(row_track(row) == t for row in rows)]
     out = [
         "# hupbench leaderboard",
         "",
@@ -370,8 +495,9 @@ def render_readme(rows: list[dict]) -> str:
         "",
         ("3D hand and ultrasound-probe pose estimation from one RGB image: how far the predicted keypoints are "
          "from the truth (MPJPE, mm) against what the model costs to train and to run. One row per results "
-         "file in [`results/`](results/) (schema version 2, validated on load; files written in version 1 "
-         f"are read with the two metrics version 2 added unknown, {MISSING})."),
+         f"file in [`results/`](results/) (schema version {SCHEMA_VERSION}, validated on load; files written in "
+         f"earlier versions are read with the fields added since unknown, {MISSING}), in one table per track: "
+         "what the test split holds out from training."),
         "",
         ("- **measured** rows were evaluated here by `hupbench eval` on the test split of the dataset they name. "
          "Every measured row names the committed command that reproduces its training (last column), and its "
@@ -384,15 +510,14 @@ def render_readme(rows: list[dict]) -> str:
          "`hupbench eval MODEL DATASET` into `leaderboard/results/<run_name>.json`, copy its training log to "
          "`leaderboard/logs/<run_name>.jsonl`, and rebuild."),
         "",
-        (f"{len(rows)} rows ({n_measured} measured, {len(rows) - n_measured} reported), sorted by MPJPE all, then "
-         f"run name. {MISSING} means not measured or not reported."),
+        (f"{_count(len(rows), 'row')} ({n_measured} measured, {len(rows) - n_measured} reported) in "
+         f"{_count(len(tracks), 'track')}: " + ", ".join(f"{TRACK_TITLES[t][0]} (`{t}`)" for t in tracks) + "."),
         "",
-        "| " + " | ".join(TABLE_COLUMNS) + " |",
-        "|" + "|".join(_ALIGN[c] for c in TABLE_COLUMNS) + "|",
     ]
-    out += ["| " + " | ".join(table_row(row)) + " |" for row in rows]
+    by_track = {track: [row for row in rows if row_track(row) == track] for track in tracks}
+    for track in tracks:
+        out += _track_section(track, by_track[track])
     out += [
-        "",
         "## What the numbers mean",
         "",
         ("- MPJPE: mean Euclidean distance between predicted and true 3D keypoints in the camera frame, in mm, "
@@ -413,6 +538,12 @@ def render_readme(rows: list[dict]) -> str:
          "predicted 3D coordinate, averaged over the 29 keypoints, divided by the same for the truth. 1 means the "
          "predictions vary as much as the truth; near 0 means the model gives about the same value for every "
          f"image (a collapsed model). `hupbench eval` warns below {SPREAD_RATIO_WARN}."),
+        ("- Split floor (hand / probe / all, mm, mean distance per keypoint as in MPJPE), from the dataset's "
+         "manifest: what a model that only recalls training labels scores on the test split. Unseen grasps: each "
+         f"test grasp replaced by the {FLOOR_NAMES['nearest_train_grasp']}. Unseen views: each test frame replaced "
+         f"by the {FLOOR_NAMES['nearest_train_view']}. A row near or above its floor has learnt little beyond the "
+         "training labels. Each measured row's details list its MPJPE and floor per test grasp, with the grasp's "
+         "probe orientation Theta_Vol (Euler angles x, y, z of the probe in the grasp generator, degrees)."),
         ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
          "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
          "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),
@@ -436,9 +567,12 @@ def render_readme(rows: list[dict]) -> str:
         "",
         "## Row details",
         "",
+        "By track, in the tables' order.",
+        "",
     ]
-    for row in rows:
-        out += _details(row)
+    for track in tracks:
+        for row in by_track[track]:
+            out += _details(row)
     return "\n".join(out).rstrip("\n") + "\n"
 
 

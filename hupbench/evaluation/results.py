@@ -1,4 +1,4 @@
-"""The results JSON: one file per evaluated model, schema version 2.
+"""The results JSON: one file per evaluated model, schema version 3.
 
 ``hupbench eval`` writes it, ``hupbench leaderboard`` reads it. The schema is
 the one in the shared contract (notes/common.md), checked exactly: every key
@@ -7,6 +7,18 @@ exact (an ``int`` field refuses ``True`` and ``1.5``), numbers are finite,
 errors and latencies are non-negative, and the PCK AUC lies in [0, 1].
 
 Versions:
+    3 adds the dataset's track and the evaluated split's floor, and MPJPE per grasp and per probe
+    orientation. ``track`` is "unseen_grasps" (the evaluation splits hold out whole grasps, the HUP-3D
+    paper's protocol) or "unseen_views" (they hold out camera views of grasps seen in training);
+    ``split_floor`` is the evaluated split's entry of the dataset manifest's ``split_floors`` (see
+    :func:`validate_split_floor`): what a model that only recalls training labels scores on the split.
+    Both are ``null`` for a dataset whose manifest has none (made before tracks and floors) and for the
+    train split, which has no floor. ``breakdowns`` may hold "grasp" (bucket = the grasp id in decimal)
+    and "theta_vol" (bucket = the grasp's probe orientation Theta_Vol, e.g. "theta_vol_z=180", or
+    "unknown" for grasps whose orientation the grasps file did not record; the axis is left out when no
+    evaluated grasp has one), and ``dataset.grasp_theta_vol_deg`` is {grasp id: [x, y, z] degrees or
+    ``null``} for the evaluated grasps (``null`` when the manifest records no orientations).
+    Version 2 files load upgraded with those three fields ``null``.
     2 adds two entries to ``metrics``: ``probe_symmetric_mpjpe_mm`` (the probe
     corner MPJPE minimised per frame over the probe box's half turn,
     ``hupbench.metrics.probe_symmetric_mpjpe_mm``; never above the plain probe
@@ -16,7 +28,7 @@ Versions:
     1 files (written before) still load: :func:`load_results` validates them
     as version 1 and returns them upgraded to version 2 with those fields
     ``null`` (unknown: they were not measured, and nothing is made up for
-    them). Only version 2 is written.
+    them), then as version 2 files. Only version 3 is written.
 
 A ``"reported"`` row (numbers quoted from a paper) may leave almost every
 field ``null``; it needs ``metrics.mpjpe_mm.all`` and a ``source`` citation.
@@ -35,20 +47,34 @@ from pathlib import Path
 
 from datagen.io import write_json
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: versions :func:`load_results` reads (older ones are upgraded on load)
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 KINDS = ("measured", "reported")
 FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
-BREAKDOWNS = ("latitude", "z_ego", "background")
+BREAKDOWNS = ("latitude", "z_ego", "background", "grasp", "theta_vol")
+_BREAKDOWNS_V2 = BREAKDOWNS[:3]
+#: what a dataset's evaluation splits hold out (manifest ``protocol.track``)
+TRACKS = ("unseen_grasps", "unseen_views")
+#: how a split's floor is made (datagen/dataset/floors.py), in plain words: each evaluated grasp replaced by its
+#: nearest training grasp, or each evaluated frame by the nearest training view of the same grasp
+FLOOR_NAMES = {
+    "nearest_train_grasp": ("nearest training grasp under the true camera: a model that only recognises training "
+                            "grasps cannot do better than this"),
+    "nearest_train_view": ("nearest training view of the same grasp and distance under the true camera: a model "
+                           "that only recalls training views cannot do better than this"),
+}
+FLOOR_KINDS = tuple(FLOOR_NAMES)
 # A run name is also a file stem: no separators, no leading dot, nothing a shell would need quoted.
 RUN_NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
-_TOP_KEYS = ("schema_version", "kind", "run_name", "model", "dataset", "metrics", "breakdowns",
-             "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
+_TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metrics", "breakdowns",
+                "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
+_TOP_KEYS = _TOP_KEYS_V2 + ("track", "split_floor")
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
-_DATASET_KEYS = ("path", "manifest_sha256", "split", "frames", "name")
+_DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
+_DATASET_KEYS = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
 _METRIC_KEYS_V1 = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
 _METRIC_KEYS = _METRIC_KEYS_V1 + ("probe_symmetric_mpjpe_mm", "spread_ratio")
 _SPREAD_KEYS = ("x", "y", "z")
@@ -60,9 +86,22 @@ _LATENCY_BATCHES = ("batch1", "batch32")
 _TRAINING_KEYS = ("wall_s", "hardware", "samples_seen", "epochs", "command", "log")
 _BUCKET_KEYS = ("frames", "mpjpe_mm")
 _BUCKET_MPJPE_KEYS = ("all", "hand", "probe")
+_FLOOR_KEYS = ("floor_kind", "floor_mm", "nearest_train_grasp_mm", "nearest_train_view_mm", "train_mean_mm",
+               "per_grasp")
+_GRASP_FLOOR_KEYS = ("floor_mm", "nearest_train_grasp_id", "nearest_train_grasp_mm", "nearest_train_view_mm",
+                     "train_mean_mm", "frames")
+#: a grasp id as a key (JSON keys are strings): the decimal form of an integer
+GRASP_ID_PATTERN = re.compile(r"^-?(0|[1-9][0-9]*)$")
+
+
+class _Root(str):
+    """The start of a field's path when the block is not read from the results (e.g. the manifest it is copied
+    from), so that an error names the file the user has to fix."""
 
 
 def _path(parts: tuple) -> str:
+    if parts and isinstance(parts[0], _Root):
+        return str(parts[0]) + "".join(f"[{p!r}]" for p in parts[1:])
     return "results" + "".join(f"[{p!r}]" for p in parts)
 
 
@@ -160,13 +199,17 @@ def _validate_metrics(metrics, version: int) -> None:
             _number(metrics["spread_ratio"], ("metrics", "spread_ratio", axis), nullable=True)
 
 
-def _validate_breakdowns(breakdowns) -> None:
-    """``results['breakdowns']``: axis -> bucket label -> {"frames", "mpjpe_mm"}."""
+def _validate_breakdowns(breakdowns, version: int) -> None:
+    """``results['breakdowns']``: axis -> bucket label -> {"frames", "mpjpe_mm"}; "grasp" buckets are grasp ids."""
     if not isinstance(breakdowns, dict):
         _fail(("breakdowns",), "a dict (empty when none were computed)", breakdowns)
-    unknown = sorted(str(k) for k in breakdowns if k not in BREAKDOWNS)
+    axes = BREAKDOWNS if version >= 3 else _BREAKDOWNS_V2
+    unknown = sorted(str(k) for k in breakdowns if k not in axes)
     if unknown:
-        raise ValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(BREAKDOWNS)}")
+        raise ValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(axes)}")
+    for label in breakdowns.get("grasp", {}) if isinstance(breakdowns.get("grasp"), dict) else ():
+        if not isinstance(label, str) or not GRASP_ID_PATTERN.match(label):
+            _fail(("breakdowns", "grasp"), "keyed by grasp ids written as decimal integers", label)
     for axis, buckets in breakdowns.items():
         if not isinstance(buckets, dict):
             _fail(("breakdowns", axis), "a dict of bucket label -> {'frames', 'mpjpe_mm'}", buckets)
@@ -180,8 +223,128 @@ def _validate_breakdowns(breakdowns) -> None:
                                     all_nullable=True)
 
 
+def _floor_mm(d: dict, parts: tuple, *, nullable: bool) -> None:
+    """``d[parts[-1]]`` is {"hand", "probe", "all"} finite mm >= 0 (or null where ``nullable``)."""
+    if d[parts[-1]] is None and nullable:
+        return
+    _keys(d[parts[-1]], parts, _BUCKET_MPJPE_KEYS)
+    for part in _BUCKET_MPJPE_KEYS:
+        _number(d[parts[-1]], parts + (part,), nullable=False)
+
+
+def _grasp_id(d: dict, parts: tuple) -> None:
+    value = d[parts[-1]]
+    if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+        _fail(parts, "an integer grasp id or null", value)
+
+
+def validate_split_floor(floor, where: str | None = None) -> dict:
+    """Check one split's floor: what a model that only recalls training labels scores on it.
+
+    The block is a split's entry of a dataset manifest's ``split_floors["splits"]`` (written by the
+    generator, datagen/dataset/floors.py) as ``hupbench eval`` copies it into ``results['split_floor']``::
+
+        {"floor_kind": "nearest_train_grasp" | "nearest_train_view",
+         "floor_mm": T,                  # the split's headline floor, the one floor_kind names
+         "nearest_train_grasp_mm": T,    # each evaluated grasp replaced by the nearest training grasp
+         "nearest_train_view_mm": T | null,   # each frame by the nearest training view of its grasp
+         "train_mean_mm": T,             # every frame predicted as the mean training grasp
+         "per_grasp": {"<grasp id>": {"floor_mm": T, "nearest_train_grasp_id": int | null,
+                                      "nearest_train_grasp_mm": T, "nearest_train_view_mm": T | null,
+                                      "train_mean_mm": T, "frames": int | null}}}
+
+    where T is {"hand", "probe", "all"}: mean distance per keypoint in mm (the 21 hand keypoints, the 8
+    probe corners, all 29), seen from the true camera, and ``frames`` the grasp's frames in the split (the
+    weight of its floor in the split's).
+
+    Args:
+        floor: the block.
+        where: how errors name the block (default ``results['split_floor']``), e.g.
+            ``"DATASET/manifest.json: manifest['split_floors']['splits']['test']"``.
+
+    Returns:
+        ``floor`` itself.
+
+    Raises:
+        ValueError: naming the first bad, missing or unknown field by its path.
+    """
+    parts = ("split_floor",) if where is None else (_Root(where),)
+    _keys(floor, parts, _FLOOR_KEYS)
+    _choice(floor, parts + ("floor_kind",), FLOOR_KINDS, nullable=False)
+    for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
+        _floor_mm(floor, parts + (key,), nullable=False)
+    _floor_mm(floor, parts + ("nearest_train_view_mm",), nullable=True)
+    per_grasp = floor["per_grasp"]
+    if not isinstance(per_grasp, dict):
+        _fail(parts + ("per_grasp",), "a dict of grasp id -> that grasp's floors", per_grasp)
+    for grasp, entry in per_grasp.items():
+        if not isinstance(grasp, str) or not GRASP_ID_PATTERN.match(grasp):
+            _fail(parts + ("per_grasp",), "keyed by grasp ids written as decimal integers", grasp)
+        entry_parts = parts + ("per_grasp", grasp)
+        _keys(entry, entry_parts, _GRASP_FLOOR_KEYS)
+        for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
+            _floor_mm(entry, entry_parts + (key,), nullable=False)
+        _floor_mm(entry, entry_parts + ("nearest_train_view_mm",), nullable=True)
+        _grasp_id(entry, entry_parts + ("nearest_train_grasp_id",))
+        _integer(entry, entry_parts + ("frames",), nullable=True)
+    return floor
+
+
+def validate_grasp_theta_vol(theta_vol, where: str | None = None) -> dict | None:
+    """Check a {grasp id: [x, y, z] degrees or null} map of probe orientations Theta_Vol (or null).
+
+    Args:
+        theta_vol: the map, keyed by grasp ids in decimal; null where no orientation is recorded.
+        where: how errors name it (default ``results['dataset']['grasp_theta_vol_deg']``).
+
+    Returns:
+        ``theta_vol`` itself.
+
+    Raises:
+        ValueError: a key that is not a grasp id, or a value that is not null or three finite numbers.
+    """
+    parts = ("dataset", "grasp_theta_vol_deg") if where is None else (_Root(where),)
+    if theta_vol is None:
+        return None
+    if not isinstance(theta_vol, dict):
+        _fail(parts, "a dict of grasp id -> [x, y, z] degrees or null, or null", theta_vol)
+    for grasp, angles in theta_vol.items():
+        if not isinstance(grasp, str) or not GRASP_ID_PATTERN.match(grasp):
+            _fail(parts, "keyed by grasp ids written as decimal integers", grasp)
+        if angles is not None and not (isinstance(angles, list) and len(angles) == 3
+                                       and all(_is_number(a) and math.isfinite(a) for a in angles)):
+            _fail(parts + (grasp,), "[x, y, z]: three finite numbers (degrees), or null", angles)
+    return theta_vol
+
+
+def _validate_grasp_fields(d: dict) -> None:
+    """Version 3: the track, the split's floor and the grasps' orientations, and that they name the same grasps."""
+    _choice(d, ("track",), TRACKS, nullable=True)
+    if d["split_floor"] is not None:
+        if d["track"] is None:
+            _fail(("track",), "one of " + ", ".join(repr(t) for t in TRACKS) + " where split_floor is given", None)
+        if d["dataset"]["split"] == "train":
+            _fail(("split_floor",), "null for the train split (a floor compares a split with training)",
+                  d["split_floor"])
+        validate_split_floor(d["split_floor"])
+    validate_grasp_theta_vol(d["dataset"]["grasp_theta_vol_deg"])
+    grasps = d["breakdowns"].get("grasp")
+    if grasps is None:
+        return
+    per_grasp = (d["split_floor"] or {}).get("per_grasp")
+    for parts, keyed in ((("split_floor", "per_grasp"), per_grasp),
+                         (("dataset", "grasp_theta_vol_deg"), d["dataset"]["grasp_theta_vol_deg"])):
+        if keyed is not None and set(keyed) != set(grasps):
+            _fail(parts, f"keyed by the evaluated grasps {sorted(grasps, key=int)} (results['breakdowns']['grasp'])",
+                  sorted(keyed, key=int))
+    for grasp, entry in (per_grasp or {}).items():
+        if entry["frames"] is not None and entry["frames"] != grasps[grasp]["frames"]:
+            _fail(("split_floor", "per_grasp", grasp, "frames"),
+                  f"the grasp's frames in results['breakdowns']['grasp'] ({grasps[grasp]['frames']})", entry["frames"])
+
+
 def validate_results(d: dict) -> dict:
-    """Check a results dict against its schema version (2, or 1 for files written before).
+    """Check a results dict against its schema version (3, or 1 and 2 for files written before).
 
     Args:
         d: the parsed results JSON.
@@ -193,11 +356,13 @@ def validate_results(d: dict) -> dict:
         ValueError: naming the first bad, missing or unknown field by its path,
             e.g. ``results['metrics']['mpjpe_mm']['hand'] must be a finite number >= 0 or null, got 'x'``.
     """
-    _keys(d, (), _TOP_KEYS)
+    if not isinstance(d, dict) or "schema_version" not in d:
+        _keys(d, (), _TOP_KEYS)
     version = d["schema_version"]
     if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
                          f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
+    _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
@@ -215,7 +380,7 @@ def validate_results(d: dict) -> dict:
     _choice(model, ("model", "format"), FORMATS, nullable=True)
 
     dataset = d["dataset"]
-    _keys(dataset, ("dataset",), _DATASET_KEYS)
+    _keys(dataset, ("dataset",), _DATASET_KEYS if version >= 3 else _DATASET_KEYS_V2)
     _string(dataset, ("dataset", "path"), nullable=True)
     _string(dataset, ("dataset", "manifest_sha256"), nullable=True)
     _choice(dataset, ("dataset", "split"), SPLITS, nullable=False)
@@ -223,7 +388,7 @@ def validate_results(d: dict) -> dict:
     _string(dataset, ("dataset", "name"), nullable=False)
 
     _validate_metrics(d["metrics"], version)
-    _validate_breakdowns(d["breakdowns"])
+    _validate_breakdowns(d["breakdowns"], version)
 
     latency = d["latency_ms_per_image"]
     _keys(latency, ("latency_ms_per_image",), _LATENCY_RUNTIMES)
@@ -250,6 +415,8 @@ def validate_results(d: dict) -> dict:
     _string(d, ("git_commit",), nullable=True)
     _string(d, ("created_utc",), nullable=True)
     _string(d, ("source",), nullable=d["kind"] != "reported")
+    if version >= 3:
+        _validate_grasp_fields(d)
     return d
 
 
@@ -279,7 +446,7 @@ def blank_results(kind: str, run_name: str) -> dict:
         "latency_ms_per_image": {r: dict.fromkeys(_LATENCY_BATCHES) for r in _LATENCY_RUNTIMES},
         "device": None,
         "training": dict.fromkeys(_TRAINING_KEYS),
-        "git_commit": None, "created_utc": None, "source": None,
+        "git_commit": None, "created_utc": None, "source": None, "track": None, "split_floor": None,
     }
     return copy.deepcopy(blank)
 
@@ -288,8 +455,9 @@ def upgrade_results(d: dict) -> dict:
     """A validated results dict in the current schema version.
 
     Version 1 gains ``metrics.probe_symmetric_mpjpe_mm = None`` and
-    ``metrics.spread_ratio = {"x": None, "y": None, "z": None}`` (not measured
-    when the file was written); version 2 is returned as is.
+    ``metrics.spread_ratio = {"x": None, "y": None, "z": None}``; version 2 (and an upgraded 1)
+    gains ``track = None``, ``split_floor = None`` and ``dataset.grasp_theta_vol_deg = None``: none of them
+    was measured when the file was written, and nothing is made up for them. Version 3 is returned as is.
 
     Args:
         d: a dict that :func:`validate_results` accepts.
@@ -301,9 +469,13 @@ def upgrade_results(d: dict) -> dict:
     if d["schema_version"] == SCHEMA_VERSION:
         return d
     out = copy.deepcopy(d)
+    if out["schema_version"] == 1:
+        out["metrics"]["probe_symmetric_mpjpe_mm"] = None
+        out["metrics"]["spread_ratio"] = dict.fromkeys(_SPREAD_KEYS)
+    out["track"] = None
+    out["split_floor"] = None
+    out["dataset"]["grasp_theta_vol_deg"] = None
     out["schema_version"] = SCHEMA_VERSION
-    out["metrics"]["probe_symmetric_mpjpe_mm"] = None
-    out["metrics"]["spread_ratio"] = dict.fromkeys(_SPREAD_KEYS)
     return validate_results(out)
 
 
@@ -314,7 +486,7 @@ def load_results(path: str | Path) -> dict:
         path: the ``.json`` file.
 
     Returns:
-        The validated dict, in schema version 2 (see :func:`upgrade_results`).
+        The validated dict, in schema version 3 (see :func:`upgrade_results`).
 
     Raises:
         FileNotFoundError: the file does not exist.

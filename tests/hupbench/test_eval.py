@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -82,6 +83,8 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     assert {k: v["frames"] for k, v in a["breakdowns"]["z_ego"].items()} == {"0.5 m": 20}
     assert {k: v["frames"] for k, v in a["breakdowns"]["background"].items()} == {"consultation_room": 10,
                                                                                   "plain_white": 10}
+    test_grasp = json.loads((tiny_dataset / "manifest.json").read_text())["grasp_ids"]["test"]
+    assert {k: v["frames"] for k, v in a["breakdowns"]["grasp"].items()} == {str(g): 20 for g in test_grasp}
 
 
 def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, monkeypatch):
@@ -244,6 +247,126 @@ def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
     assert not (tmp_path / "r.json").exists()
     assert main(["eval", str(tmp_path / "notes.txt"), str(tiny_dataset), "--out", str(tmp_path / "r.json")]) == 1
     assert "hupbench eval: error: unknown model file type" in capsys.readouterr().err
+
+
+def _floor_triplet(hand, probe):
+    return {"hand": hand, "probe": probe, "all": (21 * hand + 8 * probe) / 29}
+
+
+def _with_floors(manifest, theta_vol=(0.0, 0.0, 180.0)):
+    """A manifest as the generator writes it with tracks and floors (values made up, shapes exact)."""
+    grasps = manifest["grasp_ids"]
+    floors = {split: {"floor_kind": "nearest_train_grasp", "floor_mm": _floor_triplet(12.0, 30.0),
+                      "nearest_train_grasp_mm": _floor_triplet(12.0, 30.0), "train_mean_mm": _floor_triplet(20.0, 45.0),
+                      "per_grasp": {str(g): {"floor_mm": _floor_triplet(12.0, 30.0),
+                                             "nearest_train_grasp_id": grasps["train"][0],
+                                             "nearest_train_grasp_mm": _floor_triplet(12.0, 30.0),
+                                             "train_mean_mm": _floor_triplet(20.0, 45.0)} for g in grasps[split]}}
+              for split in ("val", "test")}
+    out = {k: v for k, v in manifest.items() if k not in ("split_floors", "grasp_theta_vol_deg")}
+    return out | {"protocol": manifest["protocol"] | {"track": "unseen_grasps"},
+                  "split_floors": {"definition": "nearest training grasp, true camera", "track": "unseen_grasps",
+                                   "splits": floors},
+                  "grasp_theta_vol_deg": {str(grasps["test"][0]): list(theta_vol), str(grasps["train"][0]): None}}
+
+
+def _without_floors(manifest):
+    """A manifest as datasets made before tracks and floors have it."""
+    out = {k: v for k, v in manifest.items() if k not in ("split_floors", "grasp_theta_vol_deg")}
+    return out | {"protocol": {k: v for k, v in manifest["protocol"].items() if k != "track"}}
+
+
+def _shifted_truth_predictor(tiny_dataset, batch_size, shift_m=0.0052):
+    """EvalModel.predict replaced: the truth moved by ``shift_m`` along y (every error is shift_m * 1000 mm)."""
+    truth = iter(torch.utils.data.DataLoader(HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE)),
+                                             batch_size=batch_size))
+
+    def predict(self, images):
+        batch = next(truth)
+        return batch["keypoints_2d"].double().numpy(), batch["keypoints_3d"].double().numpy() + [0.0, shift_m, 0.0]
+    return predict
+
+
+def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_dataset, tmp_path, monkeypatch):
+    ckpt, _ = exported
+    dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_floors", _with_floors)
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    (test_grasp,) = manifest["grasp_ids"]["test"]
+    monkeypatch.setattr(EV.EvalModel, "predict", _shifted_truth_predictor(tiny_dataset, 8))
+    lines = []
+    out = EV.run_eval(ckpt, dataset, out=tmp_path / "floors.json", latency=False, batch_size=8, log=lines.append)
+    r = out["results"]
+    assert load_results(out["out"]) == r
+    # every frame is 5.2 mm off: so is every grasp and every orientation
+    assert list(r["breakdowns"]["grasp"]) == [str(test_grasp)]
+    assert list(r["breakdowns"]["theta_vol"]) == ["theta_vol_z=180"]
+    for axis in ("grasp", "theta_vol"):
+        (bucket,) = r["breakdowns"][axis].values()
+        assert bucket["frames"] == 20
+        assert bucket["mpjpe_mm"] == pytest.approx({"hand": 5.2, "probe": 5.2, "all": 5.2}, abs=1e-4)
+    assert r["dataset"]["grasp_theta_vol_deg"] == {str(test_grasp): [0.0, 0.0, 180.0]}
+    # the test split's floor copied from the manifest (the view floor, which it leaves out, is unknown)
+    assert r["track"] == "unseen_grasps"
+    entry = manifest["split_floors"]["splits"]["test"]
+    assert r["split_floor"] == entry | {"nearest_train_view_mm": None, "per_grasp": {
+        g: e | {"nearest_train_view_mm": None, "frames": None} for g, e in entry["per_grasp"].items()}}
+    assert r["split_floor"]["floor_mm"]["all"] == pytest.approx((21 * 12 + 8 * 30) / 29)
+    assert ("test split floor: hand 12.00 / probe 30.00 / all 16.97 mm (nearest training grasp under the true camera: "
+            "a model that only recognises training grasps cannot do better than this); this model: hand 5.20 / probe "
+            "5.20 / all 5.20 mm") in lines
+    table = out["table"]
+    assert re.search(r"\nsplit floor hand / probe / all +12\.00 / 30\.00 / 16\.97 mm \(nearest_train_grasp\)\n", table)
+    assert re.search(r"\ntrack +unseen_grasps\n", table)
+    assert f"grasp: {test_grasp}" in table and "theta_vol: theta_vol_z=180" in table
+    # the train split has no floor, but the dataset's track
+    monkeypatch.undo()
+    r = EV.run_eval(ckpt, dataset, split="train", out=tmp_path / "train.json", latency=False, **QUIET)["results"]
+    assert (r["track"], r["split_floor"]) == ("unseen_grasps", None)
+    assert r["dataset"]["grasp_theta_vol_deg"] == {str(manifest["grasp_ids"]["train"][0]): None}
+    assert "theta_vol" not in r["breakdowns"]  # no train grasp has a recorded orientation
+    assert list(r["breakdowns"]["grasp"]) == [str(manifest["grasp_ids"]["train"][0])]
+
+
+def test_datasets_without_tracks_and_floors(exported, tiny_dataset, tmp_path):
+    ckpt, _ = exported
+    dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_old", _without_floors)
+    r = EV.run_eval(ckpt, dataset, out=tmp_path / "old.json", latency=False, **QUIET)["results"]
+    assert (r["track"], r["split_floor"], r["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
+    assert set(r["breakdowns"]) == {"latitude", "z_ego", "background", "grasp"}
+    assert "split floor" not in EV.format_table(r)
+
+
+def _edited(change):
+    """A manifest edit: :func:`_with_floors`, then ``change`` (which damages it in place)."""
+    def edit(manifest):
+        manifest = _with_floors(manifest)
+        change(manifest)
+        return manifest
+    return edit
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda m: m["split_floors"].update(track="unseen_views"),
+     r"manifest.json: manifest\['split_floors'\]\['track'\] 'unseen_views' differs from "
+     r"manifest\['protocol'\]\['track'\] 'unseen_grasps'"),
+    (lambda m: m["protocol"].update(track="unseen_people"),
+     r"manifest.json: manifest\['protocol'\]\['track'\] must be one of unseen_grasps, unseen_views, "
+     r"got 'unseen_people'"),
+    (lambda m: m["split_floors"]["splits"]["test"]["floor_mm"].pop("probe"),
+     r"manifest.json: manifest\['split_floors'\]\['splits'\]\['test'\]\['floor_mm'\] is missing key\(s\) \['probe'\]"),
+    (lambda m: m["split_floors"]["splits"]["test"].update(per_grasp={"999": m["split_floors"]["splits"]["test"]
+                                                                         ["per_grasp"].popitem()[1]}),
+     r"manifest.json: manifest\['split_floors'\]\['splits'\]\['test'\]\['per_grasp'\] must hold the split's grasps "
+     r"\[\d+\], got \['999'\]"),
+    (lambda m: m.update(grasp_theta_vol_deg={"0": [0, 180]}),
+     r"manifest.json: manifest\['grasp_theta_vol_deg'\]\['0'\] must be \[x, y, z\]: three finite numbers"),
+])
+def test_bad_floors_in_the_manifest_are_named(exported, tiny_dataset, tmp_path, change, message):
+    ckpt, _ = exported
+    dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_bad", _edited(change))
+    with pytest.raises(ValueError, match=message):
+        EV.run_eval(ckpt, dataset, out=tmp_path / "bad.json", latency=False, **QUIET)
+    assert not (tmp_path / "bad.json").exists()
 
 
 def test_latency_helper_median():

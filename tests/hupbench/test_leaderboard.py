@@ -10,6 +10,7 @@ from pathlib import Path
 import matplotlib
 import PIL
 import pytest
+from test_results import split_floor_block, triplet
 
 from hupbench.cli import main
 from hupbench.evaluation.leaderboard import (
@@ -19,6 +20,7 @@ from hupbench.evaluation.leaderboard import (
     README,
     TRAINING_PLOT,
     format_duration,
+    grasp_rows,
     inference_latency_ms,
     keypoint_weighted_all_mm,
     load_rows,
@@ -70,6 +72,25 @@ def measured(name, label, all_mm, hand, probe, onnx_ms, torch_ms, wall_s, hardwa
     d["training"] |= {"wall_s": wall_s, "hardware": hardware, "command": f"python train.py run_name={name}",
                       "log": f"logs/{name}.jsonl" if log else None}
     return d
+
+
+def with_grasps(row: dict, track: str = "unseen_grasps", floor_kind: str = "nearest_train_grasp") -> dict:
+    """``row`` evaluated on a dataset with tracks and floors: grasps 3 (Theta_Vol z 180) and 12 (orientation not
+    recorded), the test split's floor of :func:`test_results.split_floor_block`."""
+    row["breakdowns"] = {"grasp": {"3": {"frames": 2000, "mpjpe_mm": triplet(9.0, 16.0)},
+                                   "12": {"frames": 3760, "mpjpe_mm": triplet(11.5, 22.25)}},
+                         "theta_vol": {"theta_vol_z=180": {"frames": 2000, "mpjpe_mm": triplet(9.0, 16.0)},
+                                       "unknown": {"frames": 3760, "mpjpe_mm": triplet(11.5, 22.25)}}}
+    row["dataset"]["grasp_theta_vol_deg"] = {"3": [0.0, 0.0, 180.0], "12": None}
+    row["track"] = track
+    row["split_floor"] = split_floor_block(frames=(2000, 3760)) | {"floor_kind": floor_kind}
+    return row
+
+
+def table_lines(text: str, track_title: str = "Unseen grasps") -> list[str]:
+    """The rows of one track's table in the README (header and alignment line left out)."""
+    section = text.split(f"## Track: {track_title}")[1].split("\n## ")[0]
+    return [line for line in section.splitlines() if line.startswith("| ")][1:]
 
 
 def write_log(path: Path, wall_s: float, final_mm: float, n: int = 5) -> None:
@@ -159,19 +180,23 @@ def test_synthetic_measured_rows_in_table(synthetic_board):
     result = run_leaderboard(synthetic_board)
     assert (result["rows"], result["measured"], result["reported"]) == (5, 3, 2)
     text = (synthetic_board / README).read_text()
-    table = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
-    # sorted by MPJPE all
+    table = table_lines(text)
+    # one track (no row names one: all are the paper's), sorted by MPJPE all
     assert [line.split(" | ")[0][2:] for line in table] == [
         "HOPE-Net, HUP-3D paper (backbone and input size not stated)",
         "ResNet-50 baseline, HUP-3D paper (input size not stated)",
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
+    assert text.count("## Track: ") == 1 and "## Track: Unseen grasps (`unseen_grasps`)" in text
     assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | 128 | 12.35 | 10.46 | 8.00 | "
-                        "16.90 | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
+                        "16.90 | — | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
                         "`python train.py run_name=slow_big` |")
     assert table[3].endswith("| 5.0 h | — | 40.00 | `python train.py run_name=torch_only` |")
-    assert table[4].split(" | ")[12] == "25 min, 1x H100"
+    assert table[4].split(" | ")[13] == "25 min, 1x H100"
     assert table[0] == ("| HOPE-Net, HUP-3D paper (backbone and input size not stated) | reported in paper | "
-                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 8) + " |")
+                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 9) + " |")
+    # no results file here has a floor or a grasp breakdown: the README says so instead of a number
+    assert "Split floor: — for every row here" in text
+    assert text.count("Per grasp: — (the results file records no grasp breakdown") == 3
     assert ("- probe MPJPE with the corners matched under the half turn about the probe's long axis where closer: "
             "15.90 mm (plain: 16.90 mm)") in text
     assert ("- spread ratio of predicted to true 3D keypoints across the test frames, x / y / z: 0.90 / 1.01 / 0.46; "
@@ -181,11 +206,86 @@ def test_synthetic_measured_rows_in_table(synthetic_board):
     assert "/ 29 = 30.00 mm\n" in text and "not the row's all (30.00 mm)" not in text
 
 
+def test_floor_and_per_grasp_table(synthetic_board):
+    path = synthetic_board / "results" / "slow_big.json"
+    write_results(path, with_grasps(load_results(path)))
+    run_leaderboard(synthetic_board)
+    text = (synthetic_board / README).read_text()
+    # the floor beside the row, and named plainly above the table
+    row = next(line for line in table_lines(text) if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
+    assert row.split(" | ")[5:10] == ["10.46", "8.00", "16.90", "20.00 / 40.00 / 25.52", "15.90"]
+    assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training grasp under the true camera: "
+            "a model that only recognises training grasps cannot do better than this.") in text
+    assert "- hupbench default (manifest sha256 `abababababab`), test split: 20.00 / 40.00 / 25.52\n" in text
+    # the per-grasp table in the row's details, grasps by id, with orientation, frames, MPJPE and floor
+    details = text.split("(`slow_big`)")[1].split("\n### ")[0]
+    assert ("| grasp | Theta_Vol x, y, z (deg) | frames | MPJPE hand (mm) | MPJPE probe (mm) | MPJPE all (mm) | "
+            "floor hand / probe / all (mm) | nearest training grasp |") in details
+    assert "| 3 | 0, 0, 180 | 2000 | 9.00 | 16.00 | 10.93 | 15.00 / 30.00 / 19.14 | 0 |\n" in details
+    assert "| 12 | — | 3760 | 11.50 | 22.25 | 14.47 | 25.00 / 50.00 / 31.90 | 1 |\n" in details
+    assert details.index("| 3 | 0, 0, 180") < details.index("| 12 | —")
+    assert ("MPJPE by probe orientation Theta_Vol, hand / probe / all (mm): theta_vol_z=180 9.00 / 16.00 / 10.93 "
+            "(2000 frames); unknown 11.50 / 22.25 / 14.47 (3760 frames).") in details
+    assert "Per grasp: —" not in details
+    # rows without them still say what they lack
+    assert "Per grasp: — (the results file records no grasp breakdown" in text.split("(`fast_small`)")[1]
+
+
+def test_grasp_rows_show_what_a_row_has():
+    row = with_grasps(measured("r", "r", 1.0, 1.0, 1.0, None, None, None, log=False))
+    row["split_floor"]["per_grasp"]["12"]["nearest_train_grasp_id"] = None
+    del row["breakdowns"]["grasp"]["12"]
+    row["dataset"]["grasp_theta_vol_deg"] = None
+    assert grasp_rows(row) == [["3", "—", "2000", "9.00", "16.00", "10.93", "15.00 / 30.00 / 19.14", "0"],
+                               ["12", "—", "—", "—", "—", "—", "25.00 / 50.00 / 31.90", "—"]]
+    row["split_floor"] = None
+    assert grasp_rows(row) == [["3", "—", "2000", "9.00", "16.00", "10.93", "—", "—"]]
+    del row["breakdowns"]["grasp"]
+    assert grasp_rows(row) == []
+
+
+def test_two_tracks_make_two_tables(synthetic_board):
+    views = with_grasps(measured("views_net", "HUPNet (ResNet-18, 128 px)", 5.0, 4.0, 7.75, 3.0, 6.0, 600.0, log=False),
+                        track="unseen_views", floor_kind="nearest_train_view")
+    views["split_floor"]["floor_mm"] = triplet(2.0, 4.0)
+    views["split_floor"]["nearest_train_view_mm"] = triplet(2.0, 4.0)
+    write_results(synthetic_board / "results" / "views_net.json", views)
+    grasps = synthetic_board / "results" / "slow_big.json"
+    write_results(grasps, with_grasps(load_results(grasps)))
+    result = run_leaderboard(synthetic_board)
+    assert (result["rows"], result["measured"], result["reported"]) == (6, 4, 2)
+    text = (synthetic_board / README).read_text()
+    assert ("6 rows (4 measured, 2 reported) in 2 tracks: Unseen grasps (`unseen_grasps`), Unseen views "
+            "(`unseen_views`).") in text
+    assert text.count("## Track: ") == 2
+    assert text.index("## Track: Unseen grasps") < text.index("## Track: Unseen views") < text.index("## What the")
+    # row details follow the tables: the unseen-views row last, though its MPJPE is the lowest
+    details = text.split("## Row details")[1]
+    assert details.index("(`paper_hopenet`)") < details.index("(`fast_small`)") < details.index("(`views_net`)")
+    unseen_grasps, unseen_views = table_lines(text, "Unseen grasps"), table_lines(text, "Unseen views")
+    # the paper's rows and rows without a track are in the paper's track; the unseen-views row alone in its own
+    assert [line.split(" | ")[0][2:] for line in unseen_grasps] == [
+        "HOPE-Net, HUP-3D paper (backbone and input size not stated)",
+        "ResNet-50 baseline, HUP-3D paper (input size not stated)",
+        "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
+    assert [line.split(" | ")[0][2:] for line in unseen_views] == ["HUPNet (ResNet-18, 128 px)"]
+    assert unseen_views[0].split(" | ")[5:9] == ["5.00", "4.00", "7.75", "2.00 / 4.00 / 2.55"]
+    views_section = text.split("## Track: Unseen views")[1].split("\n## ")[0]
+    assert "1 row (1 measured, 0 reported)" in views_section
+    assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training view of the same grasp and "
+            "distance under the true camera: a model that only recalls training views cannot do better than this.") \
+        in views_section
+    grasps_section = text.split("## Track: Unseen grasps")[1].split("\n## ")[0]
+    assert "nearest training grasp under the true camera" in grasps_section and "training view" not in grasps_section
+    assert "5 rows (3 measured, 2 reported)" in grasps_section
+
+
 def test_table_cells_escape_pipes_and_newlines():
     row = measured("r", "a | b\nc", 1.0, 1.0, 1.0, None, None, None, hardware=None, log=False)
     cells = table_row(row)
     assert cells[0] == "a \\| b c"
-    assert cells[12] == "—" and cells[13] == "—"  # no training time, no ONNX latency
+    assert cells[13] == "—" and cells[14] == "—"  # no training time, no ONNX latency
+    assert cells[8] == "—"  # no split floor
 
 
 @pytest.mark.parametrize("seconds, text", [(None, "—"), (42.4, "42 s"), (59.9, "60 s"), (60.0, "1 min"),
@@ -243,12 +343,13 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
     data = json.loads(path.read_text())
     data["schema_version"] = 1
     del data["metrics"]["probe_symmetric_mpjpe_mm"], data["metrics"]["spread_ratio"]
+    del data["track"], data["split_floor"], data["dataset"]["grasp_theta_vol_deg"]
     path.write_text(json.dumps(data))
     run_leaderboard(synthetic_board)
     text = (synthetic_board / README).read_text()
     row = next(line for line in text.splitlines() if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
     cells = row.split(" | ")
-    assert cells[8:12] == ["—", "4.57", "0.812", "—"]
+    assert cells[8:13] == ["—", "—", "4.57", "0.812", "—"]
     assert "15.90 mm (plain" not in text and "spread ratio of predicted to true 3D keypoints across the test" not in \
         text.split("(`slow_big`)")[1].split("###")[0]
 
@@ -264,9 +365,9 @@ def test_spread_constants_match_the_metrics():
 def test_wrong_schema_version_is_rejected_with_its_name(synthetic_board):
     path = synthetic_board / "results" / "slow_big.json"
     data = json.loads(path.read_text())
-    data["schema_version"] = 3
+    data["schema_version"] = 4
     path.write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 2"):
+    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 3"):
         run_leaderboard(synthetic_board)
     assert not (synthetic_board / README).exists()  # nothing written
 

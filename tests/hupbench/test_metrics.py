@@ -204,6 +204,54 @@ def test_breakdowns():
         M.breakdown_mpjpe_mm(errors, lat[:3])
 
 
+def _frames_with_errors(hand_probe_mm):
+    """(N, 29) errors: every hand keypoint of frame n has error hand_n, every probe corner probe_n (mm)."""
+    errors = np.zeros((len(hand_probe_mm), 29))
+    errors[:, :21] = np.array([h for h, _ in hand_probe_mm])[:, None]
+    errors[:, 21:] = np.array([p for _, p in hand_probe_mm])[:, None]
+    return errors
+
+
+def test_grasp_and_theta_vol_breakdowns_known_answer():
+    # grasp 3: two frames, 7: three, 12: one (orientation not recorded), 5: one
+    grasp_id = np.array([3, 3, 7, 7, 7, 12, 5], np.int64)
+    errors = _frames_with_errors([(1, 10), (3, 20), (2, 4), (4, 8), (6, 12), (10, 0), (5, 30)])
+    by_grasp = M.breakdown_mpjpe_mm(errors, M.grasp_labels(grasp_id))
+    assert list(by_grasp) == ["12", "3", "5", "7"]  # labels are the ids in decimal, sorted as text
+    assert {g: b["frames"] for g, b in by_grasp.items()} == {"3": 2, "7": 3, "12": 1, "5": 1}
+    assert by_grasp["3"]["mpjpe_mm"] == pytest.approx({"hand": 2.0, "probe": 15.0, "all": (21 * 2 + 8 * 15) / 29})
+    assert by_grasp["7"]["mpjpe_mm"] == pytest.approx({"hand": 4.0, "probe": 8.0, "all": (21 * 4 + 8 * 8) / 29})
+    assert by_grasp["12"]["mpjpe_mm"] == pytest.approx({"hand": 10.0, "probe": 0.0, "all": 210 / 29})
+
+    theta_vol = {3: [0.0, -0.0, 180.0], 5: [0, 0, 180], 7: [0.0, 0.0, 90.0], 12: None}
+    labels = M.theta_vol_labels(grasp_id, theta_vol)
+    assert labels.tolist() == ["theta_vol_z=180"] * 2 + ["theta_vol_z=90"] * 3 + ["unknown", "theta_vol_z=180"]
+    by_theta = M.breakdown_mpjpe_mm(torch.from_numpy(errors), labels)
+    assert {k: b["frames"] for k, b in by_theta.items()} == {"theta_vol_z=180": 3, "theta_vol_z=90": 3, "unknown": 1}
+    # z = 180 pools grasps 3 and 5 frame by frame: hand (1 + 3 + 5) / 3, probe (10 + 20 + 30) / 3
+    assert by_theta["theta_vol_z=180"]["mpjpe_mm"] == pytest.approx({"hand": 3.0, "probe": 20.0,
+                                                                     "all": (21 * 3 + 8 * 20) / 29})
+    assert by_theta["theta_vol_z=90"]["mpjpe_mm"] == by_grasp["7"]["mpjpe_mm"]
+    assert by_theta["unknown"]["mpjpe_mm"] == by_grasp["12"]["mpjpe_mm"]
+    # a grasp the map does not name has no recorded orientation either
+    assert M.theta_vol_labels([4, 7], {7: (0, 0, 90)}).tolist() == ["unknown", "theta_vol_z=90"]
+
+
+@pytest.mark.parametrize("theta_vol_deg, label", [
+    ((0, 0, 0), "theta_vol_z=0"),
+    ((0, 0, 180), "theta_vol_z=180"),
+    ((30, 0, -90), "theta_vol_x=30_z=-90"),
+    ((0, 45.5, 0), "theta_vol_y=45.5_z=0"),
+    ((10, 20, 30), "theta_vol_x=10_y=20_z=30"),
+    ((0, 0, 359.99999), "theta_vol_z=360"),     # rounded to 3 decimals, not wrapped
+    ((0, 0, -359.125), "theta_vol_z=-359.125"),
+    ((0, 0, 270.0004), "theta_vol_z=270"),
+    ((-0.0, 0.0001, -0.0001), "theta_vol_z=0"),  # no "-0" after rounding
+])
+def test_theta_vol_label(theta_vol_deg, label):
+    assert M.theta_vol_label(theta_vol_deg) == label
+
+
 def test_bad_input_messages():
     with pytest.raises(ValueError, match=r"pred_m must be \(N, K, 3\), got \(2, 3\)"):
         M.mpjpe_mm(np.zeros((2, 3)), np.zeros((2, 3)))

@@ -13,10 +13,29 @@ from hupbench.evaluation.results import (
     load_results,
     upgrade_results,
     validate_results,
+    validate_split_floor,
     write_results,
 )
 
 REPO = Path(__file__).resolve().parents[2]
+
+
+def triplet(hand, probe):
+    return {"hand": hand, "probe": probe, "all": (21 * hand + 8 * probe) / 29}
+
+
+def split_floor_block(frames=(2880, 2880)):
+    """The test split's floor as the manifest holds it: grasps 3 and 12 (``frames`` each), nearest training
+    grasps 0 and 1."""
+    return {"floor_kind": "nearest_train_grasp", "floor_mm": triplet(20.0, 40.0),
+            "nearest_train_grasp_mm": triplet(20.0, 40.0), "nearest_train_view_mm": None,
+            "train_mean_mm": triplet(35.0, 60.0),
+            "per_grasp": {"3": {"floor_mm": triplet(15.0, 30.0), "nearest_train_grasp_id": 0,
+                                "nearest_train_grasp_mm": triplet(15.0, 30.0), "nearest_train_view_mm": None,
+                                "train_mean_mm": triplet(30.0, 50.0), "frames": frames[0]},
+                          "12": {"floor_mm": triplet(25.0, 50.0), "nearest_train_grasp_id": 1,
+                                 "nearest_train_grasp_mm": triplet(25.0, 50.0), "nearest_train_view_mm": None,
+                                 "train_mean_mm": triplet(40.0, 70.0), "frames": frames[1]}}}
 
 
 def measured_row(run_name="hopenet_r18_128"):
@@ -29,7 +48,14 @@ def measured_row(run_name="hopenet_r18_128"):
                     "root_relative_hand_mpjpe_mm": 8.0, "pa_mpjpe_hand_mm": 5.5, "pck_auc_0_50mm": 0.75,
                     "pixel_error_px": 3.2, "probe_symmetric_mpjpe_mm": 15.5,
                     "spread_ratio": {"x": 0.9, "y": 1.1, "z": 0.4}}
-    d["breakdowns"] = {"z_ego": {"0.5 m": {"frames": 2880, "mpjpe_mm": {"all": 11.0, "hand": 9.0, "probe": 16.0}}}}
+    d["breakdowns"] = {"z_ego": {"0.5 m": {"frames": 2880, "mpjpe_mm": {"all": 11.0, "hand": 9.0, "probe": 16.0}}},
+                       "grasp": {"3": {"frames": 2880, "mpjpe_mm": triplet(9.0, 16.0)},
+                                 "12": {"frames": 2880, "mpjpe_mm": triplet(11.0, 22.0)}},
+                       "theta_vol": {"theta_vol_z=180": {"frames": 2880, "mpjpe_mm": triplet(9.0, 16.0)},
+                                     "unknown": {"frames": 2880, "mpjpe_mm": triplet(11.0, 22.0)}}}
+    d["dataset"]["grasp_theta_vol_deg"] = {"3": [0.0, 0.0, 180.0], "12": None}
+    d["track"] = "unseen_grasps"
+    d["split_floor"] = split_floor_block()
     d["latency_ms_per_image"] = {"pytorch": {"batch1": 20.0, "batch32": 8.0},
                                  "onnxruntime": {"batch1": 10.0, "batch32": None}}
     d["device"] = "cpu: 2 threads"
@@ -58,9 +84,10 @@ def test_blank_is_fresh_and_incomplete():
     a, b = blank_results("measured", "r"), blank_results("measured", "r")
     a["model"]["name"] = "x"
     assert b["model"]["name"] is None
-    assert a["schema_version"] == SCHEMA_VERSION == 2
+    assert a["schema_version"] == SCHEMA_VERSION == 3
     assert a["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert a["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
+    assert (a["track"], a["split_floor"], a["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
     with pytest.raises(ValueError, match=r"results\['model'\]\['label'\] must be a non-empty string, got None"):
         validate_results(a)
     with pytest.raises(ValueError, match="kind must be one of"):
@@ -108,8 +135,8 @@ def _delete(d, path):
     (("breakdowns", "colour"), {}, r"results\['breakdowns'\] has unknown key\(s\) \['colour'\]"),
     (("model",), "hopenet", r"results\['model'\] must be a dict, got 'hopenet'"),
     (("extra",), 1, r"results has unknown key\(s\) \['extra'\]"),
-    (("schema_version",), 3, r"results\['schema_version'\] must be 2 .* or one of \[1\] .* got 3"),
-    (("schema_version",), "2", r"results\['schema_version'\] must be 2 .* got '2'"),
+    (("schema_version",), 4, r"results\['schema_version'\] must be 3 .* or one of \[1, 2\] .* got 4"),
+    (("schema_version",), "3", r"results\['schema_version'\] must be 3 .* got '3'"),
     (("metrics", "probe_symmetric_mpjpe_mm"), -0.5,
      r"results\['metrics'\]\['probe_symmetric_mpjpe_mm'\] must be a finite number >= 0 or null, got -0.5"),
     (("metrics", "probe_symmetric_mpjpe_mm"), 19.5,
@@ -117,6 +144,37 @@ def _delete(d, path):
     (("metrics", "spread_ratio", "y"), "wide", r"results\['metrics'\]\['spread_ratio'\]\['y'\] must be a finite"),
     (("metrics", "spread_ratio"), {"x": 1.0, "y": 1.0}, r"\['spread_ratio'\] is missing key\(s\) \['z'\]"),
     (("metrics", "spread_ratio"), None, r"results\['metrics'\]\['spread_ratio'\] must be a dict, got None"),
+    (("track",), "unseen_people", r"results\['track'\] must be one of 'unseen_grasps', 'unseen_views' or null, "
+                                  r"got 'unseen_people'"),
+    (("track",), None, r"results\['track'\] must be one of .* where split_floor is given, got None"),
+    (("split_floor", "floor_kind"), "oracle",
+     r"results\['split_floor'\]\['floor_kind'\] must be one of 'nearest_train_grasp', 'nearest_train_view', got"),
+    (("split_floor", "floor_mm", "probe"), None,
+     r"results\['split_floor'\]\['floor_mm'\]\['probe'\] must be a finite number >= 0, got None"),
+    (("split_floor", "train_mean_mm"), {"hand": 1.0, "all": 1.0},
+     r"results\['split_floor'\]\['train_mean_mm'\] is missing key\(s\) \['probe'\]"),
+    (("split_floor", "per_grasp", "3", "nearest_train_grasp_id"), 2.5,
+     r"results\['split_floor'\]\['per_grasp'\]\['3'\]\['nearest_train_grasp_id'\] must be an integer grasp id"),
+    (("split_floor", "per_grasp", "3", "nearest_train_view_mm"), {"hand": -1.0, "probe": 1.0, "all": 1.0},
+     r"\['per_grasp'\]\['3'\]\['nearest_train_view_mm'\]\['hand'\] must be a finite number >= 0, got -1.0"),
+    (("split_floor", "per_grasp", "3", "frames"), 2879,
+     r"results\['split_floor'\]\['per_grasp'\]\['3'\]\['frames'\] must be the grasp's frames in "
+     r"results\['breakdowns'\]\['grasp'\] \(2880\), got 2879"),
+    (("split_floor", "per_grasp", "3", "frames"), -1,
+     r"results\['split_floor'\]\['per_grasp'\]\['3'\]\['frames'\] must be an integer >= 0 or null, got -1"),
+    (("split_floor", "per_grasp", "3", "oracle_mm"), 1.0,
+     r"\['per_grasp'\]\['3'\] has unknown key\(s\) \['oracle_mm'\]"),
+    (("split_floor", "per_grasp", "grasp 3"), {},
+     r"results\['split_floor'\]\['per_grasp'\] must be keyed by grasp ids written as decimal integers, got 'grasp 3'"),
+    (("split_floor", "per_grasp"), {},
+     r"results\['split_floor'\]\['per_grasp'\] must be keyed by the evaluated grasps \['3', '12'\] .*, got \[\]"),
+    (("breakdowns", "grasp", "03"), {"frames": 1, "mpjpe_mm": {"all": 1.0, "hand": 1.0, "probe": 1.0}},
+     r"results\['breakdowns'\]\['grasp'\] must be keyed by grasp ids written as decimal integers, got '03'"),
+    (("dataset", "grasp_theta_vol_deg", "3"), [0.0, 180.0],
+     r"results\['dataset'\]\['grasp_theta_vol_deg'\]\['3'\] must be \[x, y, z\]: three finite numbers"),
+    (("dataset", "grasp_theta_vol_deg", "12"), [0.0, 0.0, math.nan], r"\['grasp_theta_vol_deg'\]\['12'\] must be"),
+    (("dataset", "grasp_theta_vol_deg"), {"3": None},
+     r"results\['dataset'\]\['grasp_theta_vol_deg'\] must be keyed by the evaluated grasps \['3', '12'\]"),
 ])
 def test_bad_field_is_named(path, value, message):
     row = measured_row()
@@ -164,12 +222,86 @@ def test_write_refuses_bad_row_and_writes_nothing(tmp_path):
     assert not (tmp_path / "r.json").exists()
 
 
+def version_2_row():
+    """A row as hupbench wrote it before schema version 3: no track, floor, grasp or Theta_Vol fields."""
+    row = measured_row()
+    row["schema_version"] = 2
+    del row["track"], row["split_floor"], row["dataset"]["grasp_theta_vol_deg"]
+    del row["breakdowns"]["grasp"], row["breakdowns"]["theta_vol"]
+    return row
+
+
 def version_1_row():
     """A row as hupbench wrote it before schema version 2."""
-    row = measured_row()
+    row = version_2_row()
     row["schema_version"] = 1
     del row["metrics"]["probe_symmetric_mpjpe_mm"], row["metrics"]["spread_ratio"]
     return row
+
+
+def test_version_2_rows_load_upgraded_with_track_floor_and_orientations_unknown(tmp_path):
+    old = version_2_row()
+    assert validate_results(old) is old
+    kept = copy.deepcopy(old)
+    new = upgrade_results(old)
+    assert old == kept
+    assert new["schema_version"] == 3
+    assert (new["track"], new["split_floor"], new["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
+    assert new["breakdowns"] == old["breakdowns"] and new["metrics"] == old["metrics"]
+    path = tmp_path / "v2.json"
+    path.write_text(json.dumps(old))
+    assert load_results(path) == new
+    # version 2 has no room for the new fields
+    with_track = version_2_row() | {"track": "unseen_grasps"}
+    with pytest.raises(ValueError, match=r"results has unknown key\(s\) \['track'\]"):
+        validate_results(with_track)
+    with_grasps = version_2_row()
+    with_grasps["breakdowns"]["grasp"] = measured_row()["breakdowns"]["grasp"]
+    with pytest.raises(ValueError, match=r"results\['breakdowns'\] has unknown key\(s\) \['grasp'\]; expected a "
+                                         r"subset of \['latitude', 'z_ego', 'background'\]"):
+        validate_results(with_grasps)
+    with pytest.raises(ValueError, match="must be 3 to be written, got 2: upgrade_results"):
+        write_results(tmp_path / "r.json", old)
+
+
+def test_new_fields_round_trip(tmp_path):
+    row = measured_row()
+    path = write_results(tmp_path / "hopenet_r18_128.json", row)
+    back = load_results(path)
+    assert back == row
+    assert back["track"] == "unseen_grasps"
+    assert back["split_floor"]["per_grasp"]["12"]["floor_mm"] == pytest.approx({"hand": 25.0, "probe": 50.0,
+                                                                                "all": 925 / 29})
+    assert back["breakdowns"]["grasp"]["3"]["mpjpe_mm"]["probe"] == 16.0
+    assert back["breakdowns"]["theta_vol"]["unknown"]["frames"] == 2880
+    assert back["dataset"]["grasp_theta_vol_deg"] == {"3": [0.0, 0.0, 180.0], "12": None}
+
+
+def test_floor_fields_that_need_each_other():
+    # no floor on the train split: it is what the floor compares with
+    row = measured_row()
+    row["dataset"]["split"] = "train"
+    with pytest.raises(ValueError, match=r"results\['split_floor'\] must be null for the train split"):
+        validate_results(row)
+    # a track without a floor (a manifest with a track but no floors, or the train split) is fine
+    row["split_floor"] = None
+    assert validate_results(row)["track"] == "unseen_grasps"
+    # no grasp breakdown: the floor and the orientations need not name its grasps
+    row = measured_row()
+    del row["breakdowns"]["grasp"]
+    row["dataset"]["grasp_theta_vol_deg"] = {"7": [0, 0, 90]}
+    assert validate_results(row) is row
+
+
+def test_split_floor_errors_name_the_block_they_come_from():
+    block = split_floor_block()
+    assert validate_split_floor(block, "ds/manifest.json: manifest['split_floors']['splits']['test']") is block
+    block["floor_mm"] = {"hand": 1.0, "probe": 2.0}
+    with pytest.raises(ValueError, match=r"^ds/manifest.json: manifest\['split_floors'\]\['splits'\]\['test'\]"
+                                         r"\['floor_mm'\] is missing key\(s\) \['all'\]"):
+        validate_split_floor(block, "ds/manifest.json: manifest['split_floors']['splits']['test']")
+    with pytest.raises(ValueError, match=r"^results\['split_floor'\] must be a dict, got 'far'"):
+        validate_split_floor("far")
 
 
 def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
@@ -178,7 +310,7 @@ def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
     kept = copy.deepcopy(old)
     new = upgrade_results(old)
     assert old == kept  # the input is not changed
-    assert new["schema_version"] == 2
+    assert new["schema_version"] == 3
     assert new["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert new["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
     assert {k: v for k, v in new["metrics"].items() if k in old["metrics"]} == old["metrics"]
@@ -190,8 +322,9 @@ def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
     with_new["metrics"]["spread_ratio"] = {"x": 1.0, "y": 1.0, "z": 1.0}
     with pytest.raises(ValueError, match=r"results\['metrics'\] has unknown key\(s\) \['spread_ratio'\]"):
         validate_results(with_new)
-    with pytest.raises(ValueError, match="must be 2 to be written, got 1: upgrade_results"):
+    with pytest.raises(ValueError, match="must be 3 to be written, got 1: upgrade_results"):
         write_results(tmp_path / "r.json", old)
+    assert (new["track"], new["split_floor"], new["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
     assert upgrade_results(measured_row()) == measured_row()
 
 
@@ -199,16 +332,19 @@ def test_committed_results_load():
     for path in sorted((REPO / "leaderboard" / "results").glob("*.json")):
         row = load_results(path)
         assert row["schema_version"] == SCHEMA_VERSION
-        if json.loads(path.read_text())["schema_version"] == 1:
+        written = json.loads(path.read_text())["schema_version"]
+        if written == 1:
             assert row["metrics"]["probe_symmetric_mpjpe_mm"] is None
+        if written < 3:
+            assert (row["track"], row["split_floor"], row["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
 
 
 def test_load_names_the_file(tmp_path):
     row = measured_row()
-    row["schema_version"] = 3
+    row["schema_version"] = 4
     bad = tmp_path / "future.json"
     bad.write_text(json.dumps(row))
-    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 2"):
+    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 3"):
         load_results(bad)
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")
