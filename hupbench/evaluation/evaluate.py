@@ -220,18 +220,6 @@ def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dic
     return {str(g): recorded.get(str(g)) for g in grasp_ids}
 
 
-def _with_optional_floor_keys(entry):
-    """A manifest's floor entry with the keys a manifest may leave out set to None (unknown): the view floor
-    (split and per grasp), which exists only where every evaluated grasp is in training, and each grasp's frames."""
-    if not isinstance(entry, dict):
-        return entry
-    entry = {"nearest_train_view_mm": None} | entry
-    if isinstance(entry.get("per_grasp"), dict):
-        entry["per_grasp"] = {g: {"nearest_train_view_mm": None, "frames": None} | e if isinstance(e, dict) else e
-                              for g, e in entry["per_grasp"].items()}
-    return entry
-
-
 def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) -> tuple[str | None, dict | None]:
     """The dataset's track and the evaluated split's floor, checked, as the results JSON holds them.
 
@@ -269,7 +257,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     if entry is None:
         return track, None
     entry_where = f"{where}: manifest['split_floors']['splits'][{split!r}]"
-    entry = copy.deepcopy(validate_split_floor(_with_optional_floor_keys(entry), entry_where))
+    entry = copy.deepcopy(validate_split_floor(entry, entry_where))
     if set(entry["per_grasp"]) != {str(g) for g in grasp_ids}:
         raise ValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
                          f"{sorted(entry['per_grasp'], key=int)}")

@@ -258,10 +258,12 @@ def _with_floors(manifest, theta_vol=(0.0, 0.0, 180.0)):
     grasps = manifest["grasp_ids"]
     floors = {split: {"floor_kind": "nearest_train_grasp", "floor_mm": _floor_triplet(12.0, 30.0),
                       "nearest_train_grasp_mm": _floor_triplet(12.0, 30.0), "train_mean_mm": _floor_triplet(20.0, 45.0),
+                      "nearest_train_view_mm": None,
                       "per_grasp": {str(g): {"floor_mm": _floor_triplet(12.0, 30.0),
                                              "nearest_train_grasp_id": grasps["train"][0],
                                              "nearest_train_grasp_mm": _floor_triplet(12.0, 30.0),
-                                             "train_mean_mm": _floor_triplet(20.0, 45.0)} for g in grasps[split]}}
+                                             "train_mean_mm": _floor_triplet(20.0, 45.0),
+                                             "nearest_train_view_mm": None, "frames": 20} for g in grasps[split]}}
               for split in ("val", "test")}
     out = {k: v for k, v in manifest.items() if k not in ("split_floors", "grasp_theta_vol_deg")}
     return out | {"protocol": manifest["protocol"] | {"track": "unseen_grasps"},
@@ -305,11 +307,9 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
         assert bucket["frames"] == 20
         assert bucket["mpjpe_mm"] == pytest.approx({"hand": 5.2, "probe": 5.2, "all": 5.2}, abs=1e-4)
     assert r["dataset"]["grasp_theta_vol_deg"] == {str(test_grasp): [0.0, 0.0, 180.0]}
-    # the test split's floor copied from the manifest (the view floor, which it leaves out, is unknown)
+    # the test split's floor copied from the manifest
     assert r["track"] == "unseen_grasps"
-    entry = manifest["split_floors"]["splits"]["test"]
-    assert r["split_floor"] == entry | {"nearest_train_view_mm": None, "per_grasp": {
-        g: e | {"nearest_train_view_mm": None, "frames": None} for g, e in entry["per_grasp"].items()}}
+    assert r["split_floor"] == manifest["split_floors"]["splits"]["test"]
     assert r["split_floor"]["floor_mm"]["all"] == pytest.approx((21 * 12 + 8 * 30) / 29)
     assert ("test split floor: hand 12.00 / probe 30.00 / all 16.97 mm (nearest training grasp under the true camera: "
             "a model that only recognises training grasps cannot do better than this); this model: hand 5.20 / probe "
