@@ -76,6 +76,21 @@ def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.nd
     return out
 
 
+def stored_visibility(cam: dict, depth: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """(29,) bool :func:`visibility` of a frame's keypoints as the annotations store them (float32).
+
+    Verify recomputes visibility from the stored keypoints; a 2D coordinate within float32's rounding
+    of a half pixel (e.g. 139.4999939 stored as 139.5) would otherwise pick another pixel here than there.
+
+    Args:
+        cam: :func:`frame_camera`'s dict ("keypoints_cam", "keypoints_2d"). depth, seg: the frame's
+            label pass, metres and labels.
+    """
+    as_stored = [np.asarray(cam[key], ANNOTATION_DTYPES[field]).astype(np.float64)
+                 for key, field in (("keypoints_cam", "keypoints_3d_cam"), ("keypoints_2d", "keypoints_2d"))]
+    return visibility(*as_stored, depth, seg)
+
+
 # --- rendering chunks ----------------------------------------------------------------
 
 
@@ -185,8 +200,7 @@ class ChunkRenderer:
                 files.append(("depth", _encode(".png", np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16))))
             if "seg" in self.spec.modalities:
                 files.append(("seg", _encode(".png", labels["seg"])))
-            self._views[key] = {"files": files, "visible": visibility(
-                cam["keypoints_cam"], cam["keypoints_2d"], labels["depth"], labels["seg"])}
+            self._views[key] = {"files": files, "visible": stored_visibility(cam, labels["depth"], labels["seg"])}
         return self._views[key]
 
 

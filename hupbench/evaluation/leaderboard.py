@@ -267,6 +267,12 @@ def row_track(row: dict) -> str:
     return row["track"] or PAPER_TRACK
 
 
+def plot_label(row: dict) -> str:
+    """The row's model label in the plots, with its track when it is not the paper's."""
+    track = row_track(row)
+    return row["model"]["label"] + ("" if track == PAPER_TRACK else f", {TRACK_TITLES[track][0].lower()}")
+
+
 def spread_cell(row: dict) -> str:
     """``"0.02 / 0.01 / 0.95"`` (x / y / z spread ratios), a missing mark per unknown axis, one mark if all are."""
     ratios = row["metrics"]["spread_ratio"]
@@ -654,7 +660,7 @@ def plot_latency(rows: list[dict]) -> bytes:
             ms, runtime = inference_latency_ms(row)
             if row["kind"] == "measured" and ms is not None:
                 points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
-                labels.append(row["model"]["label"])
+                labels.append(plot_label(row))
                 runtimes.append(runtime)
         reported = [row for row in rows if row["kind"] == "reported"]
         _draw_references(ax, reported)
@@ -734,7 +740,7 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
         for k, (row, curve) in enumerate(curves):
             hardware = f", {row['training']['hardware']}" if row["training"]["hardware"] else ""
             ax.plot([s / scale for s, _ in curve], [m for _, m in curve], marker="o", markersize=3, linewidth=1.5,
-                    color=colours[k % len(colours)], label=f"{row['model']['label']}{hardware}")
+                    color=colours[k % len(colours)], label=f"{plot_label(row)}{hardware}")
         if curves:
             ax.set_xlim(0, longest_s / scale * 1.05 if longest_s > 0 else 1.0)
         else:

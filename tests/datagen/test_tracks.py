@@ -112,3 +112,23 @@ def test_verify_finds_images_half_a_pixel_off_their_labels(tmp_path, monkeypatch
     assert good["ok"] and abs(np.array(good["image_shift"]["median_px"])).max() < 0.1
     np.testing.assert_allclose(shifted["image_shift"]["median_px"], [-0.5, -0.5], atol=0.1)
     assert shifted["by_kind"]["image_shift"] >= 0.9 * shifted["image_shift"]["frames"]
+
+
+def test_visibility_is_decided_on_the_keypoints_as_stored():
+    from datagen import keypoints as kp
+    from datagen.dataset.chunks import stored_visibility, visibility
+
+    # a hand keypoint whose row is 139.49999391 in float64 and 139.5 in float32: verify, reading the
+    # float32 annotations, rounds it to row 140, where the hand is; row 139 shows a finger 5 cm nearer
+    keypoints_2d = np.full((kp.NUM_KEYPOINTS, 2), -10.0)  # every other keypoint outside the image
+    keypoints_2d[13] = (106.049, 139.49999391243827)
+    keypoints_cam = np.ones((kp.NUM_KEYPOINTS, 3))
+    keypoints_cam[13, 2] = 0.8154
+    depth, seg = np.zeros((256, 256)), np.zeros((256, 256), np.uint8)
+    depth[139, 106], seg[139, 106] = 0.7679, 1
+    depth[140, 106], seg[140, 106] = 0.8150, 1
+    cam = {"keypoints_cam": keypoints_cam, "keypoints_2d": keypoints_2d}
+    assert not visibility(keypoints_cam, keypoints_2d, depth, seg)[13]  # the float64 point: row 139, occluded
+    assert stored_visibility(cam, depth, seg)[13]
+    stored = keypoints_2d.astype(np.float32).astype(np.float64)
+    np.testing.assert_array_equal(stored_visibility(cam, depth, seg), visibility(keypoints_cam, stored, depth, seg))
