@@ -118,21 +118,21 @@ def _verify(args: list[str]) -> int:
     hidden = len(result["problems"]) - ns.max_report
     if hidden > 0:
         print(f"  ... and {hidden} more (--max-report {len(result['problems'])} prints all)")
-    if not result["ok"]:
-        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
-        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
-    else:
-        print(f"hupbench verify: OK, {result['frames']} frames checked")
     if result["image_shift"]:
         du, dv = result["image_shift"]["median_px"]
         print(f"  images against labels: median shift ({du:+.3f}, {dv:+.3f}) px over {result['image_shift']['frames']} "
               "frames (probe pixels unprojected with their depth, fitted to the probe)")
     for split, floor in (result["split_floors"] or {}).items():
         print(f"  floor of {split}: " + _floor_line(floor))
+    if not result["ok"]:
+        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
+        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
+    else:
+        print(f"hupbench verify: OK, {result['frames']} frames checked")
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
         from datagen.render.draw import write_png
-        from datagen.dataset.verify import sample_sheet
+        from datagen.dataset.sample_sheet import sample_sheet
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1

@@ -99,6 +99,7 @@ from datagen.dataset.floors import split_floors
 from datagen.geometry import invert_transform, transform_points
 from datagen.processes import check_workers
 from datagen.dataset.verify_images import (
+    image_shift_px,
     shrink_mask,
     background_mismatch_px,
     glove_pair_ratio,
@@ -436,36 +437,6 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
     return problems, shift
 
 
-def image_shift_px(signed_m: np.ndarray, normals_cam: np.ndarray, depth_m: np.ndarray, K: np.ndarray
-                   ) -> np.ndarray | None:
-    """How far the images sit from the labels, from probe pixels unprojected with their depth.
-
-    If the images are shifted by (du, dv) pixels against the labels, a probe pixel at depth z
-    unprojects to a point displaced by (du z / fx, dv z / fy, dz) in the camera frame, and its signed
-    distance to the probe (placed by the labels) is that displacement along the surface normal.
-    Least squares over the pixels gives (du, dv, dz); the probe's curved surface makes it
-    well posed (measured: within 0.07 px on correct frames, 0.49-0.55 px for a half-pixel shift).
-
-    Args:
-        signed_m: (P,) signed distances of the unprojected pixels to the probe, metres.
-        normals_cam: (P, 3) unit surface normals there, camera frame. depth_m: (P,) their depth, metres.
-        K: (3, 3) the frame's intrinsics.
-
-    Returns:
-        (2,) float64 (du, dv) pixels, or None with fewer than ``VERIFY_SHIFT_MIN_PIXELS`` pixels or
-        normals that do not pin both image axes down.
-    """
-    if len(signed_m) < tol.VERIFY_SHIFT_MIN_PIXELS:
-        return None
-    design = np.stack([normals_cam[:, 0] * depth_m / K[0, 0], normals_cam[:, 1] * depth_m / K[1, 1],
-                       normals_cam[:, 2]], axis=1)  # metres per pixel of shift, and per metre of depth
-    scale = np.linalg.norm(design, axis=0)
-    if scale[:2].min() <= 0 or np.linalg.cond(design / np.maximum(scale, 1e-12)) > tol.VERIFY_SHIFT_MAX_COND:
-        return None
-    solution, *_ = np.linalg.lstsq(design, signed_m, rcond=None)
-    return solution[:2]
-
-
 def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
     """All image checks of one frame: its files, then depth against mask, the labels against the
     keypoints and the probe, and the RGB image against the mask, background and glove.
@@ -713,61 +684,3 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     image_shift = {"median_px": np.median(shifts, axis=0).tolist(), "frames": len(shifts)} if shifts else None
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "skipped": skipped, "ok": not problems,
             "split_floors": floors, "image_shift": image_shift}
-
-
-def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: int = 128) -> np.ndarray:
-    """One frame per (background, glove) of a dataset: RGB, depth, mask and keypoints side by side.
-
-    Takes the split's first grasp at the first distance and the given view index (default: view
-    40 of the paper protocol's sphere, where the grip and the probe's green orientation marker both
-    show, or the middle view of a sphere with fewer views).
-
-    Returns:
-        (H, W, 3) uint8 RGB: one row per background, both gloves in a row.
-
-    Raises:
-        ValueError: the dataset lacks a modality, the split or a readable image (the message names it).
-    """
-    from datagen.render.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled
-
-    root = Path(root)
-    manifest = read_manifest(root, split=split)
-    missing = {"rgb", "depth", "seg"} - set(manifest["modalities"])
-    if missing:
-        raise ValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
-    ann = read_annotations(root, split, keys=("frame_id", "keypoints_2d", "visible", "background_id", "glove_id",
-                                              "grasp_index", "z_ego"), manifest=manifest)
-    n_view = manifest["layout"]["shape"][4]
-    if view is None:
-        view = 40 if n_view > 40 else n_view // 2
-    if not 0 <= view < n_view:
-        raise ValueError(f"view must be in [0, {n_view}), got {view}")
-    first = (ann["grasp_index"] == ann["grasp_index"].min()) & (ann["z_ego"] == ann["z_ego"].min())
-    names = (manifest.get("backgrounds") or {}).get("names") or []
-    tiles = []
-    scale = tile_px / manifest["image_size"][0]
-    for b in sorted(set(ann["background_id"].tolist())):
-        for glove in sorted(set(ann["glove_id"].tolist())):
-            rows = np.flatnonzero(first & (ann["background_id"] == b) & (ann["glove_id"] == glove))
-            if not len(rows):
-                continue
-            i = rows[min(view, len(rows) - 1)]
-            fid = int(ann["frame_id"][i])
-            images = {}
-            for m in ("rgb", "depth", "seg"):
-                path = frame_path(root, split, m, fid, manifest["rgb_format"])
-                images[m], why = read_image(path, m)
-                if images[m] is None:
-                    raise ValueError(f"{path}: {why}")
-            rgb = images["rgb"][..., ::-1]
-            size = (tile_px, tile_px)
-            panels = [cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA),
-                      cv2.resize(colorize_depth(images["depth"] * manifest["depth_scale_m"]), size,
-                                 interpolation=cv2.INTER_NEAREST),
-                      cv2.resize(colorize_labels(images["seg"]), size, interpolation=cv2.INTER_NEAREST)]
-            kps = draw_keypoints(panels[0], ann["keypoints_2d"][i] * scale + 0.5 * (scale - 1), ann["visible"][i],
-                                 radius=1.5)
-            label = f"{names[b] if b < len(names) else b} / glove {glove}"
-            tiles += [titled(panels[0], label[:22]), titled(panels[1], "depth"), titled(panels[2], "mask"),
-                      titled(kps, f"frame {fid}")]
-    return grid(tiles, columns=8)

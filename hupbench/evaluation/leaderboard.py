@@ -1,5 +1,8 @@
 """The leaderboard: a table per track and two plots rebuilt from ``leaderboard/results/*.json``.
 
+(layout: long because the README it renders (a table per track, the notes, each row's details and
+per-grasp table) and the two plots share the row helpers; the plots are the part to move out.)
+
 ``hupbench leaderboard [--dir leaderboard]`` reads every results file
 (validated by :mod:`hupbench.evaluation.results`; a bad file is an error naming it),
 and regenerates ``README.md`` (one table per track, each with the test split's floor beside the rows,

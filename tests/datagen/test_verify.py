@@ -319,7 +319,7 @@ def test_checks_that_cannot_run_are_named(tiny_dataset, tmp_path):
 
 
 def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
-    from datagen.dataset.verify import sample_sheet
+    from datagen.dataset.sample_sheet import sample_sheet
 
     sheet = sample_sheet(tiny_dataset, view=3, tile_px=32)
     assert sheet.dtype == np.uint8 and sheet.ndim == 3

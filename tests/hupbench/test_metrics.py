@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from hupbench import metrics as M
+from hupbench.evaluation import breakdowns as B
 
 
 def _rotation(axis, angle):
@@ -186,20 +187,20 @@ def test_breakdowns():
     errors[:, :21] = np.array([1.0, 2.0, 3.0, 4.0])[:, None]
     errors[:, 21:] = 10.0
     theta = np.array([0.3, 1.0, math.pi / 2, 2.5])
-    lat = M.latitude_labels(theta)
+    lat = B.latitude_labels(theta)
     assert lat.tolist() == ["egocentric", "egocentric", "non_egocentric", "non_egocentric"]
     table = M.breakdown_mpjpe_mm(errors, lat)
     assert table["egocentric"]["frames"] == 2
     assert table["egocentric"]["mpjpe_mm"] == pytest.approx({"hand": 1.5, "probe": 10.0,
                                                              "all": (21 * 1.5 + 80) / 29})
     assert table["non_egocentric"]["mpjpe_mm"]["hand"] == pytest.approx(3.5)
-    z = M.z_ego_labels([0.5, 0.8, 0.5, 0.8])
+    z = B.z_ego_labels([0.5, 0.8, 0.5, 0.8])
     assert z.tolist() == ["0.5 m", "0.8 m", "0.5 m", "0.8 m"]
     assert M.breakdown_mpjpe_mm(torch.from_numpy(errors), z)["0.8 m"]["mpjpe_mm"]["hand"] == pytest.approx(3.0)
-    assert M.background_labels([0, 2], ["white", "room", "phantom"]).tolist() == ["white", "phantom"]
-    assert M.background_labels([1]).tolist() == ["background 1"]
+    assert B.background_labels([0, 2], ["white", "room", "phantom"]).tolist() == ["white", "phantom"]
+    assert B.background_labels([1]).tolist() == ["background 1"]
     with pytest.raises(ValueError, match="no name"):
-        M.background_labels([5], ["white"])
+        B.background_labels([5], ["white"])
     with pytest.raises(ValueError, match="one entry per frame"):
         M.breakdown_mpjpe_mm(errors, lat[:3])
 
@@ -216,7 +217,7 @@ def test_grasp_and_theta_vol_breakdowns_known_answer():
     # grasp 3: two frames, 7: three, 12: one (orientation not recorded), 5: one
     grasp_id = np.array([3, 3, 7, 7, 7, 12, 5], np.int64)
     errors = _frames_with_errors([(1, 10), (3, 20), (2, 4), (4, 8), (6, 12), (10, 0), (5, 30)])
-    by_grasp = M.breakdown_mpjpe_mm(errors, M.grasp_labels(grasp_id))
+    by_grasp = M.breakdown_mpjpe_mm(errors, B.grasp_labels(grasp_id))
     assert list(by_grasp) == ["12", "3", "5", "7"]  # labels are the ids in decimal, sorted as text
     assert {g: b["frames"] for g, b in by_grasp.items()} == {"3": 2, "7": 3, "12": 1, "5": 1}
     assert by_grasp["3"]["mpjpe_mm"] == pytest.approx({"hand": 2.0, "probe": 15.0, "all": (21 * 2 + 8 * 15) / 29})
@@ -224,7 +225,7 @@ def test_grasp_and_theta_vol_breakdowns_known_answer():
     assert by_grasp["12"]["mpjpe_mm"] == pytest.approx({"hand": 10.0, "probe": 0.0, "all": 210 / 29})
 
     theta_vol = {3: [0.0, -0.0, 180.0], 5: [0, 0, 180], 7: [0.0, 0.0, 90.0], 12: None}
-    labels = M.theta_vol_labels(grasp_id, theta_vol)
+    labels = B.theta_vol_labels(grasp_id, theta_vol)
     assert labels.tolist() == ["theta_vol_z=180"] * 2 + ["theta_vol_z=90"] * 3 + ["unknown", "theta_vol_z=180"]
     by_theta = M.breakdown_mpjpe_mm(torch.from_numpy(errors), labels)
     assert {k: b["frames"] for k, b in by_theta.items()} == {"theta_vol_z=180": 3, "theta_vol_z=90": 3, "unknown": 1}
@@ -234,7 +235,7 @@ def test_grasp_and_theta_vol_breakdowns_known_answer():
     assert by_theta["theta_vol_z=90"]["mpjpe_mm"] == by_grasp["7"]["mpjpe_mm"]
     assert by_theta["unknown"]["mpjpe_mm"] == by_grasp["12"]["mpjpe_mm"]
     # a grasp the map does not name has no recorded orientation either
-    assert M.theta_vol_labels([4, 7], {7: (0, 0, 90)}).tolist() == ["unknown", "theta_vol_z=90"]
+    assert B.theta_vol_labels([4, 7], {7: (0, 0, 90)}).tolist() == ["unknown", "theta_vol_z=90"]
 
 
 @pytest.mark.parametrize("theta_vol_deg, label", [
@@ -249,7 +250,7 @@ def test_grasp_and_theta_vol_breakdowns_known_answer():
     ((-0.0, 0.0001, -0.0001), "theta_vol_z=0"),  # no "-0" after rounding
 ])
 def test_theta_vol_label(theta_vol_deg, label):
-    assert M.theta_vol_label(theta_vol_deg) == label
+    assert B.theta_vol_label(theta_vol_deg) == label
 
 
 def test_bad_input_messages():
