@@ -179,7 +179,8 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
     Returns:
         dict with "out_dir", "stages" ({stage: seconds}), the paths each stage made ("preview",
         "grasps_npz", "dataset", "checkpoint", "results", "onnx", "predictions", "overlay"),
-        "metrics" (test MPJPE mm: all / hand / probe), "val_mpjpe_mm" (first and last validation),
+        "metrics" (test MPJPE mm: all / hand / probe), "floor_mm" (the test split's floor, the same keys, or
+        None), "val_mpjpe_mm" (first and last validation),
         "parity" (ONNX vs PyTorch), "render_platform", "keypoints_in_view", "run_info" and "seconds".
     """
     from datagen.render import gl
@@ -266,6 +267,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
                          latency=overrides["eval_latency"], log=quiet)
     out["results"] = evaluated["out"]
     out["metrics"] = {k: evaluated["results"]["metrics"]["mpjpe_mm"][k] for k in ("all", "hand", "probe")}
+    out["floor_mm"] = (evaluated["results"]["split_floor"] or {}).get("floor_mm")
     out["latency_ms_per_image"] = evaluated["results"]["latency_ms_per_image"]
     if done("eval", t0):
         return out
@@ -312,6 +314,10 @@ def summary_lines(result: dict) -> list[str]:
         m = result["metrics"]
         lines.append(f"  test MPJPE: all {m['all']:.1f} mm (mean over 29 keypoints), hand {m['hand']:.1f} mm, "
                      f"probe {m['probe']:.1f} mm  (a short CPU run: see leaderboard/ for the real ones)")
+        if result.get("floor_mm"):
+            f = result["floor_mm"]
+            lines.append(f"  test split's floor (the nearest training grasp under the true camera, what recalling "
+                         f"training grasps scores): all {f['all']:.1f} mm, hand {f['hand']:.1f} mm, probe {f['probe']:.1f} mm")
     if "parity" in result:
         lines.append(f"  ONNX vs PyTorch: max 3D difference {result['parity']['points3d_mm']:.2e} mm")
     return lines
