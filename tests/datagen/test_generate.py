@@ -92,8 +92,9 @@ def test_sigkill_then_resume_loses_and_duplicates_nothing(tiny, tmp_path):
     """)
     proc = subprocess.Popen([sys.executable, "-c", code])
     deadline = time.time() + 120
-    # kill as soon as the first chunk is complete, while later chunks are being written
-    while time.time() < deadline and not list(out.glob("*/.chunks/*.npz")):
+    # kill as soon as the first chunk is complete, while later chunks are being written (pathlib's glob
+    # also matches the hidden temporary file a chunk is written to, .NAME.tmpPID.npz: not that one)
+    while time.time() < deadline and not list(out.glob("*/.chunks/[!.]*.npz")):
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()

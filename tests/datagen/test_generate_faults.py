@@ -92,7 +92,7 @@ def test_fault_generate_workers_die_with_parent(tmp_path, grasps, capsys):
                                           "dataset.sphere.exclude=[elbow]"), env=env(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        wait_for(lambda: list(out.glob("*/.chunks/*.npz")), 180, "the first chunk")
+        wait_for(lambda: list(out.glob("*/.chunks/[!.]*.npz")), 180, "the first chunk")  # not a temporary file
         workers = children(proc.pid)
         assert len(workers) >= 2, workers  # two workers (and multiprocessing's resource tracker)
         answer = run_cli(capsys, *cli_argv(out, grasps))

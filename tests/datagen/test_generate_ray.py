@@ -123,7 +123,7 @@ def test_killing_an_actor_mid_run_loses_and_duplicates_nothing(ray_runtime, tmp_
     deadline = time.time() + 240
     # kill one actor (SIGKILL, as the kernel's OOM killer would) once the first chunk is written,
     # while further chunks are queued on both actors
-    while time.time() < deadline and not list(out.glob("*/.chunks/*.npz")):
+    while time.time() < deadline and not list(out.glob("*/.chunks/[!.]*.npz")):  # not a temporary file
         time.sleep(0.05)
     pids = [int(m.group(1)) for m in (re.match(r"ray actor \d+: pid (\d+)", line) for line in lines) if m]
     assert len(pids) == 2, lines
