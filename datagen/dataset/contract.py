@@ -41,6 +41,10 @@ SCHEMA_VERSION = 1
 SPLITS = ("train", "val", "test")
 MODALITIES = ("rgb", "depth", "seg")
 RGB_FORMATS = ("jpg", "png")
+#: what a dataset's evaluation splits hold out (manifest ``protocol.track``): whole grasps (HUP-3D's
+#: protocol) or views of the sphere
+UNSEEN_GRASPS, UNSEEN_VIEWS = "unseen_grasps", "unseen_views"
+TRACKS = (UNSEEN_GRASPS, UNSEEN_VIEWS)
 SEG_LABELS = {"background": 0, "hand": 1, "arm": 2, "probe": 3}
 DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
 MANIFEST = "manifest.json"

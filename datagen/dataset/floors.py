@@ -31,6 +31,10 @@ DEFINITION = ("what a model that only recalls training labels scores, mean dista
               "evaluated grasp replaced by the nearest training grasp seen from the true camera "
               "(nearest_train_grasp, the floor of the unseen_grasps track), or each evaluated frame by the nearest "
               "training view of the same grasp and distance (nearest_train_view, the floor of the unseen_views track)")
+#: how a split's headline floor is made: each evaluated grasp replaced by its nearest training grasp, or
+#: each evaluated frame by the nearest training view of its grasp
+NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW = "nearest_train_grasp", "nearest_train_view"
+FLOOR_KINDS = (NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW)
 #: annotation arrays the floors read
 FIELDS = ("keypoints_3d_cam", "grasp_id", "view_id", "z_ego")
 
@@ -90,7 +94,7 @@ def split_floors(annotations: dict[str, dict]) -> dict:
             weights.append(frames)
         entries = list(per_grasp.values())
         views_known = all(e["nearest_train_view_mm"] is not None for e in entries)
-        summary = {"floor_kind": "nearest_train_view" if views_known else "nearest_train_grasp"}
+        summary = {"floor_kind": NEAREST_TRAIN_VIEW if views_known else NEAREST_TRAIN_GRASP}
         for name in ("nearest_train_grasp_mm", "train_mean_mm") + (("nearest_train_view_mm",) if views_known else ()):
             summary[name] = {part: float(np.average([e[name][part] for e in entries], weights=weights))
                              for part in ("hand", "probe", "all")}

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from datagen.camera import Intrinsics
-from datagen.dataset.contract import SPLITS
+from datagen.dataset.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
 from datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
 from datagen.render.renderer import MODALITIES, check_modalities
 from datagen import keypoints as kp
@@ -38,9 +38,6 @@ PAPER_LOOK_AT = "middle_mcp"
 LAMP_INTENSITY_PER_WATT = 0.015
 
 
-#: what the evaluation splits hold out: whole grasps (HUP-3D's protocol) or views of the sphere
-UNSEEN_GRASPS, UNSEEN_VIEWS = "unseen_grasps", "unseen_views"
-TRACKS = (UNSEEN_GRASPS, UNSEEN_VIEWS)
 #: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
 #: camera plane (z_ego 0.001: 8 keypoints behind it), beyond 10 m they cover a few pixels
 Z_EGO_RANGE_M = (0.1, 10.0)

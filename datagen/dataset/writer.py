@@ -430,7 +430,7 @@ def _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, bac
                        "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
                        "split_view_ids": {split: view_ids[positions].tolist() for split, positions in splits.views.items()}},
         "protocol": protocol(spec),
-        "split_floors": {"definition": FLOORS_DEFINITION, "track": spec.track, "splits": floors},
+        "split_floors": {"definition": FLOORS_DEFINITION, "splits": floors},
         "backgrounds": {"names": list(backgrounds.names[: spec.n_backgrounds]),
                         "fingerprint": backgrounds.fingerprint()},
         "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],

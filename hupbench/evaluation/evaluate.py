@@ -62,7 +62,8 @@ from datagen import keypoints as kp
 from datagen.input_checks import check_int
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
-from hupbench.evaluation.results import FLOOR_NAMES, TRACKS, validate_grasp_theta_vol, validate_split_floor
+from datagen.dataset.contract import TRACKS
+from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
 
 __all__ = ["LATENCY_RUNS", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval",
            "split_floor"]
@@ -225,7 +226,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     """The dataset's track and the evaluated split's floor, checked, as the results JSON holds them.
 
     Args:
-        manifest: the dataset's manifest: ``protocol.track`` and ``split_floors`` = {"definition", "track",
+        manifest: the dataset's manifest: ``protocol.track`` and ``split_floors`` = {"definition",
             "splits": {split: entry}} (see :func:`hupbench.evaluation.results.validate_split_floor`), both
             absent in datasets made before them; the train split has no entry.
         split: the evaluated split.
@@ -236,8 +237,8 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
         (track or None, a copy of the split's entry or None).
 
     Raises:
-        ValueError: a track that is not one of ``TRACKS``, two tracks that disagree, or a bad entry (the
-            message names the manifest and the field).
+        ValueError: a track that is not one of ``TRACKS``, or a bad entry (the message names the manifest
+            and the field).
     """
     track = (manifest.get("protocol") or {}).get("track")
     if track is not None and track not in TRACKS:
@@ -245,15 +246,8 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     floors = manifest.get("split_floors")
     if floors is not None:
         if not isinstance(floors, dict) or not isinstance(floors.get("splits"), dict):
-            raise ValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition', 'track' and "
+            raise ValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition' and "
                              f"'splits' (split -> floor), got {str(floors)[:80]}")
-        if floors.get("track") not in TRACKS:
-            raise ValueError(f"{where}: manifest['split_floors']['track'] must be one of {', '.join(TRACKS)}, got "
-                             f"{floors.get('track')!r}")
-        if track is not None and floors["track"] != track:
-            raise ValueError(f"{where}: manifest['split_floors']['track'] {floors['track']!r} differs from "
-                             f"manifest['protocol']['track'] {track!r}")
-        track = floors["track"]
     entry = None if floors is None else floors["splits"].get(split)
     if entry is None:
         return track, None

@@ -46,7 +46,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from datagen.io import atomic_output, clean_stale_tmp
-from hupbench.evaluation.results import FLOOR_KINDS, FLOOR_NAMES, SCHEMA_VERSION, TRACKS, load_results
+from datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
+from datagen.dataset.floors import FLOOR_KINDS
+from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"
@@ -59,7 +61,7 @@ NUM_HAND, NUM_PROBE = 21, 8
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
 #: the track of rows whose results name none: the paper's rows and results of datasets made before tracks,
 #: which all hold out whole grasps
-PAPER_TRACK = "unseen_grasps"
+PAPER_TRACK = UNSEEN_GRASPS
 #: each track's table heading and what it holds out
 TRACK_TITLES = {
     "unseen_grasps": ("Unseen grasps", "the test split's grasps are not in the training split (the HUP-3D paper's "

@@ -45,6 +45,8 @@ import math
 import re
 from pathlib import Path
 
+from datagen.dataset.contract import TRACKS
+from datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 from datagen.io import write_json
 
 SCHEMA_VERSION = 3
@@ -55,17 +57,14 @@ FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
 BREAKDOWNS = ("latitude", "z_ego", "background", "grasp", "theta_vol")
 _BREAKDOWNS_V2 = BREAKDOWNS[:3]
-#: what a dataset's evaluation splits hold out (manifest ``protocol.track``)
-TRACKS = ("unseen_grasps", "unseen_views")
 #: how a split's floor is made (datagen/dataset/floors.py), in plain words: each evaluated grasp replaced by its
 #: nearest training grasp, or each evaluated frame by the nearest training view of the same grasp
 FLOOR_NAMES = {
-    "nearest_train_grasp": ("nearest training grasp under the true camera: a model that only recognises training "
+    NEAREST_TRAIN_GRASP: ("nearest training grasp under the true camera: a model that only recognises training "
                             "grasps cannot do better than this"),
-    "nearest_train_view": ("nearest training view of the same grasp and distance under the true camera: a model "
+    NEAREST_TRAIN_VIEW: ("nearest training view of the same grasp and distance under the true camera: a model "
                            "that only recalls training views cannot do better than this"),
 }
-FLOOR_KINDS = tuple(FLOOR_NAMES)
 # A run name is also a file stem: no separators, no leading dot, nothing a shell would need quoted.
 RUN_NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
