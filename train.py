@@ -12,7 +12,7 @@ import hydra
 from omegaconf import DictConfig, open_dict
 
 from hupbench.config import HYDRA_VERSION_BASE
-from hupbench.errors import hydra_error_line
+from hupbench.error_lines import hydra_error_line
 
 # the user's own request for tracebacks, read before this script sets the variable for itself below
 DEBUG = os.environ.get("HYDRA_FULL_ERROR") == "1"

@@ -17,6 +17,7 @@ import numpy as np
 from datagen import tolerances as tol
 from datagen.geometry import check_last_axes, invert_transform, make_transform
 from datagen.input_checks import check_int
+from datagen.errors import BadValueError
 
 #: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -43,10 +44,10 @@ class Intrinsics:
         for name in ("fx", "fy"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
-                raise ValueError(f"focal length {name} must be positive and finite, got {v!r}")
+                raise BadValueError(f"focal length {name} must be positive and finite, got {v!r}")
         for name in ("cx", "cy"):
             if not np.isfinite(getattr(self, name)):
-                raise ValueError(f"principal point {name} must be finite, got {getattr(self, name)!r}")
+                raise BadValueError(f"principal point {name} must be finite, got {getattr(self, name)!r}")
 
     @property
     def K(self) -> np.ndarray:
@@ -60,7 +61,7 @@ class Intrinsics:
         HUP-3D: 60 mm on 32 mm at 256 x 256 gives fx = fy = 480, cx = cy = 128.
         """
         if focal_mm <= 0 or sensor_mm <= 0:
-            raise ValueError(f"focal_mm and sensor_mm must be positive, got {focal_mm}, {sensor_mm}")
+            raise BadValueError(f"focal_mm and sensor_mm must be positive, got {focal_mm}, {sensor_mm}")
         f = focal_mm / sensor_mm * max(width, height)
         return cls(f, f, width / 2.0, height / 2.0, width, height)
 
@@ -104,9 +105,9 @@ def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0,
     forward = target - eye
     dist = np.linalg.norm(forward)
     if dist < tol.MIN_PROJECTION_DEPTH_M:
-        raise ValueError(f"eye and target coincide ({eye.tolist()}): the view direction is undefined")
+        raise BadValueError(f"eye and target coincide ({eye.tolist()}): the view direction is undefined")
     if np.linalg.norm(up) == 0:
-        raise ValueError("up_world must be non-zero")
+        raise BadValueError("up_world must be non-zero")
     z = forward / dist
     up = up / np.linalg.norm(up)
     if np.linalg.norm(np.cross(z, up)) < tol.LOOK_AT_PARALLEL:
@@ -132,14 +133,14 @@ def project_points(points_cam: np.ndarray, K: np.ndarray, behind: str = "raise")
         (..., N, 2) float64 pixel coordinates (u, v).
     """
     if behind not in ("raise", "nan"):
-        raise ValueError(f"behind must be 'raise' or 'nan', got {behind!r}")
+        raise BadValueError(f"behind must be 'raise' or 'nan', got {behind!r}")
     points_cam = check_last_axes(points_cam, (3,), "points_cam")
     K = check_last_axes(K, (3, 3), "K")
     z = points_cam[..., 2]
     bad = z < tol.MIN_PROJECTION_DEPTH_M
     if np.any(bad) and behind == "raise":
         idx = np.argwhere(bad)[:5].tolist()
-        raise ValueError(
+        raise BadValueError(
             f"{int(bad.sum())} point(s) at or behind the camera plane (z <= 0), first indices {idx}"
         )
     safe_z = np.where(bad, 1.0, z)[..., None]

@@ -12,15 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 from datagen import tolerances as tol
+from datagen.errors import BadValueError
 
 
 def check_last_axes(x: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     if x.ndim < len(shape) or x.shape[x.ndim - len(shape):] != shape:
         want = "(..., " + ", ".join(map(str, shape)) + ")"
-        raise ValueError(f"{name} must be {want}, got {tuple(x.shape)}")
+        raise BadValueError(f"{name} must be {want}, got {tuple(x.shape)}")
     if not np.all(np.isfinite(x)):
-        raise ValueError(f"{name} contains NaN or inf")
+        raise BadValueError(f"{name} contains NaN or inf")
     return x
 
 
@@ -66,9 +67,9 @@ def check_rotation(R: np.ndarray, name: str = "R") -> np.ndarray:
     R = check_last_axes(R, (3, 3), name)
     err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
     if err > tol.ROTATION_ORTHONORMAL:
-        raise ValueError(f"{name} is not orthonormal (max |R^T R - I| = {err:.2e})")
+        raise BadValueError(f"{name} is not orthonormal (max |R^T R - I| = {err:.2e})")
     if np.any(np.linalg.det(R) < 0):
-        raise ValueError(f"{name} contains a reflection (det < 0)")
+        raise BadValueError(f"{name} contains a reflection (det < 0)")
     return R
 
 
@@ -172,7 +173,7 @@ def euler_to_matrix(angles: np.ndarray, order: str = "xyz") -> np.ndarray:
         (..., 3, 3) float64.
     """
     if len(order) != 3 or set(order) - set("xyz"):
-        raise ValueError(f"order must be three letters from 'xyz', got {order!r}")
+        raise BadValueError(f"order must be three letters from 'xyz', got {order!r}")
     angles = check_last_axes(angles, (3,), "angles")
     R = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
     for k, axis in enumerate(order):

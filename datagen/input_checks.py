@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from datagen.errors import BadValueError
+
 __all__ = ["check_int", "check_number", "check_shape", "is_whole"]
 
 
@@ -33,7 +35,7 @@ def _bounds(low, high, low_open: bool = False, fmt: str = "") -> str:
 
 
 def check_int(value: Any, name: str, low: int | None = None, high: int | None = None, *, optional: bool = False,
-              hint: str = "", error: type[Exception] = ValueError) -> int | None:
+              hint: str = "", error: type[Exception] = BadValueError) -> int | None:
     """``value`` when it is a whole number within [low, high] (either bound may be None).
 
     Args:
@@ -50,7 +52,7 @@ def check_int(value: Any, name: str, low: int | None = None, high: int | None = 
     whole = is_whole(value)
     if whole and (low is None or value >= low) and (high is None or value <= high):
         return int(value)
-    raise (ValueError if whole else error)(
+    raise (BadValueError if whole else error)(
         f"{name} must be a whole number{_bounds(low, high)}{hint}{' or null' if optional else ''}, got {value!r}")
 
 
@@ -63,7 +65,7 @@ def check_number(value: Any, name: str, low: float | None = None, high: float | 
           and (low is None or (value > low if low_open else value >= low)) and (high is None or value <= high))
     if ok:
         return float(value)
-    raise ValueError(f"{name} must be a finite number{_bounds(low, high, low_open, 'g')}"
+    raise BadValueError(f"{name} must be a finite number{_bounds(low, high, low_open, 'g')}"
                      f"{' or null' if optional else ''}, got {value!r}")
 
 
@@ -87,5 +89,5 @@ def check_shape(array: Any, shape: tuple, name: str) -> np.ndarray:
         ok = got == want if isinstance(want, int) else sizes.setdefault(want, got) == got
     if not ok:
         shown = ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "")
-        raise ValueError(f"{name} must be ({shown}), got {tuple(array.shape)}")
+        raise BadValueError(f"{name} must be ({shown}), got {tuple(array.shape)}")
     return array

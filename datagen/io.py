@@ -28,25 +28,20 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from datagen.errors import NotWritableError, UserError
+
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
 LOCK_NAME = ".hupbench.lock"
 
 
-class DiskFullError(OSError):
+class DiskFullError(UserError, OSError):
     """ENOSPC while writing ``path``; the message names the device (its mount point) and the file."""
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
         super().__init__(errno.ENOSPC, f"no space left on {mount_point(path)} writing {path}")
         self.filename = str(path)
-
-    def __str__(self) -> str:
-        return self.strerror
-
-
-class WriteRefusedError(PermissionError):
-    """A folder or file that may not be written (permissions, a read-only file system); says which."""
 
     def __str__(self) -> str:
         return self.strerror
@@ -72,7 +67,7 @@ def _explain(exc: OSError, path: Path) -> OSError:
     if exc.errno == errno.ENOSPC:
         return DiskFullError(path)
     if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        return WriteRefusedError(exc.errno, f"cannot write {path}: {exc.strerror}")
+        return NotWritableError(exc.errno, f"cannot write {path}: {exc.strerror}")
     return exc
 
 
@@ -189,7 +184,7 @@ def clean_stale_tmp(folder: str | Path, recursive: bool = True) -> list[Path]:
     return removed
 
 
-class LockedError(RuntimeError):
+class LockedError(UserError, RuntimeError):
     """Another live process holds the output folder's lock."""
 
 

@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 
 from datagen import tolerances as tol
 from datagen.keypoints import CORNER_BITS
+from datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- distance to triangles
@@ -152,7 +153,7 @@ def _pseudo_normals(vertices: np.ndarray, faces: np.ndarray) -> _PseudoNormals:
     order = np.argsort(key, kind="stable")
     sk = key[order]
     if len(sk) % 2 or np.any(sk[0::2] != sk[1::2]) or np.any(sk[1:-1:2] == sk[2::2]):
-        raise ValueError("mesh is not a closed 2-manifold: every edge needs exactly two faces")
+        raise BadValueError("mesh is not a closed 2-manifold: every edge needs exactly two faces")
     twin = np.empty_like(order)
     twin[order[0::2]], twin[order[1::2]] = order[1::2], order[0::2]
     edge_face = np.repeat(np.arange(len(faces)), 3)
@@ -349,7 +350,7 @@ class MeshDistance:
             lower = self.levels[level].lower_bound(points[node], group)
             starts = np.flatnonzero(np.r_[True, node[1:] != node[:-1]])
             if len(starts) != n:
-                raise ValueError("every point needs at least one (point, group) pair")
+                raise BadValueError("every point needs at least one (point, group) pair")
             seg = np.minimum.reduceat(lower, starts)
             hit = np.flatnonzero(lower == np.repeat(seg, np.diff(np.r_[starts, len(node)])))
             seed = hit[np.r_[True, node[hit][1:] != node[hit][:-1]]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 from datagen.input_checks import check_int
+from datagen.errors import BadValueError
 
 #: processes per usable CPU core a verb may start; far more only thrashes (measured: ``workers=100000``
 #: spawned processes until the machine stalled)
@@ -25,6 +26,6 @@ def check_workers(workers, what: str = "workers") -> int:
     check_int(workers, what, low=1)
     cores = usable_cores()
     if workers > MAX_WORKERS_PER_CORE * cores:
-        raise ValueError(f"{what}={workers} is more than {MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this "
+        raise BadValueError(f"{what}={workers} is more than {MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this "
                          f"process may use ({MAX_WORKERS_PER_CORE * cores}); each worker is a process")
     return workers

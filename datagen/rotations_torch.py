@@ -10,6 +10,7 @@ Convention:
 from __future__ import annotations
 
 import torch
+from datagen.errors import BadTypeError, BadValueError
 
 # added under the square root so that the angle's gradient stays finite at zero rotation
 _EPS2 = 1e-24
@@ -17,9 +18,9 @@ _EPS2 = 1e-24
 
 def _check(x: torch.Tensor, last: int, name: str) -> None:
     if not isinstance(x, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+        raise BadTypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
     if x.ndim < 1 or x.shape[-1] != last:
-        raise ValueError(f"{name} must be (..., {last}), got {tuple(x.shape)}")
+        raise BadValueError(f"{name} must be (..., {last}), got {tuple(x.shape)}")
 
 
 def skew(v: torch.Tensor) -> torch.Tensor:
@@ -73,5 +74,5 @@ def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
 def matrix_to_rot6d(R: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) -> (..., 6): the first two columns."""
     if not isinstance(R, torch.Tensor) or R.shape[-2:] != (3, 3):
-        raise ValueError(f"R must be a (..., 3, 3) tensor, got {getattr(R, 'shape', type(R))}")
+        raise BadValueError(f"R must be a (..., 3, 3) tensor, got {getattr(R, 'shape', type(R))}")
     return torch.cat([R[..., :, 0], R[..., :, 1]], dim=-1)

@@ -35,6 +35,7 @@ from datagen.io import write_with
 from datagen.input_checks import check_int
 from hupbench.inference.model_file import INPUT_SIZE_RANGE
 from models.build import build_model, load_checkpoint_state
+from datagen.errors import BadValueError, MissingFileError
 
 FORMAT = "hupbench-checkpoint"
 VERSION = 1
@@ -50,7 +51,7 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     """
     missing = [k for k in REQUIRED_KEYS if k not in payload and k not in ("format", "version")]
     if missing:
-        raise ValueError(f"checkpoint payload lacks {', '.join(missing)}")
+        raise BadValueError(f"checkpoint payload lacks {', '.join(missing)}")
     payload = {"format": FORMAT, "version": VERSION, **payload}
     # torch.save reports a full disk as "[enforce fail at inline_container.cc] . unexpected pos": write_with
     # names the device and the file instead, and removes the temporary file of any failed write
@@ -61,24 +62,24 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """Load and check a checkpoint dict (tensors on the CPU)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} does not exist")
+        raise MissingFileError(f"checkpoint {path} does not exist")
     if path.stat().st_size == 0:
-        raise ValueError(f"{path} is empty (0 bytes): not a readable torch checkpoint")
+        raise BadValueError(f"{path} is empty (0 bytes): not a readable torch checkpoint")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several unrelated types for a corrupt or foreign file
         # the first sentence only: torch's unpickling errors go on for lines about weights_only=False,
         # which is not the cure for a damaged file
         first = next((line for line in str(exc).splitlines() if line.strip()), "").split(". ")[0][:200]
-        raise ValueError(f"{path} is not a readable torch checkpoint (damaged, truncated or not written by "
+        raise BadValueError(f"{path} is not a readable torch checkpoint (damaged, truncated or not written by "
                          f"torch.save): {type(exc).__name__}: {first}") from exc
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise ValueError(f"{path} is not a hupbench checkpoint (no format={FORMAT!r} field)")
+        raise BadValueError(f"{path} is not a hupbench checkpoint (no format={FORMAT!r} field)")
     if payload.get("version") != VERSION:
-        raise ValueError(f"{path} has checkpoint version {payload.get('version')!r}; this hupbench reads {VERSION}")
+        raise BadValueError(f"{path} has checkpoint version {payload.get('version')!r}; this hupbench reads {VERSION}")
     missing = [k for k in REQUIRED_KEYS if k not in payload]
     if missing:
-        raise ValueError(f"checkpoint {path} lacks {', '.join(missing)}")
+        raise BadValueError(f"checkpoint {path} lacks {', '.join(missing)}")
     _check_fields(payload, path)
     return payload
 
@@ -86,10 +87,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 def _check_fields(payload: dict, path: Path) -> None:
     """The fields every consumer relies on, checked before anything is built from them."""
     if not isinstance(payload["model_config"], Mapping) or not isinstance(payload["model_config"].get("name"), str):
-        raise ValueError(f"checkpoint {path}: model_config must be a mapping with a model 'name', "
+        raise BadValueError(f"checkpoint {path}: model_config must be a mapping with a model 'name', "
                          f"got {type(payload['model_config']).__name__}")
     if not isinstance(payload["model"], Mapping):
-        raise ValueError(f"checkpoint {path}: model must be a state dict (name -> tensor), "
+        raise BadValueError(f"checkpoint {path}: model must be a state dict (name -> tensor), "
                          f"got {type(payload['model']).__name__}")
     size = payload["input_size"]
     check_int(size, f"checkpoint {path}: input_size", *INPUT_SIZE_RANGE)
@@ -99,7 +100,7 @@ def _check_fields(payload: dict, path: Path) -> None:
     except (TypeError, ValueError):
         values = None
     if values is None or not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[4] <= 0:
-        raise ValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal lengths, "
+        raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal lengths, "
                          f"got {K!r:.80}")
     step = payload["step"]
     check_int(step, f"checkpoint {path}: step", low=0)
@@ -122,11 +123,11 @@ def load_checkpoint_model(payload: dict[str, Any], path: str | Path) -> nn.Modul
     try:
         model = build_model(payload["model_config"])
     except (ValueError, TypeError) as exc:
-        raise ValueError(f"checkpoint {path}: its model_config builds no model: {exc}") from exc
+        raise BadValueError(f"checkpoint {path}: its model_config builds no model: {exc}") from exc
     try:
         return load_checkpoint_state(model, payload["model"])
     except (ValueError, TypeError) as exc:
-        raise ValueError(f"checkpoint {path}: its weights do not fit its model_config (a {name!r} model): "
+        raise BadValueError(f"checkpoint {path}: its weights do not fit its model_config (a {name!r} model): "
                          f"{exc}") from exc
 
 

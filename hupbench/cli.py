@@ -6,7 +6,8 @@ import argparse
 import sys
 
 from hupbench import __version__
-from hupbench.errors import USER_ERRORS, error_line, hydra_error_line
+from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
+from datagen.errors import BadValueError
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
@@ -50,7 +51,7 @@ def _grasps(overrides: list[str]) -> int:
         try:
             built[group] = build(cfg[group])
         except ValueError as exc:  # the config class names its field, not the group it came from
-            raise ValueError(f"{group}: {exc}") from None
+            raise BadValueError(f"{group}: {exc}") from None
     check_selection(built["generate"])
     check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     result = run_grasps(cfg)

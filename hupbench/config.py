@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
+from datagen.errors import BadValueError, MissingFileError, UserError
 
 HYDRA_VERSION_BASE = "1.3"
 
@@ -47,7 +48,7 @@ def config_dir() -> Path:
         return beside
     path = Path(str(resources.files("hupbench.conf")))
     if not (path / "quickstart.yaml").is_file():
-        raise FileNotFoundError(f"hupbench configs not found in {path}: is the package installed completely?")
+        raise MissingFileError(f"hupbench configs not found in {path}: is the package installed completely?")
     return path
 
 
@@ -66,7 +67,7 @@ def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
 
     bad = [o for o in overrides if "=" not in o]
     if bad:
-        raise ValueError(f"overrides must look like key=value, got {bad}")
+        raise BadValueError(f"overrides must look like key=value, got {bad}")
     with initialize_config_dir(config_dir=str(config_dir()), version_base=HYDRA_VERSION_BASE):
         cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
     OmegaConf.set_readonly(cfg, True)
@@ -77,7 +78,8 @@ def build(node):
     """``hydra.utils.instantiate`` with plain containers, re-raising the constructor's own error.
 
     Hydra wraps a ValueError raised by a config dataclass in InstantiationException; the
-    verbs and their tests want the original, which names the bad field.
+    verbs and their tests want the original, which names the bad field (a constructor outside
+    datagen and hupbench refusing a value becomes a :class:`BadValueError` with its message).
     """
     from hydra.errors import InstantiationException
     from hydra.utils import instantiate
@@ -86,6 +88,8 @@ def build(node):
         return instantiate(node, _convert_="all")
     except InstantiationException as exc:
         cause = exc.__cause__
-        if isinstance(cause, (ValueError, TypeError)):
+        if isinstance(cause, UserError):
             raise cause from None
+        if isinstance(cause, (ValueError, TypeError)):  # a constructor of models/ or torch refusing a value
+            raise BadValueError(str(cause)) from None
         raise

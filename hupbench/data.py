@@ -29,6 +29,7 @@ from datagen.camera import resize_intrinsics, resize_points  # noqa: F401  (part
 from datagen.dataset.contract import frame_path, read_annotations, read_manifest  # noqa: F401  (read_manifest: reader API)
 from datagen.input_checks import check_int
 from hupbench.inference.model_file import INPUT_SIZE_RANGE
+from datagen.errors import BadValueError, MissingFileError
 
 
 #: the model input side, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a
@@ -51,16 +52,16 @@ def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except FileNotFoundError:
-        raise FileNotFoundError(f"{path} does not exist (a frame the annotations list)") from None
+        raise MissingFileError(f"{path} does not exist (a frame the annotations list)") from None
     # imdecode, not imread: imread prints OpenCV's own warning for a missing or foreign file before
     # returning None, which a user cannot act on (the error below names the file)
     image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if image is None:
-        raise ValueError(f"cannot decode {path} as an image ({data.size} bytes): damaged or not a JPG/PNG")
+        raise BadValueError(f"cannot decode {path} as an image ({data.size} bytes): damaged or not a JPG/PNG")
     if image_size is not None:
         width, height = (int(v) for v in image_size)
         if image.shape[:2] != (height, width):
-            raise ValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
+            raise BadValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
     return np.ascontiguousarray(image[..., ::-1])
 
 
@@ -95,7 +96,7 @@ class ReaderConfig:
         for name, high in (("rotate_deg", 180.0), ("photometric", 1.0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= high:
-                raise ValueError(f"{name} must be a number in [0, {high:g}], got {value!r}")
+                raise BadValueError(f"{name} must be a number in [0, {high:g}], got {value!r}")
 
 
 class HUPDataset(torch.utils.data.Dataset):
@@ -116,7 +117,7 @@ class HUPDataset(torch.utils.data.Dataset):
         self.root = Path(root)
         self.manifest = read_manifest(self.root, split)
         if "rgb" not in self.manifest["modalities"]:
-            raise ValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
+            raise BadValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
         self.split, self.config = split, config
         self.ann = read_annotations(self.root, split, ("keypoints_3d_cam", "keypoints_2d", "visible", "K"),
                                     self.manifest)
@@ -142,7 +143,7 @@ class HUPDataset(torch.utils.data.Dataset):
         size = self.config.input_size
         scale = size / image.shape[1]
         if image.shape[0] != image.shape[1]:
-            raise ValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
+            raise BadValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
         image = cv2.resize(np.ascontiguousarray(image), (size, size), interpolation=cv2.INTER_AREA)
         K = resize_intrinsics(self.ann["K"][index], scale)
         points_3d = self.ann["keypoints_3d_cam"][index].astype(np.float64)
@@ -201,7 +202,7 @@ def rotate_in_plane(image: np.ndarray, points_3d: np.ndarray, uv: np.ndarray, K:
         (image, points_3d, uv) rotated.
     """
     if not np.isclose(K[0, 0], K[1, 1]):
-        raise ValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0]}, fy={K[1, 1]}")
+        raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0]}, fy={K[1, 1]}")
     centre = (float(K[0, 2]), float(K[1, 2]))
     # cv2's positive angle is counter-clockwise on screen (y down)
     M = cv2.getRotationMatrix2D(centre, float(np.rad2deg(angle)), 1.0)

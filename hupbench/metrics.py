@@ -59,6 +59,7 @@ from datagen.keypoints import (
     NUM_HAND,
     NUM_KEYPOINTS,
 )
+from datagen.errors import BadTypeError, BadValueError
 
 __all__ = [
     "ALL_AVERAGING",
@@ -124,14 +125,14 @@ def _is_torch(x) -> bool:
 def _check_points(pred, gt, dim: int, names=("pred_m", "gt_m")) -> None:
     for name, x in zip(names, (pred, gt)):
         if not isinstance(x, (np.ndarray, torch.Tensor)):
-            raise TypeError(f"{name} must be a numpy array or torch tensor, got {type(x).__name__}")
+            raise BadTypeError(f"{name} must be a numpy array or torch tensor, got {type(x).__name__}")
         if x.ndim != 3 or x.shape[-1] != dim:
-            raise ValueError(f"{name} must be (N, K, {dim}), got {tuple(x.shape)}")
+            raise BadValueError(f"{name} must be (N, K, {dim}), got {tuple(x.shape)}")
     if _is_torch(pred) != _is_torch(gt):
-        raise TypeError(f"{names[0]} and {names[1]} must both be numpy or both torch, got "
+        raise BadTypeError(f"{names[0]} and {names[1]} must both be numpy or both torch, got "
                         f"{type(pred).__name__} and {type(gt).__name__}")
     if tuple(pred.shape) != tuple(gt.shape):
-        raise ValueError(f"{names[0]} {tuple(pred.shape)} and {names[1]} {tuple(gt.shape)} must have the same shape")
+        raise BadValueError(f"{names[0]} {tuple(pred.shape)} and {names[1]} {tuple(gt.shape)} must have the same shape")
 
 
 def _index(keypoints, k: int) -> list[int]:
@@ -143,10 +144,10 @@ def _index(keypoints, k: int) -> list[int]:
     else:
         idx = [int(i) for i in np.asarray(keypoints).reshape(-1)]
     if not idx:
-        raise ValueError("keypoints selects no keypoint")
+        raise BadValueError("keypoints selects no keypoint")
     bad = [i for i in idx if not 0 <= i < k]
     if bad:
-        raise ValueError(f"keypoint indices {bad} are out of range for {k} keypoints")
+        raise BadValueError(f"keypoint indices {bad} are out of range for {k} keypoints")
     return idx
 
 
@@ -191,9 +192,9 @@ def split_from_errors_mm(errors_mm) -> dict[str, float]:
     "all" is the mean over all 29 keypoints and all frames (see ``ALL_AVERAGING``).
     """
     if tuple(errors_mm.shape[1:]) != (NUM_KEYPOINTS,) or errors_mm.ndim != 2:
-        raise ValueError(f"errors_mm must be (N, {NUM_KEYPOINTS}), got {tuple(errors_mm.shape)}")
+        raise BadValueError(f"errors_mm must be (N, {NUM_KEYPOINTS}), got {tuple(errors_mm.shape)}")
     if errors_mm.shape[0] == 0:
-        raise ValueError("errors_mm holds no frame")
+        raise BadValueError("errors_mm holds no frame")
     return {"all": float(errors_mm.mean()), "hand": float(errors_mm[:, HAND_SLICE].mean()),
             "probe": float(errors_mm[:, CORNER_SLICE].mean())}
 
@@ -211,7 +212,7 @@ def mpjpe_split_mm(pred_m, gt_m) -> dict[str, float]:
     """
     _check_points(pred_m, gt_m, 3)
     if pred_m.shape[1] != NUM_KEYPOINTS:
-        raise ValueError(f"mpjpe_split_mm needs {NUM_KEYPOINTS} keypoints ({NUM_HAND} hand + {NUM_CORNERS} probe), "
+        raise BadValueError(f"mpjpe_split_mm needs {NUM_KEYPOINTS} keypoints ({NUM_HAND} hand + {NUM_CORNERS} probe), "
                          f"got {pred_m.shape[1]}")
     with torch.no_grad():
         return split_from_errors_mm(keypoint_errors_mm(pred_m, gt_m))
@@ -256,7 +257,7 @@ def procrustes_align(pred_m, gt_m):
     """
     _check_points(pred_m, gt_m, 3)
     if pred_m.shape[1] < 1:
-        raise ValueError("procrustes_align needs at least one keypoint")
+        raise BadValueError("procrustes_align needs at least one keypoint")
     if _is_torch(pred_m):
         out = _procrustes_np(pred_m.detach().cpu().double().numpy(), gt_m.detach().cpu().double().numpy())
         return torch.from_numpy(out).to(dtype=pred_m.dtype, device=pred_m.device)
@@ -331,7 +332,7 @@ def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
     """
     th = np.asarray(thresholds_mm, np.float64)
     if th.ndim != 1 or len(th) < 2 or not np.all(np.diff(th) > 0):
-        raise ValueError(f"thresholds_mm must be at least 2 increasing values, got {th.tolist()}")
+        raise BadValueError(f"thresholds_mm must be at least 2 increasing values, got {th.tolist()}")
     curve = pck_mm(errors_mm, th)
     widths = np.diff(th) / (th[-1] - th[0])
     if _is_torch(curve):
@@ -396,9 +397,9 @@ def pixel_error_px(pred_px, gt_px, mask=None):
     if mask is None:
         return _mean(errors)
     if tuple(mask.shape) != tuple(errors.shape):
-        raise ValueError(f"mask must be {tuple(errors.shape)}, got {tuple(mask.shape)}")
+        raise BadValueError(f"mask must be {tuple(errors.shape)}, got {tuple(mask.shape)}")
     if not bool(mask.any()):
-        raise ValueError("mask selects no keypoint")
+        raise BadValueError("mask selects no keypoint")
     return _mean(errors[mask])
 
 
@@ -415,7 +416,7 @@ def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
     errors = errors_mm.detach().cpu().numpy() if _is_torch(errors_mm) else np.asarray(errors_mm, np.float64)
     labels = np.asarray(labels).reshape(-1).astype(str)
     if errors.ndim != 2 or len(labels) != errors.shape[0]:
-        raise ValueError(f"labels must hold one entry per frame: errors {tuple(errors.shape)}, labels {labels.shape}")
+        raise BadValueError(f"labels must hold one entry per frame: errors {tuple(errors.shape)}, labels {labels.shape}")
     out = {}
     for label in sorted(set(labels.tolist())):
         rows = errors[labels == label]
@@ -447,16 +448,16 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
     p = np.asarray(points_m, np.float64)
     r = np.asarray(rotation, np.float64)
     if p.ndim != 2 or p.shape[-1] != 3 or len(p) < 1:
-        raise ValueError(f"points_m must be (K, 3) with K >= 1, got {p.shape}")
+        raise BadValueError(f"points_m must be (K, 3) with K >= 1, got {p.shape}")
     if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-9) or np.linalg.det(r) < 0:
-        raise ValueError(f"rotation must be a (3, 3) proper rotation matrix, got {r.tolist()}")
+        raise BadValueError(f"rotation must be a (3, 3) proper rotation matrix, got {r.tolist()}")
     moved = p @ r.T
     dist = np.linalg.norm(moved[:, None] - p[None], axis=-1)  # (K, K): rotated point k to point j
     perm = dist.argmin(axis=1)
     size = max(float(np.linalg.norm(p - p.mean(axis=0), axis=-1).max()), 1e-12)
     worst = float(dist[np.arange(len(p)), perm].max())
     if worst > rel_tol * size or len(set(perm.tolist())) != len(p):
-        raise ValueError(f"the points are not symmetric under the rotation: a rotated point lies "
+        raise BadValueError(f"the points are not symmetric under the rotation: a rotated point lies "
                          f"{worst * _MM_PER_M:.3g} mm from the nearest point "
                          f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
     return tuple(int(k) for k in perm)
@@ -480,10 +481,10 @@ PROBE_SYMMETRIES = _box_symmetries()
 def _check_permutations(permutations, k: int) -> np.ndarray:
     perms = np.asarray(permutations)
     if perms.ndim != 2 or perms.shape[1] != k or len(perms) < 1 or not np.issubdtype(perms.dtype, np.integer):
-        raise ValueError(f"permutations must be (G, {k}) integer permutations of range({k}), got "
+        raise BadValueError(f"permutations must be (G, {k}) integer permutations of range({k}), got "
                          f"{np.asarray(permutations).tolist()}")
     if not all(sorted(row.tolist()) == list(range(k)) for row in perms):
-        raise ValueError(f"every row of permutations must be a permutation of range({k}), got {perms.tolist()}")
+        raise BadValueError(f"every row of permutations must be a permutation of range({k}), got {perms.tolist()}")
     return perms.astype(np.int64)
 
 
@@ -506,7 +507,7 @@ def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = Fals
         input dtype (differentiable) for torch input.
     """
     if not isinstance(pred, (np.ndarray, torch.Tensor)) or not isinstance(gt, (np.ndarray, torch.Tensor)):
-        raise TypeError(f"pred and gt must be numpy arrays or torch tensors, got {type(pred).__name__} and "
+        raise BadTypeError(f"pred and gt must be numpy arrays or torch tensors, got {type(pred).__name__} and "
                         f"{type(gt).__name__}")
     _check_points(pred, gt, pred.shape[-1] if pred.ndim == 3 else 3, names=("pred", "gt"))
     idx = _index(keypoints, pred.shape[1])
@@ -541,18 +542,18 @@ def permute_keypoints(points, permutations, choice, keypoints=PROBE):
         (N, K, D) of the same type, dtype and device (a new array; gradients flow for torch).
     """
     if not isinstance(points, (np.ndarray, torch.Tensor)) or points.ndim != 3:
-        raise ValueError(f"points must be an (N, K, D) numpy array or torch tensor, got "
+        raise BadValueError(f"points must be an (N, K, D) numpy array or torch tensor, got "
                          f"{getattr(points, 'shape', type(points).__name__)}")
     idx = _index(keypoints, points.shape[1])
     perms = _check_permutations(permutations, len(idx))
     sel = np.asarray(idx)[perms]                                                  # (G, S)
     n = points.shape[0]
     if tuple(choice.shape) != (n,):
-        raise ValueError(f"choice must be ({n},), got {tuple(choice.shape)}")
+        raise BadValueError(f"choice must be ({n},), got {tuple(choice.shape)}")
     if _is_torch(points):
         choice = torch.as_tensor(choice, dtype=torch.int64, device=points.device)
         if n and (int(choice.min()) < 0 or int(choice.max()) >= len(perms)):
-            raise ValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
+            raise BadValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
         source = torch.as_tensor(sel, device=points.device)[choice]               # (N, S)
         rows = torch.arange(n, device=points.device)[:, None]
         out = points.clone()
@@ -560,7 +561,7 @@ def permute_keypoints(points, permutations, choice, keypoints=PROBE):
         return out
     choice = np.asarray(choice, np.int64)
     if n and (choice.min() < 0 or choice.max() >= len(perms)):
-        raise ValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
+        raise BadValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
     out = np.array(points, copy=True)
     out[:, idx] = points[np.arange(n)[:, None], sel[choice]]
     return out
@@ -581,7 +582,7 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
     """
     _check_points(pred_m, gt_m, 3)
     if pred_m.shape[1] != NUM_KEYPOINTS:
-        raise ValueError(f"probe symmetric errors need {NUM_KEYPOINTS} keypoints, got {pred_m.shape[1]}")
+        raise BadValueError(f"probe symmetric errors need {NUM_KEYPOINTS} keypoints, got {pred_m.shape[1]}")
     costs = symmetry_costs(pred_m, gt_m, permutations) * _MM_PER_M               # (N, G) mm
     if _is_torch(costs):
         best, choice = costs.min(dim=1)
@@ -634,7 +635,7 @@ def spread_ratios(pred_m, gt_m) -> dict[str, float | None]:
         pred_m, gt_m = (x.detach().cpu().double().numpy() for x in (pred_m, gt_m))
     pred, gt = np.asarray(pred_m, np.float64), np.asarray(gt_m, np.float64)
     if pred.shape[0] == 0 or pred.shape[1] == 0:
-        raise ValueError(f"spread_ratios needs at least one frame and one keypoint, got {pred.shape}")
+        raise BadValueError(f"spread_ratios needs at least one frame and one keypoint, got {pred.shape}")
     spread_pred = pred.std(axis=0).mean(axis=0)                                    # (3,) metres
     spread_gt = gt.std(axis=0).mean(axis=0)
     return {axis: (float(sp / sg) if sg >= SPREAD_MIN_M else None)
@@ -648,5 +649,5 @@ def collapsed_axes(ratios: dict[str, float | None], threshold: float = SPREAD_RA
     """
     unknown = sorted(set(ratios) - set(SPREAD_AXES))
     if unknown:
-        raise ValueError(f"ratios has unknown axes {unknown}; expected keys {list(SPREAD_AXES)}")
+        raise BadValueError(f"ratios has unknown axes {unknown}; expected keys {list(SPREAD_AXES)}")
     return [a for a in SPREAD_AXES if ratios.get(a) is not None and ratios[a] < threshold]

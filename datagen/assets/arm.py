@@ -19,6 +19,7 @@ import numpy as np
 from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation
 from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
 from datagen.input_checks import check_shape
+from datagen.errors import BadValueError
 
 MM = 1e-3
 
@@ -49,9 +50,9 @@ class ArmSpec:
         for name in ("scale", "length_m", "wrist_width_m", "wrist_thickness_m", "elbow_width_m", "elbow_thickness_m"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
-                raise ValueError(f"arm {name} must be positive and finite, got {v!r}")
+                raise BadValueError(f"arm {name} must be positive and finite, got {v!r}")
         if self.segments_around < 8 or self.segments_along < 2:
-            raise ValueError(
+            raise BadValueError(
                 f"arm tessellation too coarse: segments_around={self.segments_around} (>= 8), "
                 f"segments_along={self.segments_along} (>= 2)"
             )
@@ -69,9 +70,9 @@ def wrist_rotation(flexion: float, deviation: float) -> np.ndarray:
     """
     for name, v in (("flexion", flexion), ("deviation", deviation)):
         if not np.isfinite(v):
-            raise ValueError(f"wrist {name} must be finite, got {v!r}")
+            raise BadValueError(f"wrist {name} must be finite, got {v!r}")
         if not WRIST_LIMITS_RAD[0] - 1e-9 <= v <= WRIST_LIMITS_RAD[1] + 1e-9:
-            raise ValueError(
+            raise BadValueError(
                 f"wrist {name} {np.rad2deg(v):.1f} deg outside [{np.rad2deg(WRIST_LIMITS_RAD[0]):.0f}, "
                 f"{np.rad2deg(WRIST_LIMITS_RAD[1]):.0f}]"
             )

@@ -39,6 +39,7 @@ import numpy as np
 
 from datagen.assets.background_scenes import SCENES
 from datagen.input_checks import check_int
+from datagen.errors import BadTypeError, BadValueError
 
 #: the built-in backgrounds; the position in this tuple is the background_id
 BUILTIN_NAMES: tuple[str, ...] = (
@@ -122,11 +123,11 @@ class BackgroundSet:
         """
         folder = Path(path)
         if not folder.is_dir():
-            raise ValueError(f"background folder {str(folder)!r} does not exist or is not a folder")
+            raise BadValueError(f"background folder {str(folder)!r} does not exist or is not a folder")
         files = sorted((f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES),
                        key=lambda f: f.name)
         if not files:
-            raise ValueError(f"no images found in {str(folder)!r} (looked for {', '.join(IMAGE_SUFFIXES)})")
+            raise BadValueError(f"no images found in {str(folder)!r} (looked for {', '.join(IMAGE_SUFFIXES)})")
         photos = [_read_rgb(f) for f in files]
         for photo in photos:
             photo.flags.writeable = False
@@ -205,15 +206,15 @@ def composite(foreground_rgba: np.ndarray, background_rgb: np.ndarray) -> np.nda
     """
     for name, array in (("foreground_rgba", foreground_rgba), ("background_rgb", background_rgb)):
         if not isinstance(array, np.ndarray):
-            raise TypeError(f"{name} must be a numpy array, got {type(array).__name__}")
+            raise BadTypeError(f"{name} must be a numpy array, got {type(array).__name__}")
         if array.dtype != np.uint8:
-            raise TypeError(f"{name} must be uint8, got {array.dtype}")
+            raise BadTypeError(f"{name} must be uint8, got {array.dtype}")
     if foreground_rgba.ndim != 3 or foreground_rgba.shape[2] != 4:
-        raise ValueError(f"foreground_rgba must be (H, W, 4), got {foreground_rgba.shape}")
+        raise BadValueError(f"foreground_rgba must be (H, W, 4), got {foreground_rgba.shape}")
     if background_rgb.ndim != 3 or background_rgb.shape[2] != 3:
-        raise ValueError(f"background_rgb must be (H, W, 3), got {background_rgb.shape}")
+        raise BadValueError(f"background_rgb must be (H, W, 3), got {background_rgb.shape}")
     if foreground_rgba.shape[:2] != background_rgb.shape[:2]:
-        raise ValueError(f"foreground_rgba is {foreground_rgba.shape[:2]} (H, W) but background_rgb is "
+        raise BadValueError(f"foreground_rgba is {foreground_rgba.shape[:2]} (H, W) but background_rgb is "
                          f"{background_rgb.shape[:2]}")
     alpha = foreground_rgba[..., 3:].astype(np.uint32)
     mixed = alpha * foreground_rgba[..., :3] + (255 - alpha) * background_rgb  # (H, W, 3) uint32, <= 255^2
@@ -224,17 +225,17 @@ def composite(foreground_rgba: np.ndarray, background_rgb: np.ndarray) -> np.nda
 
 
 def _check_index(index, count: int, what: str) -> int:
-    check_int(index, what, error=TypeError)
+    check_int(index, what, error=BadTypeError)
     if not 0 <= index < count:
-        raise ValueError(f"{what} {index} out of range, expected 0..{count - 1}")
+        raise BadValueError(f"{what} {index} out of range, expected 0..{count - 1}")
     return int(index)
 
 
 def _check_size(width, height) -> tuple[int, int]:
     for name, value in (("width", width), ("height", height)):
-        check_int(value, f"{name} (pixels)", error=TypeError)
+        check_int(value, f"{name} (pixels)", error=BadTypeError)
         if value < MIN_SIZE_PX:
-            raise ValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
+            raise BadValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
     return int(width), int(height)
 
 
@@ -244,7 +245,7 @@ def _read_rgb(path: Path) -> np.ndarray:
     data = np.fromfile(str(path), dtype=np.uint8)
     image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if image is None:
-        raise ValueError(f"cannot read background image {str(path)!r}: not a decodable JPEG/PNG file")
+        raise BadValueError(f"cannot read background image {str(path)!r}: not a decodable JPEG/PNG file")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 

@@ -43,6 +43,7 @@ from datagen.assets.hand_anatomy import (
     rest_skeleton,
 )
 from datagen.assets.hand_mesh import build_mesh
+from datagen.errors import BadTypeError, BadValueError
 
 def forward_kinematics_torch(R_local: torch.Tensor, trans: torch.Tensor, joints_rest: torch.Tensor):
     """World rotations and positions of the 16 joints (differentiable).
@@ -255,7 +256,7 @@ class HandModel:
 
         pose = check_pose(pose)
         if pose.ndim != 1:
-            raise ValueError(f"mesh() takes one pose (48,), got {tuple(pose.shape)}")
+            raise BadValueError(f"mesh() takes one pose (48,), got {tuple(pose.shape)}")
         return trimesh.Trimesh(self.vertices(pose, trans, clamp), self.faces, process=False)
 
 
@@ -263,5 +264,5 @@ class HandModel:
 def build_hand(spec: HandSpec = HandSpec()) -> HandModel:
     """The hand for ``spec``, built once per process."""
     if not isinstance(spec, HandSpec):
-        raise TypeError(f"spec must be a HandSpec, got {type(spec).__name__}")
+        raise BadTypeError(f"spec must be a HandSpec, got {type(spec).__name__}")
     return HandModel(spec)

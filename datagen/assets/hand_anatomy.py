@@ -42,6 +42,7 @@ from datagen.geometry import (
     matrix_to_axis_angle,
     matrix_to_euler_xyz,
 )
+from datagen.errors import BadValueError
 
 MM = 1e-3
 NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
@@ -124,11 +125,11 @@ class HandSpec:
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.scale) or not 0.5 <= self.scale <= 1.5:
-            raise ValueError(f"hand scale must be in [0.5, 1.5], got {self.scale!r}")
+            raise BadValueError(f"hand scale must be in [0.5, 1.5], got {self.scale!r}")
         if not np.isfinite(self.voxel_m) or not 0.0003 <= self.voxel_m <= 0.004:
-            raise ValueError(f"voxel_m must be in [0.3, 4] mm, got {self.voxel_m!r} m")
+            raise BadValueError(f"voxel_m must be in [0.3, 4] mm, got {self.voxel_m!r} m")
         if self.max_faces < 1000:
-            raise ValueError(f"max_faces must be at least 1000, got {self.max_faces}")
+            raise BadValueError(f"max_faces must be at least 1000, got {self.max_faces}")
 
 
 def unit_vector(v) -> np.ndarray:
@@ -212,9 +213,9 @@ def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
     """
     pose = np.asarray(pose, dtype=np.float64)
     if pose.ndim not in (1, 2) or pose.shape[-1] != POSE_DIM:
-        raise ValueError(f"{name} must be ({POSE_DIM},) or (B, {POSE_DIM}) axis-angle, got {tuple(pose.shape)}")
+        raise BadValueError(f"{name} must be ({POSE_DIM},) or (B, {POSE_DIM}) axis-angle, got {tuple(pose.shape)}")
     if not np.all(np.isfinite(pose)):
-        raise ValueError(f"{name} contains NaN or inf")
+        raise BadValueError(f"{name} contains NaN or inf")
     return pose
 
 
@@ -287,7 +288,7 @@ def clamp_pose(pose: np.ndarray, strict: bool = False, scale: float = 1.0) -> np
             value = np.rad2deg(angles[tuple(idx)])
             lo, hi = np.rad2deg(limits[j, a])
             msgs.append(f"{names[j + 1]} {axes[a]} {value:.1f} deg not in [{lo:.0f}, {hi:.0f}]")
-        raise ValueError("pose outside joint limits: " + "; ".join(msgs))
+        raise BadValueError("pose outside joint limits: " + "; ".join(msgs))
     clamped = np.clip(angles, limits[..., 0], limits[..., 1])
     return anatomical_to_pose(clamped, pose[..., :3], scale)
 

@@ -43,6 +43,7 @@ from datagen.mesh_distance import (  # noqa: F401  (re-exported: part of the pro
 )
 from datagen.assets.probe_marker import add_marker
 from datagen.assets.probe_shape import ProbeSpec, RegionZ, build_rings, lens_sag, ring_faces
+from datagen.errors import BadTypeError, BadValueError
 
 __all__ = [
     "ProbeSpec",
@@ -94,15 +95,15 @@ def _patch_grid(grid: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray
 
 def _check_points(points: np.ndarray, name: str = "points_probe") -> np.ndarray:
     if isinstance(points, torch.Tensor):
-        raise ValueError(f"{name} must be a numpy array; use signed_distance_torch for tensors")
+        raise BadValueError(f"{name} must be a numpy array; use signed_distance_torch for tensors")
     arr = np.asarray(points)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f"{name} must be a real array, got dtype {arr.dtype}")
+        raise BadValueError(f"{name} must be a real array, got dtype {arr.dtype}")
     if arr.ndim < 1 or arr.shape[-1] != 3:
-        raise ValueError(f"{name} must be (..., 3), got {tuple(arr.shape)}")
+        raise BadValueError(f"{name} must be (..., 3), got {tuple(arr.shape)}")
     arr = arr.astype(np.float64, copy=False)
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or inf")
+        raise BadValueError(f"{name} contains NaN or inf")
     return arr
 
 
@@ -292,13 +293,13 @@ class Probe:
             ValueError: not a floating tensor, wrong shape, NaN or inf.
         """
         if not isinstance(points_probe, torch.Tensor):
-            raise ValueError(f"points_probe must be a torch.Tensor, got {type(points_probe).__name__}")
+            raise BadValueError(f"points_probe must be a torch.Tensor, got {type(points_probe).__name__}")
         if points_probe.dtype not in (torch.float32, torch.float64):
-            raise ValueError(f"points_probe must be float32 or float64, got {points_probe.dtype}")
+            raise BadValueError(f"points_probe must be float32 or float64, got {points_probe.dtype}")
         if points_probe.ndim < 1 or points_probe.shape[-1] != 3:
-            raise ValueError(f"points_probe must be (..., 3), got {tuple(points_probe.shape)}")
+            raise BadValueError(f"points_probe must be (..., 3), got {tuple(points_probe.shape)}")
         if not bool(torch.isfinite(points_probe).all()):
-            raise ValueError("points_probe contains NaN or inf")
+            raise BadValueError("points_probe contains NaN or inf")
         values, lo, hi, shape = self._torch_grid(points_probe.device, points_probe.dtype)
         clamped = torch.maximum(torch.minimum(points_probe, hi), lo)
         u = (clamped - lo) / self.sdf_spacing
@@ -389,5 +390,5 @@ def build_probe(spec: ProbeSpec = ProbeSpec()) -> Probe:
         ValueError: the spec gives a self-folding surface.
     """
     if not isinstance(spec, ProbeSpec):
-        raise TypeError(f"spec must be a ProbeSpec, got {type(spec).__name__}")
+        raise BadTypeError(f"spec must be a ProbeSpec, got {type(spec).__name__}")
     return _build_probe_cached(spec)

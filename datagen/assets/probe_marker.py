@@ -19,6 +19,7 @@ import numpy as np
 import trimesh
 
 from datagen.assets.probe_shape import ProbeSpec, smoothstep
+from datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- orientation marker
@@ -158,7 +159,7 @@ def add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: n
 
     body_lo, body_hi = vertices.min(axis=0), vertices.max(axis=0)
     if np.any(moved < body_lo) or np.any(moved > body_hi):
-        raise ValueError(
+        raise BadValueError(
             "the orientation marker sticks out of the probe's bounding box (its corners are keypoints 21-28 and "
             f"must not move): marker spans {moved.reshape(-1, 3).min(axis=0)} .. {moved.reshape(-1, 3).max(axis=0)} m, "
             f"the box {body_lo} .. {body_hi} m; lower marker_height or move marker_z"
@@ -201,7 +202,7 @@ def _marker_block(spec: ProbeSpec, meridian: np.ndarray, t_ring: np.ndarray,
     head_top = int(np.searchsorted(meridian[:, 2], spec.head_height))
     above = np.flatnonzero(meridian[first_body:, 2] >= spec.marker_z)
     if not len(above) or first_body + above[0] == first_body:
-        raise ValueError(f"ProbeSpec.marker_z ({spec.marker_z}) must lie on the housing of the head, above the "
+        raise BadValueError(f"ProbeSpec.marker_z ({spec.marker_z}) must lie on the housing of the head, above the "
                          f"lens edge (z {meridian[first_body, 2]:.4f} m on the +x side) and below head_height")
     k = first_body + int(above[0])
     w = (spec.marker_z - meridian[k - 1, 2]) / (meridian[k, 2] - meridian[k - 1, 2])
@@ -209,7 +210,7 @@ def _marker_block(spec: ProbeSpec, meridian: np.ndarray, t_ring: np.ndarray,
     k_lo = int(np.searchsorted(t_ring, t0 - 0.5 * spec.marker_length, side="right")) - 1
     k_hi = int(np.searchsorted(t_ring, t0 + 0.5 * spec.marker_length, side="left"))
     if k_lo < first_body or k_hi > head_top:
-        raise ValueError(
+        raise BadValueError(
             f"the orientation marker (marker_z {spec.marker_z}, marker_length {spec.marker_length}) must lie on the "
             f"head's housing between the lens edge and head_height ({spec.head_height}): it spans rings {k_lo}-{k_hi}, "
             f"the housing of the head rings {first_body}-{head_top}"
@@ -217,7 +218,7 @@ def _marker_block(spec: ProbeSpec, meridian: np.ndarray, t_ring: np.ndarray,
     half_w = 0.5 * spec.marker_width
     reach = s_ring[k_lo : k_hi + 1, : m // 4].min(axis=0)  # the least arc length to segment j over the rings
     if reach[-1] < half_w:
-        raise ValueError(f"ProbeSpec.marker_width ({spec.marker_width}) is wider than the head's end")
+        raise BadValueError(f"ProbeSpec.marker_width ({spec.marker_width}) is wider than the head's end")
     big_j = int(np.argmax(reach >= half_w))  # the block spans segments -big_j .. big_j - 1
     return k_lo, k_hi, big_j, t0
 

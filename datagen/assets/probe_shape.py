@@ -37,6 +37,7 @@ from scipy.interpolate import PchipInterpolator
 
 from datagen import tolerances as tol
 from datagen.input_checks import check_int
+from datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- spec
@@ -176,53 +177,53 @@ class ProbeSpec:
                 check_int(v, f"ProbeSpec.{f.name}")
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-                    raise ValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")
+                    raise BadValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")
                 if not math.isfinite(v):
-                    raise ValueError(f"ProbeSpec.{f.name} must be finite, got {v!r}")
+                    raise BadValueError(f"ProbeSpec.{f.name} must be finite, got {v!r}")
             if f.name in ("sdf_margin", "marker_height"):
                 if v < 0:
-                    raise ValueError(f"ProbeSpec.{f.name} must be >= 0, got {v!r}")
+                    raise BadValueError(f"ProbeSpec.{f.name} must be >= 0, got {v!r}")
             elif f.name == "handle_flare":
                 if v < 0:
-                    raise ValueError(f"ProbeSpec.handle_flare must be >= 0, got {v!r}")
+                    raise BadValueError(f"ProbeSpec.handle_flare must be >= 0, got {v!r}")
             elif v <= 0:
-                raise ValueError(f"ProbeSpec.{f.name} must be positive, got {v!r}")
+                raise BadValueError(f"ProbeSpec.{f.name} must be positive, got {v!r}")
         if self.n_around % 4 or self.n_around < 16:
-            raise ValueError(f"ProbeSpec.n_around must be a multiple of 4 and >= 16, got {self.n_around}")
+            raise BadValueError(f"ProbeSpec.n_around must be a multiple of 4 and >= 16, got {self.n_around}")
         if self.n_lens_rings < 2 or self.n_fillet_rings < 2 or self.n_body_rings < 8 or self.n_cap_rings < 2:
-            raise ValueError(
+            raise BadValueError(
                 "ProbeSpec ring counts too small: need n_lens_rings >= 2, n_fillet_rings >= 2, "
                 f"n_body_rings >= 8, n_cap_rings >= 2, got {self.n_lens_rings}, {self.n_fillet_rings}, "
                 f"{self.n_body_rings}, {self.n_cap_rings}"
             )
         if min(self.marker_length, self.marker_width) <= 2 * self.marker_edge:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec marker footprint must have marker_length and marker_width > 2 * marker_edge, got "
                 f"length {self.marker_length}, width {self.marker_width}, edge {self.marker_edge}"
             )
         r = self.lens_edge_radius
         if r >= _HEAD_CORNER * self.head_thickness / 2:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.lens_edge_radius ({r}) must be less than the head's corner radius "
                 f"({_HEAD_CORNER} * head_thickness / 2 = {_HEAD_CORNER * self.head_thickness / 2})"
             )
         if self.lens_radius <= self.head_width / 2:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.lens_radius ({self.lens_radius}) must exceed half the head width "
                 f"({self.head_width / 2}): the lens arc must span the head"
             )
         if self.neck_width > min(self.head_width, self.handle_width + self.handle_flare):
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.neck_width ({self.neck_width}) must not exceed the head width or the handle width"
             )
         if self.neck_thickness > self.handle_thickness:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.neck_thickness ({self.neck_thickness}) must not exceed the handle thickness "
                 f"({self.handle_thickness})"
             )
         lens_edge_top = float(lens_sag(self.head_width / 2, self.lens_radius)) + r
         if self.head_height <= lens_edge_top:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.head_height ({self.head_height}) is too small: it must exceed the height of the "
                 f"lens edge (lens sagitta over the head width plus lens_edge_radius = {lens_edge_top:.4f})"
             )
@@ -230,7 +231,7 @@ class ProbeSpec:
         fillet = _boot_fillet(self)
         shoulder_in = (min(self.handle_width, self.handle_thickness) + self.handle_flare) / 2 - self.handle_end_radius
         if root + fillet >= shoulder_in:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.strain_relief_diameter ({self.strain_relief_diameter}) and handle_end_radius "
                 f"({self.handle_end_radius}) leave no flat end face on the handle "
                 f"(handle {self.handle_width} x {self.handle_thickness})"
@@ -238,12 +239,12 @@ class ProbeSpec:
         handle_end = self.length - self.strain_relief_length
         handle_start = self.head_height + self.neck_length
         if handle_end - handle_start < 4 * self.handle_end_radius:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.length ({self.length}) leaves no handle: head_height + neck_length = "
                 f"{handle_start}, handle end at length - strain_relief_length = {handle_end}"
             )
         if self.strain_relief_length < fillet + 0.85 * root + 1e-3:
-            raise ValueError(
+            raise BadValueError(
                 f"ProbeSpec.strain_relief_length ({self.strain_relief_length}) is too short for its "
                 f"diameter ({self.strain_relief_diameter})"
             )
@@ -495,7 +496,7 @@ def build_rings(spec: ProbeSpec) -> _Rings:
     ok[: spec.n_lens_rings - 1] = np.all(dr[: spec.n_lens_rings - 1] > 0)  # the lens cap grows outwards
     if not np.all(ok):
         k = int(np.argmin(ok.all(axis=1)))
-        raise ValueError(
+        raise BadValueError(
             f"ProbeSpec gives a self-folding surface between rings {k} and {k + 1} "
             f"(z about {1e3 * rings[k, :, 2].mean():.1f} mm); make the head taller or the tapers gentler"
         )

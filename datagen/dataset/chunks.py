@@ -37,6 +37,7 @@ from datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
 from datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
 from datagen import keypoints as kp
 from datagen import tolerances as tol
+from datagen.errors import RunFailedError
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -207,7 +208,7 @@ class ChunkRenderer:
 def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
     ok, buf = cv2.imencode(ext, image, params or [])
     if not ok:
-        raise RuntimeError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
+        raise RunFailedError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
     return buf.tobytes()
 
 
@@ -294,7 +295,7 @@ def _render_chunk_in_worker(args) -> tuple[int, int]:
         try:
             pickle.loads(pickle.dumps(exc))
         except Exception:  # any failure to round-trip would hang the parent: send the message instead
-            raise RuntimeError(f"{type(exc).__name__}: {exc}") from None
+            raise RunFailedError(f"{type(exc).__name__}: {exc}") from None
         raise
 
 

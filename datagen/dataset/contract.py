@@ -36,6 +36,7 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.input_checks import is_whole
+from datagen.errors import BadValueError, MissingFileError
 
 SCHEMA_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -77,7 +78,7 @@ ANNOTATION_DTYPES = {name: dtype for name, (dtype, _) in ANNOTATION_FIELDS.items
 FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
 
 
-class DamagedFileError(ValueError):
+class DamagedFileError(BadValueError):
     """A dataset file cannot be read at all (not an archive, truncated, bad CRC): regenerate it."""
 
 
@@ -91,8 +92,8 @@ def annotations_path(root: str | Path, split: str) -> Path:
     return Path(root) / split / ANNOTATIONS
 
 
-def _fail(path: Path, what: str) -> ValueError:
-    return ValueError(f"{path}: {what}")
+def _fail(path: Path, what: str) -> BadValueError:
+    return BadValueError(f"{path}: {what}")
 
 
 def _positive_int(value) -> bool:
@@ -121,12 +122,12 @@ def read_manifest(root: str | Path, split: str | None = None, needs: str = "this
     """
     root = Path(root)
     if not root.exists():
-        raise FileNotFoundError(f"dataset {root} does not exist")
+        raise MissingFileError(f"dataset {root} does not exist")
     if not root.is_dir():
-        raise ValueError(f"dataset {root} is a file; a dataset is a folder holding {MANIFEST}")
+        raise BadValueError(f"dataset {root} is a file; a dataset is a folder holding {MANIFEST}")
     path = root / MANIFEST
     if not path.is_file():
-        raise FileNotFoundError(f"{root} has no {MANIFEST}: not a finished hupbench dataset "
+        raise MissingFileError(f"{root} has no {MANIFEST}: not a finished hupbench dataset "
                                 "(make one with `hupbench generate`, or finish it by running the same command again)")
     try:
         manifest = json.loads(path.read_text())
@@ -140,9 +141,9 @@ def read_manifest(root: str | Path, split: str | None = None, needs: str = "this
     if split is not None:
         counts = manifest["counts"]
         if split not in SPLITS:
-            raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+            raise BadValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
         if counts.get(split, 0) == 0:
-            raise ValueError(f"split {split!r} of {root} is empty (counts: {counts})")
+            raise BadValueError(f"split {split!r} of {root} is empty (counts: {counts})")
     return manifest
 
 
@@ -220,14 +221,14 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     if manifest is None:
         manifest = read_manifest(root)
     if split not in SPLITS:
-        raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+        raise BadValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
     keys = list(ANNOTATION_FIELDS) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
     unknown = [k for k in keys if k not in ANNOTATION_FIELDS]
     if unknown:
-        raise ValueError(f"unknown annotation arrays {unknown}; the contract has {list(ANNOTATION_FIELDS)}")
+        raise BadValueError(f"unknown annotation arrays {unknown}; the contract has {list(ANNOTATION_FIELDS)}")
     path = annotations_path(root, split)
     if not path.is_file():
-        raise FileNotFoundError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "
+        raise MissingFileError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "
                                 f"{split} frames)")
     arrays = {}
     if not zipfile.is_zipfile(path):

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from datagen import keypoints as kp
+from datagen.errors import BadValueError
 
 M_TO_MM = 1000.0
 DEFINITION = ("what a model that only recalls training labels scores, mean distance per keypoint in mm: each "
@@ -76,7 +77,7 @@ def split_floors(annotations: dict[str, dict]) -> dict:
     """
     train = _views(annotations["train"])
     if not train:
-        raise ValueError("split floors need training frames; the train split is empty")
+        raise BadValueError("split floors need training frames; the train split is empty")
     train_grasps = sorted({g for g, _, _ in train})
     seen = dict(train)
     for split, ann in annotations.items():
@@ -109,7 +110,7 @@ def _grasp_floors(g: int, seen: dict, train: dict, train_grasps: list[int], eval
     common = next((key for key in seen if key[0] == g
                    and all((t, key[1], key[2]) in train for t in train_grasps)), None)
     if common is None:
-        raise ValueError(f"grasp {g} is seen in no view (view_id and z_ego) in which every training grasp is seen: "
+        raise BadValueError(f"grasp {g} is seen in no view (view_id and z_ego) in which every training grasp is seen: "
                          "its distance to the training grasps cannot be measured under one camera")
     _, view, z = common
     mine = seen[common]

@@ -12,6 +12,7 @@ import numpy as np
 from datagen.dataset.spec import BOX_CENTRE
 from datagen.geometry import axis_angle_to_matrix
 from datagen import keypoints as kp
+from datagen.errors import BadValueError, MissingFileError
 
 
 #: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
@@ -45,14 +46,14 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
         path = Path(path)
         name, source = str(path), path
         if path.is_dir():
-            raise ValueError(f"grasps file {path} is a folder; expected a grasps.npz written by `hupbench grasps`")
+            raise BadValueError(f"grasps file {path} is a folder; expected a grasps.npz written by `hupbench grasps`")
         if not path.is_file():
-            raise FileNotFoundError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
+            raise MissingFileError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
         if path.stat().st_size == 0:
-            raise ValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
+            raise BadValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
     if not zipfile.is_zipfile(source):
         size = len(path) if isinstance(path, bytes) else path.stat().st_size
-        raise ValueError(f"grasps file {name} is not an .npz archive ({size} bytes, no zip directory); expected a "
+        raise BadValueError(f"grasps file {name} is not an .npz archive ({size} bytes, no zip directory); expected a "
                          "grasps.npz written by `hupbench grasps`")
     if isinstance(source, io.BytesIO):
         source.seek(0)  # is_zipfile read the end of the buffer
@@ -60,25 +61,25 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
     try:
         with np.load(source, allow_pickle=False) as data:
             if not hasattr(data, "files"):
-                raise ValueError(f"grasps file {name} holds a single array, not an .npz archive of the arrays "
+                raise BadValueError(f"grasps file {name} holds a single array, not an .npz archive of the arrays "
                                  f"{list(GRASP_FIELDS)}")
             absent = [k for k in GRASP_FIELDS if k not in data.files]
             if absent:
-                raise ValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
+                raise BadValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
                                  "expected a grasps.npz written by `hupbench grasps`")
             for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files)]:
                 try:
                     arrays[key] = data[key]
                 except ValueError as exc:  # object arrays: numpy refuses to unpickle them
-                    raise ValueError(f"grasps file {name}: {key} cannot be read as a numeric array ({exc})") from None
+                    raise BadValueError(f"grasps file {name}: {key} cannot be read as a numeric array ({exc})") from None
     except ValueError as exc:
         if str(exc).startswith("grasps file"):
             raise
-        raise ValueError(f"grasps file {name} is not an .npz archive ({exc})") from None
+        raise BadValueError(f"grasps file {name} is not an .npz archive ({exc})") from None
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, KeyError, zlib.error, OSError) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
-        raise ValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
+        raise BadValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
                          "write it again with `hupbench grasps`") from None
     rows = {k: a.shape[0] if a.ndim else None for k, a in arrays.items()}
     for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS).items():
@@ -86,17 +87,17 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
             continue
         array = arrays[key]
         if array.dtype.kind not in (("f", "i", "u") if kind == "f" else ("i", "u")):
-            raise ValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
+            raise BadValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
                              + ("float numbers" if kind == "f" else "integer ids"))
         if array.ndim != 1 + len(row_shape) or array.shape[1:] != row_shape:
-            raise ValueError(f"grasps file {name}: {key} has shape {array.shape}, expected (G, "
+            raise BadValueError(f"grasps file {name}: {key} has shape {array.shape}, expected (G, "
                              + ", ".join(str(v) for v in row_shape) + ")" if row_shape else f"grasps file {name}: "
                              f"{key} has shape {array.shape}, expected (G,)")
     if len(set(rows.values())) != 1:
-        raise ValueError(f"grasps file {name}: the arrays have different numbers of rows {rows}; expected one row "
+        raise BadValueError(f"grasps file {name}: the arrays have different numbers of rows {rows}; expected one row "
                          "per grasp in each")
     if rows["hand_pose"] == 0:
-        raise ValueError(f"grasps file {name} holds no grasps (0 rows)")
+        raise BadValueError(f"grasps file {name} holds no grasps (0 rows)")
     out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
            "grasp_id": arrays["grasp_id"].astype(np.int64)}
     if "probe_euler_deg" in arrays:
@@ -104,11 +105,11 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
     for key in [k for k in out if k != "grasp_id"]:
         bad = ~np.isfinite(out[key]).all(axis=1)
         if bad.any():
-            raise ValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
+            raise BadValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
                              "hold NaN or inf")
     ids, counts = np.unique(out["grasp_id"], return_counts=True)
     if (counts > 1).any():
-        raise ValueError(f"grasps file {name}: grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat")
+        raise BadValueError(f"grasps file {name}: grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat")
     return out
 
 
@@ -145,5 +146,5 @@ class GraspSet:
         if look_at == BOX_CENTRE:
             return self.box_centre
         if look_at not in kp.KEYPOINT_NAMES:
-            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name, got {look_at!r}")
+            raise BadValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name, got {look_at!r}")
         return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]

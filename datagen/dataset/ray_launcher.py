@@ -30,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from datagen.input_checks import check_int
+from datagen.errors import BadValueError, RunFailedError
 
 RAY_MISSING = "launcher=ray needs Ray: pip install 'hupbench[ray]'"
 LAUNCHERS = ("local", "ray")
@@ -68,15 +69,15 @@ class RayOptions:
 
     def __post_init__(self) -> None:
         if self.address is not None and (not isinstance(self.address, str) or not self.address):
-            raise ValueError(f"ray.address must be null, 'auto' or 'ray://host:port', got {self.address!r}")
+            raise BadValueError(f"ray.address must be null, 'auto' or 'ray://host:port', got {self.address!r}")
         check_int(self.num_workers, "ray.num_workers", low=1, optional=True)
         if isinstance(self.cpus_per_worker, bool) or not isinstance(self.cpus_per_worker, (int, float)) \
                 or not math.isfinite(self.cpus_per_worker) or self.cpus_per_worker <= 0:
-            raise ValueError(f"ray.cpus_per_worker must be a positive number, got {self.cpus_per_worker!r}")
+            raise BadValueError(f"ray.cpus_per_worker must be a positive number, got {self.cpus_per_worker!r}")
         for name in ("actor_restarts", "max_retries"):
             check_int(getattr(self, name), f"ray.{name}", low=0)
         if not isinstance(self.start_timeout_s, (int, float)) or not self.start_timeout_s > 0:
-            raise ValueError(f"ray.start_timeout_s must be > 0 seconds, got {self.start_timeout_s!r}")
+            raise BadValueError(f"ray.start_timeout_s must be > 0 seconds, got {self.start_timeout_s!r}")
 
 
 def check_launcher(launcher: str) -> None:
@@ -87,7 +88,7 @@ def check_launcher(launcher: str) -> None:
         RuntimeError: launcher is "ray" and ``import ray`` fails (the message says how to install it).
     """
     if launcher not in LAUNCHERS:
-        raise ValueError(f"launcher must be one of {LAUNCHERS}, got {launcher!r}")
+        raise BadValueError(f"launcher must be one of {LAUNCHERS}, got {launcher!r}")
     if launcher == "ray":
         require_ray()
 
@@ -97,7 +98,7 @@ def require_ray():
     try:
         import ray
     except ImportError as exc:
-        raise RuntimeError(RAY_MISSING) from exc
+        raise RunFailedError(RAY_MISSING) from exc
     return ray
 
 
@@ -105,7 +106,7 @@ def resolve_factory(factory: str) -> Callable:
     """``"package.module:Name"`` -> the object it names (imported now)."""
     module, _, name = factory.partition(":")
     if not module or not name:
-        raise ValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
+        raise BadValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
     return getattr(importlib.import_module(module), name)
 
 
@@ -217,14 +218,14 @@ def _wait_started(ray, actors: list, timeout_s: float) -> list[dict]:
     refs = [a.info.remote() for a in actors]
     ready, _ = ray.wait(refs, num_returns=len(refs), timeout=timeout_s)
     if len(ready) < len(refs):
-        raise RuntimeError(f"only {len(ready)} of {len(refs)} Ray actors started within {timeout_s:.0f} s; "
+        raise RunFailedError(f"only {len(ready)} of {len(refs)} Ray actors started within {timeout_s:.0f} s; "
                            f"the cluster has {ray.cluster_resources().get('CPU', 0)} CPUs: lower ray.num_workers")
     try:
         return ray.get(refs)
     except ray.exceptions.RayActorError as exc:
         # Ray's message ends with the error raised in the actor's constructor; the rest is its traceback
         lines = str(exc).strip().splitlines()
-        raise RuntimeError(f"a Ray rendering actor failed to start: {lines[-1] if lines else exc!r}") from exc
+        raise RunFailedError(f"a Ray rendering actor failed to start: {lines[-1] if lines else exc!r}") from exc
 
 
 def _schedule(ray, jobs, layout, actors: list, new_actor, max_retries: int, on_chunk, log) -> int:
@@ -258,7 +259,7 @@ def _schedule(ray, jobs, layout, actors: list, new_actor, max_retries: int, on_c
             failures += 1
             attempts[chunk] += 1
             if attempts[chunk] > max_retries:
-                raise RuntimeError(f"chunk {chunk} lost its Ray actor {attempts[chunk]} times; "
+                raise RunFailedError(f"chunk {chunk} lost its Ray actor {attempts[chunk]} times; "
                                    "rerun the same command to resume") from exc
             if actors[slot] is actor:
                 log(f"ray actor {slot} died ({type(exc).__name__}); starting a fresh one, chunk {chunk} again")

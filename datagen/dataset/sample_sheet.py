@@ -10,6 +10,7 @@ import numpy as np
 
 from datagen.dataset.contract import frame_path, read_annotations, read_manifest
 from datagen.dataset.verify_images import read_image
+from datagen.errors import BadValueError
 
 
 def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: int = 128) -> np.ndarray:
@@ -31,14 +32,14 @@ def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: i
     manifest = read_manifest(root, split=split)
     missing = {"rgb", "depth", "seg"} - set(manifest["modalities"])
     if missing:
-        raise ValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
+        raise BadValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
     ann = read_annotations(root, split, keys=("frame_id", "keypoints_2d", "visible", "background_id", "glove_id",
                                               "grasp_index", "z_ego"), manifest=manifest)
     n_view = manifest["layout"]["shape"][4]
     if view is None:
         view = 40 if n_view > 40 else n_view // 2
     if not 0 <= view < n_view:
-        raise ValueError(f"view must be in [0, {n_view}), got {view}")
+        raise BadValueError(f"view must be in [0, {n_view}), got {view}")
     first = (ann["grasp_index"] == ann["grasp_index"].min()) & (ann["z_ego"] == ann["z_ego"].min())
     names = (manifest.get("backgrounds") or {}).get("names") or []
     tiles = []
@@ -55,7 +56,7 @@ def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: i
                 path = frame_path(root, split, m, fid, manifest["rgb_format"])
                 images[m], why = read_image(path, m)
                 if images[m] is None:
-                    raise ValueError(f"{path}: {why}")
+                    raise BadValueError(f"{path}: {why}")
             rgb = images["rgb"][..., ::-1]
             size = (tile_px, tile_px)
             panels = [cv2.resize(np.ascontiguousarray(rgb), size, interpolation=cv2.INTER_AREA),

@@ -21,6 +21,7 @@ from datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, 
 from datagen.render.renderer import MODALITIES, check_modalities
 from datagen import keypoints as kp
 from datagen.input_checks import check_int, is_whole
+from datagen.errors import BadValueError
 
 
 GENERATOR_VERSION = "0.3.0"
@@ -50,7 +51,7 @@ def _distances(z_ego_m) -> tuple:
     values = list(z_ego_m) if not isinstance(z_ego_m, (str, bytes)) and hasattr(z_ego_m, "__iter__") else None
     if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                              and low <= v <= high for v in values):
-        raise ValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
+        raise BadValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
                          f"(e.g. [0.5, 0.8]), got {z_ego_m if values is None else values!r}")
     return tuple(float(v) for v in values)
 
@@ -105,28 +106,28 @@ class DatasetSpec:
                                 ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
             check_int(getattr(self, name), f"dataset.{name}", low, high)
         if self.track not in TRACKS:
-            raise ValueError(f"dataset.track must be one of {', '.join(TRACKS)}, got {self.track!r}")
+            raise BadValueError(f"dataset.track must be one of {', '.join(TRACKS)}, got {self.track!r}")
         check_int(self.view_stride, "dataset.view_stride", 3, None)
         if self.track == UNSEEN_VIEWS:
             if self.splits is not None:
-                raise ValueError("dataset.splits counts grasps per split on the unseen_grasps track; the unseen_views "
+                raise BadValueError("dataset.splits counts grasps per split on the unseen_grasps track; the unseen_views "
                                  "track puts every grasp in every split and holds out views (dataset.view_stride): "
                                  "set dataset.splits=null, as `hupbench generate +track=unseen_views` does")
         else:
             if self.splits is None:
-                raise ValueError(f"dataset.splits must map {SPLITS} to grasp counts on the unseen_grasps track, got null")
+                raise BadValueError(f"dataset.splits must map {SPLITS} to grasp counts on the unseen_grasps track, got null")
             splits = dict(self.splits)
             if set(splits) - set(SPLITS) or any(not is_whole(v) or v < 0 for v in splits.values()):
-                raise ValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
+                raise BadValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
             object.__setattr__(self, "splits", {s: splits.get(s, 0) for s in SPLITS})
         object.__setattr__(self, "modalities", check_modalities(self.modalities))
         if self.rgb_format not in ("jpg", "png"):
-            raise ValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
+            raise BadValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
         Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
         if self.n_gloves not in (1, 2):
-            raise ValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
+            raise BadValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
-            raise ValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
+            raise BadValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
                              f"got {self.look_at!r}")
 
     @property
@@ -167,7 +168,7 @@ class Layout:
     def tuple(self, index: int) -> tuple[int, int, int, int, int]:
         """Inverse of :meth:`index`."""
         if not 0 <= index < self.size:
-            raise ValueError(f"frame index {index} out of range [0, {self.size})")
+            raise BadValueError(f"frame index {index} out of range [0, {self.size})")
         return tuple(int(v) for v in np.unravel_index(index, self.shape))
 
     def chunk_frames(self, chunk: int) -> range:
@@ -181,7 +182,7 @@ def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
         return {name: list(range(n_grasps)) for name in SPLITS}
     total = sum(spec.splits.values())
     if total != n_grasps:
-        raise ValueError(f"splits {spec.splits} add up to {total} grasps but the grasps file holds {n_grasps}")
+        raise BadValueError(f"splits {spec.splits} add up to {total} grasps but the grasps file holds {n_grasps}")
     out, start = {}, 0
     for name in SPLITS:
         out[name] = list(range(start, start + spec.splits[name]))

@@ -55,6 +55,7 @@ import numpy as np
 from datagen.camera import look_at
 from datagen.geometry import invert_transform, make_transform
 from datagen.input_checks import check_shape, is_whole
+from datagen.errors import BadValueError
 
 VARIANTS = ("ceil", "floor")
 AXES = ("body", "forearm")
@@ -91,23 +92,23 @@ class SphereSpec:
         for name in ("r_sph_m", "r_circ_m"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"sphere {name} must be positive and finite, got {v!r}")
+                raise BadValueError(f"sphere {name} must be positive and finite, got {v!r}")
         if self.r_circ_m >= self.r_sph_m:
-            raise ValueError(f"sphere r_circ_m ({self.r_circ_m}) must be smaller than r_sph_m ({self.r_sph_m})")
+            raise BadValueError(f"sphere r_circ_m ({self.r_circ_m}) must be smaller than r_sph_m ({self.r_sph_m})")
         if self.variant not in VARIANTS:
-            raise ValueError(f"sphere variant must be one of {VARIANTS}, got {self.variant!r}")
+            raise BadValueError(f"sphere variant must be one of {VARIANTS}, got {self.variant!r}")
         if self.axis not in AXES:
-            raise ValueError(f"sphere axis must be one of {AXES}, got {self.axis!r}")
+            raise BadValueError(f"sphere axis must be one of {AXES}, got {self.axis!r}")
         cone = self.elbow_cone_deg
         if isinstance(cone, bool) or not isinstance(cone, (int, float)) or not 0 <= cone < 180:
-            raise ValueError(f"sphere elbow_cone_deg must be a number in [0, 180), got {cone!r}")
+            raise BadValueError(f"sphere elbow_cone_deg must be a number in [0, 180), got {cone!r}")
         exclude = tuple(self.exclude or ())
         for e in exclude:
             if isinstance(e, str):
                 if e not in EXCLUDE_RULES:
-                    raise ValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {e!r}")
+                    raise BadValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {e!r}")
             elif not is_whole(e):
-                raise ValueError(f"sphere exclude entries must be view ids or one of {EXCLUDE_RULES}, got {e!r}")
+                raise BadValueError(f"sphere exclude entries must be view ids or one of {EXCLUDE_RULES}, got {e!r}")
         object.__setattr__(self, "exclude", exclude)
 
 
@@ -151,7 +152,7 @@ def unit_directions(angles: np.ndarray) -> np.ndarray:
 def elbow_direction(axis: str) -> np.ndarray:
     """(3,) the hand -> elbow direction in sphere coordinates of the given ``axis``."""
     if axis not in AXES:
-        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
     # body: longitude 90 deg on the equator (the published renderer's theta = phi = 90 deg);
     # forearm: the north pole
     return np.array([0.0, 1.0, 0.0]) if axis == "body" else np.array([0.0, 0.0, 1.0])
@@ -171,7 +172,7 @@ def excluded_view_ids(spec: SphereSpec = SphereSpec()) -> tuple[int, ...]:
             within = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))) <= spec.elbow_cone_deg + _CONE_SLACK_DEG
             excluded |= {int(i) for i in np.flatnonzero(within)}
         elif not 0 <= e < total:
-            raise ValueError(f"sphere exclude id {e} is not a view: ids are 0..{total - 1}")
+            raise BadValueError(f"sphere exclude id {e} is not a view: ids are 0..{total - 1}")
         else:
             excluded.add(int(e))
     return tuple(sorted(excluded))
@@ -188,7 +189,7 @@ def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]
     excluded = set(excluded_view_ids(spec))
     ids = np.array([i for i in range(len(angles)) if i not in excluded], dtype=np.int64)
     if len(ids) == 0:
-        raise ValueError("the sphere exclusions leave no view")
+        raise BadValueError("the sphere exclusions leave no view")
     kept = angles[ids]
     ids.setflags(write=False)
     kept.setflags(write=False)
@@ -208,12 +209,12 @@ def arm_frame(forearm_axis: np.ndarray, dorsal: np.ndarray) -> np.ndarray:
     elbow = np.asarray(forearm_axis, dtype=np.float64).reshape(3)
     norm = np.linalg.norm(elbow)
     if not np.isfinite(norm) or norm < 1e-12:
-        raise ValueError(f"the forearm axis must be a finite non-zero vector, got {elbow.tolist()}")
+        raise BadValueError(f"the forearm axis must be a finite non-zero vector, got {elbow.tolist()}")
     elbow = elbow / norm
     back = np.asarray(dorsal, dtype=np.float64).reshape(3)
     back = back - np.dot(back, elbow) * elbow
     if np.linalg.norm(back) < 1e-9:
-        raise ValueError("the dorsal direction must not be parallel to the forearm axis")
+        raise BadValueError("the dorsal direction must not be parallel to the forearm axis")
     back /= np.linalg.norm(back)
     return np.stack([elbow, back, np.cross(elbow, back)], axis=1)
 
@@ -228,7 +229,7 @@ def sphere_frame(forearm_axis: np.ndarray, dorsal: np.ndarray, axis: str) -> np.
             elbow; "forearm": north = elbow, longitude 0 = dorsal, longitude 90 deg = radial.
     """
     if axis not in AXES:
-        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
     elbow, back, radial = arm_frame(forearm_axis, dorsal).T
     columns = (radial, elbow, back) if axis == "body" else (back, radial, elbow)
     return np.stack(columns, axis=1)
@@ -251,9 +252,9 @@ def camera_pose(theta: float, phi: float, distance_m: float, target_world: np.nd
         (4, 4) float64.
     """
     if not math.isfinite(distance_m) or distance_m <= 0:
-        raise ValueError(f"camera distance must be positive, got {distance_m!r}")
+        raise BadValueError(f"camera distance must be positive, got {distance_m!r}")
     if axis not in AXES:
-        raise ValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
     frame = np.asarray(frame, dtype=np.float64)
     target = np.asarray(target_world, dtype=np.float64).reshape(3)
     st, ct, sp, cp = math.sin(theta), math.cos(theta), math.sin(phi), math.cos(phi)

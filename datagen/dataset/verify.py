@@ -108,6 +108,7 @@ from datagen.dataset.verify_images import (
     mask_depth_mismatch_px,
     read_image,
 )
+from datagen.errors import BadValueError
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
@@ -182,7 +183,7 @@ def _check_manifest_extras(manifest: dict, root: Path) -> None:
     if protocol is not None:
         look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
         if look_at != "box_centre" and look_at not in kp.KEYPOINT_NAMES:
-            raise ValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+            raise BadValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
     gloves = manifest.get("gloves_rgb")
     if gloves is not None:
         try:
@@ -191,7 +192,7 @@ def _check_manifest_extras(manifest: dict, root: Path) -> None:
             array = np.zeros((0, 0))
         if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] != 3 or not np.isfinite(array).all() \
                 or array.min() < 0 or array.max() > 1:
-            raise ValueError(f"{path}: gloves_rgb must be a list of [r, g, b] colours in [0, 1], got {gloves!r}")
+            raise BadValueError(f"{path}: gloves_rgb must be a list of [r, g, b] colours in [0, 1], got {gloves!r}")
 
 
 def _frame_ids(path: Path) -> np.ndarray | None:
@@ -365,7 +366,7 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
     elif look_at in kp.KEYPOINT_NAMES:
         point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]
     else:
-        raise ValueError(f"manifest protocol look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+        raise BadValueError(f"manifest protocol look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
     expected = np.zeros_like(point)
     expected[:, 2] = ann["z_ego"]
     err = np.linalg.norm(point - expected, axis=1)

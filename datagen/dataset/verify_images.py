@@ -13,6 +13,7 @@ import numpy as np
 
 from datagen import tolerances as tol
 from datagen.dataset.contract import SEG_LABELS
+from datagen.errors import RunFailedError
 
 
 #: the renderer's white ambient light (datagen.dataset.chunks.ChunkRenderer: RenderSettings(ambient=0.3))
@@ -140,7 +141,7 @@ def jpeg_reference(background: np.ndarray, quality: int | None) -> np.ndarray:
         return background
     ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(background[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
-        raise RuntimeError(f"OpenCV could not encode a {background.shape} background as JPEG")
+        raise RunFailedError(f"OpenCV could not encode a {background.shape} background as JPEG")
     return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
 
 

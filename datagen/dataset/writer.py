@@ -60,6 +60,7 @@ from datagen.dataset.chunks import (
     _worker_init,
     write_chunk,
 )
+from datagen.errors import BadTypeError, BadValueError
 
 
 @dataclass(frozen=True)
@@ -82,14 +83,14 @@ def check_output_dir(out_dir: Path) -> None:
     """Fail early (before rendering) if the output folder cannot be written."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"out_dir {out_dir} is a file, not a folder")
+        raise BadValueError(f"out_dir {out_dir} is a file, not a folder")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         probe_file = out_dir / f".write_test.tmp{os.getpid()}"  # a temporary name: a killed run's is cleaned
         probe_file.write_bytes(b"")
         probe_file.unlink()
     except OSError as exc:
-        raise ValueError(f"output path {out_dir} is not writable: {exc.strerror or exc}") from exc
+        raise BadValueError(f"output path {out_dir} is not writable: {exc.strerror or exc}") from exc
 
 
 def parse_shard(shard: str | None) -> tuple[int, int]:
@@ -99,9 +100,9 @@ def parse_shard(shard: str | None) -> tuple[int, int]:
     try:
         k, n = (int(x) for x in str(shard).split("/"))
     except ValueError as exc:
-        raise ValueError(f"shard must look like k/n (e.g. 0/4), got {shard!r}") from exc
+        raise BadValueError(f"shard must look like k/n (e.g. 0/4), got {shard!r}") from exc
     if not (n >= 1 and 0 <= k < n):
-        raise ValueError(f"shard {shard!r}: need 0 <= k < n")
+        raise BadValueError(f"shard {shard!r}: need 0 <= k < n")
     return k, n
 
 
@@ -222,20 +223,20 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     from datagen.assets.backgrounds import BackgroundSet
     check_launcher(launcher)
     if ray is not None and not isinstance(ray, RayOptions):
-        raise TypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
+        raise BadTypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
     if not isinstance(spec, DatasetSpec):
-        raise TypeError(f"spec must be a DatasetSpec, got {type(spec).__name__}")
+        raise BadTypeError(f"spec must be a DatasetSpec, got {type(spec).__name__}")
     out_dir = Path(out_dir)
     k, n = parse_shard(shard)
     check_workers(workers, launcher)
     if platform is not None and platform not in gl.PLATFORMS:
-        raise ValueError(f"render.platform must be one of {', '.join(gl.PLATFORMS)} or null (automatic), "
+        raise BadValueError(f"render.platform must be one of {', '.join(gl.PLATFORMS)} or null (automatic), "
                          f"got {platform!r}")
     if not isinstance(progress, bool):
-        raise ValueError(f"progress must be true or false, got {progress!r}")
+        raise BadValueError(f"progress must be true or false, got {progress!r}")
     backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
     if len(backgrounds) < spec.n_backgrounds:
-        raise ValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
+        raise BadValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
                          f"{len(backgrounds)} image(s)" + (f" ({backgrounds_dir})" if backgrounds_dir else ""))
     check_output_dir(out_dir)
     grasps = GraspSet(grasps_path)
@@ -247,7 +248,7 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
         if lock is None:
             lock = stack.enter_context(run_lock(out_dir, shard))
         elif lock.folder.resolve() != (out_dir if n == 1 else shard_lock_folder(out_dir, k, n)).resolve():
-            raise ValueError(f"the lock given holds {lock.folder}, not this run's folder {out_dir} (shard {k}/{n})")
+            raise BadValueError(f"the lock given holds {lock.folder}, not this run's folder {out_dir} (shard {k}/{n})")
         if lock.taken_over:
             log(f"took over the lock of a generate run that is gone (pid {lock.taken_over.get('pid')} on "
                 f"{lock.taken_over.get('host')})")
@@ -265,15 +266,15 @@ def _start_or_resume(out_dir: Path, grasps_path: Path, layout: Layout, chash: st
         try:
             started = json.loads(progress_file.read_text())
         except ValueError as exc:
-            raise ValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
+            raise BadValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
                              "again") from None
         if not isinstance(started, dict) or started.get("config_hash") != chash:
-            raise ValueError(f"{out_dir} holds a partial dataset started with another config; "
+            raise BadValueError(f"{out_dir} holds a partial dataset started with another config; "
                              "resume it with the same config or choose a new out_dir")
         copied = out_dir / "grasps.npz"
         if copied.is_file() and copied.resolve() != grasps_path.resolve() \
                 and _file_digest(copied) != _file_digest(grasps_path):
-            raise ValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
+            raise BadValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
                              "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
     else:
         write_json(progress_file, {"config_hash": chash, "layout": asdict(layout)})
@@ -372,7 +373,7 @@ def _finished(out_dir: Path, layout: Layout, chash: str) -> dict:
 
     manifest = read_manifest(out_dir)
     if manifest.get("config_hash") != chash:
-        raise ValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
+        raise BadValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
     _remove_scaffolding(out_dir)
     return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
             "complete": True, "counts": manifest["counts"]}

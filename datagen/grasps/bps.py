@@ -21,6 +21,7 @@ import numpy as np
 from datagen.grasps.frames import T_gen_probe, check_euler_deg
 from datagen.assets.probe import Probe
 from datagen.input_checks import check_int
+from datagen.errors import BadTypeError, BadValueError
 
 #: GrabNet's ball radius: large enough to hold a hand grasping a 165 mm probe at its centroid
 DEFAULT_RADIUS_M = 0.15
@@ -48,11 +49,11 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
         TypeError: ``n`` or ``seed`` is not an integer.
         ValueError: ``n < 1`` or ``radius_m`` not a finite positive number.
     """
-    check_int(n, "n", low=1, error=TypeError)
-    check_int(seed, "seed", error=TypeError)
+    check_int(n, "n", low=1, error=BadTypeError)
+    check_int(seed, "seed", error=BadTypeError)
     radius_m = float(radius_m)
     if not (np.isfinite(radius_m) and radius_m > 0.0):
-        raise ValueError(f"radius_m must be a finite positive number of metres, got {radius_m}")
+        raise BadValueError(f"radius_m must be a finite positive number of metres, got {radius_m}")
     rng = np.random.default_rng(seed)
     direction = rng.standard_normal((n, 3))
     norm = np.linalg.norm(direction, axis=1, keepdims=True)
@@ -64,18 +65,18 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
 
 def _check_probe(probe) -> None:
     if not isinstance(probe, Probe):
-        raise TypeError(f"probe must be a datagen.assets.probe.Probe (see build_probe), got {type(probe).__name__}")
+        raise BadTypeError(f"probe must be a datagen.assets.probe.Probe (see build_probe), got {type(probe).__name__}")
 
 
 def _check_basis(basis: np.ndarray) -> np.ndarray:
     arr = np.asarray(basis)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f"basis must be a real array, got dtype {arr.dtype}")
+        raise BadValueError(f"basis must be a real array, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
-        raise ValueError(f"basis must be (n, 3) with n >= 1, got {tuple(arr.shape)}")
+        raise BadValueError(f"basis must be (n, 3) with n >= 1, got {tuple(arr.shape)}")
     arr = arr.astype(np.float64, copy=False)
     if not np.all(np.isfinite(arr)):
-        raise ValueError("basis contains NaN or inf")
+        raise BadValueError("basis contains NaN or inf")
     return arr
 
 
@@ -142,7 +143,7 @@ def encode_many(probe: Probe, thetas_deg, basis: np.ndarray, exact: bool = False
     basis = _check_basis(basis)
     thetas = check_euler_deg(thetas_deg)
     if thetas.ndim != 2 or thetas.shape[0] < 1:
-        raise ValueError(f"thetas_deg must be (N, 3) with N >= 1, got {thetas.shape}")
+        raise BadValueError(f"thetas_deg must be (N, 3) with N >= 1, got {thetas.shape}")
     T = np.stack([T_gen_probe(theta, probe) for theta in thetas])  # (N, 4, 4)
     R, t = T[:, :3, :3], T[:, :3, 3]
     points_probe = np.einsum("nbi,nij->nbj", basis[None] - t[:, None, :], R)  # (N, n, 3), R^T (b - t)

@@ -55,6 +55,7 @@ from torch import nn
 from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
 from datagen.input_checks import check_int
 from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
+from datagen.errors import BadTypeError, BadValueError, MissingFileError
 
 #: network input unit of the BPS distances (centimetres: features of 0..15 instead of 0..0.15)
 BPS_UNIT_M = 0.01
@@ -81,10 +82,10 @@ CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
 
 def _finite_float(name: str, value, minimum: float = 0.0, strict: bool = False) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+        raise BadTypeError(f"{name} must be a number, got {type(value).__name__}")
     if not math.isfinite(value) or value < minimum or (strict and value == minimum):
         relation = ">" if strict else ">="
-        raise ValueError(f"{name} must be finite and {relation} {minimum}, got {value}")
+        raise BadValueError(f"{name} must be finite and {relation} {minimum}, got {value}")
 
 
 @dataclass(frozen=True)
@@ -129,14 +130,14 @@ class CVAEConfig:
 
     def __post_init__(self) -> None:
         for name in ("n_bps", "latent_dim", "hidden", "bps_embed", "epochs", "batch_size"):
-            check_int(getattr(self, name), name, low=1, error=TypeError)
+            check_int(getattr(self, name), name, low=1, error=BadTypeError)
         check_int(self.seed, "seed", low=0)
         _finite_float("lr", self.lr, strict=True)
         for name in ("kl_weight", "keypoint_weight", "rot_weight", "trans_weight", "joint_weight"):
             _finite_float(name, getattr(self, name))
         _finite_float("val_fraction", self.val_fraction, strict=True)
         if self.val_fraction > 0.5:
-            raise ValueError(f"val_fraction must be in (0, 0.5], got {self.val_fraction}")
+            raise BadValueError(f"val_fraction must be in (0, 0.5], got {self.val_fraction}")
 
 
 class CVAEOutput(NamedTuple):
@@ -228,11 +229,11 @@ class _MLP(nn.Module):
 
 def _check_batch(name: str, value, width: int) -> None:
     if not isinstance(value, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+        raise BadTypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
     if not value.is_floating_point():
-        raise ValueError(f"{name} must be a floating tensor, got {value.dtype}")
+        raise BadValueError(f"{name} must be a floating tensor, got {value.dtype}")
     if value.ndim != 2 or value.shape[1] != width:
-        raise ValueError(f"{name} must be (B, {width}), got {tuple(value.shape)}")
+        raise BadValueError(f"{name} must be (B, {width}), got {tuple(value.shape)}")
 
 
 class GraspCVAE(nn.Module):
@@ -258,7 +259,7 @@ class GraspCVAE(nn.Module):
     def __init__(self, config: CVAEConfig = CVAEConfig()):
         super().__init__()
         if not isinstance(config, CVAEConfig):
-            raise TypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
+            raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
         self.config = config
         self.bps_encoder = nn.Sequential(nn.Linear(config.n_bps, config.bps_embed), nn.LayerNorm(config.bps_embed),
                                          nn.SiLU())
@@ -276,7 +277,7 @@ class GraspCVAE(nn.Module):
         sizes = {name: t.shape[0] for name, t in
                  {"bps": bps, "init_rot6d": init_rot6d, "init_trans": init_trans, **others}.items()}
         if len(set(sizes.values())) != 1:
-            raise ValueError(f"batch sizes differ: {sizes}")
+            raise BadValueError(f"batch sizes differ: {sizes}")
 
     def condition(self, bps: torch.Tensor, init_rot6d: torch.Tensor, init_trans: torch.Tensor) -> torch.Tensor:
         """(B, n_bps), (B, 6), (B, 3) -> (B, bps_embed + 9) condition vector (inputs unchecked)."""
@@ -353,7 +354,7 @@ class GraspCVAE(nn.Module):
         if generator is None:
             return torch.randn(shape, dtype=like.dtype, device=like.device)
         if not isinstance(generator, torch.Generator):
-            raise TypeError(f"generator must be a torch.Generator or None, got {type(generator).__name__}")
+            raise BadTypeError(f"generator must be a torch.Generator or None, got {type(generator).__name__}")
         return torch.randn(shape, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
 
 
@@ -384,11 +385,11 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
         ValueError: x is not (B, 54) matching x_hat.
     """
     if not isinstance(model_out, CVAEOutput):
-        raise TypeError(f"model_out must be a CVAEOutput, got {type(model_out).__name__}")
+        raise BadTypeError(f"model_out must be a CVAEOutput, got {type(model_out).__name__}")
     x_hat, mu, logvar = model_out
     _check_batch("x", x, PARAM_DIM)
     if x.shape != x_hat.shape:
-        raise ValueError(f"x must match x_hat {tuple(x_hat.shape)}, got {tuple(x.shape)}")
+        raise BadValueError(f"x must match x_hat {tuple(x_hat.shape)}, got {tuple(x.shape)}")
     weights = {"kl_weight": kl_weight, "keypoint_weight": keypoint_weight, "rot_weight": rot_weight,
                "trans_weight": trans_weight, "joint_weight": joint_weight}
     for name, value in weights.items():
@@ -402,7 +403,7 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
     recon = rot_weight * parts["rot"] + trans_weight * parts["trans_cm"] + joint_weight * parts["joint"]
     if hand_model is not None and keypoint_weight > 0:
         if not hasattr(hand_model, "forward_torch"):
-            raise TypeError(f"hand_model must be a HandModel (see build_hand), got {type(hand_model).__name__}")
+            raise BadTypeError(f"hand_model must be a HandModel (see build_hand), got {type(hand_model).__name__}")
         limits = hand_model.buffers(x.dtype, x.device)["limits"]
         no_vertices = torch.zeros(0, dtype=torch.long, device=x.device)  # keypoints only: skip the skinning
 
@@ -448,19 +449,19 @@ def save_cvae(model: GraspCVAE, config: CVAEConfig, path: str | os.PathLike, met
         ValueError: config differs from the model's.
     """
     if not isinstance(model, GraspCVAE):
-        raise TypeError(f"model must be a GraspCVAE, got {type(model).__name__}")
+        raise BadTypeError(f"model must be a GraspCVAE, got {type(model).__name__}")
     if not isinstance(config, CVAEConfig):
-        raise TypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
+        raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
     if config != model.config:
-        raise ValueError(f"config {config} differs from the model's {model.config}")
+        raise BadValueError(f"config {config} differs from the model's {model.config}")
     metadata = {} if metadata is None else metadata
     if not isinstance(metadata, dict):
-        raise TypeError(f"metadata must be a dict, got {type(metadata).__name__}")
+        raise BadTypeError(f"metadata must be a dict, got {type(metadata).__name__}")
     try:
         header = json.dumps({"format": _FILE_FORMAT, "version": _FILE_VERSION,
                              "config": dataclasses.asdict(config), "metadata": metadata}, sort_keys=True)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"metadata must be JSON-serialisable: {exc}") from exc
+        raise BadTypeError(f"metadata must be JSON-serialisable: {exc}") from exc
     arrays = {name: tensor.detach().cpu().to(torch.float32).numpy() for name, tensor in model.state_dict().items()}
     arrays[_HEADER_KEY] = np.array(header)
     path = Path(path)
@@ -493,33 +494,33 @@ def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no grasp CVAE weights at {path}")
+        raise MissingFileError(f"no grasp CVAE weights at {path}")
     size = path.stat().st_size
     if size == 0:
-        raise ValueError(f"{path} is empty (0 bytes): not a grasp CVAE weights file")
+        raise BadValueError(f"{path} is empty (0 bytes): not a grasp CVAE weights file")
     if not zipfile.is_zipfile(path):
         # np.load reads any other bytes as a pickle and answers with a message about allow_pickle
-        raise ValueError(f"{path} is not a grasp CVAE weights file: not a zip (.npz) archive ({size} bytes; "
+        raise BadValueError(f"{path} is not a grasp CVAE weights file: not a zip (.npz) archive ({size} bytes; "
                          f"damaged, truncated or another kind of file)")
     try:
         with np.load(path, allow_pickle=False) as npz:
             entries = {name: npz[name] for name in npz.files}
     except (zipfile.BadZipFile, EOFError, ValueError, OSError, zlib.error) as exc:
         # a member whose bytes do not match its CRC, or cut short inside the archive
-        raise ValueError(f"{path}: damaged grasp CVAE weights file ({type(exc).__name__}: {exc})") from exc
+        raise BadValueError(f"{path}: damaged grasp CVAE weights file ({type(exc).__name__}: {exc})") from exc
     if _HEADER_KEY not in entries:
-        raise ValueError(f"{path} is not a grasp CVAE weights file: no {_HEADER_KEY!r} entry")
+        raise BadValueError(f"{path} is not a grasp CVAE weights file: no {_HEADER_KEY!r} entry")
     try:
         header = json.loads(str(entries.pop(_HEADER_KEY)[()]))
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: the {_HEADER_KEY!r} entry is not valid JSON: {exc}") from exc
+        raise BadValueError(f"{path}: the {_HEADER_KEY!r} entry is not valid JSON: {exc}") from exc
     if header.get("format") != _FILE_FORMAT or header.get("version") != _FILE_VERSION:
-        raise ValueError(f"{path}: expected format {_FILE_FORMAT!r} version {_FILE_VERSION}, "
+        raise BadValueError(f"{path}: expected format {_FILE_FORMAT!r} version {_FILE_VERSION}, "
                          f"got {header.get('format')!r} version {header.get('version')!r}")
     fields = {f.name for f in dataclasses.fields(CVAEConfig)}
     saved = header.get("config", {})
     if set(saved) != fields:
-        raise ValueError(f"{path}: config fields differ from CVAEConfig: unknown {sorted(set(saved) - fields)}, "
+        raise BadValueError(f"{path}: config fields differ from CVAEConfig: unknown {sorted(set(saved) - fields)}, "
                          f"missing {sorted(fields - set(saved))}")
     config = CVAEConfig(**saved)
     model = GraspCVAE(config)
@@ -527,14 +528,14 @@ def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:
     missing = sorted(set(expected) - set(entries))
     unexpected = sorted(set(entries) - set(expected))
     if missing or unexpected:
-        raise ValueError(f"{path}: weights do not match GraspCVAE({config}): missing keys {missing}, "
+        raise BadValueError(f"{path}: weights do not match GraspCVAE({config}): missing keys {missing}, "
                          f"unexpected keys {unexpected}")
     for name, target in expected.items():
         if tuple(entries[name].shape) != tuple(target.shape):
-            raise ValueError(f"{path}: weight {name!r} has shape {tuple(entries[name].shape)}, "
+            raise BadValueError(f"{path}: weight {name!r} has shape {tuple(entries[name].shape)}, "
                              f"expected {tuple(target.shape)}")
         if not np.all(np.isfinite(entries[name])):
-            raise ValueError(f"{path}: weight {name!r} contains NaN or inf")
+            raise BadValueError(f"{path}: weight {name!r} contains NaN or inf")
     model.load_state_dict({name: torch.from_numpy(entries[name]).to(expected[name].dtype) for name in expected})
     model.eval()
     return model, config, header.get("metadata", {})
@@ -548,6 +549,6 @@ def load_shipped_cvae() -> tuple[GraspCVAE, CVAEConfig, dict]:
             how to train them.
     """
     if not SHIPPED_WEIGHTS.is_file():
-        raise FileNotFoundError(f"the grasp sampler weights {SHIPPED_WEIGHTS} are missing; "
+        raise MissingFileError(f"the grasp sampler weights {SHIPPED_WEIGHTS} are missing; "
                                 f"train them with `{RETRAIN_COMMAND}`")
     return load_cvae(SHIPPED_WEIGHTS)

@@ -25,6 +25,7 @@ from datagen.grasps.params import pack, unit_to_angles, unpack
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
 from datagen.input_checks import check_int
 from datagen.rotations_torch import matrix_to_rot6d
+from datagen.errors import BadValueError, RunFailedError
 
 
 def condition(starts: GraspBatch, theta, probe, basis: np.ndarray, bps_exact: bool) -> dict[str, np.ndarray]:
@@ -136,7 +137,7 @@ def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.n
         log(f"  orientation {k + 1}/{len(thetas)}: {int(keep.sum())}/{len(refined)} plausible, "
             f"{kept} kept, {time.perf_counter() - start_time:.0f} s")
     if not parts["x"]:
-        raise RuntimeError("no plausible grasp in the whole corpus: check the refinement settings")
+        raise RunFailedError("no plausible grasp in the whole corpus: check the refinement settings")
     corpus = {k: np.concatenate(v) for k, v in parts.items()}
     corpus["n_refined"] = np.array(refined_total)
     return corpus
@@ -150,7 +151,7 @@ def train_sampler(corpus_config: CorpusConfig, cvae_config: CVAEConfig, out_path
     """
     start = time.perf_counter()
     if cvae_config.n_bps != corpus_config.bps_n:
-        raise ValueError(f"cvae n_bps ({cvae_config.n_bps}) must equal corpus bps_n ({corpus_config.bps_n})")
+        raise BadValueError(f"cvae n_bps ({cvae_config.n_bps}) must equal corpus bps_n ({corpus_config.bps_n})")
     corpus = build_corpus(corpus_config, hand, probe, log=log)
     log(f"training the CVAE on {len(corpus['x'])} grasps")
     model, history = train_cvae({k: corpus[k] for k in ("x", "bps", "init_rot6d", "init_trans")}, cvae_config,

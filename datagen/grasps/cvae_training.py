@@ -19,6 +19,7 @@ import torch
 
 from datagen.grasps.cvae import CORPUS_KEYS, CVAEConfig, GraspCVAE, cvae_loss
 from datagen.grasps.params import PARAM_DIM
+from datagen.errors import BadTypeError, BadValueError
 
 def check_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:
     """Validate a training corpus and return its four arrays as float32.
@@ -38,37 +39,37 @@ def check_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.n
             differ, fewer than 2 rows, NaN or inf (the message names the key).
     """
     if not isinstance(corpus, Mapping):
-        raise TypeError(f"corpus must be a dict of arrays, got {type(corpus).__name__}")
+        raise BadTypeError(f"corpus must be a dict of arrays, got {type(corpus).__name__}")
     missing = [key for key in CORPUS_KEYS if key not in corpus]
     if missing:
-        raise ValueError(f"corpus is missing key(s) {missing}; expected {list(CORPUS_KEYS)}")
+        raise BadValueError(f"corpus is missing key(s) {missing}; expected {list(CORPUS_KEYS)}")
     widths = {"x": PARAM_DIM, "bps": n_bps, "init_rot6d": 6, "init_trans": 3}
     arrays = {}
     for key, width in widths.items():
         value = corpus[key]
         arr = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
         if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"corpus[{key!r}] must be a real array, got dtype {arr.dtype}")
+            raise BadValueError(f"corpus[{key!r}] must be a real array, got dtype {arr.dtype}")
         if arr.ndim != 2 or arr.shape[1] != width:
-            raise ValueError(f"corpus[{key!r}] must be (M, {width}), got {tuple(arr.shape)}")
+            raise BadValueError(f"corpus[{key!r}] must be (M, {width}), got {tuple(arr.shape)}")
         bad_rows = np.flatnonzero(~np.isfinite(arr).all(axis=1))
         if bad_rows.size:
-            raise ValueError(f"corpus[{key!r}] contains NaN or inf in {bad_rows.size} row(s), first row {bad_rows[0]}")
+            raise BadValueError(f"corpus[{key!r}] contains NaN or inf in {bad_rows.size} row(s), first row {bad_rows[0]}")
         arrays[key] = np.ascontiguousarray(arr, dtype=np.float32)
     rows = {key: arr.shape[0] for key, arr in arrays.items()}
     if len(set(rows.values())) != 1:
-        raise ValueError(f"corpus arrays must have the same number of rows, got {rows}")
+        raise BadValueError(f"corpus arrays must have the same number of rows, got {rows}")
     if rows["x"] < 2:
-        raise ValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {rows['x']}")
+        raise BadValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {rows['x']}")
     return arrays
 
 
 def _resolve_device(device) -> torch.device:
     dev = torch.device(device)
     if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {str(device)!r} requested but CUDA is not available")
+        raise BadValueError(f"device {str(device)!r} requested but CUDA is not available")
     if dev.type == "mps" and not torch.backends.mps.is_available():
-        raise ValueError(f"device {str(device)!r} requested but MPS is not available")
+        raise BadValueError(f"device {str(device)!r} requested but MPS is not available")
     return dev
 
 
@@ -122,7 +123,7 @@ def train_cvae(corpus: Mapping[str, np.ndarray], config: CVAEConfig = CVAEConfig
         ValueError: a bad corpus (see :func:`check_corpus`); an unavailable device.
     """
     if not isinstance(config, CVAEConfig):
-        raise TypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
+        raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
     arrays = check_corpus(corpus, config.n_bps)
     dev = _resolve_device(device)
     n_rows = arrays["x"].shape[0]

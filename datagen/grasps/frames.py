@@ -20,6 +20,7 @@ import functools
 import numpy as np
 
 from datagen.geometry import euler_to_matrix, make_transform
+from datagen.errors import BadValueError
 
 
 def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -37,7 +38,7 @@ def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     volumes = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
     total = volumes.sum()
     if not total > 0:
-        raise ValueError(f"mesh must be closed and outward-wound (signed volume {total:.3e} m^3)")
+        raise BadValueError(f"mesh must be closed and outward-wound (signed volume {total:.3e} m^3)")
     return (volumes[:, None] * tri.sum(axis=1) / 4.0).sum(axis=0) / total
 
 
@@ -56,15 +57,15 @@ def check_euler_deg(theta_vol) -> np.ndarray:
     try:
         theta = np.asarray(theta_vol, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"Theta_Vol must be numbers [alpha, beta, gamma] or a list of them, got {theta_vol!r}") from exc
+        raise BadValueError(f"Theta_Vol must be numbers [alpha, beta, gamma] or a list of them, got {theta_vol!r}") from exc
     if theta.ndim not in (1, 2) or theta.shape[-1] != 3:
-        raise ValueError(f"Theta_Vol must be [alpha, beta, gamma] degrees or a list of them, got shape {theta.shape}")
+        raise BadValueError(f"Theta_Vol must be [alpha, beta, gamma] degrees or a list of them, got shape {theta.shape}")
     if not np.all(np.isfinite(theta)):
-        raise ValueError(f"Theta_Vol must be finite, got {theta.tolist()}")
+        raise BadValueError(f"Theta_Vol must be finite, got {theta.tolist()}")
     if np.any(np.abs(theta) > MAX_EULER_DEG):
         # an angle beyond a turn is a typo (radians, a lost sign or decimal point); far beyond, float64
         # degrees lose the precision of the rotation
-        raise ValueError(f"Theta_Vol angles must be degrees in [-{MAX_EULER_DEG:g}, {MAX_EULER_DEG:g}], "
+        raise BadValueError(f"Theta_Vol angles must be degrees in [-{MAX_EULER_DEG:g}, {MAX_EULER_DEG:g}], "
                          f"got {theta.tolist()}")
     return theta
 
@@ -81,7 +82,7 @@ def T_gen_probe(theta_vol_deg, probe) -> np.ndarray:
     """
     theta = check_euler_deg(theta_vol_deg)
     if theta.shape != (3,):
-        raise ValueError(f"one Theta_Vol triple expected, got shape {theta.shape}")
+        raise BadValueError(f"one Theta_Vol triple expected, got shape {theta.shape}")
     R_vol = euler_to_matrix(np.deg2rad(theta), "xyz")
     centroid = np.array([0.0, 0.0, probe_z_offset(probe)])
     return make_transform(R_vol, -R_vol @ centroid)

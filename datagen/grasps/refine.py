@@ -41,6 +41,7 @@ from datagen.assets.hand_mesh import bone_radii
 from datagen.assets.probe import Probe
 from datagen.input_checks import check_int
 from datagen.rotations_torch import axis_angle_to_matrix
+from datagen.errors import BadValueError
 
 #: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours
 #: per orientation on a CPU, 10^9 (measured: accepted before) would never end
@@ -80,18 +81,18 @@ class RefineConfig:
     def __post_init__(self) -> None:
         v = check_int(self.iterations, "iterations", low=0)
         if v > MAX_ITERATIONS:
-            raise ValueError(f"iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
+            raise BadValueError(f"iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
         for name in ("lr_rotation", "lr_translation", "lr_joints", "clip_norm", "clinical_margin_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be positive and finite, got {v!r}")
+                raise BadValueError(f"{name} must be positive and finite, got {v!r}")
         for name in ("w_contact", "w_penetration_start", "w_penetration_end", "w_self", "w_clinical", "w_prior"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+                raise BadValueError(f"{name} must be finite and >= 0, got {v!r}")
         v = self.min_contact_z_m
         if v is not None and not (not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)):
-            raise ValueError(f"min_contact_z_m must be a finite height in metres or null, got {v!r}")
+            raise BadValueError(f"min_contact_z_m must be a finite height in metres or null, got {v!r}")
 
 
 @dataclass
@@ -118,9 +119,9 @@ class GraspBatch:
         for name, shape in shapes.items():
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if value.shape != shape:
-                raise ValueError(f"{name} must be {shape}, got {value.shape}")
+                raise BadValueError(f"{name} must be {shape}, got {value.shape}")
             if not np.all(np.isfinite(value)):
-                raise ValueError(f"{name} contains NaN or inf")
+                raise BadValueError(f"{name} contains NaN or inf")
             setattr(self, name, value)
         if self.energy is None:
             self.energy = np.full(B, np.nan)
@@ -371,7 +372,7 @@ def random_starts(n: int, rng: np.random.Generator, limits: np.ndarray, approach
         :class:`GraspBatch` of n starts, probe frame.
     """
     if n < 1:
-        raise ValueError(f"number of starts must be >= 1, got {n}")
+        raise BadValueError(f"number of starts must be >= 1, got {n}")
     R_c, t_c = canonical_grip()
     R_out, t_out, angles = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 15, 3))
     for i in range(n):
@@ -395,7 +396,7 @@ def heuristic_starts(n: int, limits: np.ndarray, approach_azimuth: float = 0.0) 
     identical starts give identical grasps.
     """
     if n < 1:
-        raise ValueError(f"number of starts must be >= 1, got {n}")
+        raise BadValueError(f"number of starts must be >= 1, got {n}")
     R_c, t_c = canonical_grip()
     Rz = aa_to_matrix_np(np.array([0.0, 0.0, approach_azimuth]))
     angles = limits[..., 0] + 0.5 * (limits[..., 1] - limits[..., 0])

@@ -35,6 +35,7 @@ from datagen.geometry import matrix_to_axis_angle
 from datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
 from datagen.input_checks import check_shape
+from datagen.errors import BadValueError
 
 CONTACT_MM = 5.0
 LENS_CLEARANCE_MM = 10.0
@@ -85,7 +86,7 @@ def force_closure_residual(points: np.ndarray, normals: np.ndarray, mu: float = 
     """
     points, normals = np.asarray(points, dtype=np.float64), np.asarray(normals, dtype=np.float64)
     if points.shape != normals.shape or points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points and normals must both be (C, 3), got {points.shape} and {normals.shape}")
+        raise BadValueError(f"points and normals must both be (C, 3), got {points.shape} and {normals.shape}")
     if len(points) == 0:
         return 1.0
     centre = points.mean(axis=0)
@@ -189,7 +190,7 @@ def farthest_point_selection(features: np.ndarray, n: int, rng: np.random.Genera
     """
     features = check_shape(np.asarray(features, dtype=np.float64), ("M", "D"), "features")
     if not 1 <= n <= len(features):
-        raise ValueError(f"cannot select {n} grasps from {len(features)} plausible ones")
+        raise BadValueError(f"cannot select {n} grasps from {len(features)} plausible ones")
     chosen = [int(rng.integers(len(features)))]
     dist = np.linalg.norm(features - features[chosen[0]], axis=1)
     for _ in range(n - 1):

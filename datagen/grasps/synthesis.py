@@ -34,6 +34,7 @@ from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 from datagen.input_checks import check_int, is_whole
+from datagen.errors import BadValueError, NotWritableError
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch (10^9 asked 67 GiB for the first array)
@@ -71,27 +72,27 @@ class GraspGenConfig:
         try:
             theta = check_euler_deg(self.theta_vol_deg)
         except ValueError as exc:
-            raise ValueError(f"theta_vol_deg: {exc}") from None
+            raise BadValueError(f"theta_vol_deg: {exc}") from None
         if theta.ndim != 2 or len(theta) == 0:
-            raise ValueError(f"theta_vol_deg must be a non-empty list of [alpha, beta, gamma], got {self.theta_vol_deg!r}")
+            raise BadValueError(f"theta_vol_deg must be a non-empty list of [alpha, beta, gamma], got {self.theta_vol_deg!r}")
         object.__setattr__(self, "theta_vol_deg", tuple(tuple(map(float, t)) for t in theta))
         if self.sampler not in SAMPLERS:
-            raise ValueError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
+            raise BadValueError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
         for name in ("starts_per_theta", "n_select"):
             check_int(getattr(self, name), name, low=1)
         if self.starts_per_theta > MAX_STARTS_PER_THETA:
-            raise ValueError(f"starts_per_theta must be at most {MAX_STARTS_PER_THETA:,} (one orientation's starts "
+            raise BadValueError(f"starts_per_theta must be at most {MAX_STARTS_PER_THETA:,} (one orientation's starts "
                              f"are refined as one batch), got {self.starts_per_theta:,}")
         v = check_int(self.short_refine_iterations, "short_refine_iterations", low=0)
         if v > MAX_ITERATIONS:
-            raise ValueError(f"short_refine_iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
+            raise BadValueError(f"short_refine_iterations must be at most {MAX_ITERATIONS:,}, got {v:,}")
         check_int(self.seed, "seed", 0, MAX_SEED)
         if self.pinned_ids is not None:
             ids = tuple(self.pinned_ids) if isinstance(self.pinned_ids, (list, tuple)) else ()
             if not ids or not all(is_whole(i) for i in ids):
-                raise ValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
+                raise BadValueError(f"pinned_ids must be a non-empty list of ints, got {self.pinned_ids!r}")
             if len(set(ids)) != len(ids):
-                raise ValueError(f"pinned_ids must be unique, got {list(ids)}")
+                raise BadValueError(f"pinned_ids must be unique, got {list(ids)}")
             object.__setattr__(self, "pinned_ids", ids)
 
 
@@ -108,10 +109,10 @@ def check_selection(config: GraspGenConfig) -> None:
     if config.pinned_ids is not None:
         unknown = [i for i in config.pinned_ids if not 0 <= i < candidates]
         if unknown:
-            raise ValueError(f"pinned_ids: unknown grasp id(s) {unknown}: the {n_theta} x {starts} candidates are "
+            raise BadValueError(f"pinned_ids: unknown grasp id(s) {unknown}: the {n_theta} x {starts} candidates are "
                              f"numbered 0..{candidates - 1}")
     elif config.n_select > candidates:
-        raise ValueError(f"cannot select {config.n_select} grasps (n_select): there are only {n_theta} x {starts} = "
+        raise BadValueError(f"cannot select {config.n_select} grasps (n_select): there are only {n_theta} x {starts} = "
                          f"{candidates} candidates (theta_vol_deg x starts_per_theta)")
 
 
@@ -143,9 +144,9 @@ def check_run_options(threads, tile_px, platform, out_dir) -> Path:
               hint=f" ({MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this process may use)")
     check_int(tile_px, "sheet.tile_px", MIN_TILE_PX, MAX_TILE_PX, hint=" (pixels)")
     if platform is not None and platform not in PLATFORMS:
-        raise ValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got {platform!r}")
+        raise BadValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got {platform!r}")
     if not isinstance(out_dir, (str, Path)) or not str(out_dir).strip():
-        raise ValueError(f"out_dir must be a folder path, got {out_dir!r}")
+        raise BadValueError(f"out_dir must be a folder path, got {out_dir!r}")
     return check_output_folder(out_dir)
 
 
@@ -162,7 +163,7 @@ def check_output_folder(out_dir, what: str = "out_dir") -> Path:
         existing = existing.parent
     if not existing.is_dir():
         where = "" if existing == out_dir else f": {existing} is a file"
-        raise ValueError(f"{what} {out_dir} is not a folder{where or ' (a file of that name exists)'}")
+        raise BadValueError(f"{what} {out_dir} is not a folder{where or ' (a file of that name exists)'}")
     if not os.access(existing, os.W_OK | os.X_OK):
         try:
             read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
@@ -170,7 +171,7 @@ def check_output_folder(out_dir, what: str = "out_dir") -> Path:
             read_only = False
         why = "on a read-only file system" if read_only else "not writable (permission denied)"
         where = "" if existing == out_dir else f" (its parent {existing})"
-        raise PermissionError(f"cannot write {what} {out_dir}{where}: {why}")
+        raise NotWritableError(f"cannot write {what} {out_dir}{where}: {why}")
     return out_dir
 
 
@@ -220,11 +221,11 @@ def select_grasps(candidates: dict, hand, n: int, seed: int, pinned_ids=None) ->
     if pinned_ids is not None:
         unknown = [i for i in pinned_ids if not 0 <= i < M]
         if unknown:
-            raise ValueError(f"unknown grasp id(s) {unknown}: candidates are numbered 0..{M - 1}")
+            raise BadValueError(f"unknown grasp id(s) {unknown}: candidates are numbered 0..{M - 1}")
         return np.array(pinned_ids, dtype=np.int64)
     ok = np.flatnonzero(candidates["scores"]["plausible"])
     if n > len(ok):
-        raise ValueError(f"cannot select {n} grasps: only {len(ok)} of {M} candidates are plausible "
+        raise BadValueError(f"cannot select {n} grasps: only {len(ok)} of {M} candidates are plausible "
                          f"(thresholds {PLAUSIBLE}); add starts or orientations")
     g = candidates["grasps"]
     with torch.no_grad():

@@ -12,6 +12,7 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.input_checks import check_shape
+from datagen.errors import BadValueError, RunFailedError
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -48,7 +49,7 @@ def draw_keypoints(image_rgb: np.ndarray, uv: np.ndarray, visible: np.ndarray | 
     """
     image_rgb = np.asarray(image_rgb)
     if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
-        raise ValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
+        raise BadValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
     uv = check_shape(np.asarray(uv, dtype=np.float64), (kp.NUM_KEYPOINTS, 2), "uv")
     visible = np.ones(kp.NUM_KEYPOINTS, dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
     check_shape(visible, (kp.NUM_KEYPOINTS,), "visible")
@@ -82,7 +83,7 @@ def colorize_depth(depth_m: np.ndarray) -> np.ndarray:
     """
     depth_m = np.asarray(depth_m, dtype=np.float64)
     if depth_m.ndim != 2:
-        raise ValueError(f"depth_m must be (H, W), got {depth_m.shape}")
+        raise BadValueError(f"depth_m must be (H, W), got {depth_m.shape}")
     hit = depth_m > 0
     out = np.zeros(depth_m.shape + (3,), dtype=np.uint8)
     if not hit.any():
@@ -99,9 +100,9 @@ def colorize_labels(seg: np.ndarray) -> np.ndarray:
     """Label map (0 background, 1 hand, 2 arm, 3 probe) to RGB."""
     seg = np.asarray(seg)
     if seg.ndim != 2 or not np.issubdtype(seg.dtype, np.integer):
-        raise ValueError(f"seg must be an (H, W) integer label map, got {seg.shape} {seg.dtype}")
+        raise BadValueError(f"seg must be an (H, W) integer label map, got {seg.shape} {seg.dtype}")
     if seg.size and seg.max() >= len(SEG_RGB):
-        raise ValueError(f"seg labels must be < {len(SEG_RGB)}, found {int(seg.max())}")
+        raise BadValueError(f"seg labels must be < {len(SEG_RGB)}, found {int(seg.max())}")
     return SEG_RGB[seg]
 
 
@@ -117,10 +118,10 @@ def titled(image_rgb: np.ndarray, title: str, bar: int = 22) -> np.ndarray:
 def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
     """Arrange equally sized RGB tiles in a grid with white gaps."""
     if not tiles:
-        raise ValueError("grid needs at least one tile")
+        raise BadValueError("grid needs at least one tile")
     h, w = tiles[0].shape[:2]
     if any(t.shape[:2] != (h, w) for t in tiles):
-        raise ValueError(f"all tiles must be {h} x {w}, got {[t.shape[:2] for t in tiles]}")
+        raise BadValueError(f"all tiles must be {h} x {w}, got {[t.shape[:2] for t in tiles]}")
     rows = -(-len(tiles) // columns)
     out = np.full((rows * h + (rows + 1) * gap, columns * w + (columns + 1) * gap, 3), 255, dtype=np.uint8)
     for i, tile in enumerate(tiles):
@@ -136,5 +137,5 @@ def write_png(path, image_rgb: np.ndarray):
 
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image_rgb[..., ::-1]))
     if not ok:
-        raise RuntimeError(f"PNG encoding failed for {path}")
+        raise RunFailedError(f"PNG encoding failed for {path}")
     return write_bytes(path, buf.tobytes())

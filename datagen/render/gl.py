@@ -19,6 +19,7 @@ import types
 import warnings
 
 import numpy as np
+from datagen.errors import BadValueError, RunFailedError
 
 PLATFORMS = ("egl", "osmesa")
 #: what EGL rendering needs on Debian/Ubuntu (install.sh installs it): the GLVND EGL loader, Mesa's EGL
@@ -90,7 +91,7 @@ def _osmesa_works() -> bool:
 
     version = importlib.metadata.version("PyOpenGL")
     if tuple(int(x) for x in version.split(".")[:3]) < (3, 1, 7):
-        raise RuntimeError(
+        raise RunFailedError(
             f"OSMesa rendering needs PyOpenGL >= 3.1.7, found {version} "
             "(pyrender pins 3.1.0 but works with newer): pip install 'PyOpenGL==3.1.10'"
         )
@@ -113,26 +114,26 @@ def configure(platform: str | None = None) -> str:
     if not hasattr(np, "infty"):
         np.infty = np.inf  # pyrender 0.1.45 uses the numpy 1 alias
     if platform is not None and platform not in PLATFORMS:
-        raise ValueError(f"render platform must be one of {PLATFORMS} or None, got {platform!r}")
+        raise BadValueError(f"render platform must be one of {PLATFORMS} or None, got {platform!r}")
     requested = platform or os.environ.get("PYOPENGL_PLATFORM") or None
     if requested is not None and requested not in PLATFORMS:
-        raise ValueError(f"PYOPENGL_PLATFORM must be one of {PLATFORMS} for offscreen rendering, got {requested!r}")
+        raise BadValueError(f"PYOPENGL_PLATFORM must be one of {PLATFORMS} for offscreen rendering, got {requested!r}")
     if _chosen is not None:
         if requested is not None and requested != _chosen:
-            raise RuntimeError(
+            raise RunFailedError(
                 f"this process already renders with {_chosen!r}; PyOpenGL cannot switch to {requested!r} "
                 "(start a new process)"
             )
         return _chosen
     if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") not in PLATFORMS:
-        raise RuntimeError("OpenGL was imported before datagen.render.gl.configure(); import hupbench renderers first")
+        raise RunFailedError("OpenGL was imported before datagen.render.gl.configure(); import hupbench renderers first")
     if requested == "egl" and not _egl_works():
-        raise RuntimeError(
+        raise RunFailedError(
             f"EGL was requested but does not work here (no EGL display initialises, or no libOpenGL/libGL): "
             f"{EGL_PACKAGES_HINT}"
         )
     if requested == "osmesa" and not _osmesa_works():
-        raise RuntimeError("OSMesa was requested but libOSMesa is missing: apt-get install libosmesa6")
+        raise RunFailedError("OSMesa was requested but libOSMesa is missing: apt-get install libosmesa6")
     if requested is None:
         if _egl_works():
             requested = "egl"
@@ -140,7 +141,7 @@ def configure(platform: str | None = None) -> str:
             requested = "osmesa"
             warnings.warn("EGL is not available; rendering with OSMesa (slower)", RuntimeWarning, stacklevel=2)
         else:
-            raise RuntimeError(
+            raise RunFailedError(
                 f"no offscreen OpenGL platform: install Mesa EGL ({EGL_PACKAGES_HINT}) "
                 "or OSMesa (apt-get install libosmesa6)"
             )
@@ -153,7 +154,7 @@ class _OffscreenOnlyViewer:
     """Stands in for ``pyrender.Viewer``, which hupbench never opens (see :func:`load_pyrender`)."""
 
     def __init__(self, *args, **kwargs) -> None:
-        raise RuntimeError(
+        raise RunFailedError(
             "pyrender's interactive Viewer is not loaded in a process that renders with hupbench: it needs "
             "pyglet's X11 window system; hupbench renders offscreen only (EGL or OSMesa)"
         )
@@ -172,7 +173,7 @@ def load_pyrender() -> types.ModuleType:
     A pyrender the process had already imported is returned as it is.
     """
     if _chosen is None:
-        raise RuntimeError("datagen.render.gl.configure() must choose the platform before pyrender is imported")
+        raise RunFailedError("datagen.render.gl.configure() must choose the platform before pyrender is imported")
     if "pyrender" not in sys.modules:
         viewer = types.ModuleType("pyrender.viewer", "hupbench stand-in for pyrender's X11 viewer (offscreen only)")
         viewer.Viewer = _OffscreenOnlyViewer

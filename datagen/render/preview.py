@@ -20,6 +20,7 @@ from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle, transfo
 from datagen.assets.hand_anatomy import anatomical_to_pose
 from datagen.render.renderer import MODALITIES, PointLight, Renderer, RenderSettings, check_modalities
 from datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
+from datagen.errors import BadValueError
 
 
 @dataclass(frozen=True)
@@ -32,9 +33,9 @@ class PreviewView:
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.distance_m) or self.distance_m <= 0:
-            raise ValueError(f"distance_m must be positive, got {self.distance_m!r}")
+            raise BadValueError(f"distance_m must be positive, got {self.distance_m!r}")
         if not -90.0 <= self.elevation_deg <= 90.0:
-            raise ValueError(f"elevation_deg must be in [-90, 90], got {self.elevation_deg!r}")
+            raise BadValueError(f"elevation_deg must be in [-90, 90], got {self.elevation_deg!r}")
 
 
 def handset_grasp() -> Grasp:
@@ -117,7 +118,7 @@ def write_preview(path: str | Path, result: dict) -> Path:
     """Write a preview sheet from :func:`render_preview` as PNG."""
     path = Path(path)
     if path.suffix.lower() != ".png":
-        raise ValueError(f"preview path must end in .png, got {path}")
+        raise BadValueError(f"preview path must end in .png, got {path}")
     write_png(path, result["sheet"])
     return path
 

@@ -29,6 +29,7 @@ from datagen.camera import Intrinsics, swap_gl_cv_axes
 from datagen.dataset.contract import MODALITIES, SEG_LABELS
 from datagen.geometry import check_last_axes, invert_transform
 from datagen.input_checks import check_shape
+from datagen.errors import BadTypeError, BadValueError
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 #: the colour pass's fragment shader, in place of pyrender's mesh.frag (fed by pyrender's mesh.vert)
@@ -44,10 +45,10 @@ def check_modalities(modalities: Iterable[str]) -> tuple[str, ...]:
         modalities = (modalities,)
     modalities = tuple(modalities)
     if not modalities:
-        raise ValueError(f"at least one modality must be asked for, from {MODALITIES}")
+        raise BadValueError(f"at least one modality must be asked for, from {MODALITIES}")
     unknown = [m for m in modalities if m not in MODALITIES]
     if unknown:
-        raise ValueError(f"unknown modality {unknown[0]!r}; choose from {MODALITIES}")
+        raise BadValueError(f"unknown modality {unknown[0]!r}; choose from {MODALITIES}")
     return tuple(m for m in MODALITIES if m in modalities)
 
 
@@ -77,11 +78,11 @@ class MeshPart:
 
     def __post_init__(self) -> None:
         if self.label not in SEG_LABELS.values() or self.label == 0:
-            raise ValueError(f"part {self.name!r}: label must be one of 1, 2, 3, got {self.label!r}")
+            raise BadValueError(f"part {self.name!r}: label must be one of 1, 2, 3, got {self.label!r}")
         for name in ("color", "emissive"):
             value = np.asarray(getattr(self, name), dtype=np.float64)
             if value.shape != (3,) or not np.all((value >= 0) & (value <= 1)):
-                raise ValueError(f"part {self.name!r}: {name} must be 3 values in [0, 1], got {getattr(self, name)!r}")
+                raise BadValueError(f"part {self.name!r}: {name} must be 3 values in [0, 1], got {getattr(self, name)!r}")
 
 
 @dataclass
@@ -101,7 +102,7 @@ class PointLight:
     def __post_init__(self) -> None:
         check_last_axes(self.position_world, (3,), "light position_world")
         if not np.isfinite(self.intensity) or self.intensity < 0:
-            raise ValueError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
+            raise BadValueError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
 
 
 @dataclass
@@ -140,9 +141,9 @@ class Renderer:
 
     def __init__(self, intrinsics: Intrinsics, platform: str | None = None, shading: str = "blinn_phong") -> None:
         if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+            raise BadTypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
         if shading not in SHADINGS:
-            raise ValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
+            raise BadValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
         self.platform = gl.configure(platform)
         pyrender = gl.load_pyrender()  # offscreen only: never pyglet's X11 window system
         self._pyrender = pyrender
@@ -170,7 +171,7 @@ class Renderer:
         pyrender = self._pyrender
         names = [p.name for p in parts]
         if len(set(names)) != len(names):
-            raise ValueError(f"part names must be unique, got {names}")
+            raise BadValueError(f"part names must be unique, got {names}")
         for node in self._part_nodes.values():
             self._scene.remove_node(node)
         self._part_nodes.clear()

@@ -20,6 +20,7 @@ from datagen.assets.hand_anatomy import HandSpec, check_pose, clamp_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 from datagen.render.renderer import SEG_LABELS, MeshPart
 from datagen.input_checks import check_shape
+from datagen.errors import BadValueError
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
@@ -56,7 +57,7 @@ class Grasp:
         self.hand_trans = check_shape(check_last_axes(self.hand_trans, (3,), "hand_trans"), (3,), "hand_trans")
         T = check_last_axes(self.T_world_probe, (4, 4), "T_world_probe")
         if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
-            raise ValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")
+            raise BadValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")
         check_rotation(T[:3, :3], "T_world_probe rotation")
         self.T_world_probe = T
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from datagen.errors import BadValueError
 
 #: views with sphere polar angle theta below this are "egocentric" (see :func:`latitude_labels`)
 EGOCENTRIC_MAX_THETA_RAD = np.pi / 2
@@ -51,7 +52,7 @@ def background_labels(background_id, names: Sequence[str] | None = None) -> np.n
     if names is not None:
         bad = sorted({int(i) for i in ids if not 0 <= i < len(names)})
         if bad:
-            raise ValueError(f"background ids {bad} have no name among {len(names)} names")
+            raise BadValueError(f"background ids {bad} have no name among {len(names)} names")
         return np.array([str(names[i]) for i in ids])
     return np.array([f"background {i}" for i in ids])
 

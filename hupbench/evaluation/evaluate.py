@@ -64,6 +64,7 @@ from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from datagen.dataset.contract import TRACKS
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
+from datagen.errors import BadValueError, MissingFileError, RunFailedError
 
 __all__ = ["LATENCY_RUNS", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval",
            "split_floor"]
@@ -187,7 +188,7 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
     corners_world = np.einsum("nji,nkj->nki", T[:, :3, :3], corners_cam - T[:, None, :3, 3])
     drift = float(np.abs(corners_world - corners_world[:1]).max())
     if drift > CORNER_FRAME_TOL_M:
-        raise ValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
+        raise BadValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
                          f"(probe) frame: the dataset does not place the probe at the world origin")
     half_turn = metrics.symmetry_permutation(corners_world.mean(axis=0), metrics.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
     return (tuple(range(kp.NUM_CORNERS)), half_turn)
@@ -242,11 +243,11 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     """
     track = (manifest.get("protocol") or {}).get("track")
     if track is not None and track not in TRACKS:
-        raise ValueError(f"{where}: manifest['protocol']['track'] must be one of {', '.join(TRACKS)}, got {track!r}")
+        raise BadValueError(f"{where}: manifest['protocol']['track'] must be one of {', '.join(TRACKS)}, got {track!r}")
     floors = manifest.get("split_floors")
     if floors is not None:
         if not isinstance(floors, dict) or not isinstance(floors.get("splits"), dict):
-            raise ValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition' and "
+            raise BadValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition' and "
                              f"'splits' (split -> floor), got {str(floors)[:80]}")
     entry = None if floors is None else floors["splits"].get(split)
     if entry is None:
@@ -254,7 +255,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     entry_where = f"{where}: manifest['split_floors']['splits'][{split!r}]"
     entry = copy.deepcopy(validate_split_floor(entry, entry_where))
     if set(entry["per_grasp"]) != {str(g) for g in grasp_ids}:
-        raise ValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
+        raise BadValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
                          f"{sorted(entry['per_grasp'], key=int)}")
     return track, entry
 
@@ -263,10 +264,10 @@ def _model_format(path: Path) -> str:
     """"pytorch" for a checkpoint, "onnx" for an ONNX file; errors for a missing file or another type."""
     suffix = path.suffix.lower()
     if suffix not in (".pt", ".pth", ".onnx"):
-        raise ValueError(f"unknown model file type {path.name!r}: expected a hupbench checkpoint (.pt) "
+        raise BadValueError(f"unknown model file type {path.name!r}: expected a hupbench checkpoint (.pt) "
                          f"or an exported ONNX model (.onnx)")
     if not path.is_file():
-        raise FileNotFoundError(f"model file {path} does not exist")
+        raise MissingFileError(f"model file {path} does not exist")
     return "onnx" if suffix == ".onnx" else "pytorch"
 
 
@@ -280,7 +281,7 @@ class EvalModel:
             self._load_onnx(path)
         n = self.model_config.get("n_keypoints", kp.NUM_KEYPOINTS)
         if n != kp.NUM_KEYPOINTS:
-            raise ValueError(f"{path}: the model predicts {n} keypoints; the dataset and the benchmark have "
+            raise BadValueError(f"{path}: the model predicts {n} keypoints; the dataset and the benchmark have "
                              f"{kp.NUM_KEYPOINTS}")
 
     def _load_checkpoint(self, path: Path) -> None:
@@ -294,7 +295,7 @@ class EvalModel:
         try:
             self.module = contract_model(model, payload)
         except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+            raise BadValueError(f"{path}: {exc}") from exc
         self.input_size = self.module.input_size
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
@@ -305,10 +306,10 @@ class EvalModel:
 
         meta = read_onnx_metadata(path)
         if len(meta["keypoint_names"]) != kp.NUM_KEYPOINTS:
-            raise ValueError(f"{path} predicts {len(meta['keypoint_names'])} keypoints; the benchmark has "
+            raise BadValueError(f"{path} predicts {len(meta['keypoint_names'])} keypoints; the benchmark has "
                              f"{kp.NUM_KEYPOINTS}")
         if not meta["model_config"]:  # eval rebuilds the architecture to count its parameters and FLOPs
-            raise ValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's cost")
+            raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's cost")
         self.format = "onnx"
         self.payload = None
         self.model_config = meta["model_config"]
@@ -369,9 +370,9 @@ def _resolve_out(out, run_name: str | None, default_name: str) -> tuple[Path, st
     if out is not None:
         out = Path(out)
         if out.suffix.lower() != ".json":
-            raise ValueError(f"--out must be a .json file, got {out.name!r}")
+            raise BadValueError(f"--out must be a .json file, got {out.name!r}")
         if run_name is not None and run_name != out.stem:
-            raise ValueError(f"the run name {run_name!r} must equal the results file stem {out.stem!r} "
+            raise BadValueError(f"the run name {run_name!r} must equal the results file stem {out.stem!r} "
                              f"(leave out --run-name or rename --out)")
         return out, out.stem
     name = run_name or default_name
@@ -508,7 +509,7 @@ def _predict_split(net, reader, batch_size: int, split: str, progress: bool, log
     log(f"ran {net.format} model on {len(reader)} {split} frames in {time.perf_counter() - start:.1f} s")
     bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
     if bad.any():
-        raise RuntimeError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+        raise RunFailedError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
     return pred2d, pred3d, gt2d, gt3d
 
 

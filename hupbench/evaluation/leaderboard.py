@@ -49,6 +49,7 @@ from datagen.io import atomic_output, clean_stale_tmp
 from datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
 from datagen.dataset.floors import FLOOR_KINDS
 from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
+from datagen.errors import BadValueError, MissingFileError, NotWritableError
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"
@@ -91,27 +92,27 @@ def load_rows(results_dir: str | Path) -> list[dict]:
     """
     results_dir = Path(results_dir)
     if not results_dir.is_dir():
-        raise FileNotFoundError(f"results folder not found: {results_dir}")
+        raise MissingFileError(f"results folder not found: {results_dir}")
     paths = sorted(results_dir.glob("*.json"))
     if not paths:
-        raise ValueError(f"no results files (*.json) in {results_dir}")
+        raise BadValueError(f"no results files (*.json) in {results_dir}")
     by_folded_name: dict[str, Path] = {}
     for path in paths:
         twin = by_folded_name.setdefault(path.stem.casefold(), path)
         if twin != path:
-            raise ValueError(f"{twin} and {path}: run names must differ in more than letter case (the two files "
+            raise BadValueError(f"{twin} and {path}: run names must differ in more than letter case (the two files "
                              "collide on case-insensitive file systems such as macOS's and Windows')")
     rows = []
     for path in paths:
         row = load_results(path)
         if row["run_name"] != path.stem:
-            raise ValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
+            raise BadValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
                              f"got {row['run_name']!r}")
         if row["dataset"]["split"] != "test":
-            raise ValueError(f"{path}: the leaderboard compares test-split results, "
+            raise BadValueError(f"{path}: the leaderboard compares test-split results, "
                              f"got results['dataset']['split'] = {row['dataset']['split']!r}")
         if row["kind"] == "measured" and row["training"]["command"] is None:
-            raise ValueError(f"{path}: a measured row must name the command that reproduces it in "
+            raise BadValueError(f"{path}: a measured row must name the command that reproduces it in "
                              "results['training']['command'], got None")
         rows.append(row)
     return sorted(rows, key=sort_key)
@@ -178,11 +179,11 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"training log not found: {path}")
+        raise MissingFileError(f"training log not found: {path}")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a UTF-8 text file (byte {exc.start}): not a training log") from None
+        raise BadValueError(f"{path}: not a UTF-8 text file (byte {exc.start}): not a training log") from None
     curve = []
     seen: dict[tuple, int] = {}  # (event, step) -> line
     for lineno, line in enumerate(text.splitlines(), start=1):
@@ -191,14 +192,14 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
         try:
             record = json.loads(line)
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}:{lineno}: not a JSON line (a truncated or damaged copy?): {exc}") from None
+            raise BadValueError(f"{path}:{lineno}: not a JSON line (a truncated or damaged copy?): {exc}") from None
         if not isinstance(record, dict):
-            raise ValueError(f"{path}:{lineno}: expected a JSON object, got {type(record).__name__}")
+            raise BadValueError(f"{path}:{lineno}: expected a JSON object, got {type(record).__name__}")
         step = record.get("step")
         if isinstance(step, int) and not isinstance(step, bool):
             first = seen.setdefault((record.get("event"), step), lineno)
             if first != lineno:
-                raise ValueError(f"{path}:{lineno}: {record.get('event')!r} step {step} is logged twice (lines {first} "
+                raise BadValueError(f"{path}:{lineno}: {record.get('event')!r} step {step} is logged twice (lines {first} "
                                  f"and {lineno}): two trainings wrote to this log; keep one run's lines")
         if record.get("event") != "val":
             continue
@@ -207,11 +208,11 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
         mpjpe_all = mpjpe.get("all") if isinstance(mpjpe, dict) else None
         for name, value in (("train_wall_s", seconds), ("val_mpjpe_mm['all']", mpjpe_all)):
             if not _finite_non_negative(value):
-                raise ValueError(f"{path}:{lineno}: validation line needs {name} as a finite number >= 0, "
+                raise BadValueError(f"{path}:{lineno}: validation line needs {name} as a finite number >= 0, "
                                  f"got {value!r}")
         curve.append((float(seconds), float(mpjpe_all)))
     if not curve:
-        raise ValueError(f"{path}: no validation lines ({{\"event\": \"val\", ...}}) to plot")
+        raise BadValueError(f"{path}: no validation lines ({{\"event\": \"val\", ...}}) to plot")
     return curve
 
 
@@ -728,10 +729,10 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
             try:
                 curves.append((row, read_validation_curve(log_path)))
             except FileNotFoundError as exc:
-                raise FileNotFoundError(f"results/{row['run_name']}.json: training log: {exc}") from exc
+                raise MissingFileError(f"results/{row['run_name']}.json: training log: {exc}") from exc
             except ValueError as exc:
                 # not type(exc)(...): a UnicodeDecodeError is a ValueError that takes five arguments
-                raise ValueError(f"results/{row['run_name']}.json: training log: {exc}") from exc
+                raise BadValueError(f"results/{row['run_name']}.json: training log: {exc}") from exc
     longest_s = max((s for _, curve in curves for s, _ in curve), default=0.0)
     hours = longest_s > 2 * 3600
     scale, unit = (3600.0, "h") if hours else (60.0, "min")
@@ -779,7 +780,7 @@ def _check_writable(root: Path) -> None:
         read_only = bool(os.statvfs(root).f_flag & os.ST_RDONLY)
     except OSError:
         read_only = False
-    raise PermissionError(f"cannot write into leaderboard folder {root}: "
+    raise NotWritableError(f"cannot write into leaderboard folder {root}: "
                           + ("it is on a read-only file system" if read_only else "no write permission"))
 
 
@@ -816,11 +817,11 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
     """
     root = Path(dir)
     if not root.exists():
-        raise FileNotFoundError(f"leaderboard folder (--dir) {root} does not exist")
+        raise MissingFileError(f"leaderboard folder (--dir) {root} does not exist")
     if not root.is_dir():
-        raise ValueError(f"leaderboard folder (--dir) {root} is not a folder")
+        raise BadValueError(f"leaderboard folder (--dir) {root} is not a folder")
     if not (root / "results").is_dir():
-        raise FileNotFoundError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
+        raise MissingFileError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
                                 "leaderboard folder?")
     _check_writable(root)
     clean_stale_tmp(root, recursive=False)

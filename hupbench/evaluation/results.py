@@ -48,6 +48,7 @@ from pathlib import Path
 from datagen.dataset.contract import TRACKS
 from datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 from datagen.io import write_json
+from datagen.errors import BadValueError, MissingFileError
 
 SCHEMA_VERSION = 3
 #: versions :func:`load_results` reads (older ones are upgraded on load)
@@ -110,7 +111,7 @@ def _show(value) -> str:
 
 
 def _fail(parts: tuple, expected: str, value) -> None:
-    raise ValueError(f"{_path(parts)} must be {expected}, got {_show(value)}")
+    raise BadValueError(f"{_path(parts)} must be {expected}, got {_show(value)}")
 
 
 def _keys(d, parts: tuple, keys: tuple) -> None:
@@ -119,10 +120,10 @@ def _keys(d, parts: tuple, keys: tuple) -> None:
         _fail(parts, "a dict", d)
     missing = [k for k in keys if k not in d]
     if missing:
-        raise ValueError(f"{_path(parts)} is missing key(s) {missing}; expected keys {list(keys)}")
+        raise BadValueError(f"{_path(parts)} is missing key(s) {missing}; expected keys {list(keys)}")
     unknown = sorted(str(k) for k in d if k not in keys)
     if unknown:
-        raise ValueError(f"{_path(parts)} has unknown key(s) {unknown}; expected keys {list(keys)}")
+        raise BadValueError(f"{_path(parts)} has unknown key(s) {unknown}; expected keys {list(keys)}")
 
 
 def _is_number(v) -> bool:
@@ -205,7 +206,7 @@ def _validate_breakdowns(breakdowns, version: int) -> None:
     axes = BREAKDOWNS if version >= 3 else _BREAKDOWNS_V2
     unknown = sorted(str(k) for k in breakdowns if k not in axes)
     if unknown:
-        raise ValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(axes)}")
+        raise BadValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(axes)}")
     for label in breakdowns.get("grasp", {}) if isinstance(breakdowns.get("grasp"), dict) else ():
         if not isinstance(label, str) or not GRASP_ID_PATTERN.match(label):
             _fail(("breakdowns", "grasp"), "keyed by grasp ids written as decimal integers", label)
@@ -359,7 +360,7 @@ def validate_results(d: dict) -> dict:
         _keys(d, (), _TOP_KEYS)
     version = d["schema_version"]
     if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
-        raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
+        raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
                          f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
     _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
@@ -434,7 +435,7 @@ def blank_results(kind: str, run_name: str) -> dict:
         A fresh dict; nested dicts are not shared between calls.
     """
     if kind not in KINDS:
-        raise ValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
+        raise BadValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
     blank = {
         "schema_version": SCHEMA_VERSION, "kind": kind, "run_name": run_name,
         "model": dict.fromkeys(_MODEL_KEYS),
@@ -493,20 +494,20 @@ def load_results(path: str | Path) -> dict:
     """
     path = Path(path)
     if path.exists() and not path.is_file():
-        raise ValueError(f"{path}: not a file (a results file is one JSON file)")
+        raise BadValueError(f"{path}: not a file (a results file is one JSON file)")
     if not path.is_file():
-        raise FileNotFoundError(f"results file not found: {path}")
+        raise MissingFileError(f"results file not found: {path}")
     data = path.read_bytes()
     if not data.strip():
-        raise ValueError(f"{path}: empty file, not valid JSON (a results file is one JSON object)")
+        raise BadValueError(f"{path}: empty file, not valid JSON (a results file is one JSON object)")
     try:
         data = json.loads(data.decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON: {exc}") from None
+        raise BadValueError(f"{path}: not valid JSON: {exc}") from None
     try:
         return upgrade_results(data)
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from exc
+        raise BadValueError(f"{path}: {exc}") from exc
 
 
 def write_results(path: str | Path, d: dict) -> Path:
@@ -524,6 +525,6 @@ def write_results(path: str | Path, d: dict) -> Path:
     """
     validate_results(d)
     if d["schema_version"] != SCHEMA_VERSION:
-        raise ValueError(f"results['schema_version'] must be {SCHEMA_VERSION} to be written, got "
+        raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} to be written, got "
                          f"{d['schema_version']}: upgrade_results() first")
     return write_json(path, d)

@@ -39,6 +39,7 @@ from torch import nn
 from datagen import keypoints as kp
 from datagen.input_checks import check_int
 from hupbench.inference.model_file import INPUT_SIZE_RANGE, check_io_shapes, read_metadata, write_metadata
+from datagen.errors import BadValueError, MissingFileError, NotWritableError, RunFailedError
 
 __all__ = [
     "OPSET",
@@ -86,7 +87,7 @@ class ContractModule(nn.Module):
         super().__init__()
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         if K.shape != (3, 3):
-            raise ValueError(f"K_input must be (3, 3), got {tuple(K.shape)}")
+            raise BadValueError(f"K_input must be (3, 3), got {tuple(K.shape)}")
         check_int(input_size, "input_size", *INPUT_SIZE_RANGE)
         self.model = model
         self.input_size = input_size
@@ -110,7 +111,7 @@ def contract_model(model: nn.Module, payload: dict[str, Any]) -> ContractModule:
     """:class:`ContractModule` for a checkpoint's model, with its K_input and input size, in eval mode."""
     n = model.config.get("n_keypoints", kp.NUM_KEYPOINTS) if hasattr(model, "config") else kp.NUM_KEYPOINTS
     if n != kp.NUM_KEYPOINTS:
-        raise ValueError(f"the model predicts {n} keypoints; the benchmark and the ONNX contract need "
+        raise BadValueError(f"the model predicts {n} keypoints; the benchmark and the ONNX contract need "
                          f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
     return ContractModule(model, payload["K_input"], int(payload["input_size"])).eval()
 
@@ -146,14 +147,14 @@ def read_onnx_metadata(path: str | Path) -> dict[str, Any]:
 
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"ONNX model {path} does not exist")
+        raise MissingFileError(f"ONNX model {path} does not exist")
     try:
         proto = onnx.load(str(path), load_external_data=False)
     except Exception as exc:  # onnx raises DecodeError, OSError and others for a foreign file
-        raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from exc
+        raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from exc
     props = {p.key: p.value for p in proto.metadata_props}
     if not props and path.stat().st_size == 0:
-        raise ValueError(f"{path} is empty: not a hupbench ONNX export")
+        raise BadValueError(f"{path} is empty: not a hupbench ONNX export")
     meta = read_metadata(props, str(path))
     check_io_shapes({v.name: _dims(v) for v in proto.graph.input}, {v.name: _dims(v) for v in proto.graph.output},
                     meta["input_size"], len(meta["keypoint_names"]), str(path))
@@ -229,15 +230,15 @@ def check_output_file(path: str | Path, option: str = "--out") -> Path:
     """
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"{option} {path} is a folder; expected a file path")
+        raise BadValueError(f"{option} {path} is a folder; expected a file path")
     folder = path.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir():
-        raise ValueError(f"{option} {path}: {folder} is a file, not a folder")
+        raise BadValueError(f"{option} {path}: {folder} is a file, not a folder")
     if not os.access(folder, os.W_OK | os.X_OK):
         readonly = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
-        raise PermissionError(f"cannot write {path}: {folder} is " + ("on a read-only file system" if readonly
+        raise NotWritableError(f"cannot write {path}: {folder} is " + ("on a read-only file system" if readonly
                                                                        else "not writable (permission denied)"))
     return path
 
@@ -256,7 +257,7 @@ def ort_session(path: str | Path, threads: int | None = None):
     try:
         return ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime's errors (Fail, InvalidGraph, ...) derive from Exception only
-        raise ValueError(f"onnxruntime cannot load {path}: {_first_line(exc)}") from exc
+        raise BadValueError(f"onnxruntime cannot load {path}: {_first_line(exc)}") from exc
 
 
 def ort_run(session, path: str | Path, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -265,7 +266,7 @@ def ort_run(session, path: str | Path, images: np.ndarray) -> tuple[np.ndarray, 
     try:
         points2d, points3d = session.run(["points2d", "points3d"], {"image": images})
     except Exception as exc:  # onnxruntime's errors (InvalidArgument, Fail, ...) derive from Exception only
-        raise RuntimeError(f"onnxruntime failed on {path} with images of shape {tuple(images.shape)}: "
+        raise RunFailedError(f"onnxruntime failed on {path} with images of shape {tuple(images.shape)}: "
                            f"{_first_line(exc)}") from exc
     return points2d, points3d
 
@@ -281,7 +282,7 @@ def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
     counts = read_manifest(dataset)["counts"]
     split = next((s for s in ("test", "val", "train") if counts.get(s, 0) > 0), None)
     if split is None:
-        raise ValueError(f"{dataset} has no frames in any split")
+        raise BadValueError(f"{dataset} has no frames in any split")
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=input_size))
     idx = np.linspace(0, len(reader) - 1, min(frames, len(reader))).round().astype(int)
     return torch.stack([reader[int(i)]["image"] for i in idx])
@@ -300,7 +301,7 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
     d3 = float(np.max(np.abs(got3d.astype(np.float64) - ref3d.numpy().astype(np.float64)))) * 1000.0
     d2 = float(np.max(np.abs(got2d.astype(np.float64) - ref2d.numpy().astype(np.float64))))
     if not (np.isfinite(d3) and np.isfinite(d2)):
-        raise RuntimeError("the ONNX or PyTorch outputs hold NaN or inf on real images")
+        raise RunFailedError("the ONNX or PyTorch outputs hold NaN or inf on real images")
     return {"points3d_mm": d3, "points2d_norm": d2, "points2d_px": d2 * module.input_size / 2.0,
             "frames": int(images.shape[0])}
 
@@ -344,24 +345,24 @@ def run_export(checkpoint: str | Path, out: str | Path | None = None, dataset: s
     check_opset(opset)
     checkpoint = Path(checkpoint)
     if checkpoint.suffix.lower() not in (".pt", ".pth"):
-        raise ValueError(f"export needs a hupbench checkpoint (.pt), got {checkpoint.name!r}")
+        raise BadValueError(f"export needs a hupbench checkpoint (.pt), got {checkpoint.name!r}")
     out = Path(out) if out is not None else checkpoint.with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
-        raise ValueError(f"--out must end in .onnx, got {out.name!r}")
+        raise BadValueError(f"--out must end in .onnx, got {out.name!r}")
     check_output_file(out)
     model, payload = load_model(checkpoint)
     try:
         module = contract_model(model, payload)
     except ValueError as exc:
-        raise ValueError(f"checkpoint {checkpoint}: {exc}") from exc
+        raise BadValueError(f"checkpoint {checkpoint}: {exc}") from exc
     if dataset is None:
         recorded = (payload.get("dataset") or {}).get("path")
         if not recorded:
-            raise ValueError(f"checkpoint {checkpoint} records no dataset for the parity check; pass --dataset")
+            raise BadValueError(f"checkpoint {checkpoint} records no dataset for the parity check; pass --dataset")
         dataset = recorded
     dataset = Path(dataset)
     if not dataset.exists():
-        raise FileNotFoundError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
+        raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
     images = _parity_images(dataset, module.input_size, parity_frames)
     run_name = run_name or default_run_name(checkpoint, payload)
     metadata = onnx_metadata(payload, run_name, git_commit())
@@ -385,7 +386,7 @@ def run_export(checkpoint: str | Path, out: str | Path | None = None, dataset: s
                 f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
                 f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
             if diff["points3d_mm"] > PARITY_MAX_3D_MM:
-                raise RuntimeError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
+                raise RunFailedError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
                                    f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
                                    f"to {out}")
     finally:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from datagen.errors import BadTypeError, BadValueError, MissingFileError
 
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -79,10 +80,10 @@ def image_size_from_header(data: bytes) -> tuple[int, int] | None:
 def check_image_size(width: int, height: int, source: str = "image") -> None:
     """Refuse images smaller than MIN_IMAGE_SIDE or larger than MAX_IMAGE_SIDE (module docstring)."""
     if min(width, height) < MIN_IMAGE_SIDE:
-        raise ValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
+        raise BadValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
                          "on each side")
     if max(width, height) > MAX_IMAGE_SIDE:
-        raise ValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
+        raise BadValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
                          f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
 
 
@@ -135,13 +136,13 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
             message starts with ``source``.
     """
     if not data:
-        raise ValueError(f"{source}: empty file (0 bytes), not an image")
+        raise BadValueError(f"{source}: empty file (0 bytes), not an image")
     if data.startswith(_PNG_MAGIC):
         kind, flags = "PNG", cv2.IMREAD_UNCHANGED  # keep 16-bit samples and alpha
     elif data.startswith(_JPEG_MAGIC):
         kind, flags = "JPEG", cv2.IMREAD_COLOR  # applies the EXIF orientation of photos
     else:
-        raise ValueError(f"{source}: not a PNG or JPEG image (the file starts with {data[:8]!r})")
+        raise BadValueError(f"{source}: not a PNG or JPEG image (the file starts with {data[:8]!r})")
     declared = image_size_from_header(data)
     if declared is not None:
         check_image_size(*declared, source)  # before decoding: a 20000 x 20000 file would take gigabytes
@@ -149,10 +150,10 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     detail = "; ".join(said)
     if image is None or image.size == 0:
-        raise ValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
+        raise BadValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
                          + (f": {detail})" if detail else ")"))
     if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
-        raise ValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
+        raise BadValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
     if detail and notes is not None:
         notes.append(f"{kind} decoder: {detail}")
     check_image_size(image.shape[1], image.shape[0], source)
@@ -161,7 +162,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
     elif image.dtype == np.uint16:
         image = image.astype(np.float32) / 65535.0
     else:
-        raise ValueError(f"{source}: {kind} with {image.dtype} samples is not supported (8 or 16 bit)")
+        raise BadValueError(f"{source}: {kind} with {image.dtype} samples is not supported (8 or 16 bit)")
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]
@@ -173,7 +174,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
     elif image.shape[2] == 3:
         image = image[:, :, ::-1]  # BGR -> RGB
     else:
-        raise ValueError(f"{source}: {kind} with {channels} channels is not supported")
+        raise BadValueError(f"{source}: {kind} with {channels} channels is not supported")
     return np.ascontiguousarray(image, dtype=np.float32)
 
 
@@ -189,13 +190,13 @@ def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     """
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+        raise MissingFileError(f"{path}: no such file")
     if not path.is_file():
-        raise ValueError(f"{path}: not a regular file")
+        raise BadValueError(f"{path}: not a regular file")
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise ValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
+        raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
     return decode_image(data, str(path), notes)
 
 
@@ -216,7 +217,7 @@ def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[s
         files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
     """
     if isinstance(inputs, (str, Path)):
-        raise TypeError("inputs must be a list of paths, got a single path")
+        raise BadTypeError("inputs must be a list of paths, got a single path")
     files: list[Path] = []
     skipped: list[dict[str, str]] = []
     for item in inputs:

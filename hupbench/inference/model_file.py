@@ -27,6 +27,7 @@ import numpy as np
 
 from datagen.camera import resize_intrinsics
 from datagen.input_checks import check_int, is_whole
+from datagen.errors import BadTypeError, BadValueError
 
 __all__ = ["INPUT_SIZE_RANGE", "META", "ONNX_SCHEMA", "InputGeometry", "apply_affine", "check_intrinsics",
            "check_io_shapes", "read_metadata", "write_metadata"]
@@ -84,22 +85,22 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
         "git_commit": str}``.
     """
     if not isinstance(props, dict):
-        raise TypeError(f"metadata must be a dict of strings, got {type(props).__name__}")
+        raise BadTypeError(f"metadata must be a dict of strings, got {type(props).__name__}")
     if META + "onnx_schema" not in props:
-        raise ValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
+        raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
                          "not a hupbench ONNX export; predict and eval read models written by `hupbench export CKPT`")
     if props[META + "onnx_schema"] != ONNX_SCHEMA:
-        raise ValueError(f"{source} has hupbench.onnx_schema {props[META + 'onnx_schema']!r}; this hupbench reads "
+        raise BadValueError(f"{source} has hupbench.onnx_schema {props[META + 'onnx_schema']!r}; this hupbench reads "
                          f"{ONNX_SCHEMA!r}")
     missing = [META + key for key in _REQUIRED if META + key not in props]
     if missing:
-        raise ValueError(f"{source} lacks metadata {', '.join(missing)}")
+        raise BadValueError(f"{source} lacks metadata {', '.join(missing)}")
 
     def load(key: str) -> Any:
         try:
             return json.loads(props[META + key])
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{source}: metadata {META + key} is not JSON ({exc}): {props[META + key][:80]!r}") from None
+            raise BadValueError(f"{source}: metadata {META + key} is not JSON ({exc}): {props[META + key][:80]!r}") from None
 
     try:
         input_size = int(props[META + "input_size"])
@@ -109,15 +110,15 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     K_input = check_intrinsics(load("K_input"), f"{source}: metadata hupbench.K_input")
     names = load("keypoint_names")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-        raise ValueError(f"{source}: hupbench.keypoint_names must be a non-empty JSON list of strings, got {names!r:.120}")
+        raise BadValueError(f"{source}: hupbench.keypoint_names must be a non-empty JSON list of strings, got {names!r:.120}")
     edges = load("skeleton_edges")
     if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
             or not all(is_whole(i) and 0 <= i < len(names) for e in edges for i in e)):
-        raise ValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
+        raise BadValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
                          f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
     model_config = load("model_config") if META + "model_config" in props else {}
     if not isinstance(model_config, dict):
-        raise ValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
+        raise BadValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
                          f"{type(model_config).__name__}")
     return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
@@ -138,17 +139,17 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
         source: the file's name, for error messages.
     """
     if "image" not in inputs:
-        raise ValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
+        raise BadValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
     expected = {"image": ([3, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}
     for name, width in OUTPUT_WIDTHS.items():
         if name not in outputs:
-            raise ValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")
+            raise BadValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")
         expected[name] = ([num_keypoints, width], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
     for name, (tail, why) in expected.items():
         dims = list(inputs.get(name, outputs.get(name)) or [])
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
             shown = ", ".join(str(d) for d in dims)
-            raise ValueError(f"{source}: the graph's {name} is ({shown}), expected "
+            raise BadValueError(f"{source}: the graph's {name} is ({shown}), expected "
                              f"(batch, {', '.join(map(str, tail))}){why}")
 
 
@@ -157,13 +158,13 @@ def check_intrinsics(K: Any, name: str) -> np.ndarray:
     try:
         K = np.asarray(K, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a 3 x 3 matrix of numbers, got {K!r:.80}") from None
+        raise BadValueError(f"{name} must be a 3 x 3 matrix of numbers, got {K!r:.80}") from None
     if K.shape != (3, 3):
-        raise ValueError(f"{name} must be (3, 3) intrinsics, got shape {K.shape}")
+        raise BadValueError(f"{name} must be (3, 3) intrinsics, got shape {K.shape}")
     if not np.all(np.isfinite(K)):
-        raise ValueError(f"{name} must be finite, got {K.tolist()}")
+        raise BadValueError(f"{name} must be finite, got {K.tolist()}")
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
-        raise ValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
+        raise BadValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
     return K
 
 

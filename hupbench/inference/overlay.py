@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
+from datagen.errors import BadTypeError, BadValueError
 
 OTHER_RGB = (200, 200, 200)
 HALO_RGB = (0, 0, 0)  # a dark rim under every line keeps it visible on bright and dark photos alike
@@ -35,7 +36,7 @@ def keypoint_color(name: str) -> tuple[int, int, int]:
         (r, g, b) ints in [0, 255].
     """
     if not isinstance(name, str):
-        raise TypeError(f"keypoint name must be a str, got {type(name).__name__}")
+        raise BadTypeError(f"keypoint name must be a str, got {type(name).__name__}")
     if name.startswith("probe"):
         return PROBE_RGB
     return FINGER_RGB.get(name.split("_")[0], OTHER_RGB)
@@ -65,14 +66,14 @@ def draw_prediction(image_rgb: np.ndarray, uv: np.ndarray, names: Sequence[str],
     """
     image_rgb = np.asarray(image_rgb)
     if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
-        raise ValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
+        raise BadValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
     uv = np.asarray(uv, dtype=np.float64)
     n = len(names)
     if uv.shape != (n, 2):
-        raise ValueError(f"uv must be ({n}, 2) for {n} keypoint names, got {tuple(uv.shape)}")
+        raise BadValueError(f"uv must be ({n}, 2) for {n} keypoint names, got {tuple(uv.shape)}")
     edge_array = np.asarray(edges, dtype=np.int64).reshape(-1, 2) if len(edges) else np.zeros((0, 2), np.int64)
     if edge_array.size and (edge_array.min() < 0 or edge_array.max() >= n):
-        raise ValueError(f"edges must index keypoints in [0, {n}), got values {edge_array.min()}..{edge_array.max()}")
+        raise BadValueError(f"edges must index keypoints in [0, {n}), got values {edge_array.min()}..{edge_array.max()}")
     colors = [keypoint_color(name) for name in names]
     is_corner = np.array([name.startswith("probe") for name in names], dtype=bool)
 

@@ -91,6 +91,7 @@ from datagen.io import clean_stale_tmp, write_bytes
 from hupbench.inference.model_file import InputGeometry, check_intrinsics, check_io_shapes, read_metadata
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
+from datagen.errors import BadTypeError, BadValueError, MissingFileError, NotWritableError, RunFailedError
 
 
 SCHEMA_VERSION = 1
@@ -131,12 +132,12 @@ def parse_intrinsics(text: str) -> np.ndarray:
         (3, 3) float64 K.
     """
     if not isinstance(text, str):
-        raise TypeError(f"--K must be a string 'fx,fy,cx,cy', got {type(text).__name__}")
+        raise BadTypeError(f"--K must be a string 'fx,fy,cx,cy', got {type(text).__name__}")
     parts = [p.strip() for p in text.split(",")]
     try:
         fx, fy, cx, cy = (float(p) for p in parts)
     except ValueError:
-        raise ValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
+        raise BadValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
     return check_user_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
 
 
@@ -145,10 +146,10 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
     |cx|, |cy| <= MAX_FOCAL_PX (beyond that a value is a typo; see the constant)."""
     K = check_intrinsics(K, name)
     if K[0, 0] > MAX_FOCAL_PX or K[1, 1] > MAX_FOCAL_PX:
-        raise ValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
+        raise BadValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
                          f"fy={K[1, 1]:g}")
     if abs(K[0, 2]) > MAX_FOCAL_PX or abs(K[1, 2]) > MAX_FOCAL_PX:
-        raise ValueError(f"{name}: cx and cy must be in [-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got "
+        raise BadValueError(f"{name}: cx and cy must be in [-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got "
                          f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
     return K
 
@@ -198,7 +199,7 @@ def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, Inpu
     """
     image_rgb = np.asarray(image_rgb)
     if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.float32:
-        raise ValueError(f"image_rgb must be (H, W, 3) float32, got {image_rgb.shape} {image_rgb.dtype}")
+        raise BadValueError(f"image_rgb must be (H, W, 3) float32, got {image_rgb.shape} {image_rgb.dtype}")
     height, width = image_rgb.shape[:2]
     geometry = InputGeometry(width=width, height=height, input_size=input_size)
     pad_bottom = geometry.side - height - geometry.pad_top
@@ -251,20 +252,20 @@ def load_onnx_model(path: str | Path) -> PredictModel:
     """
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"model {path} is a folder, not an .onnx file")
+        raise BadValueError(f"model {path} is a folder, not an .onnx file")
     if not path.is_file():
-        raise FileNotFoundError(f"model {path} does not exist")
+        raise MissingFileError(f"model {path} does not exist")
     data = path.read_bytes()
     if not data:
-        raise ValueError(f"model {path} is an empty file (0 bytes), not an ONNX model")
+        raise BadValueError(f"model {path} is an empty file (0 bytes), not an ONNX model")
     if data.startswith((_ZIP_MAGIC, _PICKLE_MAGIC)):
-        raise ValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
+        raise BadValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
                          f"export it first with `hupbench export {path}`")
     try:
         session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
     except _ORT_LOAD_ERRORS as exc:
         reason = " ".join(str(exc).split())[:200]
-        raise ValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {reason}") from None
+        raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {reason}") from None
     meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
     check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
                     {o.name: list(o.shape or []) for o in session.get_outputs()},
@@ -287,18 +288,18 @@ def run_model(model: PredictModel, images: np.ndarray) -> tuple[np.ndarray, np.n
     S = model.input_size
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[1:] != (3, S, S) or images.dtype != np.float32:
-        raise ValueError(f"images must be (B, 3, {S}, {S}) float32, got {images.shape} {images.dtype}")
+        raise BadValueError(f"images must be (B, 3, {S}, {S}) float32, got {images.shape} {images.dtype}")
     try:
         points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
     except _ORT_RUN_ERRORS as exc:
         # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
         # something else: a model made for another input size whose header was edited, or a broken graph
         reason = " ".join(str(exc).split())[:240]
-        raise RuntimeError(f"{model.path}: onnxruntime could not run the model on a {tuple(images.shape)} batch at "
+        raise RunFailedError(f"{model.path}: onnxruntime could not run the model on a {tuple(images.shape)} batch at "
                            f"the input size its metadata declare ({S} px): {type(exc).__name__}: {reason}") from None
     n, b = len(model.keypoint_names), images.shape[0]
     if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
-        raise RuntimeError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
+        raise RunFailedError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
                            f"names, got {points2d.shape} and {points3d.shape}")
     return points2d, points3d
 
@@ -365,7 +366,7 @@ def check_out_dir(out_dir: str | Path) -> Path:
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"output folder (--out) {out_dir} is not a folder: a file of that name exists")
+        raise BadValueError(f"output folder (--out) {out_dir} is not a folder: a file of that name exists")
     existing = out_dir
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
@@ -376,7 +377,7 @@ def check_out_dir(out_dir: str | Path) -> Path:
             read_only = False
         why = "it is on a read-only file system" if read_only else "no write permission"
         where = "" if existing == out_dir else f" (its parent {existing})"
-        raise PermissionError(f"cannot write into output folder (--out) {out_dir}{where}: {why}")
+        raise NotWritableError(f"cannot write into output folder (--out) {out_dir}{where}: {why}")
     return out_dir
 
 
@@ -417,7 +418,7 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
     model = load_onnx_model(model_path)
     files, skipped = expand_inputs(inputs)
     if not files:
-        raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {', '.join(str(i) for i in inputs)}"
+        raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {', '.join(str(i) for i in inputs)}"
                          + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
 
     names = list(model.keypoint_names)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from omegaconf import DictConfig, OmegaConf
 
 from datagen.input_checks import check_int, check_number
+from datagen.errors import BadValueError
 
 
 #: config fields that count steps or frames: each a whole number >= 1 (None allowed where listed)
@@ -28,7 +29,7 @@ def _whole(cfg: DictConfig, field: str, low: int, optional: bool = False, high: 
         return
     check_int(value, field, low, optional=optional)
     if value > high:
-        raise ValueError(f"{field} must be at most {high:,}, got {value:,}")
+        raise BadValueError(f"{field} must be at most {high:,}, got {value:,}")
 
 
 def _number(cfg: DictConfig, field: str, low: float, high: float | None = None, low_open: bool = False) -> None:
@@ -38,7 +39,7 @@ def _number(cfg: DictConfig, field: str, low: float, high: float | None = None, 
 def _choice(cfg: DictConfig, field: str, choices, default=None) -> None:
     value = OmegaConf.select(cfg, field, default=default)
     if value not in choices:
-        raise ValueError(f"{field} must be {' or '.join(repr(c) for c in choices)}, got {value!r}")
+        raise BadValueError(f"{field} must be {' or '.join(repr(c) for c in choices)}, got {value!r}")
 
 
 def check_schedule(cfg: DictConfig) -> None:

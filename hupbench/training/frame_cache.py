@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from datagen.io import atomic_output, clean_stale_tmp, write_json
+from datagen.errors import BadValueError, NotWritableError
 
 __all__ = ["CACHE_FORMAT", "BatchAugment", "CachedFrames", "cache_paths", "model_images", "open_frame_cache"]
 
@@ -73,7 +74,7 @@ def _decode_resized(path: Path, size: int, image_size=None) -> np.ndarray:
 
     image = read_rgb(path, image_size)
     if image.shape[0] != image.shape[1]:
-        raise ValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
+        raise BadValueError(f"{path}: the reader expects square images, got {image.shape[1]} x {image.shape[0]}")
     return cv2.resize(image, (size, size), interpolation=cv2.INTER_AREA)
 
 
@@ -130,7 +131,7 @@ def open_frame_cache(root, split: str, input_size: int, frame_ids: np.ndarray, r
         cache_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):  # e.g. the default <dataset>/cache of a shared dataset
-            raise PermissionError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
+            raise NotWritableError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
                                              "data.cache_dir to a writable folder") from exc
         raise
     clean_stale_tmp(cache_dir, recursive=False)  # builds of killed runs
@@ -261,9 +262,9 @@ class BatchAugment:
 
     def __init__(self, rotate_deg: float = 0.0, photometric: float = 0.0, seed: int = 0) -> None:
         if not 0.0 <= float(rotate_deg) <= 180.0:
-            raise ValueError(f"rotate_deg must be in [0, 180], got {rotate_deg!r}")
+            raise BadValueError(f"rotate_deg must be in [0, 180], got {rotate_deg!r}")
         if not 0.0 <= float(photometric) <= 1.0:
-            raise ValueError(f"photometric must be in [0, 1], got {photometric!r}")
+            raise BadValueError(f"photometric must be in [0, 1], got {photometric!r}")
         self.rotate_deg, self.photometric, self.seed = float(rotate_deg), float(photometric), int(seed)
 
     def draws(self, indices, epoch: int) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ import torch
 
 from hupbench.config import build
 from hupbench.training.schedule import EpochSampler
+from datagen.errors import BadValueError
 
 
 class TrainData(NamedTuple):
@@ -51,7 +52,7 @@ def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log
     reader = build(cfg.data.reader)
     pipeline = cfg.data.get("pipeline", "cache")
     if pipeline not in ("cache", "jpeg"):
-        raise ValueError(f"data.pipeline must be 'cache' or 'jpeg', got {pipeline!r}")
+        raise BadValueError(f"data.pipeline must be 'cache' or 'jpeg', got {pipeline!r}")
     plain = type(reader)(input_size=reader.input_size, rotate_deg=0.0, photometric=0.0, seed=reader.seed)
     train_set = HUPDataset(root, cfg.data.train_split, reader if pipeline == "jpeg" else plain)
     val_set = HUPDataset(root, cfg.data.val_split, plain)

@@ -30,7 +30,7 @@ import torch
 
 from datagen import keypoints as kp
 from datagen.io import OutputLock, clean_stale_tmp, write_json
-from hupbench.errors import USER_ERRORS, error_line
+from hupbench.error_lines import USER_ERRORS, error_line
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
 from hupbench.training.frame_cache import model_images
@@ -41,6 +41,7 @@ from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
 from hupbench.training.run_log import MetricsLog
 from hupbench.training.inputs import TrainData, setup_data
+from datagen.errors import BadValueError, MissingFileError, RunFailedError
 
 
 # config keys that may differ between a run and the run it resumes
@@ -66,10 +67,10 @@ def _device(cfg: DictConfig, local_rank: int) -> torch.device:
         return torch.device("cpu")
     if cfg.device == "cuda":
         if not torch.cuda.is_available():
-            raise RuntimeError("device=cuda was asked for but CUDA is not available here "
+            raise RunFailedError("device=cuda was asked for but CUDA is not available here "
                                f"(torch {torch.__version__}); use device=cpu")
         return torch.device("cuda", local_rank)
-    raise ValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
+    raise BadValueError(f"device must be 'cpu' or 'cuda', got {cfg.device!r}")
 
 
 # set-up checks (all before the first step)
@@ -94,14 +95,14 @@ def _resume_path(cfg: DictConfig, run_dir: Path) -> Path | None:
     mode = cfg.train.resume
     if mode in (None, "never"):
         if last.exists():
-            raise ValueError(f"{run_dir} already holds a checkpoint ({last}); use train.resume=auto to continue it "
+            raise BadValueError(f"{run_dir} already holds a checkpoint ({last}); use train.resume=auto to continue it "
                              "or another run_name")
         return None
     if mode == "auto":
         return last if last.exists() else None
     path = Path(mode)
     if not path.is_file():
-        raise FileNotFoundError(f"train.resume={mode}: checkpoint {path} does not exist")
+        raise MissingFileError(f"train.resume={mode}: checkpoint {path} does not exist")
     return path
 
 
@@ -161,7 +162,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     # -- everything that can be wrong is checked before the first step
     manifest = read_manifest(root, needs="the models are built for")
     if run_dir.exists() and not run_dir.is_dir():
-        raise ValueError(f"run_dir {run_dir} is a file; expected a folder for the run (or a path to make one)")
+        raise BadValueError(f"run_dir {run_dir} is a file; expected a folder for the run (or a path to make one)")
     # one run per folder: a second run would append every step to metrics.jsonl a second time and
     # overwrite the first's checkpoints. Rank 0 writes every file of a run, so it alone holds the lock
     made = not run_dir.exists()
@@ -197,7 +198,7 @@ def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.devic
         if diff:
             shown = "; ".join(diff[:MAX_DIFFS_SHOWN]) + (f"; and {len(diff) - MAX_DIFFS_SHOWN} more"
                                                          if len(diff) > MAX_DIFFS_SHOWN else "")
-            raise ValueError(f"checkpoint {resume_path} was trained with another config; differences: {shown}")
+            raise BadValueError(f"checkpoint {resume_path} was trained with another config; differences: {shown}")
     input_size = int(cfg.data.reader.input_size)
     K_input = resize_intrinsics(train_ann["K"][0], input_size / int(manifest["image_size"][0]))
     model = build_run_model(cfg, train_ann, K_input, checkpoint, resume_path)
@@ -205,7 +206,7 @@ def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.devic
     steps_per_epoch = data.sampler.batches_per_epoch
     total_steps = int(cfg.train.max_steps) if cfg.train.max_steps is not None else int(cfg.train.epochs) * steps_per_epoch
     if total_steps < 1:
-        raise ValueError(f"the run has no steps (train.max_steps={cfg.train.max_steps}, epochs={cfg.train.epochs})")
+        raise BadValueError(f"the run has no steps (train.max_steps={cfg.train.max_steps}, epochs={cfg.train.epochs})")
     optimizer = build(cfg.optim.optimizer)(model.parameters(), lr=learning_rate(cfg, world))
     scheduler = build(cfg.optim.scheduler)(optimizer, total_steps=total_steps)
 
@@ -310,18 +311,18 @@ def build_run_model(cfg: DictConfig, train_ann: dict, K_input: np.ndarray, check
     torch.manual_seed(int(cfg.seed))  # the initial weights are a function of the seed
     model = build(OmegaConf.create(model_cfg))
     if model.config["n_keypoints"] != kp.NUM_KEYPOINTS:
-        raise ValueError(f"model.n_keypoints={model.config['n_keypoints']} but the dataset has {kp.NUM_KEYPOINTS} "
+        raise BadValueError(f"model.n_keypoints={model.config['n_keypoints']} but the dataset has {kp.NUM_KEYPOINTS} "
                          "keypoints")
     if checkpoint is not None:
         from models.build import load_checkpoint_state
 
         if checkpoint["model_config"].get("name") != model.config["name"]:
-            raise ValueError(f"checkpoint {resume_path} holds a {checkpoint['model_config'].get('name')!r} model, "
+            raise BadValueError(f"checkpoint {resume_path} holds a {checkpoint['model_config'].get('name')!r} model, "
                              f"this run builds {model.config['name']!r}")
         try:
             load_checkpoint_state(model, checkpoint["model"])
         except (ValueError, TypeError) as exc:
-            raise ValueError(f"checkpoint {resume_path}: {exc}") from exc
+            raise BadValueError(f"checkpoint {resume_path}: {exc}") from exc
     return model
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 import torch
+from datagen.errors import BadValueError
 
 
 def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -37,7 +38,7 @@ def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.T
     target_3d = batch["keypoints_3d"] / weights["unit_3d_m"]
     symmetry = weights.get("probe_symmetry", "none")
     if symmetry not in PROBE_SYMMETRIES:
-        raise ValueError(f"loss.probe_symmetry must be one of {sorted(PROBE_SYMMETRIES)}, got {symmetry!r}")
+        raise BadValueError(f"loss.probe_symmetry must be one of {sorted(PROBE_SYMMETRIES)}, got {symmetry!r}")
     choice = None
     if symmetry != "none":
         group = PROBE_SYMMETRIES[symmetry]

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from datagen.io import DiskFullError, write_bytes
+from datagen.errors import BadValueError
 
 
 class MetricsLog:
@@ -41,7 +42,7 @@ class MetricsLog:
             if not isinstance(record, dict) or not isinstance(record.get("step"), int):
                 if i == len(lines) - 1:
                     return lines[:-1]
-                raise ValueError(f"{self.path}: line {i + 1} is not a metrics record (JSON with a 'step'); "
+                raise BadValueError(f"{self.path}: line {i + 1} is not a metrics record (JSON with a 'step'); "
                                  "the log was edited or damaged: move it away to start the log afresh")
         return lines
 

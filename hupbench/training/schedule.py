@@ -9,6 +9,7 @@ from omegaconf import DictConfig
 import torch
 
 from datagen.input_checks import check_int
+from datagen.errors import BadValueError
 
 
 def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
@@ -22,9 +23,9 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
         final_lr_fraction: learning rate at the last step, as a fraction of the base rate.
     """
     if total_steps < 1:
-        raise ValueError(f"total_steps must be >= 1, got {total_steps}")
+        raise BadValueError(f"total_steps must be >= 1, got {total_steps}")
     if not 0.0 <= final_lr_fraction <= 1.0:
-        raise ValueError(f"final_lr_fraction must be in [0, 1], got {final_lr_fraction}")
+        raise BadValueError(f"final_lr_fraction must be in [0, 1], got {final_lr_fraction}")
     warmup = max(0, min(int(warmup_steps), total_steps // 10))
 
     def factor(step: int) -> float:
@@ -48,7 +49,7 @@ class EpochSampler(torch.utils.data.Sampler):
         self.epoch, self.start_batch = 0, 0
         self.batches_per_epoch = n // (batch_size * world)
         if self.batches_per_epoch < 1:
-            raise ValueError(f"the training split has {n} frames, fewer than one batch of {batch_size} x {world} "
+            raise BadValueError(f"the training split has {n} frames, fewer than one batch of {batch_size} x {world} "
                              "processes; lower data.batch_size")
 
     def set_position(self, epoch: int, start_batch: int) -> None:

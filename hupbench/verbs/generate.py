@@ -8,6 +8,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from hupbench.config import build
 from hupbench.provenance import run_info
+from datagen.errors import BadValueError, MissingFileError
 
 
 def run_generate(cfg: DictConfig, log=print) -> dict:
@@ -41,13 +42,13 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
         grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
         n_grasps = grasps_cfg.generate.n_select
         if spec.splits is not None and sum(spec.splits.values()) != n_grasps:
-            raise ValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
+            raise BadValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
                              f"grasps config selects {n_grasps}")
     elif grasps_path.is_dir():
-        raise ValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
+        raise BadValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
                          f"writes)")
     elif not grasps_path.is_file():
-        raise FileNotFoundError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
+        raise MissingFileError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
     # one run per folder (or shard), from the default grasps to the manifest

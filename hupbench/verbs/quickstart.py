@@ -23,6 +23,7 @@ from datagen.input_checks import check_int
 from datagen.io import write_json
 from hupbench.config import build, compose
 from hupbench.provenance import run_info
+from datagen.errors import BadValueError, RunFailedError
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
 #: the preview camera's largest image side, pixels (it renders offscreen at that size)
@@ -61,56 +62,56 @@ def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
     from datagen.render.renderer import check_modalities
 
     if cfg.stop_after is not None and cfg.stop_after not in STAGES:
-        raise ValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
+        raise BadValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
     for key in ("fast", "eval_latency", "fast_overrides.eval_latency"):
         value = OmegaConf.select(cfg, key)
         if not isinstance(value, bool):
-            raise ValueError(f"{key} must be true or false, got {value!r}")
+            raise BadValueError(f"{key} must be true or false, got {value!r}")
     for source in ("", "fast_overrides."):
         for stage in ("grasps", "dataset", "train"):
             value = OmegaConf.select(cfg, source + stage)
             if not (OmegaConf.is_list(value) and all(isinstance(v, str) for v in value)):
-                raise ValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
+                raise BadValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
                                  f"(e.g. {source}{stage}=[a.b=1]), got {value!r}")
     if cfg.fast:
         # the fast run reads fast_overrides.*: a changed grasps/dataset/train list would be ignored without a word
         packaged = compose("quickstart")
         for key in ("grasps", "dataset", "train", "eval_latency"):
             if cfg[key] != packaged[key]:
-                raise ValueError(f"{key} is not used by the fast quickstart (fast=true reads fast_overrides.{key}); "
+                raise BadValueError(f"{key} is not used by the fast quickstart (fast=true reads fast_overrides.{key}); "
                                  f"set fast_overrides.{key} instead, or leave fast off")
     if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
-        raise ValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
+        raise BadValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
     # the image size first: fx, fy, cx, cy are derived from it (conf/quickstart.yaml)
     for key in ("width", "height"):
         # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
         check_int(cfg.camera[key], f"camera.{key}", 1, MAX_PREVIEW_SIDE, hint=" (pixels)")
     for key in ("fx", "fy", "cx", "cy"):
         if not _is_number(cfg.camera[key]):
-            raise ValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
+            raise BadValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
     for key in ("distance_m", "azimuth_deg", "elevation_deg"):
         if not _is_number(cfg.view[key]):
-            raise ValueError(f"view.{key} must be a finite number, got {cfg.view[key]!r}")
+            raise BadValueError(f"view.{key} must be a finite number, got {cfg.view[key]!r}")
     if cfg.view.distance_m > MAX_VIEW_DISTANCE_M:
-        raise ValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
+        raise BadValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
                          f"a few pixels beyond), got {cfg.view.distance_m:g}")
     built = {}
     for key in ("camera", "view"):
         try:
             built[key] = build(cfg[key])
         except ValueError as exc:  # the dataclass names the field, not the config key it came from
-            raise ValueError(f"{key}: {exc}") from None
+            raise BadValueError(f"{key}: {exc}") from None
     intrinsics, view = built["camera"], built["view"]
     if cfg.render.platform is not None and cfg.render.platform not in PLATFORMS:
-        raise ValueError(f"render.platform must be one of {', '.join(PLATFORMS)} or null (automatic), "
+        raise BadValueError(f"render.platform must be one of {', '.join(PLATFORMS)} or null (automatic), "
                          f"got {cfg.render.platform!r}")
     modalities = cfg.render.modalities
     if not (OmegaConf.is_list(modalities) and all(isinstance(m, str) for m in modalities)):
-        raise ValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
+        raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
     try:
         check_modalities(list(modalities))
     except ValueError as exc:
-        raise ValueError(f"render.modalities: {exc}") from None
+        raise BadValueError(f"render.modalities: {exc}") from None
     return check_output_folder(cfg.out_dir), intrinsics, view
 
 
@@ -121,7 +122,7 @@ def _stage_errors(stage: str, fast: bool):
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from hupbench.errors import hydra_error_line
+    from hupbench.error_lines import hydra_error_line
 
     config_name = {"dataset": "generate"}.get(stage, stage)
     listed = f"fast_overrides.{stage}" if fast else stage
@@ -129,7 +130,7 @@ def _stage_errors(stage: str, fast: bool):
     try:
         yield
     except (HydraException, OmegaConfBaseException) as exc:
-        raise ValueError(f"{where}: {hydra_error_line(exc, f'conf/{config_name}.yaml', 'key=value')}") from exc
+        raise BadValueError(f"{where}: {hydra_error_line(exc, f'conf/{config_name}.yaml', 'key=value')}") from exc
     except (ValueError, TypeError) as exc:
         raise type(exc)(f"{where}: {exc}") from exc
 
@@ -149,7 +150,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig,
             try:
                 built[group] = build(grasps_cfg[group])
             except ValueError as exc:  # the config class names its field, not the group it came from
-                raise ValueError(f"{group}: {exc}") from None
+                raise BadValueError(f"{group}: {exc}") from None
         check_selection(built["generate"])
         check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform,
                           grasps_cfg.out_dir)
@@ -250,7 +251,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
     t0 = stage(3, "verify", "re-check files, projections, depth and masks")
     verified = run_verify(out["dataset"], log=quiet)
     if not verified["ok"]:
-        raise RuntimeError(f"the quickstart dataset failed verification: {verified['by_kind']}")
+        raise RunFailedError(f"the quickstart dataset failed verification: {verified['by_kind']}")
     log(f"      OK, {verified['frames']} frames")
     if done("verify", t0):
         return out
@@ -283,7 +284,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
     image = _first_test_image(Path(out["dataset"]))
     predicted = run_predict(out["onnx"], [image], out_dir=work / "predict", log=quiet)
     if predicted["failed"]:
-        raise RuntimeError(f"predict failed on {image}: {predicted['records'][0].get('error')}")
+        raise RunFailedError(f"predict failed on {image}: {predicted['records'][0].get('error')}")
     out["predictions"] = str(predicted["json"])
     out["overlay"] = str(predicted["overlays"][0])
     done("predict", t0)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from datagen.errors import BadTypeError
 from datagen.input_checks import check_int, check_number, check_shape, is_whole
 
 
@@ -31,7 +32,7 @@ def test_check_int_accepts_and_returns_python_ints():
     assert check_int(np.int32(4), "n", 1, 4) == 4 and type(check_int(np.int32(4), "n")) is int
     assert check_int(None, "n", 1, optional=True) is None
     with pytest.raises(TypeError, match="n must be a whole number, got 1.5"):
-        check_int(1.5, "n", error=TypeError)
+        check_int(1.5, "n", error=BadTypeError)
 
 
 @pytest.mark.parametrize("value,kwargs,message", [

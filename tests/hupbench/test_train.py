@@ -416,7 +416,7 @@ def test_compiled_training_matches_eager(tiny_dataset, tmp_path):
 def test_error_line_is_one_line_naming_the_file():
     """train.py's error line: a DataLoader worker's exception (re-raised by torch with the worker's traceback
     in its message) becomes the worker's own message; an OSError loses its "[Errno N]"; lines are joined."""
-    from hupbench.errors import error_line
+    from hupbench.error_lines import error_line
 
     worker = RuntimeError("Caught FileNotFoundError in DataLoader worker process 0.\nOriginal Traceback (most recent "
                           "call last):\n  File \"data.py\", line 9, in __getitem__\n    raise FileNotFoundError(...)\n"

@@ -2,17 +2,18 @@
 
 Every verb (``hupbench VERB``) and ``python train.py`` answers a bad input or a failed run with one
 line, ``PROGRAM: error: TEXT``, and exit code 1; ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py)
-lets the traceback through instead. The error classes below are the ones a bad input or a fault
-raises (a missing or unreadable file, a read-only folder and a full disk are OSErrors whose message
-names the path); anything else is a bug and keeps its traceback.
+lets the traceback through instead. A deliberate refusal raises a :class:`datagen.errors.UserError`;
+anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import re
 
+from datagen.errors import UserError
+
 #: what a bad input or a fault raises (Hydra's and OmegaConf's errors are added where Hydra is imported)
-USER_ERRORS = (ValueError, TypeError, OSError, RuntimeError, ArithmeticError)
+USER_ERRORS = (UserError,)
 
 
 def error_line(exc: BaseException) -> str:
