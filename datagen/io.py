@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import hashlib
 import json
 import os
 import re
@@ -28,7 +29,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from datagen.errors import NotWritableError, UserError
+from datagen.errors import BadValueError, NotWritableError, UserError
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
@@ -45,6 +46,50 @@ class DiskFullError(UserError, OSError):
 
     def __str__(self) -> str:
         return self.strerror
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def check_writable(path: str | Path, what: str, *, file: bool = False) -> Path:
+    """``path`` can be written: a folder (or, with ``file``, a file) that exists or can be made, on a
+    writable file system; nothing is created.
+
+    Args:
+        path: the output folder, or the output file with ``file=True``.
+        what: how the user named it (``"out_dir"``, ``"--out"``), for the message.
+
+    Returns:
+        ``Path(path)``.
+
+    Raises:
+        BadValueError: ``path`` is a folder where a file belongs, or it (or a parent) is a file where a
+            folder belongs. NotWritableError: the nearest existing folder is read-only or not writable.
+    """
+    path = Path(path)
+    if file and path.is_dir():
+        raise BadValueError(f"{what} {path} is a folder; expected a file path")
+    existing = path.parent if file else path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        where = f": {existing} is a file" if existing != path else " (a file of that name exists)"
+        raise BadValueError(f"{what} {path} is not a folder{where}")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        try:
+            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
+        except OSError:
+            read_only = False
+        why = "on a read-only file system" if read_only else "not writable (permission denied)"
+        where = "" if existing == path else f" (its {'folder' if file and existing == path.parent else 'parent'} {existing})"
+        raise NotWritableError(f"cannot write {what} {path}{where}: {why}")
+    return path
 
 
 def mount_point(path: str | Path) -> str:
@@ -198,17 +243,27 @@ class OutputLock:
     Args:
         folder: the output folder (created if needed).
         what: the verb taking the lock, for the message ("generate", "training").
+        name: the lock file's name in ``folder``; :meth:`for_file` locks one output file.
 
     Raises:
         LockedError: another live process holds the folder (the message names its pid and host).
     """
 
-    def __init__(self, folder: str | Path, what: str) -> None:
+    def __init__(self, folder: str | Path, what: str, name: str = LOCK_NAME) -> None:
         self.folder = Path(folder)
         self.what = what
-        self.path = self.folder / LOCK_NAME
+        self.path = self.folder / name
+        self.target = self.folder
         self._fd: int | None = None
         self.taken_over: dict | None = None
+
+    @classmethod
+    def for_file(cls, path: str | Path, what: str) -> "OutputLock":
+        """A lock on one output file: ``.NAME.lock`` beside it (two runs writing one results file)."""
+        path = Path(path)
+        lock = cls(path.parent, what, f".{path.name}.lock")
+        lock.target = path
+        return lock
 
     def holder(self) -> dict | None:
         """The recorded holder ({"pid", "host", "what", "since", "command"}) or None."""
@@ -257,7 +312,7 @@ class OutputLock:
             os.close(fd)
             held = self.holder() or {}
             raise LockedError(
-                f"{self.folder} is in use by another {held.get('what', 'hupbench')} run (pid {held.get('pid', '?')} "
+                f"{self.target} is in use by another {held.get('what', 'hupbench')} run (pid {held.get('pid', '?')} "
                 f"on {held.get('host', '?')}, since {held.get('since', '?')}); wait for it to finish, stop it, "
                 f"or choose another folder") from None
         return fd

@@ -7,6 +7,7 @@ from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from datagen.io import save_npz
 from datagen.render.preview import handset_grasp
 from datagen.dataset.sphere import SphereSpec
+from helpers.answers import record_answer
 
 # a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so
 # coarse a sphere is near the elbow, so the default exclusion would keep all 12), 64 x 64 images; the
@@ -104,21 +105,8 @@ def assert_clean_error(answer: CliAnswer, *needles: str, prefix: str | None = No
         assert line.startswith(prefix), f"{line!r} does not start with {prefix!r}"
     for needle in needles:
         assert str(needle).lower() in line.lower(), f"the error {line!r} does not name {needle!r}"
-    _record_answer(line)
+    record_answer(line)
     return line
-
-
-def _record_answer(line: str) -> None:
-    """With HUPBENCH_RECORD_ANSWERS=FILE, append {"test": node id, "answer": line} to FILE: how the
-    answers quoted in docs/robustness.md are collected (``pytest -m matrix``), never hand-copied."""
-    import json
-    import os
-
-    path = os.environ.get("HUPBENCH_RECORD_ANSWERS")
-    if path:
-        test = os.environ.get("PYTEST_CURRENT_TEST", "?").split(" ")[0]
-        with open(path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({"test": test, "answer": line}) + "\n")
 
 
 def assert_nothing_complete(folder, *names: str) -> None:

@@ -124,3 +124,48 @@ def test_killed_holder_lock_is_taken_over(tmp_path):
         assert json.loads(lock.path.read_text())["pid"] == os.getpid()
     finally:
         lock.release()
+
+
+def test_file_sha256_is_hashlib_of_the_bytes(tmp_path):
+    import hashlib
+
+    data = os.urandom(3 << 20)  # more than one read block
+    (tmp_path / "f").write_bytes(data)
+    assert io.file_sha256(tmp_path / "f") == hashlib.sha256(data).hexdigest()
+
+
+def test_check_writable_names_the_problem(tmp_path):
+    (tmp_path / "file").write_text("x")
+    assert io.check_writable(tmp_path / "new" / "deeper", "out_dir") == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists(), "a check created a folder"
+    with pytest.raises(io.BadValueError, match=r"out_dir .*file is not a folder \(a file of that name exists\)"):
+        io.check_writable(tmp_path / "file", "out_dir")
+    with pytest.raises(io.BadValueError, match=r"out_dir .*file/sub is not a folder: .*file is a file"):
+        io.check_writable(tmp_path / "file" / "sub", "out_dir")
+    with pytest.raises(io.BadValueError, match=r"--out .* is a folder; expected a file path"):
+        io.check_writable(tmp_path, "--out", file=True)
+    assert io.check_writable(tmp_path / "a" / "m.onnx", "--out", file=True) == tmp_path / "a" / "m.onnx"
+
+
+def test_check_writable_refuses_a_read_only_mount(tmp_path):
+    """A read-only bind mount in a private mount namespace (root only): the message says why."""
+    if shutil.which("unshare") is None or os.geteuid() != 0:
+        pytest.skip("needs root and unshare for a private read-only mount")
+    (tmp_path / "ro").mkdir()
+    script = (f"mount --bind {tmp_path / 'ro'} {tmp_path / 'ro'} && mount -o remount,bind,ro {tmp_path / 'ro'} && "
+              f"{sys.executable} -c \"from datagen import io; io.check_writable('{tmp_path / 'ro' / 'g'}', 'out_dir')\"")
+    proc = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": os.getcwd()})
+    assert proc.returncode != 0
+    assert f"cannot write out_dir {tmp_path / 'ro' / 'g'} (its parent {tmp_path / 'ro'}): on a read-only file system" \
+        in proc.stderr, proc.stderr
+
+
+def test_file_lock_refuses_a_second_writer_of_one_file(tmp_path):
+    target = tmp_path / "results.json"
+    with io.OutputLock.for_file(target, "eval"):
+        with pytest.raises(io.LockedError, match=r"results.json is in use by another eval run \(pid \d+"):
+            io.OutputLock.for_file(target, "eval").acquire()
+        with io.OutputLock.for_file(tmp_path / "other.json", "eval"):
+            pass  # another file of the same folder is free
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], "the lock file was left behind"

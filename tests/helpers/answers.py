@@ -1,0 +1,48 @@
+"""The error lines the tests see, recorded for docs/robustness.md.
+
+With ``HUPBENCH_RECORD_ANSWERS=FILE`` every answer a test asserts on is appended to FILE as
+``{"test": node id, "answer": line}`` (``pytest -m matrix``): docs/robustness.md quotes those
+recordings, never hand-copied text.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+
+def record_answer(line: str) -> None:
+    """Append ``line`` to the recording, when one is being made."""
+    path = os.environ.get("HUPBENCH_RECORD_ANSWERS")
+    if path:
+        test = os.environ.get("PYTEST_CURRENT_TEST", "?").split(" ")[0]
+        with open(path, "a", encoding="utf-8") as fh:
+            fh.write(json.dumps({"test": test, "answer": line}) + "\n")
+
+
+def assert_refusal(call, *needles: str, prog: str) -> str:
+    """``call()`` refuses with a :class:`datagen.errors.UserError` whose line names every needle.
+
+    The unit-test form of a matrix case: the line is the one the CLI prints for that error
+    (``PROG: error: TEXT`` through :func:`hupbench.error_lines.error_line`), without running the verb.
+
+    Args:
+        call: a callable that must raise.
+        needles: what the line must contain, compared case-insensitively.
+        prog: the program prefix users see, e.g. ``"hupbench generate"`` or ``"train.py"``.
+
+    Returns:
+        The error line.
+    """
+    from datagen.errors import UserError
+    from hupbench.error_lines import error_line
+
+    with pytest.raises(UserError) as info:
+        call()
+    line = f"{prog}: error: {error_line(info.value)}"
+    for needle in needles:
+        assert str(needle).lower() in line.lower(), f"the error {line!r} does not name {needle!r}"
+    record_answer(line)
+    return line
