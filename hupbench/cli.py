@@ -7,7 +7,6 @@ import sys
 
 from hupbench import __version__
 from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
-from datagen.errors import BadValueError
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
@@ -40,20 +39,10 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from datagen.grasps.synthesis import check_run_options, check_selection
-    from hupbench.config import build, compose
+    from hupbench.config import compose
     from hupbench.verbs.grasps import run_grasps
 
     cfg = compose("grasps", overrides)
-    # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
-    built = {}
-    for group in ("generate", "refine"):
-        try:
-            built[group] = build(cfg[group])
-        except ValueError as exc:  # the config class names its field, not the group it came from
-            raise BadValueError(f"{group}: {exc}") from None
-    check_selection(built["generate"])
-    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     result = run_grasps(cfg)
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
           f"{result['candidates']} candidates plausible, {result['selected']} selected")
@@ -268,6 +257,12 @@ def main(argv: list[str] | None = None) -> int:
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
                     "predict": _predict, "eval": _eval, "export": _export}
         return handlers[args.verb](args.overrides)
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        # Ctrl-C: one line and the shell's code for SIGINT; the workers ignore it and are stopped
+        print(f"hupbench {args.verb}: interrupted", file=sys.stderr)
+        return 130
     except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
         if args.debug:
             raise

@@ -93,3 +93,15 @@ def build(node):
         if isinstance(cause, (ValueError, TypeError)):  # a constructor of models/ or torch refusing a value
             raise BadValueError(str(cause)) from None
         raise
+
+
+def build_group(node, group: str):
+    """One group of a run node that builds its own groups (``_recursive_: false``, so that the run checks
+    its fields first): ``node`` built by its ``_target_``, or passed through when given built. Its error
+    names the group, as the class names only its field."""
+    if not isinstance(node, (dict, DictConfig)):
+        return node
+    try:
+        return build(node)
+    except ValueError as exc:
+        raise BadValueError(f"{group}: {exc}") from None

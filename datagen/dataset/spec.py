@@ -56,6 +56,20 @@ def _distances(z_ego_m) -> tuple:
     return tuple(float(v) for v in values)
 
 
+def check_principal_point(intrinsics: Intrinsics, prefix: str) -> None:
+    """The principal point lies in the image: the camera aims at the scene's look-at point, which lands
+    there, so outside it a camera sees nothing (``cx=-5000`` rendered no foreground pixel at all).
+
+    Args:
+        intrinsics: the camera. prefix: the config node's dotted path, e.g. ``"dataset."``.
+    """
+    for name, side in (("cx", intrinsics.width), ("cy", intrinsics.height)):
+        value = getattr(intrinsics, name)
+        if not -0.5 <= value <= side - 0.5:
+            raise BadValueError(f"{prefix}{name} must put the principal point inside the image, from -0.5 to "
+                                f"{side - 0.5:g} pixels (the camera aims there), got {value!r}")
+
+
 @dataclass(frozen=True)
 class DatasetSpec:
     """Everything that determines the frames.
@@ -124,6 +138,7 @@ class DatasetSpec:
         if self.rgb_format not in ("jpg", "png"):
             raise BadValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
         Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
+        check_principal_point(self.intrinsics, "dataset.")
         if self.n_gloves not in (1, 2):
             raise BadValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:

@@ -6,7 +6,7 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
   field is missing or malformed (:func:`datagen.dataset.contract.read_manifest`: keypoint names other than
   the 29 of :mod:`datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
-  an unknown ``protocol.look_at`` and a malformed ``gloves_rgb``).
+  an unknown ``protocol.look_at``, a malformed ``gloves_rgb`` and ``seg_labels`` other than the contract's).
 * **problems**, reported with a kind, the split, the frame and the file; the other splits and
   frames are still checked and the verdict is FAILED. Kinds:
 
@@ -15,8 +15,8 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``missing_file``      a file the manifest implies is absent (annotations.npz or an image)
   ``damaged_file``      annotations.npz cannot be read whole: empty, truncated, not a zip, bad CRC
   ``bad_annotations``   annotations.npz reads but breaks the contract: an array missing or of
-                        another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove or
-                        background id the manifest does not have
+                        another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove,
+                        background or view id the manifest does not have, a K that is no camera
   ``frame_ids``         frame ids repeated or out of order, or not the layout's ids
   ``manifest_mismatch`` the manifest disagrees with the files: its K with the annotations' K, its
                         image_size with every image
@@ -28,6 +28,8 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``look_at``           the point the manifest's protocol aims at is not at (0, 0, z_ego) in the camera frame
   ``visible_not_on_hand`` a visible hand keypoint whose pixel is not hand in the mask or whose depth
                         is not just in front of it
+  ``marked_invisible``  keypoints marked invisible that the depth and mask show in view and unoccluded
+  ``empty_frame``       the mask (or, without one, the depth) shows nothing in front of the background
   ``probe_depth``       probe pixels unprojected with their depth are off the probe surface by more
                         than max(3 mm, 1.5 pixel footprints)
   ``image_shift``       the depth and mask sit off the labels: probe pixels unprojected with their
@@ -41,6 +43,10 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``rgb_mismatch``      the RGB image does not show this frame: pixels the mask calls background
                         differ from the frame's background image, or the hand's colour is explained
                         better by another glove than by the frame's glove under the frame's lamp
+  ``rgb_channels``      the forearm's pixels have red and blue the other way round from its colour
+                        (``arm_rgb``): the image was stored as RGB, or its channels swapped
+  ``grasps_file``       grasps.npz is missing, unreadable, or not the grasps the frames were rendered
+                        with (their hand poses, translations and ids in the annotations)
 
 How the RGB checks work (thresholds and their measurements in :mod:`datagen.tolerances`):
 
@@ -113,11 +119,14 @@ from datagen.errors import BadValueError
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
-         "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch")
+         "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
+         "rgb_channels", "grasps_file")
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
 #: fewer frames than this are checked in this process (starting workers would take longer)
 POOL_MIN_FRAMES = 64
+#: forearm pixels (inside the mask, off its edge) a frame needs for the channel-order check
+MIN_ARM_PIXELS = 20
 #: annotation fields the per-frame checks use
 FRAME_KEYS = ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K", "T_cam_world", "background_id",
               "glove_id", "light_color")
@@ -177,8 +186,11 @@ def _read_manifest(root: Path) -> tuple[dict, list[dict]]:
 
 
 def _check_manifest_extras(manifest: dict, root: Path) -> None:
-    """Manifest fields verify relies on beyond the contract's: protocol.look_at and gloves_rgb."""
+    """Manifest fields verify relies on beyond the contract's: protocol.look_at, gloves_rgb and seg_labels."""
     path = root / MANIFEST
+    labels = manifest.get("seg_labels", SEG_LABELS)
+    if labels != SEG_LABELS:
+        raise BadValueError(f"{path}: seg_labels must be the contract's {SEG_LABELS}, got {labels!r}")
     protocol = manifest.get("protocol")
     if protocol is not None:
         look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
@@ -256,15 +268,25 @@ def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.n
     limits = {"glove_id": ("gloves_rgb", manifest.get("gloves_rgb")),
               "background_id": ("backgrounds.names", (manifest.get("backgrounds") or {}).get("names")
                                 if isinstance(manifest.get("backgrounds"), dict) else None)}
+    viewpoints = manifest.get("viewpoints")
+    limits["view_id"] = ("viewpoints.ids", viewpoints.get("ids") if isinstance(viewpoints, dict) else None)
     for key, (field, values) in limits.items():
         if not isinstance(values, list):
             continue  # an older manifest without the record: nothing to compare with
-        bad = (ann[key] < 0) | (ann[key] >= len(values))
+        allowed = np.arange(len(values)) if key != "view_id" else np.asarray(values, dtype=np.int64)
+        bad = ~np.isin(ann[key], allowed)
         for i in np.flatnonzero(bad):
             problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
                                      f"{key} {int(ann[key][i])} of frame {int(ann['frame_id'][i]):06d} is not one of "
                                      f"the manifest's {len(values)} ({field})", rel))
         usable &= ~bad
+    # a K without positive focal lengths would divide the per-frame checks by zero
+    bad = ~((ann["K"][:, 0, 0] > 0) & (ann["K"][:, 1, 1] > 0) & (ann["K"][:, 2] == [0, 0, 1]).all(axis=1))
+    for i in np.flatnonzero(bad):
+        problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
+                                 f"K of frame {int(ann['frame_id'][i]):06d} is not a camera matrix (fx, fy > 0, last row "
+                                 f"0 0 1): {ann['K'][i].tolist()}", rel))
+    usable &= ~bad
     K = np.asarray(manifest["K"], dtype=np.float64)
     off = np.abs(ann["K"] - K).max(axis=(1, 2))
     differ = np.flatnonzero(off > tol.VERIFY_K_PX)
@@ -403,6 +425,15 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
         problems.append(_problem(split, frame_id, "visible_not_on_hand",
                                  f"{kp.KEYPOINT_NAMES[i]}: label {int(seg[v, u])}, depth {depth_m[v, u]:.4f} m "
                                  f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m", files))
+    # the bounds narrowed by the depth's quantum: what passes them was visible before the depth was stored
+    surely_seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64),
+                             depth_m, seg, slack_m=-manifest["depth_scale_m"])
+    hidden = np.flatnonzero(surely_seen & ~row["visible"])
+    if len(hidden):
+        names = ", ".join(kp.KEYPOINT_NAMES[i] for i in hidden[:4]) + (", ..." if len(hidden) > 4 else "")
+        problems.append(_problem(split, frame_id, "marked_invisible",
+                                 f"{len(hidden)} keypoint(s) marked invisible are in view and unoccluded ({names})",
+                                 files))
     probe_mask = shrink_mask(seg == SEG_LABELS["probe"], 1)
     ys, xs = np.nonzero(probe_mask & (depth_m > 0))
     shift = None
@@ -469,6 +500,10 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
         images[m] = image
     labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
     shift = None
+    label = next((m for m in ("seg", "depth") if m in images), None)
+    if label is not None and not images[label].any():
+        problems.append(_problem(split, frame_id, "empty_frame", f"the {label} image shows nothing in front of the "
+                                 "background: the camera sees neither hand nor probe", names[label]))
     if "depth" in images and "seg" in images:
         seg, depth = images["seg"], images["depth"]
         both = f"{names['depth']} + {names['seg']}"
@@ -485,6 +520,7 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
     if "rgb" in images and "seg" in images:
         rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
         seg = images["seg"]
+        problems += _check_channel_order(rgb, seg, split, frame_id, names["rgb"])
         backgrounds = _CONTEXT.get("backgrounds")
         rgb_fits_mask = True
         if backgrounds is not None:
@@ -502,6 +538,52 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
         if partner is not None and labels_agree and rgb_fits_mask:
             problems += _check_glove_pair(split, row, partner, rgb, seg)
     return problems, shift
+
+
+def _check_channel_order(rgb: np.ndarray, seg: np.ndarray, split: str, frame_id: int, rel: str) -> list[dict]:
+    """The forearm's mean red and blue against its colour (``arm_rgb``): under the lamps a dataset uses
+    (their red and blue within [0.6, 1]) the channel of the larger albedo stays the brighter one (measured:
+    by 53 levels or more), so red and blue stored the other way round show here."""
+    arm_rgb = _CONTEXT["manifest"].get("arm_rgb")
+    if not (isinstance(arm_rgb, list) and len(arm_rgb) == 3) or abs(arm_rgb[0] - arm_rgb[2]) < 0.3:
+        return []
+    arm = shrink_mask(seg == SEG_LABELS["arm"], 1)
+    if np.count_nonzero(arm) < MIN_ARM_PIXELS:
+        return []
+    red, blue = rgb[..., 0][arm].mean(), rgb[..., 2][arm].mean()
+    if (red - blue) * (arm_rgb[0] - arm_rgb[2]) > 0:
+        return []
+    return [_problem(split, frame_id, "rgb_channels", f"the forearm is red {red:.0f} / blue {blue:.0f} on average, "
+                     f"its colour {arm_rgb}: red and blue are swapped", rel)]
+
+
+def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
+    """grasps.npz against the frames: each row's hand pose, translation and grasp id must be those of its
+    grasp (``grasp_index``) in the file, as the writer copied them."""
+    from datagen.dataset.grasps_file import read_grasps
+
+    path = root / "grasps.npz"
+    if not path.is_file():
+        return [_problem(None, None, "grasps_file", "missing: the grasps the frames were rendered with", path.name)]
+    try:
+        grasps = read_grasps(path)
+    except ValueError as exc:
+        return [_problem(None, None, "grasps_file", _message(exc, path), path.name)]
+    problems = []
+    for split, ann in annotations.items():
+        index = ann["grasp_index"]
+        inside = (index >= 0) & (index < len(grasps["grasp_id"]))
+        at = np.where(inside, index, 0)
+        same = inside & (grasps["grasp_id"][at] == ann["grasp_id"]) \
+            & (grasps["hand_pose"][at] == ann["hand_pose"]).all(axis=1) \
+            & (grasps["hand_trans"][at] == ann["hand_trans"]).all(axis=1)
+        if not same.all():
+            first = int(ann["frame_id"][np.flatnonzero(~same)[0]])
+            problems.append(_problem(split, first, "grasps_file",
+                                     f"not the grasps the frames were rendered with: {int((~same).sum())} {split} frames' "
+                                     f"grasp (id, hand pose, translation) differ from it (first {first:06d})",
+                                     path.name))
+    return problems
 
 
 def _check_glove_pair(split: str, row: dict, partner: dict, rgb: np.ndarray, seg: np.ndarray) -> list[dict]:
@@ -654,6 +736,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
                                                               f"the layout holds ids 0 to {total - 1}"))
     floors, found = check_split_floors(annotations, manifest) if complete else (None, [])
     problems += found
+    problems += check_grasps_file(root, annotations)
     for note in skipped:
         log(f"not checked: {note}")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")

@@ -2,65 +2,105 @@
 
 from __future__ import annotations
 
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from datagen.dataset.ray_launcher import RayOptions
+from datagen.dataset.spec import DatasetSpec
+from datagen.dataset.writer import RenderJob
+from datagen.errors import BadValueError, MissingFileError
+from datagen.io import check_writable
 from hupbench.config import build
 from hupbench.provenance import run_info
-from datagen.errors import BadValueError, MissingFileError
+
+
+@dataclass(frozen=True)
+class GenerateRun:
+    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered.
+
+    Attributes:
+        dataset: what the frames are. out_dir: the dataset folder.
+        grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
+        progress: a progress bar on stderr.
+        job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
+            ``backgrounds.dir``.
+    """
+
+    dataset: DatasetSpec
+    out_dir: str
+    grasps_path: str | None = None
+    progress: bool = True
+    workers: InitVar[int] = 1
+    launcher: InitVar[str] = "local"
+    shard: InitVar[str | None] = None
+    ray: InitVar[RayOptions] = RayOptions()
+    render: InitVar[dict] = None
+    backgrounds: InitVar[dict] = None
+    job: RenderJob = field(init=False)
+
+    def __post_init__(self, workers, launcher, shard, ray, render, backgrounds) -> None:
+        object.__setattr__(self, "job", RenderJob(workers, launcher, shard, ray, (render or {}).get("platform"),
+                                                  (backgrounds or {}).get("dir")))
+        if not isinstance(self.progress, bool):
+            raise BadValueError(f"progress must be true or false, got {self.progress!r}")
+        check_writable(self.out_dir, "out_dir")
+
+
+def resolved_config(cfg: DictConfig) -> dict:
+    """The config a dataset records in its manifest: the composed one, resolved, with the run's provenance."""
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    del resolved["_target_"]
+    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
+    return resolved
 
 
 def run_generate(cfg: DictConfig, log=print) -> dict:
-    """Validate the config, make the grasps if needed, and render (or resume) the dataset.
+    """Build the ``generate`` config and render (or resume) its dataset (:func:`generate_dataset`)."""
+    return generate_dataset(build(cfg), resolved_config(cfg), log)
+
+
+def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
+    """Make the default grasps if needed, and render (or resume) the dataset.
 
     Args:
-        cfg: the composed ``generate`` config.
+        run: the built ``generate`` config. resolved: :func:`resolved_config` of it, for the manifest.
 
     Returns:
         :func:`datagen.dataset.writer.generate`'s dict.
     """
     from datagen.assets.backgrounds import BackgroundSet
-    from datagen.dataset.writer import check_output_dir, check_workers, generate, parse_shard, run_lock
-    from datagen.dataset.ray_launcher import check_launcher
+    from datagen.dataset.writer import generate, run_lock
 
-    # everything that can be wrong with the config fails here, before any rendering
-    spec = build(cfg.dataset)
-    parse_shard(cfg.shard)
-    check_launcher(cfg.launcher)
-    check_workers(cfg.workers, cfg.launcher)
-    ray_options = build(cfg.ray)
-    if cfg.backgrounds.dir is not None:
-        BackgroundSet.from_dir(cfg.backgrounds.dir)
-    out_dir = Path(cfg.out_dir)
-    check_output_dir(out_dir)
-    grasps_path = Path(cfg.grasps_path) if cfg.grasps_path else out_dir / "grasps" / "grasps.npz"
-    make_grasps = cfg.grasps_path is None and not grasps_path.is_file()
+    # a bad photographs' folder fails before the default grasps take minutes
+    if run.job.backgrounds_dir is not None:
+        BackgroundSet.from_dir(run.job.backgrounds_dir)
+    out_dir = Path(run.out_dir)
+    grasps_path = Path(run.grasps_path) if run.grasps_path else out_dir / "grasps" / "grasps.npz"
+    make_grasps = run.grasps_path is None and not grasps_path.is_file()
     if make_grasps:
         from hupbench.config import compose
 
         grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
         n_grasps = grasps_cfg.generate.n_select
-        if spec.splits is not None and sum(spec.splits.values()) != n_grasps:
-            raise BadValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
-                             f"grasps config selects {n_grasps}")
+        splits = run.dataset.splits
+        if splits is not None and sum(splits.values()) != n_grasps:
+            raise BadValueError(f"splits {splits} add up to {sum(splits.values())} grasps but the default grasps "
+                                f"config selects {n_grasps}")
     elif grasps_path.is_dir():
         raise BadValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
-                         f"writes)")
+                            f"writes)")
     elif not grasps_path.is_file():
         raise MissingFileError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
-    resolved = OmegaConf.to_container(cfg, resolve=True)
-    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
     # one run per folder (or shard), from the default grasps to the manifest
-    with run_lock(out_dir, cfg.shard) as lock:
+    with run_lock(out_dir, run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():
             from hupbench.verbs.grasps import run_grasps
 
             log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
             run_grasps(grasps_cfg, log=log)
-        return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
-                        workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
-                        log=log, launcher=cfg.launcher, ray=ray_options, lock=lock)
+        return generate(run.dataset, out_dir, grasps_path, resolved, run.job, run.progress, log, lock)
 
 
 def run_verify(dataset: str | Path, workers: int = 2, log=print, progress: bool | None = None) -> dict:
