@@ -103,7 +103,7 @@ from datagen.dataset.contract import (
 )
 from datagen.dataset.floors import split_floors
 from datagen.geometry import invert_transform, transform_points
-from datagen.processes import check_workers
+from datagen.processes import check_workers, workers_ignore_ctrl_c
 from datagen.dataset.verify_images import (
     image_shift_px,
     shrink_mask,
@@ -520,7 +520,6 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
     if "rgb" in images and "seg" in images:
         rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
         seg = images["seg"]
-        problems += _check_channel_order(rgb, seg, split, frame_id, names["rgb"])
         backgrounds = _CONTEXT.get("backgrounds")
         rgb_fits_mask = True
         if backgrounds is not None:
@@ -532,11 +531,12 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
                                          f"{off} pixels the mask calls background are not background "
                                          f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
                                          f"image or the mask belongs to another frame", names["rgb"]))
-        partner = row.get("partner")
-        # the glove test reads both images through this frame's mask: only when the mask is this
+        # the colour tests read the image through this frame's mask: only when the mask is this
         # frame's and its image belongs to it (otherwise that is reported above)
-        if partner is not None and labels_agree and rgb_fits_mask:
-            problems += _check_glove_pair(split, row, partner, rgb, seg)
+        if labels_agree and rgb_fits_mask:
+            problems += _check_channel_order(rgb, seg, split, frame_id, names["rgb"])
+            if row.get("partner") is not None:
+                problems += _check_glove_pair(split, row, row["partner"], rgb, seg)
     return problems, shift
 
 
@@ -748,7 +748,9 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     frame_problems, shifts = [], []
     try:
         if workers > 1 and len(jobs) > POOL_MIN_FRAMES:
-            with multiprocessing.get_context("fork").Pool(workers) as pool:
+            with workers_ignore_ctrl_c():
+                pool = multiprocessing.get_context("fork").Pool(workers)
+            with pool:
                 results = pool.imap(check_frame, jobs, chunksize=64)
                 for found, shift in results:
                     frame_problems += found
