@@ -75,7 +75,7 @@ def wrist_rotation(flexion: float, deviation: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _forearm_rest(spec: ArmSpec) -> tuple[np.ndarray, np.ndarray]:
+def forearm_rest(spec: ArmSpec) -> tuple[np.ndarray, np.ndarray]:
     """Closed tube in the forearm frame: (V, 3) vertices, (F, 3) outward faces."""
     n, m = spec.segments_around, spec.segments_along
     t = np.linspace(0.0, 1.0, m + 1)
@@ -125,6 +125,6 @@ def forearm_mesh(R_world_hand: np.ndarray, wrist_world: np.ndarray, flexion: flo
     import trimesh
 
     assert np.shape(R_world_hand) == (3, 3) and np.shape(wrist_world) == (3,)
-    verts, faces = _forearm_rest(spec)
+    verts, faces = forearm_rest(spec)
     R_world_forearm = R_world_hand @ wrist_rotation(flexion, deviation).T
     return trimesh.Trimesh(verts @ R_world_forearm.T + wrist_world, faces, process=False)
