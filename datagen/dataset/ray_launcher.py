@@ -105,8 +105,7 @@ def require_ray():
 def resolve_factory(factory: str) -> Callable:
     """``"package.module:Name"`` -> the object it names (imported now)."""
     module, _, name = factory.partition(":")
-    if not module or not name:
-        raise BadValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
+    assert module and name, factory
     return getattr(importlib.import_module(module), name)
 
 

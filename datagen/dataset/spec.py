@@ -182,8 +182,7 @@ class Layout:
 
     def tuple(self, index: int) -> tuple[int, int, int, int, int]:
         """Inverse of :meth:`index`."""
-        if not 0 <= index < self.size:
-            raise BadValueError(f"frame index {index} out of range [0, {self.size})")
+        assert 0 <= index < self.size, (index, self.size)
         return tuple(int(v) for v in np.unravel_index(index, self.shape))
 
     def chunk_frames(self, chunk: int) -> range:

@@ -385,10 +385,8 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
         world = transform_points(invert_transform(ann["T_cam_world"]), cam)
         centre = 0.5 * (world.min(axis=1) + world.max(axis=1))
         point = transform_points(ann["T_cam_world"], centre[:, None])[:, 0]
-    elif look_at in kp.KEYPOINT_NAMES:
-        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]
     else:
-        raise BadValueError(f"manifest protocol look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]  # _check_manifest_extras checked the name
     expected = np.zeros_like(point)
     expected[:, 2] = ann["z_ego"]
     err = np.linalg.norm(point - expected, axis=1)
@@ -560,7 +558,7 @@ def _check_channel_order(rgb: np.ndarray, seg: np.ndarray, split: str, frame_id:
 def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
     """grasps.npz against the frames: each row's hand pose, translation and grasp id must be those of its
     grasp (``grasp_index``) in the file, as the writer copied them."""
-    from datagen.dataset.grasps_file import read_grasps
+    from datagen.dataset.grasps_file import read_grasps, rendered_with
 
     path = root / "grasps.npz"
     if not path.is_file():
@@ -571,12 +569,7 @@ def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
         return [_problem(None, None, "grasps_file", _message(exc, path), path.name)]
     problems = []
     for split, ann in annotations.items():
-        index = ann["grasp_index"]
-        inside = (index >= 0) & (index < len(grasps["grasp_id"]))
-        at = np.where(inside, index, 0)
-        same = inside & (grasps["grasp_id"][at] == ann["grasp_id"]) \
-            & (grasps["hand_pose"][at] == ann["hand_pose"]).all(axis=1) \
-            & (grasps["hand_trans"][at] == ann["hand_trans"]).all(axis=1)
+        same = rendered_with(grasps, ann)
         if not same.all():
             first = int(ann["frame_id"][np.flatnonzero(~same)[0]])
             problems.append(_problem(split, first, "grasps_file",
@@ -770,3 +763,43 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     image_shift = {"median_px": np.median(shifts, axis=0).tolist(), "frames": len(shifts)} if shifts else None
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "skipped": skipped, "ok": not problems,
             "split_floors": floors, "image_shift": image_shift}
+
+
+def report_lines(result: dict, max_report: int) -> list[str]:
+    """What ``hupbench verify`` prints of :func:`verify`'s ``result``: the first ``max_report`` problems, the
+    images' shift against the labels, each split's floor and the verdict."""
+    lines = []
+    for p in result["problems"][:max_report]:
+        where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
+        frame = "" if p["frame_id"] is None else f" (frame {p['frame_id']})"
+        lines.append(f"  {p['kind']:18s} {where}{frame}: {p['detail']}")
+    hidden = len(result["problems"]) - max_report
+    if hidden > 0:
+        lines.append(f"  ... and {hidden} more (--max-report {len(result['problems'])} prints all)")
+    if result["image_shift"]:
+        du, dv = result["image_shift"]["median_px"]
+        lines.append(f"  images against labels: median shift ({du:+.3f}, {dv:+.3f}) px over "
+                     f"{result['image_shift']['frames']} frames (probe pixels unprojected with their depth, fitted to "
+                     "the probe)")
+    for split, floor in (result["split_floors"] or {}).items():
+        lines.append(f"  floor of {split}: " + _floor_line(floor))
+    if not result["ok"]:
+        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
+        lines.append(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: "
+                     f"{counts}")
+    else:
+        lines.append(f"hupbench verify: OK, {result['frames']} frames checked")
+    return lines
+
+
+def _floor_line(floor: dict) -> str:
+    """One split's floors (:mod:`datagen.dataset.floors`) in one line."""
+    def mm(t: dict) -> str:
+        return f"hand {t['hand']:.1f} / probe {t['probe']:.1f} / all {t['all']:.1f} mm"
+
+    parts = [f"nearest training grasp under the true camera {mm(floor['nearest_train_grasp_mm'])}"]
+    if floor["nearest_train_view_mm"] is not None:
+        parts.append(f"nearest training view of the same grasp {mm(floor['nearest_train_view_mm'])}")
+    parts.append(f"mean training grasp {mm(floor['train_mean_mm'])}")
+    return "; ".join(parts) + (f" (a model that only recalls training labels scores no better than the "
+                               f"{floor['floor_kind']} one)")

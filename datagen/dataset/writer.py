@@ -31,21 +31,23 @@ import multiprocessing
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import InitVar, asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
 from datagen.assets.backgrounds import BackgroundSet
-from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path
-from datagen.dataset.grasps_file import GraspSet
+from datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
+                                      read_annotations, read_manifest)
+from datagen.dataset.grasps_file import GraspSet, read_grasps, rendered_with
 from datagen.dataset.ray_launcher import RayOptions, check_launcher
 from datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
 from datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
                                   split_of_views, view_directions_arm)
 from datagen.dataset.sphere import viewpoints
-from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, file_sha256, save_npz, write_json, write_with
+from datagen.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
+                        write_json, write_with)
 from datagen.processes import check_workers, workers_ignore_ctrl_c
 from datagen.render.renderer import SEG_LABELS
 from datagen.render.scene import ARM_RGB, GLOVE_RGB
@@ -107,9 +109,47 @@ class RenderJob:
         check_launcher(self.launcher)
         # Ray actors may live on other machines: only local processes are bounded by this machine's cores
         check_workers(self.workers) if self.launcher == "local" else check_int(self.workers, "workers", low=1)
-        if self.platform is not None and self.platform not in gl.PLATFORMS:
-            raise BadValueError(f"render.platform must be one of {', '.join(gl.PLATFORMS)} or null (automatic), "
-                                f"got {self.platform!r}")
+        check_platform(self.platform, "render.platform")
+
+
+def check_platform(platform, what: str) -> str | None:
+    """``platform`` when it names an offscreen GL platform (:data:`datagen.render.gl.PLATFORMS`) or is None
+    (automatic); ``what`` is the config key, e.g. ``"sheet.platform"``."""
+    if platform is not None and platform not in gl.PLATFORMS:
+        raise BadValueError(f"{what} must be one of {', '.join(gl.PLATFORMS)} or null (automatic), got {platform!r}")
+    return platform
+
+
+@dataclass(frozen=True)
+class GenerateRun:
+    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered.
+
+    Attributes:
+        dataset: what the frames are. out_dir: the dataset folder.
+        grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
+        progress: a progress bar on stderr.
+        job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
+            ``backgrounds.dir``.
+    """
+
+    dataset: DatasetSpec
+    out_dir: str
+    grasps_path: str | None = None
+    progress: bool = True
+    workers: InitVar[int] = 1
+    launcher: InitVar[str] = "local"
+    shard: InitVar[str | None] = None
+    ray: InitVar[RayOptions] = RayOptions()
+    render: InitVar[dict] = None
+    backgrounds: InitVar[dict] = None
+    job: RenderJob = field(init=False)
+
+    def __post_init__(self, workers, launcher, shard, ray, render, backgrounds) -> None:
+        object.__setattr__(self, "job", RenderJob(workers, launcher, shard, ray, (render or {}).get("platform"),
+                                                  (backgrounds or {}).get("dir")))
+        if not isinstance(self.progress, bool):
+            raise BadValueError(f"progress must be true or false, got {self.progress!r}")
+        check_writable(self.out_dir, "out_dir")
 
 
 def config_hash(resolved: dict) -> str:
@@ -393,8 +433,6 @@ def _render(run: _Run, todo: list[int]) -> int:
 def _finished(run: _Run) -> dict:
     """The answer for a folder whose manifest exists: this config's dataset, with the image files of its
     frames (this shard's) that are missing or empty rendered again."""
-    from datagen.dataset.contract import read_manifest
-
     manifest = read_manifest(run.out_dir)
     if manifest.get("config_hash") != run.chash:
         raise BadValueError(f"{run.out_dir} holds a finished dataset made with another config; choose a new out_dir")
@@ -403,11 +441,11 @@ def _finished(run: _Run) -> dict:
                for path in _frame_files(run, split, frames) if not _has_bytes(path)]
     rendered, start = 0, time.perf_counter()
     if lacking:
-        copied = run.out_dir / "grasps.npz"
-        if not copied.is_file() or file_sha256(copied) != file_sha256(run.grasps_path):
-            raise BadValueError(f"{run.out_dir} holds a finished dataset whose grasps.npz is missing or differs from "
-                                f"{run.grasps_path}, and {len(lacking)} of its image files are missing or empty: "
-                                "generate it again into a new out_dir")
+        if not _rendered_from(run):
+            raise BadValueError(f"{run.out_dir} holds a finished dataset whose grasps.npz is missing, differs from "
+                                f"{run.grasps_path} or is not the one its frames were rendered with, and "
+                                f"{len(lacking)} of its image files are missing or empty: generate it again into a "
+                                "new out_dir")
         todo = sorted({c for c, _ in lacking})
         run.log(f"the finished dataset lacks {len(lacking)} image file(s) (first {lacking[0][1].relative_to(run.out_dir)}): "
                 f"rendering their {len(todo)} chunk(s) again")
@@ -415,6 +453,18 @@ def _finished(run: _Run) -> dict:
         _remove_scaffolding(run.out_dir)
     return {"out_dir": str(run.out_dir), "frames_total": run.layout.size, "frames_rendered": rendered,
             "seconds": time.perf_counter() - start, "complete": True, "counts": manifest["counts"]}
+
+
+def _rendered_from(run: _Run) -> bool:
+    """The dataset's copy of the grasps is the grasps given and the one its annotations were rendered from
+    (missing frames are rendered from it again)."""
+    copied = run.out_dir / "grasps.npz"
+    if not copied.is_file() or file_sha256(copied) != file_sha256(run.grasps_path):
+        return False
+    arrays = read_grasps(copied)
+    keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans")
+    return all(rendered_with(arrays, read_annotations(run.out_dir, split, keys)).all()
+               for split, count in read_manifest(run.out_dir)["counts"].items() if count)
 
 
 def _frame_files(run: _Run, split: str, frames: tuple[int, ...]) -> Iterator[Path]:

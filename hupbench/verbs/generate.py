@@ -2,50 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from datagen.dataset.ray_launcher import RayOptions
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import RenderJob
+from datagen.dataset.writer import GenerateRun
 from datagen.errors import BadValueError, MissingFileError
-from datagen.io import check_writable
 from hupbench.config import build
 from hupbench.provenance import run_info
-
-
-@dataclass(frozen=True)
-class GenerateRun:
-    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered.
-
-    Attributes:
-        dataset: what the frames are. out_dir: the dataset folder.
-        grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
-        progress: a progress bar on stderr.
-        job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
-            ``backgrounds.dir``.
-    """
-
-    dataset: DatasetSpec
-    out_dir: str
-    grasps_path: str | None = None
-    progress: bool = True
-    workers: InitVar[int] = 1
-    launcher: InitVar[str] = "local"
-    shard: InitVar[str | None] = None
-    ray: InitVar[RayOptions] = RayOptions()
-    render: InitVar[dict] = None
-    backgrounds: InitVar[dict] = None
-    job: RenderJob = field(init=False)
-
-    def __post_init__(self, workers, launcher, shard, ray, render, backgrounds) -> None:
-        object.__setattr__(self, "job", RenderJob(workers, launcher, shard, ray, (render or {}).get("platform"),
-                                                  (backgrounds or {}).get("dir")))
-        if not isinstance(self.progress, bool):
-            raise BadValueError(f"progress must be true or false, got {self.progress!r}")
-        check_writable(self.out_dir, "out_dir")
 
 
 def resolved_config(cfg: DictConfig) -> dict:

@@ -15,7 +15,7 @@ from datagen.grasps.synthesis import MAX_TILE_PX, MIN_TILE_PX, GraspGenConfig, c
 from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, save_npz, write_json
 from datagen.processes import check_threads
-from datagen.render.gl import PLATFORMS
+from datagen.dataset.writer import check_platform
 from hupbench.config import build, build_group
 from hupbench.provenance import run_info
 
@@ -47,10 +47,7 @@ class GraspsRun:
         sheet = sheet or {"tile_px": 200, "platform": None}
         object.__setattr__(self, "tile_px", check_int(sheet["tile_px"], "sheet.tile_px", MIN_TILE_PX, MAX_TILE_PX,
                                                       hint=" (pixels)"))
-        object.__setattr__(self, "platform", sheet["platform"])
-        if self.platform is not None and self.platform not in PLATFORMS:
-            raise BadValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got "
-                                f"{self.platform!r}")
+        object.__setattr__(self, "platform", check_platform(sheet["platform"], "sheet.platform"))
         out_dir = check_writable(self.out_dir, "out_dir")
         if (out_dir / "manifest.json").is_file():
             raise BadValueError(f"out_dir {out_dir} holds a finished dataset, rendered with its grasps.npz: write the "

@@ -25,7 +25,7 @@ from datagen.dataset.spec import check_principal_point
 from datagen.errors import BadValueError, RunFailedError
 from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, write_json
-from datagen.render.gl import PLATFORMS
+from datagen.dataset.writer import check_platform
 from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
 
@@ -110,10 +110,8 @@ class QuickstartRun:
         object.__setattr__(self, "camera", build_group(camera, "camera"))
         check_principal_point(self.camera, "camera.")
         object.__setattr__(self, "view", build_group(view, "view"))
-        platform, modalities = render.get("platform"), render.get("modalities", list(MODALITIES))
-        if platform is not None and platform not in PLATFORMS:
-            raise BadValueError(f"render.platform must be one of {', '.join(PLATFORMS)} or null (automatic), "
-                                f"got {platform!r}")
+        check_platform(render.get("platform"), "render.platform")
+        modalities = render.get("modalities", list(MODALITIES))
         if not (isinstance(modalities, (list, tuple)) and all(isinstance(m, str) for m in modalities)):
             raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
         from datagen.render.renderer import check_modalities

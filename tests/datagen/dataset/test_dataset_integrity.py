@@ -1,5 +1,5 @@
-"""A finished dataset checked against its files when generate runs on it again (verify's checks of the same
-holes are cases of tests/hupbench/test_matrix_verify.py)."""
+"""A finished dataset checked against its files when generate runs on it again, and a camera that must see
+the scene (verify's checks of the same holes are cases of tests/hupbench/test_matrix_verify.py)."""
 
 import shutil
 
@@ -49,6 +49,15 @@ def test_generate_refuses_to_repair_a_finished_dataset_from_other_grasps(dataset
     other = save_npz(tmp_path / "other.npz", {**arrays, "hand_trans": arrays["hand_trans"] + 0.01})
     shutil.copyfile(other, dataset / "grasps.npz")
     (dataset / "val" / "depth" / "000021.png").unlink()
-    with pytest.raises(ValueError, match="grasps.npz is missing or differs"):
+    with pytest.raises(ValueError, match="grasps.npz is missing, differs from .* or is not the one its frames were rendered with"):
         _again(dataset)
     assert not (dataset / "val" / "depth" / "000021.png").exists()
+
+
+def test_a_camera_that_cannot_see_the_scene_is_refused():
+    """The camera aims at the look-at point, which lands at the principal point: outside the image every
+    frame shows nothing (``dataset.cx=-5000`` rendered no foreground pixel)."""
+    for field, value in (("cx", -5000.0), ("cy", 64.0)):
+        with pytest.raises(ValueError, match=f"dataset.{field} must put the principal point inside the image"):
+            DatasetSpec(**(TINY_SPEC | {field: value}))
+    DatasetSpec(**(TINY_SPEC | {"cx": -0.5, "cy": 63.5}))  # the image's edge pixels

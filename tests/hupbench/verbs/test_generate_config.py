@@ -7,7 +7,7 @@ import pytest
 from datagen.dataset.spec import DatasetSpec
 from datagen.dataset.sphere import SphereSpec
 from helpers.answers import assert_refusal
-from hupbench.verbs.generate import GenerateRun
+from datagen.dataset.writer import GenerateRun
 
 from conftest import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 
