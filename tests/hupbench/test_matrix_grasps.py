@@ -53,11 +53,10 @@ def _weights(tmp: Path, kind: str) -> Path:
 
 
 def _finished_dataset(tmp: Path) -> Path:
-    """A folder with a manifest.json: a finished dataset, whose grasps.npz its frames were rendered with."""
+    """A folder with a manifest.json: a finished dataset, whose grasps.npz its frames were rendered from."""
     folder = tmp / "dataset"
     folder.mkdir()
     (folder / "manifest.json").write_text("{}")
-    (folder / "grasps.npz").write_bytes(b"the grasps it was rendered with")
     return folder
 
 

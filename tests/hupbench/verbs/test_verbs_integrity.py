@@ -44,7 +44,8 @@ def test_train_grasp_sampler_bounds_its_threads_by_the_cores(tmp_path, capsys, m
 def _interrupt(argv, started, tmp_path, timeout=240):
     """Run ``hupbench ARGV`` in its own process group, send the group SIGINT (as a terminal's Ctrl-C does)
     once ``started()`` holds, and return (exit code, stderr) after every process of the group is gone."""
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    # a crash would show its native stack here
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), "PYTHONFAULTHANDLER": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "hupbench.cli", *argv], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, env=env, start_new_session=True, cwd=tmp_path)
     deadline = time.monotonic() + timeout
