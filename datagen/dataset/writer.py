@@ -15,7 +15,8 @@ other is rendered again on resume (overwriting, never duplicating).
 rendered by :class:`datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
 (:mod:`datagen.dataset.ray_launcher`), and written by :func:`datagen.dataset.chunks.write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
-``manifest.json`` is written last.
+``manifest.json`` is written last. Run again on a finished dataset, generate renders the chunks whose
+image files are missing or empty once more, from the grasps the annotations were rendered from.
 
 Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the
@@ -107,8 +108,10 @@ class RenderJob:
         object.__setattr__(self, "k", k)
         object.__setattr__(self, "n", n)
         check_launcher(self.launcher)
-        # Ray actors may live on other machines: only local processes are bounded by this machine's cores
-        check_workers(self.workers) if self.launcher == "local" else check_int(self.workers, "workers", low=1)
+        if self.launcher == "local":
+            check_workers(self.workers)
+        else:  # Ray actors may live on other machines: only local processes are bounded by the cores here
+            check_int(self.workers, "workers", low=1)
         check_platform(self.platform, "render.platform")
 
 
