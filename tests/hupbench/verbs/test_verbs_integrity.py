@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -43,18 +44,25 @@ def test_train_grasp_sampler_bounds_its_threads_by_the_cores(tmp_path, capsys, m
 
 def _interrupt(argv, started, tmp_path, timeout=240):
     """Run ``hupbench ARGV`` in its own process group, send the group SIGINT (as a terminal's Ctrl-C does)
-    once ``started()`` holds, and return (exit code, stderr) after every process of the group is gone."""
-    # a crash would show its native stack here
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), "PYTHONFAULTHANDLER": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "hupbench.cli", *argv], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True, cwd=tmp_path)
+    once ``started(stdout so far)`` holds, and return (exit code, stderr) after every process of the group
+    is gone."""
+    # a crash would show its native stack here; the progress lines arrive as they are printed
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+           "PYTHONFAULTHANDLER": "1", "PYTHONUNBUFFERED": "1"}
+    stderr = tmp_path / "stderr.txt"
+    with open(stderr, "w") as err_file:
+        proc = subprocess.Popen([sys.executable, "-m", "hupbench.cli", *argv], stdout=subprocess.PIPE, stderr=err_file,
+                                text=True, env=env, start_new_session=True, cwd=tmp_path)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
     deadline = time.monotonic() + timeout
-    while not started():
-        assert proc.poll() is None, proc.stderr.read()
+    while not started("".join(lines)):
+        assert proc.poll() is None, stderr.read_text()
         assert time.monotonic() < deadline, "the run never got to the point of the interrupt"
         time.sleep(0.2)
     os.killpg(proc.pid, signal.SIGINT)
-    err = proc.communicate(timeout=120)[1]
+    proc.wait(timeout=120)
+    err = stderr.read_text()
     for _ in range(100):  # the workers follow their parent within seconds
         try:
             os.killpg(proc.pid, 0)
@@ -72,7 +80,7 @@ def test_ctrl_c_of_generate_is_one_line_and_exit_130_with_its_workers_silent(tin
     argv = ["generate", f"out_dir={out}", f"grasps_path={tiny_grasps}", *TINY, "workers=2", "dataset.width=256",
             "dataset.height=256", "dataset.fx=480.0", "dataset.fy=480.0", "dataset.cx=128.0", "dataset.cy=128.0",
             "dataset.n_backgrounds=8", "dataset.n_gloves=2"]
-    rc, err = _interrupt(argv, lambda: any((out / "train" / ".chunks").glob("*.npz")), tmp_path)
+    rc, err = _interrupt(argv, lambda _: any((out / "train" / ".chunks").glob("*.npz")), tmp_path)
     assert (rc, err.strip()) == (130, "hupbench generate: interrupted"), err
     assert not (out / "manifest.json").exists() and not list(out.rglob(".*.tmp*"))
 
@@ -80,6 +88,6 @@ def test_ctrl_c_of_generate_is_one_line_and_exit_130_with_its_workers_silent(tin
 def test_ctrl_c_of_grasps_is_one_line_and_exit_130(tmp_path):
     out = tmp_path / "g"
     argv = ["grasps", f"out_dir={out}", *SMALL_GRASPS, "refine.iterations=100000", "generate.sampler=random"]
-    rc, err = _interrupt(argv, lambda: (out.parent / ".g.lock").exists(), tmp_path)
+    rc, err = _interrupt(argv, lambda stdout: "generating 2 x 8 candidates" in stdout, tmp_path)
     assert (rc, err.strip()) == (130, "hupbench grasps: interrupted"), err
     assert not out.exists()
