@@ -29,7 +29,8 @@ from models.graph import GraphNet2D, GraphUNet
 from models.prior import PointPrior
 from models.resnet import resnet
 
-__all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetConfig", "HOPENetOutput", "normalized_intrinsics", "unproject_normalized"]
+__all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetConfig", "HOPENetOutput", "normalized_intrinsics",
+           "unproject_normalized"]
 
 #: how the Graph U-Net's output becomes camera-frame 3D (see :class:`GraphLifter`)
 LIFTS = ("direct", "camera")

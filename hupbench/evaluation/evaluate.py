@@ -544,7 +544,7 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
               label: str | None = None, progress: bool = True) -> dict[str, Any]:
     from datagen.dataset.contract import read_annotations
     from datagen.io import clean_stale_tmp
-    from hupbench.checkpoint import file_sha256
+    from datagen.io import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.inference.export import check_output_file
     from hupbench.provenance import git_commit

@@ -185,7 +185,7 @@ class CachedFrames(torch.utils.data.Dataset):
     """
 
     def __init__(self, dataset, cache_dir=None, progress: bool = True, log=print) -> None:
-        from hupbench.checkpoint import file_sha256
+        from datagen.io import file_sha256
         from hupbench.data import input_labels
 
         self.size = int(dataset.config.input_size)

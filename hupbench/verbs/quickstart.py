@@ -141,7 +141,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig,
     from datagen.dataset.ray_launcher import check_launcher
     from datagen.dataset.writer import check_workers, parse_shard
     from datagen.grasps.synthesis import check_run_options, check_selection
-    from hupbench.training.checks import check_config as check_train_config
+    from hupbench.training.config import train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
@@ -165,8 +165,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig,
     with _stage_errors("train", fast):
         train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
                                       "run_name=quickstart"])
-        check_train_config(train_cfg)
-        build(train_cfg.data.reader)
+        train_config(train_cfg)
     return grasps_cfg, generate_cfg, train_cfg
 
 

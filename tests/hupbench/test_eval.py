@@ -15,7 +15,7 @@ from test_export import (  # the session's one export, shared
 
 from hupbench.evaluation import evaluate as EV
 from hupbench import metrics as M
-from hupbench.checkpoint import file_sha256
+from datagen.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results

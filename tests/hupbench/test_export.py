@@ -14,12 +14,8 @@ import torch
 from datagen import keypoints as kp
 from hupbench.inference.model_file import META
 from hupbench.inference import export as E
-from hupbench.checkpoint import (
-    file_sha256,
-    load_model,
-    read_checkpoint,
-    save_checkpoint,
-)
+from datagen.io import file_sha256
+from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from models.baseline import RegressorOutput
@@ -39,11 +35,10 @@ def make_checkpoint(path, dataset, **model_cfg):
         cfg["points3d_mean"] = None
     model = build_model(cfg)
     K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
-    return save_checkpoint(path, {
-        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
-        "step": 0, "epoch": 0.0, "samples_seen": 0, "train_seconds": 0.0, "input_size": INPUT_SIZE,
-        "K_input": K.tolist(), "config": {"run_name": "tiny_hopenet"},
-        "dataset": {"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}})
+    return Checkpoint(
+        model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=INPUT_SIZE,
+        K_input=K.tolist(), config={"run_name": "tiny_hopenet"},
+        dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
 
 
 def exported_model(tmp_path_factory, dataset):
@@ -69,7 +64,7 @@ def _images(dataset, n):
 
 def test_onnx_contract(exported, tiny_dataset):
     ckpt, onnx_path = exported
-    payload = read_checkpoint(ckpt)
+    payload = Checkpoint.read(ckpt).record()
     proto = onnx.load(str(onnx_path))
     assert {o.domain: o.version for o in proto.opset_import}[""] == E.OPSET == 18
     (inp,) = proto.graph.input
@@ -185,7 +180,7 @@ def test_export_regressor_without_2d_head(tiny_dataset, tmp_path):
     assert result["onnx"] == str(tmp_path / "reg.onnx")
     assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
     points2d, points3d = E.ort_session(result["onnx"]).run(None, {"image": _images(tiny_dataset, 2).numpy()})
-    K = np.asarray(read_checkpoint(ckpt)["K_input"])
+    K = np.asarray(Checkpoint.read(ckpt).K_input)
     uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
     np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-5)
 

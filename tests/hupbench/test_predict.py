@@ -566,7 +566,7 @@ def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path
     export = pytest.importorskip("hupbench.inference.export")
     import torch
 
-    from hupbench.checkpoint import load_model, save_checkpoint
+    from hupbench.checkpoint import Checkpoint, load_model
     from hupbench.data import HUPDataset, ReaderConfig
     from models.build import build_model
 
@@ -575,10 +575,9 @@ def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path
     K = np.array(manifest["K"], dtype=np.float64).reshape(3, 3)
     torch.manual_seed(0)
     model = build_model({"name": "hopenet", "backbone": "resnet10"})
-    ckpt = save_checkpoint(tmp_path / "tiny.pt", {
-        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
-        "step": 0, "epoch": 0, "samples_seen": 0, "train_seconds": 0.0, "input_size": size, "K_input": K.tolist(),
-        "config": {"run_name": "tiny-untrained"}, "dataset": {"path": str(tiny_dataset), "manifest_sha256": "x"}})
+    ckpt = Checkpoint(model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=size,
+                      K_input=K.tolist(), config={"run_name": "tiny-untrained"},
+                      dataset={"path": str(tiny_dataset), "manifest_sha256": "x"}).save(tmp_path / "tiny.pt")
     onnx_path = Path(export.run_export(ckpt, tmp_path / "tiny.onnx", dataset=tiny_dataset, parity_frames=2,
                                        log=lambda *_: None)["onnx"])
     reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=size))

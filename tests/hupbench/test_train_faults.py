@@ -43,7 +43,7 @@ def temporary_files(*folders: Path) -> list[Path]:
 def assert_whole_run(run_dir: Path, reference: dict[int, float], cache: Path) -> None:
     """The run finished; its log holds every step once, with the losses of an uninterrupted run; no
     temporary file and no lock is left."""
-    from hupbench.checkpoint import read_checkpoint
+    from hupbench.checkpoint import Checkpoint
 
     assert (run_dir / "summary.json").is_file()
     log = read_log(run_dir)
@@ -54,7 +54,7 @@ def assert_whole_run(run_dir: Path, reference: dict[int, float], cache: Path) ->
     for step, loss in reference.items():
         assert losses[step] == pytest.approx(loss, rel=1e-6, abs=1e-9), step
     assert [r["step"] for r in log if r["event"] == "val"] == [0, 2, 4, 6]
-    assert read_checkpoint(run_dir / "checkpoints" / "last.pt")["step"] == STEPS
+    assert Checkpoint.read(run_dir / "checkpoints" / "last.pt").step == STEPS
     assert not temporary_files(run_dir, cache)
     assert not (run_dir / ".hupbench.lock").exists()
 
