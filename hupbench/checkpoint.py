@@ -12,6 +12,7 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -27,24 +28,10 @@ VERSION = 1
 
 @dataclass(frozen=True)
 class Checkpoint:
-    """The record of one checkpoint.
-
-    Attributes:
-        model_config: the model's saved config (:func:`models.build.build_model` rebuilds it).
-        model: the model's state dict.
-        step: optimiser steps taken.
-        input_size: side of the square model input, pixels.
-        K_input: (3, 3) intrinsics of the model input image (list of lists), the camera the 3D output is
-            trained for.
-        config: the resolved training config.
-        optimizer, scheduler: their state dicts (None in a "weights only" file).
-        epoch: epochs completed. samples_seen: training images consumed.
-        train_seconds: wall time spent training (validation excluded), s. wall_seconds: the run's wall time, s.
-        best_val_mpjpe_mm, val_mpjpe_mm, first_val_mpjpe_mm: the best, last and first validation.
-        dataset: {"path", "manifest_sha256"} of the training dataset.
-        rng: {"torch": ByteTensor state}, for an exact resume. world_size: training processes.
-        path: the file it was read from (not saved; names the file in errors).
-    """
+    """The record of one checkpoint: the model's saved config (:func:`models.build.build_model`) and state dict,
+    the model input's side (pixels) and (3, 3) intrinsics K_input (the camera the 3D output is trained for), the
+    resolved training config, and for a resume the optimiser, scheduler and torch RNG states, the counters
+    (train_seconds excludes validation) and validations (mm); ``path`` (not saved) names the file in errors."""
 
     model_config: dict
     model: dict
@@ -108,8 +95,11 @@ class Checkpoint:
                                 f"state dict (name -> tensor), got {type(config).__name__} and {type(state).__name__}")
         check_int(payload["input_size"], f"checkpoint {path}: input_size", *INPUT_SIZE_RANGE)
         check_int(payload["step"], f"checkpoint {path}: step", low=0)
-        K = torch.as_tensor(payload["K_input"], dtype=torch.float64) if _is_matrix(payload["K_input"]) else None
-        if K is None or not torch.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        try:
+            K = np.asarray(payload["K_input"], dtype=np.float64)
+        except (TypeError, ValueError):  # ragged, or not numbers
+            K = np.zeros(0)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal "
                                 f"lengths, got {payload['K_input']!r:.80}")
         return cls(**{f.name: payload[f.name] for f in fields(cls) if f.name in payload}, path=path)
@@ -126,13 +116,6 @@ class Checkpoint:
         except (ValueError, TypeError) as exc:
             raise BadValueError(f"checkpoint {self.path}: its weights do not fit its model_config (a "
                                 f"{self.model_config['name']!r} model): {exc}") from exc
-
-
-def _is_matrix(value: Any) -> bool:
-    """A 3 x 3 nested sequence of real numbers."""
-    return (isinstance(value, (list, tuple)) and len(value) == 3 and all(
-        isinstance(row, (list, tuple)) and len(row) == 3 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in row) for row in value))
 
 
 def load_model(path: str | Path) -> tuple[nn.Module, dict[str, Any]]:

@@ -1,11 +1,8 @@
 """A training run's config, typed: frozen dataclasses whose ``__post_init__`` is the only check of their fields.
 
-conf/train.yaml composes into these nodes, each built through its ``_target_``: ``train`` -> :class:`Schedule`,
-``loss`` -> :class:`LossConfig`, ``data`` -> :class:`DataConfig` (its ``reader`` a
-:class:`hupbench.data.ReaderConfig`), ``optim`` -> :class:`OptimConfig`, ``model`` -> a model's config
-(:mod:`models.config`); :func:`train_config` builds them and the run's own fields (:class:`TrainRun`) before
-anything is read or written. A bad value is refused naming the field as the user writes it
-(``train.py: error: train.max_steps must be a whole number >= 1 or null, got 0``).
+Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``, the model's by
+:mod:`models.config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
+is refused naming the field as the user writes it (``train.max_steps must be a whole number >= 1 or null, got 0``).
 """
 
 from __future__ import annotations
@@ -48,13 +45,7 @@ def choice(value: Any, name: str, choices) -> None:
 
 @dataclass(frozen=True)
 class Schedule:
-    """The ``train`` node: how long a run is and when it logs, validates and saves (in steps).
-
-    ``max_steps`` null trains ``epochs`` epochs; ``stop_after`` stops early, checkpointed and resumable;
-    ``resume`` is "auto" (continue run_dir/checkpoints/last.pt when it exists), "never" (refuse a run folder
-    that has one) or a checkpoint path; ``bn_recompute_frames`` un-augmented frames re-estimate batch-norm
-    statistics before each validation (0: off).
-    """
+    """The ``train`` node: how long a run is, when it logs, validates and saves (in steps), how it resumes."""
 
     epochs: int = 10
     max_steps: int | None = None
@@ -75,11 +66,7 @@ class Schedule:
 
 @dataclass(frozen=True)
 class LossConfig:
-    """The ``loss`` node: HOPE-Net's weighted MSE, ``w2d_init * L2D_init + w2d * L2D + w3d * L3D``.
-
-    2D terms are in normalised image units, the 3D term in units of ``unit_3d_m`` metres; ``probe_symmetry``
-    "half_turn" takes the probe corners' labels up to the half turn about the probe's long axis.
-    """
+    """The ``loss`` node: the weights of HOPE-Net's MSE terms (:func:`hupbench.training.losses.loss_terms`)."""
 
     w2d_init: float = 1.25
     w2d: float = 1.25
@@ -96,8 +83,7 @@ class LossConfig:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """The ``data`` node: the dataset a run reads (``root``, the folder ``hupbench generate`` wrote) and how
-    its frames reach the model (``pipeline``: "cache" or "jpeg", :func:`hupbench.data.setup_data`)."""
+    """The ``data`` node: the dataset a run reads and how its frames reach the model (``setup_data``)."""
 
     reader: ReaderConfig
     root: str = "hupbench_out/dataset"
@@ -118,9 +104,8 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class OptimConfig:
-    """The ``optim`` node: the optimiser and the learning-rate scheduler (Hydra partials of their callables,
-    given the parameters and the run's length when the run starts), and ``reference_batch`` (null: lr as
-    given; N: lr scaled by the global batch / N, :func:`hupbench.training.schedule.learning_rate`)."""
+    """The ``optim`` node: the optimiser and the learning-rate scheduler, Hydra partials given the parameters
+    and the run's length when the run starts, and the batch the learning rate is for."""
 
     optimizer: functools.partial
     scheduler: functools.partial
@@ -147,18 +132,8 @@ class OptimConfig:
 
 @dataclass(frozen=True)
 class TrainRun:
-    """A training run: what conf/train.yaml composes, every node typed and checked.
-
-    Attributes:
-        model_id, run_name, label: the model config's name, the run folder's name (out_root/run_name), and
-            the name results give the model (None: model, backbone and input size).
-        run_dir: the run folder (None: out_root/run_name; train.py sets Hydra's output folder).
-        seed: of the initial weights, the epoch order and the augmentation.
-        device: "cpu" or "cuda"; precision: "fp32" or "bf16" (autocast); channels_last; compile
-            (torch.compile the training step); threads: torch's intra-op threads (None: torch's default),
-            at most the CPU cores this process may use.
-        config: the composed config, resolved, as run.json and checkpoints record it.
-    """
+    """A training run: what conf/train.yaml composes, every node typed; ``config`` is the composed config,
+    resolved, as run.json and checkpoints record it."""
 
     model_id: str
     model: ModelConfig

@@ -1,11 +1,6 @@
-"""Training: :func:`train` runs one typed run (:class:`hupbench.training.config.TrainRun`) in its run folder;
-``python train.py`` calls :func:`main`.
-
-One loop for every model: HOPE-Net's weighted MSE (2D init + 2D + 3D; the baseline has only the 3D term
-unless built with a 2D head), Adam with warm-up and cosine decay, optional bf16 autocast and channels_last,
-validation MPJPE (hand / probe / all, mm, absolute camera frame) logged against wall time and samples seen,
-atomic checkpoints that resume to the same next loss, and multi-process training under ``torchrun`` (DDP;
-gloo on CPU, nccl on CUDA).
+"""Training: :func:`train` runs one typed run (:class:`hupbench.training.config.TrainRun`) in its run folder,
+one loop for every model (bf16 autocast, channels_last and DDP under ``torchrun`` optional); ``python train.py``
+calls :func:`main`.
 
 Run folder:
     run.json             resolved config, git commit, package versions, hardware
@@ -52,13 +47,9 @@ RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_d
 
 
 def main(cfg: DictConfig, log=print, debug: bool = False) -> float:
-    """The body of ``python train.py``: :func:`run_train`, with a deliberate refusal (a bad input, a damaged
-    file, a diverged run) answered as one line on stderr, ``train.py: error: ...``, and exit code 1
-    (SystemExit); ``debug`` (train.py passes Hydra's HYDRA_FULL_ERROR=1) lets the traceback through.
-
-    Returns:
-        The last validation MPJPE (all keypoints, mm): what a Hydra sweeper minimises.
-    """
+    """The body of ``python train.py``: :func:`run_train`, a deliberate refusal answered as one line on stderr,
+    ``train.py: error: ...``, and exit code 1 (``debug``, HYDRA_FULL_ERROR=1: its traceback). Returns the last
+    validation MPJPE (all keypoints, mm): what a Hydra sweeper minimises."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
@@ -79,26 +70,17 @@ def run_train(cfg: DictConfig, log=print) -> dict:
 
 
 def train(run: TrainRun, folder: Path, log=print) -> dict:
-    """Train a model on a hupbench dataset: set up, loop (log, validate, save), summarise.
-
-    The run folder is held by one run at a time (``datagen.io.OutputLock``, rank 0 only: a second run on it
-    is refused naming the holder's pid and host; the lock of a killed run is taken over), and the
-    temporary files that killed runs left in it are removed first. A run is complete only when what it
-    wrote is finite: weights that are not are refused before a checkpoint or the summary is written.
-
-    Args:
-        run: the typed run config (:func:`hupbench.training.config.train_config`).
-        folder: the run folder (``run.folder`` for ``python train.py``).
-        log: receives the progress lines.
+    """Train ``run`` in ``folder`` (held by this run alone, :func:`_run_folder`): set up, loop (log, validate,
+    save), summarise. Weights or metrics that are not finite fail the run before a checkpoint or summary.json
+    is written: a run is complete only when what it wrote is whole.
 
     Returns:
-        dict with "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen", "epochs",
-        "train_seconds", "wall_seconds", "val_mpjpe_mm" (last validation), "first_val_mpjpe_mm",
+        summary.json's dict: "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen",
+        "epochs", "train_seconds", "wall_seconds", "val_mpjpe_mm" (last), "first_val_mpjpe_mm",
         "best_val_mpjpe_mm", "world_size" and "complete" (False when train.stop_after stopped it early).
 
     Raises:
-        datagen.errors.UserError: a dataset, checkpoint or run folder that cannot be used, a full disk,
-        another run holding the folder, a run that diverged (the message names the file or the value).
+        datagen.errors.UserError: naming the dataset, checkpoint, run folder or value that cannot be used.
     """
     from hupbench.data import read_manifest
 
@@ -119,11 +101,11 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
 
     with _run_folder(folder, is_main, log):
         # -- setup: everything that can be wrong is checked before the first step
-        data = setup_data(OmegaConf.create(run.config), world, rank, device, log)
         resumed = _resume_checkpoint(run, folder, root)
+        data = setup_data(OmegaConf.create(run.config), world, rank, device, log)
         input_size = run.data.reader.input_size
         K_input = resize_intrinsics(data.train_set.ann["K"][0], input_size / int(manifest["image_size"][0]))
-        model = _run_model(run, data, K_input, resumed)
+        model = build_run_model(run, data, K_input, resumed)
         steps_per_epoch = data.sampler.batches_per_epoch
         total_steps = run.train.max_steps or run.train.epochs * steps_per_epoch
         batch_size = run.data.batch_size * world
@@ -145,7 +127,8 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
         if resumed is not None:
             optimizer.load_state_dict(resumed.optimizer)
             scheduler.load_state_dict(resumed.scheduler)
-            state = RunState.from_checkpoint(resumed)
+            state = RunState(resumed.step, resumed.samples_seen, resumed.train_seconds, resumed.wall_seconds,
+                             resumed.best_val_mpjpe_mm, resumed.first_val_mpjpe_mm, resumed.val_mpjpe_mm)
             torch.set_rng_state(resumed.rng["torch"])
         if is_main:
             folder.mkdir(parents=True, exist_ok=True)
@@ -160,7 +143,7 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
             return state.wall_offset + time.perf_counter() - start
 
         def save(name: str) -> None:
-            _check_finite(model, state.step)
+            _check_finite(state.step, "weights", model.state_dict())
             Checkpoint(model_config=model.config.saved(), model=model.state_dict(), step=state.step,
                        input_size=input_size, K_input=K_input.tolist(), config=run.config,
                        optimizer=optimizer.state_dict(), scheduler=scheduler.state_dict(),
@@ -173,9 +156,8 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
             if data.bn_loader is not None and state.step > 0:
                 recompute_bn_statistics(model, data.bn_loader, device, autocast)
             val = validate(model, data.val_loader, device, autocast, world)
-            if not math.isfinite(val["all"]):
-                _check_finite(model, state.step)
-                raise RunFailedError(f"validation MPJPE became {val['all']} at step {state.step}")
+            _check_finite(state.step, "weights", model.state_dict())
+            _check_finite(state.step, "validation MPJPE", val)
             logger({"event": "val", "step": state.step, "epoch": state.step / steps_per_epoch,
                     "samples_seen": state.samples_seen, "wall_s": wall(), "train_wall_s": state.train_seconds,
                     "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]})
@@ -218,9 +200,7 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
                 saving = state.step % schedule.ckpt_every == 0 or state.step == stop
                 logging = state.step % schedule.log_every == 0 or state.step == 1
                 if logging or validating or saving:
-                    if not torch.isfinite(loss):
-                        raise RunFailedError(f"loss became {float(loss)} at step {state.step}; terms "
-                                             f"{ {k: float(v) for k, v in terms.items()} }")
+                    _check_finite(state.step, "loss", {"loss": loss, **terms})
                     state.train_seconds += time.perf_counter() - segment  # float(loss) waited for the device
                 if logging:
                     logger({"event": "train", "step": state.step, "samples_seen": state.samples_seen, "wall_s": wall(),
@@ -299,10 +279,6 @@ class RunState:
     first_val: dict | None = None
     last_val: dict | None = None
 
-    @classmethod
-    def from_checkpoint(cls, checkpoint: Checkpoint) -> RunState:
-        return cls(checkpoint.step, checkpoint.samples_seen, checkpoint.train_seconds, checkpoint.wall_seconds,
-                   checkpoint.best_val_mpjpe_mm, checkpoint.first_val_mpjpe_mm, checkpoint.val_mpjpe_mm)
 
 
 @contextmanager
@@ -329,16 +305,13 @@ def _run_folder(folder: Path, is_main: bool, log):
 
 def _resume_checkpoint(run: TrainRun, folder: Path, root: Path) -> Checkpoint | None:
     """The checkpoint this run continues (``train.resume``), checked to be of this run's config and dataset."""
-    last = folder / "checkpoints" / "last.pt"
-    mode = run.train.resume
-    if mode in (None, "never"):
-        if last.exists():
-            raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it "
-                                "or another run_name")
+    mode, last = run.train.resume, folder / "checkpoints" / "last.pt"
+    if mode in (None, "never") and last.exists():
+        raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it "
+                            "or another run_name")
+    if mode in (None, "never") or (mode == "auto" and not last.exists()):
         return None
     path = last if mode == "auto" else Path(mode)
-    if mode == "auto" and not last.exists():
-        return None
     if not path.is_file():
         raise MissingFileError(f"train.resume={mode}: checkpoint {path} does not exist")
     checkpoint = Checkpoint.read(path)
@@ -370,7 +343,8 @@ def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
     return out
 
 
-def _run_model(run: TrainRun, data: TrainData, K_input: np.ndarray, resumed: Checkpoint | None) -> torch.nn.Module:
+def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
+                    resumed: Checkpoint | None = None) -> torch.nn.Module:
     """The run's model: its config with the training split's mean layout as its 3D prior (and the input
     camera for models that unproject through it, where the config leaves them null), or the checkpoint's
     model when resuming."""
@@ -399,11 +373,11 @@ def _run_model(run: TrainRun, data: TrainData, K_input: np.ndarray, resumed: Che
     return model
 
 
-def _check_finite(model: torch.nn.Module, step: int) -> None:
-    """Refuse weights that are not finite: a checkpoint or summary of them would call a diverged run usable."""
-    bad = [name for name, value in model.state_dict().items()
-           if value.is_floating_point() and not torch.isfinite(value).all()]
+def _check_finite(step: int, what: str, values: dict) -> None:
+    """Refuse ``what`` (the weights, the loss and its terms, a validation) when a value is NaN or inf: a
+    checkpoint or summary of it would call a diverged run usable."""
+    bad = [name for name, value in values.items() if not torch.isfinite(torch.as_tensor(value)).all()]
     if bad:
-        raise RunFailedError(f"the weights became NaN or inf at step {step} ({len(bad)} tensors, e.g. {bad[0]}): the "
-                             "run diverged and nothing of it was saved after its last checkpoint; lower "
-                             "optim.optimizer.lr or raise optim.optimizer.eps")
+        raise RunFailedError(f"the {what} became NaN or inf at step {step} ({', '.join(bad[:3])}"
+                             f"{f' and {len(bad) - 3} more' if len(bad) > 3 else ''}): the run diverged, and nothing "
+                             "after its last checkpoint was saved; lower optim.optimizer.lr or raise optim.optimizer.eps")

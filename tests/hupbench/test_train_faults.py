@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_matrix_train import REPO, TRAIN_PREFIX, private_mount, train_py
+from test_matrix_train import private_mount
 
 from conftest import CliAnswer, assert_clean_error
+from helpers.training import REPO, TRAIN_PREFIX, train_py
 
 STEPS = 6
 
