@@ -7,7 +7,7 @@ from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from datagen.io import save_npz
 from datagen.render.preview import handset_grasp
 from datagen.dataset.sphere import SphereSpec
-from helpers.answers import record_answer
+from helpers.answers import record_answer, record_input
 
 # a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so
 # coarse a sphere is near the elbow, so the default exclusion would keep all 12), 64 x 64 images; the
@@ -76,6 +76,7 @@ def run_cli(capsys, *argv: str) -> CliAnswer:
     from hupbench.cli import main
 
     capsys.readouterr()
+    record_input(" ".join(["hupbench", *map(str, argv)]))
     try:
         rc = main([str(a) for a in argv])
     except SystemExit as exc:  # argparse's own usage errors exit 2

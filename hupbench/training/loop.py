@@ -28,11 +28,10 @@ from datagen.camera import resize_intrinsics
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
 from hupbench.checkpoint import Checkpoint
+from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
 from hupbench.provenance import hardware_description, run_info
 from hupbench.training.config import TrainRun, train_config
-from hupbench.training.frame_cache import model_images
-from hupbench.training.inputs import TrainData, setup_data
 from hupbench.training.losses import loss_terms
 from hupbench.training.run_log import MetricsLog
 from hupbench.training.schedule import learning_rate
@@ -186,8 +185,6 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:
         segment = time.perf_counter()
         while state.step < stop:
             epoch, start_batch = divmod(state.step, steps_per_epoch)
-            if hasattr(data.train_set, "set_epoch"):  # the reference reader augments per item, by epoch
-                data.train_set.set_epoch(epoch)
             data.sampler.set_position(epoch, start_batch)
             for batch in data.train_loader:
                 loss, terms = train_step(train_model, optimizer, batch, epoch, data, run, device)
@@ -248,9 +245,7 @@ def train_step(model, optimizer, batch: dict, epoch: int, data: TrainData, run: 
                device: torch.device) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimiser step on one batch (the scheduler steps after it); returns the detached loss and its
     terms (no device sync)."""
-    if data.augment is not None:
-        batch = {name: value.to(device, non_blocking=True) for name, value in batch.items()}
-        batch = data.augment(batch, epoch)
+    batch = data.augment({name: value.to(device, non_blocking=True) for name, value in batch.items()}, epoch)
     images = model_images(batch["image"], device, run.channels_last)
     targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d")}
     with torch.autocast(**_autocast(run, device)):

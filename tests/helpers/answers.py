@@ -13,16 +13,25 @@ import os
 import pytest
 
 
-def record_answer(line: str) -> None:
-    """Append ``line`` to the recording, when one is being made."""
+def _record(**fields: str) -> None:
     path = os.environ.get("HUPBENCH_RECORD_ANSWERS")
     if path:
         test = os.environ.get("PYTEST_CURRENT_TEST", "?").split(" ")[0]
         with open(path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({"test": test, "answer": line}) + "\n")
+            fh.write(json.dumps({"test": test, **fields}) + "\n")
 
 
-def assert_refusal(call, *needles: str, prog: str) -> str:
+def record_answer(line: str) -> None:
+    """Append the error line ``line`` to the recording, when one is being made."""
+    _record(answer=line)
+
+
+def record_input(command: str) -> None:
+    """Append the command a case ran (the "input" of a new row of docs/robustness.md)."""
+    _record(input=command)
+
+
+def assert_refusal(call, *needles: str, prog: str, given: str | None = None) -> str:
     """``call()`` refuses with a :class:`datagen.errors.UserError` whose line names every needle.
 
     The unit-test form of a matrix case: the line is the one the CLI prints for that error
@@ -32,6 +41,7 @@ def assert_refusal(call, *needles: str, prog: str) -> str:
         call: a callable that must raise.
         needles: what the line must contain, compared case-insensitively.
         prog: the program prefix users see, e.g. ``"hupbench generate"`` or ``"train.py"``.
+        given: the bad input in the user's words (``"dataset.width=0"``), for the doc's input column.
 
     Returns:
         The error line.
@@ -45,4 +55,6 @@ def assert_refusal(call, *needles: str, prog: str) -> str:
     for needle in needles:
         assert str(needle).lower() in line.lower(), f"the error {line!r} does not name {needle!r}"
     record_answer(line)
+    if given is not None:
+        record_input(given)
     return line
