@@ -109,7 +109,7 @@ class ContractModule(nn.Module):
 
 def contract_model(model: nn.Module, payload: dict[str, Any]) -> ContractModule:
     """:class:`ContractModule` for a checkpoint's model, with its K_input and input size, in eval mode."""
-    n = model.config.get("n_keypoints", kp.NUM_KEYPOINTS) if hasattr(model, "config") else kp.NUM_KEYPOINTS
+    n = model.config.n_keypoints
     if n != kp.NUM_KEYPOINTS:
         raise BadValueError(f"the model predicts {n} keypoints; the benchmark and the ONNX contract need "
                          f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
