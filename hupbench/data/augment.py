@@ -17,7 +17,6 @@ import torch
 
 from hupbench.input_geometry import apply_affine, camera_rotation, inside_input, pixels_to_normalized, rotation_pixel_map
 
-__all__ = ["BatchAugment", "model_images"]
 
 
 def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False) -> torch.Tensor:

@@ -22,7 +22,6 @@ from datagen.errors import BadValueError, MissingFileError
 from datagen.input_checks import check_int, check_number
 from hupbench.input_geometry import INPUT_SIZE_RANGE, inside_input, pad_and_resize, pixels_to_normalized
 
-__all__ = ["HUPDataset", "ReaderConfig", "input_labels", "read_manifest", "read_rgb"]
 
 
 def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
