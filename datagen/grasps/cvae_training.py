@@ -212,9 +212,9 @@ def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.n
             f"{kept} kept, {time.perf_counter() - start_time:.0f} s")
     if not parts["x"]:
         raise RunFailedError("no plausible grasp in the whole corpus: check the refinement settings")
+    if kept < 2:
+        raise BadValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {kept}")
     corpus = {k: np.concatenate(v) for k, v in parts.items()}
-    if len(corpus["x"]) < 2:
-        raise BadValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {len(corpus['x'])}")
     corpus["n_refined"] = np.array(refined_total)
     return corpus
 
