@@ -19,8 +19,8 @@ non-finite or negative errors, latencies and times, an AUC outside [0, 1]), is n
 run, or whose run name differs from another only in letter case (the two files collide on
 case-insensitive file systems); a training log that is missing, not UTF-8, has a line that is not
 JSON (a truncated copy), a validation line without finite numbers, or a step logged twice (two
-trainings appending to one log); a folder the new files cannot be written to. Files in
-``results/`` that are not ``*.json`` are not results and are ignored. The three outputs are written
+trainings appending to one log); a folder the new files cannot be written to, or a folder in the place
+of one of them. Files in ``results/`` that are not ``*.json`` are not results and are ignored. The three outputs are written
 under temporary names and renamed into place only once all three are written, so a full disk or a
 kill leaves the old set or the new one; temporary files of killed runs are removed.
 
@@ -40,16 +40,15 @@ import contextlib
 import io
 import json
 import math
-import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from datagen.io import atomic_output, clean_stale_tmp
+from datagen.io import atomic_output, check_writable, clean_stale_tmp
 from datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
 from datagen.dataset.floors import FLOOR_KINDS
 from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
-from datagen.errors import BadValueError, MissingFileError, NotWritableError
+from datagen.errors import BadValueError, MissingFileError
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"
@@ -773,17 +772,6 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
 
 # ----------------------------------------------------------------------------- verb
 
-def _check_writable(root: Path) -> None:
-    if os.access(root, os.W_OK | os.X_OK):
-        return
-    try:
-        read_only = bool(os.statvfs(root).f_flag & os.ST_RDONLY)
-    except OSError:
-        read_only = False
-    raise NotWritableError(f"cannot write into leaderboard folder {root}: "
-                          + ("it is on a read-only file system" if read_only else "no write permission"))
-
-
 def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
     """Write every file under its temporary name, then rename them all: a failure (a full disk) or a
     kill before the renames leaves the old set whole; the renames themselves need no space."""
@@ -793,9 +781,9 @@ def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
                 stack.enter_context(atomic_output(root / name)).write_bytes(data)
     except OSError as exc:
         # every enclosing atomic_output explains the error again with its own file's name: the innermost
-        # explanation names the file whose write failed
+        # explanation names the file whose write failed (an error it did not explain is its own cause)
         failed = exc
-        while isinstance(failed.__cause__, type(exc)):
+        while isinstance(failed.__cause__, type(exc)) and failed.__cause__ is not failed:
             failed = failed.__cause__
         raise failed from None
     return [root / name for name in files]
@@ -823,7 +811,9 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
     if not (root / "results").is_dir():
         raise MissingFileError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
                                 "leaderboard folder?")
-    _check_writable(root)
+    check_writable(root, "leaderboard folder")
+    for name in (README, LATENCY_PLOT, TRAINING_PLOT):  # a folder in an output's place would stop the renames
+        check_writable(root / name, "leaderboard file", file=True)
     clean_stale_tmp(root, recursive=False)
     rows = load_rows(root / "results")
     # render everything before writing anything, so a bad log leaves the old files in place

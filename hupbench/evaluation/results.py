@@ -1,8 +1,7 @@
 """The results JSON: one file per evaluated model, schema version 3.
 
 ``hupbench eval`` writes it, ``hupbench leaderboard`` reads it. The schema is
-the one in the shared contract (notes/common.md), checked exactly: every key
-is present (``null`` where a value is unknown), no key is unknown, types are
+checked exactly: every key is present (``null`` where a value is unknown), no key is unknown, types are
 exact (an ``int`` field refuses ``True`` and ``1.5``), numbers are finite,
 errors and latencies are non-negative, and the PCK AUC lies in [0, 1].
 

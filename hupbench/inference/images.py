@@ -17,25 +17,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from datagen.errors import BadTypeError, BadValueError, MissingFileError
 
+from datagen.errors import BadValueError, MissingFileError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
 PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
 MIN_IMAGE_SIDE = 16  # pixels, shorter side: below it a hand is a few pixels, its 21 joints indistinguishable
-
-
 MAX_IMAGE_SIDE = 8192  # pixels, longer side: a 48-megapixel phone photo (8000 x 6000) passes
-
-
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
 _JPEG_MAGIC = b"\xff\xd8\xff"
-
-
 _JPEG_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
 
 
@@ -216,8 +206,6 @@ def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[s
     Returns:
         files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
     """
-    if isinstance(inputs, (str, Path)):
-        raise BadTypeError("inputs must be a list of paths, got a single path")
     files: list[Path] = []
     skipped: list[dict[str, str]] = []
     for item in inputs:

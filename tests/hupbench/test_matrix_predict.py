@@ -30,7 +30,7 @@ from onnx import TensorProto, helper
 from test_predict import S, contract_metadata, dot_image, make_dot_model, photo_like
 
 from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
-from hupbench.inference.model_file import InputGeometry
+from hupbench.input_geometry import InputGeometry
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.matrix

@@ -149,8 +149,6 @@ def test_pck_auc_known_answers():
     gt = np.zeros((1, 2, 3))
     pred = np.array([[[0.0, 0.0, 0.0], [0.06, 0.0, 0.0]]])
     assert M.pck_auc(pred, gt) == pytest.approx(0.5)
-    with pytest.raises(ValueError, match="increasing"):
-        M.pck_auc_from_errors(np.zeros((1, 1)), [10.0, 0.0])
 
 
 def test_pixel_error_known_answer():
@@ -159,10 +157,6 @@ def test_pixel_error_known_answer():
     assert M.pixel_error_px(pred, gt) == pytest.approx(16.0 / 3.0)
     mask = np.array([[True, True, False]])
     assert M.pixel_error_px(pred, gt, mask) == pytest.approx(3.0)
-    # normalised -> pixels: the left edge of a 64-wide image is -0.5 px, the centre 31.5
-    np.testing.assert_allclose(M.normalized_to_pixels(np.array([[-1.0, 0.0]]), 64, 64), [[-0.5, 31.5]])
-    t = M.normalized_to_pixels(torch.tensor([[-1.0, 0.0]]), 64, 64)
-    np.testing.assert_allclose(t.numpy(), [[-0.5, 31.5]])
 
 
 def test_numpy_torch_agree():
@@ -201,8 +195,6 @@ def test_breakdowns():
     assert B.background_labels([1]).tolist() == ["background 1"]
     with pytest.raises(ValueError, match="no name"):
         B.background_labels([5], ["white"])
-    with pytest.raises(ValueError, match="one entry per frame"):
-        M.breakdown_mpjpe_mm(errors, lat[:3])
 
 
 def _frames_with_errors(hand_probe_mm):
@@ -253,19 +245,14 @@ def test_theta_vol_label(theta_vol_deg, label):
     assert B.theta_vol_label(theta_vol_deg) == label
 
 
-def test_bad_input_messages():
-    with pytest.raises(ValueError, match=r"pred_m must be \(N, K, 3\), got \(2, 3\)"):
-        M.mpjpe_mm(np.zeros((2, 3)), np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="same shape"):
-        M.mpjpe_mm(np.zeros((2, 29, 3)), np.zeros((2, 21, 3)))
-    with pytest.raises(TypeError, match="must both be numpy or both torch"):
-        M.mpjpe_mm(np.zeros((1, 2, 3)), torch.zeros(1, 2, 3))
-    with pytest.raises(TypeError, match="numpy array or torch tensor"):
-        M.mpjpe_mm([[[0, 0, 0]]], np.zeros((1, 1, 3)))
-    with pytest.raises(ValueError, match="29 keypoints"):
-        M.mpjpe_split_mm(np.zeros((1, 21, 3)), np.zeros((1, 21, 3)))
-    with pytest.raises(ValueError, match="out of range"):
-        M.mpjpe_mm(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), keypoints=[5])
+def test_misuse_fails_loudly():
+    """The metrics trust their callers, but a mismatch that numpy would broadcast into a wrong number stops."""
+    for pred, gt in [(np.zeros((2, 3)), np.zeros((2, 3))), (np.zeros((2, 29, 3)), np.zeros((2, 21, 3))),
+                     (np.zeros((1, 2, 3)), torch.zeros(1, 2, 3))]:
+        with pytest.raises(AssertionError):
+            M.mpjpe_mm(pred, gt)
+    with pytest.raises(AssertionError):
+        M.breakdown_mpjpe_mm(np.zeros((4, 29)), ["a"] * 3)
 
 
 # ----------------------------------------------------------------------------- symmetric probe error
@@ -309,10 +296,6 @@ def test_symmetry_permutation_refuses_an_asymmetric_set():
     _, box = _probe_frames()
     with pytest.raises(ValueError, match="not symmetric under the rotation: .* mm from the nearest point"):
         M.symmetry_permutation(box + [0.002, 0.0, 0.0], M.HALF_TURN_Z)   # box off the axis by 2 mm
-    with pytest.raises(ValueError, match="proper rotation"):
-        M.symmetry_permutation(box, np.diag([-1.0, 1.0, 1.0]))          # a mirror
-    with pytest.raises(ValueError, match=r"must be \(K, 3\)"):
-        M.symmetry_permutation(box[:, :2], M.HALF_TURN_Z)
 
 
 def test_symmetric_probe_error_known_answers():
@@ -371,21 +354,6 @@ def test_symmetry_costs_and_permute_keypoints():
     assert M.permute_keypoints(gt[..., :2], perms, np.array([1, 1])).shape == (2, 29, 2)
 
 
-@pytest.mark.parametrize(
-    "permutations, choice, match",
-    [
-        ([[0, 1, 2, 3, 4, 5, 6, 6]], [0, 0], "must be a permutation of range\\(8\\)"),
-        ([[0, 1, 2]], [0, 0], "must be \\(G, 8\\) integer permutations"),
-        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0, 1], "choice must index the 1 permutations"),
-        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0], "choice must be \\(2,\\)"),
-    ],
-)
-def test_bad_permutations_are_named(permutations, choice, match):
-    gt, _ = _probe_frames(n=2)
-    with pytest.raises(ValueError, match=match):
-        M.permute_keypoints(gt, permutations, np.array(choice))
-
-
 # ----------------------------------------------------------------------------- spread ratios
 
 
@@ -414,7 +382,3 @@ def test_spread_ratio_hand_computed_and_undefined():
     assert M.spread_ratios(pred, gt) == {"x": 0.5, "y": None, "z": None}
     assert M.collapsed_axes({"x": 0.5, "y": None, "z": 0.49}) == ["z"]
     assert M.spread_ratios(pred[:1], gt[:1]) == {"x": None, "y": None, "z": None}   # one frame
-    with pytest.raises(ValueError, match="unknown axes"):
-        M.collapsed_axes({"w": 0.1})
-    with pytest.raises(ValueError, match="must have the same shape"):
-        M.spread_ratios(pred, gt[:1])
