@@ -56,7 +56,7 @@ def _reason(exc: BaseException, limit: int) -> str:
 
 
 def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
-    """Open a file written by ``hupbench export`` and check its metadata against its graph.
+    """Open a file written by ``hupbench export``, check its metadata against its graph, and run it once.
 
     Args:
         path: the .onnx file.
@@ -77,7 +77,7 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
         raise BadValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
                             f"export it first with `hupbench export {path}`")
     options = ort.SessionOptions()
-    options.log_severity_level = 3  # errors only: its warnings name no file a user could act on
+    options.log_severity_level = 4  # fatal only: a failure reaches the user as one line naming the file
     if threads is not None:
         options.intra_op_num_threads = threads
     try:
@@ -89,7 +89,10 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
     check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
                     {o.name: list(o.shape or []) for o in session.get_outputs()},
                     meta["input_size"], len(meta["keypoint_names"]), str(path))
-    return OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
+    model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
+    # one blank image: a graph made for another input size under edited metadata fails here, before any work
+    run_onnx(model, np.zeros((1, 3, model.input_size, model.input_size), np.float32))
+    return model
 
 
 def run_onnx(model: OnnxModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
