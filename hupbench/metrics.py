@@ -8,7 +8,7 @@ Convention:
     (``ALL_AVERAGING``; why the paper's own "all" is not: docs/metrics.md).
 
 The probe's corners are scored also up to the half turn about its long axis (BOP-style,
-:func:`probe_symmetric_mpjpe_mm`), and :func:`spread_ratios` guards against a model that gives one
+:func:`probe_symmetric_errors_mm`), and :func:`spread_ratios` guards against a model that gives one
 layout for every image (docs/metrics.md). Callers pass well-formed arrays (eval, validation and the
 losses build them): shapes are asserted, not re-checked for users.
 """
@@ -42,14 +42,12 @@ __all__ = [
     "mpjpe_mm",
     "mpjpe_split_mm",
     "pa_mpjpe_mm",
-    "pck_auc",
     "pck_auc_from_errors",
     "pck_mm",
     "permute_keypoints",
     "pixel_error_px",
     "pixel_errors_px",
     "probe_symmetric_errors_mm",
-    "probe_symmetric_mpjpe_mm",
     "procrustes_align",
     "root_relative_mpjpe_mm",
     "split_from_errors_mm",
@@ -62,7 +60,7 @@ __all__ = [
 ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
 #: the hand root for root-relative errors: the wrist (OpenPose keypoint 0)
 ROOT_INDEX = 0
-#: thresholds of the 3D PCK curve whose area is :func:`pck_auc`: 0 to 50 mm in 0.5 mm steps (101)
+#: thresholds of the 3D PCK curve whose area is :func:`pck_auc_from_errors`: 0 to 50 mm in 0.5 mm steps (101)
 PCK_THRESHOLDS_MM = np.linspace(0.0, 50.0, 101)
 #: a set whose mean squared distance from its centroid is below this (m^2, i.e. 1e-12 m RMS) has
 #: no defined scale: Procrustes maps it to the target centroid instead of dividing by ~0
@@ -286,20 +284,6 @@ def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
     return float((0.5 * (curve[1:] + curve[:-1]) * widths).sum())
 
 
-def pck_auc(pred_m, gt_m, keypoints=None, thresholds_mm=PCK_THRESHOLDS_MM):
-    """AUC of the absolute 3D PCK over 0-50 mm (see :func:`pck_auc_from_errors`) of the chosen keypoints.
-
-    Args:
-        pred_m, gt_m: (N, K, 3) float, metres.
-        keypoints: None (all), a slice or indices.
-
-    Returns:
-        fraction in [0, 1]: python float (numpy) or 0-dim tensor (torch).
-    """
-    errors = keypoint_errors_mm(pred_m, gt_m)
-    return pck_auc_from_errors(errors[:, _index(keypoints, errors.shape[1])], thresholds_mm)
-
-
 def pixel_errors_px(pred_px, gt_px):
     """(N, K) Euclidean 2D errors in pixels from (N, K, 2) predicted and true pixel coordinates."""
     _assert_points(pred_px, gt_px, 2)
@@ -493,27 +477,6 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
         best, choice = costs.min(dim=1)
         return best, choice
     return costs.min(axis=1), costs.argmin(axis=1).astype(np.int64)
-
-
-def probe_symmetric_mpjpe_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_turn"]):
-    """Probe corner MPJPE with each frame's corners matched under the probe box's symmetry group.
-
-    For every frame the 8 predicted corners are compared with the true corners relabelled by each
-    group element (default: the identity and the half turn about the long axis, corner (ix, iy, iz)
-    -> (1 - ix, 1 - iy, iz)); the smaller mean corner error counts, and the result is its mean over
-    frames, as the BOP benchmark scores symmetric objects (an MSSD-style minimum over the group,
-    with the mean instead of the maximum over points so that it compares with the plain probe
-    MPJPE, which it never exceeds).
-
-    Args:
-        pred_m, gt_m: (N, 29, 3) float, metres, same frame.
-        permutations: the group as permutations of the 8 corners.
-
-    Returns:
-        millimetres: python float (numpy) or 0-dim tensor (torch).
-    """
-    errors, _ = probe_symmetric_errors_mm(pred_m, gt_m, permutations)
-    return _mean(errors)
 
 
 # ----------------------------------------------------------------------------- spread (collapse guard)

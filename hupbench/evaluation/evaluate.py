@@ -6,42 +6,9 @@ computed on all frames, and a results JSON in schema version 3 (:mod:`hupbench.e
 written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the same wrapper the
 ONNX export uses, so both formats report the same quantities.
 
-What the numbers are:
-    mpjpe_mm            absolute camera-frame 3D error (no alignment), mm: hand (21), probe (8)
-                        and all 29 keypoint-weighted (``metrics.ALL_AVERAGING``).
-    probe_symmetric_mpjpe_mm      the probe corners' MPJPE with each frame's corners matched under
-                        the probe box's half turn about its long axis when that is closer
-                        (``metrics.probe_symmetric_mpjpe_mm``, BOP-style); the corner permutation
-                        is read from the dataset's own corners in the probe frame, and checked to
-                        map the box onto itself. Null (with a log line) if it does not.
-    spread_ratio        {x, y, z}: for each camera axis, the standard deviation over frames of the
-                        predicted coordinate, averaged over the 29 keypoints, divided by the same
-                        for the truth (``metrics.spread_ratios``); 1 = varies like the truth, 0 = the
-                        same output for every image. A ratio below 0.5
-                        (``metrics.SPREAD_RATIO_WARN``) prints a warning naming the axis.
-    root_relative_hand_mpjpe_mm   the 21 hand joints after moving both hands' wrists to the origin.
-    pa_mpjpe_hand_mm    the 21 hand joints after a Procrustes (similarity) alignment per frame.
-    pck_auc_0_50mm      area under the 3D PCK curve of the absolute errors of all 29 keypoints,
-                        thresholds 0, 0.5, ..., 50 mm (``metrics.PCK_THRESHOLDS_MM``), in [0, 1].
-    pixel_error_px      mean 2D error of all 29 keypoints (visible or not) in pixels of the stored
-                        dataset image (e.g. 256 px), so that models of different input sizes compare.
-    breakdowns          MPJPE by camera latitude (``breakdowns.latitude_labels``: egocentric = camera on
-                        the elbow's hemisphere, theta < 90 deg), by z_ego, by background name, by grasp
-                        (the grasp id) and by the grasp's probe orientation Theta_Vol
-                        (``breakdowns.theta_vol_labels``, e.g. "theta_vol_z=180"; from the manifest's
-                        ``grasp_theta_vol_deg``). Frames of grasps whose orientation the grasps file did
-                        not record fall in the "unknown" bucket; the Theta_Vol breakdown is left out
-                        when no evaluated grasp has one (older datasets).
-    track, split_floor  the dataset's track (manifest ``protocol.track``: "unseen_grasps" or
-                        "unseen_views") and the evaluated split's floor from the manifest's
-                        ``split_floors`` (what a model that only recalls training labels scores, overall
-                        and per grasp); null for datasets made before them and for the train split.
-    latency             ms per image, median of timed runs after warm-up, batch 1 and 32, PyTorch
-                        (checkpoints only) and onnxruntime (a checkpoint is exported to a temporary
-                        ONNX file first); both use torch's intra-op thread count.
-    parameters, flops   from the model rebuilt from its config (weights do not change either; an
-                        ONNX file carries the config in its metadata); FLOPs per image counted by
-                        ``torch.utils.flop_counter.FlopCounterMode`` (2 x multiply-adds).
+Each number of the results file (MPJPE by part, the probe's half-turn symmetric error, the spread
+ratios, PA-MPJPE, PCK AUC, the 2D error, the breakdowns, the split floor, latency, parameters and FLOPs)
+is defined in docs/metrics.md.
 """
 
 from __future__ import annotations

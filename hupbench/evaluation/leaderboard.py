@@ -11,18 +11,12 @@ notes, and per-row details with a per-grasp table),
 frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
 training wall time, from the training logs under ``logs/``).
 
-Every broken input is an error naming the file (and line or field), and nothing is rewritten: a
-bad results file is not skipped, because a row that silently drops out of the committed table is a
-wrong leaderboard nobody notices. Refused: a missing ``--dir`` or one that is a file or has no
-``results/``; a results file that is empty, not JSON, breaks the schema (missing or unknown fields,
-non-finite or negative errors, latencies and times, an AUC outside [0, 1]), is not named after its
-run, or whose run name differs from another only in letter case (the two files collide on
-case-insensitive file systems); a training log that is missing, not UTF-8, has a line that is not
-JSON (a truncated copy), a validation line without finite numbers, or a step logged twice (two
-trainings appending to one log); a folder the new files cannot be written to, or a folder in the place
-of one of them. Files in ``results/`` that are not ``*.json`` are not results and are ignored. The three outputs are written
-under temporary names and renamed into place only once all three are written, so a full disk or a
-kill leaves the old set or the new one; temporary files of killed runs are removed.
+Every broken input (a results file or training log that is missing, damaged or breaks its schema, a
+folder that cannot be written or a folder in an output's place) is an error naming the file, and
+nothing is rewritten: a bad results file is not skipped, because a row that silently drops out of the
+committed table is a wrong leaderboard nobody notices. Files in ``results/`` that are not ``*.json`` are
+ignored. The three outputs are written under temporary names and renamed into place only once all three
+are written, so a full disk or a kill leaves the old set or the new one.
 
 Rebuilding from the same files gives the same bytes: rows are sorted, every
 number is formatted explicitly, nothing depends on the clock, and the plots
@@ -47,6 +41,7 @@ from pathlib import Path
 from datagen.io import atomic_output, check_writable, clean_stale_tmp
 from datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
 from datagen.dataset.floors import FLOOR_KINDS
+from datagen.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
 from datagen.errors import BadValueError, MissingFileError
 
@@ -56,7 +51,6 @@ TRAINING_PLOT = "val_mpjpe_vs_training_time.png"
 FIGSIZE_IN = (9.0, 6.0)
 DPI = 100  # FIGSIZE_IN x DPI = 900 x 600 px
 MISSING = "—"
-NUM_HAND, NUM_PROBE = 21, 8
 # "all" that differs from the keypoint-weighted mean by more than the two-decimal rounding of the inputs
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
 #: the track of rows whose results name none: the paper's rows and results of datasets made before tracks,
@@ -329,7 +323,7 @@ def keypoint_weighted_all_mm(row: dict) -> float | None:
     mpjpe = row["metrics"]["mpjpe_mm"]
     if mpjpe["hand"] is None or mpjpe["probe"] is None:
         return None
-    return (NUM_HAND * mpjpe["hand"] + NUM_PROBE * mpjpe["probe"]) / (NUM_HAND + NUM_PROBE)
+    return (NUM_HAND * mpjpe["hand"] + NUM_CORNERS * mpjpe["probe"]) / (NUM_HAND + NUM_CORNERS)
 
 
 def _details(row: dict) -> list[str]:

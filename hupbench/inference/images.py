@@ -1,7 +1,12 @@
-"""Reading the images a user gives ``hupbench predict``: checked from their header before decoding (16 to 8192 px),
-decoded with OpenCV whose C-library complaints become the file's error or a note, folders expanded.
+"""Reading the images a user gives ``hupbench predict`` (numpy and OpenCV only: the torch-free path).
 
-Numpy and OpenCV only (no torch): the inference path imports it.
+PNG or JPEG, recognised by content (not by name), from MIN_IMAGE_SIDE px on the shorter side (fewer hold
+too few pixels for 29 keypoints) to MAX_IMAGE_SIDE px on the longer side, refused from the header before
+decoding (a 20000 x 20000 PNG would decode into gigabytes). 8- and 16-bit samples are scaled to [0, 1];
+grey becomes three equal channels; alpha is composited over the padding grey; JPEG EXIF orientation is
+applied. What libpng and libjpeg print about a damaged file becomes that file's error, or a note naming
+the file when the image still decodes whole; a JPEG whose data end early is refused. Folders expand to
+their image files.
 """
 
 from __future__ import annotations

@@ -1,24 +1,8 @@
 """``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
 
-Only onnxruntime, numpy and OpenCV run here (plus the torch-free ``datagen.keypoints``,
-``datagen.render.draw`` and ``datagen.io``), so a deployment needs neither PyTorch nor the training code.
-
-Model: an ``.onnx`` file written by ``hupbench export`` (the contract of :mod:`hupbench.inference.model_file`): input
-``image`` (B, 3, S, S) float32 RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1]
-coordinates of the input image and ``points3d`` (B, N, 3) metres in the OpenCV camera frame of the
-model-input camera ``K_input``; metadata ``hupbench.*`` (input size, K_input, keypoint names,
-skeleton edges, run name). A file without that metadata is refused.
-
-Images: PNG or JPEG, recognised by content (not by name), from MIN_IMAGE_SIDE (16) px on the
-shorter side to MAX_IMAGE_SIDE (8192) px on the longer side. Smaller images hold too few pixels for 29
-keypoints; larger ones are refused from their header, before decoding, because the padded square
-would need gigabytes (a 20000 x 20000 PNG decodes into 1.2 GB, 4.8 GB as float32): downscale them
-first. 8- and 16-bit samples are scaled to [0, 1]; a grey image becomes three equal channels; an
-alpha channel is composited over the padding grey (so transparent areas look like the padding to the
-network); JPEG EXIF orientation is applied (OpenCV's ``IMREAD_COLOR``). What libpng and libjpeg
-print about a damaged file does not reach the terminal: it becomes part of that file's error, or a
-note naming the file when the image still decodes whole (e.g. extraneous bytes in a JPEG); a JPEG
-whose data end early ("premature end of data segment", decoded with its lower part grey) is refused.
+Only onnxruntime, numpy and OpenCV run here (and torch-free datagen and hupbench modules), so a deployment
+needs neither PyTorch nor the training code. The model is an ``.onnx`` file written by ``hupbench export``,
+opened and checked by :mod:`hupbench.inference.runtime`; images are read by :mod:`hupbench.inference.images`.
 
 Geometry: an H x W image is padded with mid-grey (0.5) to a centred L x L square, L = max(H, W), and
 resized to S x S (:func:`hupbench.input_geometry.pad_and_resize`, whose pixel map takes the predictions and
@@ -47,15 +31,10 @@ skeleton and the probe box on the original image; ``<stem>_<k>_overlay.png`` whe
 a stem). A file that cannot be read as an image gets an error in its record and on stderr; the
 others are still processed.
 
-Refused before anything is written (one error line): a model that is missing, empty, not ONNX (a
-PyTorch checkpoint is named as one), without hupbench metadata, or whose metadata disagree with its graph
-(input size, keypoint count); ``--K`` that is not four finite numbers with 0 < fx, fy <= MAX_FOCAL_PX and
-|cx|, |cy| <= MAX_FOCAL_PX; a batch size below 1; an ``--out`` that is a file or lies on a read-only file
-system; inputs with no image file. The output folder is then locked (a second run into it is refused),
-stale temporary files of killed runs are removed, and an earlier run's ``predictions.json`` is removed
-before the first new file is written; a run that fails while writing (a full disk: ``no space left on
-MOUNT writing FILE``) removes the overlays it wrote, so a folder with a ``predictions.json`` always holds
-one finished run.
+Everything checkable is checked before any image is read (the model, ``--K``, ``--batch-size``, ``--out``,
+inputs with no image file); then the output folder is locked (a second run into it is refused), stale
+temporary files of killed runs and an earlier run's ``predictions.json`` are removed, and a run that fails
+while writing removes the overlays it wrote: a folder with a ``predictions.json`` holds one finished run.
 """
 from __future__ import annotations
 
@@ -160,13 +139,7 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
 
 def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
                        K_user_in: np.ndarray) -> np.ndarray:
-    """3D keypoints for the user's camera from a network trained with another camera.
-
-    The network sees pixels; it infers depth from apparent size, which it learned for focal
-    f_train. The same pixels through focal f_user mean depth z * f_user / f_train. The point
-    then lies on the ray of its 2D prediction through K_user_in.
-
-    Convention: all cameras share the OpenCV camera frame axes; K's are of the model input image.
+    """3D keypoints for the user's camera from a network trained with another camera (module docstring).
 
     Args:
         uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
