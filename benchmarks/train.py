@@ -1,12 +1,12 @@
 """Training throughput of the whole input pipeline: loader + augmentation + optimiser step, images/s.
 
-Runs the training code's own pieces (``hupbench.training.inputs.setup_data`` and ``train_step``) on a real
-dataset for each pipeline side by side in one process: ``jpeg`` (the reference reader: JPEG decode,
-resize, rotation and colour jitter per image in loader workers) and ``cache`` (frames decoded once
-into the memory-mapped frame cache, augmentation per batch on the training device). For each it
-prints the median step rate over the timed steps, the end-to-end rate (all timed steps, data waits
-included) and the share of wall time the device waited for data (time spent in the loader's
-``next()``; on CUDA each step is synchronised so that waits and compute are told apart).
+Runs the training code's own pieces (``hupbench.data.setup_data`` and ``train_step``) on a real
+dataset for each source of frames side by side in one process: ``jpeg`` (JPEG decode and resize per
+image in loader workers) and ``cache`` (frames decoded once into the memory-mapped frame cache); both
+are augmented per batch on the training device. For each it prints the median step rate over the
+timed steps, the end-to-end rate (all timed steps, data waits included) and the share of wall time the
+device waited for data (time spent in the loader's ``next()``; on CUDA each step is synchronised so
+that waits and compute are told apart).
 
 Usage:
     python benchmarks/train.py DATASET [--model hopenet_r10_128] [--device cpu|cuda] [--batch 32]
@@ -30,7 +30,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     import torch
 
     from hupbench.config import build, compose
-    from hupbench.training.inputs import setup_data
+    from hupbench.data import setup_data
     from hupbench.training.loop import build_run_model, train_step
     from hupbench.training.schedule import learning_rate
 
@@ -52,8 +52,6 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     autocast = {"device_type": device.type, "dtype": torch.bfloat16, "enabled": precision == "bf16"}
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     data.sampler.set_position(0, 0)
-    if hasattr(data.train_set, "set_epoch"):
-        data.train_set.set_epoch(0)
     batches = iter(data.train_loader)
     waits, steps = [], []
     start = None

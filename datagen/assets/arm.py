@@ -16,9 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation
+from datagen.geometry import axis_angle_to_matrix
 from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
-from datagen.input_checks import check_shape
 from datagen.errors import BadValueError
 
 MM = 1e-3
@@ -68,21 +67,15 @@ def wrist_rotation(flexion: float, deviation: float) -> np.ndarray:
     Returns:
         (3, 3) float64 ``R_forearm_hand``.
     """
-    for name, v in (("flexion", flexion), ("deviation", deviation)):
-        if not np.isfinite(v):
-            raise BadValueError(f"wrist {name} must be finite, got {v!r}")
-        if not WRIST_LIMITS_RAD[0] - 1e-9 <= v <= WRIST_LIMITS_RAD[1] + 1e-9:
-            raise BadValueError(
-                f"wrist {name} {np.rad2deg(v):.1f} deg outside [{np.rad2deg(WRIST_LIMITS_RAD[0]):.0f}, "
-                f"{np.rad2deg(WRIST_LIMITS_RAD[1]):.0f}]"
-            )
+    for v in (flexion, deviation):
+        assert WRIST_LIMITS_RAD[0] - 1e-9 <= v <= WRIST_LIMITS_RAD[1] + 1e-9, v
     # flexion turns +x towards -y: a negative rotation about +z; ulnar deviation turns +x
     # towards +z: a negative rotation about +y
     return axis_angle_to_matrix(np.array([0.0, 0.0, -flexion])) @ axis_angle_to_matrix(np.array([0.0, -deviation, 0.0]))
 
 
 @functools.lru_cache(maxsize=8)
-def _forearm_rest(spec: ArmSpec) -> tuple[np.ndarray, np.ndarray]:
+def forearm_rest(spec: ArmSpec) -> tuple[np.ndarray, np.ndarray]:
     """Closed tube in the forearm frame: (V, 3) vertices, (F, 3) outward faces."""
     n, m = spec.segments_around, spec.segments_along
     t = np.linspace(0.0, 1.0, m + 1)
@@ -131,8 +124,7 @@ def forearm_mesh(R_world_hand: np.ndarray, wrist_world: np.ndarray, flexion: flo
     """
     import trimesh
 
-    R_world_hand = check_shape(check_rotation(R_world_hand, "R_world_hand"), (3, 3), "R_world_hand")
-    wrist_world = check_last_axes(wrist_world, (3,), "wrist_world").reshape(3)
-    verts, faces = _forearm_rest(spec)
+    assert np.shape(R_world_hand) == (3, 3) and np.shape(wrist_world) == (3,)
+    verts, faces = forearm_rest(spec)
     R_world_forearm = R_world_hand @ wrist_rotation(flexion, deviation).T
     return trimesh.Trimesh(verts @ R_world_forearm.T + wrist_world, faces, process=False)

@@ -3,7 +3,7 @@
 HUP-3D composites every frame over one of 8 photographs: plain white, a
 consultation room, 3 x an ultrasound fetal phantom scene and 3 x real
 pregnant abdomens (light, brown, dark skin). The photographs are not
-redistributable, so :func:`builtin_background` paints procedural stand-ins
+redistributable, so :meth:`BackgroundSet.builtin` paints procedural stand-ins
 of the same 8 categories with numpy and OpenCV (:mod:`datagen.assets.background_scenes`); :class:`BackgroundSet` also
 reads a folder of the user's own photographs.
 
@@ -38,8 +38,7 @@ import cv2
 import numpy as np
 
 from datagen.assets.background_scenes import SCENES
-from datagen.input_checks import check_int
-from datagen.errors import BadTypeError, BadValueError
+from datagen.errors import BadValueError
 
 #: the built-in backgrounds; the position in this tuple is the background_id
 BUILTIN_NAMES: tuple[str, ...] = (
@@ -58,27 +57,6 @@ MIN_SIZE_PX = 16
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 
 # --------------------------------------------------------------------------- public API
-
-
-def builtin_background(index: int, width: int, height: int) -> np.ndarray:
-    """One of the 8 procedural backgrounds at the requested size.
-
-    Args:
-        index: background id in ``range(len(BUILTIN_NAMES))``; see ``BUILTIN_NAMES``.
-        width: image width in pixels, >= ``MIN_SIZE_PX``.
-        height: image height in pixels, >= ``MIN_SIZE_PX``.
-
-    Returns:
-        (height, width, 3) uint8 RGB, read-only (cached; copy before editing).
-        Identical bytes on every call.
-
-    Raises:
-        TypeError: index, width or height is not an integer.
-        ValueError: index out of range or a size below ``MIN_SIZE_PX``.
-    """
-    index = _check_index(index, len(BUILTIN_NAMES), "built-in background index")
-    width, height = _check_size(width, height)
-    return _builtin_cached(index, width, height)
 
 
 class BackgroundSet:
@@ -153,14 +131,13 @@ class BackgroundSet:
 
         Returns:
             (height, width, 3) uint8 RGB, read-only (cached per index and size).
-
-        Raises:
-            TypeError: index, width or height is not an integer.
-            ValueError: index out of range or a size below ``MIN_SIZE_PX``.
         """
-        index = _check_index(index, len(self), "background index")
-        width, height = _check_size(width, height)
-        key = (index, width, height)
+        assert 0 <= index < len(self), index  # the writer bounds n_backgrounds by the set's length
+        for name, value in (("width", width), ("height", height)):
+            # DatasetSpec allows any size from 1 px: the smallest one a background is made at is refused here
+            if value < MIN_SIZE_PX:
+                raise BadValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
+        key = (int(index), int(width), int(height))
         if key not in self._cache:
             image = self._loader(index, width, height)
             image.flags.writeable = False
@@ -199,44 +176,15 @@ def composite(foreground_rgba: np.ndarray, background_rgb: np.ndarray) -> np.nda
 
     Returns:
         (H, W, 3) uint8 RGB, a new array.
-
-    Raises:
-        TypeError: an input is not a uint8 numpy array.
-        ValueError: the shapes are not (H, W, 4) and (H, W, 3) with equal H, W.
     """
-    for name, array in (("foreground_rgba", foreground_rgba), ("background_rgb", background_rgb)):
-        if not isinstance(array, np.ndarray):
-            raise BadTypeError(f"{name} must be a numpy array, got {type(array).__name__}")
-        if array.dtype != np.uint8:
-            raise BadTypeError(f"{name} must be uint8, got {array.dtype}")
-    if foreground_rgba.ndim != 3 or foreground_rgba.shape[2] != 4:
-        raise BadValueError(f"foreground_rgba must be (H, W, 4), got {foreground_rgba.shape}")
-    if background_rgb.ndim != 3 or background_rgb.shape[2] != 3:
-        raise BadValueError(f"background_rgb must be (H, W, 3), got {background_rgb.shape}")
-    if foreground_rgba.shape[:2] != background_rgb.shape[:2]:
-        raise BadValueError(f"foreground_rgba is {foreground_rgba.shape[:2]} (H, W) but background_rgb is "
-                         f"{background_rgb.shape[:2]}")
+    assert foreground_rgba.dtype == background_rgb.dtype == np.uint8
+    assert foreground_rgba.shape == background_rgb.shape[:2] + (4,), (foreground_rgba.shape, background_rgb.shape)
     alpha = foreground_rgba[..., 3:].astype(np.uint32)
     mixed = alpha * foreground_rgba[..., :3] + (255 - alpha) * background_rgb  # (H, W, 3) uint32, <= 255^2
     return ((mixed + 127) // 255).astype(np.uint8)
 
 
-# --------------------------------------------------------------------------- checks and I/O
-
-
-def _check_index(index, count: int, what: str) -> int:
-    check_int(index, what, error=BadTypeError)
-    if not 0 <= index < count:
-        raise BadValueError(f"{what} {index} out of range, expected 0..{count - 1}")
-    return int(index)
-
-
-def _check_size(width, height) -> tuple[int, int]:
-    for name, value in (("width", width), ("height", height)):
-        check_int(value, f"{name} (pixels)", error=BadTypeError)
-        if value < MIN_SIZE_PX:
-            raise BadValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
-    return int(width), int(height)
+# --------------------------------------------------------------------------- I/O
 
 
 def _read_rgb(path: Path) -> np.ndarray:

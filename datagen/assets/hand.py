@@ -31,19 +31,19 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from datagen.geometry import check_last_axes, axis_angle_to_matrix
+from datagen.geometry import axis_angle_to_matrix
 from datagen.assets.hand_anatomy import (
     NUM_JOINTS,
     POSE_DIM,
     HandSpec,
     anatomical_frames,
-    check_pose,
+    as_pose,
     clamp_pose,
     joint_limits_rad,
     rest_skeleton,
 )
 from datagen.assets.hand_mesh import build_mesh
-from datagen.errors import BadTypeError, BadValueError
+
 
 def forward_kinematics_torch(R_local: torch.Tensor, trans: torch.Tensor, joints_rest: torch.Tensor):
     """World rotations and positions of the 16 joints (differentiable).
@@ -107,8 +107,8 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
         (16, 4, 4) or (B, 16, 4, 4) float64 ``G``: ``G[j] @ [p_rest - J_j, 1]``
         is where a rest-pose point ``p_rest`` rigidly attached to joint j goes.
     """
-    pose = check_pose(pose)
-    trans = check_last_axes(trans, (3,), "trans")
+    pose = as_pose(pose)
+    trans = np.asarray(trans, dtype=np.float64)
     joints, _ = rest_skeleton(scale)
     batch = pose.shape[:-1]
     R = axis_angle_to_matrix(pose.reshape(batch + (NUM_JOINTS, 3)))  # (..., 16, 3, 3)
@@ -174,14 +174,6 @@ class HandModel:
             pose = clamp_pose(pose, scale=self.spec.scale)
         G = forward_kinematics(pose, trans, self.spec.scale)
         return _posed_keypoints(G, self.joints_rest, self.tips_rest)
-
-    def skinning_transforms(self, pose: np.ndarray, trans) -> np.ndarray:
-        """(..., 16, 4, 4) transforms taking rest-pose points to posed points per joint."""
-        G = forward_kinematics(pose, trans, self.spec.scale)
-        A = G.copy()
-        # G maps (p - J_j); fold the rest offset in so A maps rest points directly
-        A[..., :3, 3] -= np.einsum("...jik,jk->...ji", G[..., :3, :3], self.joints_rest)
-        return A
 
     def vertices(self, pose: np.ndarray, trans, clamp: bool = True) -> np.ndarray:
         """Linear blend skinning of the mesh.
@@ -254,15 +246,11 @@ class HandModel:
         """Posed mesh as a ``trimesh.Trimesh`` (metres, world frame)."""
         import trimesh
 
-        pose = check_pose(pose)
-        if pose.ndim != 1:
-            raise BadValueError(f"mesh() takes one pose (48,), got {tuple(pose.shape)}")
+        assert np.shape(pose) == (POSE_DIM,), np.shape(pose)
         return trimesh.Trimesh(self.vertices(pose, trans, clamp), self.faces, process=False)
 
 
 @functools.lru_cache(maxsize=8)
 def build_hand(spec: HandSpec = HandSpec()) -> HandModel:
     """The hand for ``spec``, built once per process."""
-    if not isinstance(spec, HandSpec):
-        raise BadTypeError(f"spec must be a HandSpec, got {type(spec).__name__}")
     return HandModel(spec)

@@ -4,14 +4,6 @@ Adult right hand, 50th percentile (REFERENCE.md); MANO's kinematic tree (16 join
 fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
 :mod:`datagen.assets.hand_mesh` builds the skinned surface, :mod:`datagen.assets.hand` the posable model.
 
-
-The hand has MANO's kinematic tree (16 joints: wrist; index, middle, little,
-ring, thumb, three joints each) plus 5 fingertips, adult bone lengths and
-anatomical joint limits, and a closed skinned mesh built here from an
-implicit surface (capsules and a rounded palm slab blended by smooth
-minimum, meshed by marching cubes, decimated, skinned by linear blend
-skinning). No MANO file is read.
-
 Convention:
     Metres and radians. Hand frame (the rest pose): origin at the wrist
     joint centre, +x distal (towards the middle finger), +y dorsal (back of
@@ -36,7 +28,6 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.geometry import (
-    check_last_axes,
     axis_angle_to_matrix,
     euler_to_matrix,
     matrix_to_axis_angle,
@@ -202,20 +193,14 @@ def anatomical_frames(scale: float = 1.0) -> np.ndarray:
     return frames
 
 
-def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
-    """Validate a hand pose.
+def as_pose(pose: np.ndarray) -> np.ndarray:
+    """A hand pose as float64: (48,) or (B, 48) axis-angle, radians.
 
-    Args:
-        pose: (48,) or (B, 48) float axis-angle, radians.
-
-    Returns:
-        the same as float64.
+    Poses come from this package or from a file whose reader checked their shape and finiteness
+    (``datagen.dataset.grasps_file``, ``datagen.dataset.contract.read_annotations``).
     """
     pose = np.asarray(pose, dtype=np.float64)
-    if pose.ndim not in (1, 2) or pose.shape[-1] != POSE_DIM:
-        raise BadValueError(f"{name} must be ({POSE_DIM},) or (B, {POSE_DIM}) axis-angle, got {tuple(pose.shape)}")
-    if not np.all(np.isfinite(pose)):
-        raise BadValueError(f"{name} contains NaN or inf")
+    assert pose.ndim in (1, 2) and pose.shape[-1] == POSE_DIM, pose.shape
     return pose
 
 
@@ -229,7 +214,7 @@ def pose_to_anatomical(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
     Returns:
         (15, 3) or (B, 15, 3) float64 (flexion, abduction, twist), radians.
     """
-    pose = check_pose(pose)
+    pose = as_pose(pose)
     A = anatomical_frames(scale)
     R = axis_angle_to_matrix(pose[..., 3:].reshape(pose.shape[:-1] + (15, 3)))  # (..., 15, 3, 3)
     R_anat = np.swapaxes(A, -1, -2) @ R @ A
@@ -248,8 +233,8 @@ def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0), sc
     Returns:
         (48,) or (B, 48) float64 pose.
     """
-    angles = check_last_axes(angles, (15, 3), "angles")
-    g = check_last_axes(global_axis_angle, (3,), "global_axis_angle")
+    angles = np.asarray(angles, dtype=np.float64)
+    g = np.asarray(global_axis_angle, dtype=np.float64)
     A = anatomical_frames(scale)
     R = A @ euler_to_matrix(angles, "xyz") @ np.swapaxes(A, -1, -2)
     joints_aa = matrix_to_axis_angle(R).reshape(angles.shape[:-2] + (45,))
@@ -257,19 +242,18 @@ def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0), sc
     return np.concatenate([g, joints_aa], axis=-1)
 
 
-def clamp_pose(pose: np.ndarray, strict: bool = False, scale: float = 1.0) -> np.ndarray:
+def clamp_pose(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
     """Enforce the anatomical joint limits.
 
     Args:
         pose: (48,) or (B, 48) float axis-angle.
-        strict: raise instead of clamping when a joint is outside its limits.
         scale: hand size (the anatomical axes do not depend on it).
 
     Returns:
         (48,) or (B, 48) float64 pose whose joints are within limits (the
         global rotation is untouched).
     """
-    pose = check_pose(pose)
+    pose = as_pose(pose)
     angles = pose_to_anatomical(pose, scale)
     limits = joint_limits_rad()
     # a hair of slack so that poses built at a limit do not flicker across it
@@ -278,25 +262,6 @@ def clamp_pose(pose: np.ndarray, strict: bool = False, scale: float = 1.0) -> np
     outside = (angles < low) | (angles > high)
     if not np.any(outside):
         return pose.copy()
-    if strict:
-        names = joint_names()
-        axes = ("flexion", "abduction", "twist")
-        where = np.argwhere(outside)
-        msgs = []
-        for idx in where[:6]:
-            *b, j, a = idx
-            value = np.rad2deg(angles[tuple(idx)])
-            lo, hi = np.rad2deg(limits[j, a])
-            msgs.append(f"{names[j + 1]} {axes[a]} {value:.1f} deg not in [{lo:.0f}, {hi:.0f}]")
-        raise BadValueError("pose outside joint limits: " + "; ".join(msgs))
     clamped = np.clip(angles, limits[..., 0], limits[..., 1])
     return anatomical_to_pose(clamped, pose[..., :3], scale)
 
-
-def joint_names() -> tuple[str, ...]:
-    """Names of the 16 MANO joints, in MANO order."""
-    names = ["wrist"]
-    for finger in kp.MANO_FINGER_ORDER:
-        for k in range(3):
-            names.append(kp.HAND_NAMES[kp.FINGER_START[finger] + k])
-    return tuple(names)

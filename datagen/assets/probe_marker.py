@@ -128,8 +128,7 @@ def add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: n
     height, core = marker_profile(t_fine, s_fine, spec, t0)
     outline = np.zeros(height.shape, dtype=bool)
     outline[[0, -1], :] = outline[:, [0, -1]] = True
-    if np.any(height[outline] != 0.0):
-        raise RuntimeError("orientation marker: the block under the marker does not contain its footprint")
+    assert not np.any(height[outline] != 0.0), "the block under the marker contains its footprint"
     moved = base + height[..., None] * normal
 
     # vertex indices: fine points on coarse vertices reuse them, the others are appended
@@ -146,8 +145,7 @@ def add_marker(spec: ProbeSpec, vertices: np.ndarray, faces: np.ndarray, rows: n
 
     block_cols = (np.arange(-big_j, big_j)) % m
     block = (rows >= k_lo + 1) & (rows <= k_hi) & np.isin(cols, block_cols)
-    if block.sum() != 2 * (k_hi - k_lo) * 2 * big_j:
-        raise RuntimeError("orientation marker: the block under the marker is not whole quads of the sweep")
+    assert block.sum() == 2 * (k_hi - k_lo) * 2 * big_j, "the block under the marker is whole quads of the sweep"
     keep, fans, fan_rows, fan_cols, fan_lens = _stitch_outline(faces, rows, cols, lens, ~block, index, n, big_j,
                                                                k_hi - k_lo)
 
@@ -239,15 +237,13 @@ def _stitch_outline(faces, rows, cols, lens, keep, index, n, big_j, k_span):
     for chain in chains:
         v0, v1 = int(chain[0]), int(chain[-1])
         hit = np.flatnonzero(keep & (faces == v0).any(axis=1) & (faces == v1).any(axis=1))
-        if len(hit) != 1:
-            raise RuntimeError(f"orientation marker: outline edge ({v0}, {v1}) has {len(hit)} outer faces, not 1")
+        assert len(hit) == 1, f"outline edge ({v0}, {v1}) has {len(hit)} outer faces, not 1"
         f = hit[0]
         tri = list(faces[f])
         i0 = tri.index(v0)
         # walk the face's own winding: it runs (v1 -> v0) or (v0 -> v1) along the shared edge
         path = chain[::-1] if tri[(i0 + 2) % 3] == v1 else chain
-        if not (tri.index(int(path[0])) + 1) % 3 == tri.index(int(path[-1])):
-            raise RuntimeError("orientation marker: an outline face is not wound consistently")
+        assert (tri.index(int(path[0])) + 1) % 3 == tri.index(int(path[-1])), "outline faces are wound consistently"
         apex = tri[(tri.index(int(path[-1])) + 1) % 3]
         fans.append(np.column_stack([path[:-1], path[1:], np.full(len(path) - 1, apex)]))
         fan_rows.append(np.full(len(path) - 1, rows[f]))

@@ -180,12 +180,9 @@ class ProbeSpec:
                     raise BadValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")
                 if not math.isfinite(v):
                     raise BadValueError(f"ProbeSpec.{f.name} must be finite, got {v!r}")
-            if f.name in ("sdf_margin", "marker_height"):
+            if f.name in ("sdf_margin", "marker_height", "handle_flare"):
                 if v < 0:
                     raise BadValueError(f"ProbeSpec.{f.name} must be >= 0, got {v!r}")
-            elif f.name == "handle_flare":
-                if v < 0:
-                    raise BadValueError(f"ProbeSpec.handle_flare must be >= 0, got {v!r}")
             elif v <= 0:
                 raise BadValueError(f"ProbeSpec.{f.name} must be positive, got {v!r}")
         if self.n_around % 4 or self.n_around < 16:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from datagen.geometry import invert_transform
 from datagen.grasps import frames
 from datagen.grasps.refine import GraspBatch
 
@@ -42,7 +41,3 @@ def to_generator_frame(grasps: GraspBatch, T_gen_probe: np.ndarray) -> GraspBatc
     R = T_gen_probe[:3, :3]
     return GraspBatch(R @ grasps.R_global, grasps.trans @ R.T + T_gen_probe[:3, 3], grasps.angles, grasps.energy)
 
-
-def to_probe_frame(grasps: GraspBatch, T_gen_probe: np.ndarray) -> GraspBatch:
-    """Inverse of :func:`to_generator_frame`."""
-    return to_generator_frame(grasps, invert_transform(T_gen_probe))

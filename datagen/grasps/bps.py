@@ -18,10 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from datagen.grasps.frames import T_gen_probe, check_euler_deg
+from datagen.grasps.frames import T_gen_probe
 from datagen.assets.probe import Probe
-from datagen.input_checks import check_int
-from datagen.errors import BadTypeError, BadValueError
 
 #: GrabNet's ball radius: large enough to hold a hand grasping a 165 mm probe at its centroid
 DEFAULT_RADIUS_M = 0.15
@@ -44,16 +42,7 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
     Returns:
         (n, 3) float64, metres, generator frame (centre at the probe's
         volume centroid).
-
-    Raises:
-        TypeError: ``n`` or ``seed`` is not an integer.
-        ValueError: ``n < 1`` or ``radius_m`` not a finite positive number.
     """
-    check_int(n, "n", low=1, error=BadTypeError)
-    check_int(seed, "seed", error=BadTypeError)
-    radius_m = float(radius_m)
-    if not (np.isfinite(radius_m) and radius_m > 0.0):
-        raise BadValueError(f"radius_m must be a finite positive number of metres, got {radius_m}")
     rng = np.random.default_rng(seed)
     direction = rng.standard_normal((n, 3))
     norm = np.linalg.norm(direction, axis=1, keepdims=True)
@@ -61,28 +50,6 @@ def basis_points(n: int = DEFAULT_N_BASIS, radius_m: float = DEFAULT_RADIUS_M, s
     direction = np.where(norm > 0.0, direction / np.where(norm > 0.0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
     radius = radius_m * rng.uniform(0.0, 1.0, size=(n, 1)) ** (1.0 / 3.0)
     return direction * radius
-
-
-def _check_probe(probe) -> None:
-    if not isinstance(probe, Probe):
-        raise BadTypeError(f"probe must be a datagen.assets.probe.Probe (see build_probe), got {type(probe).__name__}")
-
-
-def _check_basis(basis: np.ndarray) -> np.ndarray:
-    arr = np.asarray(basis)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise BadValueError(f"basis must be a real array, got dtype {arr.dtype}")
-    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
-        raise BadValueError(f"basis must be (n, 3) with n >= 1, got {tuple(arr.shape)}")
-    arr = arr.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(arr)):
-        raise BadValueError("basis contains NaN or inf")
-    return arr
-
-
-def _distances(probe: Probe, points_probe: np.ndarray, exact: bool) -> np.ndarray:
-    sdf = probe.signed_distance_exact(points_probe) if exact else probe.signed_distance(points_probe)
-    return np.abs(sdf).astype(np.float32)
 
 
 def encode_probe(probe: Probe, theta_vol_deg, basis: np.ndarray, exact: bool = False) -> np.ndarray:
@@ -109,42 +76,11 @@ def encode_probe(probe: Probe, theta_vol_deg, basis: np.ndarray, exact: bool = F
 
     Returns:
         (n,) float32, metres, >= 0.
-
-    Raises:
-        TypeError: ``probe`` is not a Probe.
-        ValueError: Theta_Vol not one finite triple; basis not a finite (n, 3) array.
     """
-    _check_probe(probe)
-    basis = _check_basis(basis)
-    T = T_gen_probe(theta_vol_deg, probe)  # validates Theta_Vol
+    T = T_gen_probe(theta_vol_deg, probe)
     R, t = T[:3, :3], T[:3, 3]
     # p_gen = R p_probe + t  =>  p_probe = R^T (p_gen - t); row vectors: (p_gen - t) @ R
-    points_probe = (basis - t) @ R
-    return _distances(probe, points_probe, exact)
+    points_probe = (np.asarray(basis, dtype=np.float64) - t) @ R
+    sdf = probe.signed_distance_exact(points_probe) if exact else probe.signed_distance(points_probe)
+    return np.abs(sdf).astype(np.float32)
 
-
-def encode_many(probe: Probe, thetas_deg, basis: np.ndarray, exact: bool = False) -> np.ndarray:
-    """:func:`encode_probe` for several orientations, in one batched distance query.
-
-    Args:
-        probe: the :class:`datagen.assets.probe.Probe`.
-        thetas_deg: (N, 3) Euler angles Theta_Vol, degrees, N >= 1.
-        basis: (n, 3) float, metres, generator frame.
-        exact: as in :func:`encode_probe`.
-
-    Returns:
-        (N, n) float32, metres, >= 0; row i equals ``encode_probe(probe, thetas_deg[i], basis)``.
-
-    Raises:
-        TypeError: ``probe`` is not a Probe.
-        ValueError: thetas not a finite (N, 3) array with N >= 1; bad basis.
-    """
-    _check_probe(probe)
-    basis = _check_basis(basis)
-    thetas = check_euler_deg(thetas_deg)
-    if thetas.ndim != 2 or thetas.shape[0] < 1:
-        raise BadValueError(f"thetas_deg must be (N, 3) with N >= 1, got {thetas.shape}")
-    T = np.stack([T_gen_probe(theta, probe) for theta in thetas])  # (N, 4, 4)
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    points_probe = np.einsum("nbi,nij->nbj", basis[None] - t[:, None, :], R)  # (N, n, 3), R^T (b - t)
-    return _distances(probe, points_probe, exact)

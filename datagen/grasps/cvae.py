@@ -41,7 +41,6 @@ import dataclasses
 import json
 import math
 import os
-import tempfile
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -56,6 +55,7 @@ from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
 from datagen.input_checks import check_int
 from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
 from datagen.errors import BadTypeError, BadValueError, MissingFileError
+from datagen.io import save_npz
 
 #: network input unit of the BPS distances (centimetres: features of 0..15 instead of 0..0.15)
 BPS_UNIT_M = 0.01
@@ -227,15 +227,6 @@ class _MLP(nn.Module):
         return self.out(nn.functional.silu(self.norm(self.blocks(self.inp(h)))))
 
 
-def _check_batch(name: str, value, width: int) -> None:
-    if not isinstance(value, torch.Tensor):
-        raise BadTypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
-    if not value.is_floating_point():
-        raise BadValueError(f"{name} must be a floating tensor, got {value.dtype}")
-    if value.ndim != 2 or value.shape[1] != width:
-        raise BadValueError(f"{name} must be (B, {width}), got {tuple(value.shape)}")
-
-
 class GraspCVAE(nn.Module):
     """Conditional VAE over grasps, conditioned on the probe's BPS and an initial wrist pose.
 
@@ -258,8 +249,6 @@ class GraspCVAE(nn.Module):
 
     def __init__(self, config: CVAEConfig = CVAEConfig()):
         super().__init__()
-        if not isinstance(config, CVAEConfig):
-            raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
         self.config = config
         self.bps_encoder = nn.Sequential(nn.Linear(config.n_bps, config.bps_embed), nn.LayerNorm(config.bps_embed),
                                          nn.SiLU())
@@ -267,20 +256,8 @@ class GraspCVAE(nn.Module):
         self.encoder = _MLP(PARAM_DIM + cond_dim, config.hidden, 2 * config.latent_dim, out_scale=0.1)
         self.decoder = _MLP(config.latent_dim + cond_dim, config.hidden, PARAM_DIM, out_scale=0.1)
 
-    def _check(self, bps, init_rot6d, init_trans, **others) -> None:
-        _check_batch("bps", bps, self.config.n_bps)
-        _check_batch("init_rot6d", init_rot6d, 6)
-        _check_batch("init_trans", init_trans, 3)
-        widths = {"x": PARAM_DIM, "z": self.config.latent_dim}
-        for name, value in others.items():
-            _check_batch(name, value, widths[name])
-        sizes = {name: t.shape[0] for name, t in
-                 {"bps": bps, "init_rot6d": init_rot6d, "init_trans": init_trans, **others}.items()}
-        if len(set(sizes.values())) != 1:
-            raise BadValueError(f"batch sizes differ: {sizes}")
-
     def condition(self, bps: torch.Tensor, init_rot6d: torch.Tensor, init_trans: torch.Tensor) -> torch.Tensor:
-        """(B, n_bps), (B, 6), (B, 3) -> (B, bps_embed + 9) condition vector (inputs unchecked)."""
+        """(B, n_bps), (B, 6), (B, 3) -> (B, bps_embed + 9) condition vector."""
         init_rot6d = matrix_to_rot6d(rot6d_to_matrix(init_rot6d))  # orthonormalised, as the residuals use it
         return torch.cat([self.bps_encoder(bps / BPS_UNIT_M), init_rot6d, init_trans / NET_TRANS_UNIT_M], dim=-1)
 
@@ -298,12 +275,7 @@ class GraspCVAE(nn.Module):
 
         Returns:
             :class:`CVAEOutput` ``(x_hat (B, 54), mu (B, latent_dim), logvar (B, latent_dim))``.
-
-        Raises:
-            TypeError, ValueError: inputs not float tensors of these shapes or
-                with different batch sizes.
         """
-        self._check(bps, init_rot6d, init_trans, x=x)
         cond = self.condition(bps, init_rot6d, init_trans)
         stats = self.encoder(torch.cat([grasp_to_residual(x, init_rot6d, init_trans), cond], dim=-1))
         mu, logvar = stats.chunk(2, dim=-1)
@@ -326,7 +298,6 @@ class GraspCVAE(nn.Module):
         Returns:
             (B, 54) grasps, generator frame (joint_unit not clamped).
         """
-        self._check(bps, init_rot6d, init_trans, z=z)
         residual = self.decoder(torch.cat([z, self.condition(bps, init_rot6d, init_trans)], dim=-1))
         return residual_to_grasp(residual, init_rot6d, init_trans)
 
@@ -345,7 +316,6 @@ class GraspCVAE(nn.Module):
         Returns:
             (B, 54) grasps, generator frame, on the inputs' device and dtype.
         """
-        self._check(bps, init_rot6d, init_trans)
         z = self._normal((bps.shape[0], self.config.latent_dim), bps, generator)
         return self.decode(z, bps, init_rot6d, init_trans)
 
@@ -353,8 +323,6 @@ class GraspCVAE(nn.Module):
     def _normal(shape, like: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
         if generator is None:
             return torch.randn(shape, dtype=like.dtype, device=like.device)
-        if not isinstance(generator, torch.Generator):
-            raise BadTypeError(f"generator must be a torch.Generator or None, got {type(generator).__name__}")
         return torch.randn(shape, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
 
 
@@ -371,7 +339,7 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
             None (or ``keypoint_weight == 0``) leaves it out. Joint units are
             clamped to [0, 1] before they become angles.
         kl_weight, keypoint_weight, rot_weight, trans_weight, joint_weight:
-            non-negative weights.
+            non-negative weights (a :class:`CVAEConfig`'s, checked there).
 
     Returns:
         dict of scalar tensors: "rot" (mean |d rot6d|, target orthonormalised),
@@ -379,21 +347,9 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
         "keypoint_mm" (mean distance of the 21 keypoints, mm; only with a hand
         model), "kl" (nats per sample), "recon" (weighted reconstruction terms)
         and "total" (recon + kl_weight * kl).
-
-    Raises:
-        TypeError: model_out is not a CVAEOutput; hand_model has no forward_torch.
-        ValueError: x is not (B, 54) matching x_hat.
     """
-    if not isinstance(model_out, CVAEOutput):
-        raise BadTypeError(f"model_out must be a CVAEOutput, got {type(model_out).__name__}")
     x_hat, mu, logvar = model_out
-    _check_batch("x", x, PARAM_DIM)
-    if x.shape != x_hat.shape:
-        raise BadValueError(f"x must match x_hat {tuple(x_hat.shape)}, got {tuple(x.shape)}")
-    weights = {"kl_weight": kl_weight, "keypoint_weight": keypoint_weight, "rot_weight": rot_weight,
-               "trans_weight": trans_weight, "joint_weight": joint_weight}
-    for name, value in weights.items():
-        _finite_float(name, value)
+    assert x.shape == x_hat.shape, (x.shape, x_hat.shape)
     R_target = rot6d_to_matrix(x[..., ROT])
     parts = {
         "rot": (x_hat[..., ROT] - matrix_to_rot6d(R_target)).abs().mean(),
@@ -402,8 +358,6 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
     }
     recon = rot_weight * parts["rot"] + trans_weight * parts["trans_cm"] + joint_weight * parts["joint"]
     if hand_model is not None and keypoint_weight > 0:
-        if not hasattr(hand_model, "forward_torch"):
-            raise BadTypeError(f"hand_model must be a HandModel (see build_hand), got {type(hand_model).__name__}")
         limits = hand_model.buffers(x.dtype, x.device)["limits"]
         no_vertices = torch.zeros(0, dtype=torch.long, device=x.device)  # keypoints only: skip the skinning
 
@@ -443,38 +397,13 @@ def save_cvae(model: GraspCVAE, config: CVAEConfig, path: str | os.PathLike, met
 
     Returns:
         the path written.
-
-    Raises:
-        TypeError: wrong model or config type; metadata not JSON-serialisable.
-        ValueError: config differs from the model's.
     """
-    if not isinstance(model, GraspCVAE):
-        raise BadTypeError(f"model must be a GraspCVAE, got {type(model).__name__}")
-    if not isinstance(config, CVAEConfig):
-        raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
-    if config != model.config:
-        raise BadValueError(f"config {config} differs from the model's {model.config}")
-    metadata = {} if metadata is None else metadata
-    if not isinstance(metadata, dict):
-        raise BadTypeError(f"metadata must be a dict, got {type(metadata).__name__}")
-    try:
-        header = json.dumps({"format": _FILE_FORMAT, "version": _FILE_VERSION,
-                             "config": dataclasses.asdict(config), "metadata": metadata}, sort_keys=True)
-    except (TypeError, ValueError) as exc:
-        raise BadTypeError(f"metadata must be JSON-serialisable: {exc}") from exc
+    assert config == model.config, (config, model.config)
+    header = json.dumps({"format": _FILE_FORMAT, "version": _FILE_VERSION, "config": dataclasses.asdict(config),
+                         "metadata": metadata or {}}, sort_keys=True)
     arrays = {name: tensor.detach().cpu().to(torch.float32).numpy() for name, tensor in model.state_dict().items()}
     arrays[_HEADER_KEY] = np.array(header)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:  # a file object: np.savez would append ".npz" to a bare name
-            np.savez(handle, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return save_npz(path, arrays)
 
 
 def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:

@@ -23,7 +23,7 @@ from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe
 from datagen.grasps.params import pack, unit_to_angles, unpack
 from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
-from datagen.input_checks import check_int
+from datagen.input_checks import check_int, check_number
 from datagen.rotations_torch import matrix_to_rot6d
 from datagen.errors import BadValueError, RunFailedError
 
@@ -100,6 +100,8 @@ class CorpusConfig:
     def __post_init__(self) -> None:
         for name in ("n_orientations", "starts_per_orientation", "bps_n"):
             check_int(getattr(self, name), name, low=1)
+        check_int(self.bps_seed, "bps_seed", low=0)
+        check_number(self.bps_radius_m, "bps_radius_m", 0.0, low_open=True)
 
 
 def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.ndarray]:
@@ -139,6 +141,8 @@ def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.n
     if not parts["x"]:
         raise RunFailedError("no plausible grasp in the whole corpus: check the refinement settings")
     corpus = {k: np.concatenate(v) for k, v in parts.items()}
+    if len(corpus["x"]) < 2:
+        raise BadValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {len(corpus['x'])}")
     corpus["n_refined"] = np.array(refined_total)
     return corpus
 

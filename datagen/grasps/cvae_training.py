@@ -19,58 +19,17 @@ import torch
 
 from datagen.grasps.cvae import CORPUS_KEYS, CVAEConfig, GraspCVAE, cvae_loss
 from datagen.grasps.params import PARAM_DIM
-from datagen.errors import BadTypeError, BadValueError
 
-def check_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:
-    """Validate a training corpus and return its four arrays as float32.
 
-    Args:
-        corpus: mapping with "x" (M, 54) grasps, "bps" (M, n_bps) metres,
-            "init_rot6d" (M, 6), "init_trans" (M, 3) metres, all in the
-            generator frame; other keys are ignored.
-        n_bps: expected BPS length.
-
-    Returns:
-        dict of the four arrays, float32, C-contiguous.
-
-    Raises:
-        TypeError: corpus is not a mapping.
-        ValueError: a key missing, a wrong shape or dtype, row counts that
-            differ, fewer than 2 rows, NaN or inf (the message names the key).
-    """
-    if not isinstance(corpus, Mapping):
-        raise BadTypeError(f"corpus must be a dict of arrays, got {type(corpus).__name__}")
-    missing = [key for key in CORPUS_KEYS if key not in corpus]
-    if missing:
-        raise BadValueError(f"corpus is missing key(s) {missing}; expected {list(CORPUS_KEYS)}")
+def _float32_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:
+    """The corpus's four arrays as C-contiguous float32; :func:`cvae_sampling.build_corpus` made them."""
     widths = {"x": PARAM_DIM, "bps": n_bps, "init_rot6d": 6, "init_trans": 3}
-    arrays = {}
-    for key, width in widths.items():
-        value = corpus[key]
-        arr = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
-        if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise BadValueError(f"corpus[{key!r}] must be a real array, got dtype {arr.dtype}")
-        if arr.ndim != 2 or arr.shape[1] != width:
-            raise BadValueError(f"corpus[{key!r}] must be (M, {width}), got {tuple(arr.shape)}")
-        bad_rows = np.flatnonzero(~np.isfinite(arr).all(axis=1))
-        if bad_rows.size:
-            raise BadValueError(f"corpus[{key!r}] contains NaN or inf in {bad_rows.size} row(s), first row {bad_rows[0]}")
-        arrays[key] = np.ascontiguousarray(arr, dtype=np.float32)
-    rows = {key: arr.shape[0] for key, arr in arrays.items()}
-    if len(set(rows.values())) != 1:
-        raise BadValueError(f"corpus arrays must have the same number of rows, got {rows}")
-    if rows["x"] < 2:
-        raise BadValueError(f"corpus needs at least 2 grasps (one to train on, one to validate), got {rows['x']}")
+    arrays = {key: np.ascontiguousarray(corpus[key], dtype=np.float32) for key in CORPUS_KEYS}
+    for key, arr in arrays.items():
+        assert arr.ndim == 2 and arr.shape == (len(arrays["x"]), widths[key]), (key, arr.shape)
+        assert np.isfinite(arr).all(), key
+    assert len(arrays["x"]) >= 2, "build_corpus refuses fewer grasps"
     return arrays
-
-
-def _resolve_device(device) -> torch.device:
-    dev = torch.device(device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise BadValueError(f"device {str(device)!r} requested but CUDA is not available")
-    if dev.type == "mps" and not torch.backends.mps.is_available():
-        raise BadValueError(f"device {str(device)!r} requested but MPS is not available")
-    return dev
 
 
 def _loss_weights(config: CVAEConfig) -> dict[str, float]:
@@ -106,26 +65,19 @@ def train_cvae(corpus: Mapping[str, np.ndarray], config: CVAEConfig = CVAEConfig
     summation order in the last bits).
 
     Args:
-        corpus: see :func:`check_corpus` ("x" (M, 54), "bps" (M, n_bps),
-            "init_rot6d" (M, 6), "init_trans" (M, 3), float, generator frame).
+        corpus: "x" (M, 54), "bps" (M, n_bps), "init_rot6d" (M, 6), "init_trans" (M, 3), float,
+            generator frame (other keys are ignored), M >= 2.
         config: architecture and training hyperparameters.
         log: called with one line per epoch; None for silence.
-        device: where to train, e.g. "cpu" or "cuda"; a device that is not
-            there is an error.
+        device: where to train, e.g. "cpu" or "cuda" (torch refuses a device that is not there).
 
     Returns:
         (model in eval mode on ``device``, history): one dict per epoch with
         "epoch", "lr", "seconds", and "train_<part>" / "val_<part>" for every
         part of :func:`cvae_loss`.
-
-    Raises:
-        TypeError: config is not a CVAEConfig; corpus not a mapping.
-        ValueError: a bad corpus (see :func:`check_corpus`); an unavailable device.
     """
-    if not isinstance(config, CVAEConfig):
-        raise BadTypeError(f"config must be a CVAEConfig, got {type(config).__name__}")
-    arrays = check_corpus(corpus, config.n_bps)
-    dev = _resolve_device(device)
+    arrays = _float32_corpus(corpus, config.n_bps)
+    dev = torch.device(device)
     n_rows = arrays["x"].shape[0]
     n_val = max(1, int(round(config.val_fraction * n_rows)))
     perm = np.random.default_rng(config.seed).permutation(n_rows)

@@ -37,8 +37,7 @@ def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
     volumes = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
     total = volumes.sum()
-    if not total > 0:
-        raise BadValueError(f"mesh must be closed and outward-wound (signed volume {total:.3e} m^3)")
+    assert total > 0, f"the mesh is closed and outward-wound (signed volume {total:.3e} m^3)"
     return (volumes[:, None] * tri.sum(axis=1) / 4.0).sum(axis=0) / total
 
 
@@ -53,7 +52,7 @@ MAX_EULER_DEG = 360.0
 
 
 def check_euler_deg(theta_vol) -> np.ndarray:
-    """Validate one Theta_Vol triple or a list of them: (3,) or (N, 3) finite degrees."""
+    """One Theta_Vol triple or a list of them as given by a user: (3,) or (N, 3) finite degrees."""
     try:
         theta = np.asarray(theta_vol, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -74,15 +73,15 @@ def T_gen_probe(theta_vol_deg, probe) -> np.ndarray:
     """Probe frame -> generator frame.
 
     Args:
-        theta_vol_deg: (3,) Euler angles Theta_Vol, degrees.
+        theta_vol_deg: (3,) Euler angles Theta_Vol, degrees (from a checked ``GraspGenConfig`` or drawn
+            for the corpus).
         probe: a :class:`datagen.assets.probe.Probe`.
 
     Returns:
         (4, 4) float64 ``T_gen_probe``.
     """
-    theta = check_euler_deg(theta_vol_deg)
-    if theta.shape != (3,):
-        raise BadValueError(f"one Theta_Vol triple expected, got shape {theta.shape}")
+    theta = np.asarray(theta_vol_deg, dtype=np.float64)
+    assert theta.shape == (3,), theta.shape
     R_vol = euler_to_matrix(np.deg2rad(theta), "xyz")
     centroid = np.array([0.0, 0.0, probe_z_offset(probe)])
     return make_transform(R_vol, -R_vol @ centroid)

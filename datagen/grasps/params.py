@@ -20,7 +20,6 @@ from __future__ import annotations
 import torch
 
 from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
-from datagen.errors import BadValueError
 
 PARAM_DIM = 54
 ROT, TRANS, JOINTS = slice(0, 6), slice(6, 9), slice(9, 54)
@@ -28,17 +27,12 @@ ROT, TRANS, JOINTS = slice(0, 6), slice(6, 9), slice(9, 54)
 
 def pack(R_global: torch.Tensor, trans: torch.Tensor, joint_unit: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3), (..., 3), (..., 15, 3) -> (..., 54)."""
-    if joint_unit.shape[-2:] != (15, 3):
-        raise BadValueError(f"joint_unit must be (..., 15, 3), got {tuple(joint_unit.shape)}")
     return torch.cat([matrix_to_rot6d(R_global), trans, joint_unit.flatten(-2)], dim=-1)
 
 
 def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(..., 54) -> R_global (..., 3, 3), trans (..., 3), joint_unit (..., 15, 3) clamped to [0, 1]."""
-    if not isinstance(x, torch.Tensor) or x.shape[-1] != PARAM_DIM:
-        raise BadValueError(f"grasp parameters must be a (..., {PARAM_DIM}) tensor, got {getattr(x, 'shape', type(x))}")
-    if not torch.isfinite(x).all():
-        raise BadValueError("grasp parameters contain NaN or inf")
+    assert x.shape[-1] == PARAM_DIM, x.shape
     joint_unit = x[..., JOINTS].reshape(x.shape[:-1] + (15, 3)).clamp(0.0, 1.0)
     return rot6d_to_matrix(x[..., ROT]), x[..., TRANS], joint_unit
 

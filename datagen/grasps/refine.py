@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
-from datagen.assets.arm import ArmSpec, _forearm_rest
+from datagen.assets.arm import ArmSpec, forearm_rest
 from datagen.geometry import axis_angle_to_matrix as aa_to_matrix_np
 from datagen.assets.hand import HandModel
 from datagen.assets.hand_mesh import bone_radii
@@ -118,10 +118,7 @@ class GraspBatch:
         shapes = {"R_global": (B, 3, 3), "trans": (B, 3), "angles": (B, 15, 3)}
         for name, shape in shapes.items():
             value = np.asarray(getattr(self, name), dtype=np.float64)
-            if value.shape != shape:
-                raise BadValueError(f"{name} must be {shape}, got {value.shape}")
-            if not np.all(np.isfinite(value)):
-                raise BadValueError(f"{name} contains NaN or inf")
+            assert value.shape == shape and np.all(np.isfinite(value)), (name, value.shape)
             setattr(self, name, value)
         if self.energy is None:
             self.energy = np.full(B, np.nan)
@@ -179,9 +176,7 @@ def hand_regions(hand: HandModel) -> HandRegions:
     x = hand.vertices_rest[:, 0] / hand.spec.scale
     palm = (owner == 0) & (normals @ np.array([0.0, -1.0, 0.0]) > 0.8) & (x > 0.025) & (x < 0.07)
     pads["palm"] = np.flatnonzero(palm)
-    empty = [name for name, idx in pads.items() if len(idx) == 0]
-    if empty:
-        raise RuntimeError(f"hand mesh has no pad vertices for {empty}")
+    assert all(len(idx) for idx in pads.values()), {name: len(idx) for name, idx in pads.items()}
     capsules, fingers, radii = [], [], []
     bone_radii_m = bone_radii(hand.spec)
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
@@ -190,7 +185,7 @@ def hand_regions(hand: HandModel) -> HandRegions:
             capsules.append((start + k, start + k + 1))
             fingers.append(i)
             radii.append(bone_radii_m[1 + 3 * i + k])
-    verts, _ = _forearm_rest(ArmSpec(scale=hand.spec.scale))
+    verts, _ = forearm_rest(ArmSpec(scale=hand.spec.scale))
     # the near end overlaps the hand by design; keep points from 3 cm up the forearm
     forearm = verts[verts[:, 0] < -0.03][::3]
     return HandRegions(pads, np.array(capsules), np.array(fingers), np.array(radii), forearm)
@@ -371,8 +366,6 @@ def random_starts(n: int, rng: np.random.Generator, limits: np.ndarray, approach
     Returns:
         :class:`GraspBatch` of n starts, probe frame.
     """
-    if n < 1:
-        raise BadValueError(f"number of starts must be >= 1, got {n}")
     R_c, t_c = canonical_grip()
     R_out, t_out, angles = np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 15, 3))
     for i in range(n):
@@ -395,8 +388,6 @@ def heuristic_starts(n: int, limits: np.ndarray, approach_azimuth: float = 0.0) 
     The baseline a sampler must beat on diversity: refinement is deterministic, so
     identical starts give identical grasps.
     """
-    if n < 1:
-        raise BadValueError(f"number of starts must be >= 1, got {n}")
     R_c, t_c = canonical_grip()
     Rz = aa_to_matrix_np(np.array([0.0, 0.0, approach_azimuth]))
     angles = limits[..., 0] + 0.5 * (limits[..., 1] - limits[..., 0])

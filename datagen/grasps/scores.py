@@ -34,8 +34,6 @@ from scipy.spatial import cKDTree
 from datagen.geometry import matrix_to_axis_angle
 from datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
-from datagen.input_checks import check_shape
-from datagen.errors import BadValueError
 
 CONTACT_MM = 5.0
 LENS_CLEARANCE_MM = 10.0
@@ -85,8 +83,7 @@ def force_closure_residual(points: np.ndarray, normals: np.ndarray, mu: float = 
         float in [0, 1]; 1.0 when there are no contacts.
     """
     points, normals = np.asarray(points, dtype=np.float64), np.asarray(normals, dtype=np.float64)
-    if points.shape != normals.shape or points.ndim != 2 or points.shape[1] != 3:
-        raise BadValueError(f"points and normals must both be (C, 3), got {points.shape} and {normals.shape}")
+    assert points.shape == normals.shape and points.ndim == 2 and points.shape[1] == 3, (points.shape, normals.shape)
     if len(points) == 0:
         return 1.0
     centre = points.mean(axis=0)
@@ -188,9 +185,8 @@ def farthest_point_selection(features: np.ndarray, n: int, rng: np.random.Genera
     Returns:
         (n,) int64 row indices in the order picked.
     """
-    features = check_shape(np.asarray(features, dtype=np.float64), ("M", "D"), "features")
-    if not 1 <= n <= len(features):
-        raise BadValueError(f"cannot select {n} grasps from {len(features)} plausible ones")
+    features = np.asarray(features, dtype=np.float64)
+    assert features.ndim == 2 and 1 <= n <= len(features), (features.shape, n)  # select_grasps checked n
     chosen = [int(rng.integers(len(features)))]
     dist = np.linalg.norm(features - features[chosen[0]], axis=1)
     for _ in range(n - 1):

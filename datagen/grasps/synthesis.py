@@ -216,12 +216,11 @@ def generate_candidates(config: GraspGenConfig, hand_spec: HandSpec = HandSpec()
 
 
 def select_grasps(candidates: dict, hand, n: int, seed: int, pinned_ids=None) -> np.ndarray:
-    """Candidate ids of the selected grasps: pinned ones, or N diverse plausible ones."""
+    """Candidate ids of the selected grasps: pinned ones (:func:`check_selection` bounded them), or N
+    diverse plausible ones."""
     M = len(candidates["grasps"])
     if pinned_ids is not None:
-        unknown = [i for i in pinned_ids if not 0 <= i < M]
-        if unknown:
-            raise BadValueError(f"unknown grasp id(s) {unknown}: candidates are numbered 0..{M - 1}")
+        assert all(0 <= i < M for i in pinned_ids), (pinned_ids, M)
         return np.array(pinned_ids, dtype=np.int64)
     ok = np.flatnonzero(candidates["scores"]["plausible"])
     if n > len(ok):

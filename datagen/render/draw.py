@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 
 from datagen import keypoints as kp
-from datagen.input_checks import check_shape
 from datagen.errors import BadValueError, RunFailedError
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
@@ -47,12 +46,10 @@ def draw_keypoints(image_rgb: np.ndarray, uv: np.ndarray, visible: np.ndarray | 
     Returns:
         (H, W, 3) uint8 copy with the drawing.
     """
-    image_rgb = np.asarray(image_rgb)
-    if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
-        raise BadValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
-    uv = check_shape(np.asarray(uv, dtype=np.float64), (kp.NUM_KEYPOINTS, 2), "uv")
+    assert image_rgb.ndim == 3 and image_rgb.shape[2] == 3 and image_rgb.dtype == np.uint8, image_rgb.shape
+    uv = np.asarray(uv, dtype=np.float64)
     visible = np.ones(kp.NUM_KEYPOINTS, dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
-    check_shape(visible, (kp.NUM_KEYPOINTS,), "visible")
+    assert uv.shape == (kp.NUM_KEYPOINTS, 2) and visible.shape == (kp.NUM_KEYPOINTS,), (uv.shape, visible.shape)
     out = image_rgb.copy()
     ok = np.all(np.isfinite(uv), axis=1)
     fixed = np.round(np.where(ok[:, None], uv, 0.0) * (1 << _SHIFT)).astype(np.int64)
@@ -73,7 +70,8 @@ def draw_keypoints(image_rgb: np.ndarray, uv: np.ndarray, visible: np.ndarray | 
 
 
 def colorize_depth(depth_m: np.ndarray) -> np.ndarray:
-    """Depth map to RGB: near bright, far dark (turbo), background black.
+    """Depth map to RGB: near bright, far dark (turbo), background black; checked, since a sample sheet
+    reads it from a file.
 
     Args:
         depth_m: (H, W) float, metres, 0 = background.
@@ -97,7 +95,7 @@ def colorize_depth(depth_m: np.ndarray) -> np.ndarray:
 
 
 def colorize_labels(seg: np.ndarray) -> np.ndarray:
-    """Label map (0 background, 1 hand, 2 arm, 3 probe) to RGB."""
+    """Label map (0 background, 1 hand, 2 arm, 3 probe) to RGB; checked, since a sample sheet reads it from a file."""
     seg = np.asarray(seg)
     if seg.ndim != 2 or not np.issubdtype(seg.dtype, np.integer):
         raise BadValueError(f"seg must be an (H, W) integer label map, got {seg.shape} {seg.dtype}")
@@ -117,11 +115,8 @@ def titled(image_rgb: np.ndarray, title: str, bar: int = 22) -> np.ndarray:
 
 def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
     """Arrange equally sized RGB tiles in a grid with white gaps."""
-    if not tiles:
-        raise BadValueError("grid needs at least one tile")
     h, w = tiles[0].shape[:2]
-    if any(t.shape[:2] != (h, w) for t in tiles):
-        raise BadValueError(f"all tiles must be {h} x {w}, got {[t.shape[:2] for t in tiles]}")
+    assert all(t.shape[:2] == (h, w) for t in tiles), [t.shape for t in tiles]
     rows = -(-len(tiles) // columns)
     out = np.full((rows * h + (rows + 1) * gap, columns * w + (columns + 1) * gap, 3), 255, dtype=np.uint8)
     for i, tile in enumerate(tiles):

@@ -26,11 +26,10 @@ PLATFORMS = ("egl", "osmesa")
 #: vendor library and its DRI drivers (llvmpipe on a CPU), and libOpenGL for GL without GLX/X11
 EGL_PACKAGES_HINT = "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0"
 _chosen: str | None = None
-#: attribute of a pyrender mesh node giving its place in the draw order (lower first). Where two
-#: meshes meet at exactly the same depth (the hand and the forearm at the wrist), the first drawn
-#: keeps the pixel (GL_LESS); pyrender draws in the iteration order of a set of nodes, i.e. of their
-#: memory addresses, which differs between processes, so without a rank the pixel's label and colour
-#: did too (see :func:`_patch_pyrender_draw_order`)
+#: attribute of a pyrender mesh node giving its place in the draw order (lower first): where two
+#: meshes meet at exactly the same depth (the hand and the forearm at the wrist) the first drawn keeps
+#: the pixel (GL_LESS), and pyrender's own order differs between processes
+#: (:func:`_patch_pyrender_draw_order`)
 DRAW_RANK = "hupbench_draw_rank"
 
 
@@ -113,8 +112,8 @@ def configure(platform: str | None = None) -> str:
     global _chosen
     if not hasattr(np, "infty"):
         np.infty = np.inf  # pyrender 0.1.45 uses the numpy 1 alias
-    if platform is not None and platform not in PLATFORMS:
-        raise BadValueError(f"render platform must be one of {PLATFORMS} or None, got {platform!r}")
+    # the config node that names the platform (render.platform, sheet.platform) checked it
+    assert platform is None or platform in PLATFORMS, platform
     requested = platform or os.environ.get("PYOPENGL_PLATFORM") or None
     if requested is not None and requested not in PLATFORMS:
         raise BadValueError(f"PYOPENGL_PLATFORM must be one of {PLATFORMS} for offscreen rendering, got {requested!r}")
@@ -172,8 +171,7 @@ def load_pyrender() -> types.ModuleType:
     loads libGL (GLX, hence libX11) and needs EGL even when OSMesa renders.
     A pyrender the process had already imported is returned as it is.
     """
-    if _chosen is None:
-        raise RunFailedError("datagen.render.gl.configure() must choose the platform before pyrender is imported")
+    assert _chosen is not None, "configure() chooses the platform before pyrender is imported"
     if "pyrender" not in sys.modules:
         viewer = types.ModuleType("pyrender.viewer", "hupbench stand-in for pyrender's X11 viewer (offscreen only)")
         viewer.Viewer = _OffscreenOnlyViewer
@@ -191,10 +189,8 @@ def _patch_pyrender_draw_order() -> None:
     pyrender 0.1.45 sorts the solid meshes by the distance of their node's origin from the camera
     (a stable sort) starting from ``Scene.mesh_nodes``, a set iterated in the order of the nodes'
     memory addresses. Meshes placed by their vertices (node pose = identity, as hupbench's) are all
-    at one distance, so the draw order, and with it the winner of every exact depth tie, was that
-    address order: measured on a 256 px dataset, the forearm drawn before the hand turned one seg
-    pixel at the wrist from hand to arm in 4 of 80 frames, and changed 10 RGB frames' anti-aliased
-    samples. Nodes without a rank or a name keep pyrender's order among themselves.
+    at one distance, so without a rank the winner of an exact depth tie would follow that address
+    order. Nodes without a rank or a name keep pyrender's order among themselves.
     """
     from pyrender.renderer import Renderer as PyrenderRenderer
 

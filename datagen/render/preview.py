@@ -117,8 +117,7 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
 def write_preview(path: str | Path, result: dict) -> Path:
     """Write a preview sheet from :func:`render_preview` as PNG."""
     path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise BadValueError(f"preview path must end in .png, got {path}")
+    assert path.suffix.lower() == ".png", path
     write_png(path, result["sheet"])
     return path
 

@@ -27,9 +27,8 @@ import numpy as np
 from datagen.render import gl
 from datagen.camera import Intrinsics, swap_gl_cv_axes
 from datagen.dataset.contract import MODALITIES, SEG_LABELS
-from datagen.geometry import check_last_axes, invert_transform
-from datagen.input_checks import check_shape
-from datagen.errors import BadTypeError, BadValueError
+from datagen.geometry import invert_transform
+from datagen.errors import BadValueError
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 #: the colour pass's fragment shader, in place of pyrender's mesh.frag (fed by pyrender's mesh.vert)
@@ -77,12 +76,10 @@ class MeshPart:
     emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.label not in SEG_LABELS.values() or self.label == 0:
-            raise BadValueError(f"part {self.name!r}: label must be one of 1, 2, 3, got {self.label!r}")
+        assert self.label in SEG_LABELS.values() and self.label != 0, (self.name, self.label)
         for name in ("color", "emissive"):
             value = np.asarray(getattr(self, name), dtype=np.float64)
-            if value.shape != (3,) or not np.all((value >= 0) & (value <= 1)):
-                raise BadValueError(f"part {self.name!r}: {name} must be 3 values in [0, 1], got {getattr(self, name)!r}")
+            assert value.shape == (3,) and np.all((value >= 0) & (value <= 1)), (self.name, name, value)
 
 
 @dataclass
@@ -100,9 +97,8 @@ class PointLight:
     intensity: float = 2.0
 
     def __post_init__(self) -> None:
-        check_last_axes(self.position_world, (3,), "light position_world")
-        if not np.isfinite(self.intensity) or self.intensity < 0:
-            raise BadValueError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
+        assert np.shape(self.position_world) == (3,) and np.all(np.isfinite(self.position_world)), self.position_world
+        assert np.isfinite(self.intensity) and self.intensity >= 0, self.intensity
 
 
 @dataclass
@@ -140,10 +136,7 @@ class Renderer:
     """
 
     def __init__(self, intrinsics: Intrinsics, platform: str | None = None, shading: str = "blinn_phong") -> None:
-        if not isinstance(intrinsics, Intrinsics):
-            raise BadTypeError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
-        if shading not in SHADINGS:
-            raise BadValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
+        assert shading in SHADINGS, shading
         self.platform = gl.configure(platform)
         pyrender = gl.load_pyrender()  # offscreen only: never pyglet's X11 window system
         self._pyrender = pyrender
@@ -170,8 +163,7 @@ class Renderer:
         """
         pyrender = self._pyrender
         names = [p.name for p in parts]
-        if len(set(names)) != len(names):
-            raise BadValueError(f"part names must be unique, got {names}")
+        assert len(set(names)) == len(names), names
         for node in self._part_nodes.values():
             self._scene.remove_node(node)
         self._part_nodes.clear()
@@ -190,8 +182,6 @@ class Renderer:
 
     def set_color(self, name: str, color: Sequence[float]) -> None:
         """Change a part's base colour without re-uploading its mesh."""
-        if name not in self._part_nodes:
-            raise KeyError(f"no part named {name!r}; parts are {sorted(self._part_nodes)}")
         for primitive in self._part_nodes[name].mesh.primitives:
             primitive.material.baseColorFactor = np.array([*color, 1.0])
 
@@ -212,10 +202,9 @@ class Renderer:
             (H, W) float32 metres, 0 = background; "seg" (H, W) uint8 labels.
         """
         pyrender = self._pyrender
-        modalities = check_modalities(modalities)
-        T_cam_world = check_shape(check_last_axes(T_cam_world, (4, 4), "T_cam_world"), (4, 4), "T_cam_world")
-        if not self._part_nodes:
-            raise RuntimeError("the scene has no parts: call set_parts() first")
+        assert set(modalities) <= set(MODALITIES), modalities
+        assert np.shape(T_cam_world) == (4, 4), np.shape(T_cam_world)
+        assert self._part_nodes, "set_parts() before render()"
         T_world_cam_gl = swap_gl_cv_axes(invert_transform(T_cam_world))
         self._scene.set_pose(self._camera_node, T_world_cam_gl)
         settings = settings or RenderSettings(lights=[PointLight(T_world_cam_gl[:3, 3], intensity=0.5)])

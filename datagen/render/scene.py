@@ -14,13 +14,11 @@ import numpy as np
 
 from datagen import keypoints as kp
 from datagen.assets.arm import ArmSpec, forearm_mesh
-from datagen.geometry import check_last_axes, axis_angle_to_matrix, check_rotation, transform_points
+from datagen.geometry import axis_angle_to_matrix, transform_points
 from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import HandSpec, check_pose, clamp_pose
+from datagen.assets.hand_anatomy import HandSpec, clamp_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 from datagen.render.renderer import SEG_LABELS, MeshPart
-from datagen.input_checks import check_shape
-from datagen.errors import BadValueError
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
@@ -53,13 +51,13 @@ class Grasp:
     T_world_probe: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self) -> None:
-        self.hand_pose = check_shape(check_pose(self.hand_pose, "hand_pose"), (48,), "hand_pose")
-        self.hand_trans = check_shape(check_last_axes(self.hand_trans, (3,), "hand_trans"), (3,), "hand_trans")
-        T = check_last_axes(self.T_world_probe, (4, 4), "T_world_probe")
-        if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
-            raise BadValueError("T_world_probe must be a (4, 4) rigid transform with last row (0, 0, 0, 1)")
-        check_rotation(T[:3, :3], "T_world_probe rotation")
-        self.T_world_probe = T
+        # the grasps file's reader checked the pose and translation; the probe pose is the identity or made here
+        self.hand_pose = np.asarray(self.hand_pose, dtype=np.float64)
+        self.hand_trans = np.asarray(self.hand_trans, dtype=np.float64)
+        self.T_world_probe = np.asarray(self.T_world_probe, dtype=np.float64)
+        assert self.hand_pose.shape == (48,) and self.hand_trans.shape == (3,), (self.hand_pose.shape,
+                                                                                 self.hand_trans.shape)
+        assert self.T_world_probe.shape == (4, 4) and np.allclose(self.T_world_probe[3], [0, 0, 0, 1])
 
 
 @dataclass(frozen=True)

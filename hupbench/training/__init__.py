@@ -3,9 +3,7 @@
 Owns: the loop (``loop``: ``run_train`` = setup, steps, validation, checkpoints; ``python train.py`` calls
 ``loop.main``), the config checks (``checks``), the loss (``losses``), the learning-rate schedule and
 epoch order (``schedule``), validation and batch-norm re-estimation (``validation``), the run's log
-(``run_log``: metrics.jsonl, TensorBoard, progress lines), the run's inputs (``inputs``: loaders over the
-dataset reader) and the frame cache (``frame_cache``: every frame decoded once at the model's input
-size, batches augmented on the training device).
+(``run_log``: metrics.jsonl, TensorBoard, progress lines). The run's inputs come from :mod:`hupbench.data`.
 
 May import: ``models``, the dataset contract (``datagen.dataset.contract``), ``datagen`` shared
 modules (keypoints, io), ``hupbench`` top-level modules (config, errors, provenance, checkpoint,

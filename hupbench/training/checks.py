@@ -53,7 +53,7 @@ def check_config(cfg: DictConfig) -> None:
     """Every number and choice of a training config that the run uses, checked before anything is read or
     written; the error names the field and what it must be (Hydra passes ``data.batch_size=abc`` on as a
     string, ``optim.optimizer.lr=nan`` as a float)."""
-    from hupbench.data import MAX_INPUT_SIZE, MIN_INPUT_SIZE
+    from hupbench.config import build
     from hupbench.metrics import PROBE_SYMMETRIES
 
     check_schedule(cfg)
@@ -62,9 +62,7 @@ def check_config(cfg: DictConfig) -> None:
     _whole(cfg, "seed", 0, high=2**31 - 1)
     _whole(cfg, "data.val_frames", 1, optional=True)
     _whole(cfg, "train.bn_recompute_frames", 0)
-    _whole(cfg, "data.reader.input_size", MIN_INPUT_SIZE, high=MAX_INPUT_SIZE)
-    _number(cfg, "data.reader.rotate_deg", 0.0, 180.0)
-    _number(cfg, "data.reader.photometric", 0.0, 1.0)
+    build(cfg.data.reader)  # ReaderConfig checks its fields
     _number(cfg, "optim.optimizer.lr", 0.0, MAX_LR, low_open=True)
     for weight in ("w2d_init", "w2d", "w3d"):
         _number(cfg, f"loss.{weight}", 0.0)

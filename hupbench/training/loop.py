@@ -33,14 +33,14 @@ from datagen.io import OutputLock, clean_stale_tmp, write_json
 from hupbench.error_lines import USER_ERRORS, error_line
 from hupbench.checkpoint import file_sha256, read_checkpoint, save_checkpoint
 from hupbench.config import build
-from hupbench.training.frame_cache import model_images
+from hupbench.data import model_images
 from hupbench.provenance import hardware_description, run_info
 from hupbench.training.checks import check_config
 from hupbench.training.losses import loss_terms
 from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
 from hupbench.training.run_log import MetricsLog
-from hupbench.training.inputs import TrainData, setup_data
+from hupbench.data import TrainData, setup_data
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 
 
@@ -185,7 +185,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
 def _run_locked(cfg: DictConfig, log, world: int, rank: int, device: torch.device, run_dir: Path, root: Path,
                 manifest: dict) -> dict:
     """:func:`run_train` once the run folder is this run's."""
-    from hupbench.data import resize_intrinsics
+    from datagen.camera import resize_intrinsics
 
     data = setup_data(cfg, world, rank, device, log)
     train_ann = data.train_set.ann

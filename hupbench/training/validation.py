@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from datagen import keypoints as kp
-from hupbench.training.frame_cache import model_images
+from hupbench.data import model_images
 
 
 @torch.no_grad()

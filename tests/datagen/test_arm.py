@@ -36,10 +36,11 @@ def test_forearm_follows_hand_rotation_and_wrist_angles():
     np.testing.assert_allclose(wrist_rotation(0.0, 0.0), np.eye(3), atol=1e-15)
 
 
-def test_wrist_limits_and_bad_spec():
-    with pytest.raises(ValueError, match=r"wrist flexion 50\.0 deg outside \[-45, 45\]"):
-        wrist_rotation(np.deg2rad(50.0), 0.0)
-    with pytest.raises(ValueError, match="wrist deviation must be finite"):
-        wrist_rotation(0.0, np.nan)
-    with pytest.raises(ValueError, match="arm length_m must be positive"):
-        ArmSpec(length_m=0.0)
+@pytest.mark.parametrize("change, message", [
+    (dict(length_m=0.0), "arm length_m must be positive and finite, got 0.0"),
+    (dict(wrist_width_m=float("nan")), "arm wrist_width_m must be positive and finite, got nan"),
+    (dict(segments_around=4), r"arm tessellation too coarse: segments_around=4 \(>= 8\), segments_along=24"),
+])
+def test_bad_arm_spec(change, message):
+    with pytest.raises(ValueError, match=message):
+        ArmSpec(**change)

@@ -122,9 +122,9 @@ def test_background_mismatch_counts_changed_background_pixels():
 
 
 def test_jpeg_reference_is_the_background_as_stored():
-    from datagen.assets.backgrounds import builtin_background
+    from datagen.assets.backgrounds import BackgroundSet
 
-    background = builtin_background(2, 64, 64)
+    background = BackgroundSet.builtin().image(2, 64, 64)
     np.testing.assert_array_equal(VI.jpeg_reference(background, None), background)
     ok, buf = cv2.imencode(".jpg", background[..., ::-1].copy(), [cv2.IMWRITE_JPEG_QUALITY, 80])
     np.testing.assert_array_equal(VI.jpeg_reference(background, 80), cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])

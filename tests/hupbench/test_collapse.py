@@ -32,7 +32,7 @@ def short_training(model: str, dataset, steps: int = STEPS):
     """The model of a config after ``steps`` training steps (the training code's own data pipeline,
     model build, loss and step; no run folder), in eval mode with fresh batch-norm statistics."""
     from hupbench.config import build
-    from hupbench.training.inputs import setup_data
+    from hupbench.data import setup_data
     from hupbench.training.loop import build_run_model, train_step
     from hupbench.training.validation import recompute_bn_statistics
 

@@ -1,13 +1,16 @@
+"""The dataset reader (hupbench/data/reader.py): frames at the input size, labels in the input image, and
+the checks of the ``data.reader`` config node."""
+
 import json
+
 import cv2
 import numpy as np
 import pytest
+import torch
 
-from conftest import TINY_SPEC
-from datagen.camera import project_points
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import generate
-from hupbench.data import HUPDataset, ReaderConfig, resize_intrinsics, resize_points, rotate_in_plane
+from datagen.camera import project_points, resize_intrinsics, resize_points
+from hupbench.data import HUPDataset, ReaderConfig, model_images
+from hupbench.input_geometry import pixels_to_normalized
 
 
 def _bright_spot(image):
@@ -27,35 +30,20 @@ def test_resize_moves_a_drawn_point_where_the_label_goes():
     np.testing.assert_allclose(K, [[240, 0, 63.75], [0, 240, 63.75], [0, 0, 1]])
 
 
-@pytest.mark.parametrize("angle_deg", [-30.0, 12.0, 90.0])
-def test_rotation_moves_a_drawn_point_where_the_label_goes(angle_deg):
-    K = np.array([[240.0, 0, 63.5], [0, 240.0, 63.5], [0, 0, 1]])
-    image = np.zeros((128, 128, 3), np.uint8)
-    cv2.circle(image, (90, 40), 4, (255, 255, 255), -1)
-    point_3d = np.array([[(90 - 63.5) / 240 * 0.6, (40 - 63.5) / 240 * 0.6, 0.6]])
-    uv = project_points(point_3d, K)
-    rotated, p3, uv_rot = rotate_in_plane(image, point_3d, uv, K, np.deg2rad(angle_deg))
-    np.testing.assert_allclose(_bright_spot(rotated[..., 0]), uv_rot[0], atol=0.1)
-    # the 3D point turned about the optical axis projects onto the moved label
-    np.testing.assert_allclose(project_points(p3, K), uv_rot, atol=1e-9)
-    assert p3[0, 2] == pytest.approx(point_3d[0, 2])
-
-
-def test_items_reproject_exactly_after_resize_and_rotation(tiny_dataset):
+def test_items_reproject_exactly_after_resize(tiny_dataset):
     ds = HUPDataset(tiny_dataset, "train", ReaderConfig(input_size=32, rotate_deg=45.0, photometric=0.5))
     assert len(ds) == 20
     for i in (0, 7, 19):
         item = ds[i]
-        assert item["image"].shape == (3, 32, 32) and 0.0 <= float(item["image"].min()) <= float(item["image"].max()) <= 1.0
+        frame = cv2.resize(cv2.imread(str(ds.path(i)))[..., ::-1], (32, 32), interpolation=cv2.INTER_AREA)
+        # un-augmented whatever the config's augmentation: the decoded frame resized, as float in [0, 1]
+        assert torch.equal(item["image"], torch.from_numpy(frame.copy()).permute(2, 0, 1).float() / 255.0)
+        assert torch.equal(item["image"], model_images(torch.from_numpy(ds.frame(i))[None], torch.device("cpu"))[0])
         uv = project_points(item["keypoints_3d"].double().numpy(), item["K"].double().numpy())
         np.testing.assert_allclose(uv, item["keypoints_2d_px"].numpy(), atol=1e-3)
-        np.testing.assert_allclose(item["keypoints_2d"].numpy(), (item["keypoints_2d_px"].numpy() + 0.5) / 32 * 2 - 1,
-                                   atol=1e-6)
-    # the same epoch gives the same draws; another epoch other ones
-    a, b = ds[3], ds[3]
-    np.testing.assert_array_equal(a["image"].numpy(), b["image"].numpy())
-    ds.set_epoch(1)
-    assert not np.allclose(ds[3]["keypoints_2d"].numpy(), a["keypoints_2d"].numpy())
+        np.testing.assert_allclose(item["keypoints_2d"].numpy(),
+                                   pixels_to_normalized(item["keypoints_2d_px"].double().numpy(), 32), atol=1e-6)
+        assert int(item["frame_id"]) == int(ds.ann["frame_id"][i])
 
 
 def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
@@ -71,5 +59,19 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
     (no_val / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(ValueError, match="split 'val' .* is empty"):
         HUPDataset(no_val, "val")
-    with pytest.raises(ValueError, match="input_size must be a whole number from 16 to 2048"):
-        ReaderConfig(input_size=8)
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("input_size", 8, "data.reader.input_size must be a whole number >= 16, got 8"),
+    ("input_size", 100_000, "data.reader.input_size must be at most 2,048, got 100,000"),
+    ("input_size", 64.0, "data.reader.input_size must be a whole number >= 16, got 64.0"),
+    ("rotate_deg", -5, r"data.reader.rotate_deg must be a finite number in \[0, 180\], got -5"),
+    ("rotate_deg", float("nan"), r"data.reader.rotate_deg must be a finite number in \[0, 180\], got nan"),
+    ("photometric", 1.5, r"data.reader.photometric must be a finite number in \[0, 1\], got 1.5"),
+    ("photometric", True, r"data.reader.photometric must be a finite number in \[0, 1\], got True"),
+    ("seed", -1, "data.reader.seed must be a whole number >= 0, got -1"),
+])
+def test_reader_config_checks_each_field(field, value, message):
+    with pytest.raises(ValueError, match=f"^{message}$"):
+        ReaderConfig(**{field: value})
+    assert ReaderConfig(input_size=2048, rotate_deg=180, photometric=1.0, seed=2**40).rotate_deg == 180

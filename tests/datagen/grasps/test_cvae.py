@@ -135,24 +135,6 @@ def test_gradients_reach_every_parameter(hand):
         assert param.grad.abs().max() > 0, name
 
 
-@pytest.mark.parametrize(
-    ("call", "error", "match"),
-    [
-        (lambda m, x, b, r, t: m(x, b[:, :10], r, t), ValueError, r"bps must be \(B, 64\)"),
-        (lambda m, x, b, r, t: m(x[:2], b, r, t), ValueError, "batch sizes differ"),
-        (lambda m, x, b, r, t: m(x, b, r[:, :3], t), ValueError, r"init_rot6d must be \(B, 6\)"),
-        (lambda m, x, b, r, t: m(x.numpy(), b, r, t), TypeError, "x must be a torch.Tensor"),
-        (lambda m, x, b, r, t: m(x, b.long(), r, t), ValueError, "bps must be a floating tensor"),
-        (lambda m, x, b, r, t: m.decode(torch.zeros(3, 8), b, r, t), ValueError, r"z must be \(B, 16\)"),
-        (lambda m, x, b, r, t: m.sample(b, r, t, generator=0), TypeError, "generator must be"),
-    ],
-)
-def test_model_bad_input(call, error, match):
-    model = GraspCVAE(CVAEConfig(n_bps=64, hidden=32, bps_embed=16))
-    with pytest.raises(error, match=match):
-        call(model, _grasps(3), *_condition(3, 64))
-
-
 # ----------------------------------------------------------------------------- loss
 
 
@@ -174,19 +156,6 @@ def test_loss_known_values(hand):
     assert float(parts["total"]) == pytest.approx(float(parts["recon"]) + 0.5 * 8.0, rel=1e-5)
     # without a hand model there is no keypoint term
     assert "keypoint_mm" not in cvae_loss(CVAEOutput(shifted, zeros, zeros), x)
-
-
-def test_loss_bad_input():
-    x = _grasps(3)
-    out = CVAEOutput(x, torch.zeros(3, 16), torch.zeros(3, 16))
-    with pytest.raises(TypeError, match="model_out must be a CVAEOutput"):
-        cvae_loss(tuple(out), x)
-    with pytest.raises(ValueError, match="x must match x_hat"):
-        cvae_loss(out, x[:2])
-    with pytest.raises(ValueError, match="kl_weight"):
-        cvae_loss(out, x, kl_weight=-1.0)
-    with pytest.raises(TypeError, match="hand_model must be"):
-        cvae_loss(out, x, hand_model="hand")
 
 
 # ----------------------------------------------------------------------------- sampling
@@ -257,13 +226,7 @@ def test_load_rejects_missing_extra_and_misshapen_weights(saved):
         load_cvae(path)
 
 
-def test_save_bad_input(saved, tmp_path):
-    model, config, _ = saved
-    with pytest.raises(ValueError, match="differs from the model's"):
-        save_cvae(model, dataclasses.replace(config, hidden=33), tmp_path / "x.npz")
-    with pytest.raises(TypeError, match="JSON-serialisable"):
-        save_cvae(model, config, tmp_path / "x.npz", {"array": np.zeros(2)})
-    assert not (tmp_path / "x.npz").exists()
+def test_load_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="no grasp CVAE weights"):
         load_cvae(tmp_path / "absent.npz")
 
@@ -308,38 +271,6 @@ def test_training_is_deterministic_and_logs_keypoints():
     assert "val_keypoint_mm" in a[-1] and a[-1]["val_keypoint_mm"] > 0
     _, c = train_cvae(corpus, dataclasses.replace(config, seed=1), log=None)
     assert c[-1]["val_total"] != a[-1]["val_total"]
-
-
-@pytest.mark.parametrize(
-    ("edit", "match"),
-    [
-        (lambda c: c.pop("bps"), r"missing key\(s\) \['bps'\]"),
-        (lambda c: c.update(x=c["x"][:, :50]), r"corpus\['x'\] must be \(M, 54\), got \(20, 50\)"),
-        (lambda c: c.update(bps=c["bps"][:, :31]), r"corpus\['bps'\] must be \(M, 32\)"),
-        (lambda c: c["init_trans"].__setitem__((3, 1), np.nan), r"corpus\['init_trans'\] contains NaN .* row 3"),
-        (lambda c: c.update(init_rot6d=c["init_rot6d"][:19]), "same number of rows"),
-        (lambda c: c.update(x=c["x"].astype(str)), r"corpus\['x'\] must be a real array"),
-    ],
-)
-def test_bad_corpus(edit, match):
-    corpus = _synthetic_corpus(20, TINY.n_bps)
-    edit(corpus)
-    with pytest.raises(ValueError, match=match):
-        train_cvae(corpus, TINY, log=None)
-
-
-def test_bad_corpus_container_and_size():
-    with pytest.raises(TypeError, match="corpus must be a dict"):
-        train_cvae([1, 2], TINY, log=None)
-    small = {k: v[:1] for k, v in _synthetic_corpus(4, TINY.n_bps).items()}
-    with pytest.raises(ValueError, match="at least 2 grasps"):
-        train_cvae(small, TINY, log=None)
-
-
-@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
-def test_missing_device_is_an_error():
-    with pytest.raises(ValueError, match="CUDA is not available"):
-        train_cvae(_synthetic_corpus(8, TINY.n_bps), TINY, log=None, device="cuda")
 
 
 @pytest.mark.parametrize(

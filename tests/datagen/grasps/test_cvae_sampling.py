@@ -37,6 +37,13 @@ def test_samples_are_valid_and_reproducible(shipped):
     assert np.all(wrist_to_axis < 0.12) and np.all((a.trans[:, 2] > 0.0) & (a.trans[:, 2] < 0.2))
 
 
-def test_corpus_config_rejects_bad_values():
-    with pytest.raises(ValueError, match="n_orientations must be a whole number >= 1"):
-        CorpusConfig(n_orientations=0)
+@pytest.mark.parametrize("fields, message", [
+    (dict(n_orientations=0), "n_orientations must be a whole number >= 1, got 0"),
+    (dict(bps_n=2.5), "bps_n must be a whole number >= 1, got 2.5"),
+    (dict(bps_seed=-1), "bps_seed must be a whole number >= 0, got -1"),
+    (dict(bps_radius_m=0.0), r"bps_radius_m must be a finite number > 0, got 0.0"),
+    (dict(bps_radius_m=float("nan")), r"bps_radius_m must be a finite number > 0, got nan"),
+])
+def test_corpus_config_rejects_bad_values(fields, message):
+    with pytest.raises(ValueError, match=message):
+        CorpusConfig(**fields)

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen.geometry import transform_points
+from datagen.geometry import invert_transform, transform_points
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset, volume_centroid
-from datagen.grasps.approach import to_generator_frame, to_probe_frame
+from datagen.grasps.approach import to_generator_frame
 from datagen.grasps.refine import GraspBatch
 from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import anatomical_to_pose
@@ -21,8 +21,6 @@ def test_volume_centroid_matches_trimesh():
     box = trimesh.creation.box(extents=(0.1, 0.2, 0.3))
     box.apply_translation([0.01, -0.02, 0.5])
     np.testing.assert_allclose(volume_centroid(box.vertices, box.faces), [0.01, -0.02, 0.5], atol=1e-12)
-    with pytest.raises(ValueError, match="closed and outward-wound"):
-        volume_centroid(box.vertices, box.faces[:, ::-1])
 
 
 def test_probe_z_offset_is_the_mesh_centroid_height(probe):
@@ -51,7 +49,7 @@ def test_paper_z_offset_correction_at_zero_orientation(probe):
     rng = np.random.default_rng(0)
     gen = GraspBatch(np.broadcast_to(np.eye(3), (2, 3, 3)).copy(), rng.normal(size=(2, 3)) * 0.05,
                      np.zeros((2, 15, 3)))
-    probe_frame = to_probe_frame(gen, T_gen_probe([0, 0, 0], probe))
+    probe_frame = to_generator_frame(gen, invert_transform(T_gen_probe([0, 0, 0], probe)))
     np.testing.assert_allclose(probe_frame.trans, gen.trans + [0.0, 0.0, probe_z_offset(probe)], atol=1e-12)
     np.testing.assert_allclose(probe_frame.R_global, gen.R_global, atol=1e-12)
 
@@ -69,12 +67,12 @@ def test_frame_change_moves_the_hand_rigidly(probe):
     k_probe = hand.keypoints(pose(grasp), grasp.trans[0], clamp=False)
     k_gen = hand.keypoints(pose(gen), gen.trans[0], clamp=False)
     np.testing.assert_allclose(k_gen, transform_points(T, k_probe), atol=1e-12)
-    back = to_probe_frame(gen, T)
+    back = to_generator_frame(gen, invert_transform(T))
     np.testing.assert_allclose(back.trans, grasp.trans, atol=1e-12)
     np.testing.assert_allclose(back.R_global, grasp.R_global, atol=1e-12)
 
 
-@pytest.mark.parametrize("bad", [[0, 0], [[0, 0, 0], [1, 2]], [[0, np.nan, 0]], "abc"])
+@pytest.mark.parametrize("bad", [[0, 0], [[0, 0, 0], [1, 2]], [[0, np.nan, 0]], "abc", [[0, 0, 400]]])
 def test_malformed_euler_angles_are_rejected(bad):
     with pytest.raises(ValueError, match="Theta_Vol"):
         check_euler_deg(bad)

@@ -94,8 +94,6 @@ def test_selection_errors_name_the_problem(models):
     hand, _ = models
     out = generate_candidates(GraspGenConfig(starts_per_theta=2), refine_config=RefineConfig(iterations=5),
                               log=lambda *_: None)
-    with pytest.raises(ValueError, match=r"unknown grasp id\(s\) \[7\]: candidates are numbered 0..1"):
-        select_grasps(out, hand, 1, 0, pinned_ids=(0, 7))
     with pytest.raises(ValueError, match=r"cannot select 5 grasps: only \d+ of 2 candidates are plausible"):
         select_grasps(out, hand, 5, 0)
     np.testing.assert_array_equal(select_grasps(out, hand, 1, 0, pinned_ids=(1,)), [1])
@@ -109,8 +107,31 @@ def test_selection_errors_name_the_problem(models):
         (dict(sampler="gan"), "sampler must be one of"),
         (dict(n_select=0), "n_select must be a whole number >= 1"),
         (dict(pinned_ids=("a",)), "pinned_ids must be a non-empty list of ints"),
+        (dict(pinned_ids=(1, 1)), r"pinned_ids must be unique, got \[1, 1\]"),
+        (dict(starts_per_theta=5000), r"starts_per_theta must be at most 4,096 .*, got 5,000"),
+        (dict(short_refine_iterations=-1), "short_refine_iterations must be a whole number >= 0, got -1"),
+        (dict(short_refine_iterations=10**6), "short_refine_iterations must be at most 100,000, got 1,000,000"),
+        (dict(seed=-1), "seed must be a whole number from 0 to 4294967295, got -1"),
+        (dict(theta_vol_deg=((0, 0, 1e9),)), r"Theta_Vol angles must be degrees in \[-360, 360\]"),
     ],
 )
 def test_bad_generation_config(kwargs, message):
     with pytest.raises(ValueError, match=message):
         GraspGenConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(iterations=True), "iterations must be a whole number >= 0, got True"),
+        (dict(iterations=10**6), "iterations must be at most 100,000, got 1,000,000"),
+        (dict(lr_joints=0.0), "lr_joints must be positive and finite, got 0.0"),
+        (dict(clip_norm=float("nan")), "clip_norm must be positive and finite, got nan"),
+        (dict(w_contact=-1.0), "w_contact must be finite and >= 0, got -1.0"),
+        (dict(w_self="heavy"), "w_self must be finite and >= 0, got 'heavy'"),
+        (dict(min_contact_z_m=float("nan")), "min_contact_z_m must be a finite height in metres or null, got nan"),
+    ],
+)
+def test_bad_refine_config(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        RefineConfig(**kwargs)

@@ -18,8 +18,6 @@ def test_force_closure_known_values():
     # (the unit-sum constraint is a weighted row of the NNLS, so it holds to about 1e-4)
     assert single == pytest.approx(1.0 / np.sqrt(1.0 + 0.5**2), rel=1e-3)
     assert force_closure_residual(np.zeros((0, 3)), np.zeros((0, 3))) == 1.0
-    with pytest.raises(ValueError, match=r"\(C, 3\)"):
-        force_closure_residual(np.zeros((2, 3)), np.zeros((3, 3)))
 
 
 def test_farthest_point_selection_spreads_out():
@@ -28,8 +26,6 @@ def test_farthest_point_selection_spreads_out():
     assert line[picked[1], 0] in (0.0, 1.0) and len(set(picked.tolist())) == 3
     again = farthest_point_selection(line, 3, np.random.default_rng(0))
     np.testing.assert_array_equal(picked, again)
-    with pytest.raises(ValueError, match="cannot select 12 grasps from 11 plausible ones"):
-        farthest_point_selection(line, 12, np.random.default_rng(0))
 
 
 def test_scores_of_the_handset_grasp():

@@ -1,0 +1,109 @@
+"""The training augmentation, applied to whole batches on the training device: an in-plane rotation about
+the principal point with the 2D and 3D labels turned to match, then colour jitter; and the conversion of
+a loader's frames to model images.
+
+Convention:
+    Frames: (B, S, S, 3) uint8 RGB; model images: (B, 3, S, S) float32 in [0, 1]. Labels as
+    :mod:`hupbench.data.reader`. A positive angle turns the image content counter-clockwise on screen and
+    the camera-frame points by -angle about +z (:mod:`hupbench.input_geometry`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from hupbench.input_geometry import apply_affine, camera_rotation, inside_input, pixels_to_normalized, rotation_pixel_map
+
+__all__ = ["BatchAugment", "model_images"]
+
+
+def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False) -> torch.Tensor:
+    """A loader's images as the model's input on ``device``.
+
+    Args:
+        images: (B, S, S, 3) uint8 RGB frames (moved to the device as bytes: a quarter of the float
+            traffic), or (B, 3, S, S) float32 in [0, 1] model images.
+        device: where the model runs.
+        channels_last: return channels_last memory format.
+
+    Returns:
+        (B, 3, S, S) float32 in [0, 1] on ``device``.
+    """
+    images = images.to(device, non_blocking=True)
+    if images.dtype == torch.uint8:
+        images = images.permute(0, 3, 1, 2).float().div_(255.0)  # (B, S, S, 3) -> (B, 3, S, S)
+    return images.contiguous(memory_format=torch.channels_last if channels_last else torch.contiguous_format)
+
+
+class BatchAugment:
+    """The training augmentation of :class:`hupbench.data.ReaderConfig`'s ``rotate_deg``, ``photometric``
+    and ``seed``.
+
+    Rotation: by a uniform angle in [-rotate_deg, rotate_deg] about the principal point (bilinear, reflected
+    border). Colour jitter of strength p: brightness, contrast and saturation factors in [1 - 0.4 p,
+    1 + 0.4 p] and a hue shift in [-0.05 p, 0.05 p] turns, per sample, in an order drawn once per batch
+    (kornia's ColorJiggle ranges).
+
+    Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch; returns
+    the batch with "image" (B, 3, S, S) float32 in [0, 1] and "keypoints_3d", "keypoints_2d",
+    "keypoints_2d_px", "visible" turned with the image. Draws depend only on (seed, epoch, item index), so a
+    run and its resume see the same augmentation in any batch composition but the jitter's operation
+    order, which is drawn from (seed, epoch, the batch's first item).
+    """
+
+    def __init__(self, config) -> None:
+        self.rotate_deg, self.photometric, self.seed = config.rotate_deg, config.photometric, config.seed
+
+    def draws(self, indices, epoch: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per-item (angles (B,) radians, jitter factors (B, 4): brightness, contrast, saturation, hue)."""
+        angles = np.zeros(len(indices))
+        factors = np.tile([1.0, 1.0, 1.0, 0.0], (len(indices), 1))
+        p = self.photometric
+        for row, index in enumerate(np.asarray(indices, dtype=np.int64).tolist()):
+            if self.rotate_deg > 0:
+                rng = np.random.default_rng([self.seed, int(epoch), index])
+                angles[row] = np.deg2rad(rng.uniform(-self.rotate_deg, self.rotate_deg))
+            if p > 0:
+                jitter = np.random.default_rng([self.seed, int(epoch), index, 1])
+                factors[row, :3] = jitter.uniform(1.0 - 0.4 * p, 1.0 + 0.4 * p, size=3)
+                factors[row, 3] = jitter.uniform(-0.05 * p, 0.05 * p)
+        return angles, factors
+
+    def __call__(self, batch: dict, epoch: int) -> dict:
+        images = model_images(batch["image"], batch["image"].device)
+        out = dict(batch)
+        device = images.device
+        indices = batch["index"].cpu().numpy()
+        angles, factors = self.draws(indices, epoch)
+        if self.rotate_deg > 0:
+            import kornia
+
+            size = images.shape[-1]
+            maps = rotation_pixel_map(angles, batch["K"].cpu().double().numpy()[:, :2, 2])    # (B, 3, 3) pixels
+            images = kornia.geometry.transform.warp_affine(
+                images, torch.from_numpy(maps[:, :2]).to(device, torch.float32), (size, size), mode="bilinear",
+                padding_mode="reflection", align_corners=True)
+            uv = apply_affine(maps, batch["keypoints_2d_px"].cpu().numpy())                     # (B, 29, 2)
+            points = batch["keypoints_3d"].cpu().double().numpy() @ camera_rotation(angles).transpose(0, 2, 1)
+            turned = {"keypoints_3d": points, "keypoints_2d_px": uv, "keypoints_2d": pixels_to_normalized(uv, size)}
+            out.update({name: torch.from_numpy(value).to(device, torch.float32) for name, value in turned.items()})
+            out["visible"] = batch["visible"] & torch.from_numpy(inside_input(uv, size)).to(device)
+        if self.photometric > 0:
+            images = self._jitter(images, torch.from_numpy(factors).to(device, images.dtype),
+                                  np.random.default_rng([self.seed, int(epoch), int(indices[0]), 2]).permutation(4))
+        out["image"] = images
+        return out
+
+    @staticmethod
+    def _jitter(images: torch.Tensor, factors: torch.Tensor, order: np.ndarray) -> torch.Tensor:
+        from kornia.enhance import adjust_brightness, adjust_contrast, adjust_hue, adjust_saturation
+
+        steps = (lambda x, f: adjust_brightness(x, f - 1.0), adjust_contrast, adjust_saturation,
+                 lambda x, f: adjust_hue(x, f * 2.0 * math.pi))
+        images = images.clamp(0.0, 1.0)
+        for step in order.tolist():
+            images = steps[step](images, factors[:, step])
+        return images.clamp(0.0, 1.0)

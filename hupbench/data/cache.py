@@ -1,0 +1,136 @@
+"""The frame cache: every frame of a split decoded and resized once into a memory-mapped (N, S, S, 3) uint8
+file, ``<cache_dir>/<split>_<S>px.npy``, so that a training batch is a gather instead of N JPEG decodes.
+
+The file is built under a temporary name with a progress bar and renamed when whole; its key file
+``<split>_<S>px.json`` is written last and checked on every open. The key holds what the frames depend
+on: the size and modification time of every frame file (in row order), the input size, the stored image
+size, the resize and the file layout. A cache whose key differs is rebuilt, so a frame replaced or
+damaged after the build is read again (and a damaged one refused, naming it).
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from datagen.errors import NotWritableError
+from datagen.io import atomic_output, clean_stale_tmp, write_json
+
+__all__ = ["CACHE_FORMAT", "cache_key", "cache_paths", "open_frame_cache"]
+
+#: bump when the cache file layout or the resize changes: every older cache is then rebuilt
+CACHE_FORMAT = 1
+#: how the stored image is resized to the input size (:func:`hupbench.input_geometry.pad_and_resize`)
+RESIZE = "cv2.INTER_AREA"
+#: frames decoded per thread task, and decoding threads, while building (OpenCV releases the GIL)
+_BUILD_CHUNK, _BUILD_THREADS = 64, 2
+
+
+def cache_paths(cache_dir, split: str, input_size: int) -> tuple[Path, Path]:
+    """(frames .npy, key .json) of one split at one input size."""
+    stem = f"{split}_{int(input_size)}px"
+    return Path(cache_dir) / f"{stem}.npy", Path(cache_dir) / f"{stem}.json"
+
+
+def cache_key(dataset) -> dict:
+    """What the cache of ``dataset`` (a :class:`hupbench.data.HUPDataset`) depends on, as JSON.
+
+    Each frame file counts by name, size and modification time (ns): about 0.1 s for 20,000 frames,
+    where hashing their contents would read the whole split. A missing file counts as such; the
+    rebuild it causes then names it.
+    """
+    stamps = hashlib.sha256()
+    for row in range(len(dataset)):
+        path = dataset.path(row)
+        try:
+            stat = path.stat()
+            stamps.update(f"{path.name} {stat.st_size} {stat.st_mtime_ns}\n".encode())
+        except FileNotFoundError:
+            stamps.update(f"{path.name} missing\n".encode())
+    return {"format": CACHE_FORMAT, "split": dataset.split, "input_size": int(dataset.config.input_size),
+            "image_size": [int(v) for v in dataset.manifest["image_size"]], "resize": RESIZE,
+            "frames": len(dataset), "frame_files_sha256": stamps.hexdigest()}
+
+
+def _reserve(path: Path) -> None:
+    """Allocate the whole file now: pages of a sparse memory map that find the disk full kill the process
+    with SIGBUS when written (measured on a full tmpfs); allocated here, a full disk is an OSError (ENOSPC)."""
+    with open(path, "r+b") as f:
+        try:
+            os.posix_fallocate(f.fileno(), 0, os.fstat(f.fileno()).st_size)
+        except OSError as exc:
+            if exc.errno not in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):  # not supported: write as before
+                raise
+
+
+def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) -> np.ndarray:
+    """The frames of ``dataset`` at its input size, memory-mapped; built (or rebuilt when stale) first.
+
+    Args:
+        dataset: a :class:`hupbench.data.HUPDataset`; row i of the cache is its ``frame(i)``.
+        cache_dir: where the cache lives; None for ``<dataset root>/cache``.
+        progress: show a progress bar while building.
+        log: where the rebuild of a stale cache is reported.
+
+    Returns:
+        (N, S, S, 3) uint8 read-only memory map, RGB.
+    """
+    cache_dir = dataset.root / "cache" if cache_dir is None else Path(cache_dir)
+    size, split = int(dataset.config.input_size), dataset.split
+    npy_path, key_path = cache_paths(cache_dir, split, size)
+    key = cache_key(dataset)
+    if key_path.is_file() and npy_path.is_file():
+        try:
+            stored = json.loads(key_path.read_text())
+        except (OSError, json.JSONDecodeError):
+            stored = None
+        if stored == key:
+            frames = np.load(npy_path, mmap_mode="r")
+            if frames.shape == (len(dataset), size, size, 3) and frames.dtype == np.uint8:
+                return frames
+        log(f"frame cache {npy_path} is stale (the dataset or the reader changed); rebuilding it")
+    try:
+        # the key file goes first so that no reader trusts a half-replaced cache
+        key_path.unlink(missing_ok=True)
+        cache_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):  # e.g. the default <dataset>/cache of a shared dataset
+            raise NotWritableError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
+                                             "data.cache_dir to a writable folder") from exc
+        raise
+    clean_stale_tmp(cache_dir, recursive=False)  # builds of killed runs
+    n = len(dataset)
+    # written under a temporary name, renamed when whole; a failure removes it (a full disk says so)
+    with atomic_output(npy_path) as tmp:
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
+        _reserve(tmp)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px", dynamic_ncols=True)
+
+        def fill(start: int) -> int:
+            stop = min(n, start + _BUILD_CHUNK)
+            for row in range(start, stop):
+                out[row] = dataset.frame(row)
+            return stop - start
+
+        try:
+            with ThreadPoolExecutor(max_workers=_BUILD_THREADS) as pool:
+                for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
+                    if bar is not None:
+                        bar.update(done)
+        finally:
+            if bar is not None:
+                bar.close()
+        out.flush()
+        del out
+    write_json(key_path, key)
+    return np.load(npy_path, mmap_mode="r")

@@ -1,0 +1,134 @@
+"""A training run's data: the splits' uint8 frames from one of two sources, their loaders, and the
+augmentation that turns each training batch on the device.
+
+``data.pipeline`` picks the source only: ``cache`` gathers rows of the frame cache (:mod:`hupbench.data.cache`,
+decoded once), ``jpeg`` decodes each frame when a batch needs it. Both give the same batches, bit for bit,
+to the same :class:`hupbench.data.augment.BatchAugment`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+from datagen.errors import BadValueError
+from hupbench.config import build
+from hupbench.data.augment import BatchAugment
+from hupbench.data.cache import open_frame_cache
+from hupbench.data.reader import HUPDataset
+from hupbench.training.schedule import EpochSampler
+
+__all__ = ["DecodedFrames", "FrameBatches", "TrainData", "setup_data"]
+
+
+class DecodedFrames:
+    """The jpeg source: rows of a split's (N, S, S, 3) uint8 frames, decoded from their files on each access."""
+
+    def __init__(self, dataset: HUPDataset) -> None:
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, rows: np.ndarray) -> np.ndarray:
+        return np.stack([self.dataset.frame(int(row)) for row in rows])
+
+
+class FrameBatches(torch.utils.data.Dataset):
+    """A split's frames with their labels, a whole batch per call (``__getitems__``).
+
+    Args:
+        dataset: the split (its labels and annotations).
+        frames: (N, S, S, 3) uint8 rows: the frame cache's memory map or :class:`DecodedFrames`.
+
+    Batches: "image" (B, S, S, 3) uint8 RGB, "index" (B,) int64 (the row in the split: the augmentation
+    key), and rows of every label of :attr:`HUPDataset.labels`. ``ann`` is the split's annotation arrays.
+    """
+
+    def __init__(self, dataset: HUPDataset, frames) -> None:
+        self.ann, self.labels, self.frames = dataset.ann, dataset.labels, frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitems__(self, indices: list[int]) -> dict:
+        order = np.asarray(indices, dtype=np.int64)
+        rows = np.sort(order)  # a sorted gather reads the memory map front to back
+        images = self.frames[rows][np.searchsorted(rows, order)]
+        index = torch.from_numpy(order)
+        return {"image": torch.from_numpy(images), "index": index,
+                **{name: value[index] for name, value in self.labels.items()}}
+
+    def __getitem__(self, index: int) -> dict:
+        batch = self.__getitems__([int(index)])
+        return {name: value[0] for name, value in batch.items()}
+
+
+def _stacked(batch: dict) -> dict:
+    """The loaders' collate: :meth:`FrameBatches.__getitems__` stacks the batch already."""
+    return batch
+
+
+class TrainData(NamedTuple):
+    """What :func:`setup_data` builds: the splits, their loaders and the per-batch augmentation."""
+
+    train_set: FrameBatches
+    val_set: FrameBatches
+    sampler: EpochSampler
+    train_loader: Any
+    val_loader: Any
+    bn_loader: Any
+    augment: BatchAugment
+
+
+def _bounded_threads(_worker_id: int) -> None:
+    """Loader workers decode or gather with one thread each: OpenCV and OpenMP pools in every worker
+    oversubscribe the machine (measured: load 140-170 on 16 cores)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log=print) -> TrainData:
+    """The training and validation data of a run (``data.pipeline``: cache or jpeg, checked with the config).
+
+    Validation and batch-norm batches are un-augmented; ``TrainData.augment`` turns training batches on
+    ``device``.
+    """
+    reader = build(cfg.data.reader)
+    pipeline = cfg.data.get("pipeline", "cache")
+    assert pipeline in ("cache", "jpeg"), pipeline
+    splits = [HUPDataset(Path(cfg.data.root), split, reader) for split in (cfg.data.train_split, cfg.data.val_split)]
+    K = splits[0].ann["K"]
+    if reader.rotate_deg > 0 and not np.allclose(K[:, 0, 0], K[:, 1, 1]):
+        raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0, 0]}, fy={K[0, 1, 1]}")
+    if pipeline == "cache":
+        show = bool(cfg.train.progress) and rank == 0
+        frames = [open_frame_cache(split, cfg.data.get("cache_dir"), progress=show, log=log) for split in splits]
+    else:
+        frames = [DecodedFrames(split) for split in splits]
+    train_set, val_set = (FrameBatches(split, source) for split, source in zip(splits, frames))
+    workers = int(cfg.data.num_workers)
+    loader_args = {"batch_size": int(cfg.data.batch_size), "num_workers": workers, "collate_fn": _stacked,
+                   "pin_memory": device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
+                   "persistent_workers": workers > 0}
+    sampler = EpochSampler(len(train_set), int(cfg.data.batch_size), int(cfg.seed), world, rank)
+    train_loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
+    val_indices = np.arange(len(val_set))
+    if cfg.data.val_frames is not None and cfg.data.val_frames < len(val_set):
+        val_indices = np.linspace(0, len(val_set) - 1, int(cfg.data.val_frames)).round().astype(int)
+    val_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(val_set, val_indices[rank::world].tolist()),
+                                             shuffle=False, **loader_args)
+    bn_loader = None
+    if cfg.train.bn_recompute_frames:
+        # un-augmented training frames, a fixed draw: the statistics the model meets at test time
+        n_bn = min(int(cfg.train.bn_recompute_frames), len(train_set))
+        bn_indices = np.random.default_rng(int(cfg.seed)).choice(len(train_set), n_bn, replace=False)
+        bn_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(train_set, sorted(bn_indices.tolist())),
+                                                shuffle=False, **loader_args)
+    return TrainData(train_set, val_set, sampler, train_loader, val_loader, bn_loader, BatchAugment(reader))

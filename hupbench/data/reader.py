@@ -1,0 +1,155 @@
+"""The dataset reader: the frames of one split decoded and resized to the model's square input, with every
+label moved into that input image, so that ``project(keypoints_3d, K) == keypoints_2d_px`` holds there.
+
+Convention:
+    3D keypoints: metres, OpenCV camera frame. 2D keypoints: pixels of the input image (pixel centres at
+    integers) in ``keypoints_2d_px`` and normalised to [-1, 1] across it (:mod:`hupbench.input_geometry`)
+    in ``keypoints_2d``. Frames: (S, S, 3) uint8 RGB; model images: (3, S, S) float32 RGB in [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from datagen.camera import resize_intrinsics, resize_points
+from datagen.dataset.contract import frame_path, read_annotations, read_manifest
+from datagen.errors import BadValueError, MissingFileError
+from datagen.input_checks import check_int, check_number
+from hupbench.input_geometry import INPUT_SIZE_RANGE, inside_input, pad_and_resize, pixels_to_normalized
+
+__all__ = ["HUPDataset", "ReaderConfig", "input_labels", "read_manifest", "read_rgb"]
+
+
+def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
+    """A stored frame as (H, W, 3) uint8 RGB, checked: it exists, decodes, and has the manifest's size.
+
+    Args:
+        path: the image file.
+        image_size: (width, height) the manifest gives for every frame, or None to skip that check.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: not a decodable image, or another size (the message
+        names the file; a frame of another size would put every label in the wrong place).
+    """
+    path = Path(path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise MissingFileError(f"{path} does not exist (a frame the annotations list)") from None
+    # imdecode, not imread: imread prints OpenCV's own warning for a missing or foreign file before
+    # returning None, which a user cannot act on (the error below names the file)
+    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if image is None:
+        raise BadValueError(f"cannot decode {path} as an image ({data.size} bytes): damaged or not a JPG/PNG")
+    if image_size is not None:
+        width, height = (int(v) for v in image_size)
+        if image.shape[:2] != (height, width):
+            raise BadValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
+    return np.ascontiguousarray(image[..., ::-1])
+
+
+@dataclass(frozen=True)
+class ReaderConfig:
+    """The ``data.reader`` config node: how frames become model inputs, checked here and nowhere else.
+
+    Attributes:
+        input_size: S, side of the square model input, pixels, within ``INPUT_SIZE_RANGE``.
+        rotate_deg: in-plane rotation range (+-) of the training augmentation, degrees in [0, 180]; 0 disables it.
+        photometric: colour jitter strength of the training augmentation, in [0, 1]; 0 disables it.
+        seed: augmentation seed (item i of epoch e draws from (seed, e, i)), >= 0.
+    """
+
+    input_size: int = 128
+    rotate_deg: float = 0.0
+    photometric: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        low, high = INPUT_SIZE_RANGE
+        check_int(self.input_size, "data.reader.input_size", low)
+        if self.input_size > high:
+            raise BadValueError(f"data.reader.input_size must be at most {high:,}, got {self.input_size:,}")
+        check_number(self.rotate_deg, "data.reader.rotate_deg", 0.0, 180.0)
+        check_number(self.photometric, "data.reader.photometric", 0.0, 1.0)
+        check_int(self.seed, "data.reader.seed", 0)
+
+
+def input_labels(ann: dict, scale: float, size: int) -> dict[str, np.ndarray]:
+    """Labels of stored frames moved into the square model input (one frame or many at once).
+
+    Args:
+        ann: "keypoints_3d_cam" (..., 29, 3) metres, OpenCV camera frame; "keypoints_2d" (..., 29, 2)
+            pixels of the stored image; "K" (..., 3, 3) its intrinsics; "visible" (..., 29) bool.
+        scale: input pixels per stored pixel (S / stored width).
+        size: S, side of the input image.
+
+    Returns:
+        float32 "keypoints_3d" (..., 29, 3) metres, "keypoints_2d_px" (..., 29, 2) input pixels,
+        "keypoints_2d" (..., 29, 2) normalised [-1, 1], "K" (..., 3, 3) of the input image, and
+        "visible" (..., 29) bool: visible in the stored frame and inside the input image.
+    """
+    uv = resize_points(ann["keypoints_2d"], scale)
+    return {
+        "keypoints_3d": np.asarray(ann["keypoints_3d_cam"], dtype=np.float32),
+        "keypoints_2d": pixels_to_normalized(uv, size).astype(np.float32),
+        "keypoints_2d_px": uv.astype(np.float32),
+        "visible": np.asarray(ann["visible"], dtype=bool) & inside_input(uv, size),
+        "K": resize_intrinsics(ann["K"], scale).astype(np.float32),
+    }
+
+
+class HUPDataset(torch.utils.data.Dataset):
+    """The frames of one split at the model's input size, un-augmented, with their labels.
+
+    Args:
+        root: dataset folder (with ``manifest.json``).
+        split: "train", "val" or "test".
+        config: the input size (the augmentation fields are :class:`hupbench.data.augment.BatchAugment`'s).
+
+    Attributes:
+        ann: the split's annotation arrays (N rows). labels: the input-image labels of every frame as
+            tensors with a leading N axis ("keypoints_3d", "keypoints_2d", "keypoints_2d_px", "visible",
+            "K" as :func:`input_labels`, and "frame_id" int64).
+
+    Items are dicts: "image" (3, S, S) float32, the model's input, and one row of every label.
+    Only RGB is read: the models use nothing else.
+    """
+
+    def __init__(self, root, split: str, config: ReaderConfig = ReaderConfig()) -> None:
+        self.root = Path(root)
+        self.manifest = read_manifest(self.root, split)
+        if "rgb" not in self.manifest["modalities"]:
+            raise BadValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
+        self.split, self.config = split, config
+        self.ann = read_annotations(self.root, split, ("keypoints_3d_cam", "keypoints_2d", "visible", "K"),
+                                    self.manifest)
+        width, height = (int(v) for v in self.manifest["image_size"])
+        if width != height:  # the labels follow a resize, not a pad (pad_and_resize would need their offset)
+            raise BadValueError(f"{self.path(0)}: the reader expects square images, got {width} x {height}")
+        size = config.input_size
+        labels = input_labels(self.ann, size / width, size)
+        self.labels = {name: torch.from_numpy(np.ascontiguousarray(array)) for name, array in labels.items()}
+        self.labels["frame_id"] = torch.from_numpy(self.ann["frame_id"].astype(np.int64))
+
+    def __len__(self) -> int:
+        return len(self.ann["frame_id"])
+
+    def path(self, index: int) -> Path:
+        """The RGB file of row ``index``."""
+        return frame_path(self.root, self.split, "rgb", int(self.ann["frame_id"][index]), self.manifest["rgb_format"])
+
+    def frame(self, index: int) -> np.ndarray:
+        """(S, S, 3) uint8 RGB: row ``index``'s file decoded (checked by :func:`read_rgb`) and resized."""
+        image, _ = pad_and_resize(read_rgb(self.path(index), self.manifest["image_size"]), self.config.input_size)
+        return image
+
+    def __getitem__(self, index: int) -> dict:
+        from hupbench.data.augment import model_images
+
+        image = model_images(torch.from_numpy(self.frame(index))[None], torch.device("cpu"))[0]
+        return {"image": image, **{name: value[index] for name, value in self.labels.items()}}
