@@ -121,11 +121,10 @@ OPTION_CASES = {
 }
 
 #: cases :class:`EvalOptions` refuses: case -> options(checkpoint, dataset, out folder), checked without the verb
+#: (run-name-disagrees stays a CLI case: it wires --run-name)
 UNIT_CASES = {
     "model-not-pt-or-onnx": lambda ckpt, dataset, out_dir: EvalOptions(out_dir / "notes.txt", dataset),
     "out-not-json": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, out=out_dir / "results.txt"),
-    "run-name-disagrees": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, out=out_dir / "r.json",
-                                                                     run_name="other"),
 }
 
 CASES = ([f"model:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "model-not-pt-or-onnx"] + ONNX_CASES]
