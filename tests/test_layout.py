@@ -121,6 +121,7 @@ NEVER = {
     "hupbench.evaluation": ("hupbench.training", "hupbench.verbs", "hupbench.cli"),
     "hupbench.inference": ("hupbench.training", "hupbench.evaluation", "hupbench.verbs", "hupbench.cli"),
     "hupbench.verbs": ("hupbench.cli",),
+    "hupbench.data": ("hupbench.evaluation", "hupbench.inference", "hupbench.verbs", "hupbench.cli"),
 }
 #: the torch-free inference path (DESIGN.md: predict runs where torch is not installed)
 TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupbench.inference.overlay",

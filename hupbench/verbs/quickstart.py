@@ -223,11 +223,11 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
 
 
 def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, done, log) -> dict:
-    from hupbench.evaluation.evaluate import run_eval
-    from hupbench.inference.export import run_export
+    from hupbench.evaluation.evaluate import EvalOptions, run_eval
+    from hupbench.inference.export import ExportOptions, run_export
     from hupbench.verbs.generate import run_generate, run_verify
     from hupbench.verbs.grasps import run_grasps
-    from hupbench.inference.predict import run_predict
+    from hupbench.inference.predict import PredictOptions, run_predict
     from hupbench.training.loop import run_train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
@@ -263,8 +263,9 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
         return out
 
     t0 = stage(5, "eval", "all metrics on the test split")
-    evaluated = run_eval(trained["checkpoint"], out["dataset"], split="test", out=work / "results" / "quickstart.json",
-                         latency=overrides["eval_latency"], log=quiet)
+    evaluated = run_eval(EvalOptions(trained["checkpoint"], out["dataset"], split="test",
+                                     out=work / "results" / "quickstart.json", latency=overrides["eval_latency"]),
+                         log=quiet)
     out["results"] = evaluated["out"]
     out["metrics"] = {k: evaluated["results"]["metrics"]["mpjpe_mm"][k] for k in ("all", "hand", "probe")}
     out["floor_mm"] = (evaluated["results"]["split_floor"] or {}).get("floor_mm")
@@ -273,7 +274,8 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
         return out
 
     t0 = stage(6, "export", "ONNX with a parity check against PyTorch")
-    exported = run_export(trained["checkpoint"], out=work / "model.onnx", dataset=out["dataset"], log=quiet)
+    exported = run_export(ExportOptions(trained["checkpoint"], out=work / "model.onnx", dataset=out["dataset"]),
+                          log=quiet)
     out["onnx"] = exported["onnx"]
     out["parity"] = exported["parity"]
     if done("export", t0):
@@ -281,7 +283,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
 
     t0 = stage(7, "predict", "keypoints for a rendered test image, onnxruntime only")
     image = _first_test_image(Path(out["dataset"]))
-    predicted = run_predict(out["onnx"], [image], out_dir=work / "predict", log=quiet)
+    predicted = run_predict(PredictOptions(out["onnx"], [image], out_dir=work / "predict"), log=quiet)
     if predicted["failed"]:
         raise RunFailedError(f"predict failed on {image}: {predicted['records'][0].get('error')}")
     out["predictions"] = str(predicted["json"])
