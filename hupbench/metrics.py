@@ -361,8 +361,8 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
     worst = float(dist[np.arange(len(p)), perm].max())
     if worst > rel_tol * size or len(set(perm.tolist())) != len(p):
         raise BadValueError(f"the points are not symmetric under the rotation: a rotated point lies "
-                         f"{worst * _MM_PER_M:.3g} mm from the nearest point "
-                         f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
+                            f"{worst * _MM_PER_M:.3g} mm from the nearest point "
+                            f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
     return tuple(int(k) for k in perm)
 
 

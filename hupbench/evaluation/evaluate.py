@@ -213,7 +213,7 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
     drift = float(np.abs(corners_world - corners_world[:1]).max())
     if drift > CORNER_FRAME_TOL_M:
         raise BadValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
-                         f"(probe) frame: the dataset does not place the probe at the world origin")
+                            f"(probe) frame: the dataset does not place the probe at the world origin")
     half_turn = metrics.symmetry_permutation(corners_world.mean(axis=0), metrics.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
     return (tuple(range(kp.NUM_CORNERS)), half_turn)
 
@@ -266,7 +266,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     if floors is not None:
         if not isinstance(floors, dict) or not isinstance(floors.get("splits"), dict):
             raise BadValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition' and "
-                             f"'splits' (split -> floor), got {str(floors)[:80]}")
+                                f"'splits' (split -> floor), got {str(floors)[:80]}")
     entry = None if floors is None else floors["splits"].get(split)
     if entry is None:
         return track, None
@@ -274,7 +274,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     entry = copy.deepcopy(validate_split_floor(entry, entry_where))
     if set(entry["per_grasp"]) != {str(g) for g in grasp_ids}:
         raise BadValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
-                         f"{sorted(entry['per_grasp'], key=int)}")
+                            f"{sorted(entry['per_grasp'], key=int)}")
     return track, entry
 
 

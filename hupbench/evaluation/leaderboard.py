@@ -94,19 +94,19 @@ def load_rows(results_dir: str | Path) -> list[dict]:
         twin = by_folded_name.setdefault(path.stem.casefold(), path)
         if twin != path:
             raise BadValueError(f"{twin} and {path}: run names must differ in more than letter case (the two files "
-                             "collide on case-insensitive file systems such as macOS's and Windows')")
+                                "collide on case-insensitive file systems such as macOS's and Windows')")
     rows = []
     for path in paths:
         row = load_results(path)
         if row["run_name"] != path.stem:
             raise BadValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
-                             f"got {row['run_name']!r}")
+                                f"got {row['run_name']!r}")
         if row["dataset"]["split"] != "test":
             raise BadValueError(f"{path}: the leaderboard compares test-split results, "
-                             f"got results['dataset']['split'] = {row['dataset']['split']!r}")
+                                f"got results['dataset']['split'] = {row['dataset']['split']!r}")
         if row["kind"] == "measured" and row["training"]["command"] is None:
             raise BadValueError(f"{path}: a measured row must name the command that reproduces it in "
-                             "results['training']['command'], got None")
+                                "results['training']['command'], got None")
         rows.append(row)
     return sorted(rows, key=sort_key)
 
@@ -193,7 +193,7 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
             first = seen.setdefault((record.get("event"), step), lineno)
             if first != lineno:
                 raise BadValueError(f"{path}:{lineno}: {record.get('event')!r} step {step} is logged twice (lines {first} "
-                                 f"and {lineno}): two trainings wrote to this log; keep one run's lines")
+                                    f"and {lineno}): two trainings wrote to this log; keep one run's lines")
         if record.get("event") != "val":
             continue
         seconds = record.get("train_wall_s")
@@ -202,7 +202,7 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
         for name, value in (("train_wall_s", seconds), ("val_mpjpe_mm['all']", mpjpe_all)):
             if not _finite_non_negative(value):
                 raise BadValueError(f"{path}:{lineno}: validation line needs {name} as a finite number >= 0, "
-                                 f"got {value!r}")
+                                    f"got {value!r}")
         curve.append((float(seconds), float(mpjpe_all)))
     if not curve:
         raise BadValueError(f"{path}: no validation lines ({{\"event\": \"val\", ...}}) to plot")
@@ -804,7 +804,7 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
         raise BadValueError(f"leaderboard folder (--dir) {root} is not a folder")
     if not (root / "results").is_dir():
         raise MissingFileError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
-                                "leaderboard folder?")
+                               "leaderboard folder?")
     check_writable(root, "leaderboard folder")
     for name in (README, LATENCY_PLOT, TRAINING_PLOT):  # a folder in an output's place would stop the renames
         check_writable(root / name, "leaderboard file", file=True)

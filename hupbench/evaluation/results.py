@@ -340,7 +340,7 @@ def validate_results(d: dict) -> dict:
     version = d["schema_version"]
     if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
-                         f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
+                            f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
     _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]

@@ -76,10 +76,10 @@ def check_image_size(width: int, height: int, source: str = "image") -> None:
     """Refuse images smaller than MIN_IMAGE_SIDE or larger than MAX_IMAGE_SIDE (module docstring)."""
     if min(width, height) < MIN_IMAGE_SIDE:
         raise BadValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
-                         "on each side")
+                            "on each side")
     if max(width, height) > MAX_IMAGE_SIDE:
         raise BadValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
-                         f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
+                            f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
 
 
 _OPENCV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:[^\]]*\]\s*(global\s+\S+\s+\S+\s+)?")
@@ -146,7 +146,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
     detail = "; ".join(said)
     if image is None or image.size == 0:
         raise BadValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
-                         + (f": {detail})" if detail else ")"))
+                            + (f": {detail})" if detail else ")"))
     if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
         raise BadValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
     if detail and notes is not None:

@@ -76,7 +76,7 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
                          "not a hupbench ONNX export; predict and eval read models written by `hupbench export CKPT`")
     if props[META + "onnx_schema"] != ONNX_SCHEMA:
         raise BadValueError(f"{source} has hupbench.onnx_schema {props[META + 'onnx_schema']!r}; this hupbench reads "
-                         f"{ONNX_SCHEMA!r}")
+                            f"{ONNX_SCHEMA!r}")
     missing = [META + key for key in _REQUIRED if META + key not in props]
     if missing:
         raise BadValueError(f"{source} lacks metadata {', '.join(missing)}")
@@ -100,11 +100,11 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
             or not all(is_whole(i) and 0 <= i < len(names) for e in edges for i in e)):
         raise BadValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
-                         f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
+                            f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
     model_config = load("model_config") if META + "model_config" in props else {}
     if not isinstance(model_config, dict):
         raise BadValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
-                         f"{type(model_config).__name__}")
+                            f"{type(model_config).__name__}")
     return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
@@ -135,7 +135,7 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
             shown = ", ".join(str(d) for d in dims)
             raise BadValueError(f"{source}: the graph's {name} is ({shown}), expected "
-                             f"(batch, {', '.join(map(str, tail))}){why}")
+                                f"(batch, {', '.join(map(str, tail))}){why}")
 
 
 def check_intrinsics(K: Any, name: str) -> np.ndarray:
