@@ -1,8 +1,9 @@
 """python train.py model=hopenet [key=value ...]   (-m for a sweep; torchrun for several processes)
 
 The Hydra entry point: composes conf/train.yaml and calls hupbench.training.loop.main (run_train, errors in one line).
-Every error is one line, ``train.py: error: ...``, with exit code 1: Hydra's own (a malformed override, an
-unknown key or config option) as well as the run's. HYDRA_FULL_ERROR=1 shows the traceback instead.
+Every deliberate refusal is one line, ``train.py: error: ...``, with exit code 1: Hydra's own (a malformed override,
+an unknown key or config option) as well as the run's; Ctrl-C is one line and exit code 130. Anything else is a
+bug and keeps its traceback; HYDRA_FULL_ERROR=1 shows the traceback of a refusal too.
 """
 
 import os
@@ -39,7 +40,12 @@ if __name__ == "__main__":
     os.environ["HYDRA_FULL_ERROR"] = "1"
     try:
         main()
-    except (HydraException, OmegaConfBaseException, OSError, ValueError) as exc:
+    except KeyboardInterrupt:
+        # the loader workers, in the same process group, got the same SIGINT and end quietly
+        print("train.py: interrupted (Ctrl-C); the same command continues from the run's last checkpoint",
+              file=sys.stderr)
+        sys.exit(130)
+    except (HydraException, OmegaConfBaseException) as exc:
         if DEBUG:
             raise
         print(f"train.py: error: {hydra_error_line(exc)}", file=sys.stderr)

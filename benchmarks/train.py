@@ -1,7 +1,7 @@
 """Training throughput of the whole input pipeline: loader + augmentation + optimiser step, images/s.
 
-Runs the training code's own pieces (``hupbench.data.setup_data`` and ``train_step``) on a real
-dataset for each source of frames side by side in one process: ``jpeg`` (JPEG decode and resize per
+Runs the training code's own pieces (``hupbench.data.setup_data``, ``build_run_model`` and ``train_step``)
+on a real dataset for each source of frames side by side in one process: ``jpeg`` (JPEG decode and resize per
 image in loader workers) and ``cache`` (frames decoded once into the memory-mapped frame cache); both
 are augmented per batch on the training device. For each it prints the median step rate over the
 timed steps, the end-to-end rate (all timed steps, data waits included) and the share of wall time the
@@ -29,8 +29,9 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
             args) -> dict:
     import torch
 
-    from hupbench.config import build, compose
+    from hupbench.config import compose
     from hupbench.data import setup_data
+    from hupbench.training.config import train_config
     from hupbench.training.loop import build_run_model, train_step
     from hupbench.training.schedule import learning_rate
 
@@ -38,18 +39,18 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
                             f"data.num_workers={workers}", f"data.batch_size={args.batch}", f"device={args.device}",
                             f"precision={precision}", f"channels_last={str(channels_last).lower()}",
                             "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true"])
+    run = train_config(cfg)
     device = torch.device(args.device)
     t0 = time.perf_counter()
     data = setup_data(cfg, 1, 0, device, log=print)
     setup_s = time.perf_counter() - t0
     K = data.train_set.ann["K"][0]
-    model = build_run_model(cfg, data.train_set.ann, K, None, None).to(device)
+    model = build_run_model(run, data, K).to(device)
     if channels_last:
         model = model.to(memory_format=torch.channels_last)
     train_model = torch.compile(model) if args.compile else model
-    optimizer = build(cfg.optim.optimizer)(model.parameters(), lr=learning_rate(cfg, 1))
-    scheduler = build(cfg.optim.scheduler)(optimizer, total_steps=args.warmup + args.steps)
-    autocast = {"device_type": device.type, "dtype": torch.bfloat16, "enabled": precision == "bf16"}
+    optimizer = run.optim.optimizer(model.parameters(), lr=learning_rate(run.optim, args.batch))
+    scheduler = run.optim.scheduler(optimizer, total_steps=args.warmup + args.steps)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     data.sampler.set_position(0, 0)
     batches = iter(data.train_loader)
@@ -62,7 +63,8 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
         t_wait = time.perf_counter()
         batch = next(batches)
         t_step = time.perf_counter()
-        loss, _ = train_step(train_model, optimizer, scheduler, batch, 0, data, cfg, device, autocast)
+        loss, _ = train_step(train_model, optimizer, batch, 0, data, run, device)
+        scheduler.step()
         float(loss)  # waits for the device
         t_end = time.perf_counter()
         if i >= args.warmup:

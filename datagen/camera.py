@@ -104,10 +104,8 @@ def look_at(eye_world: np.ndarray, target_world: np.ndarray, up_world=(0.0, 0.0,
     up = check_last_axes(up_world, (3,), "up_world").reshape(3)
     forward = target - eye
     dist = np.linalg.norm(forward)
-    if dist < tol.MIN_PROJECTION_DEPTH_M:
-        raise BadValueError(f"eye and target coincide ({eye.tolist()}): the view direction is undefined")
-    if np.linalg.norm(up) == 0:
-        raise BadValueError("up_world must be non-zero")
+    # the camera distances (DatasetSpec.z_ego_m, PreviewView.distance_m) are checked positive
+    assert dist >= tol.MIN_PROJECTION_DEPTH_M and np.linalg.norm(up) > 0, (eye, target, up)
     z = forward / dist
     up = up / np.linalg.norm(up)
     if np.linalg.norm(np.cross(z, up)) < tol.LOOK_AT_PARALLEL:
@@ -132,8 +130,7 @@ def project_points(points_cam: np.ndarray, K: np.ndarray, behind: str = "raise")
     Returns:
         (..., N, 2) float64 pixel coordinates (u, v).
     """
-    if behind not in ("raise", "nan"):
-        raise BadValueError(f"behind must be 'raise' or 'nan', got {behind!r}")
+    assert behind in ("raise", "nan"), behind
     points_cam = check_last_axes(points_cam, (3,), "points_cam")
     K = check_last_axes(K, (3, 3), "K")
     z = points_cam[..., 2]

@@ -62,14 +62,11 @@ def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * K + b * (K @ K)
 
 
-def check_rotation(R: np.ndarray, name: str = "R") -> np.ndarray:
-    """Validate (..., 3, 3) rotation matrices (orthonormal, det +1)."""
-    R = check_last_axes(R, (3, 3), name)
-    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
-    if err > tol.ROTATION_ORTHONORMAL:
-        raise BadValueError(f"{name} is not orthonormal (max |R^T R - I| = {err:.2e})")
-    if np.any(np.linalg.det(R) < 0):
-        raise BadValueError(f"{name} contains a reflection (det < 0)")
+def as_rotation(R: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices as float64; every caller hands in rotations this package made."""
+    R = check_last_axes(R, (3, 3), "R")
+    assert np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0) <= tol.ROTATION_ORTHONORMAL
+    assert np.all(np.linalg.det(R) > 0), "a rotation, not a reflection"
     return R
 
 
@@ -82,7 +79,7 @@ def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
     Returns:
         (..., 3) float64 axis-angle with angle in [0, pi].
     """
-    R = check_rotation(R)
+    R = as_rotation(R)
     trace = np.trace(R, axis1=-2, axis2=-1)
     vee = np.stack(
         [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1
@@ -172,8 +169,7 @@ def euler_to_matrix(angles: np.ndarray, order: str = "xyz") -> np.ndarray:
     Returns:
         (..., 3, 3) float64.
     """
-    if len(order) != 3 or set(order) - set("xyz"):
-        raise BadValueError(f"order must be three letters from 'xyz', got {order!r}")
+    assert len(order) == 3 and not set(order) - set("xyz"), order
     angles = check_last_axes(angles, (3,), "angles")
     R = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
     for k, axis in enumerate(order):
@@ -193,7 +189,7 @@ def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
         (..., 3) float64 angles (a, b, c), radians, with R = Rx(a) Ry(b) Rz(c),
         b in [-pi/2, pi/2]. At b = +-pi/2 (gimbal lock) c is set to 0.
     """
-    R = check_rotation(R)
+    R = as_rotation(R)
     cos_b = np.hypot(R[..., 0, 0], R[..., 0, 1])
     b = np.arctan2(R[..., 0, 2], cos_b)
     locked = cos_b < tol.SMALL_ANGLE_RAD

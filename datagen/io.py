@@ -298,6 +298,7 @@ class OutputLock:
             os.ftruncate(fd, 0)
             os.pwrite(fd, data, 0)
         except OSError as exc:
+            self.path.unlink(missing_ok=True)  # an empty lock file would outlive the failed run
             os.close(fd)
             raise _explain(exc, self.path) from exc
         self._fd = fd

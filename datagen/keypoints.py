@@ -18,7 +18,6 @@ Convention:
 from __future__ import annotations
 
 import itertools
-from datagen.errors import BadValueError
 
 NUM_HAND = 21
 NUM_CORNERS = 8
@@ -99,8 +98,7 @@ def finger_of(openpose_index: int) -> str:
     Returns:
         One of ``FINGERS`` or ``"wrist"``.
     """
-    if not isinstance(openpose_index, int) or not 0 <= openpose_index < NUM_HAND:
-        raise BadValueError(f"hand keypoint index must be an int in [0, {NUM_HAND}), got {openpose_index!r}")
+    assert 0 <= openpose_index < NUM_HAND, openpose_index
     if openpose_index == 0:
         return "wrist"
     return FINGERS[(openpose_index - 1) // 4]

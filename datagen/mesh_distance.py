@@ -20,7 +20,6 @@ from scipy.spatial import cKDTree
 
 from datagen import tolerances as tol
 from datagen.keypoints import CORNER_BITS
-from datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- distance to triangles
@@ -152,8 +151,8 @@ def _pseudo_normals(vertices: np.ndarray, faces: np.ndarray) -> _PseudoNormals:
     key = lo * (len(vertices) + 1) + hi
     order = np.argsort(key, kind="stable")
     sk = key[order]
-    if len(sk) % 2 or np.any(sk[0::2] != sk[1::2]) or np.any(sk[1:-1:2] == sk[2::2]):
-        raise BadValueError("mesh is not a closed 2-manifold: every edge needs exactly two faces")
+    # a closed 2-manifold: every edge has exactly two faces (the probe's sweep is closed by construction)
+    assert not (len(sk) % 2 or np.any(sk[0::2] != sk[1::2]) or np.any(sk[1:-1:2] == sk[2::2]))
     twin = np.empty_like(order)
     twin[order[0::2]], twin[order[1::2]] = order[1::2], order[0::2]
     edge_face = np.repeat(np.arange(len(faces)), 3)
@@ -349,8 +348,7 @@ class MeshDistance:
             # (cheaper than a k-d tree query, and almost always the closest face already)
             lower = self.levels[level].lower_bound(points[node], group)
             starts = np.flatnonzero(np.r_[True, node[1:] != node[:-1]])
-            if len(starts) != n:
-                raise BadValueError("every point needs at least one (point, group) pair")
+            assert len(starts) == n, "every point has at least one (point, group) pair"
             seg = np.minimum.reduceat(lower, starts)
             hit = np.flatnonzero(lower == np.repeat(seg, np.diff(np.r_[starts, len(node)])))
             seed = hit[np.r_[True, node[hit][1:] != node[hit][:-1]]]

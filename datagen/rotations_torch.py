@@ -10,22 +10,13 @@ Convention:
 from __future__ import annotations
 
 import torch
-from datagen.errors import BadTypeError, BadValueError
 
 # added under the square root so that the angle's gradient stays finite at zero rotation
 _EPS2 = 1e-24
 
 
-def _check(x: torch.Tensor, last: int, name: str) -> None:
-    if not isinstance(x, torch.Tensor):
-        raise BadTypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
-    if x.ndim < 1 or x.shape[-1] != last:
-        raise BadValueError(f"{name} must be (..., {last}), got {tuple(x.shape)}")
-
-
 def skew(v: torch.Tensor) -> torch.Tensor:
     """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    _check(v, 3, "v")
     zero = torch.zeros_like(v[..., 0])
     x, y, z = v.unbind(-1)
     return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(v.shape[:-1] + (3, 3))
@@ -40,7 +31,6 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
     Returns:
         (..., 3, 3) rotation matrices, same dtype and device.
     """
-    _check(axis_angle, 3, "axis_angle")
     theta = torch.sqrt((axis_angle * axis_angle).sum(-1) + _EPS2)[..., None, None]
     K = skew(axis_angle)
     eye = torch.eye(3, dtype=axis_angle.dtype, device=axis_angle.device)
@@ -49,7 +39,6 @@ def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
 
 def euler_xyz_to_matrix(angles: torch.Tensor) -> torch.Tensor:
     """Intrinsic x-y-z Euler angles (..., 3), radians -> (..., 3, 3)."""
-    _check(angles, 3, "angles")
     a, b, c = angles.unbind(-1)
     ca, sa, cb, sb, cc, sc = torch.cos(a), torch.sin(a), torch.cos(b), torch.sin(b), torch.cos(c), torch.sin(c)
     rows = [
@@ -62,7 +51,6 @@ def euler_xyz_to_matrix(angles: torch.Tensor) -> torch.Tensor:
 
 def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
     """6D rotation (..., 6) = two stacked columns -> (..., 3, 3) by Gram-Schmidt."""
-    _check(rot6d, 6, "rot6d")
     a1, a2 = rot6d[..., :3], rot6d[..., 3:]
     b1 = a1 / torch.linalg.norm(a1, dim=-1, keepdim=True).clamp_min(1e-12)
     a2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
@@ -73,6 +61,4 @@ def rot6d_to_matrix(rot6d: torch.Tensor) -> torch.Tensor:
 
 def matrix_to_rot6d(R: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) -> (..., 6): the first two columns."""
-    if not isinstance(R, torch.Tensor) or R.shape[-2:] != (3, 3):
-        raise BadValueError(f"R must be a (..., 3, 3) tensor, got {getattr(R, 'shape', type(R))}")
     return torch.cat([R[..., :, 0], R[..., :, 1]], dim=-1)

@@ -11,7 +11,7 @@ NEAR_PI_RAD = 1e-3
 LOOK_AT_PARALLEL = 1e-6
 #: points closer to the camera plane than this cannot be projected
 MIN_PROJECTION_DEPTH_M = 1e-6
-#: orthonormality check for rotation matrices given by users
+#: rotation matrices are orthonormal within this (an internal invariant, asserted)
 ROTATION_ORTHONORMAL = 1e-4
 #: consecutive rings of the procedural probe must differ in height or radius by more than this
 PROBE_RING_STEP_M = 1e-7

@@ -126,7 +126,7 @@ def _leaderboard(args: list[str]) -> int:
 
 def _predict(args: list[str]) -> int:
     # only hupbench.inference.predict: the inference path must run without torch
-    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, run_predict
+    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, PredictOptions, run_predict
 
     parser = argparse.ArgumentParser(prog="hupbench predict",
                                      description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.")
@@ -139,15 +139,15 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--batch-size", type=_count(1), default=DEFAULT_BATCH_SIZE,
                         help="images per onnxruntime call")
     ns = parser.parse_args(args)
-    result = run_predict(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay, batch_size=ns.batch_size,
-                         progress=True)
+    result = run_predict(PredictOptions(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay,
+                                        batch_size=ns.batch_size, progress=True))
     print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed; "
           f"{result['json']}" + (f" and {len(result['overlays'])} overlay PNG(s)" if result["overlays"] else ""))
     return 1 if result["failed"] else 0
 
 
 def _eval(args: list[str]) -> int:
-    from hupbench.evaluation.evaluate import run_eval
+    from hupbench.evaluation.evaluate import EvalOptions, run_eval
 
     parser = argparse.ArgumentParser(prog="hupbench eval")
     parser.add_argument("model", help="a hupbench checkpoint (.pt) or an exported ONNX model (.onnx)")
@@ -167,17 +167,17 @@ def _eval(args: list[str]) -> int:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="progress bars with ETA on a terminal")
     ns = parser.parse_args(args)
-    result = run_eval(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
-                      batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
-                      training_command=ns.training_command, training_log=ns.training_log, label=ns.label,
-                      progress=ns.progress)
+    result = run_eval(EvalOptions(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
+                                  batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
+                                  training_command=ns.training_command, training_log=ns.training_log,
+                                  label=ns.label, progress=ns.progress))
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
     return 0
 
 
 def _export(args: list[str]) -> int:
-    from hupbench.inference.export import OPSET, run_export
+    from hupbench.inference.export import OPSET, ExportOptions, run_export
 
     parser = argparse.ArgumentParser(prog="hupbench export")
     parser.add_argument("checkpoint", help="a hupbench checkpoint (.pt)")
@@ -188,8 +188,8 @@ def _export(args: list[str]) -> int:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="a progress bar over the stages on a terminal")
     ns = parser.parse_args(args)
-    result = run_export(ns.checkpoint, out=ns.out, dataset=ns.dataset, opset=ns.opset, run_name=ns.run_name,
-                        progress=ns.progress)
+    result = run_export(ExportOptions(ns.checkpoint, out=ns.out, dataset=ns.dataset, opset=ns.opset,
+                                      run_name=ns.run_name, progress=ns.progress))
     print(f"hupbench export: {result['onnx']} (opset {result['opset']}, parity max |ORT - PyTorch|: "
           f"points3d {result['parity']['points3d_mm']:.2e} mm, points2d {result['parity']['points2d_px']:.2e} px)")
     return 0

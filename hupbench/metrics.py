@@ -4,46 +4,13 @@ Convention:
     Inputs are metres (3D, OpenCV camera frame of the model-input camera) or pixels (2D); every
     reported number is millimetres (``_mm``), pixels (``_px``) or a fraction in [0, 1]. Keypoint
     order is :mod:`datagen.keypoints`: 0..20 the hand (0 = wrist, the root), 21..28 the probe box
-    corners.
+    corners. MPJPE is the absolute camera-frame error (no alignment); "all" is keypoint-weighted
+    (``ALL_AVERAGING``; why the paper's own "all" is not: docs/metrics.md).
 
-Averaging:
-    MPJPE (paper Sec. 4; REFERENCE.md) is the absolute camera-frame Euclidean error, no root or
-    Procrustes alignment, averaged over keypoints and frames. ``mpjpe_split_mm`` reports "hand"
-    (21 keypoints), "probe" (8 corners) and "all" (the mean over all 29 keypoints and all frames,
-    i.e. keypoint-weighted: all = (21 hand + 8 probe) / 29). The paper's HOPE-Net row (all 8.65,
-    hand 5.33, probe 17.05 mm) is not keypoint-weighted: (21 x 5.33 + 8 x 17.05) / 29 = 8.56, not
-    8.65. Rounding of the published numbers cannot explain the gap (with every number moved by
-    the 0.005 mm of rounding the keypoint-weighted mean is at most 8.57); 8.65 corresponds to the
-    probe weighing 28.3 % of "all" instead of 8/29 = 27.6 %. The three numbers cannot all be
-    means over the same frames and keypoints (e.g. they come from different checkpoints, or "all"
-    was averaged over a different keypoint subset); the paper does not say. We therefore always
-    report all three numbers and state ``ALL_AVERAGING`` beside them.
-
-Symmetry:
-    The probe's 8 box corners are only defined up to the box's symmetries that also map the probe
-    onto itself. Without its orientation marker (datagen/assets/probe.py) the probe is unchanged by the half
-    turn about its long axis z, (x, y, z) -> (-x, -y, z), which maps corner (ix, iy, iz) to
-    (1 - ix, 1 - iy, iz) of its axis-centred box; the BOP benchmark (Hodan et al.) scores such objects
-    by minimising the error over the symmetry group (MSSD, MSPD). :func:`probe_symmetric_mpjpe_mm`
-    does the same for the corners, per frame, beside the plain probe MPJPE: the mean corner error
-    under the identity or the half turn, whichever is smaller. The gap between the two numbers is
-    how much of a model's probe error is the swapped labelling of a half-turned box. Probes built
-    now carry the marker, so the half turn can be read from the image and the plain probe MPJPE is
-    the benchmark number; the symmetric one shows whether a model reads the marker (and is the
-    fair score on data rendered before the marker existed).
-    ``hupbench.training.losses.hopenet_loss`` can take the same minimum in training (``loss.probe_symmetry``).
-
-Spread (collapse guard):
-    :func:`spread_ratios` compares how much the predicted 3D keypoints vary across frames with how
-    much the truth does, per camera axis; a model that outputs one layout for every image has
-    ratios near 0 on the axes it ignores (HOPE-Net's x and y in issue 14: 0.02).
-
-Degenerate sets:
-    Procrustes alignment (:func:`procrustes_align`) solves the similarity (scale, rotation,
-    translation) by the SVD of the cross-covariance with the determinant correction (Umeyama
-    1991), so reflections never enter; collinear and coplanar sets give one of the equally good
-    rotations; a prediction whose points all coincide (zero spread, no scale defined) is mapped to
-    the target centroid (scale 0). No input of finite numbers gives NaN or inf.
+The probe's corners are scored also up to the half turn about its long axis (BOP-style,
+:func:`probe_symmetric_errors_mm`), and :func:`spread_ratios` guards against a model that gives one
+layout for every image (docs/metrics.md). Callers pass well-formed arrays (eval, validation and the
+losses build them): shapes are asserted, not re-checked for users.
 """
 
 from __future__ import annotations
@@ -59,7 +26,7 @@ from datagen.keypoints import (
     NUM_HAND,
     NUM_KEYPOINTS,
 )
-from datagen.errors import BadTypeError, BadValueError
+from datagen.errors import BadValueError
 
 __all__ = [
     "ALL_AVERAGING",
@@ -74,16 +41,13 @@ __all__ = [
     "keypoint_errors_mm",
     "mpjpe_mm",
     "mpjpe_split_mm",
-    "normalized_to_pixels",
     "pa_mpjpe_mm",
-    "pck_auc",
     "pck_auc_from_errors",
     "pck_mm",
     "permute_keypoints",
     "pixel_error_px",
     "pixel_errors_px",
     "probe_symmetric_errors_mm",
-    "probe_symmetric_mpjpe_mm",
     "procrustes_align",
     "root_relative_mpjpe_mm",
     "split_from_errors_mm",
@@ -96,7 +60,7 @@ __all__ = [
 ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
 #: the hand root for root-relative errors: the wrist (OpenPose keypoint 0)
 ROOT_INDEX = 0
-#: thresholds of the 3D PCK curve whose area is :func:`pck_auc`: 0 to 50 mm in 0.5 mm steps (101)
+#: thresholds of the 3D PCK curve whose area is :func:`pck_auc_from_errors`: 0 to 50 mm in 0.5 mm steps (101)
 PCK_THRESHOLDS_MM = np.linspace(0.0, 50.0, 101)
 #: a set whose mean squared distance from its centroid is below this (m^2, i.e. 1e-12 m RMS) has
 #: no defined scale: Procrustes maps it to the target centroid instead of dividing by ~0
@@ -110,7 +74,7 @@ HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])
 SYMMETRY_REL_TOL = 1e-6
 #: the camera axes of :func:`spread_ratios`, in order
 SPREAD_AXES = ("x", "y", "z")
-#: ``hupbench eval`` warns when a spread ratio is below this (the collapse guard of issue 14)
+#: ``hupbench eval`` warns when a spread ratio is below this: the model barely follows the image on that axis
 SPREAD_RATIO_WARN = 0.5
 #: a truth whose spread along an axis is below this (metres) does not vary there: its ratio is None
 SPREAD_MIN_M = 1e-9
@@ -122,32 +86,21 @@ def _is_torch(x) -> bool:
     return isinstance(x, torch.Tensor)
 
 
-def _check_points(pred, gt, dim: int, names=("pred_m", "gt_m")) -> None:
-    for name, x in zip(names, (pred, gt)):
-        if not isinstance(x, (np.ndarray, torch.Tensor)):
-            raise BadTypeError(f"{name} must be a numpy array or torch tensor, got {type(x).__name__}")
-        if x.ndim != 3 or x.shape[-1] != dim:
-            raise BadValueError(f"{name} must be (N, K, {dim}), got {tuple(x.shape)}")
-    if _is_torch(pred) != _is_torch(gt):
-        raise BadTypeError(f"{names[0]} and {names[1]} must both be numpy or both torch, got "
-                        f"{type(pred).__name__} and {type(gt).__name__}")
-    if tuple(pred.shape) != tuple(gt.shape):
-        raise BadValueError(f"{names[0]} {tuple(pred.shape)} and {names[1]} {tuple(gt.shape)} must have the same shape")
+def _assert_points(pred, gt, dim: int) -> None:
+    """(N, K, dim) arrays of one backend and one shape."""
+    assert _is_torch(pred) == _is_torch(gt) and tuple(pred.shape) == tuple(gt.shape), (type(pred), type(gt))
+    assert pred.ndim == 3 and pred.shape[-1] == dim, tuple(pred.shape)
 
 
 def _index(keypoints, k: int) -> list[int]:
-    """Keypoint selection (None, slice or sequence of ints) -> validated list of indices into range(k)."""
+    """Keypoint selection (None, slice or sequence of ints) -> list of indices into range(k)."""
     if keypoints is None:
         return list(range(k))
     if isinstance(keypoints, slice):
         idx = list(range(k))[keypoints]
     else:
         idx = [int(i) for i in np.asarray(keypoints).reshape(-1)]
-    if not idx:
-        raise BadValueError("keypoints selects no keypoint")
-    bad = [i for i in idx if not 0 <= i < k]
-    if bad:
-        raise BadValueError(f"keypoint indices {bad} are out of range for {k} keypoints")
+    assert idx and all(0 <= i < k for i in idx), (idx, k)
     return idx
 
 
@@ -166,7 +119,7 @@ def keypoint_errors_mm(pred_m, gt_m):
         (N, K) errors in millimetres (numpy float64 for numpy input; a tensor of the input dtype
         for torch input).
     """
-    _check_points(pred_m, gt_m, 3)
+    _assert_points(pred_m, gt_m, 3)
     if _is_torch(pred_m):
         return torch.linalg.vector_norm(pred_m - gt_m, dim=-1) * _MM_PER_M
     return np.linalg.norm(np.asarray(pred_m, np.float64) - np.asarray(gt_m, np.float64), axis=-1) * _MM_PER_M
@@ -191,10 +144,7 @@ def split_from_errors_mm(errors_mm) -> dict[str, float]:
 
     "all" is the mean over all 29 keypoints and all frames (see ``ALL_AVERAGING``).
     """
-    if tuple(errors_mm.shape[1:]) != (NUM_KEYPOINTS,) or errors_mm.ndim != 2:
-        raise BadValueError(f"errors_mm must be (N, {NUM_KEYPOINTS}), got {tuple(errors_mm.shape)}")
-    if errors_mm.shape[0] == 0:
-        raise BadValueError("errors_mm holds no frame")
+    assert errors_mm.ndim == 2 and errors_mm.shape[0] > 0 and errors_mm.shape[1] == NUM_KEYPOINTS, errors_mm.shape
     return {"all": float(errors_mm.mean()), "hand": float(errors_mm[:, HAND_SLICE].mean()),
             "probe": float(errors_mm[:, CORNER_SLICE].mean())}
 
@@ -208,12 +158,8 @@ def mpjpe_split_mm(pred_m, gt_m) -> dict[str, float]:
     Returns:
         {"all": float, "hand": float, "probe": float}, millimetres, python floats for either input.
         "all" is keypoint-weighted (mean over all 29 keypoints and frames), so
-        all = (21 hand + 8 probe) / 29; the paper's 8.65 is not (see the module docstring).
+        all = (21 hand + 8 probe) / 29; the paper's 8.65 is not (docs/metrics.md).
     """
-    _check_points(pred_m, gt_m, 3)
-    if pred_m.shape[1] != NUM_KEYPOINTS:
-        raise BadValueError(f"mpjpe_split_mm needs {NUM_KEYPOINTS} keypoints ({NUM_HAND} hand + {NUM_CORNERS} probe), "
-                         f"got {pred_m.shape[1]}")
     with torch.no_grad():
         return split_from_errors_mm(keypoint_errors_mm(pred_m, gt_m))
 
@@ -233,7 +179,7 @@ def root_relative_mpjpe_mm(pred_m, gt_m, root: int = ROOT_INDEX, keypoints=HAND)
     Returns:
         millimetres: python float (numpy) or 0-dim tensor (torch).
     """
-    _check_points(pred_m, gt_m, 3)
+    _assert_points(pred_m, gt_m, 3)
     (root,) = _index([root], pred_m.shape[1])
     return mpjpe_mm(pred_m - pred_m[:, root:root + 1], gt_m - gt_m[:, root:root + 1], keypoints)
 
@@ -255,9 +201,7 @@ def procrustes_align(pred_m, gt_m):
     Returns:
         (N, K, 3) the aligned prediction, same type and dtype as ``pred_m``.
     """
-    _check_points(pred_m, gt_m, 3)
-    if pred_m.shape[1] < 1:
-        raise BadValueError("procrustes_align needs at least one keypoint")
+    _assert_points(pred_m, gt_m, 3)
     if _is_torch(pred_m):
         out = _procrustes_np(pred_m.detach().cpu().double().numpy(), gt_m.detach().cpu().double().numpy())
         return torch.from_numpy(out).to(dtype=pred_m.dtype, device=pred_m.device)
@@ -293,7 +237,7 @@ def pa_mpjpe_mm(pred_m, gt_m, keypoints=HAND):
     Returns:
         millimetres: python float (numpy) or 0-dim tensor (torch).
     """
-    _check_points(pred_m, gt_m, 3)
+    _assert_points(pred_m, gt_m, 3)
     idx = _index(keypoints, pred_m.shape[1])
     pred_sel, gt_sel = pred_m[:, idx], gt_m[:, idx]
     return mpjpe_mm(procrustes_align(pred_sel, gt_sel), gt_sel)
@@ -331,8 +275,7 @@ def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
         python float (numpy) or 0-dim tensor (torch).
     """
     th = np.asarray(thresholds_mm, np.float64)
-    if th.ndim != 1 or len(th) < 2 or not np.all(np.diff(th) > 0):
-        raise BadValueError(f"thresholds_mm must be at least 2 increasing values, got {th.tolist()}")
+    assert th.ndim == 1 and len(th) >= 2 and np.all(np.diff(th) > 0), th
     curve = pck_mm(errors_mm, th)
     widths = np.diff(th) / (th[-1] - th[0])
     if _is_torch(curve):
@@ -341,43 +284,9 @@ def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
     return float((0.5 * (curve[1:] + curve[:-1]) * widths).sum())
 
 
-def pck_auc(pred_m, gt_m, keypoints=None, thresholds_mm=PCK_THRESHOLDS_MM):
-    """AUC of the absolute 3D PCK over 0-50 mm (see :func:`pck_auc_from_errors`) of the chosen keypoints.
-
-    Args:
-        pred_m, gt_m: (N, K, 3) float, metres.
-        keypoints: None (all), a slice or indices.
-
-    Returns:
-        fraction in [0, 1]: python float (numpy) or 0-dim tensor (torch).
-    """
-    errors = keypoint_errors_mm(pred_m, gt_m)
-    return pck_auc_from_errors(errors[:, _index(keypoints, errors.shape[1])], thresholds_mm)
-
-
-def normalized_to_pixels(points_norm, width: int, height: int):
-    """Normalised [-1, 1] image coordinates -> pixels (models/coords.py convention, any backend).
-
-    u = ((x + 1) W - 1) / 2, pixel centres at integers.
-
-    Args:
-        points_norm: (..., 2) float, normalised coordinates.
-        width, height: image size in pixels.
-
-    Returns:
-        (..., 2) pixels, same backend.
-    """
-    if _is_torch(points_norm):
-        from models.coords import normalized_to_pixels as _to_px
-
-        return _to_px(points_norm, width, height)
-    size = np.array([width, height], dtype=np.float64)
-    return ((np.asarray(points_norm, np.float64) + 1.0) * size - 1.0) / 2.0
-
-
 def pixel_errors_px(pred_px, gt_px):
     """(N, K) Euclidean 2D errors in pixels from (N, K, 2) predicted and true pixel coordinates."""
-    _check_points(pred_px, gt_px, 2, names=("pred_px", "gt_px"))
+    _assert_points(pred_px, gt_px, 2)
     if _is_torch(pred_px):
         return torch.linalg.vector_norm(pred_px - gt_px, dim=-1)
     return np.linalg.norm(np.asarray(pred_px, np.float64) - np.asarray(gt_px, np.float64), axis=-1)
@@ -391,15 +300,12 @@ def pixel_error_px(pred_px, gt_px, mask=None):
         mask: optional (N, K) bool, the keypoints counted (e.g. ``visible``); default all.
 
     Returns:
-        pixels: python float (numpy) or 0-dim tensor (torch); NaN-free (raises if the mask is empty).
+        pixels: python float (numpy) or 0-dim tensor (torch).
     """
     errors = pixel_errors_px(pred_px, gt_px)
     if mask is None:
         return _mean(errors)
-    if tuple(mask.shape) != tuple(errors.shape):
-        raise BadValueError(f"mask must be {tuple(errors.shape)}, got {tuple(mask.shape)}")
-    if not bool(mask.any()):
-        raise BadValueError("mask selects no keypoint")
+    assert tuple(mask.shape) == tuple(errors.shape) and bool(mask.any()), tuple(mask.shape)
     return _mean(errors[mask])
 
 
@@ -415,8 +321,7 @@ def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
     """
     errors = errors_mm.detach().cpu().numpy() if _is_torch(errors_mm) else np.asarray(errors_mm, np.float64)
     labels = np.asarray(labels).reshape(-1).astype(str)
-    if errors.ndim != 2 or len(labels) != errors.shape[0]:
-        raise BadValueError(f"labels must hold one entry per frame: errors {tuple(errors.shape)}, labels {labels.shape}")
+    assert errors.ndim == 2 and len(labels) == errors.shape[0], (errors.shape, labels.shape)
     out = {}
     for label in sorted(set(labels.tolist())):
         rows = errors[labels == label]
@@ -442,15 +347,13 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
         permutation of range(K) as python ints.
 
     Raises:
-        ValueError: wrong shapes, not a rotation, or the set is not symmetric under it (the message
+        BadValueError: the set (e.g. a dataset's corners) is not symmetric under the rotation (the message
             gives the largest mismatch in mm).
     """
     p = np.asarray(points_m, np.float64)
     r = np.asarray(rotation, np.float64)
-    if p.ndim != 2 or p.shape[-1] != 3 or len(p) < 1:
-        raise BadValueError(f"points_m must be (K, 3) with K >= 1, got {p.shape}")
-    if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-9) or np.linalg.det(r) < 0:
-        raise BadValueError(f"rotation must be a (3, 3) proper rotation matrix, got {r.tolist()}")
+    assert p.ndim == 2 and p.shape[-1] == 3 and len(p) >= 1, p.shape
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0, r
     moved = p @ r.T
     dist = np.linalg.norm(moved[:, None] - p[None], axis=-1)  # (K, K): rotated point k to point j
     perm = dist.argmin(axis=1)
@@ -458,8 +361,8 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
     worst = float(dist[np.arange(len(p)), perm].max())
     if worst > rel_tol * size or len(set(perm.tolist())) != len(p):
         raise BadValueError(f"the points are not symmetric under the rotation: a rotated point lies "
-                         f"{worst * _MM_PER_M:.3g} mm from the nearest point "
-                         f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
+                            f"{worst * _MM_PER_M:.3g} mm from the nearest point "
+                            f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
     return tuple(int(k) for k in perm)
 
 
@@ -478,14 +381,11 @@ def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
 PROBE_SYMMETRIES = _box_symmetries()
 
 
-def _check_permutations(permutations, k: int) -> np.ndarray:
-    perms = np.asarray(permutations)
-    if perms.ndim != 2 or perms.shape[1] != k or len(perms) < 1 or not np.issubdtype(perms.dtype, np.integer):
-        raise BadValueError(f"permutations must be (G, {k}) integer permutations of range({k}), got "
-                         f"{np.asarray(permutations).tolist()}")
-    if not all(sorted(row.tolist()) == list(range(k)) for row in perms):
-        raise BadValueError(f"every row of permutations must be a permutation of range({k}), got {perms.tolist()}")
-    return perms.astype(np.int64)
+def _permutations(permutations, k: int) -> np.ndarray:
+    """(G, k) int64 from G permutations of range(k)."""
+    perms = np.asarray(permutations, dtype=np.int64)
+    assert perms.ndim == 2 and len(perms) >= 1 and all(sorted(row) == list(range(k)) for row in perms.tolist()), perms
+    return perms
 
 
 def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = False):
@@ -506,12 +406,9 @@ def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = Fals
         (N, G) in the input's unit (squared with ``squared``): float64 numpy, or a tensor of the
         input dtype (differentiable) for torch input.
     """
-    if not isinstance(pred, (np.ndarray, torch.Tensor)) or not isinstance(gt, (np.ndarray, torch.Tensor)):
-        raise BadTypeError(f"pred and gt must be numpy arrays or torch tensors, got {type(pred).__name__} and "
-                        f"{type(gt).__name__}")
-    _check_points(pred, gt, pred.shape[-1] if pred.ndim == 3 else 3, names=("pred", "gt"))
+    _assert_points(pred, gt, pred.shape[-1])
     idx = _index(keypoints, pred.shape[1])
-    perms = _check_permutations(permutations, len(idx))
+    perms = _permutations(permutations, len(idx))
     sel = np.asarray(idx)[perms]                                                 # (G, S) keypoint indices
     if _is_torch(pred):
         p = pred[:, idx][:, None]                                                 # (N, 1, S, D)
@@ -541,27 +438,20 @@ def permute_keypoints(points, permutations, choice, keypoints=PROBE):
     Returns:
         (N, K, D) of the same type, dtype and device (a new array; gradients flow for torch).
     """
-    if not isinstance(points, (np.ndarray, torch.Tensor)) or points.ndim != 3:
-        raise BadValueError(f"points must be an (N, K, D) numpy array or torch tensor, got "
-                         f"{getattr(points, 'shape', type(points).__name__)}")
+    assert points.ndim == 3, tuple(points.shape)
     idx = _index(keypoints, points.shape[1])
-    perms = _check_permutations(permutations, len(idx))
+    perms = _permutations(permutations, len(idx))
     sel = np.asarray(idx)[perms]                                                  # (G, S)
     n = points.shape[0]
-    if tuple(choice.shape) != (n,):
-        raise BadValueError(f"choice must be ({n},), got {tuple(choice.shape)}")
+    assert tuple(choice.shape) == (n,), (tuple(choice.shape), n)
     if _is_torch(points):
         choice = torch.as_tensor(choice, dtype=torch.int64, device=points.device)
-        if n and (int(choice.min()) < 0 or int(choice.max()) >= len(perms)):
-            raise BadValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
         source = torch.as_tensor(sel, device=points.device)[choice]               # (N, S)
         rows = torch.arange(n, device=points.device)[:, None]
         out = points.clone()
         out[:, idx] = points[rows, source]
         return out
     choice = np.asarray(choice, np.int64)
-    if n and (choice.min() < 0 or choice.max() >= len(perms)):
-        raise BadValueError(f"choice must index the {len(perms)} permutations, got {choice.tolist()}")
     out = np.array(points, copy=True)
     out[:, idx] = points[np.arange(n)[:, None], sel[choice]]
     return out
@@ -580,35 +470,13 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
         index of that element (0 = identity when it is listed first); numpy for numpy input, tensors
         for torch input.
     """
-    _check_points(pred_m, gt_m, 3)
-    if pred_m.shape[1] != NUM_KEYPOINTS:
-        raise BadValueError(f"probe symmetric errors need {NUM_KEYPOINTS} keypoints, got {pred_m.shape[1]}")
+    _assert_points(pred_m, gt_m, 3)
+    assert pred_m.shape[1] == NUM_KEYPOINTS, tuple(pred_m.shape)
     costs = symmetry_costs(pred_m, gt_m, permutations) * _MM_PER_M               # (N, G) mm
     if _is_torch(costs):
         best, choice = costs.min(dim=1)
         return best, choice
     return costs.min(axis=1), costs.argmin(axis=1).astype(np.int64)
-
-
-def probe_symmetric_mpjpe_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_turn"]):
-    """Probe corner MPJPE with each frame's corners matched under the probe box's symmetry group.
-
-    For every frame the 8 predicted corners are compared with the true corners relabelled by each
-    group element (default: the identity and the half turn about the long axis, corner (ix, iy, iz)
-    -> (1 - ix, 1 - iy, iz)); the smaller mean corner error counts, and the result is its mean over
-    frames, as the BOP benchmark scores symmetric objects (an MSSD-style minimum over the group,
-    with the mean instead of the maximum over points so that it compares with the plain probe
-    MPJPE, which it never exceeds).
-
-    Args:
-        pred_m, gt_m: (N, 29, 3) float, metres, same frame.
-        permutations: the group as permutations of the 8 corners.
-
-    Returns:
-        millimetres: python float (numpy) or 0-dim tensor (torch).
-    """
-    errors, _ = probe_symmetric_errors_mm(pred_m, gt_m, permutations)
-    return _mean(errors)
 
 
 # ----------------------------------------------------------------------------- spread (collapse guard)
@@ -630,12 +498,11 @@ def spread_ratios(pred_m, gt_m) -> dict[str, float | None]:
     Returns:
         {"x": ratio, "y": ratio, "z": ratio}, python floats (or None), for either input.
     """
-    _check_points(pred_m, gt_m, 3)
+    _assert_points(pred_m, gt_m, 3)
     if _is_torch(pred_m):
         pred_m, gt_m = (x.detach().cpu().double().numpy() for x in (pred_m, gt_m))
     pred, gt = np.asarray(pred_m, np.float64), np.asarray(gt_m, np.float64)
-    if pred.shape[0] == 0 or pred.shape[1] == 0:
-        raise BadValueError(f"spread_ratios needs at least one frame and one keypoint, got {pred.shape}")
+    assert pred.shape[0] > 0 and pred.shape[1] > 0, pred.shape
     spread_pred = pred.std(axis=0).mean(axis=0)                                    # (3,) metres
     spread_gt = gt.std(axis=0).mean(axis=0)
     return {axis: (float(sp / sg) if sg >= SPREAD_MIN_M else None)
@@ -647,7 +514,5 @@ def collapsed_axes(ratios: dict[str, float | None], threshold: float = SPREAD_RA
 
     An axis with ratio None (the truth does not vary there) is never reported.
     """
-    unknown = sorted(set(ratios) - set(SPREAD_AXES))
-    if unknown:
-        raise BadValueError(f"ratios has unknown axes {unknown}; expected keys {list(SPREAD_AXES)}")
+    assert set(ratios) <= set(SPREAD_AXES), ratios
     return [a for a in SPREAD_AXES if ratios.get(a) is not None and ratios[a] < threshold]

@@ -2,9 +2,9 @@
 
 Modules: ``resnet`` (torchvision-named ResNet-10/18/34/50), ``graph`` (GraphConv,
 node pooling, the adaptive Graph U-Net, the 2D refinement), ``hopenet``,
-``baseline`` (ResNetRegressor), ``build`` (registry, ``build_model``, strict
-checkpoint loading), ``coords`` (pixels <-> normalised image coordinates) and
-``model_tolerances``.
+``baseline`` (ResNetRegressor), ``heatmap`` (HUPNet), ``config`` (what every model's frozen config
+dataclass shares), ``build`` (``build_model`` from a saved config, strict checkpoint loading), ``coords``
+(pixels <-> normalised image coordinates) and ``model_tolerances``.
 
 May import: torch, numpy and itself. Never ``datagen`` or ``hupbench``: a model is built from
 numbers (keypoint count, input size, the prior layout), not from the generator or the CLI.

@@ -13,16 +13,17 @@ Convention:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
 
 import torch
 from torch import nn
 
+from models.config import ModelConfig
 from models.prior import PointPrior
 from models.resnet import resnet
 
-__all__ = ["RegressorOutput", "ResNetRegressor"]
+__all__ = ["RegressorOutput", "ResNetRegressor", "ResNetRegressorConfig"]
 
 
 class RegressorOutput(NamedTuple):
@@ -38,52 +39,35 @@ class RegressorOutput(NamedTuple):
     points3d: torch.Tensor
 
 
-class ResNetRegressor(nn.Module):
-    """ResNet backbone + linear heads regressing keypoints directly.
+@dataclass(frozen=True)
+class ResNetRegressorConfig(ModelConfig):
+    """The baseline's architecture (:class:`models.config.ModelConfig`'s fields and these).
 
-    Args:
-        backbone: ResNet name: "resnet10", "resnet18", "resnet34" or "resnet50" (HUP-3D).
-        n_keypoints: N, keypoints predicted (29 = 21 hand joints + 8 probe corners).
+    Attributes:
         predict_2d: also regress (B, N, 2) 2D keypoints from the same feature.
-        zero_init_residual: zero the last BN of each residual branch of the backbone.
-        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (see
-            :mod:`models.prior`), e.g. the training split's mean in metres; None for zeros.
-        points3d_scale: target units per raw 3D output unit.
     """
 
-    def __init__(
-        self,
-        backbone: str = "resnet50",
-        n_keypoints: int = 29,
-        predict_2d: bool = False,
-        zero_init_residual: bool = False,
-        points3d_mean: Sequence[Sequence[float]] | None = None,
-        points3d_scale: float = 1.0,
-    ) -> None:
-        super().__init__()
-        if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 1:
-            raise ValueError(f"n_keypoints must be a positive int, got {n_keypoints!r}")
-        if not isinstance(predict_2d, bool):
-            raise TypeError(f"predict_2d must be a bool, got {type(predict_2d).__name__}")
-        self._config: dict[str, Any] = {
-            "name": "resnet_regressor",
-            "backbone": backbone,
-            "n_keypoints": n_keypoints,
-            "predict_2d": predict_2d,
-            "zero_init_residual": zero_init_residual,
-            "points3d_mean": PointPrior.config_value(points3d_mean),
-            "points3d_scale": float(points3d_scale),
-        }
-        self.n_keypoints = n_keypoints
-        self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
-        self.head3d = nn.Linear(self.backbone.feature_dim, n_keypoints * 3)
-        self.head2d = nn.Linear(self.backbone.feature_dim, n_keypoints * 2) if predict_2d else None
-        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
+    name: ClassVar[str] = "resnet_regressor"
+    backbone: str = "resnet50"
+    predict_2d: bool = False
 
-    @property
-    def config(self) -> dict[str, Any]:
-        """The plain dict that :func:`models.build.build_model` rebuilds this model from."""
-        return dict(self._config)
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.predict_2d, bool):
+            raise ValueError(f"predict_2d must be true or false, got {self.predict_2d!r}")
+
+
+class ResNetRegressor(nn.Module):
+    """ResNet backbone + linear heads regressing keypoints directly, built from its config."""
+
+    def __init__(self, config: ResNetRegressorConfig = ResNetRegressorConfig()) -> None:
+        super().__init__()
+        self.config = config
+        self.n_keypoints = n = config.n_keypoints
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
+        self.head3d = nn.Linear(self.backbone.feature_dim, n * 3)
+        self.head2d = nn.Linear(self.backbone.feature_dim, n * 2) if config.predict_2d else None
+        self.prior3d = PointPrior(n, config.points3d_mean, config.points3d_scale)
 
     def forward(self, images: torch.Tensor) -> RegressorOutput:
         """Regress keypoints.

@@ -10,6 +10,9 @@ Convention:
     keeps its normalised coordinates when the image is resized, which is why
     the models predict them: labels cannot be left in the pixels of another
     image size. Points outside the image fall outside [-1, 1].
+
+The torch twin of :mod:`hupbench.input_geometry` (models import nothing of hupbench); a test holds the
+two equal.
 """
 
 from __future__ import annotations
@@ -19,16 +22,10 @@ import torch
 __all__ = ["normalized_to_pixels", "pixels_to_normalized"]
 
 
-def _check(points: torch.Tensor, width: int, height: int, name: str) -> None:
-    if not isinstance(points, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
-    if points.ndim < 1 or points.shape[-1] != 2:
-        raise ValueError(f"{name} must be (..., 2), got {tuple(points.shape)}")
-    if not points.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got {points.dtype}")
-    for label, size in (("width", width), ("height", height)):
-        if not isinstance(size, int) or isinstance(size, bool) or size < 1:
-            raise ValueError(f"{label} must be a positive int (pixels), got {size!r}")
+def _size(points: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """(2,) tensor (W, H) beside ``points``, a (..., 2) floating-point tensor."""
+    assert points.is_floating_point() and points.shape[-1:] == (2,), (points.dtype, tuple(points.shape))
+    return points.new_tensor([width, height])
 
 
 def pixels_to_normalized(points_px: torch.Tensor, width: int, height: int) -> torch.Tensor:
@@ -43,9 +40,7 @@ def pixels_to_normalized(points_px: torch.Tensor, width: int, height: int) -> to
     Returns:
         (..., 2) float, (x, y) in [-1, 1] inside the image.
     """
-    _check(points_px, width, height, "points_px")
-    size = points_px.new_tensor([width, height])
-    return (2.0 * points_px + 1.0) / size - 1.0
+    return (2.0 * points_px + 1.0) / _size(points_px, width, height) - 1.0
 
 
 def normalized_to_pixels(points_norm: torch.Tensor, width: int, height: int) -> torch.Tensor:
@@ -59,6 +54,4 @@ def normalized_to_pixels(points_norm: torch.Tensor, width: int, height: int) -> 
     Returns:
         (..., 2) float, (u, v) pixels, pixel centres at integers.
     """
-    _check(points_norm, width, height, "points_norm")
-    size = points_norm.new_tensor([width, height])
-    return ((points_norm + 1.0) * size - 1.0) / 2.0
+    return ((points_norm + 1.0) * _size(points_norm, width, height) - 1.0) / 2.0

@@ -79,12 +79,8 @@ def normalized_adjacency(adjacency: torch.Tensor) -> torch.Tensor:
         Same shape and dtype: entry (i, j) is A_ij / sqrt(d_i d_j),
         d_i = max(sum_k |A_ik|, eps * max|A|).
     """
-    if not isinstance(adjacency, torch.Tensor):
-        raise TypeError(f"adjacency must be a torch.Tensor, got {type(adjacency).__name__}")
-    if not adjacency.is_floating_point():
-        raise TypeError(f"adjacency must be a floating-point tensor, got {adjacency.dtype}")
-    if adjacency.ndim not in (2, 3) or adjacency.shape[-1] != adjacency.shape[-2]:
-        raise ValueError(f"adjacency must be (N, N) or (B, N, N), got {tuple(adjacency.shape)}")
+    if adjacency.ndim not in (2, 3) or adjacency.shape[-1] != adjacency.shape[-2] or not adjacency.is_floating_point():
+        raise ValueError(f"adjacency must be (N, N) or (B, N, N) float, got {tuple(adjacency.shape)} {adjacency.dtype}")
     work = adjacency.to(torch.promote_types(adjacency.dtype, torch.float32))
     scale = work.abs().amax(dim=(-2, -1), keepdim=True)  # (..., 1, 1)
     # an all-zero matrix keeps scale 0 -> divide by 1 instead and return zeros
@@ -95,10 +91,8 @@ def normalized_adjacency(adjacency: torch.Tensor) -> torch.Tensor:
     return out.to(adjacency.dtype)
 
 
-def _check_nodes(x: torch.Tensor, n_nodes: int, channels: int, name: str) -> None:
-    if not isinstance(x, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
-    if x.ndim != 3 or x.shape[1] != n_nodes or x.shape[2] != channels:
+def _check_nodes(x: torch.Tensor, n_nodes: int, channels: int | str, name: str) -> None:
+    if x.ndim != 3 or x.shape[1] != n_nodes or (channels != "C" and x.shape[2] != channels):
         raise ValueError(f"{name} must be (B, {n_nodes}, {channels}), got {tuple(x.shape)}")
 
 
@@ -162,10 +156,7 @@ class _NodeLinear(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(B, n_in, C) -> (B, n_out, C): every output node is a learned mix of the input nodes."""
-        if not isinstance(x, torch.Tensor):
-            raise TypeError(f"x must be a torch.Tensor, got {type(x).__name__}")
-        if x.ndim != 3 or x.shape[1] != self.n_in:
-            raise ValueError(f"x must be (B, {self.n_in}, C), got {tuple(x.shape)}")
+        _check_nodes(x, self.n_in, "C", "x")
         return self.linear(x.transpose(1, 2)).transpose(1, 2)  # (B, C, n_in) -> (B, C, n_out)
 
     def extra_repr(self) -> str:
@@ -204,9 +195,8 @@ def default_node_counts(n_nodes: int) -> tuple[int, ...]:
         HOPE-Net's (15, 7, 4, 2, 1) for 29 nodes; otherwise halving (rounded up) down to 1,
         e.g. 21 -> (11, 6, 3, 2, 1).
     """
-    _check_positive(n_nodes=n_nodes)
-    if n_nodes < 2:
-        raise ValueError(f"n_nodes must be >= 2 to pool, got {n_nodes}")
+    if isinstance(n_nodes, bool) or not isinstance(n_nodes, int) or n_nodes < 2:
+        raise ValueError(f"n_nodes must be an int >= 2 to pool, got {n_nodes!r}")
     if n_nodes == 29:
         return HOPENET_NODE_COUNTS
     counts = []
@@ -362,8 +352,6 @@ class GraphNet2D(nn.Module):
             (B, N, 2) float, refined 2D keypoints.
         """
         _check_nodes(points2d, self.n_nodes, 2, "points2d")
-        if not isinstance(features, torch.Tensor):
-            raise TypeError(f"features must be a torch.Tensor, got {type(features).__name__}")
         batch = points2d.shape[0]
         if features.ndim != 2 or features.shape[0] != batch or features.shape[1] != self.feature_dim:
             raise ValueError(

@@ -26,18 +26,19 @@ Convention:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
+from models.config import ModelConfig, check_camera, check_whole
 from models.hopenet import normalized_intrinsics, unproject_normalized
 from models.prior import PointPrior
 from models.resnet import resnet
 
-__all__ = ["HUPNet", "HUPNetOutput", "soft_argmax"]
+__all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "soft_argmax"]
 
 
 class HUPNetOutput(NamedTuple):
@@ -67,11 +68,8 @@ def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor
         ((B, N, 2) expected (x, y), (B, N) expected value or None). Softmax is taken in float32
         at least, so bf16 autocast keeps the expectation precise.
     """
-    if logits.ndim != 4:
-        raise ValueError(f"logits must be (B, N, H, W), got {tuple(logits.shape)}")
     B, N, H, W = logits.shape
-    if grid_x.shape != (W,) or grid_y.shape != (H,):
-        raise ValueError(f"grid_x must be ({W},) and grid_y ({H},), got {tuple(grid_x.shape)}, {tuple(grid_y.shape)}")
+    assert grid_x.shape == (W,) and grid_y.shape == (H,), (grid_x.shape, grid_y.shape, logits.shape)
     dtype = torch.promote_types(logits.dtype, torch.float32)
     prob = torch.softmax(logits.to(dtype).reshape(B, N, H * W), dim=-1).reshape(B, N, H, W)
     x = (prob.sum(dim=2) * grid_x.to(dtype)).sum(dim=-1)  # (B, N, W) marginal -> (B, N)
@@ -85,81 +83,68 @@ def _conv_bn_relu(in_channels: int, out_channels: int) -> nn.Sequential:
                          nn.BatchNorm2d(out_channels), nn.ReLU(inplace=True))
 
 
-class HUPNet(nn.Module):
-    """ResNet + feature pyramid -> per-keypoint heatmaps and depth maps at stride 8 -> 3D via K.
+@dataclass(frozen=True)
+class HUPNetConfig(ModelConfig):
+    """HUPNet's architecture (:class:`models.config.ModelConfig`'s fields and these).
 
-    Args:
-        backbone: ResNet name: "resnet10", "resnet18", "resnet34" or "resnet50".
-        n_keypoints: N (29 = 21 hand joints + 8 probe corners).
+    Attributes:
         neck_channels: width D of the pyramid and heads.
         canvas_margin: the heatmap canvas reaches this fraction of the input width beyond each
             image edge (rounded to whole stride-8 cells), so points outside the image are found.
-        zero_init_residual: zero the last BN of each residual branch of the backbone.
-        points3d_mean: (N, 3) prior layout (training split's mean, target units); its z is each
-            keypoint's base depth. None for zeros.
-        points3d_scale: target units per raw depth unit.
-        K_input: (3, 3) intrinsics of the model input image, pixels (required).
-        input_size: S, side of the square model input, pixels (required; a multiple of 8).
+        K_input: (3, 3) intrinsics of the model input image, pixels (required; training fills it in).
+        input_size: S, side of the square model input, pixels (required, a multiple of 8; training fills
+            it in).
     """
 
-    STRIDE = 8
+    name: ClassVar[str] = "hupnet"
+    STRIDE: ClassVar[int] = 8
+    neck_channels: int = 128
+    canvas_margin: float = 0.25
+    K_input: tuple[tuple[float, ...], ...] | None = None
+    input_size: int | None = None
 
-    def __init__(
-        self,
-        backbone: str = "resnet18",
-        n_keypoints: int = 29,
-        neck_channels: int = 128,
-        canvas_margin: float = 0.25,
-        zero_init_residual: bool = False,
-        points3d_mean: Sequence[Sequence[float]] | None = None,
-        points3d_scale: float = 1.0,
-        K_input: Sequence[Sequence[float]] | None = None,
-        input_size: int | None = None,
-    ) -> None:
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_whole("neck_channels", self.neck_channels)
+        if isinstance(self.canvas_margin, bool) or not 0.0 <= self.canvas_margin <= 2.0:
+            raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got "
+                             f"{self.canvas_margin!r}")
+        if self.K_input is not None or self.input_size is not None:
+            check_camera(self.K_input, self.input_size, self.STRIDE)
+
+
+class HUPNet(nn.Module):
+    """ResNet + feature pyramid -> per-keypoint heatmaps and depth maps at stride 8 -> 3D via K."""
+
+    STRIDE = HUPNetConfig.STRIDE
+
+    def __init__(self, config: HUPNetConfig) -> None:
         super().__init__()
-        if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 1:
-            raise ValueError(f"n_keypoints must be a positive int, got {n_keypoints!r}")
-        if not isinstance(neck_channels, int) or isinstance(neck_channels, bool) or neck_channels < 1:
-            raise ValueError(f"neck_channels must be a positive int, got {neck_channels!r}")
-        if not 0.0 <= float(canvas_margin) <= 2.0:
-            raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got {canvas_margin!r}")
-        if K_input is None or input_size is None:
+        if config.K_input is None:
             raise ValueError("HUPNet unprojects through the input camera: it needs K_input (3 x 3, pixels of the "
                              "model input) and input_size")
-        if isinstance(input_size, bool) or not isinstance(input_size, int) or input_size % self.STRIDE:
-            raise ValueError(f"input_size must be a positive multiple of {self.STRIDE}, got {input_size!r}")
-        self._config: dict[str, Any] = {
-            "name": "hupnet", "backbone": backbone, "n_keypoints": n_keypoints, "neck_channels": neck_channels,
-            "canvas_margin": float(canvas_margin), "zero_init_residual": zero_init_residual,
-            "points3d_mean": PointPrior.config_value(points3d_mean), "points3d_scale": float(points3d_scale),
-            "K_input": [[float(v) for v in row] for row in K_input], "input_size": input_size,
-        }
-        self.n_keypoints = n_keypoints
-        self.input_size = input_size
-        self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
+        self.config = config
+        self.n_keypoints = config.n_keypoints
+        self.input_size = input_size = config.input_size
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
         _, c3, c4, c5 = self.backbone.stage_channels
-        D = neck_channels
+        D = config.neck_channels
         self.lateral5, self.lateral4, self.lateral3 = nn.Conv2d(c5, D, 1), nn.Conv2d(c4, D, 1), nn.Conv2d(c3, D, 1)
         self.smooth = nn.Sequential(_conv_bn_relu(D + 2, D), _conv_bn_relu(D, D))
-        self.heatmap = nn.Conv2d(D, n_keypoints, 1)
-        self.depthmap = nn.Conv2d(D, n_keypoints, 1)
+        self.heatmap = nn.Conv2d(D, config.n_keypoints, 1)
+        self.depthmap = nn.Conv2d(D, config.n_keypoints, 1)
         self.root_depth = nn.Linear(c5, 1)
         for head in (self.heatmap, self.depthmap, self.root_depth):
             nn.init.normal_(head.weight, std=1e-3)
             nn.init.zeros_(head.bias)
-        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
-        self.register_buffer("intrinsics", normalized_intrinsics(K_input, input_size))
+        self.prior3d = PointPrior(config.n_keypoints, config.points3d_mean, config.points3d_scale)
+        self.register_buffer("intrinsics", normalized_intrinsics(config.K_input, input_size))
         cells = input_size // self.STRIDE
-        self.margin_cells = int(round(float(canvas_margin) * cells))
+        self.margin_cells = int(round(float(config.canvas_margin) * cells))
         # normalised coordinate of each canvas cell's centre: cell j of the image covers pixels
         # [8 j, 8 j + 8), centre 8 j + 3.5 -> (j + 0.5) / cells * 2 - 1
         index = torch.arange(-self.margin_cells, cells + self.margin_cells, dtype=torch.float32)
         self.register_buffer("grid", (index + 0.5) / cells * 2.0 - 1.0, persistent=False)
-
-    @property
-    def config(self) -> dict[str, Any]:
-        """The plain dict that :func:`models.build.build_model` rebuilds this model from."""
-        return dict(self._config)
 
     def forward(self, images: torch.Tensor) -> HUPNetOutput:
         """Predict 2D and 3D keypoints.

@@ -18,16 +18,19 @@ Convention:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
 
 import torch
 from torch import nn
 
+from models.config import ModelConfig, check_camera, check_whole
 from models.graph import GraphNet2D, GraphUNet
 from models.prior import PointPrior
 from models.resnet import resnet
 
-__all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetOutput", "normalized_intrinsics", "unproject_normalized"]
+__all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetConfig", "HOPENetOutput", "normalized_intrinsics",
+           "unproject_normalized"]
 
 #: how the Graph U-Net's output becomes camera-frame 3D (see :class:`GraphLifter`)
 LIFTS = ("direct", "camera")
@@ -42,14 +45,11 @@ def normalized_intrinsics(K_input, input_size: int) -> torch.Tensor:
     x_norm = fx_norm * X / Z + cx_norm for a camera-frame point (X, Y, Z).
 
     Args:
-        K_input: (3, 3) intrinsics of the model input image, pixels (nested lists or array).
+        K_input: (3, 3) intrinsics of the model input image, pixels (nested lists or array), as
+            :func:`models.config.check_camera` takes them.
         input_size: S, side of the square model input, pixels.
     """
     K = torch.as_tensor(K_input, dtype=torch.float64)
-    if K.shape != (3, 3) or not torch.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"K_input must be a finite (3, 3) intrinsics matrix with fx, fy > 0, got {K.tolist()}")
-    if isinstance(input_size, bool) or not isinstance(input_size, int) or input_size < 1:
-        raise ValueError(f"input_size must be a positive int, got {input_size!r}")
     S = float(input_size)
     return torch.stack([2 * K[0, 0] / S, 2 * K[1, 1] / S, (2 * K[0, 2] + 1) / S - 1, (2 * K[1, 2] + 1) / S - 1]).float()
 
@@ -71,10 +71,8 @@ def unproject_normalized(points2d: torch.Tensor, depth: torch.Tensor, intrinsics
 
 
 def set_lift(module: nn.Module, lift: str, K_input, input_size) -> None:
-    """Check ``lift`` and give ``module`` its ``lift`` and ``intrinsics`` (a buffer of the normalised
-    input camera for lift="camera", None for "direct"), as :func:`lift_points` takes them."""
-    if lift not in LIFTS:
-        raise ValueError(f"lift must be one of {LIFTS}, got {lift!r}")
+    """Give ``module`` its ``lift`` and ``intrinsics`` (a buffer of the normalised input camera for
+    lift="camera", None for "direct"), as :func:`lift_points` takes them."""
     module.lift = lift
     if lift == "camera":
         if K_input is None or input_size is None:
@@ -145,87 +143,65 @@ class HOPENetOutput(NamedTuple):
     points3d: torch.Tensor
 
 
-class HOPENet(nn.Module):
-    """HOPE-Net with a ResNet backbone written in this package.
+@dataclass(frozen=True)
+class HOPENetConfig(ModelConfig):
+    """HOPE-Net's architecture (:class:`models.config.ModelConfig`'s fields and these).
 
-    Args:
-        backbone: ResNet name, one of "resnet10" (the paper), "resnet18", "resnet34", "resnet50"
-            (the public code).
-        n_keypoints: N, keypoints predicted (29 = 21 hand joints + 8 probe corners).
+    Attributes:
         graph_hidden: widths of the two hidden graph convolutions of the 2D refinement.
         unet_channels: encoder widths of the Graph U-Net, one per pooling.
         unet_node_counts: nodes after each pooling of the Graph U-Net; None for HOPE-Net's
             (15, 7, 4, 2, 1) at 29 keypoints, halving otherwise.
         unet_bottleneck: hidden width of the U-Net's bottleneck MLP.
-        zero_init_residual: zero the last BN of each residual branch of the backbone.
-        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (see
-            :mod:`models.prior`), e.g. the training split's mean in metres; None for zeros.
-        points3d_scale: target units per raw 3D output unit.
         lift: "direct" (the published HOPE-Net: the U-Net outputs 3D points) or "camera" (the U-Net
             outputs depth and a 2D correction, unprojected through the input camera; see
             :class:`GraphLifter`).
-        K_input: (3, 3) intrinsics of the model input image, pixels (lift="camera").
-        input_size: S, side of the square model input, pixels (lift="camera").
+        K_input: (3, 3) intrinsics of the model input image, pixels (lift="camera"; training fills it in).
+        input_size: S, side of the square model input, pixels (lift="camera"; training fills it in).
+        unet_image_channels: the U-Net also sees the pooled image feature squeezed to this many
+            channels per node (0: only the 2D points, as published).
     """
 
-    def __init__(
-        self,
-        backbone: str = "resnet10",
-        n_keypoints: int = 29,
-        graph_hidden: Sequence[int] = (128, 16),
-        unet_channels: Sequence[int] = (4, 8, 16, 32, 64),
-        unet_node_counts: Sequence[int] | None = None,
-        unet_bottleneck: int = 20,
-        zero_init_residual: bool = False,
-        points3d_mean: Sequence[Sequence[float]] | None = None,
-        points3d_scale: float = 1.0,
-        lift: str = "direct",
-        K_input: Sequence[Sequence[float]] | None = None,
-        input_size: int | None = None,
-        unet_image_channels: int = 0,
-    ) -> None:
-        super().__init__()
-        if not isinstance(n_keypoints, int) or isinstance(n_keypoints, bool) or n_keypoints < 2:
-            raise ValueError(f"n_keypoints must be an int >= 2, got {n_keypoints!r}")
-        self._config: dict[str, Any] = {
-            "name": "hopenet",
-            "backbone": backbone,
-            "n_keypoints": n_keypoints,
-            "graph_hidden": list(graph_hidden),
-            "unet_channels": list(unet_channels),
-            "unet_node_counts": None if unet_node_counts is None else list(unet_node_counts),
-            "unet_bottleneck": unet_bottleneck,
-            "zero_init_residual": zero_init_residual,
-            "points3d_mean": PointPrior.config_value(points3d_mean),
-            "points3d_scale": float(points3d_scale),
-        }
-        if lift != "direct":  # a published HOPE-Net's config stays as it was
-            self._config.update(lift=lift, K_input=None if K_input is None else [[float(v) for v in row] for row in K_input],
-                                input_size=input_size)
-        if unet_image_channels:
-            self._config["unet_image_channels"] = int(unet_image_channels)
-        self.n_keypoints = n_keypoints
-        self.backbone = resnet(backbone, num_classes=None, zero_init_residual=zero_init_residual)
-        feature_dim = self.backbone.feature_dim
-        self.head2d = nn.Linear(feature_dim, n_keypoints * 2)
-        self.graphnet = GraphNet2D(feature_dim, n_keypoints, hidden=graph_hidden)
-        # optionally the U-Net also sees the image: the pooled feature squeezed to a few channels per node
-        self.unet_image = nn.Linear(feature_dim, unet_image_channels) if unet_image_channels else None
-        self.unet = GraphUNet(
-            in_features=2 + int(unet_image_channels),
-            out_features=3,
-            n_nodes=n_keypoints,
-            node_counts=unet_node_counts,
-            channels=unet_channels,
-            bottleneck=unet_bottleneck,
-        )
-        self.prior3d = PointPrior(n_keypoints, points3d_mean, points3d_scale)
-        set_lift(self, lift, K_input, input_size)
+    name: ClassVar[str] = "hopenet"
+    min_keypoints: ClassVar[int] = 2
+    backbone: str = "resnet10"
+    graph_hidden: tuple[int, ...] = (128, 16)
+    unet_channels: tuple[int, ...] = (4, 8, 16, 32, 64)
+    unet_node_counts: tuple[int, ...] | None = None
+    unet_bottleneck: int = 20
+    lift: str = "direct"
+    K_input: tuple[tuple[float, ...], ...] | None = None
+    input_size: int | None = None
+    unet_image_channels: int = 0
 
-    @property
-    def config(self) -> dict[str, Any]:
-        """The plain dict that :func:`models.build.build_model` rebuilds this model from."""
-        return {key: list(value) if isinstance(value, list) else value for key, value in self._config.items()}
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.lift not in LIFTS:
+            raise ValueError(f"lift must be one of {LIFTS}, got {self.lift!r}")
+        check_whole("unet_image_channels", self.unet_image_channels, 0)
+        if self.K_input is not None or self.input_size is not None:
+            check_camera(self.K_input, self.input_size)
+
+
+class HOPENet(nn.Module):
+    """HOPE-Net with a ResNet backbone written in this package, built from its config."""
+
+    def __init__(self, config: HOPENetConfig = HOPENetConfig()) -> None:
+        super().__init__()
+        self.config = config
+        self.n_keypoints = n = config.n_keypoints
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
+        feature_dim = self.backbone.feature_dim
+        self.head2d = nn.Linear(feature_dim, n * 2)
+        self.graphnet = GraphNet2D(feature_dim, n, hidden=config.graph_hidden)
+        # optionally the U-Net also sees the image: the pooled feature squeezed to a few channels per node
+        image_channels = config.unet_image_channels
+        self.unet_image = nn.Linear(feature_dim, image_channels) if image_channels else None
+        self.unet = GraphUNet(in_features=2 + image_channels, out_features=3, n_nodes=n,
+                              node_counts=config.unet_node_counts, channels=config.unet_channels,
+                              bottleneck=config.unet_bottleneck)
+        self.prior3d = PointPrior(n, config.points3d_mean, config.points3d_scale)
+        set_lift(self, config.lift, config.K_input, config.input_size)
 
     def forward(self, images: torch.Tensor) -> HOPENetOutput:
         """Predict 2D and 3D keypoints.

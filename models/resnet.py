@@ -27,6 +27,7 @@ __all__ = [
     "Bottleneck",
     "ResNet",
     "ResNetOutput",
+    "check_backbone",
     "resnet",
     "strip_classifier",
 ]
@@ -161,13 +162,8 @@ class ResNet(nn.Module):
         zero_init_residual: bool = False,
     ) -> None:
         super().__init__()
-        if block not in (BasicBlock, Bottleneck):
-            raise TypeError(f"block must be BasicBlock or Bottleneck, got {block!r}")
-        layers = tuple(layers)
-        if len(layers) != 4 or not all(isinstance(n, int) and n >= 1 for n in layers):
-            raise ValueError(f"layers must be four positive ints, got {layers}")
-        if num_classes is not None and (not isinstance(num_classes, int) or num_classes < 1):
-            raise ValueError(f"num_classes must be a positive int or None, got {num_classes!r}")
+        assert block in (BasicBlock, Bottleneck) and len(layers) == 4 and min(layers) >= 1, (block, layers)
+        assert num_classes is None or num_classes >= 1, num_classes
 
         self.conv1 = nn.Conv2d(3, 64, kernel_size=7, stride=2, padding=3, bias=False)
         self.bn1 = nn.BatchNorm2d(64)
@@ -245,12 +241,14 @@ class ResNet(nn.Module):
 
 
 def _check_images(images: torch.Tensor) -> None:
-    if not isinstance(images, torch.Tensor):
-        raise TypeError(f"images must be a torch.Tensor, got {type(images).__name__}")
-    if images.ndim != 4 or images.shape[1] != 3:
-        raise ValueError(f"images must be (B, 3, H, W), got {tuple(images.shape)}")
-    if not images.is_floating_point():
-        raise TypeError(f"images must be a floating-point tensor, got {images.dtype}")
+    if images.ndim != 4 or images.shape[1] != 3 or not images.is_floating_point():
+        raise ValueError(f"images must be (B, 3, H, W) float, got {tuple(images.shape)} {images.dtype}")
+
+
+def check_backbone(name: str) -> None:
+    """Refuse a ResNet name that is not in :data:`RESNET_SPECS`, listing the known ones."""
+    if name not in RESNET_SPECS:
+        raise ValueError(f"unknown ResNet {name!r}; known: {', '.join(sorted(RESNET_SPECS))}")
 
 
 def resnet(name: str, num_classes: int | None = None, zero_init_residual: bool = False) -> ResNet:
@@ -265,10 +263,7 @@ def resnet(name: str, num_classes: int | None = None, zero_init_residual: bool =
     Returns:
         The :class:`ResNet`, pooled feature width 512 (10/18/34) or 2048 (50).
     """
-    if not isinstance(name, str):
-        raise TypeError(f"name must be a str, got {type(name).__name__}")
-    if name not in RESNET_SPECS:
-        raise ValueError(f"unknown ResNet {name!r}; known: {', '.join(sorted(RESNET_SPECS))}")
+    check_backbone(name)
     block, layers = RESNET_SPECS[name]
     return ResNet(block, layers, num_classes=num_classes, zero_init_residual=zero_init_residual)
 
@@ -286,6 +281,4 @@ def strip_classifier(state_dict: dict[str, torch.Tensor]) -> dict[str, torch.Ten
     Returns:
         A new dict without the ``fc.`` entries.
     """
-    if not hasattr(state_dict, "items"):
-        raise TypeError(f"state_dict must be a mapping, got {type(state_dict).__name__}")
     return {key: value for key, value in state_dict.items() if not key.startswith("fc.")}

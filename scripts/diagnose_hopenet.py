@@ -35,8 +35,8 @@ def main() -> None:
     args = parser.parse_args()
     model, payload = load_model(args.checkpoint)
     model.eval()
-    if model.config["name"] != "hopenet":
-        raise SystemExit(f"{args.checkpoint} holds a {model.config['name']!r} model, not HOPE-Net")
+    if model.config.name != "hopenet":
+        raise SystemExit(f"{args.checkpoint} holds a {model.config.name!r} model, not HOPE-Net")
     size = int(payload["input_size"])
     reader = HUPDataset(args.dataset, args.split, ReaderConfig(input_size=size))
     rows = np.linspace(0, len(reader) - 1, min(args.frames, len(reader))).round().astype(int)
@@ -57,7 +57,7 @@ def main() -> None:
     r3 = spread_ratios(out.points3d, truth3d)
     split = mpjpe_split_mm(out.points3d.double(), truth3d.double())
     print(f"{args.checkpoint}: {len(rows)} {args.split} frames, input {size} px, lift "
-          f"{model.config.get('lift', 'direct')}, loss weights 2D init {weights['w2d_init']}, 2D {weights['w2d']}, "
+          f"{model.config.lift}, loss weights 2D init {weights['w2d_init']}, 2D {weights['w2d']}, "
           f"3D {weights['w3d']}")
     print(f"  spread ratio, initial 2D : {ratios2d(out.points2d_init)} | error {err2d(out.points2d_init):.1f} px")
     print(f"  spread ratio, refined 2D : {ratios2d(out.points2d)} | error {err2d(out.points2d):.1f} px")

@@ -18,6 +18,7 @@ import numpy as np
 
 from datagen.geometry import axis_angle_to_matrix
 from datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
+from datagen.assets.hand_mesh import orient_outward
 from datagen.errors import BadValueError
 
 MM = 1e-3
@@ -101,11 +102,7 @@ def forearm_rest(spec: ArmSpec) -> tuple[np.ndarray, np.ndarray]:
         a, b = k, (k + 1) % n
         faces.append((start_c, a, b))
         faces.append((end_c, m * n + b, m * n + a))
-    faces = np.array(faces, dtype=np.int64)
-    tri = verts[faces]
-    volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()
-    if volume < 0:
-        faces = faces[:, ::-1].copy()
+    faces = orient_outward(verts, np.array(faces, dtype=np.int64))
     return verts * spec.scale if spec.scale != 1.0 else verts, faces
 
 

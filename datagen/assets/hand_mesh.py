@@ -130,7 +130,7 @@ def build_mesh(spec: HandSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     verts, faces, _, _ = marching_cubes(field, level=0.0, spacing=(step, step, step))
     verts = verts + lo
     verts, faces = _decimate(verts, faces, spec.max_faces, fast_simplification)
-    faces = _orient_outward(verts, faces)
+    faces = orient_outward(verts, faces)
     weights = _skin_weights(verts, faces, prims, spec)
     return verts, faces.astype(np.int64), weights
 
@@ -192,8 +192,8 @@ def _decimate(verts, faces, max_faces, fast_simplification):
     return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
-def _orient_outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Flip the winding if the signed volume is negative."""
+def orient_outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` of a closed mesh, their winding flipped if the signed volume is negative."""
     tri = verts[faces]
     volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
     return faces[:, ::-1].copy() if volume < 0 else faces

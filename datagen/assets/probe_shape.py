@@ -70,27 +70,12 @@ class ProbeSpec:
     which otherwise maps the picture onto itself and swaps the 8 box corners
     in pairs, so the corner labels can be read from the image.
 
-    Why this size and place: real marks are ridges of 2-3 mm or dots and
-    lights of 3-5 mm; no CAD drawing of the C1-5-D's mark was available, so
-    only its kind and place (one end of the array, on the head) follow the
-    real probe, and it is made larger so that the models' 128 px input can
-    see it. At the HUP-3D camera (f = 480 px at 256 px) 1 mm is 0.96 px at
-    0.5 m and 0.6 px at 0.8 m of the stored 256 px image, half that at
-    128 px: the pad spans up to about 7 x 10 px at 0.5 m and 4 x 6 px at
-    0.8 m of a 128 px input. Wrapping it round the end's edges lets views of
-    the head's broad faces see it too: on 160 frames of 3 grasps rendered
-    by ``hupbench generate`` (40 views, 2 backgrounds) it showed at least
-    8 green pixels of the 256 px image in 45 % of frames, against 26 % for
-    an 8 mm wide pad with the same glow (24 mm: 52 %); a one-sided mark cannot show in views of
-    the other end, where its absence is the cue. Its green differs from the
-    grey housing, the dark lens, both gloves and the arm. It sits on the
-    shoulder rather than on the flat end face because the flat end
-    (x = 36 mm) is what bounds the box: the shoulder falls away from it
-    there, so the raised pad stays inside the box (its outermost point at
-    x = 34.4 mm, y = 9.3 mm of the box's 36 and 15 mm) and the 8 box corners
-    (keypoints 21-28) do not move (the build refuses a spec whose marker
-    leaves the box). Fingers of the grasps rest on the neck and the handle,
-    above it.
+    Why this size and place: real marks are 2-5 mm ridges, dots or lights; this one is larger so
+    that the models' 128 px input sees it, wraps round the end's edges so that views of the head's
+    broad faces see it too, and sits on the shoulder, where the pad stays inside the box of the sweep
+    (outermost point x = 34.4 mm, y = 9.3 mm of the box's 36 and 15 mm) and the 8 box corners
+    (keypoints 21-28) do not move (the build refuses a spec whose marker leaves the box). Fingers of
+    the grasps rest on the neck and the handle, above it. How often it shows: docs/rendering.md.
 
     Attributes:
         lens_radius: radius of curvature of the cylindrical acoustic lens

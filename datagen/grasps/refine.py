@@ -44,7 +44,7 @@ from datagen.rotations_torch import axis_angle_to_matrix
 from datagen.errors import BadValueError
 
 #: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours
-#: per orientation on a CPU, 10^9 (measured: accepted before) would never end
+#: per orientation on a CPU
 MAX_ITERATIONS = 100_000
 PADS = ("thumb", "index", "middle", "ring", "little", "palm")
 MM = 1000.0

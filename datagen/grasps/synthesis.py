@@ -36,7 +36,7 @@ from datagen.input_checks import check_int, is_whole
 from datagen.errors import BadValueError
 
 SAMPLERS = ("random", "cvae")
-#: starts per orientation at most: they are refined as one batch (10^9 asked 67 GiB for the first array)
+#: starts per orientation at most: they are refined as one batch, whose arrays grow with it
 MAX_STARTS_PER_THETA = 4096
 #: seeds are whole numbers that numpy's and torch's generators both take
 MAX_SEED = 2**32 - 1

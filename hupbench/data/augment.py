@@ -1,11 +1,8 @@
-"""The training augmentation, applied to whole batches on the training device: an in-plane rotation about
-the principal point with the 2D and 3D labels turned to match, then colour jitter; and the conversion of
-a loader's frames to model images.
+"""The training augmentation of a batch on its device (an in-plane rotation with the labels turned to match,
+then colour jitter), and a loader's frames as model images.
 
-Convention:
-    Frames: (B, S, S, 3) uint8 RGB; model images: (B, 3, S, S) float32 in [0, 1]. Labels as
-    :mod:`hupbench.data.reader`. A positive angle turns the image content counter-clockwise on screen and
-    the camera-frame points by -angle about +z (:mod:`hupbench.input_geometry`).
+Convention: a positive angle turns the image content counter-clockwise on screen about the principal point
+and the camera-frame points by -angle about +z (:mod:`hupbench.input_geometry`).
 """
 
 from __future__ import annotations
@@ -16,8 +13,6 @@ import numpy as np
 import torch
 
 from hupbench.input_geometry import apply_affine, camera_rotation, inside_input, pixels_to_normalized, rotation_pixel_map
-
-__all__ = ["BatchAugment", "model_images"]
 
 
 def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False) -> torch.Tensor:

@@ -18,11 +18,11 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from datagen.errors import NotWritableError
 from datagen.io import atomic_output, clean_stale_tmp, write_json
 
-__all__ = ["CACHE_FORMAT", "cache_key", "cache_paths", "open_frame_cache"]
 
 #: bump when the cache file layout or the resize changes: every older cache is then rebuilt
 CACHE_FORMAT = 1
@@ -110,11 +110,6 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) 
     with atomic_output(npy_path) as tmp:
         out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
         _reserve(tmp)
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px", dynamic_ncols=True)
 
         def fill(start: int) -> int:
             stop = min(n, start + _BUILD_CHUNK)
@@ -122,14 +117,10 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) 
                 out[row] = dataset.frame(row)
             return stop - start
 
-        try:
-            with ThreadPoolExecutor(max_workers=_BUILD_THREADS) as pool:
-                for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
-                    if bar is not None:
-                        bar.update(done)
-        finally:
-            if bar is not None:
-                bar.close()
+        with tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px", dynamic_ncols=True,
+                  disable=not progress) as bar, ThreadPoolExecutor(max_workers=_BUILD_THREADS) as pool:
+            for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
+                bar.update(done)
         out.flush()
         del out
     write_json(key_path, key)

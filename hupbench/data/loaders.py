@@ -22,46 +22,34 @@ from hupbench.data.cache import open_frame_cache
 from hupbench.data.reader import HUPDataset
 from hupbench.training.schedule import EpochSampler
 
-__all__ = ["DecodedFrames", "FrameBatches", "TrainData", "setup_data"]
-
-
-class DecodedFrames:
-    """The jpeg source: rows of a split's (N, S, S, 3) uint8 frames, decoded from their files on each access."""
-
-    def __init__(self, dataset: HUPDataset) -> None:
-        self.dataset = dataset
-
-    def __len__(self) -> int:
-        return len(self.dataset)
-
-    def __getitem__(self, rows: np.ndarray) -> np.ndarray:
-        return np.stack([self.dataset.frame(int(row)) for row in rows])
-
 
 class FrameBatches(torch.utils.data.Dataset):
-    """A split's frames with their labels, a whole batch per call (``__getitems__``).
+    """A split's uint8 frames with their labels, a whole batch per call (``__getitems__``).
 
     Args:
-        dataset: the split (its labels and annotations).
-        frames: (N, S, S, 3) uint8 rows: the frame cache's memory map or :class:`DecodedFrames`.
+        dataset: the split (its labels, annotations and frames).
+        frames: (N, S, S, 3) uint8, the split's frame cache; None decodes each frame when a batch needs it.
 
     Batches: "image" (B, S, S, 3) uint8 RGB, "index" (B,) int64 (the row in the split: the augmentation
-    key), and rows of every label of :attr:`HUPDataset.labels`. ``ann`` is the split's annotation arrays.
+    key), and rows of every label of ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
     """
 
-    def __init__(self, dataset: HUPDataset, frames) -> None:
-        self.ann, self.labels, self.frames = dataset.ann, dataset.labels, frames
+    def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None) -> None:
+        self.dataset, self.ann, self.frames = dataset, dataset.ann, frames
 
     def __len__(self) -> int:
-        return len(self.frames)
+        return len(self.ann["frame_id"])
 
     def __getitems__(self, indices: list[int]) -> dict:
         order = np.asarray(indices, dtype=np.int64)
-        rows = np.sort(order)  # a sorted gather reads the memory map front to back
-        images = self.frames[rows][np.searchsorted(rows, order)]
+        if self.frames is None:
+            images = np.stack([self.dataset.frame(row) for row in order.tolist()])
+        else:
+            rows = np.sort(order)  # a sorted gather reads the memory map front to back
+            images = self.frames[rows][np.searchsorted(rows, order)]
         index = torch.from_numpy(order)
         return {"image": torch.from_numpy(images), "index": index,
-                **{name: value[index] for name, value in self.labels.items()}}
+                **{name: value[index] for name, value in self.dataset.labels.items()}}
 
     def __getitem__(self, index: int) -> dict:
         batch = self.__getitems__([int(index)])
@@ -107,12 +95,9 @@ def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log
     K = splits[0].ann["K"]
     if reader.rotate_deg > 0 and not np.allclose(K[:, 0, 0], K[:, 1, 1]):
         raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0, 0]}, fy={K[0, 1, 1]}")
-    if pipeline == "cache":
-        show = bool(cfg.train.progress) and rank == 0
-        frames = [open_frame_cache(split, cfg.data.get("cache_dir"), progress=show, log=log) for split in splits]
-    else:
-        frames = [DecodedFrames(split) for split in splits]
-    train_set, val_set = (FrameBatches(split, source) for split, source in zip(splits, frames))
+    cache_dir, show = cfg.data.get("cache_dir"), bool(cfg.train.progress) and rank == 0
+    train_set, val_set = (FrameBatches(split, open_frame_cache(split, cache_dir, show, log) if pipeline == "cache"
+                                       else None) for split in splits)
     workers = int(cfg.data.num_workers)
     loader_args = {"batch_size": int(cfg.data.batch_size), "num_workers": workers, "collate_fn": _stacked,
                    "pin_memory": device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,

@@ -20,9 +20,8 @@ from datagen.camera import resize_intrinsics, resize_points
 from datagen.dataset.contract import frame_path, read_annotations, read_manifest
 from datagen.errors import BadValueError, MissingFileError
 from datagen.input_checks import check_int, check_number
+from hupbench.data.augment import model_images
 from hupbench.input_geometry import INPUT_SIZE_RANGE, inside_input, pad_and_resize, pixels_to_normalized
-
-__all__ = ["HUPDataset", "ReaderConfig", "input_labels", "read_manifest", "read_rgb"]
 
 
 def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
@@ -149,7 +148,5 @@ class HUPDataset(torch.utils.data.Dataset):
         return image
 
     def __getitem__(self, index: int) -> dict:
-        from hupbench.data.augment import model_images
-
         image = model_images(torch.from_numpy(self.frame(index))[None], torch.device("cpu"))[0]
         return {"image": image, **{name: value[index] for name, value in self.labels.items()}}

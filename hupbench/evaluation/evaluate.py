@@ -6,42 +6,9 @@ computed on all frames, and a results JSON in schema version 3 (:mod:`hupbench.e
 written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the same wrapper the
 ONNX export uses, so both formats report the same quantities.
 
-What the numbers are:
-    mpjpe_mm            absolute camera-frame 3D error (no alignment), mm: hand (21), probe (8)
-                        and all 29 keypoint-weighted (``metrics.ALL_AVERAGING``).
-    probe_symmetric_mpjpe_mm      the probe corners' MPJPE with each frame's corners matched under
-                        the probe box's half turn about its long axis when that is closer
-                        (``metrics.probe_symmetric_mpjpe_mm``, BOP-style); the corner permutation
-                        is read from the dataset's own corners in the probe frame, and checked to
-                        map the box onto itself. Null (with a log line) if it does not.
-    spread_ratio        {x, y, z}: for each camera axis, the standard deviation over frames of the
-                        predicted coordinate, averaged over the 29 keypoints, divided by the same
-                        for the truth (``metrics.spread_ratios``); 1 = varies like the truth, 0 = the
-                        same output for every image. A ratio below 0.5
-                        (``metrics.SPREAD_RATIO_WARN``) prints a warning naming the axis.
-    root_relative_hand_mpjpe_mm   the 21 hand joints after moving both hands' wrists to the origin.
-    pa_mpjpe_hand_mm    the 21 hand joints after a Procrustes (similarity) alignment per frame.
-    pck_auc_0_50mm      area under the 3D PCK curve of the absolute errors of all 29 keypoints,
-                        thresholds 0, 0.5, ..., 50 mm (``metrics.PCK_THRESHOLDS_MM``), in [0, 1].
-    pixel_error_px      mean 2D error of all 29 keypoints (visible or not) in pixels of the stored
-                        dataset image (e.g. 256 px), so that models of different input sizes compare.
-    breakdowns          MPJPE by camera latitude (``breakdowns.latitude_labels``: egocentric = camera on
-                        the elbow's hemisphere, theta < 90 deg), by z_ego, by background name, by grasp
-                        (the grasp id) and by the grasp's probe orientation Theta_Vol
-                        (``breakdowns.theta_vol_labels``, e.g. "theta_vol_z=180"; from the manifest's
-                        ``grasp_theta_vol_deg``). Frames of grasps whose orientation the grasps file did
-                        not record fall in the "unknown" bucket; the Theta_Vol breakdown is left out
-                        when no evaluated grasp has one (older datasets).
-    track, split_floor  the dataset's track (manifest ``protocol.track``: "unseen_grasps" or
-                        "unseen_views") and the evaluated split's floor from the manifest's
-                        ``split_floors`` (what a model that only recalls training labels scores, overall
-                        and per grasp); null for datasets made before them and for the train split.
-    latency             ms per image, median of timed runs after warm-up, batch 1 and 32, PyTorch
-                        (checkpoints only) and onnxruntime (a checkpoint is exported to a temporary
-                        ONNX file first); both use torch's intra-op thread count.
-    parameters, flops   from the model rebuilt from its config (weights do not change either; an
-                        ONNX file carries the config in its metadata); FLOPs per image counted by
-                        ``torch.utils.flop_counter.FlopCounterMode`` (2 x multiply-adds).
+Each number of the results file (MPJPE by part, the probe's half-turn symmetric error, the spread
+ratios, PA-MPJPE, PCK AUC, the 2D error, the breakdowns, the split floor, latency, parameters and FLOPs)
+is defined in docs/metrics.md.
 """
 
 from __future__ import annotations
@@ -52,6 +19,7 @@ import json
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,15 +27,16 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
+from datagen.dataset.contract import TRACKS
+from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.input_checks import check_int
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
-from datagen.dataset.contract import TRACKS
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
-from datagen.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.inference.runtime import load_onnx_model, run_onnx
 
-__all__ = ["LATENCY_RUNS", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval",
-           "split_floor"]
+__all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms",
+           "run_eval", "split_floor"]
 
 #: (least warm-up runs, timed runs) per batch size for the latency medians
 LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
@@ -84,6 +53,63 @@ CORNER_SYMMETRY_REL_TOL = 1e-4
 #: corners of different frames, taken back to the probe frame, must agree within this (metres)
 CORNER_FRAME_TOL_M = 1e-5
 MODEL_LABELS = {"hopenet": "HOPE-Net", "hupnet": "HUPNet", "resnet_regressor": "ResNet regressor"}
+MODEL_SUFFIXES = (".pt", ".pth", ".onnx")
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """What ``hupbench eval`` is asked to do, checked once where it enters.
+
+    Attributes:
+        model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
+        dataset: a finished dataset folder (with ``manifest.json``).
+        split: "train", "val" or "test".
+        out: results ``.json`` (default ``leaderboard/results/<run_name>.json`` under the current folder); its
+            stem is the run name.
+        run_name: default: the checkpoint's training ``run_name`` (or file stem), the ONNX metadata's run
+            name, or the stem of ``out``.
+        batch_size: frames per forward pass.
+        latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
+        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current
+            setting); the device string records the count.
+        training_command: the committed command that reproduces the training run (the leaderboard requires
+            one for a measured row), stored as ``training.command``.
+        training_log: the run's metrics.jsonl as a path relative to the leaderboard folder (e.g.
+            ``logs/<run_name>.jsonl``), stored as ``training.log``.
+        label: the model's name in the results (default: the training config's ``label``, else model,
+            backbone and input size).
+        progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
+    """
+
+    model: Path
+    dataset: Path
+    split: str = "test"
+    out: Path | None = None
+    run_name: str | None = None
+    batch_size: int = 32
+    latency: bool = True
+    threads: int | None = None
+    training_command: str | None = None
+    training_log: str | None = None
+    label: str | None = None
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        check_int(self.batch_size, "batch_size", low=1)
+        check_int(self.threads, "threads", low=1, optional=True)
+        model = Path(self.model)
+        if model.suffix.lower() not in MODEL_SUFFIXES:
+            raise BadValueError(f"unknown model file type {model.name!r}: expected a hupbench checkpoint (.pt) "
+                                f"or an exported ONNX model (.onnx)")
+        out = None if self.out is None else Path(self.out)
+        if out is not None and out.suffix.lower() != ".json":
+            raise BadValueError(f"--out must be a .json file, got {out.name!r}")
+        if out is not None and self.run_name is not None and self.run_name != out.stem:
+            raise BadValueError(f"the run name {self.run_name!r} must equal the results file stem {out.stem!r} "
+                                f"(leave out --run-name or rename --out)")
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "dataset", Path(self.dataset))
+        object.__setattr__(self, "out", out)
 
 
 def _backbone_label(name: str) -> str:
@@ -136,8 +162,6 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
     progress bar: the exporter takes as long as the timings)."""
     from tqdm import tqdm
 
-    from hupbench.inference.export import ort_run, ort_session
-
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
     runtimes = (["pytorch"] if torch_module is not None else []) + ["onnxruntime"]
     with tqdm(total=len(runtimes) * len(LATENCY_RUNS) + (export is not None), unit="step", desc="latency",
@@ -154,11 +178,11 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
                 bar.set_postfix_str(f"PyTorch batch {batch}")
                 out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats)
                 bar.update(1)
-        session = ort_session(onnx_path, threads)
+        onnx_model = load_onnx_model(onnx_path, threads)
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
             bar.set_postfix_str(f"onnxruntime batch {batch}")
             out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
-                lambda images: ort_run(session, onnx_path, images), input_size, batch, warmup, repeats)
+                lambda images: run_onnx(onnx_model, images), input_size, batch, warmup, repeats)
             bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
@@ -189,15 +213,9 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
     drift = float(np.abs(corners_world - corners_world[:1]).max())
     if drift > CORNER_FRAME_TOL_M:
         raise BadValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
-                         f"(probe) frame: the dataset does not place the probe at the world origin")
+                            f"(probe) frame: the dataset does not place the probe at the world origin")
     half_turn = metrics.symmetry_permutation(corners_world.mean(axis=0), metrics.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
     return (tuple(range(kp.NUM_CORNERS)), half_turn)
-
-
-def _check_dataset(dataset: Path, split: str) -> dict:
-    from hupbench.data import read_manifest
-
-    return read_manifest(dataset, split, needs="the benchmark needs")
 
 
 def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dict[str, list[float] | None] | None:
@@ -248,7 +266,7 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     if floors is not None:
         if not isinstance(floors, dict) or not isinstance(floors.get("splits"), dict):
             raise BadValueError(f"{where}: manifest['split_floors'] must be a dict with 'definition' and "
-                             f"'splits' (split -> floor), got {str(floors)[:80]}")
+                                f"'splits' (split -> floor), got {str(floors)[:80]}")
     entry = None if floors is None else floors["splits"].get(split)
     if entry is None:
         return track, None
@@ -256,69 +274,37 @@ def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) ->
     entry = copy.deepcopy(validate_split_floor(entry, entry_where))
     if set(entry["per_grasp"]) != {str(g) for g in grasp_ids}:
         raise BadValueError(f"{entry_where}['per_grasp'] must hold the split's grasps {sorted(grasp_ids)}, got "
-                         f"{sorted(entry['per_grasp'], key=int)}")
+                            f"{sorted(entry['per_grasp'], key=int)}")
     return track, entry
 
 
-def _model_format(path: Path) -> str:
-    """"pytorch" for a checkpoint, "onnx" for an ONNX file; errors for a missing file or another type."""
-    suffix = path.suffix.lower()
-    if suffix not in (".pt", ".pth", ".onnx"):
-        raise BadValueError(f"unknown model file type {path.name!r}: expected a hupbench checkpoint (.pt) "
-                         f"or an exported ONNX model (.onnx)")
-    if not path.is_file():
-        raise MissingFileError(f"model file {path} does not exist")
-    return "onnx" if suffix == ".onnx" else "pytorch"
-
-
 class EvalModel:
-    """What eval needs of either format: name, sizes, a batch predictor, and the objects to time."""
+    """The model under evaluation, in either format: its name, sizes, a batch predictor, and what to time."""
 
     def __init__(self, path: Path) -> None:
-        if _model_format(path) == "pytorch":
-            self._load_checkpoint(path)
-        else:
-            self._load_onnx(path)
-        n = self.model_config.get("n_keypoints", kp.NUM_KEYPOINTS)
-        if n != kp.NUM_KEYPOINTS:
-            raise BadValueError(f"{path}: the model predicts {n} keypoints; the dataset and the benchmark have "
-                             f"{kp.NUM_KEYPOINTS}")
-
-    def _load_checkpoint(self, path: Path) -> None:
         from hupbench.checkpoint import load_model
         from hupbench.inference.export import contract_model, default_run_name
 
+        self.path = path
+        if path.suffix.lower() == ".onnx":
+            self.format, self.payload, self.module = "onnx", None, None
+            self.onnx = load_onnx_model(path, torch.get_num_threads())
+            if len(self.onnx.keypoint_names) != kp.NUM_KEYPOINTS:
+                raise BadValueError(f"{path} predicts {len(self.onnx.keypoint_names)} keypoints; the benchmark has "
+                                    f"{kp.NUM_KEYPOINTS}")
+            if not self.onnx.model_config:  # eval rebuilds the architecture to count its parameters and FLOPs
+                raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's "
+                                    "cost")
+            self.model_config, self.input_size = self.onnx.model_config, self.onnx.input_size
+            self.K_input, self.run_name = self.onnx.K_input, self.onnx.run_name or path.stem
+            return
         model, payload = load_model(path)
-        self.format = "pytorch"
-        self.payload = payload
+        self.format, self.payload, self.onnx = "pytorch", payload, None
+        self.module = contract_model(model, payload, str(path))
         self.model_config = dict(payload["model_config"])
-        try:
-            self.module = contract_model(model, payload)
-        except ValueError as exc:
-            raise BadValueError(f"{path}: {exc}") from exc
         self.input_size = self.module.input_size
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
-        self.session = None
-
-    def _load_onnx(self, path: Path) -> None:
-        from hupbench.inference.export import ort_session, read_onnx_metadata
-
-        meta = read_onnx_metadata(path)
-        if len(meta["keypoint_names"]) != kp.NUM_KEYPOINTS:
-            raise BadValueError(f"{path} predicts {len(meta['keypoint_names'])} keypoints; the benchmark has "
-                             f"{kp.NUM_KEYPOINTS}")
-        if not meta["model_config"]:  # eval rebuilds the architecture to count its parameters and FLOPs
-            raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's cost")
-        self.format = "onnx"
-        self.payload = None
-        self.model_config = meta["model_config"]
-        self.module = None
-        self.input_size = meta["input_size"]
-        self.K_input = np.asarray(meta["K_input"], dtype=np.float64)
-        self.run_name = meta["run_name"] or path.stem
-        self.session = ort_session(path)
-        self.onnx_path = path
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """(B, 3, S, S) -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy."""
@@ -326,9 +312,7 @@ class EvalModel:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
             return points2d.double().numpy(), points3d.double().numpy()
-        from hupbench.inference.export import ort_run
-
-        points2d, points3d = ort_run(self.session, self.onnx_path, images.numpy())
+        points2d, points3d = run_onnx(self.onnx, images.numpy())
         return points2d.astype(np.float64), points3d.astype(np.float64)
 
     def cost(self) -> tuple[int, int]:
@@ -363,20 +347,6 @@ def _training_block(model_path: Path, payload: dict | None) -> dict:
         if isinstance(hardware, str) and hardware.strip():
             block["hardware"] = hardware
     return block
-
-
-def _resolve_out(out, run_name: str | None, default_name: str) -> tuple[Path, str]:
-    """Results path and run name: the run name is the file stem (schema), so they must agree."""
-    if out is not None:
-        out = Path(out)
-        if out.suffix.lower() != ".json":
-            raise BadValueError(f"--out must be a .json file, got {out.name!r}")
-        if run_name is not None and run_name != out.stem:
-            raise BadValueError(f"the run name {run_name!r} must equal the results file stem {out.stem!r} "
-                             f"(leave out --run-name or rename --out)")
-        return out, out.stem
-    name = run_name or default_name
-    return Path("leaderboard") / "results" / f"{name}.json", name
 
 
 def format_table(results: dict) -> str:
@@ -421,7 +391,7 @@ def _symmetric_probe_error(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, l
     """``metrics.probe_symmetric_mpjpe_mm`` with the group read from the annotations; None (logged) if undefined."""
     try:
         group = probe_symmetry_group(fields["keypoints_3d_cam"], fields["T_cam_world"])
-    except ValueError as exc:
+    except BadValueError as exc:
         log(f"warning: no half-turn symmetric probe error: {exc}")
         return None
     errors, choice = metrics.probe_symmetric_errors_mm(pred3d, gt3d, group)
@@ -443,49 +413,28 @@ def _spread_ratio(pred3d: np.ndarray, gt3d: np.ndarray, log) -> dict[str, float 
     return ratios
 
 
-def run_eval(model: str | Path, dataset: str | Path, split: str = "test", out: str | Path | None = None,
-             run_name: str | None = None, batch_size: int = 32, latency: bool = True,
-             threads: int | None = None, training_command: str | None = None, training_log: str | None = None,
-             label: str | None = None, log: Callable[[str], None] = print, progress: bool = True) -> dict[str, Any]:
+def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
+    The model file, ``--out`` and the dataset are checked before the model runs; the results file is then
+    locked (a second eval writing it is refused) until it is written.
+
     Args:
-        model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
-        dataset: a finished dataset folder (with ``manifest.json``).
-        split: "train", "val" or "test".
-        out: results ``.json`` (default ``leaderboard/results/<run_name>.json`` under the current
-            folder); its stem is the run name.
-        run_name: default: the checkpoint's training ``run_name`` (or file stem), the ONNX
-            metadata's run name, or the stem of ``out``.
-        batch_size: frames per forward pass.
-        latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
-        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's
-            current setting); the device string records the count.
-        training_command: the committed command that reproduces the training run (the
-            leaderboard requires one for a measured row), stored as ``training.command``.
-        training_log: the run's metrics.jsonl as a path relative to the leaderboard folder
-            (e.g. ``logs/<run_name>.jsonl``), stored as ``training.log``.
-        label: the model's name in the results (default: the training config's ``label``, else
-            model, backbone and input size).
+        options: the checked arguments.
         log: called with progress lines.
-        progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
 
     Returns:
         {"results": the validated results dict, "out": str path, "table": str}
 
     Raises:
-        ValueError: a bad argument, model file or dataset (the message names it). OSError: a missing file,
-        an unwritable output, a full disk. RuntimeError: the model fails or outputs NaN. In every case no
-        results file is written.
+        UserError: a bad model file or dataset, an unwritable or locked output, a full disk, a model that
+        fails or outputs NaN; in every case no results file is written.
     """
-    check_int(batch_size, "batch_size", low=1)
-    check_int(threads, "threads", low=1, optional=True)
     previous_threads = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
+    if options.threads is not None:
+        torch.set_num_threads(options.threads)
     try:
-        return _run_eval(Path(model), Path(dataset), split, out, run_name, batch_size, latency, log,
-                         training_command, training_log, label, progress)
+        return _run_eval(options, log)
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -513,13 +462,13 @@ def _predict_split(net, reader, batch_size: int, split: str, progress: bool, log
     return pred2d, pred3d, gt2d, gt3d
 
 
-def _measured_latency(net, out_path: Path, run_name: str, log, progress: bool) -> dict:
+def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progress: bool) -> dict:
     """Latency per image of PyTorch and onnxruntime at batch 1 and 32 (an ONNX model: onnxruntime only)."""
     from datagen.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
     if net.format == "onnx":
-        return _latencies(None, net.onnx_path, net.input_size, torch.get_num_threads(), log, progress)
+        return _latencies(None, net.path, net.input_size, torch.get_num_threads(), log, progress)
     from hupbench.inference.export import export_onnx, onnx_metadata
 
     # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
@@ -539,29 +488,36 @@ def _measured_latency(net, out_path: Path, run_name: str, log, progress: bool) -
         onnx_path.unlink(missing_ok=True)
 
 
-def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_size: int, latency: bool,
-              log, training_command: str | None = None, training_log: str | None = None,
-              label: str | None = None, progress: bool = True) -> dict[str, Any]:
-    from datagen.dataset.contract import read_annotations
-    from datagen.io import clean_stale_tmp
-    from hupbench.checkpoint import file_sha256
-    from hupbench.data import HUPDataset, ReaderConfig
-    from hupbench.inference.export import check_output_file
-    from hupbench.provenance import git_commit
-    from hupbench.evaluation.results import blank_results, write_results
-    from hupbench.provenance import hardware_description
+def _run_eval(options: EvalOptions, log) -> dict[str, Any]:
+    from datagen.dataset.contract import read_manifest
+    from datagen.io import OutputLock, check_writable, clean_stale_tmp
+    from hupbench.evaluation.results import write_results
 
-    _model_format(model_path)
-    if out is not None:  # an unwritable --out is refused before minutes of work
-        _resolve_out(out, run_name, "")
-        check_output_file(out)
-    manifest = _check_dataset(dataset, split)
-    net = EvalModel(model_path)
-    out_path, run_name = _resolve_out(out, run_name, net.run_name)
-    check_output_file(out_path)
-    if out_path.parent.is_dir():
+    if not options.model.is_file():
+        raise MissingFileError(f"model file {options.model} does not exist")
+    if options.out is not None:  # an unwritable --out is refused before minutes of work
+        check_writable(options.out, "--out", file=True)
+    manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
+    net = EvalModel(options.model)
+    run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
+    out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out", file=True)
+    with OutputLock.for_file(out_path, "eval"):
         clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
+        results = _results(options, net, manifest, run_name, out_path, log)
+        write_results(out_path, results)
+    return {"results": results, "out": str(out_path), "table": format_table(results)}
 
+
+def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str, out_path: Path, log) -> dict:
+    """The results dict of the model on the split: metrics, breakdowns, floors, latency and provenance."""
+    from datagen.dataset.contract import read_annotations
+    from datagen.io import file_sha256
+    from hupbench.data import HUPDataset, ReaderConfig
+    from hupbench.evaluation.results import blank_results
+    from hupbench.input_geometry import normalized_to_pixels
+    from hupbench.provenance import git_commit, hardware_description
+
+    dataset, split = options.dataset, options.split
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size))
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
                                                                 "grasp_id"), reader.manifest)}
@@ -573,18 +529,18 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
     if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
         log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "
             f"{net.K_input.round(3).tolist()}: its 3D output assumes the training camera")
-    pred2d, pred3d, gt2d, gt3d = _predict_split(net, reader, batch_size, split, progress, log)
+    pred2d, pred3d, gt2d, gt3d = _predict_split(net, reader, options.batch_size, split, options.progress, log)
 
     errors = metrics.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
-    width, height = (int(v) for v in manifest["image_size"])
-    pixel_error = metrics.pixel_error_px(metrics.normalized_to_pixels(pred2d, width, height),
-                                   metrics.normalized_to_pixels(gt2d, width, height))
+    image_size = tuple(int(v) for v in manifest["image_size"])  # (W, H)
+    pixel_error = metrics.pixel_error_px(normalized_to_pixels(pred2d, image_size),
+                                         normalized_to_pixels(gt2d, image_size))
     background_names = (manifest.get("backgrounds") or {}).get("names")
     results = blank_results("measured", run_name)
     parameters, flops = net.cost()
     # a run's config may name its variant (train.yaml ``label``); otherwise model, backbone and input size
-    label = label or ((net.payload or {}).get("config") or {}).get("label") or model_label(net.model_config,
-                                                                                          net.input_size)
+    label = (options.label or ((net.payload or {}).get("config") or {}).get("label")
+             or model_label(net.model_config, net.input_size))
     results["model"] = {"name": str(net.model_config.get("name")), "label": str(label),
                         "config": net.model_config, "parameters": parameters, "flops": flops,
                         "input_size": int(net.input_size), "format": net.format}
@@ -618,13 +574,12 @@ def _run_eval(model_path: Path, dataset: Path, split: str, out, run_name, batch_
         log(f"{split} split floor: hand {floor['floor_mm']['hand']:.2f} / probe {floor['floor_mm']['probe']:.2f} / all "
             f"{floor['floor_mm']['all']:.2f} mm ({FLOOR_NAMES[floor['floor_kind']]}); this model: hand "
             f"{model_mm['hand']:.2f} / probe {model_mm['probe']:.2f} / all {model_mm['all']:.2f} mm")
-    if latency:
-        results["latency_ms_per_image"] = _measured_latency(net, out_path, run_name, log, progress)
+    if options.latency:
+        results["latency_ms_per_image"] = _measured_latency(net, out_path, run_name, log, options.progress)
     results["device"] = hardware_description(torch.device("cpu"))
-    results["training"] = _training_block(model_path, net.payload)
-    results["training"]["command"] = training_command
-    results["training"]["log"] = training_log
+    results["training"] = _training_block(options.model, net.payload)
+    results["training"]["command"] = options.training_command
+    results["training"]["log"] = options.training_log
     results["git_commit"] = git_commit()
     results["created_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    write_results(out_path, results)
-    return {"results": results, "out": str(out_path), "table": format_table(results)}
+    return results

@@ -11,18 +11,12 @@ notes, and per-row details with a per-grasp table),
 frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
 training wall time, from the training logs under ``logs/``).
 
-Every broken input is an error naming the file (and line or field), and nothing is rewritten: a
-bad results file is not skipped, because a row that silently drops out of the committed table is a
-wrong leaderboard nobody notices. Refused: a missing ``--dir`` or one that is a file or has no
-``results/``; a results file that is empty, not JSON, breaks the schema (missing or unknown fields,
-non-finite or negative errors, latencies and times, an AUC outside [0, 1]), is not named after its
-run, or whose run name differs from another only in letter case (the two files collide on
-case-insensitive file systems); a training log that is missing, not UTF-8, has a line that is not
-JSON (a truncated copy), a validation line without finite numbers, or a step logged twice (two
-trainings appending to one log); a folder the new files cannot be written to. Files in
-``results/`` that are not ``*.json`` are not results and are ignored. The three outputs are written
-under temporary names and renamed into place only once all three are written, so a full disk or a
-kill leaves the old set or the new one; temporary files of killed runs are removed.
+Every broken input (a results file or training log that is missing, damaged or breaks its schema, a
+folder that cannot be written or a folder in an output's place) is an error naming the file, and
+nothing is rewritten: a bad results file is not skipped, because a row that silently drops out of the
+committed table is a wrong leaderboard nobody notices. Files in ``results/`` that are not ``*.json`` are
+ignored. The three outputs are written under temporary names and renamed into place only once all three
+are written, so a full disk or a kill leaves the old set or the new one.
 
 Rebuilding from the same files gives the same bytes: rows are sorted, every
 number is formatted explicitly, nothing depends on the clock, and the plots
@@ -40,16 +34,16 @@ import contextlib
 import io
 import json
 import math
-import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from datagen.io import atomic_output, clean_stale_tmp
+from datagen.io import atomic_output, check_writable, clean_stale_tmp
 from datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
 from datagen.dataset.floors import FLOOR_KINDS
+from datagen.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
-from datagen.errors import BadValueError, MissingFileError, NotWritableError
+from datagen.errors import BadValueError, MissingFileError
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"
@@ -57,7 +51,6 @@ TRAINING_PLOT = "val_mpjpe_vs_training_time.png"
 FIGSIZE_IN = (9.0, 6.0)
 DPI = 100  # FIGSIZE_IN x DPI = 900 x 600 px
 MISSING = "—"
-NUM_HAND, NUM_PROBE = 21, 8
 # "all" that differs from the keypoint-weighted mean by more than the two-decimal rounding of the inputs
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
 #: the track of rows whose results name none: the paper's rows and results of datasets made before tracks,
@@ -101,19 +94,19 @@ def load_rows(results_dir: str | Path) -> list[dict]:
         twin = by_folded_name.setdefault(path.stem.casefold(), path)
         if twin != path:
             raise BadValueError(f"{twin} and {path}: run names must differ in more than letter case (the two files "
-                             "collide on case-insensitive file systems such as macOS's and Windows')")
+                                "collide on case-insensitive file systems such as macOS's and Windows')")
     rows = []
     for path in paths:
         row = load_results(path)
         if row["run_name"] != path.stem:
             raise BadValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
-                             f"got {row['run_name']!r}")
+                                f"got {row['run_name']!r}")
         if row["dataset"]["split"] != "test":
             raise BadValueError(f"{path}: the leaderboard compares test-split results, "
-                             f"got results['dataset']['split'] = {row['dataset']['split']!r}")
+                                f"got results['dataset']['split'] = {row['dataset']['split']!r}")
         if row["kind"] == "measured" and row["training"]["command"] is None:
             raise BadValueError(f"{path}: a measured row must name the command that reproduces it in "
-                             "results['training']['command'], got None")
+                                "results['training']['command'], got None")
         rows.append(row)
     return sorted(rows, key=sort_key)
 
@@ -200,7 +193,7 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
             first = seen.setdefault((record.get("event"), step), lineno)
             if first != lineno:
                 raise BadValueError(f"{path}:{lineno}: {record.get('event')!r} step {step} is logged twice (lines {first} "
-                                 f"and {lineno}): two trainings wrote to this log; keep one run's lines")
+                                    f"and {lineno}): two trainings wrote to this log; keep one run's lines")
         if record.get("event") != "val":
             continue
         seconds = record.get("train_wall_s")
@@ -209,7 +202,7 @@ def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
         for name, value in (("train_wall_s", seconds), ("val_mpjpe_mm['all']", mpjpe_all)):
             if not _finite_non_negative(value):
                 raise BadValueError(f"{path}:{lineno}: validation line needs {name} as a finite number >= 0, "
-                                 f"got {value!r}")
+                                    f"got {value!r}")
         curve.append((float(seconds), float(mpjpe_all)))
     if not curve:
         raise BadValueError(f"{path}: no validation lines ({{\"event\": \"val\", ...}}) to plot")
@@ -330,7 +323,7 @@ def keypoint_weighted_all_mm(row: dict) -> float | None:
     mpjpe = row["metrics"]["mpjpe_mm"]
     if mpjpe["hand"] is None or mpjpe["probe"] is None:
         return None
-    return (NUM_HAND * mpjpe["hand"] + NUM_PROBE * mpjpe["probe"]) / (NUM_HAND + NUM_PROBE)
+    return (NUM_HAND * mpjpe["hand"] + NUM_CORNERS * mpjpe["probe"]) / (NUM_HAND + NUM_CORNERS)
 
 
 def _details(row: dict) -> list[str]:
@@ -773,17 +766,6 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
 
 # ----------------------------------------------------------------------------- verb
 
-def _check_writable(root: Path) -> None:
-    if os.access(root, os.W_OK | os.X_OK):
-        return
-    try:
-        read_only = bool(os.statvfs(root).f_flag & os.ST_RDONLY)
-    except OSError:
-        read_only = False
-    raise NotWritableError(f"cannot write into leaderboard folder {root}: "
-                          + ("it is on a read-only file system" if read_only else "no write permission"))
-
-
 def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
     """Write every file under its temporary name, then rename them all: a failure (a full disk) or a
     kill before the renames leaves the old set whole; the renames themselves need no space."""
@@ -793,9 +775,9 @@ def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
                 stack.enter_context(atomic_output(root / name)).write_bytes(data)
     except OSError as exc:
         # every enclosing atomic_output explains the error again with its own file's name: the innermost
-        # explanation names the file whose write failed
+        # explanation names the file whose write failed (an error it did not explain is its own cause)
         failed = exc
-        while isinstance(failed.__cause__, type(exc)):
+        while isinstance(failed.__cause__, type(exc)) and failed.__cause__ is not failed:
             failed = failed.__cause__
         raise failed from None
     return [root / name for name in files]
@@ -822,8 +804,10 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
         raise BadValueError(f"leaderboard folder (--dir) {root} is not a folder")
     if not (root / "results").is_dir():
         raise MissingFileError(f"{root} has no results/ folder (results/<run_name>.json files); is --dir the "
-                                "leaderboard folder?")
-    _check_writable(root)
+                               "leaderboard folder?")
+    check_writable(root, "leaderboard folder")
+    for name in (README, LATENCY_PLOT, TRAINING_PLOT):  # a folder in an output's place would stop the renames
+        check_writable(root / name, "leaderboard file", file=True)
     clean_stale_tmp(root, recursive=False)
     rows = load_rows(root / "results")
     # render everything before writing anything, so a bad log leaves the old files in place

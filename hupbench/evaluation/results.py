@@ -1,34 +1,13 @@
 """The results JSON: one file per evaluated model, schema version 3.
 
 ``hupbench eval`` writes it, ``hupbench leaderboard`` reads it. The schema is
-the one in the shared contract (notes/common.md), checked exactly: every key
-is present (``null`` where a value is unknown), no key is unknown, types are
+checked exactly: every key is present (``null`` where a value is unknown), no key is unknown, types are
 exact (an ``int`` field refuses ``True`` and ``1.5``), numbers are finite,
 errors and latencies are non-negative, and the PCK AUC lies in [0, 1].
 
-Versions:
-    3 adds the dataset's track and the evaluated split's floor, and MPJPE per grasp and per probe
-    orientation. ``track`` is "unseen_grasps" (the evaluation splits hold out whole grasps, the HUP-3D
-    paper's protocol) or "unseen_views" (they hold out camera views of grasps seen in training);
-    ``split_floor`` is the evaluated split's entry of the dataset manifest's ``split_floors`` (see
-    :func:`validate_split_floor`): what a model that only recalls training labels scores on the split.
-    Both are ``null`` for a dataset whose manifest has none (made before tracks and floors) and for the
-    train split, which has no floor. ``breakdowns`` may hold "grasp" (bucket = the grasp id in decimal)
-    and "theta_vol" (bucket = the grasp's probe orientation Theta_Vol, e.g. "theta_vol_z=180", or
-    "unknown" for grasps whose orientation the grasps file did not record; the axis is left out when no
-    evaluated grasp has one), and ``dataset.grasp_theta_vol_deg`` is {grasp id: [x, y, z] degrees or
-    ``null``} for the evaluated grasps (``null`` when the manifest records no orientations).
-    Version 2 files load upgraded with those three fields ``null``.
-    2 adds two entries to ``metrics``: ``probe_symmetric_mpjpe_mm`` (the probe
-    corner MPJPE minimised per frame over the probe box's half turn,
-    ``hupbench.metrics.probe_symmetric_mpjpe_mm``; never above the plain probe
-    MPJPE) and ``spread_ratio`` ({"x", "y", "z"}: the spread of the predicted
-    3D keypoints across frames over the truth's, ``hupbench.metrics.spread_ratios``;
-    ``hupbench eval`` warns below 0.5). Both may be ``null``.
-    1 files (written before) still load: :func:`load_results` validates them
-    as version 1 and returns them upgraded to version 2 with those fields
-    ``null`` (unknown: they were not measured, and nothing is made up for
-    them), then as version 2 files. Only version 3 is written.
+Versions 1 and 2 (written before) load upgraded to 3 with the fields added since ``null``: they were not
+measured, and nothing is made up for them (what each version added: docs/metrics.md). Only version 3 is
+written.
 
 A ``"reported"`` row (numbers quoted from a paper) may leave almost every
 field ``null``; it needs ``metrics.mpjpe_mm.all`` and a ``source`` citation.
@@ -361,7 +340,7 @@ def validate_results(d: dict) -> dict:
     version = d["schema_version"]
     if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
-                         f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
+                            f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
     _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]
@@ -434,8 +413,7 @@ def blank_results(kind: str, run_name: str) -> dict:
     Returns:
         A fresh dict; nested dicts are not shared between calls.
     """
-    if kind not in KINDS:
-        raise BadValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
+    assert kind in KINDS, kind
     blank = {
         "schema_version": SCHEMA_VERSION, "kind": kind, "run_name": run_name,
         "model": dict.fromkeys(_MODEL_KEYS),
@@ -521,10 +499,8 @@ def write_results(path: str | Path, d: dict) -> Path:
         The written path.
 
     Raises:
-        ValueError: ``d`` breaks the schema or is not the current version (nothing is written).
+        ValueError: ``d`` breaks the schema (nothing is written).
     """
     validate_results(d)
-    if d["schema_version"] != SCHEMA_VERSION:
-        raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} to be written, got "
-                         f"{d['schema_version']}: upgrade_results() first")
+    assert d["schema_version"] == SCHEMA_VERSION, "upgrade_results() first"
     return write_json(path, d)

@@ -1,6 +1,7 @@
 """``hupbench export CKPT``: ONNX export with a parity check of onnxruntime against PyTorch.
 
-The ONNX file follows the contract that ``hupbench predict`` reads (notes/common.md):
+The ONNX file follows the model-file contract (:mod:`hupbench.inference.model_file`) that eval and
+predict read:
 
     input   "image"    (B, 3, S, S) float32 RGB in [0, 1], dynamic batch axis "batch"
     output  "points2d" (B, 29, 2) float32, normalised [-1, 1] coordinates of the input image
@@ -13,22 +14,21 @@ The ONNX file follows the contract that ``hupbench predict`` reads (notes/common
 :class:`ContractModule` wraps any model of :mod:`models` into that interface; ``hupbench eval``
 runs the same wrapper, so the PyTorch and ONNX numbers mean the same thing. A ResNetRegressor
 built without a 2D head gets ``points2d`` from the pinhole projection of its ``points3d`` with
-K_input (models/coords.py convention: x_norm = (2 u + 1) / S - 1).
+K_input, in the normalised coordinates of :mod:`hupbench.input_geometry`.
 
 Export uses the dynamo exporter (``torch.onnx.export(..., dynamo=True)``), which handles every
 layer of the models here, the graph convolutions and the Graph U-Net's learned pooling included.
 
-Writes are atomic and checked: the file is written under a temporary name, onnxruntime runs it
-on real dataset images next to PyTorch, and only when the 3D outputs agree within
-``PARITY_MAX_3D_MM`` is it renamed to its final name. A failed check removes the temporary
-file and raises, so no file that looks valid is left behind.
+The file is written under a temporary name, onnxruntime runs it on real dataset images next to
+PyTorch, and only when the 3D outputs agree within ``PARITY_MAX_3D_MM`` is it renamed to its final
+name; the output is locked meanwhile, so a second export to it is refused.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,21 +37,14 @@ import torch
 from torch import nn
 
 from datagen import keypoints as kp
+from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.input_checks import check_int
-from hupbench.inference.model_file import INPUT_SIZE_RANGE, check_io_shapes, read_metadata, write_metadata
-from datagen.errors import BadValueError, MissingFileError, NotWritableError, RunFailedError
+from hupbench.inference.model_file import write_metadata
+from hupbench.inference.runtime import load_onnx_model, run_onnx
+from hupbench.input_geometry import pixels_to_normalized
 
-__all__ = [
-    "OPSET",
-    "PARITY_MAX_3D_MM",
-    "ContractModule",
-    "contract_model",
-    "default_run_name",
-    "export_onnx",
-    "onnx_metadata",
-    "read_onnx_metadata",
-    "run_export",
-]
+__all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "contract_model", "default_run_name",
+           "export_onnx", "onnx_metadata", "run_export"]
 
 #: the ONNX opset of every exported file (fixed: the contract with ``hupbench predict``)
 OPSET = 18
@@ -65,6 +58,46 @@ PARITY_MAX_3D_MM = 0.1
 EXPORT_DEPTH_CLAMP_M = 1e-3
 #: frames of real images the parity check runs
 PARITY_FRAMES = 8
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """What ``hupbench export`` is asked to do, checked once where it enters.
+
+    Attributes:
+        checkpoint: a hupbench checkpoint (``.pt``).
+        out: destination ``.onnx`` (default: the checkpoint path with suffix ``.onnx``); missing folders are
+            made.
+        dataset: dataset of the parity images (default: the checkpoint's training dataset).
+        opset: ONNX opset, from :data:`OPSET_MIN` to the newest this torch writes.
+        run_name: "hupbench.run_name" metadata (default: :func:`default_run_name`).
+        parity_frames: images compared (from the test split, else val, else train).
+        progress: a progress bar over the stages (export, parity) on a terminal.
+    """
+
+    checkpoint: Path
+    out: Path | None = None
+    dataset: Path | None = None
+    opset: int = OPSET
+    run_name: str | None = None
+    parity_frames: int = PARITY_FRAMES
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        from torch.onnx._constants import ONNX_MAX_OPSET
+
+        check_int(self.opset, "opset", OPSET_MIN, ONNX_MAX_OPSET,
+                  hint=" (the dynamo exporter's minimum to the newest this torch writes)")
+        checkpoint = Path(self.checkpoint)
+        if checkpoint.suffix.lower() not in (".pt", ".pth"):
+            raise BadValueError(f"export needs a hupbench checkpoint (.pt), got {checkpoint.name!r}")
+        out = Path(self.out) if self.out is not None else checkpoint.with_suffix(".onnx")
+        if out.suffix.lower() != ".onnx":
+            raise BadValueError(f"--out must end in .onnx, got {out.name!r}")
+        assert self.parity_frames >= 1, self.parity_frames
+        object.__setattr__(self, "checkpoint", checkpoint)
+        object.__setattr__(self, "out", out)
+        object.__setattr__(self, "dataset", None if self.dataset is None else Path(self.dataset))
 
 
 class ContractModule(nn.Module):
@@ -86,9 +119,6 @@ class ContractModule(nn.Module):
     def __init__(self, model: nn.Module, K_input, input_size: int) -> None:
         super().__init__()
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
-        if K.shape != (3, 3):
-            raise BadValueError(f"K_input must be (3, 3), got {tuple(K.shape)}")
-        check_int(input_size, "input_size", *INPUT_SIZE_RANGE)
         self.model = model
         self.input_size = input_size
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
@@ -103,16 +133,21 @@ class ContractModule(nn.Module):
             z = points3d[..., 2].clamp(min=EXPORT_DEPTH_CLAMP_M)            # (B, N)
             u = fx * points3d[..., 0] / z + cx                                   # (B, N) pixels
             v = fy * points3d[..., 1] / z + cy
-            points2d = torch.stack([u, v], dim=-1) * (2.0 / self.input_size) + (1.0 / self.input_size - 1.0)
+            points2d = pixels_to_normalized(torch.stack([u, v], dim=-1), self.input_size)
         return points2d, points3d
 
 
-def contract_model(model: nn.Module, payload: dict[str, Any]) -> ContractModule:
-    """:class:`ContractModule` for a checkpoint's model, with its K_input and input size, in eval mode."""
-    n = model.config.get("n_keypoints", kp.NUM_KEYPOINTS) if hasattr(model, "config") else kp.NUM_KEYPOINTS
+def contract_model(model: nn.Module, payload: dict[str, Any], source: str) -> ContractModule:
+    """:class:`ContractModule` for a checkpoint's model, with its K_input and input size, in eval mode.
+
+    Args:
+        model, payload: from :func:`hupbench.checkpoint.load_model` (K_input and input size checked there).
+        source: how an error names the checkpoint, e.g. ``"checkpoint PATH"``.
+    """
+    n = model.config.n_keypoints
     if n != kp.NUM_KEYPOINTS:
-        raise BadValueError(f"the model predicts {n} keypoints; the benchmark and the ONNX contract need "
-                         f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+        raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
+                            f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
     return ContractModule(model, payload["K_input"], int(payload["input_size"])).eval()
 
 
@@ -136,39 +171,6 @@ def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str) -> di
                           payload["model_config"], run_name, git_commit)
 
 
-def read_onnx_metadata(path: str | Path) -> dict[str, Any]:
-    """Read and check the hupbench metadata of an exported ONNX file and its graph's declared input and
-    outputs (weights are not loaded).
-
-    Returns:
-        :func:`model_file.read_metadata`'s dict.
-    """
-    import onnx
-
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"ONNX model {path} does not exist")
-    try:
-        proto = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # onnx raises DecodeError, OSError and others for a foreign file
-        raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {exc}") from exc
-    props = {p.key: p.value for p in proto.metadata_props}
-    if not props and path.stat().st_size == 0:
-        raise BadValueError(f"{path} is empty: not a hupbench ONNX export")
-    meta = read_metadata(props, str(path))
-    check_io_shapes({v.name: _dims(v) for v in proto.graph.input}, {v.name: _dims(v) for v in proto.graph.output},
-                    meta["input_size"], len(meta["keypoint_names"]), str(path))
-    return meta
-
-
-def _dims(value_info) -> list:
-    """The declared dimensions of a graph input or output: ints, names of dynamic axes, or None."""
-    dims = []
-    for dim in value_info.type.tensor_type.shape.dim:
-        dims.append(dim.dim_value if dim.HasField("dim_value") else (dim.dim_param or None))
-    return dims
-
-
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
     """Export a :class:`ContractModule` to ONNX with a dynamic batch axis and write it to ``path``.
 
@@ -185,7 +187,6 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     """
     import onnx
 
-    check_opset(opset)
     size = module.input_size
     example = torch.rand(2, 3, size, size)
     # two exporter messages that a user cannot act on, silenced here and only here: the registry's
@@ -213,68 +214,6 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     return path
 
 
-def check_opset(opset) -> int:
-    """``opset`` when the exporter writes it: an int from :data:`OPSET_MIN` to torch's newest."""
-    from torch.onnx._constants import ONNX_MAX_OPSET
-
-    return check_int(opset, "opset", OPSET_MIN, ONNX_MAX_OPSET,
-                     hint=" (the dynamo exporter's minimum to the newest this torch writes)")
-
-
-def check_output_file(path: str | Path, option: str = "--out") -> Path:
-    """Check, before any work, that ``path`` can be written: not a folder, and its folder (or the nearest
-    one that exists, where the missing ones will be made) writable.
-
-    Raises:
-        ValueError: ``path`` is a folder. PermissionError: its folder is read-only or not writable.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise BadValueError(f"{option} {path} is a folder; expected a file path")
-    folder = path.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if not folder.is_dir():
-        raise BadValueError(f"{option} {path}: {folder} is a file, not a folder")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        readonly = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
-        raise NotWritableError(f"cannot write {path}: {folder} is " + ("on a read-only file system" if readonly
-                                                                       else "not writable (permission denied)"))
-    return path
-
-
-def ort_session(path: str | Path, threads: int | None = None):
-    """An onnxruntime CPU session; ``threads`` intra-op threads (default: torch's thread count, for a fair timing).
-
-    Raises:
-        ValueError: onnxruntime cannot load the file (its message follows the file name).
-    """
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = int(threads or torch.get_num_threads())
-    options.log_severity_level = 3
-    try:
-        return ort.InferenceSession(str(path), sess_options=options, providers=["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime's errors (Fail, InvalidGraph, ...) derive from Exception only
-        raise BadValueError(f"onnxruntime cannot load {path}: {_first_line(exc)}") from exc
-
-
-def ort_run(session, path: str | Path, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(points2d, points3d) of an onnxruntime session on (B, 3, S, S) float32 images; onnxruntime's own
-    errors (a graph that does not take these images) become RuntimeError naming ``path``."""
-    try:
-        points2d, points3d = session.run(["points2d", "points3d"], {"image": images})
-    except Exception as exc:  # onnxruntime's errors (InvalidArgument, Fail, ...) derive from Exception only
-        raise RunFailedError(f"onnxruntime failed on {path} with images of shape {tuple(images.shape)}: "
-                           f"{_first_line(exc)}") from exc
-    return points2d, points3d
-
-
-def _first_line(exc: BaseException) -> str:
-    return next((line.strip() for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
-
-
 def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
     """(B, 3, S, S) real images of the dataset (test split, else val, else train), B <= ``frames``."""
     from hupbench.data import HUPDataset, ReaderConfig, read_manifest
@@ -297,7 +236,7 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
     """
     with torch.inference_mode():
         ref2d, ref3d = module(images)
-    got2d, got3d = ort_run(ort_session(onnx_path), onnx_path, images.numpy())
+    got2d, got3d = run_onnx(load_onnx_model(onnx_path), images.numpy())
     d3 = float(np.max(np.abs(got3d.astype(np.float64) - ref3d.numpy().astype(np.float64)))) * 1000.0
     d2 = float(np.max(np.abs(got2d.astype(np.float64) - ref2d.numpy().astype(np.float64))))
     if not (np.isfinite(d3) and np.isfinite(d2)):
@@ -306,77 +245,56 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
             "frames": int(images.shape[0])}
 
 
-def run_export(checkpoint: str | Path, out: str | Path | None = None, dataset: str | Path | None = None,
-               opset: int = OPSET, run_name: str | None = None, parity_frames: int = PARITY_FRAMES,
-               log=print, progress: bool = True) -> dict[str, Any]:
+def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     """Export a checkpoint to ONNX and check onnxruntime against PyTorch on real images.
 
-    Everything is checked before the export starts (the opset, the output path and its folder, the
-    checkpoint, the dataset and its parity images). The file is written under a temporary name in the
-    output folder and renamed only after the parity check passed; temporary files of killed exports
-    there are removed first.
+    The output path, the checkpoint, the dataset and its parity images are checked before the export
+    starts; then the output is locked (a second export to it is refused), temporary files of killed
+    exports beside it are removed, and the file is written under a temporary name that is renamed only
+    after the parity check passed.
 
     Args:
-        checkpoint: a hupbench checkpoint (``.pt``).
-        out: destination ``.onnx`` (default: the checkpoint path with suffix ``.onnx``); missing folders
-            are made.
-        dataset: dataset for the parity images (default: the checkpoint's training dataset).
-        opset: ONNX opset (18).
-        run_name: "hupbench.run_name" metadata (default: :func:`default_run_name`).
-        parity_frames: images compared (from the test split, else val, else train).
+        options: the checked arguments.
         log: called with progress lines.
-        progress: a progress bar over the stages (export, parity) on a terminal.
 
     Returns:
         {"onnx": str path, "parity": {"points3d_mm", "points2d_norm", "points2d_px", "frames"},
          "dataset": str, "opset": int, "run_name": str, "metadata": dict}
 
     Raises:
-        ValueError: a bad argument, checkpoint or dataset (the message names it). OSError: a missing
-        file, an unwritable output folder, a full disk. RuntimeError: the 3D outputs differ by more
-        than ``PARITY_MAX_3D_MM``. In every case no file is left at ``out``.
+        UserError: a bad checkpoint or dataset, an unwritable or locked output, a full disk, or 3D outputs
+        that differ by more than ``PARITY_MAX_3D_MM``; in every case no file is left at ``options.out``.
     """
     from tqdm import tqdm
 
-    from datagen.io import atomic_output, clean_stale_tmp
+    from datagen.io import OutputLock, atomic_output, check_writable, clean_stale_tmp
     from hupbench.checkpoint import load_model
     from hupbench.provenance import git_commit
 
-    check_opset(opset)
-    checkpoint = Path(checkpoint)
-    if checkpoint.suffix.lower() not in (".pt", ".pth"):
-        raise BadValueError(f"export needs a hupbench checkpoint (.pt), got {checkpoint.name!r}")
-    out = Path(out) if out is not None else checkpoint.with_suffix(".onnx")
-    if out.suffix.lower() != ".onnx":
-        raise BadValueError(f"--out must end in .onnx, got {out.name!r}")
-    check_output_file(out)
-    model, payload = load_model(checkpoint)
-    try:
-        module = contract_model(model, payload)
-    except ValueError as exc:
-        raise BadValueError(f"checkpoint {checkpoint}: {exc}") from exc
+    out = check_writable(options.out, "--out", file=True)
+    model, payload = load_model(options.checkpoint)
+    module = contract_model(model, payload, f"checkpoint {options.checkpoint}")
+    dataset = options.dataset
     if dataset is None:
         recorded = (payload.get("dataset") or {}).get("path")
         if not recorded:
-            raise BadValueError(f"checkpoint {checkpoint} records no dataset for the parity check; pass --dataset")
-        dataset = recorded
-    dataset = Path(dataset)
+            raise BadValueError(f"checkpoint {options.checkpoint} records no dataset for the parity check; "
+                                "pass --dataset")
+        dataset = Path(recorded)
     if not dataset.exists():
         raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
-    images = _parity_images(dataset, module.input_size, parity_frames)
-    run_name = run_name or default_run_name(checkpoint, payload)
+    images = _parity_images(dataset, module.input_size, options.parity_frames)
+    run_name = options.run_name or default_run_name(options.checkpoint, payload)
     metadata = onnx_metadata(payload, run_name, git_commit())
 
-    if out.parent.is_dir():
+    with OutputLock.for_file(out, "export"):
         clean_stale_tmp(out.parent, recursive=False)  # exports that were killed
-    bar = tqdm(total=2, unit="stage", desc=f"export {out.name}", dynamic_ncols=True, leave=False,
-               disable=None if progress else True)  # None: only on a terminal
-    try:
-        # the ONNX file under a temporary name beside ``out``: renamed only when its parity passed, removed
-        # on any failure (a full disk says so); plain open() gives it the mode of every other output
-        with atomic_output(out) as tmp:
+        bar = tqdm(total=2, unit="stage", desc=f"export {out.name}", dynamic_ncols=True, leave=False,
+                   disable=None if options.progress else True)  # None: only on a terminal
+        # removed on any failure (a full disk says so); plain open() gives it the mode of every other output
+        with bar, atomic_output(out) as tmp:
             bar.set_postfix_str("torch.onnx.export")
-            export_onnx(module, tmp, metadata, opset)
+            export_onnx(module, tmp, metadata, options.opset)
             bar.update(1)
             bar.set_postfix_str(f"parity on {len(images)} images")
             diff = parity(module, tmp, images)
@@ -387,9 +305,7 @@ def run_export(checkpoint: str | Path, out: str | Path | None = None, dataset: s
                 f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
             if diff["points3d_mm"] > PARITY_MAX_3D_MM:
                 raise RunFailedError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
-                                   f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
-                                   f"to {out}")
-    finally:
-        bar.close()
-    return {"onnx": str(out), "parity": diff, "dataset": str(dataset), "opset": opset, "run_name": run_name,
+                                     f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
+                                     f"to {out}")
+    return {"onnx": str(out), "parity": diff, "dataset": str(dataset), "opset": options.opset, "run_name": run_name,
             "metadata": metadata}

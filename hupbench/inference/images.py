@@ -1,7 +1,12 @@
-"""Reading the images a user gives ``hupbench predict``: checked from their header before decoding (16 to 8192 px),
-decoded with OpenCV whose C-library complaints become the file's error or a note, folders expanded.
+"""Reading the images a user gives ``hupbench predict`` (numpy and OpenCV only: the torch-free path).
 
-Numpy and OpenCV only (no torch): the inference path imports it.
+PNG or JPEG, recognised by content (not by name), from MIN_IMAGE_SIDE px on the shorter side (fewer hold
+too few pixels for 29 keypoints) to MAX_IMAGE_SIDE px on the longer side, refused from the header before
+decoding (a 20000 x 20000 PNG would decode into gigabytes). 8- and 16-bit samples are scaled to [0, 1];
+grey becomes three equal channels; alpha is composited over the padding grey; JPEG EXIF orientation is
+applied. What libpng and libjpeg print about a damaged file becomes that file's error, or a note naming
+the file when the image still decodes whole; a JPEG whose data end early is refused. Folders expand to
+their image files.
 """
 
 from __future__ import annotations
@@ -17,25 +22,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from datagen.errors import BadTypeError, BadValueError, MissingFileError
 
+from datagen.errors import BadValueError, MissingFileError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
 PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
 MIN_IMAGE_SIDE = 16  # pixels, shorter side: below it a hand is a few pixels, its 21 joints indistinguishable
-
-
 MAX_IMAGE_SIDE = 8192  # pixels, longer side: a 48-megapixel phone photo (8000 x 6000) passes
-
-
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
 _JPEG_MAGIC = b"\xff\xd8\xff"
-
-
 _JPEG_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
 
 
@@ -81,10 +76,10 @@ def check_image_size(width: int, height: int, source: str = "image") -> None:
     """Refuse images smaller than MIN_IMAGE_SIDE or larger than MAX_IMAGE_SIDE (module docstring)."""
     if min(width, height) < MIN_IMAGE_SIDE:
         raise BadValueError(f"{source}: image is {width} x {height} px; predict needs at least {MIN_IMAGE_SIDE} px "
-                         "on each side")
+                            "on each side")
     if max(width, height) > MAX_IMAGE_SIDE:
         raise BadValueError(f"{source}: image is {width} x {height} px; predict reads images of at most "
-                         f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
+                            f"{MAX_IMAGE_SIDE} px on the longer side: downscale it first")
 
 
 _OPENCV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:[^\]]*\]\s*(global\s+\S+\s+\S+\s+)?")
@@ -151,7 +146,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
     detail = "; ".join(said)
     if image is None or image.size == 0:
         raise BadValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
-                         + (f": {detail})" if detail else ")"))
+                            + (f": {detail})" if detail else ")"))
     if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
         raise BadValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
     if detail and notes is not None:
@@ -216,8 +211,6 @@ def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[s
     Returns:
         files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
     """
-    if isinstance(inputs, (str, Path)):
-        raise BadTypeError("inputs must be a list of paths, got a single path")
     files: list[Path] = []
     skipped: list[dict[str, str]] = []
     for item in inputs:

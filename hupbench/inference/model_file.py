@@ -1,49 +1,36 @@
-"""The model-file contract: what ``hupbench export`` writes into an ONNX file, how every reader checks it,
-and how an image becomes the model's input.
+"""The model-file contract: what ``hupbench export`` writes into an ONNX file and how every reader checks it.
 
-Imports numpy, json and datagen's numpy-only ``camera`` and ``input_checks``: the torch-free predict
-path, the exporter and eval all read files through :func:`read_metadata` and :func:`check_io_shapes`,
-so the schema a file is written with and the schema a reader accepts cannot drift apart.
+Numpy only (no torch): :mod:`hupbench.inference.runtime` reads every file through :func:`read_metadata` and
+:func:`check_io_shapes`, and the exporter writes through :func:`write_metadata`, which checks with the
+reader, so the schema a file is written with and the schema a reader accepts cannot drift apart.
 
 Metadata (``metadata_props``, strings): ``hupbench.onnx_schema`` (ONNX_SCHEMA), ``hupbench.input_size``
 (S, an int from 16 to 2048), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model
 input), ``hupbench.keypoint_names`` and ``hupbench.skeleton_edges`` (JSON), ``hupbench.model_config``
 (JSON object), ``hupbench.run_name`` and ``hupbench.git_commit``. Graph: input ``image`` (B, 3, S, S);
 outputs ``points3d`` (B, N, 3) and ``points2d`` (B, N, 2) for the N keypoint names.
-
-Input geometry: an H x W image is padded to a centred L x L square (L = max(H, W)) and resized to S x S;
-with pixel centres at integers that is one affine map of the plane, the 3 x 3 matrix
-:attr:`InputGeometry.image_to_input`. It maps pixels (homogeneous points), intrinsics (``A @ K``) and,
-inverted, the model's predictions back onto the image.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from datagen.camera import resize_intrinsics
+from datagen.errors import BadValueError
 from datagen.input_checks import check_int, is_whole
-from datagen.errors import BadTypeError, BadValueError
+from hupbench.input_geometry import INPUT_SIZE_RANGE
 
-__all__ = ["INPUT_SIZE_RANGE", "META", "ONNX_SCHEMA", "InputGeometry", "apply_affine", "check_intrinsics",
-           "check_io_shapes", "read_metadata", "write_metadata"]
+__all__ = ["META", "ONNX_SCHEMA", "check_intrinsics", "check_io_shapes", "read_metadata", "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
 ONNX_SCHEMA = "1"
 #: prefix of every hupbench metadata key
 META = "hupbench."
-#: model input sides a file may declare, pixels (the training config's data.reader.input_size bounds)
-INPUT_SIZE_RANGE = (16, 2048)
 #: graph outputs and the width of their last axis, in the order they are checked
 OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
 _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
-
-
-# ---------------------------------------------------------------- metadata
 
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
@@ -84,14 +71,12 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
         "skeleton_edges": tuple of (i, j), "model_config": dict ({} when absent), "run_name": str,
         "git_commit": str}``.
     """
-    if not isinstance(props, dict):
-        raise BadTypeError(f"metadata must be a dict of strings, got {type(props).__name__}")
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
                          "not a hupbench ONNX export; predict and eval read models written by `hupbench export CKPT`")
     if props[META + "onnx_schema"] != ONNX_SCHEMA:
         raise BadValueError(f"{source} has hupbench.onnx_schema {props[META + 'onnx_schema']!r}; this hupbench reads "
-                         f"{ONNX_SCHEMA!r}")
+                            f"{ONNX_SCHEMA!r}")
     missing = [META + key for key in _REQUIRED if META + key not in props]
     if missing:
         raise BadValueError(f"{source} lacks metadata {', '.join(missing)}")
@@ -115,11 +100,11 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     if (not isinstance(edges, list) or not all(isinstance(e, list) and len(e) == 2 for e in edges)
             or not all(is_whole(i) and 0 <= i < len(names) for e in edges for i in e)):
         raise BadValueError(f"{source}: hupbench.skeleton_edges must be a JSON list of [i, j] with "
-                         f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
+                            f"0 <= i, j < {len(names)}, got {props[META + 'skeleton_edges'][:120]!r}")
     model_config = load("model_config") if META + "model_config" in props else {}
     if not isinstance(model_config, dict):
         raise BadValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
-                         f"{type(model_config).__name__}")
+                            f"{type(model_config).__name__}")
     return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
@@ -150,7 +135,7 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):
             shown = ", ".join(str(d) for d in dims)
             raise BadValueError(f"{source}: the graph's {name} is ({shown}), expected "
-                             f"(batch, {', '.join(map(str, tail))}){why}")
+                                f"(batch, {', '.join(map(str, tail))}){why}")
 
 
 def check_intrinsics(K: Any, name: str) -> np.ndarray:
@@ -166,98 +151,3 @@ def check_intrinsics(K: Any, name: str) -> np.ndarray:
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
         raise BadValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
     return K
-
-
-# ---------------------------------------------------------------- input geometry
-
-
-def apply_affine(matrix: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(..., 2) points through a (3, 3) affine map of the plane (last row (0, 0, 1))."""
-    uv = np.asarray(uv, dtype=np.float64)
-    return uv @ matrix[:2, :2].T + matrix[:2, 2]
-
-
-@dataclass(frozen=True)
-class InputGeometry:
-    """How an H x W image becomes the S x S model input: centred padding to a square, then a resize.
-
-    With pixel centres at integers (OpenCV), s = S / L and pad = (pad_left, pad_top):
-    ``u_in = (u + pad_left + 0.5) * s - 0.5``, i.e. ``image_to_input`` = [[s, 0, s (pad_left + 0.5) - 0.5],
-    [0, s, s (pad_top + 0.5) - 0.5], [0, 0, 1]]; intrinsics map as ``K_in = image_to_input @ K``; the
-    model's normalised output maps to input pixels by ``normalized_to_input`` (x_n = (2 u_in + 1) / S - 1).
-
-    Attributes:
-        width: W, original image width, pixels.
-        height: H, original image height, pixels.
-        input_size: S, side of the model input, pixels.
-    """
-
-    width: int
-    height: int
-    input_size: int
-
-    def __post_init__(self) -> None:
-        for name in ("width", "height", "input_size"):
-            check_int(getattr(self, name), name, low=1, hint=" (pixels)")
-
-    @property
-    def side(self) -> int:
-        """L = max(H, W), side of the padded square, original pixels."""
-        return max(self.width, self.height)
-
-    @property
-    def pad_left(self) -> int:
-        return (self.side - self.width) // 2
-
-    @property
-    def pad_top(self) -> int:
-        return (self.side - self.height) // 2
-
-    @property
-    def scale(self) -> float:
-        """s = S / L, model-input pixels per original pixel."""
-        return self.input_size / self.side
-
-    @property
-    def image_to_input(self) -> np.ndarray:
-        """(3, 3) original-image pixels -> model-input pixels (pad, then resize): the identity's intrinsics
-        under :func:`datagen.camera.resize_intrinsics`, so K and pixels follow the one formula."""
-        return resize_intrinsics(np.eye(3), self.scale, (self.pad_left, self.pad_top))
-
-    @property
-    def input_to_image(self) -> np.ndarray:
-        """(3, 3) model-input pixels -> original-image pixels: the inverse of :attr:`image_to_input`."""
-        return np.linalg.inv(self.image_to_input)
-
-    @property
-    def normalized_to_input(self) -> np.ndarray:
-        """(3, 3) normalised [-1, 1] input coordinates -> model-input pixels: u_in = ((x_n + 1) S - 1) / 2."""
-        half = self.input_size / 2.0
-        return np.array([[half, 0.0, half - 0.5], [0.0, half, half - 0.5], [0.0, 0.0, 1.0]])
-
-    def image_to_input_px(self, uv: np.ndarray) -> np.ndarray:
-        """(..., 2) original-image pixels -> (..., 2) model-input pixels."""
-        return apply_affine(self.image_to_input, uv)
-
-    def input_to_image_px(self, uv_in: np.ndarray) -> np.ndarray:
-        """(..., 2) model-input pixels -> (..., 2) original-image pixels."""
-        return apply_affine(self.input_to_image, uv_in)
-
-    def normalized_to_input_px(self, xy_norm: np.ndarray) -> np.ndarray:
-        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) model-input pixels."""
-        return apply_affine(self.normalized_to_input, xy_norm)
-
-    def normalized_to_image_px(self, xy_norm: np.ndarray) -> np.ndarray:
-        """(..., 2) normalised [-1, 1] input coordinates -> (..., 2) original-image pixels."""
-        return apply_affine(self.input_to_image @ self.normalized_to_input, xy_norm)
-
-    def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
-        """(3, 3) intrinsics of the original image -> (3, 3) intrinsics of the model input."""
-        return self.image_to_input @ check_intrinsics(K, "K")
-
-    def intrinsics_to_image(self, K_in: np.ndarray) -> np.ndarray:
-        """(3, 3) intrinsics of the model input -> (3, 3) intrinsics of the original image."""
-        return self.input_to_image @ check_intrinsics(K_in, "K_in")
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"side": self.side, "pad_left": self.pad_left, "pad_top": self.pad_top, "scale": self.scale}

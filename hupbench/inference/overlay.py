@@ -18,7 +18,6 @@ import cv2
 import numpy as np
 
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
-from datagen.errors import BadTypeError, BadValueError
 
 OTHER_RGB = (200, 200, 200)
 HALO_RGB = (0, 0, 0)  # a dark rim under every line keeps it visible on bright and dark photos alike
@@ -35,8 +34,6 @@ def keypoint_color(name: str) -> tuple[int, int, int]:
     Returns:
         (r, g, b) ints in [0, 255].
     """
-    if not isinstance(name, str):
-        raise BadTypeError(f"keypoint name must be a str, got {type(name).__name__}")
     if name.startswith("probe"):
         return PROBE_RGB
     return FINGER_RGB.get(name.split("_")[0], OTHER_RGB)
@@ -64,16 +61,9 @@ def draw_prediction(image_rgb: np.ndarray, uv: np.ndarray, names: Sequence[str],
     Returns:
         (H, W, 3) uint8, a drawn copy of ``image_rgb``.
     """
-    image_rgb = np.asarray(image_rgb)
-    if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.uint8:
-        raise BadValueError(f"image_rgb must be (H, W, 3) uint8, got {image_rgb.shape} {image_rgb.dtype}")
     uv = np.asarray(uv, dtype=np.float64)
-    n = len(names)
-    if uv.shape != (n, 2):
-        raise BadValueError(f"uv must be ({n}, 2) for {n} keypoint names, got {tuple(uv.shape)}")
-    edge_array = np.asarray(edges, dtype=np.int64).reshape(-1, 2) if len(edges) else np.zeros((0, 2), np.int64)
-    if edge_array.size and (edge_array.min() < 0 or edge_array.max() >= n):
-        raise BadValueError(f"edges must index keypoints in [0, {n}), got values {edge_array.min()}..{edge_array.max()}")
+    assert image_rgb.dtype == np.uint8 and image_rgb.shape[2:] == (3,) and uv.shape == (len(names), 2)
+    edge_array = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     colors = [keypoint_color(name) for name in names]
     is_corner = np.array([name.startswith("probe") for name in names], dtype=bool)
 

@@ -1,40 +1,13 @@
 """``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
 
-Only onnxruntime, numpy and OpenCV run here (plus the torch-free ``datagen.keypoints``,
-``datagen.render.draw`` and ``datagen.io``), so a deployment needs neither PyTorch nor the training code.
+Only onnxruntime, numpy and OpenCV run here (and torch-free datagen and hupbench modules), so a deployment
+needs neither PyTorch nor the training code. The model is an ``.onnx`` file written by ``hupbench export``,
+opened and checked by :mod:`hupbench.inference.runtime`; images are read by :mod:`hupbench.inference.images`.
 
-Model: an ``.onnx`` file written by ``hupbench export`` (the ONNX contract in the notes): input
-``image`` (B, 3, S, S) float32 RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1]
-coordinates of the input image and ``points3d`` (B, N, 3) metres in the OpenCV camera frame of the
-model-input camera ``K_input``; metadata ``hupbench.*`` (input size, K_input, keypoint names,
-skeleton edges, run name). A file without that metadata is refused.
-
-Images: PNG or JPEG, recognised by content (not by name), from MIN_IMAGE_SIDE (16) px on the
-shorter side to MAX_IMAGE_SIDE (8192) px on the longer side. Smaller images hold too few pixels for 29
-keypoints; larger ones are refused from their header, before decoding, because the padded square
-would need gigabytes (a 20000 x 20000 PNG decodes into 1.2 GB, 4.8 GB as float32): downscale them
-first. 8- and 16-bit samples are scaled to [0, 1]; a grey image becomes three equal channels; an
-alpha channel is composited over the padding grey (so transparent areas look like the padding to the
-network); JPEG EXIF orientation is applied (OpenCV's ``IMREAD_COLOR``). What libpng and libjpeg
-print about a damaged file does not reach the terminal: it becomes part of that file's error, or a
-note naming the file when the image still decodes whole (e.g. extraneous bytes in a JPEG); a JPEG
-whose data end early ("premature end of data segment", decoded with its lower part grey) is refused.
-
-Geometry (pad to square, then resize):
-    An H x W image is padded to a centred L x L square, L = max(H, W), with
-    pad_left = (L - W) // 2 columns on the left and pad_top = (L - H) // 2 rows on top, filled
-    with mid-grey (0.5), then resized to S x S with ``cv2.INTER_AREA``, scale s = S / L.
-    Why pad and not centre-crop: padding keeps every pixel, so a hand or probe near the border of
-    a wide photo stays in view and gets keypoints instead of being cut off, and the predictions
-    can land anywhere on the original image; the price is fewer input pixels on the subject. The
-    padding is a constant grey, not reflected content, so that it holds no mirrored copy of a hand.
-    With pixel centres at integers (OpenCV; as ``datagen.camera.resize_intrinsics``):
-        u_in = (u + pad_left + 0.5) * s - 0.5        v_in = (v + pad_top + 0.5) * s - 0.5
-        u    = (u_in + 0.5) / s - 0.5 - pad_left    v    = (v_in + 0.5) / s - 0.5 - pad_top
-    and from the model's normalised output (x_n = (2 u_in + 1) / S - 1):
-        u = (x_n + 1) * L / 2 - 0.5 - pad_left      v = (y_n + 1) * L / 2 - 0.5 - pad_top.
-    Intrinsics follow the same map: fx_in = fx * s, cx_in = (cx + pad_left + 0.5) * s - 0.5
-    (and fy, cy with pad_top).
+Geometry: an H x W image is padded with mid-grey (0.5) to a centred L x L square, L = max(H, W), and
+resized to S x S (:func:`hupbench.input_geometry.pad_and_resize`, whose pixel map takes the predictions and
+intrinsics back to the image). Padding, not a centre crop, keeps every pixel: a hand near the border of a
+wide photo stays in view; a constant grey holds no mirrored copy of a hand.
 
 Camera:
     The network's 3D output is for its training camera K_input at the model input. Without
@@ -58,41 +31,32 @@ skeleton and the probe box on the original image; ``<stem>_<k>_overlay.png`` whe
 a stem). A file that cannot be read as an image gets an error in its record and on stderr; the
 others are still processed.
 
-Refused before anything is written (one error line): a model that is missing, empty, not ONNX (a
-PyTorch checkpoint is named as one), without hupbench metadata, whose metadata disagree with its
-graph (input size, keypoint count) or whose graph fails on the input size its metadata declare;
-``--K`` that is not four finite numbers with 0 < fx, fy <= MAX_FOCAL_PX and |cx|, |cy| <= MAX_FOCAL_PX;
-a batch size below 1; an ``--out`` that is a file or lies on a read-only file system; inputs with no
-image file. Writing: stale temporary files of killed runs are removed, an earlier run's
-``predictions.json`` is removed before the first new file is written, and a run that fails while
-writing (a full disk: ``no space left on MOUNT writing FILE``) removes the overlays it wrote, so a
-folder with a ``predictions.json`` always holds one finished run.
+Everything checkable is checked before any image is read (the model, ``--K``, ``--batch-size``, ``--out``,
+inputs with no image file); then the output folder is locked (a second run into it is refused), stale
+temporary files of killed runs and an earlier run's ``predictions.json`` are removed, and a run that fails
+while writing removes the overlays it wrote: a folder with a ``predictions.json`` holds one finished run.
 """
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
-import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-import onnxruntime as ort
-from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
-import cv2
 import numpy as np
 
+from datagen.errors import BadTypeError, BadValueError, UserError
+from datagen.input_checks import check_int
+from datagen.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
 from datagen.render.draw import write_png
-from datagen.input_checks import check_int, check_shape
-from datagen.io import clean_stale_tmp, write_bytes
-from hupbench.inference.model_file import InputGeometry, check_intrinsics, check_io_shapes, read_metadata
-from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
-from datagen.errors import BadTypeError, BadValueError, MissingFileError, NotWritableError, RunFailedError
-
+from hupbench.inference.model_file import check_intrinsics
+from hupbench.inference.overlay import draw_prediction
+from hupbench.inference.runtime import OnnxModel, load_onnx_model, run_onnx
+from hupbench.input_geometry import InputGeometry, pad_and_resize
 
 SCHEMA_VERSION = 1
 DEFAULT_BATCH_SIZE = 16
@@ -104,13 +68,6 @@ CAMERA_USER = "user K"
 _DECIMALS_M = 6  # 1 um: far below any model's error, keeps the JSON readable
 _DECIMALS_PX = 3
 _DECIMALS_K = 6
-# onnxruntime raises its own exception types (not RuntimeError) for unreadable or invalid models
-_ORT_LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph,
-                    ort_errors.InvalidArgument, ort_errors.NoSuchFile, ort_errors.NotImplemented)
-_ORT_RUN_ERRORS = (ort_errors.Fail, ort_errors.InvalidArgument, ort_errors.RuntimeException,
-                   ort_errors.NotImplemented, ort_errors.EPFail)
-_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's format since PyTorch 1.6
-_PICKLE_MAGIC = b"\x80\x02"  # torch.save's legacy format
 
 PREPROCESSING = (
     "pad the H x W image to a centred L x L square (L = max(H, W), pad_left = (L - W) // 2, "
@@ -119,23 +76,49 @@ PREPROCESSING = (
 )
 
 
+@dataclass(frozen=True)
+class PredictOptions:
+    """What ``hupbench predict`` is asked to do, checked once where it enters.
+
+    Attributes:
+        model: ``.onnx`` file from ``hupbench export``.
+        inputs: image files and/or folders (:func:`hupbench.inference.images.expand_inputs`).
+        out_dir: output folder (created).
+        K: the user's intrinsics of the original images, ``"fx,fy,cx,cy"`` or (3, 3), pixels; None assumes
+            the training camera scaled to each image. Held as a (3, 3) float64 array.
+        overlay: write ``<stem>_overlay.png`` per image.
+        batch_size: images per onnxruntime call.
+        progress: a progress bar with ETA on stderr for runs longer than 2 s.
+    """
+
+    model: Path
+    inputs: tuple[Path, ...]
+    out_dir: Path = Path("predictions")
+    K: Any = None
+    overlay: bool = True
+    batch_size: int = DEFAULT_BATCH_SIZE
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.inputs, (str, Path)):
+            raise BadTypeError("inputs must be a list of paths, got a single path")
+        check_int(self.batch_size, "batch_size (--batch-size)", low=1)
+        K = self.K
+        if K is not None:
+            K = parse_intrinsics(K) if isinstance(K, str) else check_user_K(K, "K")
+        object.__setattr__(self, "model", Path(self.model))
+        object.__setattr__(self, "inputs", tuple(Path(i) for i in self.inputs))
+        object.__setattr__(self, "out_dir", Path(self.out_dir))
+        object.__setattr__(self, "K", K)
+
+
 # ---------------------------------------------------------------- camera
 
 
 def parse_intrinsics(text: str) -> np.ndarray:
-    """Parse ``--K fx,fy,cx,cy`` (pixels of the original image) into a (3, 3) matrix.
-
-    Args:
-        text: four comma-separated numbers, e.g. ``"480,480,320,240"``.
-
-    Returns:
-        (3, 3) float64 K.
-    """
-    if not isinstance(text, str):
-        raise BadTypeError(f"--K must be a string 'fx,fy,cx,cy', got {type(text).__name__}")
-    parts = [p.strip() for p in text.split(",")]
+    """Parse ``--K fx,fy,cx,cy`` (pixels of the original image) into a checked (3, 3) float64 matrix."""
     try:
-        fx, fy, cx, cy = (float(p) for p in parts)
+        fx, fy, cx, cy = (float(p) for p in text.split(","))
     except ValueError:
         raise BadValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
     return check_user_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
@@ -147,22 +130,16 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
     K = check_intrinsics(K, name)
     if K[0, 0] > MAX_FOCAL_PX or K[1, 1] > MAX_FOCAL_PX:
         raise BadValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
-                         f"fy={K[1, 1]:g}")
+                            f"fy={K[1, 1]:g}")
     if abs(K[0, 2]) > MAX_FOCAL_PX or abs(K[1, 2]) > MAX_FOCAL_PX:
         raise BadValueError(f"{name}: cx and cy must be in [-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got "
-                         f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
+                            f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
     return K
 
 
 def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
                        K_user_in: np.ndarray) -> np.ndarray:
-    """3D keypoints for the user's camera from a network trained with another camera.
-
-    The network sees pixels; it infers depth from apparent size, which it learned for focal
-    f_train. The same pixels through focal f_user mean depth z * f_user / f_train. The point
-    then lies on the ray of its 2D prediction through K_user_in.
-
-    Convention: all cameras share the OpenCV camera frame axes; K's are of the model input image.
+    """3D keypoints for the user's camera from a network trained with another camera (module docstring).
 
     Args:
         uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
@@ -173,10 +150,7 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
     Returns:
         (N, 3) float64, metres, OpenCV camera frame of the user's camera.
     """
-    uv_in = check_shape(np.asarray(uv_in, dtype=np.float64), ("N", 2), "uv_in")
-    points3d_train = check_shape(np.asarray(points3d_train, dtype=np.float64), (len(uv_in), 3), "points3d_train")
-    K_train = check_intrinsics(K_train, "K_train")
-    K_user_in = check_intrinsics(K_user_in, "K_user_in")
+    uv_in, points3d_train = np.asarray(uv_in, dtype=np.float64), np.asarray(points3d_train, dtype=np.float64)
     focal_ratio = np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
     z = points3d_train[:, 2] * focal_ratio
     x = (uv_in[:, 0] - K_user_in[0, 2]) * z / K_user_in[0, 0]
@@ -188,7 +162,7 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
 
 
 def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, InputGeometry]:
-    """Pad an image to a centred square and resize it to the model input (module docstring).
+    """The model input of an image (module docstring).
 
     Args:
         image_rgb: (H, W, 3) float32 RGB in [0, 1].
@@ -197,111 +171,8 @@ def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, Inpu
     Returns:
         (3, S, S) float32 RGB in [0, 1], the model input; and its :class:`InputGeometry`.
     """
-    image_rgb = np.asarray(image_rgb)
-    if image_rgb.ndim != 3 or image_rgb.shape[2] != 3 or image_rgb.dtype != np.float32:
-        raise BadValueError(f"image_rgb must be (H, W, 3) float32, got {image_rgb.shape} {image_rgb.dtype}")
-    height, width = image_rgb.shape[:2]
-    geometry = InputGeometry(width=width, height=height, input_size=input_size)
-    pad_bottom = geometry.side - height - geometry.pad_top
-    pad_right = geometry.side - width - geometry.pad_left
-    square = cv2.copyMakeBorder(image_rgb, geometry.pad_top, pad_bottom, geometry.pad_left, pad_right,
-                                cv2.BORDER_CONSTANT, value=(PAD_VALUE, PAD_VALUE, PAD_VALUE))
-    if geometry.side != input_size:
-        square = cv2.resize(square, (input_size, input_size), interpolation=cv2.INTER_AREA)
+    square, geometry = pad_and_resize(image_rgb, input_size, PAD_VALUE)
     return np.ascontiguousarray(square.transpose(2, 0, 1), dtype=np.float32), geometry
-
-
-# ---------------------------------------------------------------- model
-
-
-@dataclass(frozen=True)
-class PredictModel:
-    """An ONNX keypoint model with its hupbench metadata.
-
-    Attributes:
-        path: the .onnx file.
-        session: onnxruntime session (CPUExecutionProvider).
-        input_size: S, pixels.
-        K_input: (3, 3) intrinsics of the model input image, the camera of the 3D output.
-        keypoint_names: N names.
-        skeleton_edges: pairs (i, j) of keypoint indices.
-        run_name: the training run's name.
-        git_commit: commit the model was exported from.
-        sha256: hash of the .onnx file.
-    """
-
-    path: Path
-    session: ort.InferenceSession
-    input_size: int
-    K_input: np.ndarray
-    keypoint_names: tuple[str, ...]
-    skeleton_edges: tuple[tuple[int, int], ...]
-    run_name: str
-    git_commit: str
-    sha256: str
-
-
-def load_onnx_model(path: str | Path) -> PredictModel:
-    """Open an exported model with onnxruntime (CPU) and check it against the ONNX contract.
-
-    Args:
-        path: ``.onnx`` file from ``hupbench export``.
-
-    Returns:
-        The :class:`PredictModel`.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise BadValueError(f"model {path} is a folder, not an .onnx file")
-    if not path.is_file():
-        raise MissingFileError(f"model {path} does not exist")
-    data = path.read_bytes()
-    if not data:
-        raise BadValueError(f"model {path} is an empty file (0 bytes), not an ONNX model")
-    if data.startswith((_ZIP_MAGIC, _PICKLE_MAGIC)):
-        raise BadValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
-                         f"export it first with `hupbench export {path}`")
-    try:
-        session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
-    except _ORT_LOAD_ERRORS as exc:
-        reason = " ".join(str(exc).split())[:200]
-        raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {reason}") from None
-    meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
-    check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
-                    {o.name: list(o.shape or []) for o in session.get_outputs()},
-                    meta["input_size"], len(meta["keypoint_names"]), str(path))
-    meta.pop("model_config")  # the architecture: predict runs the graph, it never rebuilds the model
-    return PredictModel(path=path, session=session, sha256=hashlib.sha256(data).hexdigest(), **meta)
-
-
-def run_model(model: PredictModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Run the network on a batch of prepared inputs.
-
-    Args:
-        model: from :func:`load_onnx_model`.
-        images: (B, 3, S, S) float32 RGB in [0, 1].
-
-    Returns:
-        points2d (B, N, 2) float32 normalised [-1, 1] input coordinates; points3d (B, N, 3)
-        float32, metres, OpenCV camera frame of K_input.
-    """
-    S = model.input_size
-    images = np.asarray(images)
-    if images.ndim != 4 or images.shape[1:] != (3, S, S) or images.dtype != np.float32:
-        raise BadValueError(f"images must be (B, 3, {S}, {S}) float32, got {images.shape} {images.dtype}")
-    try:
-        points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
-    except _ORT_RUN_ERRORS as exc:
-        # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
-        # something else: a model made for another input size whose header was edited, or a broken graph
-        reason = " ".join(str(exc).split())[:240]
-        raise RunFailedError(f"{model.path}: onnxruntime could not run the model on a {tuple(images.shape)} batch at "
-                           f"the input size its metadata declare ({S} px): {type(exc).__name__}: {reason}") from None
-    n, b = len(model.keypoint_names), images.shape[0]
-    if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
-        raise RunFailedError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
-                           f"names, got {points2d.shape} and {points3d.shape}")
-    return points2d, points3d
 
 
 # ---------------------------------------------------------------- run
@@ -355,32 +226,6 @@ def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometr
             "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
 
 
-def check_out_dir(out_dir: str | Path) -> Path:
-    """The output folder (``--out``) must be a folder, or not exist yet, on a writable file system.
-
-    Checked before any inference, so that a run that cannot write its results does not compute them.
-
-    Raises:
-        ValueError: ``out_dir`` is a file.
-        PermissionError: the folder (or its nearest existing parent) is read-only or not writable.
-    """
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadValueError(f"output folder (--out) {out_dir} is not a folder: a file of that name exists")
-    existing = out_dir
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not os.access(existing, os.W_OK | os.X_OK):
-        try:
-            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
-        except OSError:
-            read_only = False
-        why = "it is on a read-only file system" if read_only else "no write permission"
-        where = "" if existing == out_dir else f" (its parent {existing})"
-        raise NotWritableError(f"cannot write into output folder (--out) {out_dir}{where}: {why}")
-    return out_dir
-
-
 def _progress_bar(total: int, enabled: bool):
     """A tqdm bar over images on stderr that shows itself only when the run lasts more than 2 s."""
     from tqdm import tqdm
@@ -389,45 +234,35 @@ def _progress_bar(total: int, enabled: bool):
                 dynamic_ncols=True, file=sys.stderr)
 
 
-def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: str | Path = "predictions",
-                K: str | np.ndarray | None = None, overlay: bool = True, batch_size: int = DEFAULT_BATCH_SIZE,
-                log: Callable[[str], None] = _stderr, progress: bool = False) -> dict[str, Any]:
+def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -> dict[str, Any]:
     """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays.
 
     Everything that can be checked before inference is (module docstring); a failure while writing
     removes this run's overlays and leaves no ``predictions.json``.
 
     Args:
-        model_path: ``.onnx`` file from ``hupbench export``.
-        inputs: image files and/or directories (module docstring, :func:`expand_inputs`).
-        out_dir: output folder (created).
-        K: the user's intrinsics of the original images, ``"fx,fy,cx,cy"`` or (3, 3); None
-            assumes the training camera scaled to each image.
-        overlay: write ``<stem>_overlay.png`` per image.
-        batch_size: images per onnxruntime call.
+        options: the checked arguments.
         log: receives per-file errors and notes (default: stderr).
-        progress: a progress bar with ETA on stderr for runs longer than 2 s.
 
     Returns:
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
         "records": [per-image dicts as in the JSON]}``.
     """
-    check_int(batch_size, "batch_size (--batch-size)", low=1)
-    K_user = parse_intrinsics(K) if isinstance(K, str) else (None if K is None else check_user_K(K, "K"))
-    out_dir = check_out_dir(out_dir)
-    model = load_onnx_model(model_path)
-    files, skipped = expand_inputs(inputs)
+    out_dir = check_writable(options.out_dir, "output folder (--out)")
+    model = load_onnx_model(options.model)
+    files, skipped = expand_inputs(options.inputs)
     if not files:
-        raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {', '.join(str(i) for i in inputs)}"
-                         + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
+        raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "
+                            f"{', '.join(str(i) for i in options.inputs)}"
+                            + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
 
     names = list(model.keypoint_names)
     records: list[dict[str, Any]] = []
     overlays: list[Path] = []
     used_stems: set[str] = set()
     finished = False
-    bar = _progress_bar(len(files), progress)
-    if progress and log is _stderr:
+    bar = _progress_bar(len(files), options.progress)
+    if options.progress and log is _stderr:
         def log(line: str) -> None:
             # above the bar once it shows; tqdm.write before that would print a stray carriage return
             if bar.last_print_t >= bar.start_t + bar.delay:
@@ -436,45 +271,50 @@ def run_predict(model_path: str | Path, inputs: Sequence[str | Path], out_dir: s
                 _stderr(line)
     for item in skipped:
         log(f"hupbench predict: note: {item['path']}: {item['reason']}")
-    try:
-        if out_dir.is_dir():
+    with OutputLock(out_dir, "predict"):
+        try:
             clean_stale_tmp(out_dir, recursive=False)
             # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
             # now, and this run's is written last
             (out_dir / "predictions.json").unlink(missing_ok=True)
-        for start in range(0, len(files), batch_size):
-            chunk_records = [_empty_record(path, names, model.run_name) for path in files[start : start + batch_size]]
-            _predict_batch(model, chunk_records, K_user, out_dir if overlay else None, used_stems, overlays, log)
-            records.extend(chunk_records)
-            bar.update(len(chunk_records))
-
-        failed = sum(not r["ok"] for r in records)
-        document = {
-            "schema_version": SCHEMA_VERSION,
-            "tool": "hupbench predict",
-            "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
-                      "git_commit": model.git_commit, "input_size": model.input_size,
-                      "K_input": model.K_input.tolist()},
-            "keypoint_names": names,
-            "skeleton_edges": [list(e) for e in model.skeleton_edges],
-            "preprocessing": PREPROCESSING,
-            "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
-            "skipped": skipped,
-            "images": records,
-        }
-        json_path = write_bytes(out_dir / "predictions.json", (_compact_json(document) + "\n").encode())
-        finished = True
-    finally:
-        bar.close()
-        if not finished:  # a full disk, a model that fails on a later batch, an interrupt
-            for path in overlays:
-                with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
-                    path.unlink(missing_ok=True)
+            for start in range(0, len(files), options.batch_size):
+                chunk = [_empty_record(path, names, model.run_name) for path in files[start:start + options.batch_size]]
+                _predict_batch(model, chunk, options.K, out_dir if options.overlay else None, used_stems, overlays,
+                               log)
+                records.extend(chunk)
+                bar.update(len(chunk))
+            json_path = write_bytes(out_dir / "predictions.json",
+                                    (_compact_json(_document(model, records, skipped)) + "\n").encode())
+            finished = True
+        finally:
+            bar.close()
+            if not finished:  # a full disk, a model that fails on a later batch, an interrupt
+                for path in overlays:
+                    with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
+                        path.unlink(missing_ok=True)
+    failed = sum(not r["ok"] for r in records)
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
             "overlays": overlays, "skipped": skipped, "records": records}
 
 
-def _predict_batch(model: PredictModel, chunk_records: list[dict[str, Any]], K_user: np.ndarray | None,
+def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dict[str, str]]) -> dict[str, Any]:
+    """The content of ``predictions.json``."""
+    failed = sum(not r["ok"] for r in records)
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "tool": "hupbench predict",
+        "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
+                  "git_commit": model.git_commit, "input_size": model.input_size, "K_input": model.K_input.tolist()},
+        "keypoint_names": list(model.keypoint_names),
+        "skeleton_edges": [list(e) for e in model.skeleton_edges],
+        "preprocessing": PREPROCESSING,
+        "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
+        "skipped": skipped,
+        "images": records,
+    }
+
+
+def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], K_user: np.ndarray | None,
                    overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log) -> None:
     """Read, predict and record one batch of images in place: a bad image's record gets its error (and
     the log a line), a good one its keypoints and, with ``overlay_dir``, its overlay (appended to
@@ -485,7 +325,7 @@ def _predict_batch(model: PredictModel, chunk_records: list[dict[str, Any]], K_u
         notes: list[str] = []
         try:
             image = read_image(record["path"], notes)
-        except (ValueError, FileNotFoundError) as exc:
+        except UserError as exc:  # a bad image fails alone: its record and the log say why
             record["error"] = str(exc)
             log(f"hupbench predict: error: {exc}")
             continue
@@ -494,7 +334,7 @@ def _predict_batch(model: PredictModel, chunk_records: list[dict[str, Any]], K_u
         model_input, geometry = preprocess(image, model.input_size)
         loaded.append((record, image, model_input, geometry))
     if loaded:
-        points2d, points3d = run_model(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
+        points2d, points3d = run_onnx(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
         for b, (record, image, _, geometry) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
                 record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"

@@ -1,9 +1,10 @@
 """Training: one loop for every model, and the pieces it is made of.
 
-Owns: the loop (``loop``: ``run_train`` = setup, steps, validation, checkpoints; ``python train.py`` calls
-``loop.main``), the config checks (``checks``), the loss (``losses``), the learning-rate schedule and
-epoch order (``schedule``), validation and batch-norm re-estimation (``validation``), the run's log
-(``run_log``: metrics.jsonl, TensorBoard, progress lines). The run's inputs come from :mod:`hupbench.data`.
+Owns: the loop (``loop``: ``train(run, folder)`` = setup, steps, validation, checkpoints, summary; ``python
+train.py`` calls ``loop.main``), the typed run config (``config``: each node's checks), the loss (``losses``),
+the learning-rate schedule and epoch order (``schedule``), validation and batch-norm re-estimation
+(``validation``), the run's log (``run_log``: metrics.jsonl, TensorBoard). The run's inputs come from
+:mod:`hupbench.data`.
 
 May import: ``models``, the dataset contract (``datagen.dataset.contract``), ``datagen`` shared
 modules (keypoints, io), ``hupbench`` top-level modules (config, errors, provenance, checkpoint,

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING
 
 import torch
-from datagen.errors import BadValueError
+
+if TYPE_CHECKING:
+    from hupbench.training.config import LossConfig
 
 
-def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def loss_terms(output, batch: dict, weights: LossConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """HOPE-Net's weighted MSE over whichever outputs the model has.
 
     With ``probe_symmetry: half_turn`` the probe corners' labels are taken up to the half turn about
@@ -23,8 +25,8 @@ def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.T
         output: HOPENetOutput (points2d_init, points2d, points3d) or RegressorOutput (points2d or
             None, points3d); 2D (B, 29, 2) normalised image units, 3D (B, 29, 3) metres.
         batch: "keypoints_2d" (B, 29, 2) normalised, "keypoints_3d" (B, 29, 3) metres, camera frame.
-        weights: w2d_init, w2d, w3d, unit_3d_m (the 3D loss is measured in that many metres) and
-            optionally probe_symmetry ("none", the default, or "half_turn").
+        weights: the ``loss`` node: w2d_init, w2d, w3d, unit_3d_m (the 3D loss is measured in that many
+            metres) and probe_symmetry ("none" or "half_turn").
 
     Returns:
         (total loss, {term name: 0-dim detached tensor on the loss's device}) with the unweighted
@@ -35,33 +37,25 @@ def loss_terms(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.T
     from hupbench.metrics import PROBE_SYMMETRIES, permute_keypoints, symmetry_costs
 
     target_2d = batch["keypoints_2d"]
-    target_3d = batch["keypoints_3d"] / weights["unit_3d_m"]
-    symmetry = weights.get("probe_symmetry", "none")
-    if symmetry not in PROBE_SYMMETRIES:
-        raise BadValueError(f"loss.probe_symmetry must be one of {sorted(PROBE_SYMMETRIES)}, got {symmetry!r}")
+    unit = weights.unit_3d_m
+    target_3d = batch["keypoints_3d"] / unit
     choice = None
-    if symmetry != "none":
-        group = PROBE_SYMMETRIES[symmetry]
+    if weights.probe_symmetry != "none":
+        group = PROBE_SYMMETRIES[weights.probe_symmetry]
         with torch.no_grad():
-            costs = symmetry_costs(output.points3d.float() / weights["unit_3d_m"], target_3d, group, squared=True)
+            costs = symmetry_costs(output.points3d.float() / unit, target_3d, group, squared=True)
             choice = costs.argmin(dim=1)                                            # (B,) group element
         target_3d = permute_keypoints(target_3d, group, choice)
         target_2d = permute_keypoints(target_2d, group, choice)
-    terms = {"loss_3d": torch.nn.functional.mse_loss(output.points3d.float() / weights["unit_3d_m"], target_3d)}
-    total = weights["w3d"] * terms["loss_3d"]
+    terms = {"loss_3d": torch.nn.functional.mse_loss(output.points3d.float() / unit, target_3d)}
+    total = weights.w3d * terms["loss_3d"]
     if getattr(output, "points2d_init", None) is not None:
         terms["loss_2d_init"] = torch.nn.functional.mse_loss(output.points2d_init.float(), target_2d)
-        total = total + weights["w2d_init"] * terms["loss_2d_init"]
+        total = total + weights.w2d_init * terms["loss_2d_init"]
     if output.points2d is not None:
         terms["loss_2d"] = torch.nn.functional.mse_loss(output.points2d.float(), target_2d)
-        total = total + weights["w2d"] * terms["loss_2d"]
+        total = total + weights.w2d * terms["loss_2d"]
     logged = {name: value.detach() for name, value in terms.items()}
     if choice is not None:
         logged["probe_half_turned"] = (choice != 0).float().mean()
     return total, logged
-
-
-def hopenet_loss(output, batch: dict, weights: DictConfig | dict) -> tuple[torch.Tensor, dict[str, float]]:
-    """:func:`loss_terms` with the logged terms as Python floats."""
-    total, terms = loss_terms(output, batch, weights)
-    return total, {name: float(value) for name, value in terms.items()}

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING
 
 import torch
 
-from datagen.input_checks import check_int
 from datagen.errors import BadValueError
+
+if TYPE_CHECKING:
+    from hupbench.training.config import OptimConfig
 
 
 def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
@@ -18,14 +20,12 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
 
     Args:
         optimizer: the optimiser whose learning rates are scaled.
-        total_steps: optimiser steps in the whole run.
+        total_steps: optimiser steps in the whole run, >= 1.
         warmup_steps: steps of linear warm-up (shortened to a tenth of the run for short runs).
-        final_lr_fraction: learning rate at the last step, as a fraction of the base rate.
+        final_lr_fraction: learning rate at the last step, as a fraction of the base rate, in [0, 1]
+            (the ``optim.scheduler`` node's values are checked by :class:`hupbench.training.config.OptimConfig`).
     """
-    if total_steps < 1:
-        raise BadValueError(f"total_steps must be >= 1, got {total_steps}")
-    if not 0.0 <= final_lr_fraction <= 1.0:
-        raise BadValueError(f"final_lr_fraction must be in [0, 1], got {final_lr_fraction}")
+    assert total_steps >= 1 and 0.0 <= final_lr_fraction <= 1.0, (total_steps, final_lr_fraction)
     warmup = max(0, min(int(warmup_steps), total_steps // 10))
 
     def factor(step: int) -> float:
@@ -65,16 +65,12 @@ class EpochSampler(torch.utils.data.Sampler):
         return (self.batches_per_epoch - self.start_batch) * self.batch_size
 
 
-def learning_rate(cfg: DictConfig, world: int) -> float:
-    """The optimiser's learning rate for this run's global batch.
+def learning_rate(optim: OptimConfig, global_batch: int) -> float:
+    """The optimiser's learning rate for a global batch of ``global_batch`` images.
 
     ``optim.reference_batch`` null: ``optim.optimizer.lr`` as given. A number N: linear scaling
     (Goyal et al. 2017, "Accurate, large minibatch SGD"), lr x global batch / N, which the
     scheduler's linear warm-up makes safe in the first steps.
     """
-    lr = float(cfg.optim.optimizer.lr)
-    reference = cfg.optim.get("reference_batch")
-    if reference is None:
-        return lr
-    check_int(reference, "optim.reference_batch", low=1)
-    return lr * int(cfg.data.batch_size) * world / reference
+    lr = float(optim.optimizer.keywords["lr"])
+    return lr if optim.reference_batch is None else lr * global_batch / optim.reference_batch

@@ -11,14 +11,9 @@ from hupbench.data import model_images
 
 @torch.no_grad()
 def recompute_bn_statistics(model: torch.nn.Module, loader, device: torch.device, autocast: dict) -> int:
-    """Replace every batch norm's running statistics by exact averages over ``loader`` (precise BN).
-
-    Running statistics are an exponential average over past batches, taken while the weights
-    moved; at Adam's early learning rates they lag the weights so far that eval-mode errors
-    came out worse than the untrained prior's while batch statistics gave a good fit.
-    Recomputing them from un-augmented training frames before each validation and checkpoint
-    makes eval-mode outputs (validation, ``hupbench eval``, ONNX) those of the current weights.
-    Training is unaffected: in train mode batch norm normalises with the batch's own statistics.
+    """Replace every batch norm's running statistics by exact averages over ``loader`` (precise BN), so that
+    eval-mode outputs (validation, ``hupbench eval``, ONNX) are those of the current weights: running
+    averages lag weights that Adam moves fast. Training is unaffected (train mode uses batch statistics).
 
     Returns:
         the number of frames averaged.

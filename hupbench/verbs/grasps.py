@@ -118,7 +118,7 @@ def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
     import torch
 
     from datagen.grasps.cvae import SHIPPED_WEIGHTS
-    from datagen.grasps.cvae_sampling import train_sampler
+    from datagen.grasps.cvae_training import train_sampler
     from datagen.assets.hand import build_hand
     from datagen.assets.probe import build_probe
 

@@ -163,7 +163,7 @@ class _Stages:
 def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
     """Compose and build the grasps, generate and train configs of the later stages (so a bad stage
     override fails before the preview renders)."""
-    from hupbench.training.checks import check_config as check_train_config
+    from hupbench.training.config import train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
@@ -176,8 +176,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
     with _stage_errors("train", fast):
         train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
                                       "run_name=quickstart"])
-        check_train_config(train_cfg)
-        build(train_cfg.data.reader)
+        train_config(train_cfg)
     return _Stages(work, grasps_cfg, grasps, generate_cfg, generate, train_cfg, overrides["eval_latency"])
 
 
@@ -236,11 +235,11 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
 
 
 def _pipeline(stages: _Stages, stage, done, log) -> dict:
-    from hupbench.evaluation.evaluate import run_eval
-    from hupbench.inference.export import run_export
+    from hupbench.evaluation.evaluate import EvalOptions, run_eval
+    from hupbench.inference.export import ExportOptions, run_export
     from hupbench.verbs.generate import generate_dataset, resolved_config, run_verify
     from hupbench.verbs.grasps import make_grasps
-    from hupbench.inference.predict import run_predict
+    from hupbench.inference.predict import PredictOptions, run_predict
     from hupbench.training.loop import run_train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
@@ -277,8 +276,9 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
         return out
 
     t0 = stage(5, "eval", "all metrics on the test split")
-    evaluated = run_eval(trained["checkpoint"], out["dataset"], split="test", out=work / "results" / "quickstart.json",
-                         latency=stages.eval_latency, log=quiet)
+    evaluated = run_eval(EvalOptions(trained["checkpoint"], out["dataset"], split="test",
+                                     out=work / "results" / "quickstart.json", latency=stages.eval_latency),
+                         log=quiet)
     out["results"] = evaluated["out"]
     out["metrics"] = {k: evaluated["results"]["metrics"]["mpjpe_mm"][k] for k in ("all", "hand", "probe")}
     out["floor_mm"] = (evaluated["results"]["split_floor"] or {}).get("floor_mm")
@@ -287,7 +287,8 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
         return out
 
     t0 = stage(6, "export", "ONNX with a parity check against PyTorch")
-    exported = run_export(trained["checkpoint"], out=work / "model.onnx", dataset=out["dataset"], log=quiet)
+    exported = run_export(ExportOptions(trained["checkpoint"], out=work / "model.onnx", dataset=out["dataset"]),
+                          log=quiet)
     out["onnx"] = exported["onnx"]
     out["parity"] = exported["parity"]
     if done("export", t0):
@@ -295,7 +296,7 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
 
     t0 = stage(7, "predict", "keypoints for a rendered test image, onnxruntime only")
     image = _first_test_image(Path(out["dataset"]))
-    predicted = run_predict(out["onnx"], [image], out_dir=work / "predict", log=quiet)
+    predicted = run_predict(PredictOptions(out["onnx"], [image], out_dir=work / "predict"), log=quiet)
     if predicted["failed"]:
         raise RunFailedError(f"predict failed on {image}: {predicted['records'][0].get('error')}")
     out["predictions"] = str(predicted["json"])

@@ -13,7 +13,7 @@ import trimesh
 from datagen.camera import Intrinsics, project_points
 from datagen.render.renderer import SEG_LABELS, MeshPart, Renderer
 
-#: the largest centroid disagreement allowed, pixels (the issue's figure: a half-pixel shift was found)
+#: the largest centroid disagreement allowed, pixels (a half-pixel convention error is ten times this)
 CENTROID_TOL_PX = 0.05
 
 

@@ -15,12 +15,15 @@ from test_export import (  # the session's one export, shared
 
 from hupbench.evaluation import evaluate as EV
 from hupbench import metrics as M
-from hupbench.checkpoint import file_sha256
+from datagen.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results
 
-QUIET = {"log": lambda *_: None}
+
+def evaluate(model, dataset, log=lambda *_: None, **options):
+    """``run_eval`` of the options given as keywords, quiet unless ``log`` is given."""
+    return EV.run_eval(EV.EvalOptions(model, dataset, **options), log=log)
 
 
 @pytest.fixture(scope="module")
@@ -40,11 +43,10 @@ def _flatten(d, prefix=""):
 
 def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     ckpt, onnx_path = exported
-    r_pt = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8,
-                       training_command="bash scripts/paper_protocol.sh tiny", training_log="logs/tiny_pt.jsonl",
-                       **QUIET)
-    r_onnx = EV.run_eval(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True,
-                         label="HOPE-Net (ResNet-10, 64 px, exported)", **QUIET)
+    r_pt = evaluate(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8,
+                    training_command="bash scripts/paper_protocol.sh tiny", training_log="logs/tiny_pt.jsonl")
+    r_onnx = evaluate(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True,
+                      label="HOPE-Net (ResNet-10, 64 px, exported)")
     a, b = load_results(r_pt["out"]), load_results(r_onnx["out"])
     assert a == r_pt["results"] and b == r_onnx["results"]
     # every metric and every breakdown within 0.1 mm (2D: 0.01 px, AUC: 0.001)
@@ -102,7 +104,7 @@ def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, mo
         return points2d, points3d
 
     monkeypatch.setattr(EV.EvalModel, "predict", shifted_truth)
-    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "shifted.json", latency=False, batch_size=7, **QUIET)["results"]
+    r = evaluate(ckpt, tiny_dataset, out=tmp_path / "shifted.json", latency=False, batch_size=7)["results"]
     m = r["metrics"]
     assert m["mpjpe_mm"]["all"] == pytest.approx(5.2, abs=1e-4)
     assert m["mpjpe_mm"]["hand"] == pytest.approx(5.2, abs=1e-4)
@@ -136,8 +138,8 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
 
     monkeypatch.setattr(EV.EvalModel, "predict", turned_and_frozen)
     lines = []
-    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "turned.json", latency=False, batch_size=len(reader),
-                    log=lines.append)["results"]
+    r = evaluate(ckpt, tiny_dataset, out=tmp_path / "turned.json", latency=False, batch_size=len(reader),
+                 log=lines.append)["results"]
     m = r["metrics"]
     with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
         gt = ann["keypoints_3d_cam"].astype(np.float64)
@@ -208,42 +210,42 @@ def _dataset_copy(src, dst, edit):
 
 def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
     ckpt, _ = exported
-    out = {"out": tmp_path / "r.json", "latency": False, **QUIET}
+    out = {"out": tmp_path / "r.json", "latency": False}
     (tmp_path / "notes.txt").write_text("hello")
     with pytest.raises(ValueError, match=r"unknown model file type 'notes.txt'.*\.pt.*\.onnx"):
-        EV.run_eval(tmp_path / "notes.txt", tiny_dataset, **out)
+        evaluate(tmp_path / "notes.txt", tiny_dataset, **out)
     with pytest.raises(FileNotFoundError, match="model file .*missing.pt does not exist"):
-        EV.run_eval(tmp_path / "missing.pt", tiny_dataset, **out)
+        evaluate(tmp_path / "missing.pt", tiny_dataset, **out)
     with pytest.raises(FileNotFoundError, match="dataset .*nowhere does not exist"):
-        EV.run_eval(ckpt, tmp_path / "nowhere", **out)
+        evaluate(ckpt, tmp_path / "nowhere", **out)
     (tmp_path / "empty_dir").mkdir()
     with pytest.raises(FileNotFoundError, match="no manifest.json"):
-        EV.run_eval(ckpt, tmp_path / "empty_dir", **out)
+        evaluate(ckpt, tmp_path / "empty_dir", **out)
     foreign = tmp_path / "foreign.pt"
     torch.save({"state_dict": {"w": torch.zeros(2)}}, foreign)
     with pytest.raises(ValueError, match="not a hupbench checkpoint"):
-        EV.run_eval(foreign, tiny_dataset, **out)
+        evaluate(foreign, tiny_dataset, **out)
     fake_onnx = tmp_path / "fake.onnx"
     fake_onnx.write_bytes(b"\x00\x01 not onnx")
     with pytest.raises(ValueError, match="fake.onnx"):
-        EV.run_eval(fake_onnx, tiny_dataset, **out)
+        evaluate(fake_onnx, tiny_dataset, **out)
     hand_only = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21)
     with pytest.raises(ValueError, match="predicts 21 keypoints"):
-        EV.run_eval(hand_only, tiny_dataset, **out)
+        evaluate(hand_only, tiny_dataset, **out)
     short = _dataset_copy(tiny_dataset, tmp_path / "ds21", lambda m: m | {"keypoint_names": m["keypoint_names"][:21]})
     with pytest.raises(ValueError, match="has 21 keypoints; the benchmark needs 29"):
-        EV.run_eval(ckpt, short, **out)
+        evaluate(ckpt, short, **out)
     empty = _dataset_copy(tiny_dataset, tmp_path / "ds_empty", lambda m: m | {"counts": m["counts"] | {"test": 0},
                                                                          # one grasp fewer: consistent counts
                                                                          "layout": {"shape": [2, *m["layout"]["shape"][1:]]}})
     with pytest.raises(ValueError, match="split 'test' of .* is empty"):
-        EV.run_eval(ckpt, empty, **out)
+        evaluate(ckpt, empty, **out)
     with pytest.raises(ValueError, match="split must be one of"):
-        EV.run_eval(ckpt, tiny_dataset, split="holdout", **out)
+        evaluate(ckpt, tiny_dataset, split="holdout", **out)
     with pytest.raises(ValueError, match="must equal the results file stem"):
-        EV.run_eval(ckpt, tiny_dataset, run_name="other", **out)
+        evaluate(ckpt, tiny_dataset, run_name="other", **out)
     with pytest.raises(ValueError, match="batch_size must be a whole number >= 1"):
-        EV.run_eval(ckpt, tiny_dataset, batch_size=0, **out)
+        evaluate(ckpt, tiny_dataset, batch_size=0, **out)
     assert not (tmp_path / "r.json").exists()
     assert main(["eval", str(tmp_path / "notes.txt"), str(tiny_dataset), "--out", str(tmp_path / "r.json")]) == 1
     assert "hupbench eval: error: unknown model file type" in capsys.readouterr().err
@@ -296,7 +298,7 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
     (test_grasp,) = manifest["grasp_ids"]["test"]
     monkeypatch.setattr(EV.EvalModel, "predict", _shifted_truth_predictor(tiny_dataset, 8))
     lines = []
-    out = EV.run_eval(ckpt, dataset, out=tmp_path / "floors.json", latency=False, batch_size=8, log=lines.append)
+    out = evaluate(ckpt, dataset, out=tmp_path / "floors.json", latency=False, batch_size=8, log=lines.append)
     r = out["results"]
     assert load_results(out["out"]) == r
     # every frame is 5.2 mm off: so is every grasp and every orientation
@@ -320,7 +322,7 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
     assert f"grasp: {test_grasp}" in table and "theta_vol: theta_vol_z=180" in table
     # the train split has no floor, but the dataset's track
     monkeypatch.undo()
-    r = EV.run_eval(ckpt, dataset, split="train", out=tmp_path / "train.json", latency=False, **QUIET)["results"]
+    r = evaluate(ckpt, dataset, split="train", out=tmp_path / "train.json", latency=False)["results"]
     assert (r["track"], r["split_floor"]) == ("unseen_grasps", None)
     assert r["dataset"]["grasp_theta_vol_deg"] == {str(manifest["grasp_ids"]["train"][0]): None}
     assert "theta_vol" not in r["breakdowns"]  # no train grasp has a recorded orientation
@@ -330,7 +332,7 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
 def test_datasets_without_tracks_and_floors(exported, tiny_dataset, tmp_path):
     ckpt, _ = exported
     dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_old", _without_floors)
-    r = EV.run_eval(ckpt, dataset, out=tmp_path / "old.json", latency=False, **QUIET)["results"]
+    r = evaluate(ckpt, dataset, out=tmp_path / "old.json", latency=False)["results"]
     assert (r["track"], r["split_floor"], r["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
     assert set(r["breakdowns"]) == {"latitude", "z_ego", "background", "grasp"}
     assert "split floor" not in EV.format_table(r)
@@ -362,7 +364,7 @@ def test_bad_floors_in_the_manifest_are_named(exported, tiny_dataset, tmp_path, 
     ckpt, _ = exported
     dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_bad", _edited(change))
     with pytest.raises(ValueError, match=message):
-        EV.run_eval(ckpt, dataset, out=tmp_path / "bad.json", latency=False, **QUIET)
+        evaluate(ckpt, dataset, out=tmp_path / "bad.json", latency=False)
     assert not (tmp_path / "bad.json").exists()
 
 
@@ -376,7 +378,7 @@ def test_latency_helper_median():
 @pytest.mark.slow
 def test_checkpoint_eval_times_pytorch_and_onnxruntime(exported, tiny_dataset, tmp_path):
     ckpt, _ = exported
-    r = EV.run_eval(ckpt, tiny_dataset, out=tmp_path / "timed.json", latency=True, **QUIET)["results"]
+    r = evaluate(ckpt, tiny_dataset, out=tmp_path / "timed.json", latency=True)["results"]
     for runtime in ("pytorch", "onnxruntime"):
         assert all(v > 0 for v in r["latency_ms_per_image"][runtime].values()), runtime
     assert not list(tmp_path.glob("*.onnx"))

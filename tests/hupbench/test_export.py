@@ -14,12 +14,9 @@ import torch
 from datagen import keypoints as kp
 from hupbench.inference.model_file import META
 from hupbench.inference import export as E
-from hupbench.checkpoint import (
-    file_sha256,
-    load_model,
-    read_checkpoint,
-    save_checkpoint,
-)
+from hupbench.inference.runtime import load_onnx_model
+from datagen.io import file_sha256
+from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from models.baseline import RegressorOutput
@@ -39,11 +36,10 @@ def make_checkpoint(path, dataset, **model_cfg):
         cfg["points3d_mean"] = None
     model = build_model(cfg)
     K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
-    return save_checkpoint(path, {
-        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
-        "step": 0, "epoch": 0.0, "samples_seen": 0, "train_seconds": 0.0, "input_size": INPUT_SIZE,
-        "K_input": K.tolist(), "config": {"run_name": "tiny_hopenet"},
-        "dataset": {"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}})
+    return Checkpoint(
+        model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=INPUT_SIZE,
+        K_input=K.tolist(), config={"run_name": "tiny_hopenet"},
+        dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
 
 
 def exported_model(tmp_path_factory, dataset):
@@ -53,7 +49,7 @@ def exported_model(tmp_path_factory, dataset):
     if not onnx_path.is_file():
         folder.mkdir(exist_ok=True)
         make_checkpoint(ckpt, dataset)
-        E.run_export(ckpt, onnx_path, log=lambda *_: None)
+        E.run_export(E.ExportOptions(ckpt, onnx_path), log=lambda *_: None)
     return ckpt, onnx_path
 
 
@@ -69,7 +65,7 @@ def _images(dataset, n):
 
 def test_onnx_contract(exported, tiny_dataset):
     ckpt, onnx_path = exported
-    payload = read_checkpoint(ckpt)
+    payload = Checkpoint.read(ckpt).record()
     proto = onnx.load(str(onnx_path))
     assert {o.domain: o.version for o in proto.opset_import}[""] == E.OPSET == 18
     (inp,) = proto.graph.input
@@ -94,8 +90,8 @@ def test_onnx_contract(exported, tiny_dataset):
 
 def test_dynamic_batch_and_parity_on_real_images(exported, tiny_dataset):
     ckpt, onnx_path = exported
-    module = E.contract_model(*load_model(ckpt))
-    session = E.ort_session(onnx_path)
+    module = E.contract_model(*load_model(ckpt), str(ckpt))
+    session = load_onnx_model(onnx_path).session
     for batch in (1, 3):
         images = _images(tiny_dataset, batch)
         points2d, points3d = session.run(None, {"image": images.numpy()})
@@ -135,35 +131,35 @@ def test_failed_parity_leaves_no_file(exported, tmp_path, monkeypatch):
     monkeypatch.setattr(E, "PARITY_MAX_3D_MM", -1.0)
     out = tmp_path / "sub" / "model.onnx"
     with pytest.raises(RuntimeError, match="ONNX parity check failed"):
-        E.run_export(ckpt, out, log=lambda *_: None)
+        E.run_export(E.ExportOptions(ckpt, out), log=lambda *_: None)
     assert list(out.parent.iterdir()) == []
 
 
 def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
     ckpt, onnx_path = exported
     with pytest.raises(ValueError, match=r"needs a hupbench checkpoint \(.pt\), got 'model.onnx'"):
-        E.run_export(onnx_path)
+        E.ExportOptions(onnx_path)
+    with pytest.raises(ValueError, match="must end in .onnx"):
+        E.ExportOptions(ckpt, tmp_path / "x.bin")
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        E.run_export(tmp_path / "missing.pt")
+        E.run_export(E.ExportOptions(tmp_path / "missing.pt"))
     foreign = tmp_path / "foreign.pt"
     torch.save({"weights": torch.zeros(3)}, foreign)
     with pytest.raises(ValueError, match="not a hupbench checkpoint"):
-        E.run_export(foreign)
+        E.run_export(E.ExportOptions(foreign))
     with pytest.raises(FileNotFoundError, match="for the parity check does not exist"):
-        E.run_export(ckpt, tmp_path / "x.onnx", dataset=tmp_path / "no_dataset")
+        E.run_export(E.ExportOptions(ckpt, tmp_path / "x.onnx", dataset=tmp_path / "no_dataset"))
     with pytest.raises(FileNotFoundError, match="no manifest.json"):
-        E.run_export(ckpt, tmp_path / "x.onnx", dataset=tmp_path)
-    with pytest.raises(ValueError, match="must end in .onnx"):
-        E.run_export(ckpt, tmp_path / "x.bin")
+        E.run_export(E.ExportOptions(ckpt, tmp_path / "x.onnx", dataset=tmp_path))
     hand_only = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21)
     with pytest.raises(ValueError, match="predicts 21 keypoints"):
-        E.run_export(hand_only, tmp_path / "x.onnx")
+        E.run_export(E.ExportOptions(hand_only, tmp_path / "x.onnx"))
     assert main(["export", str(foreign)]) == 1
     assert "hupbench export: error:" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.onnx"))
 
 
-def test_read_metadata_refuses_foreign_onnx(tmp_path):
+def test_runtime_refuses_foreign_onnx(tmp_path):
     from onnx import TensorProto, helper
 
     graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g",
@@ -172,20 +168,20 @@ def test_read_metadata_refuses_foreign_onnx(tmp_path):
     path = tmp_path / "foreign.onnx"
     onnx.save(helper.make_model(graph), str(path))
     with pytest.raises(ValueError, match="not a hupbench ONNX export"):
-        E.read_onnx_metadata(path)
+        load_onnx_model(path)
     (tmp_path / "garbage.onnx").write_bytes(b"not a protobuf at all")
     with pytest.raises(ValueError, match="garbage.onnx"):
-        E.read_onnx_metadata(tmp_path / "garbage.onnx")
+        load_onnx_model(tmp_path / "garbage.onnx")
 
 
 @pytest.mark.slow
 def test_export_regressor_without_2d_head(tiny_dataset, tmp_path):
     ckpt = make_checkpoint(tmp_path / "reg.pt", tiny_dataset, name="resnet_regressor")
-    result = E.run_export(ckpt, log=lambda *_: None)
+    result = E.run_export(E.ExportOptions(ckpt), log=lambda *_: None)
     assert result["onnx"] == str(tmp_path / "reg.onnx")
     assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
-    points2d, points3d = E.ort_session(result["onnx"]).run(None, {"image": _images(tiny_dataset, 2).numpy()})
-    K = np.asarray(read_checkpoint(ckpt)["K_input"])
+    points2d, points3d = load_onnx_model(result["onnx"]).session.run(None, {"image": _images(tiny_dataset, 2).numpy()})
+    K = np.asarray(Checkpoint.read(ckpt).K_input)
     uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
     np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-5)
 
@@ -198,9 +194,9 @@ def test_export_models_that_unproject_through_the_camera(model_cfg, tiny_dataset
     """The models that carry K_input export with parity, and their ONNX 3D projects onto their ONNX 2D."""
     K = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
     ckpt = make_checkpoint(tmp_path / "cam.pt", tiny_dataset, **model_cfg, K_input=K.tolist(), input_size=INPUT_SIZE)
-    result = E.run_export(ckpt, log=lambda *_: None)
+    result = E.run_export(E.ExportOptions(ckpt), log=lambda *_: None)
     assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
-    points2d, points3d = E.ort_session(result["onnx"]).run(None, {"image": _images(tiny_dataset, 3).numpy()})
+    points2d, points3d = load_onnx_model(result["onnx"]).session.run(None, {"image": _images(tiny_dataset, 3).numpy()})
     uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
     if model_cfg["name"] == "hupnet":  # HOPE-Net's 3D carries the U-Net's own 2D correction
         np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-4)

@@ -10,7 +10,6 @@ import torch
 
 from hupbench.data import FrameBatches, HUPDataset, ReaderConfig, open_frame_cache
 from hupbench.data.cache import cache_paths
-from hupbench.data.loaders import DecodedFrames
 
 SIZE = 48
 
@@ -18,7 +17,7 @@ SIZE = 48
 def test_cached_frames_equal_the_decoded_frames(tiny_dataset, tmp_path):
     ds = HUPDataset(tiny_dataset, "train", ReaderConfig(input_size=SIZE))
     cached = FrameBatches(ds, open_frame_cache(ds, cache_dir=tmp_path, progress=False))
-    decoded = FrameBatches(ds, DecodedFrames(ds))
+    decoded = FrameBatches(ds)
     indices = [5, 0, 17, 3, 5]
     a, b = cached.__getitems__(indices), decoded.__getitems__(indices)
     assert a["image"].dtype == torch.uint8 and a["image"].shape == (5, SIZE, SIZE, 3)

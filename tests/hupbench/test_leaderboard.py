@@ -418,3 +418,23 @@ def test_empty_or_missing_folder(tmp_path):
     (tmp_path / "results").mkdir()
     with pytest.raises(ValueError, match=r"no results files \(\*\.json\)"):
         run_leaderboard(tmp_path)
+
+
+def test_write_together_raises_rather_than_loops(tmp_path):
+    """An error that no enclosing writer explains (a folder in a file's place) reaches the caller, once: the
+    unwrapping of explained errors stops at an error that is its own cause. A fresh process with a timeout,
+    as the fault was an endless loop."""
+    (tmp_path / "b.png").mkdir()
+    code = ("from pathlib import Path\n"
+            "from hupbench.evaluation.leaderboard import _write_together\n"
+            "try:\n"
+            f"    _write_together(Path({str(tmp_path)!r}), {{'a.md': b'new', 'b.png': b'new', 'c.png': b'new'}})\n"
+            "except IsADirectoryError as exc:\n"
+            "    print('RAISED', exc.filename)\n")
+    try:
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                              cwd=Path(__file__).resolve().parents[2])
+    except subprocess.TimeoutExpired:
+        pytest.fail("_write_together did not return within 60 s")
+    assert done.returncode == 0 and "RAISED" in done.stdout, done.stderr
+    assert not (tmp_path / "a.md").exists() and not list(tmp_path.glob(".*.tmp*"))

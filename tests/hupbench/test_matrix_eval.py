@@ -2,7 +2,8 @@
 
 Every case gives one line ``hupbench eval: error: ...`` (argparse's own ``error:`` line for an option it
 refuses) naming the file or the option and what was expected, a non-zero exit, no traceback, and no
-results JSON and no temporary file.
+results JSON and no temporary file. The options' own checks (``UNIT_CASES``) are unit cases of
+:class:`EvalOptions`: the same line, without running the verb.
 """
 
 from __future__ import annotations
@@ -24,6 +25,10 @@ from test_matrix_train import (
 )
 
 from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.answers import assert_refusal
+from helpers.two_writers import finish, start_writing
+
+from hupbench.evaluation.evaluate import EvalOptions
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +77,7 @@ def onnx_case(case: str, src: Path, tmp_path: Path) -> tuple[Path, tuple[str, ..
         return path, (path.name, "does not exist")
     if case == "onnx-empty":
         path.write_bytes(b"")
-        return path, (path.name, "not a hupbench ONNX export")
+        return path, (path.name, "empty file")
     if case == "onnx-truncated":
         data = src.read_bytes()
         path.write_bytes(data[: len(data) // 2])
@@ -115,6 +120,13 @@ OPTION_CASES = {
     "run-name-disagrees": (["--run-name", "other"], ("other", "results file stem")),
 }
 
+#: cases :class:`EvalOptions` refuses: case -> options(checkpoint, dataset, out folder), checked without the verb
+#: (run-name-disagrees stays a CLI case: it wires --run-name)
+UNIT_CASES = {
+    "model-not-pt-or-onnx": lambda ckpt, dataset, out_dir: EvalOptions(out_dir / "notes.txt", dataset),
+    "out-not-json": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, out=out_dir / "results.txt"),
+}
+
 CASES = ([f"model:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "model-not-pt-or-onnx"] + ONNX_CASES]
          + [f"dataset:{c}" for c in DATASET_CASES]
          + [f"option:{c}" for c in OPTION_CASES]
@@ -130,13 +142,13 @@ def test_matrix_eval(case, exported, tiny_dataset, tmp_path, capsys):
     out_dir.mkdir()
     out = out_dir / "r.json"
     model, dataset, options = ckpt, tiny_dataset, []
+    if name in UNIT_CASES:
+        needles = ("notes.txt", ".pt", ".onnx") if kind == "model" else OPTION_CASES[name][1]
+        assert_refusal(lambda: UNIT_CASES[name](ckpt, tiny_dataset, out_dir), *needles, prog="hupbench eval")
+        return
     if kind == "model":
         if name == "ckpt-21-keypoints":
             model, needles = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21), ("hand21.pt", "21 keypoints")
-        elif name == "model-not-pt-or-onnx":
-            model = tmp_path / "notes.txt"
-            model.write_text("hello")
-            needles = ("notes.txt", ".pt", ".onnx")
         elif name.startswith("onnx"):
             model, needles = onnx_case(name, onnx_path, tmp_path)
         else:
@@ -184,13 +196,14 @@ def parse_full_disk(output: str) -> tuple[CliAnswer, list[str], list[str]]:
 @pytest.mark.matrix
 def test_fault_eval_disk_full(exported, tiny_dataset, tmp_path):
     """The results JSON on a full disk (measured before: a 0-byte temporary file was left): one line naming
-    the device and the file, exit 1, no temporary file and no results file."""
+    the device and the first file it could not write (the results' lock), exit 1, no temporary file, no lock
+    and no results file."""
     ckpt, _ = exported
     disk = tmp_path / "disk"
     _, output = private_mount("size=8k", disk, _full_disk_script(
         f'"{sys.executable}" -m hupbench.cli eval "{ckpt}" "{tiny_dataset}" --no-latency --out "{disk}/r.json"', disk))
     answer, tmp, files = parse_full_disk(output)
-    assert_clean_error(answer, f"no space left on {disk} writing {disk}/r.json")
+    assert_clean_error(answer, f"no space left on {disk} writing {disk}/.r.json.lock")
     assert answer.rc == 1 and not tmp and files == [f"{disk}/filler"], (tmp, files)
 
 
@@ -256,7 +269,7 @@ def test_fault_eval_sigkill_then_rerun(exported, tiny_dataset, tmp_path, capsys)
     # killed while the ONNX file timed for latency exists (the exporter is writing it, or the timings run)
     left = run_killed_then_again([sys.executable, "-m", "hupbench.cli", *argv, "--out", str(out)], tmp_path,
                                  seed=15, folder=out.parent, pattern=".r.json.tmp*.onnx", window_s=min(took / 4, 3.0))
-    assert left and all(name.startswith(".r.json.tmp") for name in left), left
+    assert left and all(name.startswith((".r.json.tmp", ".r.json.lock")) for name in left), left
     reference = json.loads((tmp_path / "ref" / "r.json").read_text())
     again = json.loads(out.read_text())
     for field in RERUN_FREE_FIELDS:
@@ -283,3 +296,22 @@ def test_fault_eval_stale_tmp_removed(exported, tiny_dataset, tmp_path, capsys):
         path.write_bytes(b"\0" * 1000)
     assert run_cli(capsys, "eval", ckpt, tiny_dataset, "--no-latency", "--out", out).rc == 0
     assert sorted(p.name for p in out.parent.iterdir()) == sorted([live.name, "r.json"])
+
+
+@pytest.mark.matrix
+def test_fault_eval_two_runs_at_once(exported, tiny_dataset, tmp_path, capsys):
+    """A second eval writing the results file of a running one (measured before: both exited 0 and the
+    later one's results replaced the other's): refused with one line naming the running one; the first
+    completes."""
+    from hupbench.evaluation.results import load_results
+
+    ckpt, _ = exported
+    out = tmp_path / "out" / "r.json"
+    first = start_writing(["eval", ckpt, tiny_dataset, "--threads", "1", "--out", out], out.parent)
+    try:
+        answer = run_cli(capsys, "eval", ckpt, tiny_dataset, "--no-latency", "--out", out)
+    finally:
+        finish(first)
+    assert_clean_error(answer, str(out), "in use by another eval run", f"pid {first.pid}")
+    assert load_results(out)["latency_ms_per_image"]["onnxruntime"]["batch1"] is not None  # the first run's
+    assert sorted(p.name for p in out.parent.iterdir()) == ["r.json"]

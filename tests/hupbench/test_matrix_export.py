@@ -3,7 +3,8 @@
 Every case gives one line ``hupbench export: error: ...`` (argparse's own ``error:`` line for an option it
 refuses) naming the file or the option and what was expected, a non-zero exit, no traceback, and no .onnx
 file and no temporary file. One case is accepted on purpose: ``--out`` into a folder that does not exist
-yet creates it, as every hupbench output does.
+yet creates it, as every hupbench output does. The options' own checks (``UNIT_CASES``) are unit cases of
+:class:`ExportOptions`: the same line, without running the verb.
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ from test_matrix_train import (
 )
 
 from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.answers import assert_refusal
+from helpers.two_writers import finish, start_writing
+
+from hupbench.inference.export import ExportOptions
 
 
 @pytest.fixture(scope="module")
@@ -41,6 +46,14 @@ OPTION_CASES = {
 DATASET_CASES = ["dataset-empty-folder", "dataset-is-a-file", "manifest-bad-json", "annotations-truncated",
                  "annotations-flipped-byte", "annotations-21-keypoints", "rgb-undecodable", "rgb-tiny"]
 
+#: cases :class:`ExportOptions` refuses: case -> options(checkpoint, onnx file, out folder), checked without the verb
+#: (opset-99 stays a CLI case: it wires --opset)
+UNIT_CASES = {
+    "ckpt-is-onnx": lambda ckpt, onnx_path, out: ExportOptions(onnx_path),
+    "opset-5": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.onnx", opset=5),
+    "out-not-onnx": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.bin"),
+}
+
 CASES = ([f"checkpoint:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "ckpt-is-onnx",
                                                          "ckpt-without-dataset", "ckpt-dataset-gone"]]
          + [f"option:{c}" for c in OPTION_CASES]
@@ -58,11 +71,13 @@ def test_matrix_export(case, exported, tiny_dataset, tmp_path, capsys):
     out_dir = tmp_path / "out"
     out_dir.mkdir()
     model, options = ckpt, ["--out", str(out_dir / "model.onnx")]
+    if name in UNIT_CASES:
+        needles = (onnx_path.name, "(.pt)") if name == "ckpt-is-onnx" else OPTION_CASES[name][1]
+        assert_refusal(lambda: UNIT_CASES[name](ckpt, onnx_path, out_dir), *needles, prog="hupbench export")
+        return
     if kind == "checkpoint":
         if name == "ckpt-21-keypoints":
             model, needles = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21), ("hand21.pt", "21 keypoints")
-        elif name == "ckpt-is-onnx":
-            model, needles = onnx_path, (onnx_path.name, "(.pt)")
         elif name in ("ckpt-without-dataset", "ckpt-dataset-gone"):
             payload = torch.load(ckpt, map_location="cpu", weights_only=True)
             gone = tmp_path / "gone_dataset"
@@ -111,7 +126,8 @@ def test_matrix_export(case, exported, tiny_dataset, tmp_path, capsys):
 
 @pytest.mark.matrix
 def test_fault_export_disk_full(exported, tmp_path):
-    """The ONNX file on a full disk: one line naming the device and the file, exit 1, nothing left."""
+    """The ONNX file on a full disk: one line naming the device and the first file it could not write (the
+    output's lock), exit 1, nothing left."""
     from test_matrix_eval import _full_disk_script, parse_full_disk
 
     ckpt, _ = exported
@@ -119,7 +135,7 @@ def test_fault_export_disk_full(exported, tmp_path):
     _, output = private_mount("size=8k", disk, _full_disk_script(
         f'"{sys.executable}" -m hupbench.cli export "{ckpt}" --out "{disk}/model.onnx"', disk))
     answer, tmp, files = parse_full_disk(output)
-    assert_clean_error(answer, f"no space left on {disk} writing {disk}/model.onnx")
+    assert_clean_error(answer, f"no space left on {disk} writing {disk}/.model.onnx.lock")
     assert answer.rc == 1 and not tmp and files == [f"{disk}/filler"], (tmp, files)
 
 
@@ -137,7 +153,7 @@ def test_fault_export_sigkill_then_rerun(exported, tmp_path):
     # killed once the temporary file exists (being written, or its parity being checked)
     left = run_killed_then_again(argv, tmp_path, seed=15, folder=out.parent, pattern=".model.onnx.tmp*",
                                  window_s=0.15)
-    assert left and all(name.startswith(".model.onnx.tmp") for name in left), left
+    assert left and all(name.startswith((".model.onnx.tmp", ".model.onnx.lock")) for name in left), left
     assert out.read_bytes() == onnx_path.read_bytes()
     assert sorted(p.name for p in out.parent.iterdir()) == ["model.onnx"]
 
@@ -158,3 +174,19 @@ def test_fault_export_stale_tmp_removed(exported, tmp_path, capsys):
     assert run_cli(capsys, "export", ckpt, "--out", out).rc == 0
     assert sorted(p.name for p in out.parent.iterdir()) == sorted([live.name, "model.onnx"])
     assert out.read_bytes() == onnx_path.read_bytes()
+
+
+@pytest.mark.matrix
+def test_fault_export_two_runs_at_once(exported, tmp_path, capsys):
+    """A second export to the .onnx file a running one writes (measured before: both exited 0, each renaming
+    its own file over the other's): refused with one line naming the running one; the first completes."""
+    ckpt, onnx_path = exported
+    out = tmp_path / "out" / "model.onnx"
+    first = start_writing(["export", ckpt, "--out", out, "--no-progress"], out.parent)
+    try:
+        answer = run_cli(capsys, "export", ckpt, "--out", out)
+    finally:
+        finish(first)
+    assert_clean_error(answer, str(out), "in use by another export run", f"pid {first.pid}")
+    assert out.read_bytes() == onnx_path.read_bytes()
+    assert sorted(p.name for p in out.parent.iterdir()) == ["model.onnx"]

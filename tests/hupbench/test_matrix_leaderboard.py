@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import assert_clean_error, run_cli
+from conftest import CliAnswer, assert_clean_error, run_cli
 from test_leaderboard import COMMITTED, OUTPUTS, measured, write_log
 from test_matrix_predict import REPO, run_in_namespace
 
@@ -227,6 +227,26 @@ def test_fault_leaderboard_sigkill(built_board, tmp_path):
     proc = subprocess.run(command, env=env, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert _tree_digest(board) == reference
+    assert not list(board.rglob(".*.tmp*"))
+
+
+def test_fault_leaderboard_plot_path_is_a_folder(board):
+    """A folder where the latency plot belongs, and a changed results file (measured before: the rebuild
+    renamed the new training plot into place beside the old README, then never ended): one line naming the
+    folder, exit 1, the old README and training plot unchanged, no temporary file."""
+    before = {name: (board / name).read_bytes() for name in OUTPUTS if name != "mpjpe_vs_latency.png"}
+    results = board / "results" / "slow_big.json"
+    results.write_text(results.read_text().replace('"HOPE-Net (ResNet-50, 224 px)"', '"Renamed"'))
+    (board / "mpjpe_vs_latency.png").unlink()
+    (board / "mpjpe_vs_latency.png").mkdir()
+    command = [sys.executable, "-m", "hupbench.cli", "leaderboard", "--dir", str(board)]
+    try:
+        proc = subprocess.run(command, env=os.environ | {"PYTHONPATH": str(REPO)}, cwd=REPO, capture_output=True,
+                              text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("hupbench leaderboard did not end within 120 s with a folder in a plot's place")
+    assert_clean_error(CliAnswer(proc.returncode, proc.stdout, proc.stderr), "mpjpe_vs_latency.png", "is a folder")
+    assert {name: (board / name).read_bytes() for name in before} == before
     assert not list(board.rglob(".*.tmp*"))
 
 

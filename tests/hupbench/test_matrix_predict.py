@@ -1,7 +1,8 @@
 """The bad-input and fault matrix of ``hupbench predict`` (docs/robustness.md, section predict).
 
 Run-level refusals (the model, --K, --batch-size, --out, no images at all) answer one error line, exit
-1 (2 for argparse's own usage errors) and write nothing into --out. A bad image is a per-file error:
+1 (2 for argparse's own usage errors) and write nothing into --out; the --K values past its one wiring
+case (``UNIT_CASES``) are unit cases of :class:`PredictOptions`: the same line, without running the verb. A bad image is a per-file error:
 its own error line naming it, the other images still predicted, exit 1, and predictions.json records
 which ones failed. The known-answer ONNX graph of test_predict.py puts keypoint 0 on the most red
 pixel, so an accepted odd image (16-bit, grey, RGBA) is checked by where its dot lands.
@@ -26,11 +27,14 @@ import numpy as np
 import onnx
 import pytest
 from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.answers import assert_refusal
+from helpers.two_writers import finish, start_writing
 from onnx import TensorProto, helper
 from test_predict import S, contract_metadata, dot_image, make_dot_model, photo_like
 
 from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
-from hupbench.inference.model_file import InputGeometry
+from hupbench.inference.predict import PredictOptions
+from hupbench.input_geometry import InputGeometry
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.matrix
@@ -235,11 +239,19 @@ REFUSED = {
 }
 
 
+#: --K cases checked by :class:`PredictOptions` alone (K-letters wires the option through the CLI)
+UNIT_CASES = ("K-three-values", "K-huge", "K-zero-focal", "K-negative-focal", "K-nan", "K-inf")
+
+
 @pytest.mark.parametrize("case", list(REFUSED))
 def test_matrix_predict(case, dot_model, good_image, tmp_path, capsys):
     make, needles = REFUSED[case]
     model, inputs, extra = make(tmp_path, dot_model, good_image)
     out = tmp_path / "out"
+    if case in UNIT_CASES:
+        K = extra[-1].removeprefix("--K=")
+        assert_refusal(lambda: PredictOptions(model, inputs, out, K=K), *needles, prog="hupbench predict")
+        return
     answer = run_cli(capsys, *predict_argv(model, inputs, out, *extra))
     assert_clean_error(answer, *needles)
     assert not out.exists(), f"a refused run created {out}: {sorted(out.rglob('*'))}"
@@ -379,6 +391,23 @@ def test_matrix_predict_folder(case, dot_model, tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ faults
+
+
+def test_fault_predict_two_runs_at_once(dot_model, tmp_path, capsys):
+    """A second predict into the folder a running one writes (measured before: both exited 0, and the
+    folder's predictions.json described one run's images beside the other's overlays): refused with one
+    line naming the running one; the first completes with all its images."""
+    images = [write(tmp_path / "in" / f"photo{k:03d}.png", png_bytes(photo_like(320, 240, seed=k))) for k in range(200)]
+    out = tmp_path / "out"
+    first = start_writing(predict_argv(dot_model, [tmp_path / "in"], out), out)
+    try:
+        answer = run_cli(capsys, *predict_argv(dot_model, images[:2], out))
+    finally:
+        finish(first)
+    assert_clean_error(answer, str(out), "in use by another predict run", f"pid {first.pid}")
+    document = json.loads((out / "predictions.json").read_text())
+    assert document["counts"] == {"images": 200, "ok": 200, "failed": 0}
+    assert len(list(out.glob("*_overlay.png"))) == 200 and not list(out.glob(".*"))
 
 
 def test_fault_predict_disk_full(dot_model, tmp_path):

@@ -17,6 +17,15 @@ def _rotation(axis, angle):
     return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
 
 
+def _symmetric_mm(pred, gt, permutations=M.PROBE_SYMMETRIES["half_turn"]):
+    """The probe MPJPE minimised per frame over the group (eval's probe_symmetric_mpjpe_mm)."""
+    return M.probe_symmetric_errors_mm(pred, gt, permutations)[0].mean()
+
+
+def _pck_auc(pred, gt):
+    return M.pck_auc_from_errors(M.keypoint_errors_mm(pred, gt))
+
+
 def _random_points(n=4, k=29, seed=0):
     rng = np.random.default_rng(seed)
     gt = rng.normal(0.0, 0.05, (n, k, 3)) + np.array([0.0, 0.0, 0.6])
@@ -148,9 +157,7 @@ def test_pck_auc_known_answers():
         (0.5 * (0.5 + 1.0) * 10 + 1.0 * 10) / 20)
     gt = np.zeros((1, 2, 3))
     pred = np.array([[[0.0, 0.0, 0.0], [0.06, 0.0, 0.0]]])
-    assert M.pck_auc(pred, gt) == pytest.approx(0.5)
-    with pytest.raises(ValueError, match="increasing"):
-        M.pck_auc_from_errors(np.zeros((1, 1)), [10.0, 0.0])
+    assert _pck_auc(pred, gt) == pytest.approx(0.5)
 
 
 def test_pixel_error_known_answer():
@@ -159,16 +166,12 @@ def test_pixel_error_known_answer():
     assert M.pixel_error_px(pred, gt) == pytest.approx(16.0 / 3.0)
     mask = np.array([[True, True, False]])
     assert M.pixel_error_px(pred, gt, mask) == pytest.approx(3.0)
-    # normalised -> pixels: the left edge of a 64-wide image is -0.5 px, the centre 31.5
-    np.testing.assert_allclose(M.normalized_to_pixels(np.array([[-1.0, 0.0]]), 64, 64), [[-0.5, 31.5]])
-    t = M.normalized_to_pixels(torch.tensor([[-1.0, 0.0]]), 64, 64)
-    np.testing.assert_allclose(t.numpy(), [[-0.5, 31.5]])
 
 
 def test_numpy_torch_agree():
     pred, gt = _random_points(n=5)
     pt, gtt = torch.from_numpy(pred), torch.from_numpy(gt)
-    for fn in (M.mpjpe_mm, M.root_relative_mpjpe_mm, M.pa_mpjpe_mm, M.pck_auc):
+    for fn in (M.mpjpe_mm, M.root_relative_mpjpe_mm, M.pa_mpjpe_mm, _pck_auc):
         a, b = fn(pred, gt), fn(pt, gtt)
         assert isinstance(a, float) and isinstance(b, torch.Tensor), fn.__name__
         assert float(b) == pytest.approx(a, rel=1e-9, abs=1e-9), fn.__name__
@@ -201,8 +204,6 @@ def test_breakdowns():
     assert B.background_labels([1]).tolist() == ["background 1"]
     with pytest.raises(ValueError, match="no name"):
         B.background_labels([5], ["white"])
-    with pytest.raises(ValueError, match="one entry per frame"):
-        M.breakdown_mpjpe_mm(errors, lat[:3])
 
 
 def _frames_with_errors(hand_probe_mm):
@@ -253,19 +254,14 @@ def test_theta_vol_label(theta_vol_deg, label):
     assert B.theta_vol_label(theta_vol_deg) == label
 
 
-def test_bad_input_messages():
-    with pytest.raises(ValueError, match=r"pred_m must be \(N, K, 3\), got \(2, 3\)"):
-        M.mpjpe_mm(np.zeros((2, 3)), np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="same shape"):
-        M.mpjpe_mm(np.zeros((2, 29, 3)), np.zeros((2, 21, 3)))
-    with pytest.raises(TypeError, match="must both be numpy or both torch"):
-        M.mpjpe_mm(np.zeros((1, 2, 3)), torch.zeros(1, 2, 3))
-    with pytest.raises(TypeError, match="numpy array or torch tensor"):
-        M.mpjpe_mm([[[0, 0, 0]]], np.zeros((1, 1, 3)))
-    with pytest.raises(ValueError, match="29 keypoints"):
-        M.mpjpe_split_mm(np.zeros((1, 21, 3)), np.zeros((1, 21, 3)))
-    with pytest.raises(ValueError, match="out of range"):
-        M.mpjpe_mm(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), keypoints=[5])
+def test_misuse_fails_loudly():
+    """The metrics trust their callers, but a mismatch that numpy would broadcast into a wrong number stops."""
+    for pred, gt in [(np.zeros((2, 3)), np.zeros((2, 3))), (np.zeros((2, 29, 3)), np.zeros((2, 21, 3))),
+                     (np.zeros((1, 2, 3)), torch.zeros(1, 2, 3))]:
+        with pytest.raises(AssertionError):
+            M.mpjpe_mm(pred, gt)
+    with pytest.raises(AssertionError):
+        M.breakdown_mpjpe_mm(np.zeros((4, 29)), ["a"] * 3)
 
 
 # ----------------------------------------------------------------------------- symmetric probe error
@@ -309,10 +305,6 @@ def test_symmetry_permutation_refuses_an_asymmetric_set():
     _, box = _probe_frames()
     with pytest.raises(ValueError, match="not symmetric under the rotation: .* mm from the nearest point"):
         M.symmetry_permutation(box + [0.002, 0.0, 0.0], M.HALF_TURN_Z)   # box off the axis by 2 mm
-    with pytest.raises(ValueError, match="proper rotation"):
-        M.symmetry_permutation(box, np.diag([-1.0, 1.0, 1.0]))          # a mirror
-    with pytest.raises(ValueError, match=r"must be \(K, 3\)"):
-        M.symmetry_permutation(box[:, :2], M.HALF_TURN_Z)
 
 
 def test_symmetric_probe_error_known_answers():
@@ -321,22 +313,22 @@ def test_symmetric_probe_error_known_answers():
     turned[:, 21:] = gt[:, 21:][:, list(HALF_TURN_PERM)]   # the half-turned labelling of the same box
     # the plain probe error of the swapped labels is large, the symmetric one is zero
     assert M.mpjpe_split_mm(turned, gt)["probe"] > 20.0
-    assert M.probe_symmetric_mpjpe_mm(turned, gt) == pytest.approx(0.0, abs=1e-9)
+    assert _symmetric_mm(turned, gt) == pytest.approx(0.0, abs=1e-9)
     errors, choice = M.probe_symmetric_errors_mm(turned, gt)
     np.testing.assert_array_equal(choice, [1, 1, 1, 1])
     # only the identity in the group: the plain probe MPJPE
-    assert M.probe_symmetric_mpjpe_mm(turned, gt, M.PROBE_SYMMETRIES["none"]) == pytest.approx(
+    assert _symmetric_mm(turned, gt, M.PROBE_SYMMETRIES["none"]) == pytest.approx(
         M.mpjpe_split_mm(turned, gt)["probe"], rel=1e-12)
     # a 3 mm shift of every corner along x: 3 mm under either labelling choice, the identity wins
     shifted = gt.copy()
     shifted[:, 21:, 0] += 0.003
-    assert M.probe_symmetric_mpjpe_mm(shifted, gt) == pytest.approx(3.0)
+    assert _symmetric_mm(shifted, gt) == pytest.approx(3.0)
     np.testing.assert_array_equal(M.probe_symmetric_errors_mm(shifted, gt)[1], 0)
     # mixed frames: frame 0 turned (0 mm), frame 1 shifted (3 mm): mean 1.5; never above the plain error
     mixed = np.concatenate([turned[:1], shifted[1:2]])
-    assert M.probe_symmetric_mpjpe_mm(mixed, gt[:2]) == pytest.approx(1.5)
+    assert _symmetric_mm(mixed, gt[:2]) == pytest.approx(1.5)
     pred, truth = _random_points(n=5)
-    assert M.probe_symmetric_mpjpe_mm(pred, truth) <= M.mpjpe_split_mm(pred, truth)["probe"] + 1e-12
+    assert _symmetric_mm(pred, truth) <= M.mpjpe_split_mm(pred, truth)["probe"] + 1e-12
 
 
 def test_symmetric_probe_error_torch_matches_numpy():
@@ -345,8 +337,6 @@ def test_symmetric_probe_error_torch_matches_numpy():
     errors_t, choice_t = M.probe_symmetric_errors_mm(torch.from_numpy(pred), torch.from_numpy(gt))
     np.testing.assert_allclose(errors_t.numpy(), errors, rtol=1e-12)
     np.testing.assert_array_equal(choice_t.numpy(), choice)
-    value = M.probe_symmetric_mpjpe_mm(torch.from_numpy(pred), torch.from_numpy(gt))
-    assert isinstance(value, torch.Tensor) and float(value) == pytest.approx(M.probe_symmetric_mpjpe_mm(pred, gt))
 
 
 def test_symmetry_costs_and_permute_keypoints():
@@ -369,21 +359,6 @@ def test_symmetry_costs_and_permute_keypoints():
     np.testing.assert_array_equal(once_t.numpy(), once)
     # works on 2D points too
     assert M.permute_keypoints(gt[..., :2], perms, np.array([1, 1])).shape == (2, 29, 2)
-
-
-@pytest.mark.parametrize(
-    "permutations, choice, match",
-    [
-        ([[0, 1, 2, 3, 4, 5, 6, 6]], [0, 0], "must be a permutation of range\\(8\\)"),
-        ([[0, 1, 2]], [0, 0], "must be \\(G, 8\\) integer permutations"),
-        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0, 1], "choice must index the 1 permutations"),
-        ([[0, 1, 2, 3, 4, 5, 6, 7]], [0], "choice must be \\(2,\\)"),
-    ],
-)
-def test_bad_permutations_are_named(permutations, choice, match):
-    gt, _ = _probe_frames(n=2)
-    with pytest.raises(ValueError, match=match):
-        M.permute_keypoints(gt, permutations, np.array(choice))
 
 
 # ----------------------------------------------------------------------------- spread ratios
@@ -414,7 +389,3 @@ def test_spread_ratio_hand_computed_and_undefined():
     assert M.spread_ratios(pred, gt) == {"x": 0.5, "y": None, "z": None}
     assert M.collapsed_axes({"x": 0.5, "y": None, "z": 0.49}) == ["z"]
     assert M.spread_ratios(pred[:1], gt[:1]) == {"x": None, "y": None, "z": None}   # one frame
-    with pytest.raises(ValueError, match="unknown axes"):
-        M.collapsed_axes({"w": 0.1})
-    with pytest.raises(ValueError, match="must have the same shape"):
-        M.spread_ratios(pred, gt[:1])

@@ -1,5 +1,5 @@
 """The model-file contract (hupbench/inference/model_file.py): one metadata writer and reader, one graph
-check, and the input geometry as one 3 x 3 map."""
+check."""
 
 import json
 
@@ -7,51 +7,10 @@ import numpy as np
 import pytest
 
 from datagen import keypoints as kp
-from datagen.camera import project_points, resize_intrinsics, resize_points
-from hupbench.inference.model_file import (
-    INPUT_SIZE_RANGE,
-    InputGeometry,
-    check_io_shapes,
-    read_metadata,
-    write_metadata,
-)
+from hupbench.inference.model_file import check_io_shapes, read_metadata, write_metadata
+from hupbench.input_geometry import INPUT_SIZE_RANGE
 
 K = np.array([[480.0, 0.0, 317.5], [0.0, 470.0, 242.25], [0.0, 0.0, 1.0]])
-SIZES = [(640, 480, 128), (480, 640, 64), (100, 100, 100), (37, 301, 16), (2000, 3, 256)]
-
-
-@pytest.mark.parametrize("width,height,S", SIZES)
-def test_geometry_matrix_equals_pad_then_resize(width, height, S):
-    """The 3 x 3 map (built with datagen.camera.resize_intrinsics) against resize_points, a separate formula
-    of the same pad-then-resize; its inverse; and projection: projecting through the mapped K lands where
-    the mapped pixel is."""
-    g = InputGeometry(width, height, S)
-    offset = (g.pad_left, g.pad_top)
-    uv = np.random.default_rng(0).uniform(-50, 700, (4, 7, 2))
-    np.testing.assert_allclose(g.image_to_input_px(uv), resize_points(uv, g.scale, offset), atol=1e-9)
-    np.testing.assert_allclose(g.intrinsics_to_input(K), resize_intrinsics(K, g.scale, offset), atol=1e-9)
-    np.testing.assert_allclose(g.input_to_image @ g.image_to_input, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(g.input_to_image_px(g.image_to_input_px(uv)), uv, atol=1e-9)
-    np.testing.assert_allclose(g.intrinsics_to_image(g.intrinsics_to_input(K)), K, atol=1e-9)
-    points = np.random.default_rng(1).uniform([-0.2, -0.2, 0.3], [0.2, 0.2, 1.0], (9, 3))
-    np.testing.assert_allclose(project_points(points, g.intrinsics_to_input(K)),
-                               g.image_to_input_px(project_points(points, K)), atol=1e-8)
-
-
-def test_geometry_matrix_known_values():
-    """200 x 100 to 50 px: L = 200, s = 0.25, pad_top = 50; u_in = 0.25 (u + 0.5) - 0.5,
-    v_in = 0.25 (v + 50.5) - 0.5."""
-    np.testing.assert_allclose(InputGeometry(200, 100, 50).image_to_input,
-                               [[0.25, 0.0, -0.375], [0.0, 0.25, 12.125], [0.0, 0.0, 1.0]])
-
-
-def test_normalised_coordinates_map_to_pixel_centres():
-    """x_n = -1 and 1 are the outer edges of the input (half a pixel beyond the first and last centres); the
-    image's corners come back through the inverse."""
-    g = InputGeometry(200, 100, 50)  # L = 200, pad_top = 50, s = 0.25
-    np.testing.assert_allclose(g.normalized_to_input_px([[-1, -1], [1, 1], [0, 0]]),
-                               [[-0.5, -0.5], [49.5, 49.5], [24.5, 24.5]])
-    np.testing.assert_allclose(g.normalized_to_image_px([[-1, -1], [1, 1]]), [[-0.5, -50.5], [199.5, 149.5]])
 
 
 def _props(**changes):

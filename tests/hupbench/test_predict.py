@@ -26,19 +26,21 @@ from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.inference.images import decode_image, expand_inputs
-from hupbench.inference.model_file import InputGeometry, read_metadata
+from hupbench.inference.model_file import read_metadata
 from hupbench.inference.predict import (
     CAMERA_ASSUMED,
     CAMERA_USER,
     PAD_VALUE,
+    PredictOptions,
     _compact_json,
     keypoints_for_image,
-    load_onnx_model,
     parse_intrinsics,
     preprocess,
     run_predict,
     user_camera_points,
 )
+from hupbench.inference.runtime import load_onnx_model
+from hupbench.input_geometry import InputGeometry
 
 S = 32
 K_TRAIN = np.array([[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]])
@@ -145,37 +147,6 @@ def project(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ geometry
-
-
-@pytest.mark.parametrize(("width", "height"), [(100, 60), (60, 100), (300, 300), (24, 16), (33, 32)])
-def test_geometry_round_trip_and_corners(width, height):
-    g = InputGeometry(width, height, S)
-    uv = np.random.default_rng(0).uniform(-5, 400, size=(50, 2))
-    np.testing.assert_allclose(g.input_to_image_px(g.image_to_input_px(uv)), uv, atol=1e-9)
-    # the outer edges of the padded square are the edges of the input: -0.5 and S - 0.5
-    edges = np.array([[-0.5 - g.pad_left, -0.5 - g.pad_top], [g.side - 0.5 - g.pad_left, g.side - 0.5 - g.pad_top]])
-    np.testing.assert_allclose(g.image_to_input_px(edges), [[-0.5, -0.5], [S - 0.5, S - 0.5]], atol=1e-9)
-    # normalised -> pixels agrees with going through input pixels
-    xy_norm = np.random.default_rng(1).uniform(-1.2, 1.2, size=(20, 2))
-    via_input = g.input_to_image_px(g.normalized_to_input_px(xy_norm))
-    np.testing.assert_allclose(g.normalized_to_image_px(xy_norm), via_input, atol=1e-9)
-
-
-def test_geometry_known_values_wide_image():
-    g = InputGeometry(100, 60, S)  # L = 100, pad_top = 20, s = 0.32
-    assert (g.side, g.pad_left, g.pad_top, g.scale) == (100, 0, 20, 0.32)
-    # image pixel (0, 0) -> ((0 + 0.5) * 0.32 - 0.5, (20 + 0.5) * 0.32 - 0.5)
-    np.testing.assert_allclose(g.image_to_input_px([0.0, 0.0]), [-0.34, 6.06], atol=1e-12)
-    np.testing.assert_allclose(g.normalized_to_image_px([0.0, 0.0]), [49.5, 29.5], atol=1e-12)  # centre
-
-
-def test_intrinsics_follow_points():
-    g = InputGeometry(100, 60, S)
-    K = np.array([[90.0, 0.0, 47.0], [0.0, 85.0, 31.0], [0.0, 0.0, 1.0]])
-    points = np.random.default_rng(2).uniform([-0.1, -0.1, 0.3], [0.1, 0.1, 0.9], size=(10, 3))
-    K_in = g.intrinsics_to_input(K)
-    np.testing.assert_allclose(project(points, K_in), g.image_to_input_px(project(points, K)), atol=1e-9)
-    np.testing.assert_allclose(g.intrinsics_to_image(K_in), K, atol=1e-12)
 
 
 def test_preprocess_pads_with_grey_and_keeps_content():
@@ -285,7 +256,7 @@ def test_expand_inputs(tmp_path):
     assert [f.name for f in files] == ["a.jpg", "b.PNG", "c.JpEg", "missing.png"]
     assert sorted(Path(s["path"]).name for s in skipped) == ["d.bmp", "notes.txt", "sub"]
     with pytest.raises(TypeError, match="list of paths"):
-        expand_inputs(str(d))
+        PredictOptions("m.onnx", str(d))
 
 
 # ------------------------------------------------------------------ model metadata
@@ -354,11 +325,14 @@ def test_overlay_colours_box_edges_and_line_width():
             np.testing.assert_array_equal(out[v, u], [255, 255, 255], err_msg=str((a, b)))
     assert line_width(60, 100) == 1 and line_width(1080, 1920) == 6
     assert keypoint_color("probe_corner_-x-y-z") == PROBE_RGB and keypoint_color("little_tip") == FINGER_RGB["little"]
-    with pytest.raises(ValueError, match=r"uv must be \(29, 2\)"):
-        draw_prediction(image, uv[:3], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES)
 
 
 # ------------------------------------------------------------------ run_predict end to end
+
+
+def predict(model, inputs, out_dir, log=lambda line: None, **options):
+    """``run_predict`` of the options given as keywords, quiet unless ``log`` is given."""
+    return run_predict(PredictOptions(model, inputs, out_dir, **options), log=log)
 
 
 @pytest.fixture(scope="module")
@@ -394,7 +368,7 @@ def predicted(dot_model, image_set, tmp_path_factory):
     out = tmp_path_factory.mktemp("pred")
     order = ["wide", "broken", "tall", "square", "empty", "small", "grey", "photo", "text"]
     messages: list[str] = []
-    result = run_predict(dot_model, [image_set[k] for k in order], out, batch_size=3, log=messages.append)
+    result = predict(dot_model, [image_set[k] for k in order], out, batch_size=3, log=messages.append)
     document = json.loads((out / "predictions.json").read_text())
     records = {Path(r["path"]).stem: r for r in document["images"]}
     return {"result": result, "doc": document, "records": records, "out": out, "messages": messages,
@@ -476,7 +450,7 @@ def test_predict_overlays_have_the_original_size(predicted):
 def test_predict_user_K_known_answer(dot_model, image_set, tmp_path):
     """--K: depth scales by f_user_in / f_train; the 3D points project through the user's K onto the 2D."""
     K_user = np.array([[150.0, 0.0, 48.0], [0.0, 150.0, 33.0], [0.0, 0.0, 1.0]])
-    result = run_predict(dot_model, [image_set["wide"]], tmp_path, K="150,150,48,33", overlay=False)
+    result = predict(dot_model, [image_set["wide"]], tmp_path, K="150,150,48,33", overlay=False)
     record = result["records"][0]
     assert record["camera"] == CAMERA_USER and record["overlay"] is None
     np.testing.assert_allclose(record["K"], K_user)
@@ -494,7 +468,7 @@ def test_predict_directory_and_stem_collisions(dot_model, image_set, tmp_path):
     cv2.imwrite(str(d / "x.JPG"), photo_like(64, 48))
     (d / "notes.txt").write_text("skip me")
     messages: list[str] = []
-    result = run_predict(dot_model, [d], tmp_path / "out", log=messages.append)
+    result = predict(dot_model, [d], tmp_path / "out", log=messages.append)
     assert [Path(r["path"]).name for r in result["records"]] == ["x.JPG", "x.png"]
     assert result["failed"] == 0 and [p.name for p in result["overlays"]] == ["x_overlay.png", "x_2_overlay.png"]
     assert result["skipped"] == [{"path": str(d / "notes.txt"), "reason": "not an image file name (.png, .jpg, .jpeg)"}]
@@ -502,7 +476,7 @@ def test_predict_directory_and_stem_collisions(dot_model, image_set, tmp_path):
     (d / "x.png").unlink()
     (d / "x.JPG").unlink()
     with pytest.raises(ValueError, match="no image files"):
-        run_predict(dot_model, [d], tmp_path / "out2", log=messages.append)
+        predict(dot_model, [d], tmp_path / "out2", log=messages.append)
 
 
 def test_json_layout_round_trips():
@@ -516,8 +490,8 @@ def test_json_layout_round_trips():
 
 def test_batching_does_not_change_answers(dot_model, image_set, tmp_path):
     names = ["wide", "tall", "square", "small", "grey", "photo"]
-    one = run_predict(dot_model, [image_set[k] for k in names], tmp_path / "a", overlay=False, batch_size=1)
-    all_ = run_predict(dot_model, [image_set[k] for k in names], tmp_path / "b", overlay=False, batch_size=16)
+    one = predict(dot_model, [image_set[k] for k in names], tmp_path / "a", overlay=False, batch_size=1)
+    all_ = predict(dot_model, [image_set[k] for k in names], tmp_path / "b", overlay=False, batch_size=16)
     for r1, r2 in zip(one["records"], all_["records"]):
         assert r1["keypoints_3d_m"] == r2["keypoints_3d_m"] and r1["keypoints_2d_px"] == r2["keypoints_2d_px"]
 
@@ -566,7 +540,7 @@ def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path
     export = pytest.importorskip("hupbench.inference.export")
     import torch
 
-    from hupbench.checkpoint import load_model, save_checkpoint
+    from hupbench.checkpoint import Checkpoint, load_model
     from hupbench.data import HUPDataset, ReaderConfig
     from models.build import build_model
 
@@ -575,18 +549,17 @@ def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path
     K = np.array(manifest["K"], dtype=np.float64).reshape(3, 3)
     torch.manual_seed(0)
     model = build_model({"name": "hopenet", "backbone": "resnet10"})
-    ckpt = save_checkpoint(tmp_path / "tiny.pt", {
-        "model_config": model.config, "model": model.state_dict(), "optimizer": None, "scheduler": None,
-        "step": 0, "epoch": 0, "samples_seen": 0, "train_seconds": 0.0, "input_size": size, "K_input": K.tolist(),
-        "config": {"run_name": "tiny-untrained"}, "dataset": {"path": str(tiny_dataset), "manifest_sha256": "x"}})
-    onnx_path = Path(export.run_export(ckpt, tmp_path / "tiny.onnx", dataset=tiny_dataset, parity_frames=2,
-                                       log=lambda *_: None)["onnx"])
+    ckpt = Checkpoint(model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=size,
+                      K_input=K.tolist(), config={"run_name": "tiny-untrained"},
+                      dataset={"path": str(tiny_dataset), "manifest_sha256": "x"}).save(tmp_path / "tiny.pt")
+    onnx_path = Path(export.run_export(export.ExportOptions(ckpt, tmp_path / "tiny.onnx", dataset=tiny_dataset,
+                                                            parity_frames=2), log=lambda *_: None)["onnx"])
     reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=size))
     frames = [reader[i] for i in range(4)]
     paths = sorted((tiny_dataset / "test" / "rgb").iterdir())[:4]
-    result = run_predict(onnx_path, paths, tmp_path / "out")
+    result = predict(onnx_path, paths, tmp_path / "out")
     assert result["failed"] == 0
-    module = export.contract_model(*load_model(ckpt))
+    module = export.contract_model(*load_model(ckpt), str(ckpt))
     with torch.no_grad():
         points2d, points3d = module(torch.stack([f["image"] for f in frames]))
     for record, path, p2, p3 in zip(result["records"], paths, points2d.numpy(), points3d.numpy()):

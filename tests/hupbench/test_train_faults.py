@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_matrix_train import REPO, TRAIN_PREFIX, private_mount, train_py
+from test_matrix_train import private_mount
 
 from conftest import CliAnswer, assert_clean_error
+from helpers.training import REPO, TRAIN_PREFIX, train_py
 
 STEPS = 6
 
@@ -43,7 +44,7 @@ def temporary_files(*folders: Path) -> list[Path]:
 def assert_whole_run(run_dir: Path, reference: dict[int, float], cache: Path) -> None:
     """The run finished; its log holds every step once, with the losses of an uninterrupted run; no
     temporary file and no lock is left."""
-    from hupbench.checkpoint import read_checkpoint
+    from hupbench.checkpoint import Checkpoint
 
     assert (run_dir / "summary.json").is_file()
     log = read_log(run_dir)
@@ -54,7 +55,7 @@ def assert_whole_run(run_dir: Path, reference: dict[int, float], cache: Path) ->
     for step, loss in reference.items():
         assert losses[step] == pytest.approx(loss, rel=1e-6, abs=1e-9), step
     assert [r["step"] for r in log if r["event"] == "val"] == [0, 2, 4, 6]
-    assert read_checkpoint(run_dir / "checkpoints" / "last.pt")["step"] == STEPS
+    assert Checkpoint.read(run_dir / "checkpoints" / "last.pt").step == STEPS
     assert not temporary_files(run_dir, cache)
     assert not (run_dir / ".hupbench.lock").exists()
 

@@ -6,8 +6,9 @@ import torch
 
 from models.build import build_model
 from models.coords import normalized_to_pixels
-from models.heatmap import HUPNet, soft_argmax
-from models.hopenet import GraphLifter, HOPENet, normalized_intrinsics, unproject_normalized
+from models.heatmap import HUPNet, HUPNetConfig, soft_argmax
+from models.config import check_camera
+from models.hopenet import GraphLifter, HOPENet, HOPENetConfig, normalized_intrinsics, unproject_normalized
 
 K_64 = [[120.0, 0.0, 31.5], [0.0, 110.0, 30.0], [0.0, 0.0, 1.0]]  # input camera of a 64 px model
 MEAN = [[0.01 * (k % 5), -0.01 * (k % 3), 0.5 + 0.005 * k] for k in range(29)]
@@ -29,9 +30,9 @@ def test_normalized_intrinsics_match_pixel_projection():
     # unprojection inverts it
     torch.testing.assert_close(unproject_normalized(norm, points[..., 2], f_c), points)
     with pytest.raises(ValueError, match="K_input must be a finite"):
-        normalized_intrinsics([[0.0, 0, 1], [0, 1, 1], [0, 0, 1]], 64)
-    with pytest.raises(ValueError, match="input_size must be a positive int, got 0"):
-        normalized_intrinsics(K_64, 0)
+        check_camera([[0.0, 0, 1], [0, 1, 1], [0, 0, 1]], 64)
+    with pytest.raises(ValueError, match="input_size must be an int >= 1, got 0"):
+        check_camera(K_64, 0)
 
 
 def test_soft_argmax_known_values():
@@ -46,15 +47,13 @@ def test_soft_argmax_known_values():
     # uniform logits: the centre of the grid, the mean value
     xy, expected = soft_argmax(torch.zeros(1, 1, 3, 3), grid, grid, torch.ones(1, 1, 3, 3) * 2)
     torch.testing.assert_close(xy, torch.zeros(1, 1, 2)), torch.testing.assert_close(expected, torch.tensor([[2.0]]))
-    with pytest.raises(ValueError, match=r"grid_x must be \(3,\)"):
-        soft_argmax(torch.zeros(1, 1, 3, 3), torch.zeros(4), grid)
 
 
 def test_camera_lift_points_project_onto_their_2d():
     """HOPE-Net with lift="camera": points3d projects exactly onto the corrected 2D points."""
     torch.manual_seed(0)
-    model = HOPENet("resnet10", lift="camera", K_input=K_64, input_size=64, points3d_mean=MEAN,
-                    points3d_scale=0.01).eval()
+    model = HOPENet(HOPENetConfig(backbone="resnet10", lift="camera", K_input=K_64, input_size=64,
+                                  points3d_mean=MEAN, points3d_scale=0.01)).eval()
     with torch.no_grad():
         out = model(torch.rand(3, 3, 64, 64))
         raw = model.unet(out.points2d)
@@ -72,20 +71,20 @@ def test_camera_lift_points_project_onto_their_2d():
     torch.testing.assert_close(project_px(lifted, K_64).float(), normalized_to_pixels(points2d, 64, 64), atol=1e-3, rtol=0)
 
 
-def test_direct_lift_is_the_published_hopenet_and_keeps_its_config():
-    model = HOPENet("resnet10")
-    assert "lift" not in model.config and model.intrinsics is None  # published configs stay as they were
-    assert set(model.state_dict()) == set(HOPENet("resnet10", lift="camera", K_input=K_64, input_size=64)
-                                          .state_dict()) - {"intrinsics"}
+def test_direct_lift_is_the_published_hopenet():
+    model = HOPENet(HOPENetConfig(backbone="resnet10"))
+    assert model.config.lift == "direct" and model.intrinsics is None
+    camera = HOPENetConfig(backbone="resnet10", lift="camera", K_input=K_64, input_size=64)
+    assert set(model.state_dict()) == set(HOPENet(camera).state_dict()) - {"intrinsics"}
     with pytest.raises(ValueError, match="lift='camera' needs K_input"):
-        HOPENet(lift="camera")
+        HOPENet(HOPENetConfig(lift="camera"))
     with pytest.raises(ValueError, match="lift must be one of \\('direct', 'camera'\\), got 'mirror'"):
-        HOPENet(lift="mirror")
+        HOPENetConfig(lift="mirror")
 
 
 def hupnet(**kw):
-    return HUPNet(**({"backbone": "resnet10", "K_input": K_64, "input_size": 64, "points3d_mean": MEAN,
-                      "points3d_scale": 0.01} | kw))
+    return HUPNet(HUPNetConfig(**({"backbone": "resnet10", "K_input": K_64, "input_size": 64, "points3d_mean": MEAN,
+                                   "points3d_scale": 0.01} | kw)))
 
 
 @pytest.mark.parametrize("batch", [1, 3])
@@ -138,12 +137,12 @@ def test_hupnet_learns_a_point_and_its_depth():
 
 def test_hupnet_builds_from_its_config_and_checks_input():
     model = hupnet()
-    rebuilt = build_model({"name": "hupnet", **{k: v for k, v in model.config.items() if k != "name"}})
+    rebuilt = build_model(model.config.saved())
     assert rebuilt.config == model.config
     with pytest.raises(ValueError, match=r"images must be \(B, 3, 64, 64\) \(the model's input size\), got \(1, 3, 32, 32\)"):
         model(torch.rand(1, 3, 32, 32))
     with pytest.raises(ValueError, match="HUPNet unprojects through the input camera"):
-        HUPNet()
+        HUPNet(HUPNetConfig())
     with pytest.raises(ValueError, match="input_size must be a positive multiple of 8, got 60"):
         hupnet(input_size=60)
     with pytest.raises(ValueError, match="canvas_margin must be in \\[0, 2\\]"):

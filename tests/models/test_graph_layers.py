@@ -126,16 +126,15 @@ def test_low_precision_keeps_dtype(dtype):
 
 
 @pytest.mark.parametrize(
-    "bad, error, message",
+    "bad, message",
     [
-        (torch.ones(3, 4), ValueError, r"\(N, N\) or \(B, N, N\), got \(3, 4\)"),
-        (torch.ones(2, 2, 2, 2), ValueError, r"got \(2, 2, 2, 2\)"),
-        (torch.ones(3, 3, dtype=torch.int64), TypeError, "floating-point"),
-        ([[1.0]], TypeError, "torch.Tensor"),
+        (torch.ones(3, 4), r"\(N, N\) or \(B, N, N\) float, got \(3, 4\)"),
+        (torch.ones(2, 2, 2, 2), r"got \(2, 2, 2, 2\)"),
+        (torch.ones(3, 3, dtype=torch.int64), "torch.int64"),
     ],
 )
-def test_adjacency_bad_input(bad, error, message):
-    with pytest.raises(error, match=message):
+def test_adjacency_bad_input(bad, message):
+    with pytest.raises(ValueError, match=message):
         normalized_adjacency(bad)
 
 

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from models.hopenet import HOPENet, HOPENetOutput
+from models.hopenet import HOPENet, HOPENetConfig, HOPENetOutput
 from models.model_tolerances import (
     BF16_AUTOCAST_REL_2D,
     BF16_AUTOCAST_REL_2D_INIT,
@@ -23,7 +23,7 @@ def relative_error(approx: torch.Tensor, exact: torch.Tensor) -> float:
 @pytest.mark.parametrize("backbone", ["resnet10", "resnet18"])
 @pytest.mark.parametrize("batch", [1, 4])
 def test_output_shapes(backbone, batch):
-    model = HOPENet(backbone).eval()
+    model = HOPENet(HOPENetConfig(backbone=backbone)).eval()
     with torch.no_grad():
         out = model(torch.randn(batch, 3, 64, 64))
     assert isinstance(out, HOPENetOutput)
@@ -34,7 +34,7 @@ def test_output_shapes(backbone, batch):
 
 
 def test_other_keypoint_count_and_input_size():
-    model = HOPENet("resnet10", n_keypoints=21).eval()
+    model = HOPENet(HOPENetConfig(backbone="resnet10", n_keypoints=21)).eval()
     with torch.no_grad():
         out = model(torch.randn(2, 3, 96, 80))
     assert out.points3d.shape == (2, 21, 3) and out.points2d.shape == (2, 21, 2)
@@ -44,7 +44,7 @@ def test_other_keypoint_count_and_input_size():
 @pytest.mark.parametrize("backbone", ["resnet10", "resnet18"])
 def test_gradients_reach_every_parameter(backbone):
     torch.manual_seed(0)
-    model = HOPENet(backbone).train()
+    model = HOPENet(HOPENetConfig(backbone=backbone)).train()
     out = model(torch.randn(2, 3, 64, 64))
     sum(t.sum() for t in out).backward()
     for name, p in model.named_parameters():
@@ -57,7 +57,7 @@ def test_gradients_reach_every_parameter(backbone):
 
 def test_each_stage_feeds_the_next():
     torch.manual_seed(0)
-    model = HOPENet("resnet10").eval()
+    model = HOPENet(HOPENetConfig(backbone="resnet10")).eval()
     images = torch.randn(2, 3, 64, 64)
     with torch.no_grad():
         out = model(images)
@@ -71,7 +71,7 @@ def test_each_stage_feeds_the_next():
 def test_bf16_autocast_agrees_with_fp32(backbone):
     # tolerances measured over 120 random-init models, see models/model_tolerances.py
     torch.manual_seed(0)
-    model = HOPENet(backbone).eval()
+    model = HOPENet(HOPENetConfig(backbone=backbone)).eval()
     images = torch.randn(4, 3, 96, 96)
     with torch.no_grad():
         ref = model(images)
@@ -85,7 +85,7 @@ def test_bf16_autocast_agrees_with_fp32(backbone):
 
 def test_channels_last_matches_contiguous():
     torch.manual_seed(0)
-    model = HOPENet("resnet18").eval()
+    model = HOPENet(HOPENetConfig(backbone="resnet18")).eval()
     images = torch.randn(2, 3, 64, 64)
     with torch.no_grad():
         ref = model(images)
@@ -96,7 +96,7 @@ def test_channels_last_matches_contiguous():
 
 def test_channels_last_model_and_input():
     torch.manual_seed(0)
-    model = HOPENet("resnet10").eval()
+    model = HOPENet(HOPENetConfig(backbone="resnet10")).eval()
     images = torch.randn(2, 3, 64, 64)
     with torch.no_grad():
         ref = model(images)
@@ -107,7 +107,7 @@ def test_channels_last_model_and_input():
 
 
 def test_no_device_moves_and_only_parameters_or_bn_buffers():
-    model = HOPENet("resnet10")
+    model = HOPENet(HOPENetConfig(backbone="resnet10"))
     assert {t.device.type for t in model.state_dict().values()} == {"cpu"}
     buffers = {name.rsplit(".", 1)[-1] for name, _ in model.named_buffers()}
     # batch-norm statistics and the fixed 3D prior (models/prior.py)
@@ -116,8 +116,8 @@ def test_no_device_moves_and_only_parameters_or_bn_buffers():
 
 def test_bad_arguments():
     with pytest.raises(ValueError, match="unknown ResNet 'resnet9'"):
-        HOPENet("resnet9")
-    with pytest.raises(ValueError, match="n_keypoints must be an int >= 2"):
-        HOPENet(n_keypoints=1)
-    with pytest.raises(ValueError, match=r"images must be \(B, 3, H, W\), got \(2, 64, 64\)"):
+        HOPENetConfig(backbone="resnet9")
+    with pytest.raises(ValueError, match="n_keypoints must be an int >= 2, got 1"):
+        HOPENetConfig(n_keypoints=1)
+    with pytest.raises(ValueError, match=r"images must be \(B, 3, H, W\) float, got \(2, 64, 64\)"):
         HOPENet()(torch.randn(2, 64, 64))

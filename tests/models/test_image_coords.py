@@ -20,10 +20,23 @@ def test_round_trip_and_resize_invariance():
     torch.testing.assert_close(pixels_to_normalized(resized, 224, 224), norm)
 
 
-def test_bad_input():
-    with pytest.raises(ValueError, match=r"\(\.\.\., 2\), got \(4, 3\)"):
-        pixels_to_normalized(torch.zeros(4, 3), 256, 256)
-    with pytest.raises(ValueError, match="width must be a positive int"):
-        pixels_to_normalized(torch.zeros(4, 2), 0, 256)
-    with pytest.raises(TypeError, match="floating-point"):
-        normalized_to_pixels(torch.zeros(4, 2, dtype=torch.int64), 256, 256)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("width,height", [(256, 256), (64, 48), (1, 2048)])
+def test_the_torch_twin_equals_input_geometry(width, height, dtype):
+    """models.coords is hupbench.input_geometry's formula in torch, value for value."""
+    import numpy as np
+
+    from hupbench import input_geometry
+
+    px = (torch.rand(4, 29, 2, dtype=torch.float64) * 1.4 - 0.2) * torch.tensor([width, height])
+    norm = torch.rand(4, 29, 2, dtype=torch.float64) * 2.4 - 1.2
+    size = np.array([width, height])
+    for ours, theirs, points in ((pixels_to_normalized, input_geometry.pixels_to_normalized, px),
+                                 (normalized_to_pixels, input_geometry.normalized_to_pixels, norm)):
+        got = ours(points.to(dtype), width, height)
+        assert got.dtype == dtype
+        expected = theirs(points.to(dtype).double().numpy(), size)
+        if dtype == torch.float64:
+            np.testing.assert_array_equal(got.numpy(), expected)
+        else:
+            np.testing.assert_allclose(got.numpy(), expected, rtol=1e-6, atol=1e-6)

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from models.resnet import RESNET_SPECS, ResNet, ResNetOutput, resnet, strip_classifier
+from models.resnet import RESNET_SPECS, ResNetOutput, resnet, strip_classifier
 from models.model_tolerances import CHANNELS_LAST_REL
 
 
@@ -138,23 +138,16 @@ def test_unknown_name_lists_known_ones():
 
 
 @pytest.mark.parametrize(
-    "bad, error, message",
+    "bad, message",
     [
-        (torch.randn(3, 64, 64), ValueError, r"\(B, 3, H, W\), got \(3, 64, 64\)"),
-        (torch.randn(1, 1, 64, 64), ValueError, r"got \(1, 1, 64, 64\)"),
-        (torch.zeros(1, 3, 64, 64, dtype=torch.uint8), TypeError, "floating-point"),
+        (torch.randn(3, 64, 64), r"\(B, 3, H, W\) float, got \(3, 64, 64\)"),
+        (torch.randn(1, 1, 64, 64), r"got \(1, 1, 64, 64\)"),
+        (torch.zeros(1, 3, 64, 64, dtype=torch.uint8), "torch.uint8"),
     ],
 )
-def test_bad_images(bad, error, message):
-    with pytest.raises(error, match=message):
+def test_bad_images(bad, message):
+    with pytest.raises(ValueError, match=message):
         resnet("resnet10")(bad)
-
-
-def test_bad_construction():
-    with pytest.raises(ValueError, match="num_classes"):
-        resnet("resnet18", num_classes=0)
-    with pytest.raises(ValueError, match="four positive ints"):
-        ResNet(RESNET_SPECS["resnet18"][0], (2, 2, 2))
 
 
 @pytest.mark.parametrize("name, last_bn", [("resnet18", "bn2"), ("resnet50", "bn3")])

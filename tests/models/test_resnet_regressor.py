@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from models.baseline import RegressorOutput, ResNetRegressor
+from models.baseline import RegressorOutput, ResNetRegressor, ResNetRegressorConfig
 from models.hopenet import HOPENetOutput
 from models.model_tolerances import CHANNELS_LAST_REL
 
@@ -15,7 +15,7 @@ def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:
 @pytest.mark.parametrize("backbone", ["resnet18", "resnet50"])
 @pytest.mark.parametrize("batch", [1, 4])
 def test_output_shapes(backbone, batch):
-    model = ResNetRegressor(backbone).eval()
+    model = ResNetRegressor(ResNetRegressorConfig(backbone=backbone)).eval()
     with torch.no_grad():
         out = model(torch.randn(batch, 3, 64, 64))
     assert isinstance(out, RegressorOutput)
@@ -25,7 +25,7 @@ def test_output_shapes(backbone, batch):
 
 @pytest.mark.parametrize("batch", [1, 4])
 def test_side_output_2d(batch):
-    model = ResNetRegressor("resnet18", predict_2d=True).eval()
+    model = ResNetRegressor(ResNetRegressorConfig(backbone="resnet18", predict_2d=True)).eval()
     with torch.no_grad():
         out = model(torch.randn(batch, 3, 64, 64))
     assert out.points2d.shape == (batch, 29, 2) and out.points3d.shape == (batch, 29, 3)
@@ -38,7 +38,7 @@ def test_field_names_shared_with_hopenet():
 @pytest.mark.parametrize("backbone, predict_2d", [("resnet50", False), ("resnet18", True)])
 def test_gradients_reach_every_parameter(backbone, predict_2d):
     torch.manual_seed(0)
-    model = ResNetRegressor(backbone, predict_2d=predict_2d).train()
+    model = ResNetRegressor(ResNetRegressorConfig(backbone=backbone, predict_2d=predict_2d)).train()
     out = model(torch.randn(2, 3, 64, 64))
     sum(t.sum() for t in out if t is not None).backward()
     for name, p in model.named_parameters():
@@ -49,7 +49,7 @@ def test_gradients_reach_every_parameter(backbone, predict_2d):
 
 def test_channels_last_matches_contiguous():
     torch.manual_seed(0)
-    model = ResNetRegressor("resnet50", predict_2d=True).eval()
+    model = ResNetRegressor(ResNetRegressorConfig(backbone="resnet50", predict_2d=True)).eval()
     images = torch.randn(2, 3, 64, 64)
     with torch.no_grad():
         ref = model(images)
@@ -59,9 +59,9 @@ def test_channels_last_matches_contiguous():
 
 
 def test_bad_arguments():
-    with pytest.raises(ValueError, match="n_keypoints"):
-        ResNetRegressor(n_keypoints=0)
-    with pytest.raises(TypeError, match="predict_2d"):
-        ResNetRegressor(predict_2d="yes")
-    with pytest.raises(ValueError, match="unknown ResNet"):
-        ResNetRegressor("resnet152")
+    with pytest.raises(ValueError, match="n_keypoints must be an int >= 1, got 0"):
+        ResNetRegressorConfig(n_keypoints=0)
+    with pytest.raises(ValueError, match="predict_2d must be true or false, got 'yes'"):
+        ResNetRegressorConfig(predict_2d="yes")
+    with pytest.raises(ValueError, match="unknown ResNet 'resnet152'"):
+        ResNetRegressorConfig(backbone="resnet152")

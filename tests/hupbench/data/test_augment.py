@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from hupbench.data import BatchAugment, FrameBatches, HUPDataset, ReaderConfig
-from hupbench.data.loaders import DecodedFrames
 from hupbench.input_geometry import pixels_to_normalized
 
 SIZE = 48
@@ -22,7 +21,7 @@ def project(points, K):
 @pytest.fixture(scope="module")
 def frames(tiny_dataset):
     ds = HUPDataset(tiny_dataset, "train", ReaderConfig(input_size=SIZE))
-    return FrameBatches(ds, DecodedFrames(ds))
+    return FrameBatches(ds)
 
 
 def _spot_batch(angle_index):

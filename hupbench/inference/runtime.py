@@ -1,0 +1,123 @@
+"""The ONNX runtime of every verb: open an exported model with onnxruntime, check it against the model-file
+contract, and run it (``hupbench eval``, export's parity check and ``hupbench predict``).
+
+Numpy and onnxruntime only (no torch): the predict path imports it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
+
+from datagen.errors import BadValueError, MissingFileError, RunFailedError
+from datagen.io import file_sha256
+from hupbench.inference.model_file import check_io_shapes, read_metadata
+
+__all__ = ["OnnxModel", "load_onnx_model", "run_onnx"]
+
+# onnxruntime raises its own exception types (not RuntimeError) for unreadable, invalid or failing models
+_LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.InvalidArgument,
+                ort_errors.NoSuchFile, ort_errors.NotImplemented)
+_RUN_ERRORS = (ort_errors.Fail, ort_errors.InvalidArgument, ort_errors.RuntimeException, ort_errors.NotImplemented,
+               ort_errors.EPFail)
+_TORCH_MAGIC = (b"PK\x03\x04", b"\x80\x02")  # torch.save's zip format (PyTorch >= 1.6) and its legacy pickle
+
+
+@dataclass(frozen=True)
+class OnnxModel:
+    """An exported model opened with onnxruntime (CPU), with its checked hupbench metadata.
+
+    Attributes:
+        path: the .onnx file. session: the onnxruntime session. input_size: S, pixels.
+        K_input: (3, 3) float64 intrinsics of the model input, the camera of the 3D output.
+        keypoint_names: N names. skeleton_edges: pairs (i, j) of keypoint indices.
+        model_config: the architecture's config ({} when the file has none). run_name, git_commit: provenance.
+        sha256: hash of the file.
+    """
+
+    path: Path
+    session: ort.InferenceSession
+    input_size: int
+    K_input: np.ndarray
+    keypoint_names: tuple[str, ...]
+    skeleton_edges: tuple[tuple[int, int], ...]
+    model_config: dict
+    run_name: str
+    git_commit: str
+    sha256: str
+
+
+def _reason(exc: BaseException, limit: int) -> str:
+    return " ".join(str(exc).split())[:limit]
+
+
+def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
+    """Open a file written by ``hupbench export``, check its metadata against its graph, and run it once.
+
+    Args:
+        path: the .onnx file.
+        threads: onnxruntime's intra-op threads (default: its own choice, one per core).
+
+    Returns:
+        The :class:`OnnxModel`.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise BadValueError(f"model {path} is a folder, not an .onnx file")
+    if not path.is_file():
+        raise MissingFileError(f"model {path} does not exist")
+    data = path.read_bytes()
+    if not data:
+        raise BadValueError(f"model {path} is an empty file (0 bytes), not an ONNX model")
+    if data.startswith(_TORCH_MAGIC):
+        raise BadValueError(f"model {path} is a PyTorch checkpoint, not an ONNX model: predict runs without torch; "
+                            f"export it first with `hupbench export {path}`")
+    options = ort.SessionOptions()
+    options.log_severity_level = 4  # fatal only: a failure reaches the user as one line naming the file
+    if threads is not None:
+        options.intra_op_num_threads = threads
+    try:
+        # from the bytes, not the path: onnxruntime's message for a damaged file then names no path twice
+        session = ort.InferenceSession(data, sess_options=options, providers=["CPUExecutionProvider"])
+    except _LOAD_ERRORS as exc:
+        raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {_reason(exc, 200)}") from None
+    meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
+    check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
+                    {o.name: list(o.shape or []) for o in session.get_outputs()},
+                    meta["input_size"], len(meta["keypoint_names"]), str(path))
+    model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
+    # one blank image: a graph made for another input size under edited metadata fails here, before any work
+    run_onnx(model, np.zeros((1, 3, model.input_size, model.input_size), np.float32))
+    return model
+
+
+def run_onnx(model: OnnxModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The model's outputs on a batch of inputs.
+
+    Args:
+        model: from :func:`load_onnx_model`.
+        images: (B, 3, S, S) float32 RGB in [0, 1].
+
+    Returns:
+        points2d (B, N, 2) float32, normalised [-1, 1] input coordinates; points3d (B, N, 3) float32, metres,
+        OpenCV camera frame of K_input.
+    """
+    S = model.input_size
+    assert images.dtype == np.float32 and images.shape[1:] == (3, S, S), (images.shape, images.dtype)
+    try:
+        points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
+    except _RUN_ERRORS as exc:
+        # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
+        # something else: a model made for another input size whose header was edited, or a broken graph
+        raise RunFailedError(f"{model.path}: onnxruntime could not run the model on a {tuple(images.shape)} batch at "
+                             f"the input size its metadata declare ({S} px): {type(exc).__name__}: "
+                             f"{_reason(exc, 240)}") from None
+    n, b = len(model.keypoint_names), images.shape[0]
+    if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
+        raise RunFailedError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
+                             f"names, got {points2d.shape} and {points3d.shape}")
+    return points2d, points3d

@@ -1,0 +1,86 @@
+"""What every model's config shares: a frozen dataclass that checks its fields once, saved as a plain dict.
+
+A model is built one way, ``Model(ModelConfig(**fields))`` (nanoGPT's ``GPT(GPTConfig(**args))``): training
+gets the config from its Hydra node (``_target_: models.hopenet.HOPENetConfig``), and a checkpoint, eval and
+export rebuild it from the saved dict (:meth:`ModelConfig.saved`, :func:`models.build.build_model`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import torch
+
+from models.resnet import check_backbone
+
+
+def nested(value: Any) -> Any:
+    """Lists (JSON, a Hydra list) as tuples all the way down, so that a frozen config is immutable."""
+    return tuple(nested(v) for v in value) if isinstance(value, (list, tuple)) else value
+
+
+def plain(value: Any) -> Any:
+    """Tuples as lists all the way down: the saved form (JSON and a checkpoint hold lists)."""
+    return [plain(v) for v in value] if isinstance(value, (list, tuple)) else value
+
+
+def check_whole(name: str, value: Any, low: int = 1) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+
+
+def check_camera(K_input: Any, input_size: Any, multiple: int = 1) -> None:
+    """K_input a finite (3, 3) intrinsics matrix with fx, fy > 0 (pixels of the model input); input_size
+    a positive multiple of ``multiple``."""
+    K = torch.as_tensor(K_input, dtype=torch.float64)
+    if K.shape != (3, 3) or not torch.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K_input must be a finite (3, 3) intrinsics matrix with fx, fy > 0, got {K.tolist()}")
+    check_whole("input_size", input_size)
+    if input_size % multiple:
+        raise ValueError(f"input_size must be a positive multiple of {multiple}, got {input_size!r}")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The fields every model has.
+
+    Attributes:
+        backbone: ResNet name: "resnet10", "resnet18", "resnet34" or "resnet50".
+        n_keypoints: N, keypoints predicted (29 = 21 hand joints + 8 probe corners).
+        zero_init_residual: zero the last BN of each residual branch of the backbone.
+        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (:mod:`models.prior`), e.g. the
+            training split's mean in metres; None for zeros.
+        points3d_scale: target units per raw 3D output unit.
+    """
+
+    #: the model's name in a saved config (:data:`models.build.MODELS`)
+    name: ClassVar[str]
+    #: the fewest keypoints the model's layers can take
+    min_keypoints: ClassVar[int] = 1
+
+    backbone: str = "resnet18"
+    n_keypoints: int = 29
+    zero_init_residual: bool = False
+    points3d_mean: tuple[tuple[float, float, float], ...] | None = None
+    points3d_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            object.__setattr__(self, f.name, nested(getattr(self, f.name)))
+        check_backbone(self.backbone)
+        check_whole("n_keypoints", self.n_keypoints, self.min_keypoints)
+        scale = self.points3d_scale
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+            raise ValueError(f"points3d_scale must be a positive finite number, got {scale!r}")
+        if self.points3d_mean is not None:
+            mean = torch.as_tensor(self.points3d_mean, dtype=torch.float64)
+            if mean.shape != (self.n_keypoints, 3) or not torch.isfinite(mean).all():
+                raise ValueError(f"points3d_mean must be a finite ({self.n_keypoints}, 3) layout, got shape "
+                                 f"{tuple(mean.shape)}")
+            object.__setattr__(self, "points3d_mean", nested(mean.tolist()))
+
+    def saved(self) -> dict[str, Any]:
+        """``{"name": ..., **fields}`` with lists: what a checkpoint stores and :func:`build_model` takes."""
+        return {"name": self.name, **{f.name: plain(getattr(self, f.name)) for f in fields(self)}}

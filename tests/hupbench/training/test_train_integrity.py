@@ -1,0 +1,135 @@
+"""A training run is complete only when what it wrote is whole (docs/robustness.md, train.py): weights that
+became NaN, a resume on another dataset, optimiser values that fail only later, more threads than cores and
+Ctrl-C each get one line and a non-zero exit; a bug in the training step keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import assert_clean_error, assert_nothing_complete
+from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer
+
+
+def strict_json(text: str):
+    """json.loads that refuses NaN and Infinity, which are not JSON."""
+    def refuse(name):
+        raise ValueError(f"{name} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("steps, needles", [(1, ("weights became nan", "step 1")), (3, ("loss became nan", "step 2"))],
+                         ids=["weights-nan", "loss-nan"])
+def test_matrix_train_diverged(steps, needles, tiny_dataset, tmp_path, capsys):
+    """With Adam's eps 0 the weights of unused parameters become 0/0 in the first step. Measured before: a 1-step
+    run exited 0 and its summary.json held a bare NaN (not JSON) as its validation MPJPE; a run that logged the
+    NaN loss ended in a FloatingPointError traceback. Now one line naming the step, exit 1, no summary.json, and
+    every line written is JSON."""
+    run_dir = tmp_path / "run"
+    answer = train_answer(capsys, tiny_cfg(tiny_dataset, run_dir, tmp_path / "cache", f"train.max_steps={steps}",
+                                           "train.val_every=100", "+optim.optimizer.eps=0"))
+    assert_clean_error(answer, *needles, prefix=TRAIN_PREFIX)
+    assert answer.rc == 1
+    assert_nothing_complete(tmp_path, "summary.json")
+    for line in (run_dir / "metrics.jsonl").read_text().splitlines():
+        strict_json(line)
+
+
+@pytest.mark.matrix
+def test_matrix_train_resume_on_another_dataset(tiny_dataset, tmp_path, capsys):
+    """train.resume=auto on a dataset regenerated in the same folder: measured before, the run continued on it.
+    Now refused naming both manifests' sha256."""
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset, root, ignore=shutil.ignore_patterns("cache"))
+    run_dir, cache = tmp_path / "run", tmp_path / "cache"
+    first = train_answer(capsys, tiny_cfg(root, run_dir, cache, "train.stop_after=1"))
+    assert first.rc == 0, first
+    manifest = root / "manifest.json"
+    trained_on = hashlib.sha256(manifest.read_bytes()).hexdigest()
+    manifest.write_text(json.dumps(json.loads(manifest.read_text()), indent=1))  # another file, as a new dataset's
+    answer = train_answer(capsys, tiny_cfg(root, run_dir, cache))
+    now = hashlib.sha256(manifest.read_bytes()).hexdigest()
+    assert_clean_error(answer, "last.pt", "another dataset", trained_on, now, prefix=TRAIN_PREFIX)
+    assert answer.rc == 1
+    assert_nothing_complete(tmp_path, "summary.json")
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("override, needles", [
+    ("optim.optimizer.weight_decay=-1", ("optim.optimizer.weight_decay", ">= 0")),
+    ("threads=4096", ("threads=4096", "CPU core")),
+], ids=["weight-decay-negative-cli", "threads-4096"])
+def test_matrix_train_refused_before_work(override, needles, tiny_dataset, tmp_path, capsys):
+    """Measured before: weight_decay=-1 failed after the frame cache was built and the first validation ran, in
+    Adam's words without the field; threads=4096 was accepted and a 1-step run did not end in 300 s. Now refused
+    before anything is read or written."""
+    run_dir = tmp_path / "run"
+    answer = train_answer(capsys, tiny_cfg(tiny_dataset, run_dir, tmp_path / "cache", override), limit_s=60)
+    assert_clean_error(answer, *needles, prefix=TRAIN_PREFIX)
+    assert answer.rc == 1
+    assert not run_dir.exists() and not (tmp_path / "cache").exists()
+
+
+def _start_train_py(tiny_dataset, tmp_path, *extra: str) -> subprocess.Popen:
+    argv = [sys.executable, str(REPO / "train.py"),
+            *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache", *extra)]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, start_new_session=True)
+
+
+@pytest.mark.matrix
+def test_matrix_train_ctrl_c(tiny_dataset, tmp_path):
+    """Ctrl-C (SIGINT to the terminal's process group: train.py and its two loader workers) while training.
+    Measured before: a KeyboardInterrupt traceback. Now one line, exit code 130, the workers silent, the run
+    folder's lock released."""
+    proc = _start_train_py(tiny_dataset, tmp_path, "data.pipeline=jpeg", "data.num_workers=2", "train.max_steps=10000",
+                           "train.val_every=10000", "train.ckpt_every=10000")
+    log = tmp_path / "run" / "metrics.jsonl"
+    deadline = time.monotonic() + 300
+    while not (log.exists() and log.read_text().count("\n") >= 4) and proc.poll() is None:
+        assert time.monotonic() < deadline, "training did not start"
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == [err.strip()] and err.startswith("train.py: interrupted"), err
+    assert "Traceback" not in err + out and "KeyboardInterrupt" not in err + out
+    assert not (tmp_path / "run" / ".hupbench.lock").exists()
+
+
+BUGGY_STEP = """
+import runpy, sys
+import hupbench.training.loop as loop
+
+def loss_terms(*args, **kwargs):
+    raise {error}("a deliberate bug in the training step")
+
+loop.loss_terms = loss_terms
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+@pytest.mark.parametrize("error", ["TypeError", "ValueError"])
+def test_a_bug_in_the_training_step_keeps_its_traceback(error, tiny_dataset, tmp_path):
+    """A bug is not a refusal: train.py shows its traceback instead of one error line (measured before: a
+    ValueError from the step was printed as ``train.py: error: ...``)."""
+    argv = [sys.executable, "-c", BUGGY_STEP.format(error=error), str(REPO / "train.py"),
+            *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache")]
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 1
+    assert "Traceback (most recent call last)" in done.stderr
+    assert f"{error}: a deliberate bug in the training step" in done.stderr
+    assert TRAIN_PREFIX not in done.stderr
