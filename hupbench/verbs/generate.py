@@ -7,7 +7,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from datagen.dataset.writer import GenerateRun
-from datagen.errors import BadValueError, MissingFileError
+from datagen.errors import BadValueError
 from hupbench.config import build
 from hupbench.provenance import run_info
 
@@ -35,6 +35,7 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
         :func:`datagen.dataset.writer.generate`'s dict.
     """
     from datagen.assets.backgrounds import BackgroundSet
+    from datagen.dataset.grasps_file import read_grasps
     from datagen.dataset.writer import generate, run_lock
 
     # a bad photographs' folder fails before the default grasps take minutes
@@ -52,11 +53,8 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
         if splits is not None and sum(splits.values()) != n_grasps:
             raise BadValueError(f"splits {splits} add up to {sum(splits.values())} grasps but the default grasps "
                                 f"config selects {n_grasps}")
-    elif grasps_path.is_dir():
-        raise BadValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
-                            f"writes)")
-    elif not grasps_path.is_file():
-        raise MissingFileError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
+    else:
+        read_grasps(grasps_path)  # a bad file fails before the folder is taken
     # one run per folder (or shard), from the default grasps to the manifest
     with run_lock(out_dir, run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():

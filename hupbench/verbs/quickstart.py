@@ -23,7 +23,7 @@ from omegaconf import DictConfig
 from datagen.dataset.contract import MODALITIES
 from datagen.dataset.spec import check_principal_point
 from datagen.errors import BadValueError, RunFailedError
-from datagen.input_checks import check_int
+from datagen.input_checks import check_int, check_number
 from datagen.io import OutputLock, check_writable, write_json
 from datagen.dataset.writer import check_platform
 from hupbench.config import build, build_group, compose
@@ -102,8 +102,7 @@ class QuickstartRun:
             if not _is_number(camera[key]):
                 raise BadValueError(f"camera.{key} must be a finite number of pixels, got {camera[key]!r}")
         for key in ("distance_m", "azimuth_deg", "elevation_deg"):
-            if not _is_number(view[key]):
-                raise BadValueError(f"view.{key} must be a finite number, got {view[key]!r}")
+            check_number(view[key], f"view.{key}")
         if view["distance_m"] > MAX_VIEW_DISTANCE_M:
             raise BadValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
                                 f"a few pixels beyond), got {view['distance_m']:g}")

@@ -32,12 +32,12 @@ def _cli(capsys, *argv):
 
 
 def test_train_grasp_sampler_bounds_its_threads_by_the_cores(tmp_path, capsys, monkeypatch):
-    import datagen.grasps.cvae_sampling as cvae_sampling
+    import datagen.grasps.cvae_training as cvae_training
 
     def trained(*_, **__):
         raise AssertionError("the training started")
 
-    monkeypatch.setattr(cvae_sampling, "train_sampler", trained)
+    monkeypatch.setattr(cvae_training, "train_sampler", trained)
     rc, _, err = _cli(capsys, "train-grasp-sampler", "threads=4096", f"out={tmp_path / 'w.npz'}")
     assert rc == 1 and "threads must be a whole number from 1 to" in err and "got 4096" in err, err
 
