@@ -665,9 +665,9 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
             _plain_log_ticks(ax.yaxis)
         else:
             ax.set_ylim(0, _y_limit(values))
+        log_scale = ", log scale" if ax.get_yscale() == "log" else ""
         return _png_bytes(fig, ax, f"training wall time ({unit}, validation passes excluded)",
-                          "validation MPJPE, all 29 keypoints (mm)" + (", log scale" if ax.get_yscale() == "log" else ""),
-                          "Validation error against training time (paper lines: test split)", "upper right")
+                          f"validation MPJPE, all 29 keypoints (mm){log_scale}", "Validation error against training time (paper lines: test split)", "upper right")
 
 
 # ----------------------------------------------------------------------------- verb
