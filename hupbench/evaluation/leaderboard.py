@@ -1,7 +1,8 @@
 """``hupbench leaderboard``: ``README.md`` (a table per track beside the test split's floor, the notes, and
 each row's details with a per-grasp table), ``mpjpe_vs_latency.png`` (with the Pareto frontier) and
 ``val_mpjpe_vs_training_time.png`` (from the training logs under ``logs/``), rebuilt from
-``leaderboard/results/*.json``.
+``leaderboard/results/*.json``. (layout: long because the README's tables, notes and row details and the
+two plots share the row helpers; the plots are the part to move out.)
 
 A broken input (a results file or training log missing, damaged or against its schema, an unwritable
 folder, a folder in an output's place) is an error naming the file, and nothing is rewritten: a row that
