@@ -12,8 +12,7 @@ from typing import Iterator
 from datagen.input_checks import check_int
 from datagen.errors import BadValueError
 
-#: processes (or torch threads) per usable CPU core a verb may start; far more only thrashes (measured:
-#: ``workers=100000`` spawned processes until the machine stalled)
+#: processes (or torch threads) per usable CPU core a verb may start; far more only thrashes
 MAX_WORKERS_PER_CORE = 4
 
 
@@ -38,7 +37,7 @@ def check_workers(workers, what: str = "workers") -> int:
 
 def check_threads(threads, what: str = "threads") -> int:
     """``threads`` (torch's CPU threads) when it is a whole number from 1 to :data:`MAX_WORKERS_PER_CORE` x the
-    usable cores: torch starts them all at once (``threads=100000`` failed deep inside a later import)."""
+    usable cores: torch starts them all at once."""
     cores = usable_cores()
     return check_int(threads, what, 1, MAX_WORKERS_PER_CORE * cores,
                      hint=f" ({MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this process may use)")

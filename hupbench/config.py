@@ -32,7 +32,7 @@ def _is_positive_whole(value) -> bool:
 
 
 # the camera configs derive fx, fy, cx, cy from the lens and the image size, so that changing the image
-# size keeps the field of view (the values were typed by hand four times before)
+# size keeps the field of view
 OmegaConf.register_new_resolver("focal_px", _focal_px, replace=True)
 OmegaConf.register_new_resolver("centre_px", _centre_px, replace=True)
 

@@ -30,7 +30,7 @@ GENERATOR_VERSION = "0.3.0"
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
 #: what the camera can aim at besides a keypoint (by name): the centre of the 29 keypoints' box in
-#: the world (probe) frame, hupbench's aim before issue 13
+#: the world (probe) frame (the forearm protocol's aim)
 BOX_CENTRE = "box_centre"
 #: the published renderer's aim: the right middle-finger MCP (SMPL-H joint 40, our keypoint 9)
 PAPER_LOOK_AT = "middle_mcp"
@@ -274,7 +274,7 @@ def protocol(spec: DatasetSpec) -> dict:
     """The viewing protocol of a dataset, for its manifest.
 
     "name" is "paper" when the sphere, its exclusions and the look-at are the published
-    renderer's, "forearm_box_centre" when they are hupbench's before issue 13, else "custom".
+    renderer's, "forearm_box_centre" for the forearm sphere looking at the box centre, else "custom".
     """
     s = spec.sphere
     geometry = (s.r_sph_m, s.r_circ_m, s.variant) == (0.8, 0.15, "ceil")

@@ -32,7 +32,7 @@ Two ways to attach the sphere to the hand (``axis``):
     off the elbow-side forearm axis (theta 80 / 100 deg, phi 90 deg: ids 34
     and 50), looking into the hollow of the arm, and keeps both poles:
     ``exclude=("elbow",)`` with ``elbow_cone_deg=10``.
-``"forearm"`` (hupbench before issue 13): the polar axis is the forearm,
+``"forearm"`` (the "forearm_box_centre" protocol): the polar axis is the forearm,
     north = from the hand towards the elbow; longitude 0 is the dorsal
     direction. Image "up" is the fingers' direction (-north); at the poles,
     where that is parallel to the view, the dorsal direction. The two poles

@@ -96,9 +96,9 @@ class GraspGenConfig:
 
 
 def check_selection(config: GraspGenConfig) -> None:
-    """n_select, or the pinned ids, against the number of candidates the config makes: checked before the
-    refinement (``hupbench grasps`` found them wrong only after minutes of it). Not in
-    :class:`GraspGenConfig` itself, whose candidates are also made without a selection.
+    """n_select, or the pinned ids, against the number of candidates the config makes, before the minutes of
+    refinement (:class:`hupbench.verbs.grasps.GraspsRun` calls it). Not in :class:`GraspGenConfig` itself,
+    whose candidates are also made without a selection.
 
     Raises:
         ValueError: naming n_select or pinned_ids and the candidates' count.

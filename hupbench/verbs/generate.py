@@ -6,6 +6,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
 from datagen.dataset.writer import GenerateRun
 from datagen.errors import BadValueError
 from hupbench.config import build
@@ -63,18 +64,3 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
             log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
             run_grasps(grasps_cfg, log=log)
         return generate(run.dataset, out_dir, grasps_path, resolved, run.job, run.progress, log, lock)
-
-
-def run_verify(dataset: str | Path, workers: int = 2, log=print, progress: bool | None = None) -> dict:
-    """Verify a dataset folder (see :mod:`datagen.dataset.verify`: what stops it, what it reports).
-
-    Args:
-        dataset: the dataset folder. workers: processes for the per-frame checks (>= 1).
-        log: progress lines. progress: a progress bar with ETA (None: when stderr is a terminal).
-
-    Returns:
-        :func:`datagen.dataset.verify.verify`'s dict.
-    """
-    from datagen.dataset.verify import verify
-
-    return verify(dataset, workers=workers, log=log, progress=progress)
