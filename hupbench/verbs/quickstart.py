@@ -20,14 +20,17 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
+from datagen.camera import Intrinsics
 from datagen.dataset.contract import MODALITIES
 from datagen.dataset.spec import check_principal_point
 from datagen.errors import BadValueError, RunFailedError
 from datagen.input_checks import check_int, check_number
 from datagen.io import OutputLock, check_writable, write_json
-from datagen.dataset.writer import check_platform
+from datagen.dataset.writer import GenerateRun, check_platform
+from datagen.render.preview import PreviewView
 from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
+from hupbench.verbs.grasps import GraspsRun
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
 #: the stages whose verbs take a list of overrides (the quickstart's keys of the same names)
@@ -57,8 +60,8 @@ class QuickstartRun:
     """
 
     out_dir: str
-    camera: object
-    view: object
+    camera: Intrinsics
+    view: PreviewView
     fast: bool = False
     stop_after: str | None = None
     grasps: list = ()
@@ -152,9 +155,9 @@ class _Stages:
 
     work: Path
     grasps_cfg: DictConfig
-    grasps: object
+    grasps: GraspsRun
     generate_cfg: DictConfig
-    generate: object
+    generate: GenerateRun
     train_cfg: DictConfig
     eval_latency: bool
 
