@@ -18,6 +18,7 @@ import pytest
 
 from conftest import assert_clean_error, assert_nothing_complete
 from datagen.processes import usable_cores
+from helpers.answers import record_answer
 from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer
 
 
@@ -110,6 +111,7 @@ def test_matrix_train_ctrl_c(tiny_dataset, tmp_path):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == [err.strip()] and err.startswith("train.py: interrupted"), err
+    record_answer(err.strip())
     assert "Traceback" not in err + out and "KeyboardInterrupt" not in err + out
     assert not (tmp_path / "run" / ".hupbench.lock").exists()
 
