@@ -157,7 +157,7 @@ class TrainRun:
         whole(self.threads, "threads", 1, optional=True)
         cores = usable_cores()
         if self.threads is not None and self.threads > cores:
-            # more threads than cores only contend: threads=4096 made a 1-step run take more than 300 s
+            # more threads than cores only contend for them: a run slows to a crawl
             raise BadValueError(f"threads={self.threads} is more than the {cores} CPU core(s) this process may "
                                 f"use; set threads to at most {cores}, or null for torch's default")
         whole(self.seed, "seed", 0, high=2**31 - 1)
