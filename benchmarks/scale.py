@@ -67,7 +67,7 @@ def generation(args: argparse.Namespace) -> None:
     import ray
 
     from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import generate
+    from datagen.dataset.writer import RenderJob, generate
     from datagen.dataset.ray_launcher import RayOptions
     from datagen.dataset.sphere import SphereSpec
 
@@ -88,8 +88,8 @@ def generation(args: argparse.Namespace) -> None:
             for launcher, workers in runs:
                 out = Path(tmp) / f"{launcher}{workers}"
                 start = time.perf_counter()
-                result = generate(spec, out, grasps, {"benchmark": "scale"}, workers=workers, progress=False,
-                                  log=lambda *_: None, launcher=launcher, ray=RayOptions(num_workers=workers))
+                job = RenderJob(workers, launcher, ray=RayOptions(num_workers=workers))
+                result = generate(spec, out, grasps, {"benchmark": "scale"}, job, progress=False, log=lambda *_: None)
                 wall = time.perf_counter() - start
                 chunk_size = result["frames_total"] // args.backgrounds
                 steady = _rate_after_start_up(out, chunk_size, workers)

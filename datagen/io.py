@@ -69,9 +69,12 @@ def check_writable(path: str | Path, what: str, *, file: bool = False) -> Path:
         ``Path(path)``.
 
     Raises:
-        BadValueError: ``path`` is a folder where a file belongs, or it (or a parent) is a file where a
-            folder belongs. NotWritableError: the nearest existing folder is read-only or not writable.
+        BadValueError: ``path`` is empty (it would name the current folder) or not a path, a folder where a
+            file belongs, or it (or a parent) is a file where a folder belongs. NotWritableError: the nearest
+            existing folder is read-only or not writable.
     """
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise BadValueError(f"{what} must be a {'file' if file else 'folder'} path, got {path!r}")
     path = Path(path)
     if file and path.is_dir():
         raise BadValueError(f"{what} {path} is a folder; expected a file path")

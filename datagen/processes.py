@@ -1,14 +1,18 @@
-"""Worker-process counts: one rule for every verb that starts processes (imports nothing heavy)."""
+"""Worker processes and threads: one rule for how many a verb may start, and quiet workers on Ctrl-C
+(imports nothing heavy)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
+from typing import Iterator
 
 from datagen.input_checks import check_int
 from datagen.errors import BadValueError
 
-#: processes per usable CPU core a verb may start; far more only thrashes (measured: ``workers=100000``
-#: spawned processes until the machine stalled)
+#: processes (or torch threads) per usable CPU core a verb may start; far more only thrashes
 MAX_WORKERS_PER_CORE = 4
 
 
@@ -21,11 +25,37 @@ def check_workers(workers, what: str = "workers") -> int:
     """``workers`` when it is a whole number from 1 to :data:`MAX_WORKERS_PER_CORE` x the usable cores.
 
     Raises:
-        ValueError: naming ``what``, the value and the limit.
+        BadValueError: naming ``what``, the value and the limit.
     """
     check_int(workers, what, low=1)
     cores = usable_cores()
     if workers > MAX_WORKERS_PER_CORE * cores:
         raise BadValueError(f"{what}={workers} is more than {MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this "
-                         f"process may use ({MAX_WORKERS_PER_CORE * cores}); each worker is a process")
+                            f"process may use ({MAX_WORKERS_PER_CORE * cores}); each worker is a process")
     return workers
+
+
+def check_threads(threads, what: str = "threads") -> int:
+    """``threads`` (torch's CPU threads) when it is a whole number from 1 to :data:`MAX_WORKERS_PER_CORE` x the
+    usable cores: torch starts them all at once."""
+    cores = usable_cores()
+    return check_int(threads, what, 1, MAX_WORKERS_PER_CORE * cores,
+                     hint=f" ({MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this process may use)")
+
+
+@contextlib.contextmanager
+def workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start worker processes inside this block: they inherit an ignored SIGINT.
+
+    Ctrl-C in a terminal signals the whole process group; the parent alone answers it (one line, exit
+    130) and stops its workers, which would otherwise each print a KeyboardInterrupt traceback. Python
+    keeps a SIGINT its parent ignored ignored, in a fork as in a spawned interpreter.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may set a handler; its Ctrl-C does not reach this one
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

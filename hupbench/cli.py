@@ -7,7 +7,6 @@ import sys
 
 from hupbench import __version__
 from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
-from datagen.errors import BadValueError
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
@@ -40,20 +39,10 @@ def _quickstart(args: list[str]) -> int:
 
 
 def _grasps(overrides: list[str]) -> int:
-    from datagen.grasps.synthesis import check_run_options, check_selection
-    from hupbench.config import build, compose
+    from hupbench.config import compose
     from hupbench.verbs.grasps import run_grasps
 
     cfg = compose("grasps", overrides)
-    # every option checked before the refinement: a bad sheet or out_dir failed only after minutes of it
-    built = {}
-    for group in ("generate", "refine"):
-        try:
-            built[group] = build(cfg[group])
-        except ValueError as exc:  # the config class names its field, not the group it came from
-            raise BadValueError(f"{group}: {exc}") from None
-    check_selection(built["generate"])
-    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     result = run_grasps(cfg)
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
           f"{result['candidates']} candidates plausible, {result['selected']} selected")
@@ -100,6 +89,7 @@ def _count(minimum: int):
 
 
 def _verify(args: list[str]) -> int:
+    from datagen.dataset.verify import report_lines
     from hupbench.verbs.generate import run_verify
 
     parser = argparse.ArgumentParser(prog="hupbench verify", description="Re-check a dataset: files, counts, "
@@ -112,24 +102,7 @@ def _verify(args: list[str]) -> int:
                         help="progress bar with ETA on stderr (default: when stderr is a terminal)")
     ns = parser.parse_args(args)
     result = run_verify(ns.dataset, workers=ns.workers, progress=ns.progress)
-    for p in result["problems"][: ns.max_report]:
-        where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
-        frame = "" if p["frame_id"] is None else f" (frame {p['frame_id']})"
-        print(f"  {p['kind']:18s} {where}{frame}: {p['detail']}")
-    hidden = len(result["problems"]) - ns.max_report
-    if hidden > 0:
-        print(f"  ... and {hidden} more (--max-report {len(result['problems'])} prints all)")
-    if result["image_shift"]:
-        du, dv = result["image_shift"]["median_px"]
-        print(f"  images against labels: median shift ({du:+.3f}, {dv:+.3f}) px over {result['image_shift']['frames']} "
-              "frames (probe pixels unprojected with their depth, fitted to the probe)")
-    for split, floor in (result["split_floors"] or {}).items():
-        print(f"  floor of {split}: " + _floor_line(floor))
-    if not result["ok"]:
-        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
-        print(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: {counts}")
-    else:
-        print(f"hupbench verify: OK, {result['frames']} frames checked")
+    print("\n".join(report_lines(result, ns.max_report)))
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
         from datagen.render.draw import write_png
@@ -137,18 +110,6 @@ def _verify(args: list[str]) -> int:
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1
-
-
-def _floor_line(floor: dict) -> str:
-    """One line of a split's floors (datagen.dataset.floors) for verify's report."""
-    def mm(t: dict) -> str:
-        return f"hand {t['hand']:.1f} / probe {t['probe']:.1f} / all {t['all']:.1f} mm"
-
-    parts = [f"nearest training grasp under the true camera {mm(floor['nearest_train_grasp_mm'])}"]
-    if floor["nearest_train_view_mm"] is not None:
-        parts.append(f"nearest training view of the same grasp {mm(floor['nearest_train_view_mm'])}")
-    parts.append(f"mean training grasp {mm(floor['train_mean_mm'])}")
-    return "; ".join(parts) + f" (a model that only recalls training labels scores no better than the {floor['floor_kind']} one)"
 
 
 def _leaderboard(args: list[str]) -> int:
@@ -268,6 +229,12 @@ def main(argv: list[str] | None = None) -> int:
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
                     "predict": _predict, "eval": _eval, "export": _export}
         return handlers[args.verb](args.overrides)
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        # Ctrl-C: one line and the shell's code for SIGINT; the workers ignore it and are stopped
+        print(f"hupbench {args.verb}: interrupted", file=sys.stderr)
+        return 130
     except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
         if args.debug:
             raise

@@ -32,7 +32,7 @@ def _is_positive_whole(value) -> bool:
 
 
 # the camera configs derive fx, fy, cx, cy from the lens and the image size, so that changing the image
-# size keeps the field of view (the values were typed by hand four times before)
+# size keeps the field of view
 OmegaConf.register_new_resolver("focal_px", _focal_px, replace=True)
 OmegaConf.register_new_resolver("centre_px", _centre_px, replace=True)
 
@@ -93,3 +93,15 @@ def build(node):
         if isinstance(cause, (ValueError, TypeError)):  # a constructor of models/ or torch refusing a value
             raise BadValueError(str(cause)) from None
         raise
+
+
+def build_group(node, group: str):
+    """One group of a run node that builds its own groups (``_recursive_: false``, so that the run checks
+    its fields first): ``node`` built by its ``_target_``, or passed through when given built. Its error
+    names the group, as the class names only its field."""
+    if not isinstance(node, (dict, DictConfig)):
+        return node
+    try:
+        return build(node)
+    except ValueError as exc:
+        raise BadValueError(f"{group}: {exc}") from None

@@ -9,10 +9,9 @@ Convention:
     and intrinsics K to A @ K. An in-plane rotation by ``angle`` radians turns the image content
     counter-clockwise on screen (y down) about a centre, and the camera-frame points by -angle about +z.
 
-Numpy and OpenCV only (no torch): the torch-free predict path imports it; the arithmetic functions
-(:func:`pixels_to_normalized`, :func:`normalized_to_pixels`, :func:`inside_input`) use operators only,
-so torch tensors pass through them too. ``models.coords`` holds the torch twin (models import nothing
-of hupbench), tested against this module.
+Numpy and OpenCV only (the torch-free predict path imports it); :func:`pixels_to_normalized`,
+:func:`normalized_to_pixels` and :func:`inside_input` use operators only, so torch tensors pass through
+them too. ``models.coords`` holds the torch twin, tested against this module.
 """
 
 from __future__ import annotations
@@ -171,21 +170,13 @@ class InputGeometry:
         """(3, 3) pixel map, input -> image pixels."""
         return np.linalg.inv(self.image_to_input)
 
-    def image_to_input_px(self, uv) -> np.ndarray:
-        """(..., 2) image pixels -> (..., 2) input pixels."""
-        return apply_affine(self.image_to_input, uv)
-
-    def input_to_image_px(self, uv_in) -> np.ndarray:
-        """(..., 2) input pixels -> (..., 2) image pixels."""
-        return apply_affine(self.input_to_image, uv_in)
-
     def normalized_to_input_px(self, xy_norm) -> np.ndarray:
         """(..., 2) normalised input coordinates -> (..., 2) input pixels."""
         return normalized_to_pixels(np.asarray(xy_norm, dtype=np.float64), self.input_size)
 
     def normalized_to_image_px(self, xy_norm) -> np.ndarray:
         """(..., 2) normalised input coordinates -> (..., 2) image pixels."""
-        return self.input_to_image_px(self.normalized_to_input_px(xy_norm))
+        return apply_affine(self.input_to_image, self.normalized_to_input_px(xy_norm))
 
     def intrinsics_to_input(self, K: np.ndarray) -> np.ndarray:
         """(3, 3) intrinsics of the image -> (3, 3) float64 intrinsics of the input."""

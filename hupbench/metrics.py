@@ -18,43 +18,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from datagen.keypoints import (
-    CORNER_BITS,
-    CORNER_SLICE,
-    HAND_SLICE,
-    NUM_CORNERS,
-    NUM_HAND,
-    NUM_KEYPOINTS,
-)
 from datagen.errors import BadValueError
+from datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_CORNERS, NUM_HAND, NUM_KEYPOINTS
 
-__all__ = [
-    "ALL_AVERAGING",
-    "HALF_TURN_Z",
-    "PCK_THRESHOLDS_MM",
-    "PROBE_SYMMETRIES",
-    "ROOT_INDEX",
-    "SPREAD_AXES",
-    "SPREAD_RATIO_WARN",
-    "breakdown_mpjpe_mm",
-    "collapsed_axes",
-    "keypoint_errors_mm",
-    "mpjpe_mm",
-    "mpjpe_split_mm",
-    "pa_mpjpe_mm",
-    "pck_auc_from_errors",
-    "pck_mm",
-    "permute_keypoints",
-    "pixel_error_px",
-    "pixel_errors_px",
-    "probe_symmetric_errors_mm",
-    "procrustes_align",
-    "root_relative_mpjpe_mm",
-    "split_from_errors_mm",
-    "spread_ratios",
-    "symmetry_costs",
-    "symmetry_permutation",
-]
+__all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES", "ROOT_INDEX", "SPREAD_AXES",
+           "SPREAD_RATIO_WARN", "breakdown_mpjpe_mm", "collapsed_axes", "keypoint_errors_mm", "mpjpe_mm",
+           "mpjpe_split_mm", "pa_mpjpe_mm", "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px",
+           "pixel_errors_px", "probe_symmetric_errors_mm", "procrustes_align", "root_relative_mpjpe_mm",
+           "split_from_errors_mm", "spread_ratios", "symmetry_costs", "symmetry_permutation"]
 
 #: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
 ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
@@ -109,16 +80,8 @@ def _mean(x):
 
 
 def keypoint_errors_mm(pred_m, gt_m):
-    """Euclidean 3D error per frame and keypoint.
-
-    Args:
-        pred_m: (N, K, 3) float, metres, predicted keypoints.
-        gt_m: (N, K, 3) float, metres, ground truth in the same frame.
-
-    Returns:
-        (N, K) errors in millimetres (numpy float64 for numpy input; a tensor of the input dtype
-        for torch input).
-    """
+    """(N, K) Euclidean 3D errors, mm (numpy float64, or a tensor of the input dtype), of (N, K, 3) float
+    predicted and true keypoints in metres, same frame."""
     _assert_points(pred_m, gt_m, 3)
     if _is_torch(pred_m):
         return torch.linalg.vector_norm(pred_m - gt_m, dim=-1) * _MM_PER_M
@@ -150,35 +113,16 @@ def split_from_errors_mm(errors_mm) -> dict[str, float]:
 
 
 def mpjpe_split_mm(pred_m, gt_m) -> dict[str, float]:
-    """MPJPE of the hand (keypoints 0..20), the probe corners (21..28) and all 29.
-
-    Args:
-        pred_m, gt_m: (N, 29, 3) float, metres, same frame (numpy or torch).
-
-    Returns:
-        {"all": float, "hand": float, "probe": float}, millimetres, python floats for either input.
-        "all" is keypoint-weighted (mean over all 29 keypoints and frames), so
-        all = (21 hand + 8 probe) / 29; the paper's 8.65 is not (docs/metrics.md).
-    """
+    """{"all", "hand", "probe"} MPJPE, mm, python floats, of (N, 29, 3) float keypoints in metres, same
+    frame (numpy or torch); "all" is keypoint-weighted (:func:`split_from_errors_mm`)."""
     with torch.no_grad():
         return split_from_errors_mm(keypoint_errors_mm(pred_m, gt_m))
 
 
 def root_relative_mpjpe_mm(pred_m, gt_m, root: int = ROOT_INDEX, keypoints=HAND):
-    """MPJPE after moving each hand so that its root (the wrist) sits at the origin.
-
-    Both prediction and ground truth are translated by their own root; the error is then averaged
-    over ``keypoints`` (default: the 21 hand joints, the root included with its zero error, as in
-    the FreiHAND / HO-3D evaluation).
-
-    Args:
-        pred_m, gt_m: (N, K, 3) float, metres.
-        root: index of the root keypoint (default 0, the wrist).
-        keypoints: the keypoints averaged (default 0..20).
-
-    Returns:
-        millimetres: python float (numpy) or 0-dim tensor (torch).
-    """
+    """MPJPE, mm, of (N, K, 3) keypoints in metres after translating prediction and truth by their own
+    ``root`` (the wrist), averaged over ``keypoints`` (the 21 hand joints, the root with its zero error
+    included, as in the FreiHAND / HO-3D evaluation); a python float, or a 0-dim tensor for torch input."""
     _assert_points(pred_m, gt_m, 3)
     (root,) = _index([root], pred_m.shape[1])
     return mpjpe_mm(pred_m - pred_m[:, root:root + 1], gt_m - gt_m[:, root:root + 1], keypoints)
@@ -226,17 +170,8 @@ def _procrustes_np(p: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 def pa_mpjpe_mm(pred_m, gt_m, keypoints=HAND):
-    """MPJPE after Procrustes alignment of the chosen keypoints (default: the 21 hand joints).
-
-    The alignment is fitted on ``keypoints`` only and the error averaged over the same keypoints.
-
-    Args:
-        pred_m, gt_m: (N, K, 3) float, metres.
-        keypoints: the keypoints aligned and averaged (default 0..20, the hand).
-
-    Returns:
-        millimetres: python float (numpy) or 0-dim tensor (torch).
-    """
+    """MPJPE, mm, of (N, K, 3) keypoints in metres after a Procrustes alignment fitted on ``keypoints`` (the
+    21 hand joints) and averaged over them; a python float, or a 0-dim tensor for torch input."""
     _assert_points(pred_m, gt_m, 3)
     idx = _index(keypoints, pred_m.shape[1])
     pred_sel, gt_sel = pred_m[:, idx], gt_m[:, idx]
@@ -244,15 +179,8 @@ def pa_mpjpe_mm(pred_m, gt_m, keypoints=HAND):
 
 
 def pck_mm(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
-    """Percentage of correct keypoints: the fraction of errors at or below each threshold.
-
-    Args:
-        errors_mm: (N, K) (or any shape) errors in millimetres.
-        thresholds_mm: (T,) thresholds, millimetres.
-
-    Returns:
-        (T,) fractions in [0, 1] (numpy float64, or a tensor for tensor input).
-    """
+    """(T,) fractions of the errors (any shape, mm) at or below each of the (T,) thresholds (mm): the PCK
+    curve (numpy float64, or a tensor for tensor input)."""
     if _is_torch(errors_mm):
         t = torch.as_tensor(np.asarray(thresholds_mm), dtype=errors_mm.dtype, device=errors_mm.device)
         return (errors_mm.reshape(-1, 1) <= t).to(errors_mm.dtype).mean(dim=0)
@@ -261,19 +189,9 @@ def pck_mm(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
 
 
 def pck_auc_from_errors(errors_mm, thresholds_mm=PCK_THRESHOLDS_MM):
-    """Area under the 3D PCK curve, normalised to [0, 1] by the threshold range.
-
-    The curve is sampled at ``thresholds_mm`` (default 0, 0.5, ..., 50 mm: 101 thresholds) and
-    integrated with the trapezoidal rule, then divided by (max - min threshold): 1 means every
-    error is 0, 0 means every error is above 50 mm.
-
-    Args:
-        errors_mm: (N, K) errors, millimetres.
-        thresholds_mm: (T,) increasing thresholds, T >= 2, millimetres.
-
-    Returns:
-        python float (numpy) or 0-dim tensor (torch).
-    """
+    """Area under the 3D PCK curve of (N, K) errors in mm, sampled at the (T,) increasing thresholds (mm,
+    T >= 2), integrated with the trapezoidal rule and divided by the threshold range: 1 when every error
+    is 0, 0 when every error is above the last threshold; a python float, or a 0-dim tensor for torch."""
     th = np.asarray(thresholds_mm, np.float64)
     assert th.ndim == 1 and len(th) >= 2 and np.all(np.diff(th) > 0), th
     curve = pck_mm(errors_mm, th)
@@ -293,15 +211,8 @@ def pixel_errors_px(pred_px, gt_px):
 
 
 def pixel_error_px(pred_px, gt_px, mask=None):
-    """Mean 2D keypoint error in pixels.
-
-    Args:
-        pred_px, gt_px: (N, K, 2) float, pixels of the same image.
-        mask: optional (N, K) bool, the keypoints counted (e.g. ``visible``); default all.
-
-    Returns:
-        pixels: python float (numpy) or 0-dim tensor (torch).
-    """
+    """Mean 2D error, pixels, of (N, K, 2) float pixel coordinates of the same image, over the keypoints of
+    an (N, K) bool ``mask`` (default all); a python float, or a 0-dim tensor for torch input."""
     errors = pixel_errors_px(pred_px, gt_px)
     if mask is None:
         return _mean(errors)
@@ -310,15 +221,8 @@ def pixel_error_px(pred_px, gt_px, mask=None):
 
 
 def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
-    """MPJPE split by a per-frame label.
-
-    Args:
-        errors_mm: (N, 29) per-keypoint absolute errors, millimetres (numpy or torch).
-        labels: (N,) one bucket label per frame (str or anything with a str()).
-
-    Returns:
-        {label: {"frames": int, "mpjpe_mm": {"all", "hand", "probe"}}}, labels sorted.
-    """
+    """{label: {"frames": int, "mpjpe_mm": {"all", "hand", "probe"}}}, labels sorted, of (N, 29) errors in
+    mm (numpy or torch) split by (N,) per-frame labels (anything with a str())."""
     errors = errors_mm.detach().cpu().numpy() if _is_torch(errors_mm) else np.asarray(errors_mm, np.float64)
     labels = np.asarray(labels).reshape(-1).astype(str)
     assert errors.ndim == 2 and len(labels) == errors.shape[0], (errors.shape, labels.shape)
@@ -344,11 +248,7 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
 
     Returns:
         ``perm`` with ``rotation @ points[k] == points[perm[k]]`` (within the tolerance), a
-        permutation of range(K) as python ints.
-
-    Raises:
-        BadValueError: the set (e.g. a dataset's corners) is not symmetric under the rotation (the message
-            gives the largest mismatch in mm).
+        permutation of range(K) as python ints; a set the rotation does not map onto itself is an error.
     """
     p = np.asarray(points_m, np.float64)
     r = np.asarray(rotation, np.float64)
@@ -510,9 +410,6 @@ def spread_ratios(pred_m, gt_m) -> dict[str, float | None]:
 
 
 def collapsed_axes(ratios: dict[str, float | None], threshold: float = SPREAD_RATIO_WARN) -> list[str]:
-    """The axes whose spread ratio (from :func:`spread_ratios`) is below ``threshold``, in x, y, z order.
-
-    An axis with ratio None (the truth does not vary there) is never reported.
-    """
+    """The axes whose spread ratio (not None) is below ``threshold``, in x, y, z order."""
     assert set(ratios) <= set(SPREAD_AXES), ratios
     return [a for a in SPREAD_AXES if ratios.get(a) is not None and ratios[a] < threshold]

@@ -125,7 +125,7 @@ NEVER = {
 }
 #: the torch-free inference path (DESIGN.md: predict runs where torch is not installed)
 TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupbench.inference.overlay",
-              "hupbench.inference.model_file",
+              "hupbench.inference.model_file", "hupbench.inference.runtime",
               "hupbench.error_lines", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
 SHARED_TOP = ("datagen.keypoints", "datagen.geometry", "datagen.rotations_torch", "datagen.mesh_distance",

@@ -220,12 +220,10 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     root = Path(root)
     if manifest is None:
         manifest = read_manifest(root)
-    if split not in SPLITS:
-        raise BadValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+    # the split and the keys come from code (a user's split went through read_manifest)
+    assert split in SPLITS, split
     keys = list(ANNOTATION_FIELDS) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
-    unknown = [k for k in keys if k not in ANNOTATION_FIELDS]
-    if unknown:
-        raise BadValueError(f"unknown annotation arrays {unknown}; the contract has {list(ANNOTATION_FIELDS)}")
+    assert set(keys) <= set(ANNOTATION_FIELDS), keys
     path = annotations_path(root, split)
     if not path.is_file():
         raise MissingFileError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "

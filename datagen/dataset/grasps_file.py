@@ -113,6 +113,18 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
     return out
 
 
+def rendered_with(grasps: dict[str, np.ndarray], ann: dict[str, np.ndarray]) -> np.ndarray:
+    """(N,) bool: each annotation row holds the grasp (id, hand pose, translation) that its ``grasp_index``
+    names in ``grasps`` (:func:`read_grasps`' arrays), as the writer copied them: the frames were rendered
+    from these grasps."""
+    index = ann["grasp_index"]
+    inside = (index >= 0) & (index < len(grasps["grasp_id"]))
+    at = np.where(inside, index, 0)
+    return (inside & (grasps["grasp_id"][at] == ann["grasp_id"])
+            & (grasps["hand_pose"][at] == ann["hand_pose"]).all(axis=1)
+            & (grasps["hand_trans"][at] == ann["hand_trans"]).all(axis=1))
+
+
 class GraspSet:
     """The grasps a dataset is rendered from (``grasps.npz``), with derived geometry.
 
@@ -145,6 +157,5 @@ class GraspSet:
         """(G, 3) float64, metres, world frame: each grasp's camera target (see ``DatasetSpec.look_at``)."""
         if look_at == BOX_CENTRE:
             return self.box_centre
-        if look_at not in kp.KEYPOINT_NAMES:
-            raise BadValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name, got {look_at!r}")
+        assert look_at in kp.KEYPOINT_NAMES, look_at  # DatasetSpec checked it
         return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]

@@ -105,8 +105,7 @@ def require_ray():
 def resolve_factory(factory: str) -> Callable:
     """``"package.module:Name"`` -> the object it names (imported now)."""
     module, _, name = factory.partition(":")
-    if not module or not name:
-        raise BadValueError(f"a chunk-renderer factory is 'package.module:Name', got {factory!r}")
+    assert module and name, factory
     return getattr(importlib.import_module(module), name)
 
 
@@ -141,8 +140,7 @@ class ChunkActor:
 
 
 def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], layout, spec, grasps_npz: bytes,
-                  backgrounds_dir: str | None, platform: str | None, options: RayOptions, default_workers: int,
-                  on_chunk: Callable[[object], None], log=print) -> dict:
+                  job, on_chunk: Callable[[object], None], log=print) -> dict:
     """Render chunks on Ray actors and hand each result to ``on_chunk`` in the driver.
 
     Args:
@@ -151,10 +149,9 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
         layout: the dataset's :class:`datagen.dataset.spec.Layout`.
         spec: the :class:`datagen.dataset.spec.DatasetSpec`.
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
-        backgrounds_dir: folder of background photographs (must exist on every node), or None.
-        platform: GL platform for every actor, or None (each picks its own).
-        options: :class:`RayOptions`.
-        default_workers: actors on a private runtime when ``options.num_workers`` is None.
+        job: the run's :class:`datagen.dataset.writer.RenderJob`: its ``ray`` options, ``workers`` (actors on a
+            private runtime when ``ray.num_workers`` is None), GL ``platform`` for every actor (None: each
+            picks its own) and ``backgrounds_dir`` (must exist on every node).
         on_chunk: called once per finished chunk with its ``ChunkOutput`` (writes it).
         log: progress messages.
 
@@ -165,6 +162,7 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
         RuntimeError: Ray missing, actors that cannot start, or a chunk whose actors kept dying.
     """
     ray = require_ray()
+    options, default_workers = job.ray, job.workers
     started_here = not ray.is_initialized()
     if started_here:
         _init_ray(ray, options, default_workers)
@@ -177,7 +175,7 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
         def new_actor():
             # the arguments travel with the actor's creation task (a grasps file is kilobytes), so a
             # restarted actor does not depend on an object-store entry staying alive
-            return remote_cls.remote(factory, spec, grasps_npz, backgrounds_dir, platform)
+            return remote_cls.remote(factory, spec, grasps_npz, job.backgrounds_dir, job.platform)
 
         actors = [new_actor() for _ in range(n_actors)]
         for i, info in enumerate(_wait_started(ray, actors, options.start_timeout_s)):

@@ -38,8 +38,7 @@ def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: i
     n_view = manifest["layout"]["shape"][4]
     if view is None:
         view = 40 if n_view > 40 else n_view // 2
-    if not 0 <= view < n_view:
-        raise BadValueError(f"view must be in [0, {n_view}), got {view}")
+    assert 0 <= view < n_view, (view, n_view)
     first = (ann["grasp_index"] == ann["grasp_index"].min()) & (ann["z_ego"] == ann["z_ego"].min())
     names = (manifest.get("backgrounds") or {}).get("names") or []
     tiles = []

@@ -30,7 +30,7 @@ GENERATOR_VERSION = "0.3.0"
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
 #: what the camera can aim at besides a keypoint (by name): the centre of the 29 keypoints' box in
-#: the world (probe) frame, hupbench's aim before issue 13
+#: the world (probe) frame (the forearm protocol's aim)
 BOX_CENTRE = "box_centre"
 #: the published renderer's aim: the right middle-finger MCP (SMPL-H joint 40, our keypoint 9)
 PAPER_LOOK_AT = "middle_mcp"
@@ -54,6 +54,20 @@ def _distances(z_ego_m) -> tuple:
         raise BadValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
                          f"(e.g. [0.5, 0.8]), got {z_ego_m if values is None else values!r}")
     return tuple(float(v) for v in values)
+
+
+def check_principal_point(intrinsics: Intrinsics, prefix: str) -> None:
+    """The principal point lies in the image: the camera aims at the scene's look-at point, which lands
+    there, so outside it a camera sees nothing (``cx=-5000`` rendered no foreground pixel at all).
+
+    Args:
+        intrinsics: the camera. prefix: the config node's dotted path, e.g. ``"dataset."``.
+    """
+    for name, side in (("cx", intrinsics.width), ("cy", intrinsics.height)):
+        value = getattr(intrinsics, name)
+        if not -0.5 <= value <= side - 0.5:
+            raise BadValueError(f"{prefix}{name} must put the principal point inside the image, from -0.5 to "
+                                f"{side - 0.5:g} pixels (the camera aims there), got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -124,6 +138,7 @@ class DatasetSpec:
         if self.rgb_format not in ("jpg", "png"):
             raise BadValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
         Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
+        check_principal_point(self.intrinsics, "dataset.")
         if self.n_gloves not in (1, 2):
             raise BadValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
@@ -167,8 +182,7 @@ class Layout:
 
     def tuple(self, index: int) -> tuple[int, int, int, int, int]:
         """Inverse of :meth:`index`."""
-        if not 0 <= index < self.size:
-            raise BadValueError(f"frame index {index} out of range [0, {self.size})")
+        assert 0 <= index < self.size, (index, self.size)
         return tuple(int(v) for v in np.unravel_index(index, self.shape))
 
     def chunk_frames(self, chunk: int) -> range:
@@ -260,7 +274,7 @@ def protocol(spec: DatasetSpec) -> dict:
     """The viewing protocol of a dataset, for its manifest.
 
     "name" is "paper" when the sphere, its exclusions and the look-at are the published
-    renderer's, "forearm_box_centre" when they are hupbench's before issue 13, else "custom".
+    renderer's, "forearm_box_centre" for the forearm sphere looking at the box centre, else "custom".
     """
     s = spec.sphere
     geometry = (s.r_sph_m, s.r_circ_m, s.variant) == (0.8, 0.15, "ceil")

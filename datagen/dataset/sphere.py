@@ -32,7 +32,7 @@ Two ways to attach the sphere to the hand (``axis``):
     off the elbow-side forearm axis (theta 80 / 100 deg, phi 90 deg: ids 34
     and 50), looking into the hollow of the arm, and keeps both poles:
     ``exclude=("elbow",)`` with ``elbow_cone_deg=10``.
-``"forearm"`` (hupbench before issue 13): the polar axis is the forearm,
+``"forearm"`` (the "forearm_box_centre" protocol): the polar axis is the forearm,
     north = from the hand towards the elbow; longitude 0 is the dorsal
     direction. Image "up" is the fingers' direction (-north); at the poles,
     where that is parallel to the view, the dorsal direction. The two poles
@@ -151,8 +151,7 @@ def unit_directions(angles: np.ndarray) -> np.ndarray:
 
 def elbow_direction(axis: str) -> np.ndarray:
     """(3,) the hand -> elbow direction in sphere coordinates of the given ``axis``."""
-    if axis not in AXES:
-        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    assert axis in AXES, axis  # SphereSpec checked it
     # body: longitude 90 deg on the equator (the published renderer's theta = phi = 90 deg);
     # forearm: the north pole
     return np.array([0.0, 1.0, 0.0]) if axis == "body" else np.array([0.0, 0.0, 1.0])
@@ -208,13 +207,12 @@ def arm_frame(forearm_axis: np.ndarray, dorsal: np.ndarray) -> np.ndarray:
     """
     elbow = np.asarray(forearm_axis, dtype=np.float64).reshape(3)
     norm = np.linalg.norm(elbow)
-    if not np.isfinite(norm) or norm < 1e-12:
-        raise BadValueError(f"the forearm axis must be a finite non-zero vector, got {elbow.tolist()}")
+    # both are columns of a grasp's wrist rotation: unit and orthogonal
+    assert np.isfinite(norm) and norm > 1e-12, elbow
     elbow = elbow / norm
     back = np.asarray(dorsal, dtype=np.float64).reshape(3)
     back = back - np.dot(back, elbow) * elbow
-    if np.linalg.norm(back) < 1e-9:
-        raise BadValueError("the dorsal direction must not be parallel to the forearm axis")
+    assert np.linalg.norm(back) > 1e-9, (forearm_axis, dorsal)
     back /= np.linalg.norm(back)
     return np.stack([elbow, back, np.cross(elbow, back)], axis=1)
 
@@ -228,8 +226,7 @@ def sphere_frame(forearm_axis: np.ndarray, dorsal: np.ndarray, axis: str) -> np.
         axis: "body": north = dorsal, longitude 0 = radial (thumb side), longitude 90 deg =
             elbow; "forearm": north = elbow, longitude 0 = dorsal, longitude 90 deg = radial.
     """
-    if axis not in AXES:
-        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    assert axis in AXES, axis
     elbow, back, radial = arm_frame(forearm_axis, dorsal).T
     columns = (radial, elbow, back) if axis == "body" else (back, radial, elbow)
     return np.stack(columns, axis=1)
@@ -251,10 +248,7 @@ def camera_pose(theta: float, phi: float, distance_m: float, target_world: np.nd
     Returns:
         (4, 4) float64.
     """
-    if not math.isfinite(distance_m) or distance_m <= 0:
-        raise BadValueError(f"camera distance must be positive, got {distance_m!r}")
-    if axis not in AXES:
-        raise BadValueError(f"sphere axis must be one of {AXES}, got {axis!r}")
+    assert math.isfinite(distance_m) and distance_m > 0 and axis in AXES, (distance_m, axis)  # the specs checked them
     frame = np.asarray(frame, dtype=np.float64)
     target = np.asarray(target_world, dtype=np.float64).reshape(3)
     st, ct, sp, cp = math.sin(theta), math.cos(theta), math.sin(phi), math.cos(phi)

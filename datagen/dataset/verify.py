@@ -6,7 +6,7 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
   field is missing or malformed (:func:`datagen.dataset.contract.read_manifest`: keypoint names other than
   the 29 of :mod:`datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
-  an unknown ``protocol.look_at`` and a malformed ``gloves_rgb``).
+  an unknown ``protocol.look_at``, a malformed ``gloves_rgb`` and ``seg_labels`` other than the contract's).
 * **problems**, reported with a kind, the split, the frame and the file; the other splits and
   frames are still checked and the verdict is FAILED. Kinds:
 
@@ -15,8 +15,8 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``missing_file``      a file the manifest implies is absent (annotations.npz or an image)
   ``damaged_file``      annotations.npz cannot be read whole: empty, truncated, not a zip, bad CRC
   ``bad_annotations``   annotations.npz reads but breaks the contract: an array missing or of
-                        another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove or
-                        background id the manifest does not have
+                        another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove,
+                        background or view id the manifest does not have, a K that is no camera
   ``frame_ids``         frame ids repeated or out of order, or not the layout's ids
   ``manifest_mismatch`` the manifest disagrees with the files: its K with the annotations' K, its
                         image_size with every image
@@ -28,6 +28,8 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``look_at``           the point the manifest's protocol aims at is not at (0, 0, z_ego) in the camera frame
   ``visible_not_on_hand`` a visible hand keypoint whose pixel is not hand in the mask or whose depth
                         is not just in front of it
+  ``marked_invisible``  keypoints marked invisible that the depth and mask show in view and unoccluded
+  ``empty_frame``       the mask (or, without one, the depth) shows nothing in front of the background
   ``probe_depth``       probe pixels unprojected with their depth are off the probe surface by more
                         than max(3 mm, 1.5 pixel footprints)
   ``image_shift``       the depth and mask sit off the labels: probe pixels unprojected with their
@@ -41,30 +43,12 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``rgb_mismatch``      the RGB image does not show this frame: pixels the mask calls background
                         differ from the frame's background image, or the hand's colour is explained
                         better by another glove than by the frame's glove under the frame's lamp
+  ``rgb_channels``      the forearm's pixels have red and blue the other way round from its colour
+                        (``arm_rgb``): the image was stored as RGB, or its channels swapped
+  ``grasps_file``       grasps.npz is missing, unreadable, or not the grasps the frames were rendered
+                        with (their hand poses, translations and ids in the annotations)
 
-How the RGB checks work (thresholds and their measurements in :mod:`datagen.tolerances`):
-
-* background: the renderer composites the foreground over the background image bit for bit where
-  the mask is background, and OpenCV encodes the JPEG in independent 8 x 8 blocks (16 x 16 for the
-  half-resolution chroma). So in blocks of background only the stored RGB decodes like the
-  background image encoded alone at the dataset's quality (within 2 levels), and in blocks near the
-  object, 1 pixel or more from its anti-aliased edge, within JPEG's edge ringing (40 levels). The
-  background set is found by the manifest's fingerprint (built-in, or ``backgrounds.dir``); when it
-  is not here the check is skipped and said so.
-* glove: pyrender shades a glove of albedo ``a`` under white ambient light 0.3 and one point lamp
-  of colour ``c`` (the annotation ``light_color``) as ``0.3 a + k_d (a * c) + k_s c`` (k_d, k_s >= 0
-  per pixel), then stores ``value ** (1 / 2.2)``: in linear light every unclipped hand pixel, and
-  the mean of any block of them, lies on the plane through ``0.3 a`` spanned by ``a * c`` and
-  ``c``. Two frames of one view (grasp, distance, background) in the two gloves share one mask and
-  differ in glove and lamp only: each image must fit its own frame's glove and lamp much better
-  than the other frame's (:func:`glove_pair_ratio`). This runs when the mask agrees with the depth
-  and both images fit the mask's background, so a file from another view does not implicate the
-  other glove's frame.
-
-A frame that holds another frame's RGB image is found when the two differ in silhouette (its
-background shows the other's object), background or glove. When a smaller silhouette is nested in
-a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
-the frames involved does.
+How the per-frame checks work: :mod:`datagen.dataset.verify_frames`.
 """
 
 from __future__ import annotations
@@ -76,7 +60,6 @@ import sys
 import zipfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from datagen import keypoints as kp
@@ -91,31 +74,20 @@ from datagen.dataset.contract import (
     DamagedFileError,
     annotations_path,
     check_manifest,
-    frame_path,
     read_annotations,
     read_manifest,
 )
 from datagen.dataset.floors import split_floors
 from datagen.geometry import invert_transform, transform_points
-from datagen.processes import check_workers
-from datagen.dataset.verify_images import (
-    image_shift_px,
-    shrink_mask,
-    background_mismatch_px,
-    glove_pair_ratio,
-    image_format_problem,
-    jpeg_reference,
-    mask_depth_mismatch_px,
-    read_image,
-)
+from datagen.processes import check_workers, workers_ignore_ctrl_c
+from datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
 from datagen.errors import BadValueError
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
-         "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch")
-#: more than this fraction of a frame's probe pixels off the surface fails it
-PROBE_BAD_FRACTION = 0.05
+         "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
+         "rgb_channels", "grasps_file")
 #: fewer frames than this are checked in this process (starting workers would take longer)
 POOL_MIN_FRAMES = 64
 #: annotation fields the per-frame checks use
@@ -123,15 +95,6 @@ FRAME_KEYS = ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K", "T
               "glove_id", "light_color")
 #: per-row fields the contract does not require finite but the checks compute with
 ROW_FINITE = ("hand_pose", "hand_trans", "light_position_cam", "light_color", "light_energy_w")
-
-
-def _problem(split, frame_id, kind, detail, file=None) -> dict:
-    return {"split": split, "frame_id": None if frame_id is None else int(frame_id), "kind": kind,
-            "file": None if file is None else str(file), "detail": detail}
-
-
-def _relative(split: str, modality: str, frame_id: int, rgb_format: str) -> str:
-    return frame_path("", split, modality, frame_id, rgb_format).as_posix()
 
 
 def _message(exc: Exception, path: Path) -> str:
@@ -177,8 +140,11 @@ def _read_manifest(root: Path) -> tuple[dict, list[dict]]:
 
 
 def _check_manifest_extras(manifest: dict, root: Path) -> None:
-    """Manifest fields verify relies on beyond the contract's: protocol.look_at and gloves_rgb."""
+    """Manifest fields verify relies on beyond the contract's: protocol.look_at, gloves_rgb and seg_labels."""
     path = root / MANIFEST
+    labels = manifest.get("seg_labels", SEG_LABELS)
+    if labels != SEG_LABELS:
+        raise BadValueError(f"{path}: seg_labels must be the contract's {SEG_LABELS}, got {labels!r}")
     protocol = manifest.get("protocol")
     if protocol is not None:
         look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
@@ -256,15 +222,25 @@ def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.n
     limits = {"glove_id": ("gloves_rgb", manifest.get("gloves_rgb")),
               "background_id": ("backgrounds.names", (manifest.get("backgrounds") or {}).get("names")
                                 if isinstance(manifest.get("backgrounds"), dict) else None)}
+    viewpoints = manifest.get("viewpoints")
+    limits["view_id"] = ("viewpoints.ids", viewpoints.get("ids") if isinstance(viewpoints, dict) else None)
     for key, (field, values) in limits.items():
         if not isinstance(values, list):
             continue  # an older manifest without the record: nothing to compare with
-        bad = (ann[key] < 0) | (ann[key] >= len(values))
+        allowed = np.arange(len(values)) if key != "view_id" else np.asarray(values, dtype=np.int64)
+        bad = ~np.isin(ann[key], allowed)
         for i in np.flatnonzero(bad):
             problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
                                      f"{key} {int(ann[key][i])} of frame {int(ann['frame_id'][i]):06d} is not one of "
                                      f"the manifest's {len(values)} ({field})", rel))
         usable &= ~bad
+    # a K without positive focal lengths would divide the per-frame checks by zero
+    bad = ~((ann["K"][:, 0, 0] > 0) & (ann["K"][:, 1, 1] > 0) & (ann["K"][:, 2] == [0, 0, 1]).all(axis=1))
+    for i in np.flatnonzero(bad):
+        problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
+                                 f"K of frame {int(ann['frame_id'][i]):06d} is not a camera matrix (fx, fy > 0, last row "
+                                 f"0 0 1): {ann['K'][i].tolist()}", rel))
+    usable &= ~bad
     K = np.asarray(manifest["K"], dtype=np.float64)
     off = np.abs(ann["K"] - K).max(axis=(1, 2))
     differ = np.flatnonzero(off > tol.VERIFY_K_PX)
@@ -363,10 +339,8 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
         world = transform_points(invert_transform(ann["T_cam_world"]), cam)
         centre = 0.5 * (world.min(axis=1) + world.max(axis=1))
         point = transform_points(ann["T_cam_world"], centre[:, None])[:, 0]
-    elif look_at in kp.KEYPOINT_NAMES:
-        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]
     else:
-        raise BadValueError(f"manifest protocol look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]  # _check_manifest_extras checked the name
     expected = np.zeros_like(point)
     expected[:, 2] = ann["z_ego"]
     err = np.linalg.norm(point - expected, axis=1)
@@ -376,171 +350,28 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
             for i in np.flatnonzero(~(err <= tol.VERIFY_LOOK_AT_M))]
 
 
-#: what the per-frame checks share (set before the worker processes fork, so it is not pickled per frame)
-_CONTEXT: dict = {}
+def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
+    """grasps.npz against the frames: each row's hand pose, translation and grasp id must be those of its
+    grasp (``grasp_index``) in the file, as the writer copied them."""
+    from datagen.dataset.grasps_file import read_grasps, rendered_with
 
-
-def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split: str, files: str
-                          ) -> tuple[list[dict], np.ndarray | None]:
-    """The stored visibility flags against the stored depth and mask, probe pixels against the probe,
-    and the shift between the images and the labels (:func:`image_shift_px`).
-
-    Returns:
-        (problems, (2,) shift in pixels or None when the probe shows too little to measure it).
-    """
-    from datagen.dataset.chunks import visibility
-    from datagen.assets.probe import build_probe
-
-    manifest = _CONTEXT["manifest"]
-    frame_id = int(row["frame_id"])
+    path = root / "grasps.npz"
+    if not path.is_file():
+        return [_problem(None, None, "grasps_file", "missing: the grasps the frames were rendered with", path.name)]
+    try:
+        grasps = read_grasps(path)
+    except ValueError as exc:
+        return [_problem(None, None, "grasps_file", _message(exc, path), path.name)]
     problems = []
-    h, w = seg.shape
-    seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64), depth_m, seg,
-                      slack_m=manifest["depth_scale_m"])
-    uv = np.round(row["keypoints_2d"]).astype(np.int64)
-    for i in np.flatnonzero(row["visible"][: kp.NUM_HAND] & ~seen[: kp.NUM_HAND]):
-        u, v = np.clip(uv[i], 0, [w - 1, h - 1])
-        problems.append(_problem(split, frame_id, "visible_not_on_hand",
-                                 f"{kp.KEYPOINT_NAMES[i]}: label {int(seg[v, u])}, depth {depth_m[v, u]:.4f} m "
-                                 f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m", files))
-    probe_mask = shrink_mask(seg == SEG_LABELS["probe"], 1)
-    ys, xs = np.nonzero(probe_mask & (depth_m > 0))
-    shift = None
-    if len(xs):
-        pick = np.linspace(0, len(xs) - 1, min(len(xs), 200)).astype(int)
-        K = np.asarray(row["K"])
-        z = depth_m[ys[pick], xs[pick]]
-        cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
-        T_world_cam = invert_transform(row["T_cam_world"])
-        world = transform_points(T_world_cam, cam)
-        probe = build_probe()
-        signed = probe.signed_distance(world)
-        off = np.abs(signed)
-        # a pixel's depth stands for its whole footprint (z / f metres wide): on slanted
-        # surfaces that footprint, not the geometry, bounds the error
-        limit = np.maximum(tol.VERIFY_PROBE_SURFACE_M, 1.5 * z / K[0, 0])
-        bad = np.mean(off > limit)
-        if bad > PROBE_BAD_FRACTION:
-            problems.append(_problem(split, frame_id, "probe_depth",
-                                     f"{100 * bad:.0f}% of probe pixels off the probe surface "
-                                     f"(max {1000 * off.max():.1f} mm)", files))
-        else:
-            near = off <= limit
-            step = tol.VERIFY_SDF_STEP_M
-            gradient = np.stack([(probe.signed_distance(world[near] + step * e) - signed[near]) / step
-                                 for e in np.eye(3)], axis=1)  # (P, 3) surface normals, world frame
-            normals_cam = gradient @ np.asarray(row["T_cam_world"])[:3, :3].T
-            shift = image_shift_px(signed[near], normals_cam, z[near], K)
-            if shift is not None and np.abs(shift).max() > tol.VERIFY_IMAGE_SHIFT_PX:
-                problems.append(_problem(split, frame_id, "image_shift",
-                                         f"the depth and mask sit ({shift[0]:+.2f}, {shift[1]:+.2f}) px from where the "
-                                         f"labels put the probe (tolerance {tol.VERIFY_IMAGE_SHIFT_PX} px)", files))
-    return problems, shift
-
-
-def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
-    """All image checks of one frame: its files, then depth against mask, the labels against the
-    keypoints and the probe, and the RGB image against the mask, background and glove.
-
-    Args:
-        job: (split, row) with row the frame's :data:`FRAME_KEYS` annotation values; the manifest,
-            the dataset root and the backgrounds come from the module's context (:func:`verify`).
-    """
-    split, row = job
-    root, manifest = _CONTEXT["root"], _CONTEXT["manifest"]
-    frame_id = int(row["frame_id"])
-    size = tuple(manifest["image_size"])
-    problems, images, names = [], {}, {}
-    for m in manifest["modalities"]:
-        rel = _relative(split, m, frame_id, manifest["rgb_format"])
-        names[m] = rel
-        image, why = read_image(root / rel, m)
-        if image is None:
-            problems.append(_problem(split, frame_id, "missing_file" if why == "missing" else "undecodable_file",
-                                     why, rel))
-            continue
-        wrong = image_format_problem(image, m, size)
-        if wrong:
-            problem = _problem(split, frame_id, "image_format", wrong, rel)
-            if image.shape[:2] != size[::-1]:
-                problem["_size"] = (m, image.shape[1], image.shape[0])
-            problems.append(problem)
-            continue
-        images[m] = image
-    labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
-    shift = None
-    if "depth" in images and "seg" in images:
-        seg, depth = images["seg"], images["depth"]
-        both = f"{names['depth']} + {names['seg']}"
-        off = mask_depth_mismatch_px(depth, seg)
-        if off > tol.VERIFY_MASK_DEPTH_PX:
-            labels_agree = False
-            problems.append(_problem(split, frame_id, "mask_depth",
-                                     f"depth and seg disagree on {off} pixels away from the silhouette's edge "
-                                     f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
-                                     both))
-        found, shift = _visibility_and_probe(row, depth.astype(np.float64) * manifest["depth_scale_m"], seg, split,
-                                             both)
-        problems += found
-    if "rgb" in images and "seg" in images:
-        rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
-        seg = images["seg"]
-        backgrounds = _CONTEXT.get("backgrounds")
-        rgb_fits_mask = True
-        if backgrounds is not None:
-            b = int(row["background_id"])
-            off = background_mismatch_px(rgb, seg, _reference(b, size))
-            if off > tol.VERIFY_BACKGROUND_PX:
-                rgb_fits_mask = False
-                problems.append(_problem(split, frame_id, "rgb_mismatch",
-                                         f"{off} pixels the mask calls background are not background "
-                                         f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
-                                         f"image or the mask belongs to another frame", names["rgb"]))
-        partner = row.get("partner")
-        # the glove test reads both images through this frame's mask: only when the mask is this
-        # frame's and its image belongs to it (otherwise that is reported above)
-        if partner is not None and labels_agree and rgb_fits_mask:
-            problems += _check_glove_pair(split, row, partner, rgb, seg)
-    return problems, shift
-
-
-def _check_glove_pair(split: str, row: dict, partner: dict, rgb: np.ndarray, seg: np.ndarray) -> list[dict]:
-    """The glove test of a frame and its partner (same view, other glove): problems for the frame(s)
-    whose image is the stranger."""
-    manifest = _CONTEXT["manifest"]
-    rel = _relative(split, "rgb", int(partner["frame_id"]), manifest["rgb_format"])
-    other, _ = read_image(_CONTEXT["root"] / rel, "rgb")
-    if other is None or image_format_problem(other, "rgb", tuple(manifest["image_size"])):
-        return []  # the partner's own check reports its file
-    other = np.ascontiguousarray(other[..., ::-1])
-    if _CONTEXT.get("backgrounds") is not None and \
-            background_mismatch_px(other, seg, _reference(int(row["background_id"]), tuple(manifest["image_size"]))) \
-            > tol.VERIFY_BACKGROUND_PX:
-        return []  # the partner's image is not of this view (the partner's own check reports it)
-    ratio, limit, (ratio_a, ratio_b) = glove_pair_ratio(rgb, other, seg, _CONTEXT["gloves"], int(row["glove_id"]),
-                                                         int(partner["glove_id"]), row["light_color"],
-                                                         partner["light_color"])
-    if ratio is None or ratio <= limit:
-        return []
-    a, b = int(row["frame_id"]), int(partner["frame_id"])
-    # the frames whose image fits the other frame's glove and lamp better than its own; when neither
-    # does on its own, the worse of the two
-    strangers = [(f, g, r) for f, g, r in ((a, b, ratio_a), (b, a, ratio_b)) if r > 1] or \
-        [max((a, b, ratio_a), (b, a, ratio_b), key=lambda t: t[2])]
-    return [_problem(split, f, "rgb_mismatch",
-                     f"the RGB image fits the glove and lamp of frame {g:06d} (same view, other glove) better than "
-                     f"its own (pair cost ratio {ratio:.2f} > {limit}, this frame's {r:.2f}): swapped with or copied "
-                     f"from that frame", _relative(split, "rgb", f, manifest["rgb_format"]))
-            for f, g, r in strangers]
-
-
-def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
-    """The frame's background as the dataset stores it, cached per process."""
-    cache = _CONTEXT.setdefault("references", {})
-    if background_id not in cache:
-        image = _CONTEXT["backgrounds"].image(background_id, *size)
-        cache[background_id] = jpeg_reference(image, _CONTEXT["jpeg_quality"])
-    return cache[background_id]
+    for split, ann in annotations.items():
+        same = rendered_with(grasps, ann)
+        if not same.all():
+            first = int(ann["frame_id"][np.flatnonzero(~same)[0]])
+            problems.append(_problem(split, first, "grasps_file",
+                                     f"not the grasps the frames were rendered with: {int((~same).sum())} {split} frames' "
+                                     f"grasp (id, hand pose, translation) differ from it (first {first:06d})",
+                                     path.name))
+    return problems
 
 
 def _glove_partners(ann: dict) -> dict[int, int]:
@@ -654,6 +485,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
                                                               f"the layout holds ids 0 to {total - 1}"))
     floors, found = check_split_floors(annotations, manifest) if complete else (None, [])
     problems += found
+    problems += check_grasps_file(root, annotations)
     for note in skipped:
         log(f"not checked: {note}")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")
@@ -665,7 +497,9 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     frame_problems, shifts = [], []
     try:
         if workers > 1 and len(jobs) > POOL_MIN_FRAMES:
-            with multiprocessing.get_context("fork").Pool(workers) as pool:
+            with workers_ignore_ctrl_c():
+                pool = multiprocessing.get_context("fork").Pool(workers)
+            with pool:
                 results = pool.imap(check_frame, jobs, chunksize=64)
                 for found, shift in results:
                     frame_problems += found
@@ -685,3 +519,43 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     image_shift = {"median_px": np.median(shifts, axis=0).tolist(), "frames": len(shifts)} if shifts else None
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "skipped": skipped, "ok": not problems,
             "split_floors": floors, "image_shift": image_shift}
+
+
+def report_lines(result: dict, max_report: int) -> list[str]:
+    """What ``hupbench verify`` prints of :func:`verify`'s ``result``: the first ``max_report`` problems, the
+    images' shift against the labels, each split's floor and the verdict."""
+    lines = []
+    for p in result["problems"][:max_report]:
+        where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
+        frame = "" if p["frame_id"] is None else f" (frame {p['frame_id']})"
+        lines.append(f"  {p['kind']:18s} {where}{frame}: {p['detail']}")
+    hidden = len(result["problems"]) - max_report
+    if hidden > 0:
+        lines.append(f"  ... and {hidden} more (--max-report {len(result['problems'])} prints all)")
+    if result["image_shift"]:
+        du, dv = result["image_shift"]["median_px"]
+        lines.append(f"  images against labels: median shift ({du:+.3f}, {dv:+.3f}) px over "
+                     f"{result['image_shift']['frames']} frames (probe pixels unprojected with their depth, fitted to "
+                     "the probe)")
+    for split, floor in (result["split_floors"] or {}).items():
+        lines.append(f"  floor of {split}: " + _floor_line(floor))
+    if not result["ok"]:
+        counts = ", ".join(f"{k} {v}" for k, v in result["by_kind"].items() if v)
+        lines.append(f"hupbench verify: FAILED, {len(result['problems'])} problem(s) in {result['frames']} frames: "
+                     f"{counts}")
+    else:
+        lines.append(f"hupbench verify: OK, {result['frames']} frames checked")
+    return lines
+
+
+def _floor_line(floor: dict) -> str:
+    """One split's floors (:mod:`datagen.dataset.floors`) in one line."""
+    def mm(t: dict) -> str:
+        return f"hand {t['hand']:.1f} / probe {t['probe']:.1f} / all {t['all']:.1f} mm"
+
+    parts = [f"nearest training grasp under the true camera {mm(floor['nearest_train_grasp_mm'])}"]
+    if floor["nearest_train_view_mm"] is not None:
+        parts.append(f"nearest training view of the same grasp {mm(floor['nearest_train_view_mm'])}")
+    parts.append(f"mean training grasp {mm(floor['train_mean_mm'])}")
+    return "; ".join(parts) + (f" (a model that only recalls training labels scores no better than the "
+                               f"{floor['floor_kind']} one)")

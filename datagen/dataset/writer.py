@@ -15,7 +15,8 @@ other is rendered again on resume (overwriting, never duplicating).
 rendered by :class:`datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
 (:mod:`datagen.dataset.ray_launcher`), and written by :func:`datagen.dataset.chunks.write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
-``manifest.json`` is written last.
+``manifest.json`` is written last. Run again on a finished dataset, generate renders the chunks whose
+image files are missing or empty once more, from the grasps the annotations were rendered from.
 
 Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the
@@ -31,21 +32,24 @@ import multiprocessing
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import InitVar, asdict, dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
-from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS
-from datagen.dataset.grasps_file import GraspSet
+from datagen.assets.backgrounds import BackgroundSet
+from datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
+                                      read_annotations, read_manifest)
+from datagen.dataset.grasps_file import GraspSet, read_grasps, rendered_with
 from datagen.dataset.ray_launcher import RayOptions, check_launcher
 from datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
 from datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
                                   split_of_views, view_directions_arm)
 from datagen.dataset.sphere import viewpoints
-from datagen.io import TMP_PATTERN, DiskFullError, LockedError, OutputLock, save_npz, write_json, write_with
-from datagen.processes import check_workers as check_processes
+from datagen.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
+                        write_json, write_with)
+from datagen.processes import check_workers, workers_ignore_ctrl_c
 from datagen.render.renderer import SEG_LABELS
 from datagen.render.scene import ARM_RGB, GLOVE_RGB
 from datagen.render import gl
@@ -60,7 +64,10 @@ from datagen.dataset.chunks import (
     _worker_init,
     write_chunk,
 )
-from datagen.errors import BadTypeError, BadValueError
+from datagen.errors import BadValueError
+
+#: the keys of a generate config that do not change a frame (left out of its hash)
+RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
 
 
 @dataclass(frozen=True)
@@ -72,25 +79,86 @@ class SplitPlan:
     views: dict[str, list[int]]
 
 
+@dataclass(frozen=True)
+class RenderJob:
+    """Where a dataset's frames are rendered and from which background photographs.
+
+    Attributes:
+        workers: local worker processes (at most :data:`datagen.processes.MAX_WORKERS_PER_CORE` x the
+            cores), or Ray actors on a private runtime.
+        launcher: "local" or "ray" (:mod:`datagen.dataset.ray_launcher`, settings in ``ray``); both write
+            the same files.
+        shard: "k/n" renders only the chunks ``c`` with ``c % n == k``; None renders all.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.render.gl`.
+        backgrounds_dir: a folder of background photographs, None for the built-in ones.
+        k, n: the parsed shard.
+    """
+
+    workers: int = 1
+    launcher: str = "local"
+    shard: str | None = None
+    ray: RayOptions = RayOptions()
+    platform: str | None = None
+    backgrounds_dir: str | None = None
+    k: int = field(init=False)
+    n: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        k, n = parse_shard(self.shard)
+        object.__setattr__(self, "k", k)
+        object.__setattr__(self, "n", n)
+        check_launcher(self.launcher)
+        if self.launcher == "local":
+            check_workers(self.workers)
+        else:  # Ray actors may live on other machines: only local processes are bounded by the cores here
+            check_int(self.workers, "workers", low=1)
+        check_platform(self.platform, "render.platform")
+
+
+def check_platform(platform, what: str) -> str | None:
+    """``platform`` when it names an offscreen GL platform (:data:`datagen.render.gl.PLATFORMS`) or is None
+    (automatic); ``what`` is the config key, e.g. ``"sheet.platform"``."""
+    if platform is not None and platform not in gl.PLATFORMS:
+        raise BadValueError(f"{what} must be one of {', '.join(gl.PLATFORMS)} or null (automatic), got {platform!r}")
+    return platform
+
+
+@dataclass(frozen=True)
+class GenerateRun:
+    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered.
+
+    Attributes:
+        dataset: what the frames are. out_dir: the dataset folder.
+        grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
+        progress: a progress bar on stderr.
+        job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
+            ``backgrounds.dir``.
+    """
+
+    dataset: DatasetSpec
+    out_dir: str
+    grasps_path: str | None = None
+    progress: bool = True
+    workers: InitVar[int] = 1
+    launcher: InitVar[str] = "local"
+    shard: InitVar[str | None] = None
+    ray: InitVar[RayOptions] = RayOptions()
+    render: InitVar[dict] = None
+    backgrounds: InitVar[dict] = None
+    job: RenderJob = field(init=False)
+
+    def __post_init__(self, workers, launcher, shard, ray, render, backgrounds) -> None:
+        object.__setattr__(self, "job", RenderJob(workers, launcher, shard, ray, (render or {}).get("platform"),
+                                                  (backgrounds or {}).get("dir")))
+        if not isinstance(self.progress, bool):
+            raise BadValueError(f"progress must be true or false, got {self.progress!r}")
+        check_writable(self.out_dir, "out_dir")
+
+
 def config_hash(resolved: dict) -> str:
     """sha256 of the resolved config with the keys that do not change frames removed."""
-    keep = {k: v for k, v in resolved.items()
-            if k not in ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance")}
+    keep = {k: v for k, v in resolved.items() if k not in RUN_ONLY_KEYS}
     return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def check_output_dir(out_dir: Path) -> None:
-    """Fail early (before rendering) if the output folder cannot be written."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BadValueError(f"out_dir {out_dir} is a file, not a folder")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        probe_file = out_dir / f".write_test.tmp{os.getpid()}"  # a temporary name: a killed run's is cleaned
-        probe_file.write_bytes(b"")
-        probe_file.unlink()
-    except OSError as exc:
-        raise BadValueError(f"output path {out_dir} is not writable: {exc.strerror or exc}") from exc
 
 
 def parse_shard(shard: str | None) -> tuple[int, int]:
@@ -178,38 +246,46 @@ def _remove_tmp_of(out_dir: Path, pids: set[int] | None) -> None:
             path.unlink(missing_ok=True)
 
 
-def _file_digest(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+@dataclass
+class _Run:
+    """What the locked part of a generate run works with (built by :func:`generate`)."""
+
+    spec: DatasetSpec
+    out_dir: Path
+    grasps_path: Path
+    grasps: GraspSet
+    backgrounds: BackgroundSet
+    job: RenderJob
+    resolved_config: dict
+    progress: bool
+    log: Callable
+    layout: Layout = field(init=False)
+    splits: SplitPlan = field(init=False)
+    chunks: list = field(init=False)
+    chash: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        view_ids, _ = viewpoints(self.spec.sphere)
+        self.layout = Layout(len(self.grasps), len(self.spec.z_ego_m), self.spec.n_backgrounds, self.spec.n_gloves,
+                             len(view_ids))
+        self.splits = SplitPlan(split_of_grasps(self.spec, len(self.grasps)), split_of_views(self.spec, len(view_ids)))
+        self.chunks = chunk_plan(self.layout, self.splits.grasps, self.splits.views)
+        self.chash = config_hash(self.resolved_config)
 
 
-def check_workers(workers, launcher: str = "local") -> None:
-    """Refuse a worker count that is not a whole number >= 1, or, for the local launcher, more processes
-    than :func:`datagen.processes.check_workers` allows (Ray actors may live on other machines)."""
-    if launcher == "local":
-        check_processes(workers)
-    else:
-        check_int(workers, "workers", low=1)
-
-
-def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict,
-             backgrounds_dir: str | None = None, workers: int = 1, shard: str | None = None,
-             platform: str | None = None, progress: bool = True, log=print, launcher: str = "local",
-             ray: RayOptions | None = None, lock: OutputLock | None = None) -> dict:
-    """Render (or resume) a dataset. See the module docstring for the layout and the guarantees.
+def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict, job: RenderJob = RenderJob(),
+             progress: bool = True, log=print, lock: OutputLock | None = None) -> dict:
+    """Render (or resume, or repair) a dataset. See the module docstring for the layout and the guarantees.
 
     Everything is checked before anything is written; then the run holds the output folder
     (:func:`run_lock`) until it returns, removes the temporary files of killed runs, and renders
-    what is missing.
+    what is missing: the chunks without rows of a partial dataset, or the chunks of a finished
+    dataset whose image files are missing or empty (rendered again, byte for byte).
 
     Args:
-        launcher: "local" renders in ``workers`` processes on this machine; "ray" on Ray actors
-            (:mod:`datagen.dataset.ray_launcher`, options in ``ray``). Both write the same files.
-        ray: :class:`datagen.dataset.ray_launcher.RayOptions` (None: the defaults, a private runtime
-            with ``workers`` actors).
+        spec: what the frames are. out_dir: the dataset folder. grasps_path: the grasps file to render.
+        resolved_config: the resolved config, recorded in the manifest (its frame-changing keys hashed).
+        job: where and how the frames are rendered. progress: a progress bar on stderr.
         lock: the lock of this run when the caller already holds it (``with run_lock(out_dir,
             shard) as lock``); None takes it here.
 
@@ -220,136 +296,68 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     Raises:
         LockedError: another live generate run holds the folder (or this shard).
     """
-    from datagen.assets.backgrounds import BackgroundSet
-    check_launcher(launcher)
-    if ray is not None and not isinstance(ray, RayOptions):
-        raise BadTypeError(f"ray must be a RayOptions or None, got {type(ray).__name__}")
-    if not isinstance(spec, DatasetSpec):
-        raise BadTypeError(f"spec must be a DatasetSpec, got {type(spec).__name__}")
     out_dir = Path(out_dir)
-    k, n = parse_shard(shard)
-    check_workers(workers, launcher)
-    if platform is not None and platform not in gl.PLATFORMS:
-        raise BadValueError(f"render.platform must be one of {', '.join(gl.PLATFORMS)} or null (automatic), "
-                         f"got {platform!r}")
-    if not isinstance(progress, bool):
-        raise BadValueError(f"progress must be true or false, got {progress!r}")
-    backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
+    if job.backgrounds_dir:
+        backgrounds = BackgroundSet.from_dir(job.backgrounds_dir)
+    else:
+        backgrounds = BackgroundSet.builtin()
     if len(backgrounds) < spec.n_backgrounds:
         raise BadValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
-                         f"{len(backgrounds)} image(s)" + (f" ({backgrounds_dir})" if backgrounds_dir else ""))
-    check_output_dir(out_dir)
-    grasps = GraspSet(grasps_path)
-    view_ids, _ = viewpoints(spec.sphere)
-    layout = Layout(len(grasps), len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
-    splits = SplitPlan(split_of_grasps(spec, len(grasps)), split_of_views(spec, len(view_ids)))
-    chash = config_hash(resolved_config)
+                            f"{len(backgrounds)} image(s)" + (f" ({job.backgrounds_dir})" if job.backgrounds_dir else ""))
+    run = _Run(spec, out_dir, Path(grasps_path), GraspSet(grasps_path), backgrounds, job, resolved_config, progress, log)
     with contextlib.ExitStack() as stack:
         if lock is None:
-            lock = stack.enter_context(run_lock(out_dir, shard))
-        elif lock.folder.resolve() != (out_dir if n == 1 else shard_lock_folder(out_dir, k, n)).resolve():
-            raise BadValueError(f"the lock given holds {lock.folder}, not this run's folder {out_dir} (shard {k}/{n})")
+            lock = stack.enter_context(run_lock(out_dir, job.shard))
+        assert lock.folder.resolve() == (out_dir if job.n == 1 else shard_lock_folder(out_dir, job.k, job.n)).resolve()
         if lock.taken_over:
             log(f"took over the lock of a generate run that is gone (pid {lock.taken_over.get('pid')} on "
                 f"{lock.taken_over.get('host')})")
-        result = _generate_locked(spec, out_dir, Path(grasps_path), grasps, splits, layout, chash, resolved_config,
-                                  backgrounds, backgrounds_dir, workers, k, n, platform, progress, log, launcher,
-                                  ray, stack)
-    return result
+        return _generate_locked(run, stack)
 
 
-def _start_or_resume(out_dir: Path, grasps_path: Path, layout: Layout, chash: str) -> None:
+def _start_or_resume(run: _Run) -> None:
     """Record a new run's config hash in ``.progress.json``, or check that a partial dataset here was
     started with this config and these grasps; copy the grasps into the dataset."""
+    out_dir, grasps_path = run.out_dir, run.grasps_path
     progress_file = out_dir / ".progress.json"
+    copied = out_dir / "grasps.npz"
     if progress_file.is_file():
         try:
             started = json.loads(progress_file.read_text())
         except ValueError as exc:
             raise BadValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
-                             "again") from None
-        if not isinstance(started, dict) or started.get("config_hash") != chash:
+                                "again") from None
+        if not isinstance(started, dict) or started.get("config_hash") != run.chash:
             raise BadValueError(f"{out_dir} holds a partial dataset started with another config; "
-                             "resume it with the same config or choose a new out_dir")
-        copied = out_dir / "grasps.npz"
+                                "resume it with the same config or choose a new out_dir")
         if copied.is_file() and copied.resolve() != grasps_path.resolve() \
-                and _file_digest(copied) != _file_digest(grasps_path):
+                and file_sha256(copied) != file_sha256(grasps_path):
             raise BadValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
-                             "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
+                                "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
     else:
-        write_json(progress_file, {"config_hash": chash, "layout": asdict(layout)})
-    if not (out_dir / "grasps.npz").is_file() or grasps_path.resolve() != (out_dir / "grasps.npz").resolve():
-        write_with(out_dir / "grasps.npz", lambda tmp: shutil.copyfile(grasps_path, tmp))
+        write_json(progress_file, {"config_hash": run.chash, "layout": asdict(run.layout)})
+    if not copied.is_file() or grasps_path.resolve() != copied.resolve():
+        write_with(copied, lambda tmp: shutil.copyfile(grasps_path, tmp))
 
 
-def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, resolved_config, backgrounds,
-                     backgrounds_dir, workers, k, n, platform, progress, log, launcher, ray, stack) -> dict:
+def _generate_locked(run: _Run, stack: contextlib.ExitStack) -> dict:
     """The part of :func:`generate` that runs while it holds the folder (or its shard)."""
-    if n == 1:
+    out_dir, job, log = run.out_dir, run.job, run.log
+    if job.n == 1:
         # no other run is live here (the lock): whatever temporary files lie around are a killed run's.
         # A shard leaves them to the finishing run, since other shards may be writing theirs
         _remove_all_tmp(out_dir)
     manifest_file = out_dir / "manifest.json"
     if manifest_file.is_file():
-        return _finished(out_dir, layout, chash)
-    _start_or_resume(out_dir, grasps_path, layout, chash)
-
-    chunks = chunk_plan(layout, splits.grasps, splits.views)
-    todo = [c for c in range(len(chunks)) if c % n == k and not _chunk_path(out_dir, chunks[c][0], c).is_file()]
+        return _finished(run)
+    _start_or_resume(run)
+    todo = [c for c in range(len(run.chunks)) if c % job.n == job.k and not _chunk_path(out_dir, run.chunks[c][0], c).is_file()]
     start = time.perf_counter()
-    rendered = 0
-    if todo:
-        n_frames = sum(len(chunks[c][1]) for c in todo)
-        log(f"rendering {n_frames} frames ({len(todo)} chunks) with "
-            + (f"{workers} worker(s)" if launcher == "local" else "Ray") + (f", shard {k}/{n}" if n > 1 else ""))
-        for split in SPLITS:
-            for m in spec.modalities:
-                (out_dir / split / m).mkdir(parents=True, exist_ok=True)
-            (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
-        jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
-        init = (spec, str(out_dir / "grasps.npz"), backgrounds_dir, platform)
-        bar = _progress(n_frames, progress, "rendering")
-        writers = {os.getpid()}
-        try:
-            if launcher == "ray":
-                from datagen.dataset.ray_launcher import render_chunks
-
-                def on_chunk(output: ChunkOutput) -> None:
-                    nonlocal rendered
-                    count = write_chunk(out_dir, output, spec.rgb_format)
-                    rendered += count
-                    bar.update(count)
-
-                render_chunks("datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout,
-                              spec, (out_dir / "grasps.npz").read_bytes(), backgrounds_dir, platform,
-                              ray or RayOptions(), workers, on_chunk, log=log)
-            elif workers == 1:
-                _worker_init(*init)
-                for _, count in map(_render_chunk, jobs):
-                    rendered += count
-                    bar.update(count)
-            else:
-                ctx = multiprocessing.get_context("spawn")
-                with ctx.Pool(min(workers, len(jobs)), initializer=_worker_init, initargs=(*init, os.getpid())) as pool:
-                    writers.update(p.pid for p in multiprocessing.active_children())
-                    try:
-                        for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
-                            rendered += count
-                            bar.update(count)
-                    except _WorkerDiskFull as exc:
-                        raise DiskFullError(exc.args[0]) from None
-                    finally:
-                        writers.update(p.pid for p in multiprocessing.active_children())
-                # leaving the pool stopped its workers (SIGTERM), maybe in the middle of a file
-        except BaseException:
-            _remove_tmp_of(out_dir, None if n == 1 else writers)
-            raise
-        finally:
-            bar.close()
+    rendered = _render(run, todo)
     seconds = time.perf_counter() - start
-    partial = {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered,
+    partial = {"out_dir": str(out_dir), "frames_total": run.layout.size, "frames_rendered": rendered,
                "seconds": seconds, "complete": False, "counts": {}}
-    if n > 1:
+    if job.n > 1:
         # the shards that find every chunk done race to finish the dataset: one at a time, and once
         try:
             stack.enter_context(OutputLock(out_dir, "generate"))
@@ -357,26 +365,122 @@ def _generate_locked(spec, out_dir, grasps_path, grasps, splits, layout, chash, 
             log(f"not finishing the dataset: {exc}")
             return partial
         if manifest_file.is_file():
-            return {**_finished(out_dir, layout, chash), "frames_rendered": rendered, "seconds": seconds}
-    missing = [c for c in range(len(chunks)) if not _chunk_path(out_dir, chunks[c][0], c).is_file()]
+            return {**_finished(run), "frames_rendered": rendered, "seconds": seconds}
+    missing = [c for c in range(len(run.chunks)) if not _chunk_path(out_dir, run.chunks[c][0], c).is_file()]
     if missing:
         log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
         return partial
-    counts = _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, backgrounds, grasps)
-    return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": rendered, "seconds": seconds,
+    counts = _finalise(run)
+    return {"out_dir": str(out_dir), "frames_total": run.layout.size, "frames_rendered": rendered, "seconds": seconds,
             "complete": True, "counts": counts}
 
 
-def _finished(out_dir: Path, layout: Layout, chash: str) -> dict:
-    """The answer for a folder whose manifest exists: done if it is this config's dataset."""
-    from datagen.dataset.contract import read_manifest
+def _render(run: _Run, todo: list[int]) -> int:
+    """Render and write the chunks ``todo`` (indices into ``run.chunks``); returns the frames written."""
+    out_dir, job, chunks, layout = run.out_dir, run.job, run.chunks, run.layout
+    if not todo:
+        return 0
+    n_frames = sum(len(chunks[c][1]) for c in todo)
+    run.log(f"rendering {n_frames} frames ({len(todo)} chunks) with "
+            + (f"{job.workers} worker(s)" if job.launcher == "local" else "Ray")
+            + (f", shard {job.k}/{job.n}" if job.n > 1 else ""))
+    for split in SPLITS:
+        for m in run.spec.modalities:
+            (out_dir / split / m).mkdir(parents=True, exist_ok=True)
+        (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
+    jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
+    init = (run.spec, str(out_dir / "grasps.npz"), job.backgrounds_dir, job.platform)
+    bar = _progress(n_frames, run.progress, "rendering")
+    rendered = 0
+    writers = {os.getpid()}
+    try:
+        if job.launcher == "ray":
+            from datagen.dataset.ray_launcher import render_chunks
 
-    manifest = read_manifest(out_dir)
-    if manifest.get("config_hash") != chash:
-        raise BadValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
-    _remove_scaffolding(out_dir)
-    return {"out_dir": str(out_dir), "frames_total": layout.size, "frames_rendered": 0, "seconds": 0.0,
-            "complete": True, "counts": manifest["counts"]}
+            def on_chunk(output: ChunkOutput) -> None:
+                nonlocal rendered
+                count = write_chunk(out_dir, output, run.spec.rgb_format)
+                rendered += count
+                bar.update(count)
+
+            render_chunks("datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout, run.spec,
+                          (out_dir / "grasps.npz").read_bytes(), job, on_chunk, run.log)
+        elif job.workers == 1:
+            _worker_init(*init)
+            for _, count in map(_render_chunk, jobs):
+                rendered += count
+                bar.update(count)
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with workers_ignore_ctrl_c():
+                pool = ctx.Pool(min(job.workers, len(jobs)), initializer=_worker_init, initargs=(*init, os.getpid()))
+            with pool:
+                writers.update(p.pid for p in multiprocessing.active_children())
+                try:
+                    for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
+                        rendered += count
+                        bar.update(count)
+                except _WorkerDiskFull as exc:
+                    raise DiskFullError(exc.args[0]) from None
+                finally:
+                    writers.update(p.pid for p in multiprocessing.active_children())
+            # leaving the pool stopped its workers (SIGTERM), maybe in the middle of a file
+    except BaseException:
+        _remove_tmp_of(out_dir, None if job.n == 1 else writers)
+        raise
+    finally:
+        bar.close()
+    return rendered
+
+
+def _finished(run: _Run) -> dict:
+    """The answer for a folder whose manifest exists: this config's dataset, with the image files of its
+    frames (this shard's) that are missing or empty rendered again."""
+    manifest = read_manifest(run.out_dir)
+    if manifest.get("config_hash") != run.chash:
+        raise BadValueError(f"{run.out_dir} holds a finished dataset made with another config; choose a new out_dir")
+    _remove_scaffolding(run.out_dir)
+    lacking = [(c, path) for c, (split, frames) in enumerate(run.chunks) if c % run.job.n == run.job.k
+               for path in _frame_files(run, split, frames) if not _has_bytes(path)]
+    rendered, start = 0, time.perf_counter()
+    if lacking:
+        if not _rendered_from(run):
+            raise BadValueError(f"{run.out_dir} holds a finished dataset whose grasps.npz is missing, differs from "
+                                f"{run.grasps_path} or is not the one its frames were rendered with, and "
+                                f"{len(lacking)} of its image files are missing or empty: generate it again into a "
+                                "new out_dir")
+        todo = sorted({c for c, _ in lacking})
+        run.log(f"the finished dataset lacks {len(lacking)} image file(s) (first {lacking[0][1].relative_to(run.out_dir)}): "
+                f"rendering their {len(todo)} chunk(s) again")
+        rendered = _render(run, todo)
+        _remove_scaffolding(run.out_dir)
+    return {"out_dir": str(run.out_dir), "frames_total": run.layout.size, "frames_rendered": rendered,
+            "seconds": time.perf_counter() - start, "complete": True, "counts": manifest["counts"]}
+
+
+def _rendered_from(run: _Run) -> bool:
+    """The dataset's copy of the grasps is the grasps given and the one its annotations were rendered from
+    (missing frames are rendered from it again)."""
+    copied = run.out_dir / "grasps.npz"
+    if not copied.is_file() or file_sha256(copied) != file_sha256(run.grasps_path):
+        return False
+    arrays = read_grasps(copied)
+    keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans")
+    return all(rendered_with(arrays, read_annotations(run.out_dir, split, keys)).all()
+               for split, count in read_manifest(run.out_dir)["counts"].items() if count)
+
+
+def _frame_files(run: _Run, split: str, frames: tuple[int, ...]) -> Iterator[Path]:
+    for index in frames:
+        for modality in run.spec.modalities:
+            yield frame_path(run.out_dir, split, modality, index, run.spec.rgb_format)
+
+
+def _has_bytes(path: Path) -> bool:
+    try:
+        return path.stat().st_size > 0
+    except FileNotFoundError:
+        return False
 
 
 def _progress(total: int, enabled: bool, desc: str | None = None, unit: str = "frame"):
@@ -385,8 +489,10 @@ def _progress(total: int, enabled: bool, desc: str | None = None, unit: str = "f
     return tqdm(total=total, unit=unit, desc=desc, disable=not enabled, smoothing=0.1, dynamic_ncols=True)
 
 
-def _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, backgrounds, grasps) -> dict:
+def _finalise(run: _Run) -> dict:
     """Merge the chunk rows per split, then write the manifest (last)."""
+    out_dir, spec, layout, splits, chunks, grasps = run.out_dir, run.spec, run.layout, run.splits, run.chunks, run.grasps
+    resolved_config, backgrounds = run.resolved_config, run.backgrounds
     counts, merged_splits = {}, {}
     for split in SPLITS:
         parts = []
@@ -406,7 +512,7 @@ def _finalise(out_dir, spec, layout, splits, chunks, resolved_config, chash, bac
         "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
                       "git_commit": resolved_config.get("_provenance", {}).get("git_commit", "unknown")},
         "config": resolved_config,
-        "config_hash": chash,
+        "config_hash": run.chash,
         "counts": counts,
         "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in splits.grasps.items()},
         "grasp_indices": splits.grasps,

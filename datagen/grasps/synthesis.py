@@ -16,10 +16,8 @@ Convention:
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, fields
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -34,7 +32,7 @@ from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
 from datagen.assets.probe import ProbeSpec, build_probe
 from datagen.input_checks import check_int, is_whole
-from datagen.errors import BadValueError, NotWritableError
+from datagen.errors import BadValueError
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch, whose arrays grow with it
@@ -97,9 +95,9 @@ class GraspGenConfig:
 
 
 def check_selection(config: GraspGenConfig) -> None:
-    """n_select, or the pinned ids, against the number of candidates the config makes: checked before the
-    refinement (``hupbench grasps`` found them wrong only after minutes of it). Not in
-    :class:`GraspGenConfig` itself, whose candidates are also made without a selection.
+    """n_select, or the pinned ids, against the number of candidates the config makes, before the minutes of
+    refinement (:class:`hupbench.verbs.grasps.GraspsRun` calls it). Not in :class:`GraspGenConfig` itself,
+    whose candidates are also made without a selection.
 
     Raises:
         ValueError: naming n_select or pinned_ids and the candidates' count.
@@ -114,65 +112,6 @@ def check_selection(config: GraspGenConfig) -> None:
     elif config.n_select > candidates:
         raise BadValueError(f"cannot select {config.n_select} grasps (n_select): there are only {n_theta} x {starts} = "
                          f"{candidates} candidates (theta_vol_deg x starts_per_theta)")
-
-
-def check_run_options(threads, tile_px, platform, out_dir) -> Path:
-    """Check the options of a ``hupbench grasps`` run besides :class:`GraspGenConfig` and
-    :class:`RefineConfig`, before the refinement starts (and so before minutes of work end in a
-    failed write). Nothing is created.
-
-    Args:
-        threads: torch CPU threads, a whole number from 1 to 4 x the usable cores.
-        tile_px: contact-sheet tile side, pixels, from :data:`MIN_TILE_PX` to :data:`MAX_TILE_PX`.
-        platform: "egl", "osmesa" or None (automatic).
-        out_dir: the output folder: a folder or a path that can be made, on a writable file system.
-
-    Returns:
-        ``out_dir`` as a Path.
-
-    Raises:
-        ValueError: naming the option, what came and what was expected. PermissionError: ``out_dir``
-            (or its nearest existing parent) cannot be written.
-    """
-    from datagen.render.gl import PLATFORMS
-    from datagen.processes import MAX_WORKERS_PER_CORE, usable_cores
-
-    cores = usable_cores()
-    most = MAX_WORKERS_PER_CORE * cores
-    # torch starts that many threads at once; threads=100000 failed deep inside a later import
-    check_int(threads, "threads", 1, most,
-              hint=f" ({MAX_WORKERS_PER_CORE} x the {cores} CPU core(s) this process may use)")
-    check_int(tile_px, "sheet.tile_px", MIN_TILE_PX, MAX_TILE_PX, hint=" (pixels)")
-    if platform is not None and platform not in PLATFORMS:
-        raise BadValueError(f"sheet.platform must be one of {', '.join(PLATFORMS)} or null (automatic), got {platform!r}")
-    if not isinstance(out_dir, (str, Path)) or not str(out_dir).strip():
-        raise BadValueError(f"out_dir must be a folder path, got {out_dir!r}")
-    return check_output_folder(out_dir)
-
-
-def check_output_folder(out_dir, what: str = "out_dir") -> Path:
-    """``out_dir`` is a folder, or can be made, on a writable file system; nothing is created.
-
-    Raises:
-        ValueError: ``out_dir`` or one of its parents is a file. PermissionError: the nearest existing
-            folder is read-only or not writable.
-    """
-    out_dir = Path(out_dir)
-    existing = out_dir
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        where = "" if existing == out_dir else f": {existing} is a file"
-        raise BadValueError(f"{what} {out_dir} is not a folder{where or ' (a file of that name exists)'}")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        try:
-            read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
-        except OSError:
-            read_only = False
-        why = "on a read-only file system" if read_only else "not writable (permission denied)"
-        where = "" if existing == out_dir else f" (its parent {existing})"
-        raise NotWritableError(f"cannot write {what} {out_dir}{where}: {why}")
-    return out_dir
 
 
 def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspBatch:

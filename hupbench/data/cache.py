@@ -70,17 +70,8 @@ def _reserve(path: Path) -> None:
 
 
 def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) -> np.ndarray:
-    """The frames of ``dataset`` at its input size, memory-mapped; built (or rebuilt when stale) first.
-
-    Args:
-        dataset: a :class:`hupbench.data.HUPDataset`; row i of the cache is its ``frame(i)``.
-        cache_dir: where the cache lives; None for ``<dataset root>/cache``.
-        progress: show a progress bar while building.
-        log: where the rebuild of a stale cache is reported.
-
-    Returns:
-        (N, S, S, 3) uint8 read-only memory map, RGB.
-    """
+    """(N, S, S, 3) uint8 RGB read-only memory map whose row i is ``dataset.frame(i)``, built (or rebuilt
+    when stale, said to ``log``) first in ``cache_dir`` (default ``<dataset root>/cache``)."""
     cache_dir = dataset.root / "cache" if cache_dir is None else Path(cache_dir)
     size, split = int(dataset.config.input_size), dataset.split
     npy_path, key_path = cache_paths(cache_dir, split, size)

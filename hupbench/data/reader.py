@@ -25,16 +25,9 @@ from hupbench.input_geometry import INPUT_SIZE_RANGE, inside_input, pad_and_resi
 
 
 def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
-    """A stored frame as (H, W, 3) uint8 RGB, checked: it exists, decodes, and has the manifest's size.
-
-    Args:
-        path: the image file.
-        image_size: (width, height) the manifest gives for every frame, or None to skip that check.
-
-    Raises:
-        FileNotFoundError: no such file. ValueError: not a decodable image, or another size (the message
-        names the file; a frame of another size would put every label in the wrong place).
-    """
+    """A stored frame as (H, W, 3) uint8 RGB, checked: it exists, decodes, and has the manifest's
+    ``image_size`` (width, height) unless that is None (a frame of another size would put every label in
+    the wrong place)."""
     path = Path(path)
     try:
         data = np.fromfile(path, dtype=np.uint8)

@@ -1,8 +1,9 @@
 """Evaluation: scoring a model on a dataset split, the results schema and the leaderboard.
 
 Owns: ``hupbench eval`` (``evaluate``: a checkpoint or an ONNX export over a split, MPJPE by part and
-the breakdowns, whose per-frame buckets ``breakdowns`` labels; latency), the results file (``results``: schema, validation, atomic writes) and the
-leaderboard (``leaderboard``: the table and the error-against-time plots, rebuilt from results/).
+the breakdowns, whose per-frame buckets ``breakdowns`` labels; latency), the results file (``results``:
+schema, validation, atomic writes) and the leaderboard (``leaderboard``: the table and the
+error-against-time plots, rebuilt from results/).
 
 May import: ``hupbench.inference`` (the ONNX contract and onnxruntime sessions, to time an export),
 ``hupbench`` top-level modules (data, checkpoint, metrics, provenance, config, errors), ``models``,

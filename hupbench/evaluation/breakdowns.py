@@ -32,9 +32,6 @@ def latitude_labels(theta_rad) -> np.ndarray:
 
     Args:
         theta_rad: (N,) polar angle of each frame's viewpoint, radians (annotations "theta").
-
-    Returns:
-        (N,) array of str.
     """
     theta = np.asarray(theta_rad, np.float64).reshape(-1)
     return np.where(theta < EGOCENTRIC_MAX_THETA_RAD, "egocentric", "non_egocentric")
@@ -68,13 +65,8 @@ def theta_vol_label(theta_vol_deg) -> str:
     z is always named; x and y only where they are not 0 ("theta_vol_x=30_z=90"), since the grasp
     generator's orientations usually turn the probe about z alone. Angles are rounded to
     ``THETA_VOL_LABEL_DECIMALS`` and written without trailing zeros; no angle is wrapped, so -90 and
-    270 are two labels, as the grasps file recorded them.
-
-    Args:
-        theta_vol_deg: (3,) Euler angles (x, y, z) of the probe, degrees, intrinsic x-y-z.
-
-    Returns:
-        The label.
+    270 are two labels, as the grasps file recorded them. ``theta_vol_deg``: (3,) intrinsic x-y-z Euler
+    angles of the probe, degrees.
     """
     x, y, z = (round(float(v), THETA_VOL_LABEL_DECIMALS) + 0.0 for v in theta_vol_deg)  # + 0.0: no "-0"
     named = [(axis, v) for axis, v in (("x", x), ("y", y)) if v != 0.0] + [("z", z)]
@@ -83,16 +75,8 @@ def theta_vol_label(theta_vol_deg) -> str:
 
 
 def theta_vol_labels(grasp_id, theta_vol_deg_by_grasp: dict) -> np.ndarray:
-    """Probe-orientation bucket of each frame: the Theta_Vol label of its grasp (:func:`theta_vol_label`).
-
-    Args:
-        grasp_id: (N,) int, each frame's grasp id (annotations "grasp_id").
-        theta_vol_deg_by_grasp: {int grasp id: (3,) degrees, or None where the grasps file did not
-            record the orientation}; a grasp that is not a key counts as None.
-
-    Returns:
-        (N,) array of str; ``THETA_VOL_UNKNOWN`` for frames whose grasp has no orientation.
-    """
+    """(N,) str: the Theta_Vol label (:func:`theta_vol_label`) of each frame's grasp (``grasp_id`` (N,) int)
+    from {int grasp id: (3,) degrees or None}, ``THETA_VOL_UNKNOWN`` where a grasp has none or no key."""
     labels = {int(g): THETA_VOL_UNKNOWN if theta is None else theta_vol_label(theta)
               for g, theta in theta_vol_deg_by_grasp.items()}
     return np.array([labels.get(int(g), THETA_VOL_UNKNOWN) for g in np.asarray(grasp_id).reshape(-1)])

@@ -1,14 +1,9 @@
 """``hupbench eval MODEL DATASET``: every benchmark metric of a checkpoint or an exported ONNX model.
 
-The model runs over one split of a dataset (``hupbench.data.HUPDataset`` at the model's input
-size, batched, under ``torch.inference_mode``), the metrics of :mod:`hupbench.metrics` are
-computed on all frames, and a results JSON in schema version 3 (:mod:`hupbench.evaluation.results`) is
-written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the same wrapper the
-ONNX export uses, so both formats report the same quantities.
-
-Each number of the results file (MPJPE by part, the probe's half-turn symmetric error, the spread
-ratios, PA-MPJPE, PCK AUC, the 2D error, the breakdowns, the split floor, latency, parameters and FLOPs)
-is defined in docs/metrics.md.
+The model runs over one split (``hupbench.data.HUPDataset`` at its input size, batched), the metrics of
+:mod:`hupbench.metrics` are computed on all frames, and a results JSON (:mod:`hupbench.evaluation.results`)
+is written. A checkpoint runs through :class:`hupbench.inference.export.ContractModule`, the wrapper the
+ONNX export uses, so both formats report the same quantities; docs/metrics.md defines each number.
 """
 
 from __future__ import annotations
@@ -192,8 +187,8 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
 def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) -> tuple[tuple[int, ...], ...]:
     """The probe corners' symmetry group (identity and the half turn about the long axis) read from annotations.
 
-    The true corners are taken back to the world frame, which is the probe frame in every hupbench
-    dataset (DESIGN.md), and the half turn about its z axis must map the 8 corners onto each other.
+    The true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
+    between frames and map onto each other under the half turn about z.
 
     Args:
         keypoints_3d_cam: (N, 29, 3) float, metres, OpenCV camera frame (annotations ``keypoints_3d_cam``).
@@ -201,10 +196,6 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
 
     Returns:
         ((0, ..., 7), half-turn permutation of the 8 corners), as in ``metrics.PROBE_SYMMETRIES``.
-
-    Raises:
-        ValueError: the corners differ between frames in the probe frame, or the box is not
-            symmetric under the half turn (e.g. it is not centred on the probe's long axis).
     """
     corners_cam = np.asarray(keypoints_3d_cam, np.float64)[:, kp.CORNER_SLICE]       # (N, 8, 3)
     T = np.asarray(T_cam_world, np.float64)
@@ -219,21 +210,9 @@ def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) 
 
 
 def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dict[str, list[float] | None] | None:
-    """The probe orientation Theta_Vol of each evaluated grasp, from the manifest's ``grasp_theta_vol_deg``.
-
-    Args:
-        manifest: the dataset's manifest; ``grasp_theta_vol_deg`` is {str(grasp id): [x, y, z] degrees or
-            null}, null or absent where the grasps file did not record the orientations.
-        grasp_ids: the evaluated grasps (annotations ``grasp_id``).
-        where: the manifest's path, for errors.
-
-    Returns:
-        {str(grasp id): [x, y, z] degrees or None} for exactly ``grasp_ids`` (a grasp the map lacks is
-        None), or None when the manifest records no orientations.
-
-    Raises:
-        ValueError: the map is not grasp ids -> three finite numbers or null (the message names the manifest).
-    """
+    """{str(grasp id): [x, y, z] degrees or None} of the probe orientation Theta_Vol of exactly the evaluated
+    ``grasp_ids``, from the manifest's ``grasp_theta_vol_deg`` (checked; ``where`` is the manifest's path),
+    or None where the manifest records none."""
     recorded = manifest.get("grasp_theta_vol_deg")
     if recorded is None:
         return None
@@ -242,23 +221,9 @@ def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dic
 
 
 def split_floor(manifest: dict, split: str, grasp_ids: list[int], where: str) -> tuple[str | None, dict | None]:
-    """The dataset's track and the evaluated split's floor, checked, as the results JSON holds them.
-
-    Args:
-        manifest: the dataset's manifest: ``protocol.track`` and ``split_floors`` = {"definition",
-            "splits": {split: entry}} (see :func:`hupbench.evaluation.results.validate_split_floor`), both
-            absent in datasets made before them; the train split has no entry.
-        split: the evaluated split.
-        grasp_ids: the evaluated grasps (annotations ``grasp_id``): the entry's ``per_grasp`` must hold exactly them.
-        where: the manifest's path, for errors.
-
-    Returns:
-        (track or None, a copy of the split's entry or None).
-
-    Raises:
-        ValueError: a track that is not one of ``TRACKS``, or a bad entry (the message names the manifest
-            and the field).
-    """
+    """(track or None, a checked copy of the split's floor or None) from the manifest's ``protocol.track``
+    and ``split_floors["splits"][split]`` (absent in older datasets; the train split has none), whose
+    ``per_grasp`` must hold exactly the evaluated ``grasp_ids``; ``where`` is the manifest's path."""
     track = (manifest.get("protocol") or {}).get("track")
     if track is not None and track not in TRACKS:
         raise BadValueError(f"{where}: manifest['protocol']['track'] must be one of {', '.join(TRACKS)}, got {track!r}")
@@ -417,18 +382,10 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
     The model file, ``--out`` and the dataset are checked before the model runs; the results file is then
-    locked (a second eval writing it is refused) until it is written.
-
-    Args:
-        options: the checked arguments.
-        log: called with progress lines.
+    locked (a second eval writing it is refused) until it is written, and any failure writes none.
 
     Returns:
         {"results": the validated results dict, "out": str path, "table": str}
-
-    Raises:
-        UserError: a bad model file or dataset, an unwritable or locked output, a full disk, a model that
-        fails or outputs NaN; in every case no results file is written.
     """
     previous_threads = torch.get_num_threads()
     if options.threads is not None:

@@ -1,31 +1,19 @@
-"""The leaderboard: a table per track and two plots rebuilt from ``leaderboard/results/*.json``.
+"""``hupbench leaderboard``: ``README.md`` (a table per track beside the test split's floor, the notes, and
+each row's details with a per-grasp table), ``mpjpe_vs_latency.png`` (with the Pareto frontier) and
+``val_mpjpe_vs_training_time.png`` (from the training logs under ``logs/``), rebuilt from
+``leaderboard/results/*.json``. (layout: long because the README's tables, notes and row details and the
+two plots share the row helpers; the plots are the part to move out.)
 
-(layout: long because the README it renders (a table per track, the notes, each row's details and
-per-grasp table) and the two plots share the row helpers; the plots are the part to move out.)
+A broken input (a results file or training log missing, damaged or against its schema, an unwritable
+folder, a folder in an output's place) is an error naming the file, and nothing is rewritten: a row that
+silently dropped out of the table would be a wrong leaderboard nobody notices. The three outputs are
+written under temporary names and renamed together, so a full disk or a kill leaves the old set or the
+new one. The same files give the same bytes: rows are sorted, numbers formatted explicitly, nothing reads
+the clock, and the plots use matplotlib's defaults at a fixed size with a PNG ``Software`` tag naming only
+the matplotlib and Pillow versions (which decide the pixels).
 
-``hupbench leaderboard [--dir leaderboard]`` reads every results file
-(validated by :mod:`hupbench.evaluation.results`; a bad file is an error naming it),
-and regenerates ``README.md`` (one table per track, each with the test split's floor beside the rows,
-notes, and per-row details with a per-grasp table),
-``mpjpe_vs_latency.png`` (error against inference latency with the Pareto
-frontier) and ``val_mpjpe_vs_training_time.png`` (validation error against
-training wall time, from the training logs under ``logs/``).
-
-Every broken input (a results file or training log that is missing, damaged or breaks its schema, a
-folder that cannot be written or a folder in an output's place) is an error naming the file, and
-nothing is rewritten: a bad results file is not skipped, because a row that silently drops out of the
-committed table is a wrong leaderboard nobody notices. Files in ``results/`` that are not ``*.json`` are
-ignored. The three outputs are written under temporary names and renamed into place only once all three
-are written, so a full disk or a kill leaves the old set or the new one.
-
-Rebuilding from the same files gives the same bytes: rows are sorted, every
-number is formatted explicitly, nothing depends on the clock, and the plots
-are drawn with matplotlib's default style at a fixed size and dpi with a
-PNG ``Software`` tag that names only the matplotlib and Pillow versions
-(which are what decide the pixels).
-
-Convention: errors in mm, latency in ms per image at batch 1, times in
-seconds inside and minutes or hours on the plot axes.
+Convention: errors in mm, latency in ms per image at batch 1, times in seconds inside and minutes or hours
+on the plot axes.
 """
 
 from __future__ import annotations
@@ -69,20 +57,8 @@ TRACK_TITLES = {
 # ----------------------------------------------------------------------------- rows
 
 def load_rows(results_dir: str | Path) -> list[dict]:
-    """Every results file in a folder, validated and sorted for the table.
-
-    Args:
-        results_dir: the folder holding ``<run_name>.json`` files.
-
-    Returns:
-        Validated result dicts, sorted by :func:`sort_key`.
-
-    Raises:
-        FileNotFoundError: the folder does not exist.
-        ValueError: a file breaks the schema, its run_name is not its file stem, it is not a
-            test-split result, or it is a measured row without the command that reproduces it;
-            the message names the file. There must be at least one file.
-    """
+    """Every ``<run_name>.json`` of a folder (at least one), validated, sorted by :func:`sort_key`: each
+    must be a test-split result named by its run name, and a measured row must name its command."""
     results_dir = Path(results_dir)
     if not results_dir.is_dir():
         raise MissingFileError(f"results folder not found: {results_dir}")
@@ -117,11 +93,7 @@ def sort_key(row: dict) -> tuple[float, str]:
 
 
 def inference_latency_ms(row: dict) -> tuple[float | None, str | None]:
-    """Latency per image at batch 1: ONNX Runtime where measured, else PyTorch.
-
-    Returns:
-        ``(milliseconds, runtime)`` with runtime "ONNX Runtime" or "PyTorch"; ``(None, None)`` when neither.
-    """
+    """``(ms per image at batch 1, "ONNX Runtime")`` where measured, else PyTorch's, else ``(None, None)``."""
     latency = row["latency_ms_per_image"]
     if latency["onnxruntime"]["batch1"] is not None:
         return latency["onnxruntime"]["batch1"], "ONNX Runtime"
@@ -131,17 +103,8 @@ def inference_latency_ms(row: dict) -> tuple[float | None, str | None]:
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
-    """Indices of the points no other point beats on both axes (lower is better on both).
-
-    A point is dominated when another is no worse on both coordinates and strictly better on one;
-    identical points do not dominate each other, so both stay.
-
-    Args:
-        points: ``(x, y)`` pairs, e.g. (latency ms, MPJPE mm).
-
-    Returns:
-        Indices into ``points`` of the non-dominated ones, ordered by x, then y, then index.
-    """
+    """Indices of the ``(x, y)`` points no other point beats (no worse on both, better on one; lower is
+    better), ordered by x, then y, then index; identical points do not dominate each other."""
     front = []
     for i, (xi, yi) in enumerate(points):
         dominated = any(xj <= xi and yj <= yi and (xj < xi or yj < yi) for j, (xj, yj) in enumerate(points) if j != i)
@@ -151,24 +114,11 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 
 
 def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
-    """Validation MPJPE against training time from a training log (JSON lines).
+    """``(train_wall_s, val_mpjpe_all_mm)`` of the ``"event": "val"`` lines of a training run's
+    ``metrics.jsonl``, in file order (train_wall_s counts training only, validation passes excluded).
 
-    Only lines with ``"event": "val"`` are plotted; their ``train_wall_s`` (training only, validation
-    passes excluded) and ``val_mpjpe_mm["all"]`` must be finite non-negative numbers. Every line is
-    checked: a step logged twice for one event (two trainings appending to one log; a resumed run
-    drops the lines after its checkpoint before it logs again) is an error.
-
-    Args:
-        path: the log, one JSON object per line (``metrics.jsonl`` of a training run).
-
-    Returns:
-        ``(train_wall_s, val_mpjpe_all_mm)`` pairs in file order.
-
-    Raises:
-        FileNotFoundError: the log does not exist.
-        ValueError: the log is not UTF-8, a line is not a JSON object, a validation line lacks a
-            field, a step appears twice, or there is no validation line; the message names the file
-            and line.
+    Every line is checked: an event's step logged twice means two trainings appended to one log (a
+    resumed run drops the lines after its checkpoint before it logs again).
     """
     path = Path(path)
     if not path.is_file():
@@ -281,14 +231,8 @@ def spread_cell(row: dict) -> str:
 
 
 def table_row(row: dict) -> list[str]:
-    """The table cells of one results row, formatted (two decimals for mm and ms, three for AUC).
-
-    Args:
-        row: a validated results dict.
-
-    Returns:
-        One string per column of :data:`TABLE_COLUMNS`.
-    """
+    """The cells of a validated results row, one per :data:`TABLE_COLUMNS` (two decimals for mm and ms,
+    three for AUC)."""
     model, metrics, training = row["model"], row["metrics"], row["training"]
     mpjpe = metrics["mpjpe_mm"]
     params = None if model["parameters"] is None else model["parameters"] / 1e6
@@ -394,15 +338,8 @@ GRASP_COLUMNS = ("grasp", "Theta_Vol x, y, z (deg)", "frames", "MPJPE hand (mm)"
 
 
 def grasp_rows(row: dict) -> list[list[str]]:
-    """The per-grasp table of one results row: one line per grasp that its grasp breakdown or its floor names.
-
-    Args:
-        row: a validated results dict.
-
-    Returns:
-        One list of cells per :data:`GRASP_COLUMNS`, grasps in increasing id; empty when the row has neither
-        a grasp breakdown nor per-grasp floors.
-    """
+    """The cells (per :data:`GRASP_COLUMNS`) of each grasp that a results row's grasp breakdown or its
+    floor names, in increasing id."""
     measured = row["breakdowns"].get("grasp", {})
     floors = {} if row["split_floor"] is None else row["split_floor"]["per_grasp"]
     theta_vol = row["dataset"]["grasp_theta_vol_deg"] or {}
@@ -429,11 +366,8 @@ def _grasp_details(row: dict) -> list[str]:
         return [f"Per grasp: {MISSING} (the results file records no grasp breakdown: it was written before results "
                 f"schema version {SCHEMA_VERSION}; `hupbench eval` adds it).", ""]
     floor = row["split_floor"]
-    lines = ["Per test grasp" + ("" if floor is None else f" (floor: {FLOOR_NAMES[floor['floor_kind']]})") + ":",
-             "", "| " + " | ".join(GRASP_COLUMNS) + " |",
-             "|" + "|".join("---:" for _ in GRASP_COLUMNS) + "|"]
-    lines += ["| " + " | ".join(cells) + " |" for cells in table]
-    lines.append("")
+    lines = ["Per test grasp" + ("" if floor is None else f" (floor: {FLOOR_NAMES[floor['floor_kind']]})") + ":", ""]
+    lines += _table(GRASP_COLUMNS, ["---:"] * len(GRASP_COLUMNS), table)
     by_theta = row["breakdowns"].get("theta_vol")
     if by_theta:
         shown = "; ".join(f"{_cell(label)} {triplet_cell(by_theta[label]['mpjpe_mm'])} ({by_theta[label]['frames']} "
@@ -462,6 +396,12 @@ def _floor_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _table(columns: Sequence[str], aligns: list[str], rows: list[list[str]]) -> list[str]:
+    """A Markdown table's lines and the blank line after it."""
+    return ["| " + " | ".join(columns) + " |", "|" + "|".join(aligns) + "|",
+            *("| " + " | ".join(cells) + " |" for cells in rows), ""]
+
+
 def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
@@ -473,23 +413,12 @@ def _track_section(track: str, rows: list[dict]) -> list[str]:
     out = [f"## Track: {title} (`{track}`)", "", f"{title}: {holds_out}", ""]
     out += _floor_lines(rows)
     out += [f"{_count(len(rows), 'row')} ({n_measured} measured, {len(rows) - n_measured} reported), sorted by MPJPE "
-            f"all, then run name. {MISSING} means not measured or not reported.",
-            "",
-            "| " + " | ".join(TABLE_COLUMNS) + " |",
-            "|" + "|".join(_ALIGN[c] for c in TABLE_COLUMNS) + "|"]
-    out += ["| " + " | ".join(table_row(row)) + " |" for row in rows]
-    return out + [""]
+            f"all, then run name. {MISSING} means not measured or not reported.", ""]
+    return out + _table(TABLE_COLUMNS, [_ALIGN[c] for c in TABLE_COLUMNS], [table_row(row) for row in rows])
 
 
 def render_readme(rows: list[dict]) -> str:
-    """The leaderboard README for rows already sorted by :func:`sort_key`.
-
-    Args:
-        rows: validated result dicts.
-
-    Returns:
-        Markdown text ending in one newline; a pure function of ``rows``.
-    """
+    """The leaderboard README (Markdown ending in one newline) of validated rows sorted by :func:`sort_key`."""
     n_measured = sum(row["kind"] == "measured" for row in rows)
     tracks = [t for t in TRACKS if any(row_track(row) == t for row in rows)]
     out = [
@@ -583,20 +512,34 @@ def render_readme(rows: list[dict]) -> str:
 
 # ----------------------------------------------------------------------------- plots
 
-def _figure():
-    """A figure on the Agg canvas (no pyplot, no global backend switch)."""
+@contextlib.contextmanager
+def _figure(rows: list[dict]):
+    """(figure, axes, reported rows) on the Agg canvas (no pyplot, no global backend switch) in matplotlib's
+    default style, the reported rows drawn as reference lines."""
+    import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
-    FigureCanvasAgg(fig)
-    return fig, fig.add_subplot()
+    with matplotlib.rc_context():
+        matplotlib.rcdefaults()  # the user's matplotlibrc must not change the committed bytes
+        fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot()
+        reported = [row for row in rows if row["kind"] == "reported"]
+        _draw_references(ax, reported)
+        yield fig, ax, reported
 
 
-def _png_bytes(fig) -> bytes:
+def _png_bytes(fig, ax, xlabel: str, ylabel: str, title: str, legend_loc: str) -> bytes:
     import matplotlib
     import PIL
 
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc=legend_loc, fontsize=8)
+    fig.tight_layout()
     buffer = io.BytesIO()
     # The default Software tag is fine, but say so explicitly: the versions that decide the pixels, no date.
     fig.savefig(buffer, format="png", dpi=DPI,
@@ -640,20 +583,9 @@ def _y_limit(values: list[float]) -> float:
 
 
 def plot_latency(rows: list[dict]) -> bytes:
-    """MPJPE all against inference latency, with the Pareto frontier; PNG bytes.
-
-    Args:
-        rows: validated result dicts (sorted). Measured rows with a batch-1 latency are points; reported
-            rows are horizontal reference lines.
-
-    Returns:
-        A 900 x 600 px PNG, a pure function of ``rows`` for one matplotlib and Pillow version.
-    """
-    import matplotlib
-
-    with matplotlib.rc_context():
-        matplotlib.rcdefaults()  # the user's matplotlibrc must not change the committed bytes
-        fig, ax = _figure()
+    """PNG of MPJPE all against inference latency: measured rows with a batch-1 latency as points with
+    their Pareto frontier, reported rows as horizontal reference lines."""
+    with _figure(rows) as (fig, ax, reported):
         points, labels, runtimes = [], [], []
         for row in rows:
             ms, runtime = inference_latency_ms(row)
@@ -661,8 +593,6 @@ def plot_latency(rows: list[dict]) -> bytes:
                 points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
                 labels.append(plot_label(row))
                 runtimes.append(runtime)
-        reported = [row for row in rows if row["kind"] == "reported"]
-        _draw_references(ax, reported)
         for runtime, marker in (("ONNX Runtime", "o"), ("PyTorch", "s")):
             chosen = [p for p, r in zip(points, runtimes) if r == runtime]
             if chosen:
@@ -691,28 +621,13 @@ def plot_latency(rows: list[dict]) -> bytes:
             ax.text(0.5, 0.5, "no measured rows with a latency yet\n(hupbench eval writes them)",
                     transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.set_ylim(0, _y_limit([p[1] for p in points] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]))
-        ax.set_xlabel("inference latency (ms per image, batch 1)")
-        ax.set_ylabel("test MPJPE, all 29 keypoints (mm)")
-        ax.set_title("Error against inference latency (lower left is better)")
-        ax.grid(True, which="major", alpha=0.3)
-        ax.legend(loc="lower right", fontsize=8)
-        fig.tight_layout()
-        return _png_bytes(fig)
+        return _png_bytes(fig, ax, "inference latency (ms per image, batch 1)", "test MPJPE, all 29 keypoints (mm)",
+                          "Error against inference latency (lower left is better)", "lower right")
 
 
 def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
-    """Validation MPJPE against training wall time, one line per measured row with a log; PNG bytes.
-
-    Args:
-        rows: validated result dicts (sorted).
-        leaderboard_dir: the folder that ``training.log`` paths are relative to.
-
-    Returns:
-        A 900 x 600 px PNG, a pure function of the rows and logs for one matplotlib and Pillow version.
-
-    Raises:
-        FileNotFoundError, ValueError: a named log is missing or malformed (see :func:`read_validation_curve`).
-    """
+    """PNG of validation MPJPE against training wall time, one line per measured row with a log (its
+    ``training.log`` relative to ``leaderboard_dir``)."""
     import matplotlib
 
     curves = []
@@ -730,11 +645,7 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
     hours = longest_s > 2 * 3600
     scale, unit = (3600.0, "h") if hours else (60.0, "min")
 
-    with matplotlib.rc_context():
-        matplotlib.rcdefaults()
-        fig, ax = _figure()
-        reported = [row for row in rows if row["kind"] == "reported"]
-        _draw_references(ax, reported)
+    with _figure(rows) as (fig, ax, reported):
         colours = matplotlib.colormaps["tab10"].colors
         for k, (row, curve) in enumerate(curves):
             hardware = f", {row['training']['hardware']}" if row["training"]["hardware"] else ""
@@ -755,13 +666,9 @@ def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:
             _plain_log_ticks(ax.yaxis)
         else:
             ax.set_ylim(0, _y_limit(values))
-        ax.set_xlabel(f"training wall time ({unit}, validation passes excluded)")
-        ax.set_ylabel("validation MPJPE, all 29 keypoints (mm)" + (", log scale" if ax.get_yscale() == "log" else ""))
-        ax.set_title("Validation error against training time (paper lines: test split)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-        fig.tight_layout()
-        return _png_bytes(fig)
+        log_scale = ", log scale" if ax.get_yscale() == "log" else ""
+        return _png_bytes(fig, ax, f"training wall time ({unit}, validation passes excluded)",
+                          f"validation MPJPE, all 29 keypoints (mm){log_scale}", "Validation error against training time (paper lines: test split)", "upper right")
 
 
 # ----------------------------------------------------------------------------- verb
@@ -784,18 +691,10 @@ def _write_together(root: Path, files: dict[str, bytes]) -> list[Path]:
 
 
 def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
-    """Rebuild README.md and both plots in ``dir`` from ``dir/results/*.json``.
-
-    Args:
-        dir: the leaderboard folder (``results/`` inside, ``logs/`` for training logs).
+    """Rebuild README.md and both plots in ``dir`` from ``dir/results/*.json`` (and ``dir/logs/``).
 
     Returns:
         {"rows": int, "measured": int, "reported": int, "readme": Path, "plots": [Path, Path]}.
-
-    Raises:
-        FileNotFoundError, ValueError: a missing folder or log, or a bad results file, named.
-        PermissionError: the folder cannot be written.
-        OSError: a full disk (``no space left on MOUNT writing FILE``); the old files stay.
     """
     root = Path(dir)
     if not root.exists():

@@ -1,19 +1,14 @@
-"""The results JSON: one file per evaluated model, schema version 3.
+"""The results JSON: one file per evaluated model, schema version 3; ``hupbench eval`` writes it,
+``hupbench leaderboard`` reads it.
 
-``hupbench eval`` writes it, ``hupbench leaderboard`` reads it. The schema is
-checked exactly: every key is present (``null`` where a value is unknown), no key is unknown, types are
-exact (an ``int`` field refuses ``True`` and ``1.5``), numbers are finite,
-errors and latencies are non-negative, and the PCK AUC lies in [0, 1].
+The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types (an
+``int`` field refuses ``True`` and ``1.5``), finite numbers, non-negative errors and latencies, a PCK AUC
+in [0, 1]. A ``"reported"`` row (quoted from a paper) may leave almost every field ``null`` but needs
+``metrics.mpjpe_mm.all`` and a ``source``. Versions 1 and 2 load upgraded to 3 with the fields added
+since ``null`` (they were not measured; docs/metrics.md says what each version added); only 3 is written.
 
-Versions 1 and 2 (written before) load upgraded to 3 with the fields added since ``null``: they were not
-measured, and nothing is made up for them (what each version added: docs/metrics.md). Only version 3 is
-written.
-
-A ``"reported"`` row (numbers quoted from a paper) may leave almost every
-field ``null``; it needs ``metrics.mpjpe_mm.all`` and a ``source`` citation.
-
-Convention: errors in millimetres, latencies in milliseconds per image,
-times in seconds, FLOPs per image counted as 2 x multiply-adds.
+Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
+counted as 2 x multiply-adds.
 """
 
 from __future__ import annotations
@@ -22,7 +17,9 @@ import copy
 import json
 import math
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from datagen.dataset.contract import TRACKS
 from datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
@@ -109,44 +106,34 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _number(d: dict, parts: tuple, *, nullable: bool, low: float | None = 0.0, high: float | None = None):
+def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, nullable: bool) -> None:
+    """``d[parts[-1]]`` passes ``ok`` (or is None where ``nullable``), else an error saying ``expected``."""
     value = d[parts[-1]]
-    if value is None and nullable:
-        return
-    bounds = ""
-    if low is not None and high is not None:
-        bounds = f" in [{low:g}, {high:g}]"
-    elif low is not None:
-        bounds = f" >= {low:g}"
-    expected = f"a finite number{bounds}" + (" or null" if nullable else "")
-    if not _is_number(value) or not math.isfinite(value):
-        _fail(parts, expected, value)
-    if (low is not None and value < low) or (high is not None and value > high):
-        _fail(parts, expected, value)
+    if not (value is None and nullable) and not ok(value):
+        _fail(parts, expected + (" or null" if nullable else ""), value)
+
+
+def _is_integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf) -> None:
+    bounds = " >= 0" if high == math.inf else f" in [0, {high:g}]"
+    _check(d, parts, lambda v: _is_number(v) and math.isfinite(v) and 0.0 <= v <= high, f"a finite number{bounds}",
+           nullable)
 
 
 def _integer(d: dict, parts: tuple, *, nullable: bool, low: int = 0) -> None:
-    value = d[parts[-1]]
-    if value is None and nullable:
-        return
-    if not isinstance(value, int) or isinstance(value, bool) or value < low:
-        _fail(parts, f"an integer >= {low}" + (" or null" if nullable else ""), value)
+    _check(d, parts, lambda v: _is_integer(v) and v >= low, f"an integer >= {low}", nullable)
 
 
 def _string(d: dict, parts: tuple, *, nullable: bool) -> None:
-    value = d[parts[-1]]
-    if value is None and nullable:
-        return
-    if not isinstance(value, str) or not value.strip():
-        _fail(parts, "a non-empty string" + (" or null" if nullable else ""), value)
+    _check(d, parts, lambda v: isinstance(v, str) and bool(v.strip()), "a non-empty string", nullable)
 
 
 def _choice(d: dict, parts: tuple, choices: tuple, *, nullable: bool) -> None:
-    value = d[parts[-1]]
-    if value is None and nullable:
-        return
-    if not isinstance(value, str) or value not in choices:
-        _fail(parts, "one of " + ", ".join(repr(c) for c in choices) + (" or null" if nullable else ""), value)
+    _check(d, parts, lambda v: isinstance(v, str) and v in choices, "one of " + ", ".join(repr(c) for c in choices),
+           nullable)
 
 
 def _validate_mpjpe_triplet(m: dict, parts: tuple, keys: tuple, *, all_nullable: bool) -> None:
@@ -211,17 +198,10 @@ def _floor_mm(d: dict, parts: tuple, *, nullable: bool) -> None:
         _number(d[parts[-1]], parts + (part,), nullable=False)
 
 
-def _grasp_id(d: dict, parts: tuple) -> None:
-    value = d[parts[-1]]
-    if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
-        _fail(parts, "an integer grasp id or null", value)
-
-
 def validate_split_floor(floor, where: str | None = None) -> dict:
-    """Check one split's floor: what a model that only recalls training labels scores on it.
-
-    The block is a split's entry of a dataset manifest's ``split_floors["splits"]`` (written by the
-    generator, datagen/dataset/floors.py) as ``hupbench eval`` copies it into ``results['split_floor']``::
+    """Check one split's floor, what a model that only recalls training labels scores on it: a split's entry
+    of a manifest's ``split_floors["splits"]`` (datagen/dataset/floors.py) as eval copies it into
+    ``results['split_floor']``::
 
         {"floor_kind": "nearest_train_grasp" | "nearest_train_view",
          "floor_mm": T,                  # the split's headline floor, the one floor_kind names
@@ -234,18 +214,8 @@ def validate_split_floor(floor, where: str | None = None) -> dict:
 
     where T is {"hand", "probe", "all"}: mean distance per keypoint in mm (the 21 hand keypoints, the 8
     probe corners, all 29), seen from the true camera, and ``frames`` the grasp's frames in the split (the
-    weight of its floor in the split's).
-
-    Args:
-        floor: the block.
-        where: how errors name the block (default ``results['split_floor']``), e.g.
-            ``"DATASET/manifest.json: manifest['split_floors']['splits']['test']"``.
-
-    Returns:
-        ``floor`` itself.
-
-    Raises:
-        ValueError: naming the first bad, missing or unknown field by its path.
+    weight of its floor in the split's). ``where`` names the block in errors (default
+    ``results['split_floor']``). Returns ``floor``.
     """
     parts = ("split_floor",) if where is None else (_Root(where),)
     _keys(floor, parts, _FLOOR_KEYS)
@@ -264,24 +234,14 @@ def validate_split_floor(floor, where: str | None = None) -> dict:
         for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
             _floor_mm(entry, entry_parts + (key,), nullable=False)
         _floor_mm(entry, entry_parts + ("nearest_train_view_mm",), nullable=True)
-        _grasp_id(entry, entry_parts + ("nearest_train_grasp_id",))
+        _check(entry, entry_parts + ("nearest_train_grasp_id",), _is_integer, "an integer grasp id", True)
         _integer(entry, entry_parts + ("frames",), nullable=True)
     return floor
 
 
 def validate_grasp_theta_vol(theta_vol, where: str | None = None) -> dict | None:
-    """Check a {grasp id: [x, y, z] degrees or null} map of probe orientations Theta_Vol (or null).
-
-    Args:
-        theta_vol: the map, keyed by grasp ids in decimal; null where no orientation is recorded.
-        where: how errors name it (default ``results['dataset']['grasp_theta_vol_deg']``).
-
-    Returns:
-        ``theta_vol`` itself.
-
-    Raises:
-        ValueError: a key that is not a grasp id, or a value that is not null or three finite numbers.
-    """
+    """Check and return a {decimal grasp id: [x, y, z] degrees or null} map of probe orientations Theta_Vol,
+    or null; ``where`` names it in errors (default ``results['dataset']['grasp_theta_vol_deg']``)."""
     parts = ("dataset", "grasp_theta_vol_deg") if where is None else (_Root(where),)
     if theta_vol is None:
         return None
@@ -323,22 +283,13 @@ def _validate_grasp_fields(d: dict) -> None:
 
 
 def validate_results(d: dict) -> dict:
-    """Check a results dict against its schema version (3, or 1 and 2 for files written before).
-
-    Args:
-        d: the parsed results JSON.
-
-    Returns:
-        ``d`` itself, unchanged, so that calls chain.
-
-    Raises:
-        ValueError: naming the first bad, missing or unknown field by its path,
-            e.g. ``results['metrics']['mpjpe_mm']['hand'] must be a finite number >= 0 or null, got 'x'``.
-    """
+    """Check and return a results dict against its schema version (3, or 1 and 2 for older files); an error
+    names the first bad, missing or unknown field by its path, e.g.
+    ``results['metrics']['mpjpe_mm']['hand'] must be a finite number >= 0 or null, got 'x'``."""
     if not isinstance(d, dict) or "schema_version" not in d:
         _keys(d, (), _TOP_KEYS)
     version = d["schema_version"]
-    if not isinstance(version, int) or isinstance(version, bool) or version not in READABLE_VERSIONS:
+    if not _is_integer(version) or version not in READABLE_VERSIONS:
         raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
                             f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
     _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
@@ -400,19 +351,9 @@ def validate_results(d: dict) -> dict:
 
 
 def blank_results(kind: str, run_name: str) -> dict:
-    """A results dict with every field present and unknown values ``null``.
-
-    Fill at least ``model.name``, ``model.label``, ``dataset.name``,
-    ``metrics.mpjpe_mm.all`` and ``metrics.mpjpe_mm.all_averaging`` (and
-    ``source`` for a reported row) before it validates.
-
-    Args:
-        kind: "measured" or "reported".
-        run_name: the run name (also the file stem of its results JSON).
-
-    Returns:
-        A fresh dict; nested dicts are not shared between calls.
-    """
+    """A fresh results dict with every field present and ``null``; it validates once ``model.name``,
+    ``model.label``, ``dataset.name``, ``metrics.mpjpe_mm.all`` and ``.all_averaging`` (and ``source`` for
+    a reported row) are filled."""
     assert kind in KINDS, kind
     blank = {
         "schema_version": SCHEMA_VERSION, "kind": kind, "run_name": run_name,
@@ -430,19 +371,9 @@ def blank_results(kind: str, run_name: str) -> dict:
 
 
 def upgrade_results(d: dict) -> dict:
-    """A validated results dict in the current schema version.
-
-    Version 1 gains ``metrics.probe_symmetric_mpjpe_mm = None`` and
-    ``metrics.spread_ratio = {"x": None, "y": None, "z": None}``; version 2 (and an upgraded 1)
-    gains ``track = None``, ``split_floor = None`` and ``dataset.grasp_theta_vol_deg = None``: none of them
-    was measured when the file was written, and nothing is made up for them. Version 3 is returned as is.
-
-    Args:
-        d: a dict that :func:`validate_results` accepts.
-
-    Returns:
-        ``d`` itself when it is current, else an upgraded deep copy (``d`` is not changed).
-    """
+    """``d`` validated, as is in version 3, else as an upgraded deep copy: version 1 gains
+    ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, version 2 (and an upgraded 1)
+    ``track``, ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured)."""
     validate_results(d)
     if d["schema_version"] == SCHEMA_VERSION:
         return d
@@ -458,18 +389,7 @@ def upgrade_results(d: dict) -> dict:
 
 
 def load_results(path: str | Path) -> dict:
-    """Read a results JSON, validate it and upgrade it to the current schema version.
-
-    Args:
-        path: the ``.json`` file.
-
-    Returns:
-        The validated dict, in schema version 3 (see :func:`upgrade_results`).
-
-    Raises:
-        FileNotFoundError: the file does not exist.
-        ValueError: the file is not JSON or breaks the schema; the message starts with the file's path.
-    """
+    """A results JSON file, validated and upgraded (:func:`upgrade_results`); errors start with its path."""
     path = Path(path)
     if path.exists() and not path.is_file():
         raise BadValueError(f"{path}: not a file (a results file is one JSON file)")
@@ -489,18 +409,8 @@ def load_results(path: str | Path) -> dict:
 
 
 def write_results(path: str | Path, d: dict) -> Path:
-    """Validate a results dict, then write it atomically as indented JSON with sorted keys.
-
-    Args:
-        path: destination ``.json``; parent folders are created.
-        d: the results dict.
-
-    Returns:
-        The written path.
-
-    Raises:
-        ValueError: ``d`` breaks the schema (nothing is written).
-    """
+    """Validate a results dict, then write it atomically to ``path`` (folders made) as indented JSON with
+    sorted keys; returns the path."""
     validate_results(d)
     assert d["schema_version"] == SCHEMA_VERSION, "upgrade_results() first"
     return write_json(path, d)

@@ -1,27 +1,13 @@
 """``hupbench export CKPT``: ONNX export with a parity check of onnxruntime against PyTorch.
 
-The ONNX file follows the model-file contract (:mod:`hupbench.inference.model_file`) that eval and
-predict read:
+The file follows the model-file contract of :mod:`hupbench.inference.model_file` (input ``image``, outputs
+``points2d`` and ``points3d``, the ``hupbench.*`` metadata) at the fixed opset ``OPSET``, exported with the
+dynamo exporter. :class:`ContractModule` wraps any model of :mod:`models` into that interface, and
+``hupbench eval`` runs the same wrapper, so the PyTorch and ONNX numbers mean the same thing.
 
-    input   "image"    (B, 3, S, S) float32 RGB in [0, 1], dynamic batch axis "batch"
-    output  "points2d" (B, 29, 2) float32, normalised [-1, 1] coordinates of the input image
-            "points3d" (B, 29, 3) float32, metres, OpenCV camera frame of the model-input camera K_input
-    opset   18 (fixed)
-    metadata_props  hupbench.onnx_schema "1", hupbench.input_size, hupbench.K_input (JSON 3x3),
-            hupbench.keypoint_names, hupbench.skeleton_edges, hupbench.model_config (JSON),
-            hupbench.run_name, hupbench.git_commit (the commit of the code that exported it)
-
-:class:`ContractModule` wraps any model of :mod:`models` into that interface; ``hupbench eval``
-runs the same wrapper, so the PyTorch and ONNX numbers mean the same thing. A ResNetRegressor
-built without a 2D head gets ``points2d`` from the pinhole projection of its ``points3d`` with
-K_input, in the normalised coordinates of :mod:`hupbench.input_geometry`.
-
-Export uses the dynamo exporter (``torch.onnx.export(..., dynamo=True)``), which handles every
-layer of the models here, the graph convolutions and the Graph U-Net's learned pooling included.
-
-The file is written under a temporary name, onnxruntime runs it on real dataset images next to
-PyTorch, and only when the 3D outputs agree within ``PARITY_MAX_3D_MM`` is it renamed to its final
-name; the output is locked meanwhile, so a second export to it is refused.
+The file is written under a temporary name while the output is locked, onnxruntime runs it on real dataset
+images beside PyTorch, and it is renamed to its final name only when the 3D outputs agree within
+``PARITY_MAX_3D_MM``.
 """
 
 from __future__ import annotations
@@ -138,12 +124,8 @@ class ContractModule(nn.Module):
 
 
 def contract_model(model: nn.Module, payload: dict[str, Any], source: str) -> ContractModule:
-    """:class:`ContractModule` for a checkpoint's model, with its K_input and input size, in eval mode.
-
-    Args:
-        model, payload: from :func:`hupbench.checkpoint.load_model` (K_input and input size checked there).
-        source: how an error names the checkpoint, e.g. ``"checkpoint PATH"``.
-    """
+    """:class:`ContractModule` in eval mode for a model and payload of :func:`hupbench.checkpoint.load_model`
+    (which checked K_input and the input size); ``source`` names the checkpoint in errors."""
     n = model.config.n_keypoints
     if n != kp.NUM_KEYPOINTS:
         raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
@@ -152,10 +134,8 @@ def contract_model(model: nn.Module, payload: dict[str, Any], source: str) -> Co
 
 
 def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
-    """The run name of a checkpoint: its training config's ``run_name``, else the file stem.
-
-    Characters outside ``[A-Za-z0-9._-]`` become "_" so the name is a valid results file stem.
-    """
+    """The training config's ``run_name``, else the file stem, with characters outside ``[A-Za-z0-9._-]``
+    as "_" so that it is a valid results file stem."""
     name = None
     config = payload.get("config")
     if isinstance(config, dict) and isinstance(config.get("run_name"), str) and config["run_name"].strip():
@@ -172,19 +152,8 @@ def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str) -> di
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
-    """Export a :class:`ContractModule` to ONNX with a dynamic batch axis and write it to ``path``.
-
-    ``path`` is written directly (callers that need atomicity pass a temporary name).
-
-    Args:
-        module: the wrapped model, eval mode, on the CPU.
-        path: destination ``.onnx``.
-        metadata: metadata_props, str -> str.
-        opset: ONNX opset (the contract fixes 18).
-
-    Returns:
-        ``path``.
-    """
+    """Export a :class:`ContractModule` (eval mode, CPU) with a dynamic batch axis and ``metadata`` as its
+    metadata_props to ``path``, written directly (callers that need atomicity pass a temporary name)."""
     import onnx
 
     size = module.input_size
@@ -228,12 +197,8 @@ def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
 
 
 def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float]:
-    """Max |onnxruntime - PyTorch| of both outputs on ``images`` (B, 3, S, S).
-
-    Returns:
-        {"points3d_mm": float, "points2d_norm": float, "points2d_px": float (input-image pixels),
-         "frames": int}
-    """
+    """Max |onnxruntime - PyTorch| of both outputs on ``images`` (B, 3, S, S): {"points3d_mm",
+    "points2d_norm", "points2d_px" (input-image pixels), "frames"}."""
     with torch.inference_mode():
         ref2d, ref3d = module(images)
     got2d, got3d = run_onnx(load_onnx_model(onnx_path), images.numpy())
@@ -246,24 +211,12 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
 
 
 def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
-    """Export a checkpoint to ONNX and check onnxruntime against PyTorch on real images.
-
-    The output path, the checkpoint, the dataset and its parity images are checked before the export
-    starts; then the output is locked (a second export to it is refused), temporary files of killed
-    exports beside it are removed, and the file is written under a temporary name that is renamed only
-    after the parity check passed.
-
-    Args:
-        options: the checked arguments.
-        log: called with progress lines.
+    """Export a checkpoint to ONNX and check onnxruntime against PyTorch on real images (module docstring);
+    everything is checked before the export starts, and a failure leaves no file at ``options.out``.
 
     Returns:
-        {"onnx": str path, "parity": {"points3d_mm", "points2d_norm", "points2d_px", "frames"},
-         "dataset": str, "opset": int, "run_name": str, "metadata": dict}
-
-    Raises:
-        UserError: a bad checkpoint or dataset, an unwritable or locked output, a full disk, or 3D outputs
-        that differ by more than ``PARITY_MAX_3D_MM``; in every case no file is left at ``options.out``.
+        {"onnx": str path, "parity": :func:`parity`'s dict, "dataset": str, "opset": int, "run_name": str,
+         "metadata": dict}
     """
     from tqdm import tqdm
 

@@ -35,18 +35,11 @@ _JPEG_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0
 
 
 def image_size_from_header(data: bytes) -> tuple[int, int] | None:
-    """(width, height) that a PNG's IHDR or a JPEG's frame header (SOFn) declares, without decoding.
-
-    Args:
-        data: the file's bytes.
-
-    Returns:
-        ``(width, height)`` in pixels (before any EXIF rotation), or None when the header is not found.
-    """
+    """(width, height) pixels (before any EXIF rotation) that a PNG's IHDR or a JPEG's frame header (SOFn)
+    declares, without decoding; None when the header is not found."""
     if data.startswith(_PNG_MAGIC):
         if len(data) >= 24 and data[12:16] == b"IHDR":
-            width, height = struct.unpack(">II", data[16:24])
-            return width, height
+            return struct.unpack(">II", data[16:24])
         return None
     if not data.startswith(_JPEG_MAGIC):
         return None
@@ -116,19 +109,12 @@ def _c_library_messages():
 
 
 def decode_image(data: bytes, source: str = "image", notes: list[str] | None = None) -> np.ndarray:
-    """Decode PNG or JPEG bytes to RGB float32.
+    """PNG or JPEG bytes -> (H, W, 3) float32 RGB in [0, 1] (module docstring).
 
     Args:
         data: the file's bytes.
-        source: name for error messages (the path).
+        source: the path, for error messages (which start with it).
         notes: receives what the decoder said about a damaged file that still decoded whole.
-
-    Returns:
-        (H, W, 3) float32 RGB in [0, 1].
-
-    Raises:
-        ValueError: empty, not PNG or JPEG, outside the size limits, undecodable or truncated; the
-            message starts with ``source``.
     """
     if not data:
         raise BadValueError(f"{source}: empty file (0 bytes), not an image")
@@ -174,15 +160,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
 
 
 def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
-    """Read a PNG or JPEG file (recognised by content) as RGB float32.
-
-    Args:
-        path: image file.
-        notes: receives what the decoder said about a damaged file that still decoded whole.
-
-    Returns:
-        (H, W, 3) float32 RGB in [0, 1].
-    """
+    """A PNG or JPEG file (recognised by content) as :func:`decode_image` gives it."""
     path = Path(path)
     if not path.exists():
         raise MissingFileError(f"{path}: no such file")
@@ -201,15 +179,10 @@ def to_uint8(image_rgb: np.ndarray) -> np.ndarray:
 
 
 def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[str, str]]]:
-    """Turn the command-line arguments into the list of files to process.
+    """The files to process, and ``{"path", "reason"}`` for the folder entries left out.
 
-    A directory expands to its image files (suffix .png, .jpg, .jpeg, any case; not recursive;
-    sorted by name); anything else in it is skipped with a note. A file named explicitly is
-    always processed (and fails on its own if it is no image); so is a missing path, which then
-    gets a per-file error.
-
-    Returns:
-        files: paths in order; skipped: ``{"path", "reason"}`` for directory entries left out.
+    A folder expands to its files with an image suffix (any case; sorted by name, not recursive); a path
+    named explicitly, missing or not, is always processed and fails on its own if it is no image.
     """
     files: list[Path] = []
     skipped: list[dict[str, str]] = []

@@ -1,14 +1,14 @@
 """The model-file contract: what ``hupbench export`` writes into an ONNX file and how every reader checks it.
 
-Numpy only (no torch): :mod:`hupbench.inference.runtime` reads every file through :func:`read_metadata` and
-:func:`check_io_shapes`, and the exporter writes through :func:`write_metadata`, which checks with the
-reader, so the schema a file is written with and the schema a reader accepts cannot drift apart.
+Numpy only (no torch). The exporter writes through :func:`write_metadata`, which checks with
+:func:`read_metadata`, the reader of :mod:`hupbench.inference.runtime`: the two cannot drift apart.
 
 Metadata (``metadata_props``, strings): ``hupbench.onnx_schema`` (ONNX_SCHEMA), ``hupbench.input_size``
-(S, an int from 16 to 2048), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model
-input), ``hupbench.keypoint_names`` and ``hupbench.skeleton_edges`` (JSON), ``hupbench.model_config``
-(JSON object), ``hupbench.run_name`` and ``hupbench.git_commit``. Graph: input ``image`` (B, 3, S, S);
-outputs ``points3d`` (B, N, 3) and ``points2d`` (B, N, 2) for the N keypoint names.
+(S), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model input),
+``hupbench.keypoint_names`` and ``hupbench.skeleton_edges`` (JSON), ``hupbench.model_config`` (JSON
+object), ``hupbench.run_name`` and ``hupbench.git_commit``. Graph: input ``image`` (B, 3, S, S) float32
+RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1] input coordinates and ``points3d``
+(B, N, 3) metres, OpenCV camera frame of K_input, for the N keypoint names.
 """
 
 from __future__ import annotations
@@ -35,16 +35,8 @@ _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
                    run_name: str, git_commit: str) -> dict[str, str]:
-    """The ``metadata_props`` of an exported model (no time stamp: one checkpoint, one set of bytes).
-
-    Args:
-        input_size: S, pixels. K_input: (3, 3) intrinsics at the model input. keypoint_names: N names.
-        skeleton_edges: pairs (i, j) of keypoint indices. model_config: the architecture's config.
-        run_name, git_commit: provenance.
-
-    Returns:
-        String-to-string metadata that :func:`read_metadata` accepts (it is checked here).
-    """
+    """The ``metadata_props`` of an exported model, checked by :func:`read_metadata` (no time stamp: one
+    checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels."""
     props = {
         META + "onnx_schema": ONNX_SCHEMA,
         META + "input_size": str(int(input_size)),
@@ -112,17 +104,9 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
 
 def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_size: int, num_keypoints: int,
                     source: str = "model") -> None:
-    """The graph's declared input and outputs against the contract and the metadata.
-
-    A file whose metadata and graph disagree would otherwise fail deep inside onnxruntime on the first
-    batch, or be drawn with the wrong names.
-
-    Args:
-        inputs, outputs: name -> declared dimensions (ints; names or None for dynamic axes, which the
-            first batch checks).
-        input_size: S from the metadata. num_keypoints: N, the number of keypoint names.
-        source: the file's name, for error messages.
-    """
+    """The graph's declared input and outputs (name -> dimensions; a name or None for a dynamic axis)
+    against the contract and the metadata: a file whose metadata and graph disagree would otherwise fail
+    deep inside onnxruntime, or be drawn with the wrong names."""
     if "image" not in inputs:
         raise BadValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
     expected = {"image": ([3, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}

@@ -26,14 +26,7 @@ _PIXELS_PER_LINE_WIDTH = 320  # one more pixel of line width for every 320 px of
 
 
 def keypoint_color(name: str) -> tuple[int, int, int]:
-    """RGB colour of a keypoint from its name.
-
-    Args:
-        name: a keypoint name such as ``"index_pip"``, ``"wrist"`` or ``"probe_corner_-x+y-z"``.
-
-    Returns:
-        (r, g, b) ints in [0, 255].
-    """
+    """(r, g, b) uint8 colour of a keypoint name such as ``"index_pip"``, ``"wrist"`` or ``"probe_corner_-x+y-z"``."""
     if name.startswith("probe"):
         return PROBE_RGB
     return FINGER_RGB.get(name.split("_")[0], OTHER_RGB)

@@ -1,40 +1,22 @@
 """``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
 
-Only onnxruntime, numpy and OpenCV run here (and torch-free datagen and hupbench modules), so a deployment
-needs neither PyTorch nor the training code. The model is an ``.onnx`` file written by ``hupbench export``,
-opened and checked by :mod:`hupbench.inference.runtime`; images are read by :mod:`hupbench.inference.images`.
+Only onnxruntime, numpy and OpenCV run here: a deployment needs neither PyTorch nor the training code.
+An H x W image is padded with mid-grey (0.5) to a centred L x L square, L = max(H, W), and resized to
+S x S (:func:`hupbench.input_geometry.pad_and_resize`): padding, unlike a centre crop, keeps a hand near
+the border in view, and a constant grey holds no mirrored copy of it.
 
-Geometry: an H x W image is padded with mid-grey (0.5) to a centred L x L square, L = max(H, W), and
-resized to S x S (:func:`hupbench.input_geometry.pad_and_resize`, whose pixel map takes the predictions and
-intrinsics back to the image). Padding, not a centre crop, keeps every pixel: a hand near the border of a
-wide photo stays in view; a constant grey holds no mirrored copy of a hand.
+Camera: without ``--K`` the image is assumed to come from the training camera K_input scaled to the
+image ("assumed training camera"): the 3D points are the network's output as it is, which is what
+``hupbench eval`` scores. With ``--K fx,fy,cx,cy`` of the original images ("user K") the points are moved
+to the user's camera by :func:`user_camera_points`.
 
-Camera:
-    The network's 3D output is for its training camera K_input at the model input. Without
-    ``--K`` the image is assumed to come from that camera scaled to the image: the reported K is
-    K_input mapped back to the original pixels (the inverse of the map above) and the 3D points
-    are the network's output as it is ("camera": "assumed training camera"); they are what
-    ``hupbench eval`` scores. With ``--K fx,fy,cx,cy`` of the original image ("camera": "user K"),
-    the user's camera at the model input is K_user_in (the map above). The network judges depth
-    from the object's size in pixels, so a point it sees at an input pixel with focal f_train lies,
-    through a lens of focal f_user_in, at depth z_user = z * f_user_in / f_train (with
-    fx != fy the ratio is the geometric mean sqrt(fx_user_in / fx_train * fy_user_in / fy_train));
-    x and y are re-derived by back-projecting the 2D prediction through K_user_in at that depth, so
-    the reported 3D points project through the user's K exactly onto the reported 2D points.
-    One ``--K`` applies to every image of the call.
-
-Outputs (``OUT/``): ``predictions.json`` (written atomically, and last) with, per image, the path, ok/error,
-image size, the camera and its K (original image pixels), the keypoint names, ``keypoints_2d_px``
-(N, 2) original image pixels (from ``points2d``), ``keypoints_3d_m`` (N, 3) metres in the camera
-frame of that K, and the model's run name; and ``OUT/<stem>_overlay.png`` per image (the hand
-skeleton and the probe box on the original image; ``<stem>_<k>_overlay.png`` when two inputs share
-a stem). A file that cannot be read as an image gets an error in its record and on stderr; the
-others are still processed.
-
-Everything checkable is checked before any image is read (the model, ``--K``, ``--batch-size``, ``--out``,
-inputs with no image file); then the output folder is locked (a second run into it is refused), stale
-temporary files of killed runs and an earlier run's ``predictions.json`` are removed, and a run that fails
-while writing removes the overlays it wrote: a folder with a ``predictions.json`` holds one finished run.
+Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
+error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
+(N, 3) metres in the camera frame of that K; and ``<stem>_overlay.png`` per image (``<stem>_<k>_overlay.png``
+when two inputs share a stem). A file that is no readable image gets an error in its record and on
+stderr; the others are still processed. Everything checkable is checked before any image is read; the
+output folder is locked meanwhile, and a run that fails while writing removes the overlays it wrote, so
+a folder with a ``predictions.json`` holds one finished run.
 """
 from __future__ import annotations
 
@@ -139,7 +121,12 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
 
 def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
                        K_user_in: np.ndarray) -> np.ndarray:
-    """3D keypoints for the user's camera from a network trained with another camera (module docstring).
+    """3D keypoints for the user's camera from a network trained with another camera.
+
+    The network judges depth from the object's size in pixels, so a point it sees at an input pixel with
+    focal f_train lies, through the user's lens of focal f_user_in, at z_user = z * f_user_in / f_train
+    (the geometric mean of the x and y ratios when fx != fy); x and y are back-projected from the 2D
+    prediction at that depth, so the points project through K_user_in exactly onto it.
 
     Args:
         uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
@@ -162,15 +149,7 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
 
 
 def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, InputGeometry]:
-    """The model input of an image (module docstring).
-
-    Args:
-        image_rgb: (H, W, 3) float32 RGB in [0, 1].
-        input_size: S, pixels.
-
-    Returns:
-        (3, S, S) float32 RGB in [0, 1], the model input; and its :class:`InputGeometry`.
-    """
+    """(H, W, 3) float32 RGB in [0, 1] -> the (3, S, S) float32 model input and its :class:`InputGeometry`."""
     square, geometry = pad_and_resize(image_rgb, input_size, PAD_VALUE)
     return np.ascontiguousarray(square.transpose(2, 0, 1), dtype=np.float32), geometry
 
@@ -235,14 +214,8 @@ def _progress_bar(total: int, enabled: bool):
 
 
 def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -> dict[str, Any]:
-    """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays.
-
-    Everything that can be checked before inference is (module docstring); a failure while writing
-    removes this run's overlays and leaves no ``predictions.json``.
-
-    Args:
-        options: the checked arguments.
-        log: receives per-file errors and notes (default: stderr).
+    """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays (module
+    docstring). ``log`` receives per-file errors and notes.
 
     Returns:
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],

@@ -56,15 +56,8 @@ def _reason(exc: BaseException, limit: int) -> str:
 
 
 def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
-    """Open a file written by ``hupbench export``, check its metadata against its graph, and run it once.
-
-    Args:
-        path: the .onnx file.
-        threads: onnxruntime's intra-op threads (default: its own choice, one per core).
-
-    Returns:
-        The :class:`OnnxModel`.
-    """
+    """Open a file written by ``hupbench export``, check its metadata against its graph, and run it once;
+    ``threads``: onnxruntime's intra-op threads (default: one per core)."""
     path = Path(path)
     if path.is_dir():
         raise BadValueError(f"model {path} is a folder, not an .onnx file")

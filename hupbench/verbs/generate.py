@@ -6,73 +6,61 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
+from datagen.dataset.writer import GenerateRun
+from datagen.errors import BadValueError
 from hupbench.config import build
 from hupbench.provenance import run_info
-from datagen.errors import BadValueError, MissingFileError
+
+
+def resolved_config(cfg: DictConfig) -> dict:
+    """The config a dataset records in its manifest: the composed one, resolved, with the run's provenance."""
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    del resolved["_target_"]
+    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
+    return resolved
 
 
 def run_generate(cfg: DictConfig, log=print) -> dict:
-    """Validate the config, make the grasps if needed, and render (or resume) the dataset.
+    """Build the ``generate`` config and render (or resume) its dataset (:func:`generate_dataset`)."""
+    return generate_dataset(build(cfg), resolved_config(cfg), log)
+
+
+def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
+    """Make the default grasps if needed, and render (or resume) the dataset.
 
     Args:
-        cfg: the composed ``generate`` config.
+        run: the built ``generate`` config. resolved: :func:`resolved_config` of it, for the manifest.
 
     Returns:
         :func:`datagen.dataset.writer.generate`'s dict.
     """
     from datagen.assets.backgrounds import BackgroundSet
-    from datagen.dataset.writer import check_output_dir, check_workers, generate, parse_shard, run_lock
-    from datagen.dataset.ray_launcher import check_launcher
+    from datagen.dataset.grasps_file import read_grasps
+    from datagen.dataset.writer import generate, run_lock
 
-    # everything that can be wrong with the config fails here, before any rendering
-    spec = build(cfg.dataset)
-    parse_shard(cfg.shard)
-    check_launcher(cfg.launcher)
-    check_workers(cfg.workers, cfg.launcher)
-    ray_options = build(cfg.ray)
-    if cfg.backgrounds.dir is not None:
-        BackgroundSet.from_dir(cfg.backgrounds.dir)
-    out_dir = Path(cfg.out_dir)
-    check_output_dir(out_dir)
-    grasps_path = Path(cfg.grasps_path) if cfg.grasps_path else out_dir / "grasps" / "grasps.npz"
-    make_grasps = cfg.grasps_path is None and not grasps_path.is_file()
+    # a bad photographs' folder fails before the default grasps take minutes
+    if run.job.backgrounds_dir is not None:
+        BackgroundSet.from_dir(run.job.backgrounds_dir)
+    out_dir = Path(run.out_dir)
+    grasps_path = Path(run.grasps_path) if run.grasps_path else out_dir / "grasps" / "grasps.npz"
+    make_grasps = run.grasps_path is None and not grasps_path.is_file()
     if make_grasps:
         from hupbench.config import compose
 
         grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
         n_grasps = grasps_cfg.generate.n_select
-        if spec.splits is not None and sum(spec.splits.values()) != n_grasps:
-            raise BadValueError(f"splits {spec.splits} add up to {sum(spec.splits.values())} grasps but the default "
-                             f"grasps config selects {n_grasps}")
-    elif grasps_path.is_dir():
-        raise BadValueError(f"grasps_path {grasps_path} is a folder; expected a grasps .npz file (as `hupbench grasps` "
-                         f"writes)")
-    elif not grasps_path.is_file():
-        raise MissingFileError(f"grasps_path {grasps_path} not found (run `hupbench grasps` or set grasps_path=null)")
-    resolved = OmegaConf.to_container(cfg, resolve=True)
-    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
+        splits = run.dataset.splits
+        if splits is not None and sum(splits.values()) != n_grasps:
+            raise BadValueError(f"splits {splits} add up to {sum(splits.values())} grasps but the default grasps "
+                                f"config selects {n_grasps}")
+    else:
+        read_grasps(grasps_path)  # a bad file fails before the folder is taken
     # one run per folder (or shard), from the default grasps to the manifest
-    with run_lock(out_dir, cfg.shard) as lock:
+    with run_lock(out_dir, run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():
             from hupbench.verbs.grasps import run_grasps
 
             log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
             run_grasps(grasps_cfg, log=log)
-        return generate(spec, out_dir, grasps_path, resolved, backgrounds_dir=cfg.backgrounds.dir,
-                        workers=cfg.workers, shard=cfg.shard, platform=cfg.render.platform, progress=cfg.progress,
-                        log=log, launcher=cfg.launcher, ray=ray_options, lock=lock)
-
-
-def run_verify(dataset: str | Path, workers: int = 2, log=print, progress: bool | None = None) -> dict:
-    """Verify a dataset folder (see :mod:`datagen.dataset.verify`: what stops it, what it reports).
-
-    Args:
-        dataset: the dataset folder. workers: processes for the per-frame checks (>= 1).
-        log: progress lines. progress: a progress bar with ETA (None: when stderr is a terminal).
-
-    Returns:
-        :func:`datagen.dataset.verify.verify`'s dict.
-    """
-    from datagen.dataset.verify import verify
-
-    return verify(dataset, workers=workers, log=log, progress=progress)
+        return generate(run.dataset, out_dir, grasps_path, resolved, run.job, run.progress, log, lock)

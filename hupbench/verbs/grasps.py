@@ -3,62 +3,104 @@
 from __future__ import annotations
 
 import time
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig
 
-from datagen.io import save_npz, write_json
-from hupbench.config import build
+from datagen.errors import BadValueError
+from datagen.grasps.refine import RefineConfig
+from datagen.grasps.synthesis import MAX_TILE_PX, MIN_TILE_PX, GraspGenConfig, check_selection
+from datagen.input_checks import check_int
+from datagen.io import OutputLock, check_writable, save_npz, write_json
+from datagen.processes import check_threads
+from datagen.dataset.writer import check_platform
+from hupbench.config import build, build_group
 from hupbench.provenance import run_info
 
 
+@dataclass(frozen=True)
+class GraspsRun:
+    """``conf/grasps.yaml`` (``_recursive_: false``: the groups are built here, their errors named by group).
+
+    Attributes:
+        out_dir: the output folder. threads: torch CPU threads (results are reproducible at a fixed count).
+        generate: what to generate. refine: the refinement.
+        tile_px, platform: the contact sheet's tile side (pixels) and GL platform, from ``sheet``.
+    """
+
+    out_dir: str
+    threads: int = 2
+    generate: GraspGenConfig = GraspGenConfig()
+    refine: RefineConfig = RefineConfig()
+    sheet: InitVar[dict] = None
+    tile_px: int = field(init=False)
+    platform: str | None = field(init=False)
+
+    def __post_init__(self, sheet) -> None:
+        for group in ("generate", "refine"):
+            object.__setattr__(self, group, build_group(getattr(self, group), group))
+        # what would fail after minutes of refinement fails here
+        check_selection(self.generate)
+        check_threads(self.threads)
+        sheet = sheet or {"tile_px": 200, "platform": None}
+        object.__setattr__(self, "tile_px", check_int(sheet["tile_px"], "sheet.tile_px", MIN_TILE_PX, MAX_TILE_PX,
+                                                      hint=" (pixels)"))
+        object.__setattr__(self, "platform", check_platform(sheet["platform"], "sheet.platform"))
+        out_dir = check_writable(self.out_dir, "out_dir")
+        if (out_dir / "manifest.json").is_file():
+            raise BadValueError(f"out_dir {out_dir} holds a finished dataset, rendered with its grasps.npz: write the "
+                                "grasps elsewhere (a dataset's grasps are made by `hupbench generate`)")
+
+
 def run_grasps(cfg: DictConfig, log=print) -> dict:
-    """Run the grasp generator.
+    """Build the ``grasps`` config and run the grasp generator (:func:`make_grasps`)."""
+    return make_grasps(build(cfg), cfg, log)
+
+
+def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
+    """Run the grasp generator; the output folder is this run's until it returns.
 
     Args:
-        cfg: the composed ``grasps`` config.
+        run: the built ``grasps`` config. cfg: the composed one, recorded in run.json.
         log: progress printer.
 
     Returns:
         dict with the output paths, counts and timings.
     """
     from datagen.render.draw import write_png
-    from datagen.grasps.synthesis import (check_run_options, check_selection, generate_candidates, grasp_arrays,
-                                          scores_json, select_grasps, take_rows)
+    from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from datagen.grasps.sheet import contact_sheet
     from datagen.assets.hand import build_hand
     from datagen.assets.probe import build_probe
 
     import torch
 
-    gen_config = build(cfg.generate)
-    refine_config = build(cfg.refine)
-    # what would fail after minutes of refinement fails here (also for `hupbench generate`'s default grasps)
-    check_selection(gen_config)
-    check_run_options(cfg.threads, cfg.sheet.tile_px, cfg.sheet.platform, cfg.out_dir)
     # CPU results are bit-reproducible only at a fixed thread count
-    torch.set_num_threads(cfg.threads)
+    torch.set_num_threads(run.threads)
     start = time.perf_counter()
-    out_dir = Path(cfg.out_dir)
-    log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
-        f"({gen_config.sampler} sampler)")
-    candidates = generate_candidates(gen_config, refine_config=refine_config, log=log)
-    scores = candidates["scores"]
-    ids = select_grasps(candidates, build_hand(), gen_config.n_select, gen_config.seed, gen_config.pinned_ids)
-    all_ids = np.arange(len(candidates["grasps"]))
-    candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, build_probe())
-    arrays = take_rows(candidate_arrays, ids)
-    save_npz(out_dir / "candidates.npz", candidate_arrays)
-    npz = save_npz(out_dir / "grasps.npz", arrays)
-    summary = scores_json(arrays, gen_config)
-    summary["candidates"] = {"total": len(all_ids), "plausible": int(scores["plausible"].sum()),
-                             "refine_seconds": round(candidates["seconds"], 1)}
-    js = write_json(out_dir / "grasps.json", summary)
-    log(f"rendering the contact sheet of {len(ids)} grasps")
-    sheet = write_png(out_dir / "contact_sheet.png", contact_sheet(arrays, cfg.sheet.tile_px, cfg.sheet.platform))
-    seconds = time.perf_counter() - start
-    write_json(out_dir / "run.json", run_info(cfg, verb="grasps", seconds=seconds))
+    out_dir, gen_config = Path(run.out_dir), run.generate
+    # beside the folder, which a refused or failed run does not create
+    with OutputLock.for_file(out_dir, "grasps"):
+        log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
+            f"({gen_config.sampler} sampler)")
+        candidates = generate_candidates(gen_config, refine_config=run.refine, log=log)
+        scores = candidates["scores"]
+        ids = select_grasps(candidates, build_hand(), gen_config.n_select, gen_config.seed, gen_config.pinned_ids)
+        all_ids = np.arange(len(candidates["grasps"]))
+        candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, build_probe())
+        arrays = take_rows(candidate_arrays, ids)
+        save_npz(out_dir / "candidates.npz", candidate_arrays)
+        npz = save_npz(out_dir / "grasps.npz", arrays)
+        summary = scores_json(arrays, gen_config)
+        summary["candidates"] = {"total": len(all_ids), "plausible": int(scores["plausible"].sum()),
+                                 "refine_seconds": round(candidates["seconds"], 1)}
+        js = write_json(out_dir / "grasps.json", summary)
+        log(f"rendering the contact sheet of {len(ids)} grasps")
+        sheet = write_png(out_dir / "contact_sheet.png", contact_sheet(arrays, run.tile_px, run.platform))
+        seconds = time.perf_counter() - start
+        write_json(out_dir / "run.json", run_info(cfg, verb="grasps", seconds=seconds))
     return {"grasps_npz": str(npz), "grasps_json": str(js), "contact_sheet": str(sheet),
             "candidates": len(all_ids), "plausible": int(scores["plausible"].sum()), "selected": len(ids),
             "seconds": seconds}
@@ -80,10 +122,11 @@ def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
     from datagen.assets.hand import build_hand
     from datagen.assets.probe import build_probe
 
+    corpus, cvae = build(cfg.corpus), build(cfg.cvae)
     # CPU results are bit-reproducible only at a fixed thread count
-    torch.set_num_threads(cfg.threads)
+    torch.set_num_threads(check_threads(cfg.threads))
     out = Path(cfg.out) if cfg.out else SHIPPED_WEIGHTS
-    result = train_sampler(build(cfg.corpus), build(cfg.cvae), out, build_hand(), build_probe(), log=log)
+    result = train_sampler(corpus, cvae, out, build_hand(), build_probe(), log=log)
     write_json(out.with_suffix(".run.json"), run_info(cfg, verb="train-grasp-sampler", seconds=result["seconds"],
                                                       corpus_size=result["corpus_size"],
                                                       n_refined=result["n_refined"]))

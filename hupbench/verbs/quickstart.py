@@ -15,104 +15,115 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from datagen.input_checks import check_int
-from datagen.io import write_json
-from hupbench.config import build, compose
-from hupbench.provenance import run_info
+from datagen.dataset.contract import MODALITIES
+from datagen.dataset.spec import check_principal_point
 from datagen.errors import BadValueError, RunFailedError
+from datagen.input_checks import check_int, check_number
+from datagen.io import OutputLock, check_writable, write_json
+from datagen.dataset.writer import check_platform
+from hupbench.config import build, build_group, compose
+from hupbench.provenance import run_info
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
+#: the stages whose verbs take a list of overrides (the quickstart's keys of the same names)
+STAGE_LISTS = ("grasps", "dataset", "train")
 #: the preview camera's largest image side, pixels (it renders offscreen at that size)
 MAX_PREVIEW_SIDE = 4096
 #: the preview camera's farthest distance from the probe, metres (as generate's z_ego_m)
 MAX_VIEW_DISTANCE_M = 10.0
 
 
-def _stage_overrides(cfg: DictConfig) -> dict:
-    source = cfg.fast_overrides if cfg.fast else cfg
-    return {"grasps": list(source.grasps), "dataset": list(source.dataset), "train": list(source.train),
-            "eval_latency": bool(source.eval_latency)}
-
-
 def _is_number(value) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
 
 
-def check_config(cfg: DictConfig) -> tuple[Path, object, object]:
-    """Check the quickstart's own options (stop_after, fast, the stage lists, camera, view, render,
-    out_dir) before anything runs; nothing is created.
+@dataclass(frozen=True)
+class QuickstartRun:
+    """``conf/quickstart.yaml`` (``_recursive_: false``: the camera and the view are built after the types of
+    their fields are checked here, since Hydra passes ``fast=maybe`` on as a string and ``camera.fx=nan`` as
+    a float). The later stages' configs are composed from the lists by :func:`run_quickstart`.
 
-    Hydra passes ``fast=maybe`` on as the string 'maybe' and ``camera.fx=nan`` as a float, so types are
-    checked here; the camera and the view then check their own ranges.
-
-    Returns:
-        (out_dir, the preview camera's :class:`datagen.camera.Intrinsics`, its :class:`datagen.preview.PreviewView`).
-
-    Raises:
-        ValueError / TypeError naming the key, what came and what was expected; PermissionError for an
-        out_dir that cannot be written.
+    Attributes:
+        out_dir: where everything goes. fast: the smoke version (reads ``fast_overrides``).
+        stop_after: the last stage, None for all. grasps, dataset, train: key=value overrides of those
+            stages' verbs. eval_latency: time the model in the eval stage. fast_overrides: the same four
+            for ``fast``. camera, view: the preview's :class:`datagen.camera.Intrinsics` and
+            :class:`datagen.render.preview.PreviewView`. render: the preview's platform and modalities.
     """
-    from datagen.dataset.contract import MODALITIES
-    from datagen.render.gl import PLATFORMS
-    from datagen.grasps.synthesis import check_output_folder
-    from datagen.render.renderer import check_modalities
 
-    if cfg.stop_after is not None and cfg.stop_after not in STAGES:
-        raise BadValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {cfg.stop_after!r}")
-    for key in ("fast", "eval_latency", "fast_overrides.eval_latency"):
-        value = OmegaConf.select(cfg, key)
-        if not isinstance(value, bool):
-            raise BadValueError(f"{key} must be true or false, got {value!r}")
-    for source in ("", "fast_overrides."):
-        for stage in ("grasps", "dataset", "train"):
-            value = OmegaConf.select(cfg, source + stage)
-            if not (OmegaConf.is_list(value) and all(isinstance(v, str) for v in value)):
-                raise BadValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
-                                 f"(e.g. {source}{stage}=[a.b=1]), got {value!r}")
-    if cfg.fast:
-        # the fast run reads fast_overrides.*: a changed grasps/dataset/train list would be ignored without a word
-        packaged = compose("quickstart")
-        for key in ("grasps", "dataset", "train", "eval_latency"):
-            if cfg[key] != packaged[key]:
-                raise BadValueError(f"{key} is not used by the fast quickstart (fast=true reads fast_overrides.{key}); "
-                                 f"set fast_overrides.{key} instead, or leave fast off")
-    if not isinstance(cfg.out_dir, str) or not cfg.out_dir.strip():
-        raise BadValueError(f"out_dir must be a folder path, got {cfg.out_dir!r}")
-    # the image size first: fx, fy, cx, cy are derived from it (conf/quickstart.yaml)
-    for key in ("width", "height"):
-        # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
-        check_int(cfg.camera[key], f"camera.{key}", 1, MAX_PREVIEW_SIDE, hint=" (pixels)")
-    for key in ("fx", "fy", "cx", "cy"):
-        if not _is_number(cfg.camera[key]):
-            raise BadValueError(f"camera.{key} must be a finite number of pixels, got {cfg.camera[key]!r}")
-    for key in ("distance_m", "azimuth_deg", "elevation_deg"):
-        if not _is_number(cfg.view[key]):
-            raise BadValueError(f"view.{key} must be a finite number, got {cfg.view[key]!r}")
-    if cfg.view.distance_m > MAX_VIEW_DISTANCE_M:
-        raise BadValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
-                         f"a few pixels beyond), got {cfg.view.distance_m:g}")
-    built = {}
-    for key in ("camera", "view"):
+    out_dir: str
+    camera: object
+    view: object
+    fast: bool = False
+    stop_after: str | None = None
+    grasps: list = ()
+    dataset: list = ()
+    train: list = ()
+    eval_latency: bool = True
+    fast_overrides: dict = None
+    render: dict = None
+
+    def __post_init__(self) -> None:
+        if self.stop_after is not None and self.stop_after not in STAGES:
+            raise BadValueError(f"stop_after must be one of {', '.join(STAGES)} or null, got {self.stop_after!r}")
+        fast_overrides = self.fast_overrides or {}
+        for key, value in (("fast", self.fast), ("eval_latency", self.eval_latency),
+                           ("fast_overrides.eval_latency", fast_overrides.get("eval_latency", False))):
+            if not isinstance(value, bool):
+                raise BadValueError(f"{key} must be true or false, got {value!r}")
+        for source, lists in (("", vars(self)), ("fast_overrides.", fast_overrides)):
+            for stage in STAGE_LISTS:
+                value = lists.get(stage, [])
+                if not (isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)):
+                    raise BadValueError(f"{source}{stage} must be a list of key=value overrides of the {stage} stage "
+                                        f"(e.g. {source}{stage}=[a.b=1]), got {value!r}")
+        if self.fast:
+            # the fast run reads fast_overrides.*: a changed grasps/dataset/train list would be ignored without a word
+            packaged = compose("quickstart")
+            for key in (*STAGE_LISTS, "eval_latency"):
+                if getattr(self, key) != packaged[key]:
+                    raise BadValueError(f"{key} is not used by the fast quickstart (fast=true reads "
+                                        f"fast_overrides.{key}); set fast_overrides.{key} instead, or leave fast off")
+        check_writable(self.out_dir, "out_dir")
+        self._check_preview()
+
+    def _check_preview(self) -> None:
+        camera, view, render = self.camera, self.view, self.render or {}
+        # the image size first: fx, fy, cx, cy are derived from it (conf/quickstart.yaml)
+        for key in ("width", "height"):
+            # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
+            check_int(camera[key], f"camera.{key}", 1, MAX_PREVIEW_SIDE, hint=" (pixels)")
+        for key in ("fx", "fy", "cx", "cy"):
+            if not _is_number(camera[key]):
+                raise BadValueError(f"camera.{key} must be a finite number of pixels, got {camera[key]!r}")
+        for key in ("distance_m", "azimuth_deg", "elevation_deg"):
+            check_number(view[key], f"view.{key}")
+        if view["distance_m"] > MAX_VIEW_DISTANCE_M:
+            raise BadValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
+                                f"a few pixels beyond), got {view['distance_m']:g}")
+        object.__setattr__(self, "camera", build_group(camera, "camera"))
+        check_principal_point(self.camera, "camera.")
+        object.__setattr__(self, "view", build_group(view, "view"))
+        check_platform(render.get("platform"), "render.platform")
+        modalities = render.get("modalities", list(MODALITIES))
+        if not (isinstance(modalities, (list, tuple)) and all(isinstance(m, str) for m in modalities)):
+            raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
+        from datagen.render.renderer import check_modalities
+
         try:
-            built[key] = build(cfg[key])
-        except ValueError as exc:  # the dataclass names the field, not the config key it came from
-            raise BadValueError(f"{key}: {exc}") from None
-    intrinsics, view = built["camera"], built["view"]
-    if cfg.render.platform is not None and cfg.render.platform not in PLATFORMS:
-        raise BadValueError(f"render.platform must be one of {', '.join(PLATFORMS)} or null (automatic), "
-                         f"got {cfg.render.platform!r}")
-    modalities = cfg.render.modalities
-    if not (OmegaConf.is_list(modalities) and all(isinstance(m, str) for m in modalities)):
-        raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
-    try:
-        check_modalities(list(modalities))
-    except ValueError as exc:
-        raise BadValueError(f"render.modalities: {exc}") from None
-    return check_output_folder(cfg.out_dir), intrinsics, view
+            check_modalities(modalities)
+        except ValueError as exc:
+            raise BadValueError(f"render.modalities: {exc}") from None
+
+    def stage_overrides(self) -> dict:
+        """{stage: its list of overrides, "eval_latency": bool}, from ``fast_overrides`` when ``fast``."""
+        source = self.fast_overrides if self.fast else vars(self)
+        return {**{stage: list(source[stage]) for stage in STAGE_LISTS}, "eval_latency": source["eval_latency"]}
 
 
 @contextlib.contextmanager
@@ -135,38 +146,37 @@ def _stage_errors(stage: str, fast: bool):
         raise type(exc)(f"{where}: {exc}") from exc
 
 
-def _stage_configs(work: Path, overrides: dict, fast: bool) -> tuple[DictConfig, DictConfig, DictConfig]:
-    """Compose the grasps, generate and train configs of the later stages and check every value each
-    verb checks before its work (so a bad stage override fails before the preview renders)."""
-    from datagen.dataset.ray_launcher import check_launcher
-    from datagen.dataset.writer import check_workers, parse_shard
-    from datagen.grasps.synthesis import check_run_options, check_selection
+@dataclass(frozen=True)
+class _Stages:
+    """The later stages' configs, composed and built before the first stage runs."""
+
+    work: Path
+    grasps_cfg: DictConfig
+    grasps: object
+    generate_cfg: DictConfig
+    generate: object
+    train_cfg: DictConfig
+    eval_latency: bool
+
+
+def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
+    """Compose and build the grasps, generate and train configs of the later stages (so a bad stage
+    override fails before the preview renders)."""
     from hupbench.training.config import train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
-        built = {}
-        for group in ("generate", "refine"):
-            try:
-                built[group] = build(grasps_cfg[group])
-            except ValueError as exc:  # the config class names its field, not the group it came from
-                raise BadValueError(f"{group}: {exc}") from None
-        check_selection(built["generate"])
-        check_run_options(grasps_cfg.threads, grasps_cfg.sheet.tile_px, grasps_cfg.sheet.platform,
-                          grasps_cfg.out_dir)
+        grasps = build(grasps_cfg)
     dataset_dir = work / "dataset"
     with _stage_errors("dataset", fast):
         generate_cfg = compose("generate", [*overrides["dataset"], f"out_dir={dataset_dir}",
                                             f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
-        build(generate_cfg.dataset)
-        parse_shard(generate_cfg.shard)
-        check_launcher(generate_cfg.launcher)
-        check_workers(generate_cfg.workers, generate_cfg.launcher)
+        generate = build(generate_cfg)
     with _stage_errors("train", fast):
         train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
                                       "run_name=quickstart"])
         train_config(train_cfg)
-    return grasps_cfg, generate_cfg, train_cfg
+    return _Stages(work, grasps_cfg, grasps, generate_cfg, generate, train_cfg, overrides["eval_latency"])
 
 
 def run_quickstart(cfg: DictConfig, log=print) -> dict:
@@ -187,12 +197,11 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
     from datagen.render.preview import handset_grasp, preview
 
     start = time.perf_counter()
-    # compose (and so check) every stage's config before anything runs or is written
-    out_dir, intrinsics, view = check_config(cfg)
-    last = STAGES.index(cfg.stop_after) if cfg.stop_after else len(STAGES) - 1
-    work = out_dir / ("fast" if cfg.fast else "full")
-    overrides = _stage_overrides(cfg)
-    grasps_cfg, generate_cfg, train_cfg = _stage_configs(work, overrides, cfg.fast)
+    # build (and so check) every stage's config before anything runs or is written
+    run: QuickstartRun = build(cfg)
+    out_dir = Path(run.out_dir)
+    last = STAGES.index(run.stop_after) if run.stop_after else len(STAGES) - 1
+    stages = _stage_configs(out_dir / ("fast" if run.fast else "full"), run.stage_overrides(), run.fast)
 
     result: dict = {"out_dir": str(out_dir), "stages": {}}
     n = last + 1
@@ -205,43 +214,46 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
         result["stages"][name] = round(time.perf_counter() - t0, 1)
         return STAGES.index(name) >= last
 
-    t0 = stage(0, "preview", "render a hand-set grasp (RGB, depth, labels, keypoints)")
-    shot = preview(out_dir / "preview.png", handset_grasp(), intrinsics, view,
-                   modalities=list(cfg.render.modalities), platform=cfg.render.platform)
-    uv = shot["keypoints_2d"]
-    result["preview"] = str(shot["path"])
-    result["render_platform"] = gl.configure()
-    result["keypoints_in_view"] = int(((uv[:, 0] >= -0.5) & (uv[:, 0] < intrinsics.width - 0.5)
-                                       & (uv[:, 1] >= -0.5) & (uv[:, 1] < intrinsics.height - 0.5)).sum())
-    if not done("preview", t0):
-        result.update(_pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, done, log))
-    result["seconds"] = time.perf_counter() - start
-    result["run_info"] = str(write_json(out_dir / "run.json", run_info(
-        cfg, verb="quickstart", seconds=result["seconds"], stages=result["stages"],
-        render_platform=result["render_platform"])))
+    with OutputLock(out_dir, "quickstart"):
+        t0 = stage(0, "preview", "render a hand-set grasp (RGB, depth, labels, keypoints)")
+        render = run.render or {}
+        shot = preview(out_dir / "preview.png", handset_grasp(), run.camera, run.view,
+                       modalities=list(render.get("modalities", MODALITIES)), platform=render.get("platform"))
+        uv = shot["keypoints_2d"]
+        result["preview"] = str(shot["path"])
+        result["render_platform"] = gl.configure()
+        result["keypoints_in_view"] = int(((uv[:, 0] >= -0.5) & (uv[:, 0] < run.camera.width - 0.5)
+                                           & (uv[:, 1] >= -0.5) & (uv[:, 1] < run.camera.height - 0.5)).sum())
+        if not done("preview", t0):
+            result.update(_pipeline(stages, stage, done, log))
+        result["seconds"] = time.perf_counter() - start
+        result["run_info"] = str(write_json(out_dir / "run.json", run_info(
+            cfg, verb="quickstart", seconds=result["seconds"], stages=result["stages"],
+            render_platform=result["render_platform"])))
     return result
 
 
-def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, done, log) -> dict:
+def _pipeline(stages: _Stages, stage, done, log) -> dict:
     from hupbench.evaluation.evaluate import EvalOptions, run_eval
     from hupbench.inference.export import ExportOptions, run_export
-    from hupbench.verbs.generate import run_generate, run_verify
-    from hupbench.verbs.grasps import run_grasps
+    from hupbench.verbs.generate import generate_dataset, resolved_config, run_verify
+    from hupbench.verbs.grasps import make_grasps
     from hupbench.inference.predict import PredictOptions, run_predict
     from hupbench.training.loop import run_train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
+    work, train_cfg = stages.work, stages.train_cfg
     out: dict = {}
-    t0 = stage(1, "grasps", f"synthesise and select {grasps_cfg.generate.n_select} grasps")
-    grasps = run_grasps(grasps_cfg, log=quiet)
+    t0 = stage(1, "grasps", f"synthesise and select {stages.grasps.generate.n_select} grasps")
+    grasps = make_grasps(stages.grasps, stages.grasps_cfg, log=quiet)
     out["grasps_npz"] = grasps["grasps_npz"]
     log(f"      {grasps['plausible']} of {grasps['candidates']} candidates plausible, {grasps['selected']} selected")
     if done("grasps", t0):
         return out
 
-    spec = build(generate_cfg.dataset)
+    spec = stages.generate.dataset
     t0 = stage(2, "dataset", f"render {spec.width} px frames, splits {dict(spec.splits)}")
-    generated = run_generate(generate_cfg, log=quiet)
+    generated = generate_dataset(stages.generate, resolved_config(stages.generate_cfg), log=quiet)
     out["dataset"] = generated["out_dir"]
     log("      frames per split: " + ", ".join(f"{k} {v}" for k, v in generated["counts"].items()))
     if done("dataset", t0):
@@ -264,7 +276,7 @@ def _pipeline(cfg, work, grasps_cfg, generate_cfg, train_cfg, overrides, stage, 
 
     t0 = stage(5, "eval", "all metrics on the test split")
     evaluated = run_eval(EvalOptions(trained["checkpoint"], out["dataset"], split="test",
-                                     out=work / "results" / "quickstart.json", latency=overrides["eval_latency"]),
+                                     out=work / "results" / "quickstart.json", latency=stages.eval_latency),
                          log=quiet)
     out["results"] = evaluated["out"]
     out["metrics"] = {k: evaluated["results"]["metrics"]["mpjpe_mm"][k] for k in ("all", "hand", "probe")}

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import generate
+from datagen.dataset.writer import RenderJob, generate
 from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from datagen.io import save_npz
 from datagen.dataset.verify import verify
@@ -22,9 +22,9 @@ from datagen.dataset.verify import verify
 from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 
-def run(out, grasps, **kwargs):
-    spec = DatasetSpec(**{**TINY, **kwargs.pop("spec", {})})
-    return generate(spec, out, grasps, {"test": "tiny"}, progress=False, log=lambda *_: None, **kwargs)
+def run(out, grasps, spec=(), **job):
+    spec = DatasetSpec(**{**TINY, **dict(spec)})
+    return generate(spec, out, grasps, {"test": "tiny"}, RenderJob(**job), progress=False, log=lambda *_: None)
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from datagen.render import gl
 from datagen.dataset.chunks import frame_camera
 from datagen.dataset.grasps_file import GraspSet
 from datagen.dataset.spec import DatasetSpec, Layout
-from datagen.dataset.writer import generate
+from datagen.dataset.writer import RenderJob, generate
 from datagen.render.renderer import Renderer
 from datagen.render.scene import Grasp, scene_parts
 from datagen.dataset.sphere import viewpoints
@@ -107,7 +107,7 @@ def test_one_and_two_workers_write_the_same_bytes(tmp_path, spec, frames):
     grasps = write_grasps(tmp_path / "grasps.npz", n=2)
     spec = DatasetSpec(**spec)
     for workers in (1, 2):
-        result = generate(spec, tmp_path / f"w{workers}", grasps, {"test": "determinism"}, workers=workers,
+        result = generate(spec, tmp_path / f"w{workers}", grasps, {"test": "determinism"}, RenderJob(workers=workers),
                           progress=False, log=lambda *_: None)
         assert result["complete"] and result["frames_rendered"] == frames
     one, two = _files(tmp_path / "w1"), _files(tmp_path / "w2")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import generate
+from datagen.dataset.writer import RenderJob, generate
 from datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
 from datagen.dataset.verify import verify
 from hupbench.cli import main
@@ -27,9 +27,9 @@ ONE_GRASP = {"splits": {"train": 1, "val": 0, "test": 0}}
 FOUR_BACKGROUNDS = {"n_backgrounds": 4}
 
 
-def run(out, grasps, launcher, spec=(), log=lambda *_: None, **kwargs):
+def run(out, grasps, launcher, spec=(), log=lambda *_: None, **job):
     spec = DatasetSpec(**{**TINY, **dict(spec)})
-    return generate(spec, out, grasps, {"test": "ray"}, progress=False, log=log, launcher=launcher, **kwargs)
+    return generate(spec, out, grasps, {"test": "ray"}, RenderJob(launcher=launcher, **job), progress=False, log=log)
 
 
 def files(root):

@@ -35,7 +35,7 @@ def test_backgrounds_dir_missing_or_empty(tmp_path):
 def test_unwritable_output_as_user(tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o500)
-    with pytest.raises(ValueError, match="not writable"):
+    with pytest.raises(PermissionError, match="not writable"):
         run_generate(compose("generate", [f"out_dir={locked / 'ds'}"]), log=lambda *_: None)
 
 
@@ -43,7 +43,7 @@ def test_output_path_that_is_a_file(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     assert main(["generate", f"out_dir={blocker / 'ds'}"]) == 1
-    assert "not writable" in capsys.readouterr().err
+    assert capsys.readouterr().err.strip() == f"hupbench generate: error: out_dir {blocker / 'ds'} is not a folder: {blocker} is a file"
 
 
 def test_verify_cli_on_a_folder_without_manifest(tmp_path, capsys):

@@ -60,14 +60,14 @@ def test_geometry_matrix_equals_pad_then_resize(width, height, S):
     g = InputGeometry(width, height, S)
     offset = (g.pad_left, g.pad_top)
     uv = np.random.default_rng(0).uniform(-50, 700, (4, 7, 2))
-    np.testing.assert_allclose(g.image_to_input_px(uv), resize_points(uv, g.scale, offset), atol=1e-9)
+    np.testing.assert_allclose(apply_affine(g.image_to_input, uv), resize_points(uv, g.scale, offset), atol=1e-9)
     np.testing.assert_allclose(g.intrinsics_to_input(K), resize_intrinsics(K, g.scale, offset), atol=1e-9)
     np.testing.assert_allclose(g.input_to_image @ g.image_to_input, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(g.input_to_image_px(g.image_to_input_px(uv)), uv, atol=1e-9)
+    np.testing.assert_allclose(apply_affine(g.input_to_image, apply_affine(g.image_to_input, uv)), uv, atol=1e-9)
     np.testing.assert_allclose(g.intrinsics_to_image(g.intrinsics_to_input(K)), K, atol=1e-9)
     points = np.random.default_rng(1).uniform([-0.2, -0.2, 0.3], [0.2, 0.2, 1.0], (9, 3))
     np.testing.assert_allclose(project_points(points, g.intrinsics_to_input(K)),
-                               g.image_to_input_px(project_points(points, K)), atol=1e-8)
+                               apply_affine(g.image_to_input, project_points(points, K)), atol=1e-8)
 
 
 def test_geometry_known_values():

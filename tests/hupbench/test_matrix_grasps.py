@@ -1,6 +1,7 @@
 """The bad-input matrix of `hupbench grasps` (docs/robustness.md, ## grasps).
 
-Every case runs the CLI in this process on a small grasps config with one thing broken. The answer
+Every case runs the CLI in this process on a small grasps config with one thing broken: one case per
+field group (tests/hupbench/verbs/test_grasps_config.py has the others, as unit tests) and every file. The answer
 must be one line `hupbench grasps: error: ...` naming the option or file and what was expected,
 exit 1, no traceback, and nothing written: no grasps.npz, grasps.json, candidates.npz or contact
 sheet, no temporary file (before the fixes a bad sheet option or out_dir was found only after the
@@ -51,6 +52,14 @@ def _weights(tmp: Path, kind: str) -> Path:
     raise ValueError(kind)
 
 
+def _finished_dataset(tmp: Path) -> Path:
+    """A folder with a manifest.json: a finished dataset, whose grasps.npz its frames were rendered from."""
+    folder = tmp / "dataset"
+    folder.mkdir()
+    (folder / "manifest.json").write_text("{}")
+    return folder
+
+
 # id -> make(tmp) -> (overrides, needles); overrides come after SMALL and win
 CASES = {
     # malformed overrides
@@ -60,80 +69,16 @@ CASES = {
     "override-bad-syntax": lambda t: (["generate.theta_vol_deg=[[0,0,0]"], ["generate.theta_vol_deg", "key=value"]),
     "override-refine-weight-not-in-config": lambda t: (["refine.w_contact=-1.0"], ["refine.w_contact",
                                                                                   "not in the config"]),
-    # threads (torch CPU threads)
+    # one case per field group
     "threads-zero": lambda t: (["threads=0"], ["threads", "whole number from 1"]),
-    "threads-negative": lambda t: (["threads=-2"], ["threads", "whole number from 1"]),
-    "threads-word": lambda t: (["threads=two"], ["threads", "'two'"]),
-    "threads-fraction": lambda t: (["threads=1.5"], ["threads", "1.5"]),
-    "threads-nan": lambda t: (["threads=nan"], ["threads", "nan"]),
-    "threads-huge": lambda t: (["threads=100000"], ["threads", "100000", "cpu core"]),
-    # candidates per orientation
     "starts-per-theta-zero": lambda t: (["generate.starts_per_theta=0"], ["starts_per_theta", "whole number >= 1"]),
-    "starts-per-theta-negative": lambda t: (["generate.starts_per_theta=-4"], ["starts_per_theta", "whole number >= 1"]),
-    "starts-per-theta-word": lambda t: (["generate.starts_per_theta=many"], ["starts_per_theta", "'many'"]),
-    "starts-per-theta-nan": lambda t: (["generate.starts_per_theta=nan"], ["starts_per_theta", "nan"]),
-    "starts-per-theta-fraction": lambda t: (["generate.starts_per_theta=2.5"], ["starts_per_theta", "2.5"]),
-    "starts-per-theta-huge": lambda t: (["generate.starts_per_theta=1000000000"],
-                                        ["starts_per_theta", "4,096", "1,000,000,000"]),
-    # how many grasps to keep
-    "n-select-zero": lambda t: (["generate.n_select=0"], ["n_select", "whole number >= 1"]),
-    "n-select-negative": lambda t: (["generate.n_select=-1"], ["n_select", "whole number >= 1"]),
-    "n-select-word": lambda t: (["generate.n_select=five"], ["n_select", "'five'"]),
-    "n-select-nan": lambda t: (["generate.n_select=nan"], ["n_select", "nan"]),
-    "n-select-more-than-candidates": lambda t: (["generate.n_select=500"], ["n_select", "500", "16 candidates"]),
-    # optimiser steps
-    "short-refine-iterations-negative": lambda t: (["generate.short_refine_iterations=-1"],
-                                                   ["short_refine_iterations", ">= 0"]),
-    "short-refine-iterations-word": lambda t: (["generate.short_refine_iterations=ten"],
-                                               ["short_refine_iterations", "'ten'"]),
-    "short-refine-iterations-huge": lambda t: (["generate.short_refine_iterations=1000000000"],
-                                               ["short_refine_iterations", "100,000"]),
     "refine-iterations-negative": lambda t: (["refine.iterations=-5"], ["iterations", ">= 0"]),
-    "refine-iterations-word": lambda t: (["refine.iterations=lots"], ["iterations", "'lots'"]),
-    "refine-iterations-nan": lambda t: (["refine.iterations=nan"], ["iterations", "nan"]),
-    "refine-iterations-bool": lambda t: (["refine.iterations=true"], ["iterations", "true"]),
-    "refine-iterations-huge": lambda t: (["refine.iterations=1000000000", "generate.sampler=random"],
-                                         ["iterations", "100,000"]),
-    # penalty weights and other refinement settings a user can add (+key=value)
-    "refine-weight-negative": lambda t: (["+refine.w_contact=-1.0"], ["w_contact", ">= 0"]),
-    "refine-weight-nan": lambda t: (["+refine.w_prior=nan"], ["w_prior", "finite"]),
-    "refine-weight-inf": lambda t: (["+refine.w_penetration_end=inf"], ["w_penetration_end", "finite"]),
-    "refine-weight-word": lambda t: (["+refine.w_self=heavy"], ["w_self", "'heavy'"]),
-    "refine-lr-zero": lambda t: (["+refine.lr_joints=0.0"], ["lr_joints", "positive"]),
-    "refine-clip-norm-nan": lambda t: (["+refine.clip_norm=nan"], ["clip_norm", "finite"]),
-    "refine-min-contact-z-nan": lambda t: (["+refine.min_contact_z_m=nan"], ["min_contact_z_m", "finite"]),
-    "refine-min-contact-z-word": lambda t: (["+refine.min_contact_z_m=low"], ["min_contact_z_m", "'low'"]),
-    # seed
-    "seed-negative": lambda t: (["generate.seed=-1"], ["seed", "-1"]),
-    "seed-word": lambda t: (["generate.seed=abc"], ["seed", "'abc'"]),
-    "seed-nan": lambda t: (["generate.seed=nan"], ["seed", "nan"]),
-    "seed-fraction": lambda t: (["generate.seed=0.5"], ["seed", "0.5"]),
-    "seed-huge": lambda t: (["generate.seed=100000000000000000000000"], ["seed", "4294967295"]),
-    # probe orientations
-    "theta-empty": lambda t: (["generate.theta_vol_deg=[]"], ["theta_vol_deg", "alpha, beta, gamma"]),
-    "theta-two-angles": lambda t: (["generate.theta_vol_deg=[[0,0]]"], ["theta_vol_deg", "(1, 2)"]),
-    "theta-word": lambda t: (["generate.theta_vol_deg=[[0,0,up]]"], ["theta_vol_deg", "'up'"]),
-    "theta-nan": lambda t: (["generate.theta_vol_deg=[[0,0,nan]]"], ["theta_vol_deg", "finite"]),
-    "theta-not-nested": lambda t: (["generate.theta_vol_deg=[0,0,0]"], ["theta_vol_deg", "list of"]),
-    "theta-huge": lambda t: (["generate.theta_vol_deg=[[0,0,1e9]]"], ["theta_vol_deg", "[-360, 360]"]),
-    "sampler-unknown": lambda t: (["generate.sampler=diffusion"], ["sampler", "diffusion"]),
-    # pinned ids
-    "pinned-ids-out-of-range": lambda t: (["generate.pinned_ids=[0,999]"], ["pinned_ids", "[999]", "0..15"]),
-    "pinned-ids-negative": lambda t: (["generate.pinned_ids=[-1]"], ["pinned_ids", "[-1]", "0..15"]),
-    "pinned-ids-empty": lambda t: (["generate.pinned_ids=[]"], ["pinned_ids", "non-empty"]),
-    "pinned-ids-word": lambda t: (["generate.pinned_ids=[a]"], ["pinned_ids", "'a'"]),
-    "pinned-ids-duplicate": lambda t: (["generate.pinned_ids=[1,1]"], ["pinned_ids", "unique"]),
-    "pinned-ids-not-a-list": lambda t: (["generate.pinned_ids=3"], ["pinned_ids", "list"]),
-    # the contact sheet
     "sheet-tile-zero": lambda t: (["sheet.tile_px=0"], ["sheet.tile_px", "32 to 4096"]),
-    "sheet-tile-negative": lambda t: (["sheet.tile_px=-10"], ["sheet.tile_px", "32 to 4096"]),
-    "sheet-tile-huge": lambda t: (["sheet.tile_px=100000"], ["sheet.tile_px", "100000"]),
-    "sheet-tile-word": lambda t: (["sheet.tile_px=big"], ["sheet.tile_px", "'big'"]),
-    "sheet-platform-unknown": lambda t: (["sheet.platform=vulkan"], ["sheet.platform", "vulkan"]),
     # the output folder
     "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
     "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'g'}"], ["out_dir", "file is a file"]),
     "out-dir-empty": lambda t: (["out_dir="], ["out_dir", "folder path"]),
+    "out-dir-a-finished-dataset": lambda t: ([f"out_dir={_finished_dataset(t)}"], ["out_dir", "holds a finished dataset"]),
 }
 
 # the grasp sampler's weights (the package's datagen/grasps/weights/grasp_cvae.npz; a damaged installation)
@@ -194,3 +139,15 @@ def test_matrix_grasps_read_only_out_dir(tmp_path):
     assert "read-only file system" in errors[0], errors
     # refused before the work: the refinement's progress lines never came
     assert "candidates refined" not in proc.stdout, proc.stdout
+
+
+@pytest.mark.matrix
+def test_matrix_grasps_second_run(tmp_path, capsys):
+    """A second grasps run on a folder another live run writes is refused (the lock beside the folder)."""
+    from datagen.io import OutputLock
+
+    out = tmp_path / "g"
+    with OutputLock.for_file(out, "grasps"):  # the first run
+        answer = run_cli(capsys, "grasps", f"out_dir={out}", *SMALL)
+    assert_clean_error(answer, str(out), "in use by another grasps run", prefix="hupbench grasps: error:")
+    assert not out.exists()

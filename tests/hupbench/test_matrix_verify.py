@@ -232,6 +232,40 @@ def _glove_out_of_range(a):
     a["glove_id"][4] = 7
 
 
+def _view_out_of_range(a):
+    a["view_id"][4] = 999
+
+
+def _all_invisible(a):
+    a["visible"][:] = False
+
+
+def _K_zero(rows):
+    def edit(a):
+        a["K"][rows] = 0.0
+    return edit
+
+
+def _labels_swapped(m):
+    m["seg_labels"].update(hand=3, probe=1)
+
+
+def _red_blue_swapped(image):
+    return np.ascontiguousarray(image[..., ::-1])
+
+
+def _nothing_in_view(image):
+    return np.zeros_like(image)
+
+
+def _other_grasps(root: Path) -> list[str]:
+    path = root / "grasps.npz"
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    save_npz(path, {**arrays, "hand_pose": arrays["hand_pose"][::-1].copy()})
+    return [str(root)]
+
+
 # train frame ids: fid = background * 10 + view (one grasp, one z, one glove)
 SAME_VIEW_OTHER_BG = (3, 13)
 OTHER_VIEW_SAME_BG = (2, 7)
@@ -286,6 +320,19 @@ CASES: dict[str, tuple[Callable[[Path], list[str]], Error | Problem]] = {
     "annotations-duplicate-frame-id": (_edit_annotations("train", _duplicate_id), problem("frame_ids", ANN, frames_checked=40)),
     "annotations-glove-id-out-of-range": (_edit_annotations("train", _glove_out_of_range),
                                           problem("bad_annotations", ANN, "glove_id", "000004")),
+    "annotations-view-id-out-of-range": (_edit_annotations("train", _view_out_of_range),
+                                         problem("bad_annotations", ANN, "view_id 999", "000004", frames_checked=59)),
+    "annotations-all-invisible": (_edit_annotations("train", _all_invisible),
+                                  problem("marked_invisible", "train/seg/000003.png", "marked invisible")),
+    "annotations-K-zero": (_edit_annotations("train", _K_zero([3])),
+                           problem("bad_annotations", ANN, "(frame 3)", "not a camera matrix", frames_checked=59)),
+    "annotations-K-zero-every-frame": (_edit_annotations("train", _K_zero(slice(None))),
+                                       problem("bad_annotations", ANN, "(frame 0)", "not a camera matrix",
+                                               frames_checked=40)),
+    "manifest-hand-and-probe-labels-swapped": (_edit_manifest(_labels_swapped),
+                                               error("manifest.json", "seg_labels", "'hand': 3")),
+    "grasps-missing": (_remove("grasps.npz"), problem("grasps_file", "grasps.npz", "missing")),
+    "grasps-replaced": (_other_grasps, problem("grasps_file", "grasps.npz", "not the grasps the frames were rendered with")),
 }
 for modality, rel in (("rgb", RGB3), ("depth", DEPTH3), ("seg", SEG3)):
     CASES |= {
@@ -304,6 +351,9 @@ CASES |= {
     "rgb-shuffled": (_cycle("train", "rgb", (4, 9, 15)), problem("rgb_mismatch", "train/rgb/")),
     "depth-swapped": (_swap("train", "depth", *OTHER_VIEW_SAME_BG), problem("mask_depth", "depth/000002.png")),
     "seg-swapped": (_swap("train", "seg", *OTHER_VIEW_SAME_BG), problem("mask_depth", "seg/000002.png")),
+    "rgb-red-and-blue-swapped": (_image(RGB3, _red_blue_swapped), problem("rgb_channels", RGB3, "swapped")),
+    "depth-and-seg-show-nothing": (lambda root: (_image(DEPTH3, _nothing_in_view)(root), _image(SEG3, _nothing_in_view)(root))[0],
+                                   problem("empty_frame", SEG3, "nothing")),
     "depth-and-seg-swapped": (lambda root: (_swap("train", "depth", 2, 7)(root), _swap("train", "seg", 2, 7)(root))[0],
                               problem("rgb_mismatch", "rgb/000002.jpg")),
     # options

@@ -40,7 +40,7 @@ from hupbench.inference.predict import (
     user_camera_points,
 )
 from hupbench.inference.runtime import load_onnx_model
-from hupbench.input_geometry import InputGeometry
+from hupbench.input_geometry import InputGeometry, apply_affine
 
 S = 32
 K_TRAIN = np.array([[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]])
@@ -154,7 +154,7 @@ def test_preprocess_pads_with_grey_and_keeps_content():
     model_input, g = preprocess(image, S)
     assert model_input.shape == (3, S, S) and model_input.dtype == np.float32
     # rows of the input fully in the padding are grey, rows fully inside the image white
-    top_band = int(np.floor(g.image_to_input_px([0, -0.5])[1]))  # first input row touching the image
+    top_band = int(np.floor(apply_affine(g.image_to_input, [0, -0.5])[1]))  # first input row touching the image
     np.testing.assert_allclose(model_input[:, : top_band - 1], PAD_VALUE, atol=1e-6)
     np.testing.assert_allclose(model_input[:, S // 2], 1.0, atol=1e-6)
     assert g.pad_top == 20 and g.pad_left == 0

@@ -1,0 +1,259 @@
+"""The per-frame checks of :mod:`datagen.dataset.verify`: one frame's image files read whole, its depth
+against its mask, its labels against its keypoints and the probe, and its RGB image against its mask,
+background, glove and the forearm's colour (the pixel statistics: :mod:`datagen.dataset.verify_images`).
+
+How the RGB checks work (thresholds and their measurements in :mod:`datagen.tolerances`):
+
+* background: the renderer composites the foreground over the background image bit for bit where
+  the mask is background, and OpenCV encodes the JPEG in independent 8 x 8 blocks (16 x 16 for the
+  half-resolution chroma). So in blocks of background only the stored RGB decodes like the
+  background image encoded alone at the dataset's quality (within 2 levels), and in blocks near the
+  object, 1 pixel or more from its anti-aliased edge, within JPEG's edge ringing (40 levels). The
+  background set is found by the manifest's fingerprint (built-in, or ``backgrounds.dir``); when it
+  is not here the check is skipped and said so.
+* glove: pyrender shades a glove of albedo ``a`` under white ambient light 0.3 and one point lamp
+  of colour ``c`` (the annotation ``light_color``) as ``0.3 a + k_d (a * c) + k_s c`` (k_d, k_s >= 0
+  per pixel), then stores ``value ** (1 / 2.2)``: in linear light every unclipped hand pixel, and
+  the mean of any block of them, lies on the plane through ``0.3 a`` spanned by ``a * c`` and
+  ``c``. Two frames of one view (grasp, distance, background) in the two gloves share one mask and
+  differ in glove and lamp only: each image must fit its own frame's glove and lamp much better
+  than the other frame's (:func:`glove_pair_ratio`). This runs when the mask agrees with the depth
+  and both images fit the mask's background, so a file from another view does not implicate the
+  other glove's frame.
+
+A frame that holds another frame's RGB image is found when the two differ in silhouette (its
+background shows the other's object), background or glove. When a smaller silhouette is nested in
+a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
+the frames involved does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from datagen import keypoints as kp
+from datagen import tolerances as tol
+from datagen.dataset.contract import SEG_LABELS, frame_path
+from datagen.dataset.verify_images import (
+    background_mismatch_px,
+    glove_pair_ratio,
+    image_format_problem,
+    image_shift_px,
+    jpeg_reference,
+    mask_depth_mismatch_px,
+    read_image,
+    shrink_mask,
+)
+from datagen.geometry import invert_transform, transform_points
+
+#: more than this fraction of a frame's probe pixels off the surface fails it
+PROBE_BAD_FRACTION = 0.05
+#: forearm pixels (inside the mask, off its edge) a frame needs for the channel-order check
+MIN_ARM_PIXELS = 20
+
+
+def _problem(split, frame_id, kind, detail, file=None) -> dict:
+    return {"split": split, "frame_id": None if frame_id is None else int(frame_id), "kind": kind,
+            "file": None if file is None else str(file), "detail": detail}
+
+
+def _relative(split: str, modality: str, frame_id: int, rgb_format: str) -> str:
+    return frame_path("", split, modality, frame_id, rgb_format).as_posix()
+
+
+#: what the per-frame checks share (set before the worker processes fork, so it is not pickled per frame)
+_CONTEXT: dict = {}
+
+
+def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split: str, files: str
+                          ) -> tuple[list[dict], np.ndarray | None]:
+    """The stored visibility flags against the stored depth and mask, probe pixels against the probe,
+    and the shift between the images and the labels (:func:`image_shift_px`).
+
+    Returns:
+        (problems, (2,) shift in pixels or None when the probe shows too little to measure it).
+    """
+    from datagen.dataset.chunks import visibility
+    from datagen.assets.probe import build_probe
+
+    manifest = _CONTEXT["manifest"]
+    frame_id = int(row["frame_id"])
+    problems = []
+    h, w = seg.shape
+    seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64), depth_m, seg,
+                      slack_m=manifest["depth_scale_m"])
+    uv = np.round(row["keypoints_2d"]).astype(np.int64)
+    for i in np.flatnonzero(row["visible"][: kp.NUM_HAND] & ~seen[: kp.NUM_HAND]):
+        u, v = np.clip(uv[i], 0, [w - 1, h - 1])
+        problems.append(_problem(split, frame_id, "visible_not_on_hand",
+                                 f"{kp.KEYPOINT_NAMES[i]}: label {int(seg[v, u])}, depth {depth_m[v, u]:.4f} m "
+                                 f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m", files))
+    # the bounds narrowed by the depth's quantum: what passes them was visible before the depth was stored
+    surely_seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64),
+                             depth_m, seg, slack_m=-manifest["depth_scale_m"])
+    hidden = np.flatnonzero(surely_seen & ~row["visible"])
+    if len(hidden):
+        names = ", ".join(kp.KEYPOINT_NAMES[i] for i in hidden[:4]) + (", ..." if len(hidden) > 4 else "")
+        problems.append(_problem(split, frame_id, "marked_invisible",
+                                 f"{len(hidden)} keypoint(s) marked invisible are in view and unoccluded ({names})",
+                                 files))
+    probe_mask = shrink_mask(seg == SEG_LABELS["probe"], 1)
+    ys, xs = np.nonzero(probe_mask & (depth_m > 0))
+    shift = None
+    if len(xs):
+        pick = np.linspace(0, len(xs) - 1, min(len(xs), 200)).astype(int)
+        K = np.asarray(row["K"])
+        z = depth_m[ys[pick], xs[pick]]
+        cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
+        T_world_cam = invert_transform(row["T_cam_world"])
+        world = transform_points(T_world_cam, cam)
+        probe = build_probe()
+        signed = probe.signed_distance(world)
+        off = np.abs(signed)
+        # a pixel's depth stands for its whole footprint (z / f metres wide): on slanted
+        # surfaces that footprint, not the geometry, bounds the error
+        limit = np.maximum(tol.VERIFY_PROBE_SURFACE_M, 1.5 * z / K[0, 0])
+        bad = np.mean(off > limit)
+        if bad > PROBE_BAD_FRACTION:
+            problems.append(_problem(split, frame_id, "probe_depth",
+                                     f"{100 * bad:.0f}% of probe pixels off the probe surface "
+                                     f"(max {1000 * off.max():.1f} mm)", files))
+        else:
+            near = off <= limit
+            step = tol.VERIFY_SDF_STEP_M
+            gradient = np.stack([(probe.signed_distance(world[near] + step * e) - signed[near]) / step
+                                 for e in np.eye(3)], axis=1)  # (P, 3) surface normals, world frame
+            normals_cam = gradient @ np.asarray(row["T_cam_world"])[:3, :3].T
+            shift = image_shift_px(signed[near], normals_cam, z[near], K)
+            if shift is not None and np.abs(shift).max() > tol.VERIFY_IMAGE_SHIFT_PX:
+                problems.append(_problem(split, frame_id, "image_shift",
+                                         f"the depth and mask sit ({shift[0]:+.2f}, {shift[1]:+.2f}) px from where the "
+                                         f"labels put the probe (tolerance {tol.VERIFY_IMAGE_SHIFT_PX} px)", files))
+    return problems, shift
+
+
+def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
+    """All image checks of one frame: its files, then depth against mask, the labels against the
+    keypoints and the probe, and the RGB image against the mask, background and glove.
+
+    Args:
+        job: (split, row) with row the frame's :data:`FRAME_KEYS` annotation values; the manifest,
+            the dataset root and the backgrounds come from the module's context (:func:`verify`).
+    """
+    split, row = job
+    root, manifest = _CONTEXT["root"], _CONTEXT["manifest"]
+    frame_id = int(row["frame_id"])
+    size = tuple(manifest["image_size"])
+    problems, images, names = [], {}, {}
+    for m in manifest["modalities"]:
+        rel = _relative(split, m, frame_id, manifest["rgb_format"])
+        names[m] = rel
+        image, why = read_image(root / rel, m)
+        if image is None:
+            problems.append(_problem(split, frame_id, "missing_file" if why == "missing" else "undecodable_file",
+                                     why, rel))
+            continue
+        wrong = image_format_problem(image, m, size)
+        if wrong:
+            problem = _problem(split, frame_id, "image_format", wrong, rel)
+            if image.shape[:2] != size[::-1]:
+                problem["_size"] = (m, image.shape[1], image.shape[0])
+            problems.append(problem)
+            continue
+        images[m] = image
+    labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
+    shift = None
+    label = next((m for m in ("seg", "depth") if m in images), None)
+    if label is not None and not images[label].any():
+        problems.append(_problem(split, frame_id, "empty_frame", f"the {label} image shows nothing in front of the "
+                                 "background: the camera sees neither hand nor probe", names[label]))
+    if "depth" in images and "seg" in images:
+        seg, depth = images["seg"], images["depth"]
+        both = f"{names['depth']} + {names['seg']}"
+        off = mask_depth_mismatch_px(depth, seg)
+        if off > tol.VERIFY_MASK_DEPTH_PX:
+            labels_agree = False
+            problems.append(_problem(split, frame_id, "mask_depth",
+                                     f"depth and seg disagree on {off} pixels away from the silhouette's edge "
+                                     f"(tolerance {tol.VERIFY_MASK_DEPTH_PX}): one of them belongs to another frame",
+                                     both))
+        found, shift = _visibility_and_probe(row, depth.astype(np.float64) * manifest["depth_scale_m"], seg, split,
+                                             both)
+        problems += found
+    if "rgb" in images and "seg" in images:
+        rgb = np.ascontiguousarray(images["rgb"][..., ::-1])
+        seg = images["seg"]
+        backgrounds = _CONTEXT.get("backgrounds")
+        rgb_fits_mask = True
+        if backgrounds is not None:
+            b = int(row["background_id"])
+            off = background_mismatch_px(rgb, seg, _reference(b, size))
+            if off > tol.VERIFY_BACKGROUND_PX:
+                rgb_fits_mask = False
+                problems.append(_problem(split, frame_id, "rgb_mismatch",
+                                         f"{off} pixels the mask calls background are not background "
+                                         f"{backgrounds.names[b]!r} (tolerance {tol.VERIFY_BACKGROUND_PX}): the RGB "
+                                         f"image or the mask belongs to another frame", names["rgb"]))
+        # the colour tests read the image through this frame's mask: only when the mask is this
+        # frame's and its image belongs to it (otherwise that is reported above)
+        if labels_agree and rgb_fits_mask:
+            problems += _check_channel_order(rgb, seg, split, frame_id, names["rgb"])
+            if row.get("partner") is not None:
+                problems += _check_glove_pair(split, row, row["partner"], rgb, seg)
+    return problems, shift
+
+
+def _check_channel_order(rgb: np.ndarray, seg: np.ndarray, split: str, frame_id: int, rel: str) -> list[dict]:
+    """The forearm's mean red and blue against its colour (``arm_rgb``): under the lamps a dataset uses
+    (their red and blue within [0.6, 1]) the channel of the larger albedo stays the brighter one (measured:
+    by 53 levels or more), so red and blue stored the other way round show here."""
+    arm_rgb = _CONTEXT["manifest"].get("arm_rgb")
+    if not (isinstance(arm_rgb, list) and len(arm_rgb) == 3) or abs(arm_rgb[0] - arm_rgb[2]) < 0.3:
+        return []
+    arm = shrink_mask(seg == SEG_LABELS["arm"], 1)
+    if np.count_nonzero(arm) < MIN_ARM_PIXELS:
+        return []
+    red, blue = rgb[..., 0][arm].mean(), rgb[..., 2][arm].mean()
+    if (red - blue) * (arm_rgb[0] - arm_rgb[2]) > 0:
+        return []
+    return [_problem(split, frame_id, "rgb_channels", f"the forearm is red {red:.0f} / blue {blue:.0f} on average, "
+                     f"its colour {arm_rgb}: red and blue are swapped", rel)]
+
+
+def _check_glove_pair(split: str, row: dict, partner: dict, rgb: np.ndarray, seg: np.ndarray) -> list[dict]:
+    """The glove test of a frame and its partner (same view, other glove): problems for the frame(s)
+    whose image is the stranger."""
+    manifest = _CONTEXT["manifest"]
+    rel = _relative(split, "rgb", int(partner["frame_id"]), manifest["rgb_format"])
+    other, _ = read_image(_CONTEXT["root"] / rel, "rgb")
+    if other is None or image_format_problem(other, "rgb", tuple(manifest["image_size"])):
+        return []  # the partner's own check reports its file
+    other = np.ascontiguousarray(other[..., ::-1])
+    if _CONTEXT.get("backgrounds") is not None and \
+            background_mismatch_px(other, seg, _reference(int(row["background_id"]), tuple(manifest["image_size"]))) \
+            > tol.VERIFY_BACKGROUND_PX:
+        return []  # the partner's image is not of this view (the partner's own check reports it)
+    ratio, limit, (ratio_a, ratio_b) = glove_pair_ratio(rgb, other, seg, _CONTEXT["gloves"], int(row["glove_id"]),
+                                                         int(partner["glove_id"]), row["light_color"],
+                                                         partner["light_color"])
+    if ratio is None or ratio <= limit:
+        return []
+    a, b = int(row["frame_id"]), int(partner["frame_id"])
+    # the frames whose image fits the other frame's glove and lamp better than its own; when neither
+    # does on its own, the worse of the two
+    strangers = [(f, g, r) for f, g, r in ((a, b, ratio_a), (b, a, ratio_b)) if r > 1] or \
+        [max((a, b, ratio_a), (b, a, ratio_b), key=lambda t: t[2])]
+    return [_problem(split, f, "rgb_mismatch",
+                     f"the RGB image fits the glove and lamp of frame {g:06d} (same view, other glove) better than "
+                     f"its own (pair cost ratio {ratio:.2f} > {limit}, this frame's {r:.2f}): swapped with or copied "
+                     f"from that frame", _relative(split, "rgb", f, manifest["rgb_format"]))
+            for f, g, r in strangers]
+
+
+def _reference(background_id: int, size: tuple[int, int]) -> np.ndarray:
+    """The frame's background as the dataset stores it, cached per process."""
+    cache = _CONTEXT.setdefault("references", {})
+    if background_id not in cache:
+        image = _CONTEXT["backgrounds"].image(background_id, *size)
+        cache[background_id] = jpeg_reference(image, _CONTEXT["jpeg_quality"])
+    return cache[background_id]
