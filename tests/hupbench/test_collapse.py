@@ -20,7 +20,7 @@ from hupbench.checkpoint import Checkpoint
 from hupbench.config import compose
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.metrics import SPREAD_RATIO_WARN, spread_ratios
-from hupbench.training.config import train_config
+from hupbench.training.run_config import train_config
 from hupbench.training.loop import train
 
 MODEL_CONFIGS = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "conf" / "model").glob("*.yaml"))

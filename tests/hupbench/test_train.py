@@ -9,10 +9,11 @@ import torch
 
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.config import compose
-from hupbench.training.config import LossConfig, train_config
+from hupbench.training.run_config import LossConfig, train_config
 from hupbench.training.loop import run_train
 from hupbench.training.losses import loss_terms
-from hupbench.training.schedule import EpochSampler, warmup_cosine
+from hupbench.data.loaders import EpochSampler
+from hupbench.training.schedule import warmup_cosine
 from models.hopenet import HOPENetOutput
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,7 +1,7 @@
 """A training run's config, typed: frozen dataclasses whose ``__post_init__`` is the only check of their fields.
 
 Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``, the model's by
-:mod:`models.config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
+:mod:`models.model_config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
 is refused naming the field as the user writes it (``train.max_steps must be a whole number >= 1 or null, got 0``).
 """
 
@@ -22,7 +22,7 @@ from datagen.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import ReaderConfig
 from hupbench.metrics import PROBE_SYMMETRIES
-from models.config import ModelConfig
+from models.model_config import ModelConfig
 
 #: the most steps, epochs or frames per batch a run may ask for: 10^9 steps take years at any speed
 #: measured here, so a larger number is a typo (train.max_steps=1e12 would train until killed)
