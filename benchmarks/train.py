@@ -31,7 +31,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
 
     from hupbench.config import compose
     from hupbench.data import setup_data
-    from hupbench.training.config import train_config
+    from hupbench.training.run_config import train_config
     from hupbench.training.loop import build_run_model, train_step
     from hupbench.training.schedule import learning_rate
 

@@ -19,7 +19,7 @@ from typing import ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from models.config import ModelConfig
+from models.model_config import ModelConfig
 from models.prior import PointPrior
 from models.resnet import resnet
 
@@ -41,7 +41,7 @@ class RegressorOutput(NamedTuple):
 
 @dataclass(frozen=True)
 class ResNetRegressorConfig(ModelConfig):
-    """The baseline's architecture (:class:`models.config.ModelConfig`'s fields and these).
+    """The baseline's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         predict_2d: also regress (B, N, 2) 2D keypoints from the same feature.

@@ -41,7 +41,7 @@ def build_model(saved: Mapping[str, Any]) -> nn.Module:
     """The model of a saved config, ``Model(ModelConfig(**fields))``, freshly initialised.
 
     Args:
-        saved: ``{"name": <a key of MODELS>, **config fields}`` (:meth:`models.config.ModelConfig.saved`,
+        saved: ``{"name": <a key of MODELS>, **config fields}`` (:meth:`models.model_config.ModelConfig.saved`,
             a checkpoint's ``model_config``), e.g. ``{"name": "hopenet", "backbone": "resnet10"}``;
             omitted fields take their defaults.
 

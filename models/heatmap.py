@@ -33,7 +33,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from models.config import ModelConfig, check_camera, check_whole
+from models.model_config import ModelConfig, check_camera, check_whole
 from models.hopenet import normalized_intrinsics, unproject_normalized
 from models.prior import PointPrior
 from models.resnet import resnet
@@ -85,7 +85,7 @@ def _conv_bn_relu(in_channels: int, out_channels: int) -> nn.Sequential:
 
 @dataclass(frozen=True)
 class HUPNetConfig(ModelConfig):
-    """HUPNet's architecture (:class:`models.config.ModelConfig`'s fields and these).
+    """HUPNet's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         neck_channels: width D of the pyramid and heads.

@@ -24,7 +24,7 @@ from typing import ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from models.config import ModelConfig, check_camera, check_whole
+from models.model_config import ModelConfig, check_camera, check_whole
 from models.graph import GraphNet2D, GraphUNet
 from models.prior import PointPrior
 from models.resnet import resnet
@@ -46,7 +46,7 @@ def normalized_intrinsics(K_input, input_size: int) -> torch.Tensor:
 
     Args:
         K_input: (3, 3) intrinsics of the model input image, pixels (nested lists or array), as
-            :func:`models.config.check_camera` takes them.
+            :func:`models.model_config.check_camera` takes them.
         input_size: S, side of the square model input, pixels.
     """
     K = torch.as_tensor(K_input, dtype=torch.float64)
@@ -145,7 +145,7 @@ class HOPENetOutput(NamedTuple):
 
 @dataclass(frozen=True)
 class HOPENetConfig(ModelConfig):
-    """HOPE-Net's architecture (:class:`models.config.ModelConfig`'s fields and these).
+    """HOPE-Net's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         graph_hidden: widths of the two hidden graph convolutions of the 2D refinement.

@@ -8,6 +8,7 @@ to the same :class:`hupbench.data.augment.BatchAugment`.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -20,7 +21,35 @@ from hupbench.config import build
 from hupbench.data.augment import BatchAugment
 from hupbench.data.cache import open_frame_cache
 from hupbench.data.reader import HUPDataset
-from hupbench.training.schedule import EpochSampler
+
+
+class EpochSampler(torch.utils.data.Sampler):
+    """A seeded permutation per epoch, sliced for this rank, starting at a batch offset (for resume).
+
+    Every rank draws the same permutation from (seed, epoch) and takes every world-th index, so
+    the ranks see disjoint frames; the tail that does not fill a whole global batch is dropped.
+    """
+
+    def __init__(self, n: int, batch_size: int, seed: int, world: int = 1, rank: int = 0) -> None:
+        self.n, self.batch_size, self.seed, self.world, self.rank = n, batch_size, seed, world, rank
+        self.epoch, self.start_batch = 0, 0
+        self.batches_per_epoch = n // (batch_size * world)
+        if self.batches_per_epoch < 1:
+            raise BadValueError(f"the training split has {n} frames, fewer than one batch of {batch_size} x {world} "
+                             "processes; lower data.batch_size")
+
+    def set_position(self, epoch: int, start_batch: int) -> None:
+        self.epoch, self.start_batch = epoch, start_batch
+
+    def __iter__(self) -> Iterator[int]:
+        order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed * 100_003 + self.epoch))
+        used = order[: self.batches_per_epoch * self.batch_size * self.world]
+        mine = used[self.rank:: self.world]
+        return iter(mine[self.start_batch * self.batch_size:].tolist())
+
+    def __len__(self) -> int:
+        return (self.batches_per_epoch - self.start_batch) * self.batch_size
+
 
 
 class FrameBatches(torch.utils.data.Dataset):

@@ -1,4 +1,4 @@
-"""Training: :func:`train` runs one typed run (:class:`hupbench.training.config.TrainRun`) in its run folder,
+"""Training: :func:`train` runs one typed run (:class:`hupbench.training.run_config.TrainRun`) in its run folder,
 one loop for every model (bf16 autocast, channels_last and DDP under ``torchrun`` optional); ``python train.py``
 calls :func:`main`.
 
@@ -31,7 +31,7 @@ from hupbench.checkpoint import Checkpoint
 from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
 from hupbench.provenance import hardware_description, run_info
-from hupbench.training.config import TrainRun, train_config
+from hupbench.training.run_config import TrainRun, train_config
 from hupbench.training.losses import loss_terms
 from hupbench.training.run_log import MetricsLog
 from hupbench.training.schedule import learning_rate
@@ -68,7 +68,7 @@ def run_train(cfg: DictConfig, log=print) -> dict:
     return train(run, run.folder, log)
 
 
-def train(run: TrainRun, folder: Path, log=print) -> dict:
+def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long because the run reads in one sitting
     """Train ``run`` in ``folder`` (held by this run alone, :func:`_run_folder`): set up, loop (log, validate,
     save), summarise. Weights or metrics that are not finite fail the run before a checkpoint or summary.json
     is written: a run is complete only when what it wrote is whole.

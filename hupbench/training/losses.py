@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import torch
 
 if TYPE_CHECKING:
-    from hupbench.training.config import LossConfig
+    from hupbench.training.run_config import LossConfig
 
 
 def loss_terms(output, batch: dict, weights: LossConfig) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

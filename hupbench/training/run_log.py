@@ -51,7 +51,7 @@ class MetricsLog:
             return
         try:
             with open(self.path, "a") as f:
-                f.write(json.dumps(record, sort_keys=True) + "\n")
+                f.write(json.dumps(record, sort_keys=True, allow_nan=False) + "\n")  # NaN is not JSON
         except OSError as exc:
             raise (DiskFullError(self.path) if exc.errno == errno.ENOSPC else exc) from exc
         if self.writer is not None:

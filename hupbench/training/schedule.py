@@ -1,17 +1,14 @@
-"""What the optimiser sees when: Adam's warm-up and cosine learning rate, and the epoch order of the frames."""
+"""What the optimiser sees when: the warm-up and cosine learning rate, and its scaling with the batch."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import torch
 
-from datagen.errors import BadValueError
-
 if TYPE_CHECKING:
-    from hupbench.training.config import OptimConfig
+    from hupbench.training.run_config import OptimConfig
 
 
 def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
@@ -23,7 +20,7 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
         total_steps: optimiser steps in the whole run, >= 1.
         warmup_steps: steps of linear warm-up (shortened to a tenth of the run for short runs).
         final_lr_fraction: learning rate at the last step, as a fraction of the base rate, in [0, 1]
-            (the ``optim.scheduler`` node's values are checked by :class:`hupbench.training.config.OptimConfig`).
+            (the ``optim.scheduler`` node's values are checked by :class:`hupbench.training.run_config.OptimConfig`).
     """
     assert total_steps >= 1 and 0.0 <= final_lr_fraction <= 1.0, (total_steps, final_lr_fraction)
     warmup = max(0, min(int(warmup_steps), total_steps // 10))
@@ -35,34 +32,6 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
         return final_lr_fraction + (1.0 - final_lr_fraction) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
     return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
-
-
-class EpochSampler(torch.utils.data.Sampler):
-    """A seeded permutation per epoch, sliced for this rank, starting at a batch offset (for resume).
-
-    Every rank draws the same permutation from (seed, epoch) and takes every world-th index, so
-    the ranks see disjoint frames; the tail that does not fill a whole global batch is dropped.
-    """
-
-    def __init__(self, n: int, batch_size: int, seed: int, world: int = 1, rank: int = 0) -> None:
-        self.n, self.batch_size, self.seed, self.world, self.rank = n, batch_size, seed, world, rank
-        self.epoch, self.start_batch = 0, 0
-        self.batches_per_epoch = n // (batch_size * world)
-        if self.batches_per_epoch < 1:
-            raise BadValueError(f"the training split has {n} frames, fewer than one batch of {batch_size} x {world} "
-                             "processes; lower data.batch_size")
-
-    def set_position(self, epoch: int, start_batch: int) -> None:
-        self.epoch, self.start_batch = epoch, start_batch
-
-    def __iter__(self) -> Iterator[int]:
-        order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed * 100_003 + self.epoch))
-        used = order[: self.batches_per_epoch * self.batch_size * self.world]
-        mine = used[self.rank:: self.world]
-        return iter(mine[self.start_batch * self.batch_size:].tolist())
-
-    def __len__(self) -> int:
-        return (self.batches_per_epoch - self.start_batch) * self.batch_size
 
 
 def learning_rate(optim: OptimConfig, global_batch: int) -> float:

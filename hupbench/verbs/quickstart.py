@@ -165,7 +165,7 @@ class _Stages:
 def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
     """Compose and build the grasps, generate and train configs of the later stages (so a bad stage
     override fails before the preview renders)."""
-    from hupbench.training.config import train_config
+    from hupbench.training.run_config import train_config
 
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])

@@ -20,7 +20,7 @@ from hupbench.checkpoint import Checkpoint
 from hupbench.config import compose
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.metrics import SPREAD_RATIO_WARN, spread_ratios
-from hupbench.training.config import train_config
+from hupbench.training.run_config import train_config
 from hupbench.training.loop import train
 
 MODEL_CONFIGS = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "conf" / "model").glob("*.yaml"))
@@ -86,13 +86,13 @@ def test_short_training_follows_the_image(model, tiny_dataset, trained):
     assert not low, f"{model}: predictions barely vary across frames along {low} (spread ratio < {SPREAD_RATIO_WARN})"
 
 
-def test_the_guard_fails_a_model_that_ignores_its_image(tiny_dataset, tmp_path, monkeypatch):
-    """The same check on a model whose backbone sees one constant image whatever it is given: every frame
-    gets the same prediction, and the guard names all three axes."""
+def test_the_guard_fails_a_model_that_ignores_its_image(tiny_dataset, trained, monkeypatch):
+    """The same check on the trained HOPE-Net of the test above made blind: its backbone sees one constant image
+    whatever it is given, so every frame gets the same prediction, and the guard names all three axes."""
     from models.resnet import ResNet
 
+    net = trained("hopenet_r10_128")
+    assert not low_spread(net, tiny_dataset)
     features = ResNet.features
     monkeypatch.setattr(ResNet, "features", lambda self, images: features(self, torch.zeros_like(images)))
-    folder = tmp_path / "blind"
-    net = trained_model(short_run("hopenet_r10_128", tiny_dataset, folder, 2), folder)
     assert set(low_spread(net, tiny_dataset)) == {"x", "y", "z"}

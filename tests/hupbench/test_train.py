@@ -9,10 +9,11 @@ import torch
 
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.config import compose
-from hupbench.training.config import LossConfig, train_config
+from hupbench.training.run_config import LossConfig, train_config
 from hupbench.training.loop import run_train
 from hupbench.training.losses import loss_terms
-from hupbench.training.schedule import EpochSampler, warmup_cosine
+from hupbench.data.loaders import EpochSampler
+from hupbench.training.schedule import warmup_cosine
 from models.hopenet import HOPENetOutput
 
 REPO = Path(__file__).resolve().parents[2]
@@ -402,13 +403,15 @@ def test_the_optimiser_gets_the_scaled_rate(tiny_dataset, tmp_path):
 
 @pytest.mark.slow
 def test_compiled_training_matches_eager(tiny_dataset, tmp_path):
-    """torch.compile changes how, not what: the first losses agree with an eager run."""
+    """torch.compile changes how, not what: the first loss (same weights, same batch) agrees with an eager run's
+    to 1e-4; after Adam's steps, whose per-parameter normalisation magnifies fused kernels' rounding, to 1 %."""
     eager, compiled = tmp_path / "eager", tmp_path / "compiled"
     run_train(tiny_cfg(tiny_dataset, eager, "train.max_steps=3"), log=lambda *_: None)
     run_train(tiny_cfg(tiny_dataset, compiled, "train.max_steps=3", "compile=true"), log=lambda *_: None)
     a = [r["loss"] for r in read_log(eager) if r["event"] == "train"]
     b = [r["loss"] for r in read_log(compiled) if r["event"] == "train"]
-    assert len(a) == len(b) == 3 and a == pytest.approx(b, rel=1e-3)
+    assert len(a) == len(b) == 3 and a[0] == pytest.approx(b[0], rel=1e-4)
+    assert a[1:] == pytest.approx(b[1:], rel=1e-2)
 
 
 def test_error_line_is_one_line_naming_the_file():

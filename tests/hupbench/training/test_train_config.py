@@ -12,7 +12,7 @@ from datagen.processes import usable_cores
 from helpers.answers import assert_refusal
 from hupbench.config import compose
 from hupbench.data import ReaderConfig
-from hupbench.training.config import DataConfig, LossConfig, OptimConfig, Schedule, TrainRun, train_config
+from hupbench.training.run_config import DataConfig, LossConfig, OptimConfig, Schedule, TrainRun, train_config
 from hupbench.training.schedule import warmup_cosine
 from models.hopenet import HOPENetConfig
 

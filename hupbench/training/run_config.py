@@ -1,7 +1,7 @@
 """A training run's config, typed: frozen dataclasses whose ``__post_init__`` is the only check of their fields.
 
 Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``, the model's by
-:mod:`models.config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
+:mod:`models.model_config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
 is refused naming the field as the user writes it (``train.max_steps must be a whole number >= 1 or null, got 0``).
 """
 
@@ -22,7 +22,7 @@ from datagen.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import ReaderConfig
 from hupbench.metrics import PROBE_SYMMETRIES
-from models.config import ModelConfig
+from models.model_config import ModelConfig
 
 #: the most steps, epochs or frames per batch a run may ask for: 10^9 steps take years at any speed
 #: measured here, so a larger number is a typo (train.max_steps=1e12 would train until killed)
@@ -157,7 +157,7 @@ class TrainRun:
         whole(self.threads, "threads", 1, optional=True)
         cores = usable_cores()
         if self.threads is not None and self.threads > cores:
-            # more threads than cores only contend: threads=4096 made a 1-step run take more than 300 s
+            # more threads than cores only contend for them: a run slows to a crawl
             raise BadValueError(f"threads={self.threads} is more than the {cores} CPU core(s) this process may "
                                 f"use; set threads to at most {cores}, or null for torch's default")
         whole(self.seed, "seed", 0, high=2**31 - 1)
