@@ -10,9 +10,8 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
-import pytest
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("datagen", "models", "hupbench")
 #: package -> packages it must never import
 FORBIDDEN = {"datagen": ("models", "hupbench"), "models": ("datagen", "hupbench")}
@@ -183,3 +182,22 @@ def test_the_inference_path_imports_no_torch():
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, f"importing {TORCH_FREE} loaded torch (exit {proc.returncode}): {proc.stderr[-2000:]}"
 
+
+
+def test_tests_mirror_the_packages():
+    """Each test folder is a package folder (tests/datagen/dataset for datagen/dataset), each test module's
+    name is unique (pytest imports them by name), and test modules import helpers, never each other."""
+    tests = REPO / "tests"
+    folders = {p.parent.relative_to(tests) for p in tests.rglob("test_*.py")}
+    strays = sorted(str(f) for f in folders if f.parts and not (REPO / f).is_dir())
+    assert not strays, f"test folders without a package of the same path: {strays}"
+    names = defaultdict(list)
+    for path in tests.rglob("test_*.py"):
+        names[path.name].append(str(path.relative_to(tests)))
+    assert not {k: v for k, v in names.items() if len(v) > 1}, names
+    cross = []
+    for path in tests.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(("test_", "conftest")):
+                cross.append(f"{path.relative_to(tests)}:{node.lineno} imports {node.module}")
+    assert not cross, f"import shared code from tests/helpers/ instead: {sorted(set(cross))}"

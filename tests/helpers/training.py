@@ -9,9 +9,9 @@ import sys
 import traceback
 from pathlib import Path
 
-from conftest import CliAnswer
+from helpers.cli import CliAnswer
 
-REPO = Path(__file__).resolve().parents[2]
+from helpers import REPO  # noqa: F401  (re-exported for the training tests)
 TRAIN_PREFIX = "train.py: error:"
 
 

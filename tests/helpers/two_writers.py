@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from helpers import REPO
 
 
 def start_writing(argv: list[str], folder: Path, timeout_s: float = 300.0) -> subprocess.Popen:

@@ -9,15 +9,14 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-from conftest import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
 from hupbench import __version__
 from hupbench.cli import VERBS
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 
 # id -> (argv, needles)
 CASES = {

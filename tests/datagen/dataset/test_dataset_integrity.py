@@ -1,5 +1,5 @@
 """A finished dataset checked against its files when generate runs on it again, and a camera that must see
-the scene (verify's checks of the same holes are cases of tests/hupbench/test_matrix_verify.py)."""
+the scene (verify's checks of the same holes are cases of tests/hupbench/verbs/test_matrix_verify.py)."""
 
 import shutil
 
@@ -10,7 +10,7 @@ from datagen.dataset.spec import DatasetSpec
 from datagen.dataset.writer import generate
 from datagen.io import save_npz
 
-from conftest import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 
 QUIET = lambda *_: None  # noqa: E731
 

@@ -1,6 +1,6 @@
 """The training config's nodes refuse each bad value in their ``__post_init__``, naming the field as train.py's
 command line writes it (docs/robustness.md, section train.py: the per-field rows, the line train.py prints,
-recorded without running a training). That the command line reaches each node: tests/hupbench/test_matrix_train.py.
+recorded without running a training). That the command line reaches each node: tests/hupbench/training/test_matrix_train.py.
 """
 
 import functools

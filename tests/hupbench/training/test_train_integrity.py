@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import assert_clean_error, assert_nothing_complete
+from helpers.cli import assert_clean_error, assert_nothing_complete
 from datagen.processes import usable_cores
 from helpers.answers import record_answer
 from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer

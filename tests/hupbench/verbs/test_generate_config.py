@@ -1,6 +1,6 @@
 """The per-field cases of `hupbench generate`'s bad-input matrix, as unit tests of its config classes
 (``GenerateRun``, its ``RenderJob``, ``DatasetSpec`` and ``SphereSpec``): each answers with the line the CLI
-prints (tests/hupbench/test_matrix_generate.py keeps one case per field group through the whole CLI)."""
+prints (tests/hupbench/verbs/test_matrix_generate.py keeps one case per field group through the whole CLI)."""
 
 import pytest
 
@@ -9,7 +9,7 @@ from datagen.dataset.sphere import SphereSpec
 from helpers.answers import assert_refusal
 from datagen.dataset.writer import GenerateRun
 
-from conftest import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 
 
 def run(**fields):

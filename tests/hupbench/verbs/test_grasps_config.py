@@ -1,13 +1,13 @@
 """The per-field cases of `hupbench grasps`' bad-input matrix, as unit tests of ``GraspsRun`` (which builds its
 ``generate`` and ``refine`` groups and names them in an error): each answers with the line the CLI prints
-(tests/hupbench/test_matrix_grasps.py keeps one case per field group through the whole CLI, and the files)."""
+(tests/hupbench/verbs/test_matrix_grasps.py keeps one case per field group through the whole CLI, and the files)."""
 
 import pytest
 
 from helpers.answers import assert_refusal
 from hupbench.verbs.grasps import GraspsRun
 
-#: tests/hupbench/test_matrix_grasps.py's SMALL config as the fields of the run
+#: tests/hupbench/verbs/test_matrix_grasps.py's SMALL config as the fields of the run
 GENERATE = {"_target_": "datagen.grasps.synthesis.GraspGenConfig", "theta_vol_deg": [[0, 0, 0], [0, 0, 180]],
             "starts_per_theta": 8, "sampler": "cvae", "short_refine_iterations": 5, "n_select": 1,
             "pinned_ids": None, "seed": 0}

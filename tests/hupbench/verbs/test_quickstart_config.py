@@ -1,6 +1,6 @@
 """The per-field cases of `hupbench quickstart`'s bad-input matrix, as unit tests of ``QuickstartRun`` (its own
 options, the preview camera, view and rendering): each answers with the line the CLI prints
-(tests/hupbench/test_matrix_quickstart.py keeps one case per field group, the stages' lists and the files)."""
+(tests/hupbench/verbs/test_matrix_quickstart.py keeps one case per field group, the stages' lists and the files)."""
 
 import pytest
 from omegaconf import OmegaConf

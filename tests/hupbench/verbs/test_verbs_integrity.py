@@ -7,17 +7,16 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
 from hupbench.cli import main
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[3]
 #: 2 orientations x 8 starts, a short refinement: seconds
 SMALL_GRASPS = ["generate.theta_vol_deg=[[0,0,0],[0,0,180]]", "generate.starts_per_theta=8", "refine.iterations=50",
                 "generate.short_refine_iterations=5", "generate.n_select=1", "sheet.tile_px=96", "threads=2"]
-#: conftest.TINY_SPEC as overrides
+#: helpers.datasets.TINY_SPEC as overrides
 TINY = ["dataset.splits={train:1,val:0,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=2",
         "dataset.n_gloves=1", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]", "dataset.width=64",
         "dataset.height=64", "dataset.fx=120.0", "dataset.fy=120.0", "dataset.cx=32.0", "dataset.cy=32.0",

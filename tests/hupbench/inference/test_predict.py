@@ -1,10 +1,7 @@
 """hupbench predict: geometry, camera conversion, image reading, overlays, the CLI, and no torch.
 
-Most tests use a tiny hand-written ONNX graph that follows the ONNX contract and whose answer is
-known: it finds the most red pixel of the input (largest R - G), puts keypoint k at that pixel plus a
-fixed offset (normalised units), and places keypoint k at a fixed depth z_k on the ray of its 2D
-point through K_input (a pinhole-consistent network). Images with one red dot then have a known
-prediction in original pixels, up to half a model-input pixel.
+Most tests use the known-answer ONNX graph of tests/helpers/dot_model.py (a red dot in, a known
+prediction out).
 """
 
 from __future__ import annotations
@@ -17,9 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from datagen import keypoints as kp
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
@@ -41,78 +36,15 @@ from hupbench.inference.predict import (
 )
 from hupbench.inference.runtime import load_onnx_model
 from hupbench.input_geometry import InputGeometry, apply_affine
-
-S = 32
-K_TRAIN = np.array([[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]])
-N = kp.NUM_KEYPOINTS
-_rng = np.random.default_rng(7)
-OFFSETS_NORM = np.concatenate([np.zeros((1, 2)), _rng.uniform(-0.3, 0.3, size=(N - 1, 2))]).astype(np.float32)
-DEPTHS_M = _rng.uniform(0.4, 0.9, size=N).astype(np.float32)
-RED = (0, 0, 255)  # BGR for cv2.imwrite
+from helpers.dot_model import DEPTHS_M, K_TRAIN, N, OFFSETS_NORM, S, contract_metadata, dot_image, make_dot_model, photo_like
+from helpers import REPO
 
 
-def _const(name, array, dtype=np.float32):
-    return helper.make_node("Constant", [], [name], value=numpy_helper.from_array(np.asarray(array, dtype), name))
 
 
-def make_dot_model(path: Path, metadata: dict[str, str] | None = None) -> Path:
-    """Write the known-answer ONNX graph described in the module docstring."""
-    nodes = [
-        _const("starts0", [0], np.int64), _const("ends1", [1], np.int64), _const("ends2", [2], np.int64),
-        _const("axis1", [1], np.int64), _const("axis2", [2], np.int64),
-        _const("flat_shape", [0, -1], np.int64), _const("side", [S], np.int64),
-        helper.make_node("Slice", ["image", "starts0", "ends1", "axis1"], ["red"]),
-        helper.make_node("Slice", ["image", "ends1", "ends2", "axis1"], ["green"]),
-        helper.make_node("Sub", ["red", "green"], ["redness"]),  # (B, 1, S, S): 0 on grey, 1 on pure red
-        helper.make_node("Reshape", ["redness", "flat_shape"], ["flat"]),  # (B, S * S)
-        helper.make_node("ArgMax", ["flat"], ["index"], axis=1, keepdims=1),  # (B, 1) int64
-        helper.make_node("Mod", ["index", "side"], ["u_int"]),
-        helper.make_node("Div", ["index", "side"], ["v_int"]),
-        helper.make_node("Concat", ["u_int", "v_int"], ["uv_int"], axis=1),  # (B, 2)
-        helper.make_node("Cast", ["uv_int"], ["uv"], to=TensorProto.FLOAT),
-        _const("two_over_s", 2.0 / S), _const("norm_shift", 1.0 / S - 1.0),
-        helper.make_node("Mul", ["uv", "two_over_s"], ["uv_scaled"]),
-        helper.make_node("Add", ["uv_scaled", "norm_shift"], ["xy_norm"]),  # (2u + 1) / S - 1
-        helper.make_node("Unsqueeze", ["xy_norm", "axis1"], ["xy_norm3"]),  # (B, 1, 2)
-        _const("offsets", OFFSETS_NORM[None]),
-        helper.make_node("Add", ["xy_norm3", "offsets"], ["points2d"]),  # (B, N, 2)
-        _const("half_s", S / 2.0), _const("px_shift", S / 2 - 0.5 - K_TRAIN[:2, 2]),
-        helper.make_node("Mul", ["points2d", "half_s"], ["p_half"]),
-        helper.make_node("Add", ["p_half", "px_shift"], ["uv_centred"]),  # u_in - cx
-        _const("z_over_f", np.stack([DEPTHS_M / K_TRAIN[0, 0], DEPTHS_M / K_TRAIN[1, 1]], axis=1)[None]),
-        helper.make_node("Mul", ["uv_centred", "z_over_f"], ["xy3"]),  # (B, N, 2) metres
-        _const("zero", 0.0), _const("depths", DEPTHS_M[None, :, None]),
-        helper.make_node("Slice", ["xy3", "starts0", "ends1", "axis2"], ["x3"]),
-        helper.make_node("Mul", ["x3", "zero"], ["zeros"]),
-        helper.make_node("Add", ["zeros", "depths"], ["z3"]),  # (B, N, 1)
-        helper.make_node("Concat", ["xy3", "z3"], ["points3d"], axis=2),
-    ]
-    graph = helper.make_graph(
-        nodes, "dot",
-        [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, S, S])],
-        [helper.make_tensor_value_info("points2d", TensorProto.FLOAT, ["batch", N, 2]),
-         helper.make_tensor_value_info("points3d", TensorProto.FLOAT, ["batch", N, 3])],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    model.ir_version = 9
-    if metadata is None:
-        metadata = contract_metadata()
-    helper.set_model_props(model, metadata)
-    onnx.checker.check_model(model)
-    onnx.save(model, path)
-    return path
 
 
-def contract_metadata(**changes) -> dict[str, str]:
-    meta = {
-        "hupbench.onnx_schema": "1", "hupbench.input_size": str(S), "hupbench.K_input": json.dumps(K_TRAIN.tolist()),
-        "hupbench.keypoint_names": json.dumps(list(kp.KEYPOINT_NAMES)),
-        "hupbench.skeleton_edges": json.dumps([list(e) for e in kp.SKELETON_EDGES]),
-        "hupbench.model_config": json.dumps({"name": "dot"}), "hupbench.run_name": "dot-run",
-        "hupbench.git_commit": "0" * 40,
-    }
-    meta.update(changes)
-    return {k: v for k, v in meta.items() if v is not None}
+
 
 
 @pytest.fixture(scope="module")
@@ -120,26 +52,8 @@ def dot_model(tmp_path_factory) -> Path:
     return make_dot_model(tmp_path_factory.mktemp("onnx") / "dot.onnx")
 
 
-def dot_image(width: int, height: int, dot_uv: tuple[int, int], gray: bool = False) -> np.ndarray:
-    """Black BGR image (or grey-scale) with one pure red pixel."""
-    if gray:
-        return np.full((height, width), 40, dtype=np.uint8)
-    image = np.zeros((height, width, 3), dtype=np.uint8)
-    image[dot_uv[1], dot_uv[0]] = RED
-    return image
 
 
-def photo_like(width: int, height: int, seed: int = 0) -> np.ndarray:
-    """BGR uint8 with gradients, noise and shapes: JPEG-typical content, not from the dataset."""
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
-    image = np.stack([xx / width * 200, yy / height * 180, (xx + yy) / (width + height) * 150 + 50], axis=2)
-    image += rng.normal(0, 12, size=image.shape)
-    image = np.clip(image, 0, 255).astype(np.uint8)
-    cv2.circle(image, (width // 3, height // 2), height // 5, (30, 160, 220), -1)
-    cv2.rectangle(image, (width // 2, height // 4), (width - 20, height - 30), (200, 90, 40), -1)
-    cv2.ellipse(image, (width // 2, height // 2), (width // 6, height // 9), 30, 0, 360, (240, 240, 240), 3)
-    return image
 
 
 def project(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -525,7 +439,7 @@ def test_predict_does_not_import_torch(dot_model, image_set, tmp_path):
         "print('IMPORTED', heavy)\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
-                          cwd=Path(__file__).resolve().parents[2])
+                          cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     assert "IMPORTED []" in proc.stdout, proc.stdout
     assert (tmp_path / "photo_overlay.png").is_file() and (tmp_path / "wide_overlay.png").is_file()

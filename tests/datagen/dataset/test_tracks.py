@@ -12,7 +12,7 @@ from datagen.dataset.sphere import viewpoints
 from datagen.dataset.verify import verify
 from datagen.dataset.writer import generate
 
-from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 VIEWS = TINY | dict(splits=None, track="unseen_views", view_stride=3, n_backgrounds=1)
 

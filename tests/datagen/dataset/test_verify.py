@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import TINY_SPEC, write_grasps
+from helpers.datasets import TINY_SPEC, write_grasps
 from datagen import tolerances as tol
 from datagen.dataset import verify as V
 from datagen.dataset import verify_images as VI

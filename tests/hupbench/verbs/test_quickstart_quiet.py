@@ -12,11 +12,9 @@ import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
-import pytest
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 
 #: what a warning looks like on a console: Python's "file:line: XWarning: text" and its source line,
 #: torch's TracerWarning, the ONNX exporter's registry messages, C++ warnings of torch ("[W ...]",

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from conftest import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 
 
 def _write(path: Path, data: bytes) -> Path:

@@ -19,7 +19,8 @@ from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_p
 from datagen.io import save_npz
 from datagen.dataset.verify import verify
 
-from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers import REPO
+from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 
 def run(out, grasps, spec=(), **job):
@@ -86,7 +87,7 @@ def test_sigkill_then_resume_loses_and_duplicates_nothing(tiny, tmp_path):
     out = tmp_path / "killed"
     code = textwrap.dedent(f"""
         import sys
-        sys.path[:0] = [{str(os.path.dirname(__file__))!r}, {str(os.path.dirname(os.path.dirname(__file__)))!r}]
+        sys.path[:0] = [{os.path.dirname(__file__)!r}, {str(REPO / "tests")!r}]
         from test_generate import run
         run({str(out)!r}, {str(grasps)!r}, spec=dict(n_backgrounds=4, splits={{"train": 1, "val": 0, "test": 1}}))
     """)

@@ -22,12 +22,13 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import CliAnswer, assert_clean_error, run_cli
-from test_leaderboard import COMMITTED, OUTPUTS, measured, write_log
-from test_matrix_predict import REPO, run_in_namespace
+from helpers.cli import CliAnswer, assert_clean_error, run_cli
 
 from hupbench.evaluation.leaderboard import run_leaderboard
 from hupbench.evaluation.results import write_results
+from helpers import REPO
+from helpers.faults import run_in_namespace
+from helpers.leaderboard import COMMITTED, OUTPUTS, measured, write_log
 
 pytestmark = pytest.mark.matrix
 

@@ -10,7 +10,6 @@ from pathlib import Path
 import matplotlib
 import PIL
 import pytest
-from test_results import split_floor_block, triplet
 
 from hupbench.cli import main
 from hupbench.evaluation.leaderboard import (
@@ -29,10 +28,10 @@ from hupbench.evaluation.leaderboard import (
     run_leaderboard,
     table_row,
 )
-from hupbench.evaluation.results import blank_results, load_results, write_results
+from hupbench.evaluation.results import load_results, write_results
+from helpers.leaderboard import COMMITTED, OUTPUTS, measured, split_floor_block, triplet, write_log
+from helpers import REPO
 
-COMMITTED = Path(__file__).resolve().parents[2] / "leaderboard"
-OUTPUTS = (README, LATENCY_PLOT, TRAINING_PLOT)
 
 
 def png_chunks(data: bytes) -> dict:
@@ -59,19 +58,6 @@ def png_software(data: bytes) -> str:
     return ""
 
 
-def measured(name, label, all_mm, hand, probe, onnx_ms, torch_ms, wall_s, hardware="1x H100", log=True):
-    d = blank_results("measured", name)
-    d["model"] |= {"name": "hopenet", "label": label, "parameters": 12_345_678, "input_size": 128, "format": "onnx"}
-    d["dataset"] |= {"name": "hupbench default", "frames": 5760, "manifest_sha256": "ab" * 32, "path": "/data"}
-    d["metrics"] = {"mpjpe_mm": {"all": all_mm, "hand": hand, "probe": probe, "all_averaging": "mean over 29 keypoints"},
-                    "root_relative_hand_mpjpe_mm": 7.0, "pa_mpjpe_hand_mm": 4.5678, "pck_auc_0_50mm": 0.81234,
-                    "pixel_error_px": 2.0, "probe_symmetric_mpjpe_mm": probe - 1.0,
-                    "spread_ratio": {"x": 0.9, "y": 1.01, "z": 0.456}}
-    d["latency_ms_per_image"]["onnxruntime"]["batch1"] = onnx_ms
-    d["latency_ms_per_image"]["pytorch"]["batch1"] = torch_ms
-    d["training"] |= {"wall_s": wall_s, "hardware": hardware, "command": f"python train.py run_name={name}",
-                      "log": f"logs/{name}.jsonl" if log else None}
-    return d
 
 
 def with_grasps(row: dict, track: str = "unseen_grasps", floor_kind: str = "nearest_train_grasp") -> dict:
@@ -93,15 +79,6 @@ def table_lines(text: str, track_title: str = "Unseen grasps") -> list[str]:
     return [line for line in section.splitlines() if line.startswith("| ")][1:]
 
 
-def write_log(path: Path, wall_s: float, final_mm: float, n: int = 5) -> None:
-    lines = [json.dumps({"event": "train", "step": 0, "samples_seen": 0, "wall_s": 0.0, "train_wall_s": 0.0,
-                         "loss": 1.0, "lr": 1e-3})]
-    for i in range(1, n + 1):
-        lines.append(json.dumps({"event": "val", "step": 10 * i, "epoch": float(i), "samples_seen": 640 * i,
-                                 "wall_s": 1.1 * wall_s * i / n, "train_wall_s": wall_s * i / n,
-                                 "val_mpjpe_mm": {"all": final_mm * (1 + 2 / i), "hand": 1.0, "probe": 2.0}}))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
 
 
 @pytest.fixture
@@ -433,7 +410,7 @@ def test_write_together_raises_rather_than_loops(tmp_path):
             "    print('RAISED', exc.filename)\n")
     try:
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                              cwd=Path(__file__).resolve().parents[2])
+                              cwd=REPO)
     except subprocess.TimeoutExpired:
         pytest.fail("_write_together did not return within 60 s")
     assert done.returncode == 0 and "RAISED" in done.stdout, done.stderr

@@ -4,7 +4,6 @@ import json
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import onnx
@@ -15,42 +14,18 @@ from datagen import keypoints as kp
 from hupbench.inference.model_file import META
 from hupbench.inference import export as E
 from hupbench.inference.runtime import load_onnx_model
-from datagen.io import file_sha256
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from models.baseline import RegressorOutput
-from models.build import build_model
 from models.coords import pixels_to_normalized
-
-INPUT_SIZE = 64
-
-
-def make_checkpoint(path, dataset, **model_cfg):
-    """An untrained model (ResNet-10 backbone by default) with the train split's mean layout as its 3D prior."""
-    torch.manual_seed(0)
-    with np.load(dataset / "train" / "annotations.npz") as ann:
-        mean = ann["keypoints_3d_cam"].mean(axis=0)
-    cfg = {"name": "hopenet", "backbone": "resnet10", "points3d_mean": mean.tolist()} | model_cfg
-    if cfg.get("n_keypoints", kp.NUM_KEYPOINTS) != kp.NUM_KEYPOINTS:
-        cfg["points3d_mean"] = None
-    model = build_model(cfg)
-    K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
-    return Checkpoint(
-        model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=INPUT_SIZE,
-        K_input=K.tolist(), config={"run_name": "tiny_hopenet"},
-        dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
+from helpers.models import INPUT_SIZE, exported_model, make_checkpoint
+from helpers import REPO
 
 
-def exported_model(tmp_path_factory, dataset):
-    """(checkpoint, onnx) of an untrained HOPE-Net, exported once per session (shared with test_eval)."""
-    folder = tmp_path_factory.getbasetemp() / "exported_hopenet_r10_64"
-    ckpt, onnx_path = folder / "model.pt", folder / "model.onnx"
-    if not onnx_path.is_file():
-        folder.mkdir(exist_ok=True)
-        make_checkpoint(ckpt, dataset)
-        E.run_export(E.ExportOptions(ckpt, onnx_path), log=lambda *_: None)
-    return ckpt, onnx_path
+
+
+
 
 
 @pytest.fixture(scope="module")
@@ -214,7 +189,7 @@ def test_export_prints_no_exporter_noise(tmp_path):
         "K = [[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]]\n"
         f"E.export_onnx(E.ContractModule(net, K, 32), {str(tmp_path / 'm.onnx')!r}, {{}})\n")
     done = subprocess.run([sys.executable, "-W", "default", "-c", script], capture_output=True, text=True,
-                          cwd=Path(__file__).resolve().parents[2], timeout=300)
+                          cwd=REPO, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "torchvision is not installed" not in done.stderr + done.stdout
     assert "LeafSpec" not in done.stderr + done.stdout

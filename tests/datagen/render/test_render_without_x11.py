@@ -25,6 +25,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import REPO
 
 # the process that renders: the X11 block first, then the project's renderer
 RENDER_WITHOUT_X11 = textwrap.dedent(
@@ -148,7 +149,7 @@ X11_AND_GL_PACKAGES = re.compile(
 
 
 def _install_sh_packages() -> list[str]:
-    text = (Path(__file__).resolve().parents[2] / "install.sh").read_text()
+    text = (REPO / "install.sh").read_text()
     match = re.search(r'^DEB_PACKAGES="([^"]+)"', text, flags=re.M)
     assert match, "install.sh no longer sets DEB_PACKAGES=\"...\""
     return match.group(1).split()

@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import assert_clean_error, run_cli, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
-#: conftest.TINY_SPEC as `hupbench generate` overrides (64 px, 10 views, chunks of 10 frames)
+#: helpers.datasets.TINY_SPEC as `hupbench generate` overrides (64 px, 10 views, chunks of 10 frames)
 TINY_OVERRIDES = ["dataset.splits={train:1,val:0,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=2",
                   "dataset.n_gloves=1", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]",
                   "dataset.width=64", "dataset.height=64", "dataset.fx=120.0", "dataset.fy=120.0",

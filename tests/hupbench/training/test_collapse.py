@@ -22,8 +22,9 @@ from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.metrics import SPREAD_RATIO_WARN, spread_ratios
 from hupbench.training.run_config import train_config
 from hupbench.training.loop import train
+from helpers import REPO
 
-MODEL_CONFIGS = sorted(p.stem for p in (Path(__file__).resolve().parents[2] / "conf" / "model").glob("*.yaml"))
+MODEL_CONFIGS = sorted(p.stem for p in (REPO / "conf" / "model").glob("*.yaml"))
 INPUT_SIZE = 64
 STEPS = 200
 # ResNet-50 HOPE-Net learns depth and y more slowly at batch 8: 200 steps gave spread ratios y 0.43,

@@ -7,11 +7,6 @@ import re
 import numpy as np
 import pytest
 import torch
-from test_export import (  # the session's one export, shared
-    INPUT_SIZE,
-    exported_model,
-    make_checkpoint,
-)
 
 from hupbench.evaluation import evaluate as EV
 from hupbench import metrics as M
@@ -19,6 +14,7 @@ from datagen.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results
+from helpers.models import INPUT_SIZE, exported_model, make_checkpoint
 
 
 def evaluate(model, dataset, log=lambda *_: None, **options):

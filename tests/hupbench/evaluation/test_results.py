@@ -3,7 +3,6 @@
 import copy
 import json
 import math
-from pathlib import Path
 
 import pytest
 
@@ -16,26 +15,13 @@ from hupbench.evaluation.results import (
     validate_split_floor,
     write_results,
 )
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def triplet(hand, probe):
-    return {"hand": hand, "probe": probe, "all": (21 * hand + 8 * probe) / 29}
+from helpers.leaderboard import split_floor_block, triplet
+from helpers import REPO
 
 
-def split_floor_block(frames=(2880, 2880)):
-    """The test split's floor as the manifest holds it: grasps 3 and 12 (``frames`` each), nearest training
-    grasps 0 and 1."""
-    return {"floor_kind": "nearest_train_grasp", "floor_mm": triplet(20.0, 40.0),
-            "nearest_train_grasp_mm": triplet(20.0, 40.0), "nearest_train_view_mm": None,
-            "train_mean_mm": triplet(35.0, 60.0),
-            "per_grasp": {"3": {"floor_mm": triplet(15.0, 30.0), "nearest_train_grasp_id": 0,
-                                "nearest_train_grasp_mm": triplet(15.0, 30.0), "nearest_train_view_mm": None,
-                                "train_mean_mm": triplet(30.0, 50.0), "frames": frames[0]},
-                          "12": {"floor_mm": triplet(25.0, 50.0), "nearest_train_grasp_id": 1,
-                                 "nearest_train_grasp_mm": triplet(25.0, 50.0), "nearest_train_view_mm": None,
-                                 "train_mean_mm": triplet(40.0, 70.0), "frames": frames[1]}}}
+
+
+
 
 
 def measured_row(run_name="hopenet_r18_128"):

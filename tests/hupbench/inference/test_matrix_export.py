@@ -14,19 +14,15 @@ import sys
 
 import onnx
 import pytest
-from test_export import exported_model, make_checkpoint
-from test_matrix_train import (
-    CHECKPOINT_CASES,
-    damage_checkpoint,
-    damage_dataset,
-    private_mount,
-)
 
-from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.cli import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
 from helpers.answers import assert_refusal
 from helpers.two_writers import finish, start_writing
 
 from hupbench.inference.export import ExportOptions
+from helpers.damage import CHECKPOINT_CASES, damage_checkpoint, damage_dataset
+from helpers.faults import dead_pid, full_disk_script, parse_full_disk, private_mount, run_killed_then_again
+from helpers.models import exported_model, make_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -128,11 +124,10 @@ def test_matrix_export(case, exported, tiny_dataset, tmp_path, capsys):
 def test_fault_export_disk_full(exported, tmp_path):
     """The ONNX file on a full disk: one line naming the device and the first file it could not write (the
     output's lock), exit 1, nothing left."""
-    from test_matrix_eval import _full_disk_script, parse_full_disk
 
     ckpt, _ = exported
     disk = tmp_path / "disk"
-    _, output = private_mount("size=8k", disk, _full_disk_script(
+    _, output = private_mount("size=8k", disk, full_disk_script(
         f'"{sys.executable}" -m hupbench.cli export "{ckpt}" --out "{disk}/model.onnx"', disk))
     answer, tmp, files = parse_full_disk(output)
     assert_clean_error(answer, f"no space left on {disk} writing {disk}/.model.onnx.lock")
@@ -144,7 +139,6 @@ def test_fault_export_sigkill_then_rerun(exported, tmp_path):
     """SIGKILL at a seeded random point of an export (its temporary file being written or checked for parity),
     then the same command: the same bytes as an uninterrupted export (its metadata has no time stamp), and
     no temporary file left."""
-    from test_matrix_eval import run_killed_then_again
 
     ckpt, onnx_path = exported
     out = tmp_path / "out" / "model.onnx"
@@ -162,7 +156,6 @@ def test_fault_export_sigkill_then_rerun(exported, tmp_path):
 def test_fault_export_stale_tmp_removed(exported, tmp_path, capsys):
     """Temporary files of killed exports in the output folder are removed by the next export; a live
     writer's are kept."""
-    from test_train_faults import dead_pid
 
     ckpt, onnx_path = exported
     out = tmp_path / "out" / "model.onnx"

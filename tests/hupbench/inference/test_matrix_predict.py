@@ -14,11 +14,8 @@ folder or a small full disk (as root a chmod does not stop a write).
 from __future__ import annotations
 
 import json
-import os
 import shlex
 import struct
-import subprocess
-import sys
 import zlib
 from pathlib import Path
 
@@ -26,59 +23,23 @@ import cv2
 import numpy as np
 import onnx
 import pytest
-from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.cli import assert_clean_error, run_cli
 from helpers.answers import assert_refusal
 from helpers.two_writers import finish, start_writing
 from onnx import TensorProto, helper
-from test_predict import S, contract_metadata, dot_image, make_dot_model, photo_like
 
 from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
 from hupbench.inference.predict import PredictOptions
 from hupbench.input_geometry import InputGeometry
+from helpers.dot_model import S, contract_metadata, dot_image, make_dot_model, photo_like
+from helpers.faults import run_in_namespace
 
-REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.matrix
 
 
 # ------------------------------------------------------------------ a private mount namespace
 
 
-def run_in_namespace(argv: list[str], *, read_only: tuple[Path, ...] = (), tmpfs: tuple[Path, int] | None = None,
-                     setup: str = "", listing: Path | None = None, after: str = "", timeout: int = 300) -> CliAnswer:
-    """Run ``python3 -m hupbench.cli ARGV`` in a private mount namespace (needs root; skips otherwise).
-
-    Args:
-        argv: the hupbench arguments.
-        read_only: folders bind-mounted read-only on themselves.
-        tmpfs: ``(folder, size_kb)``: a small tmpfs mounted on the folder (a disk that fills up).
-        setup: shell commands run after mounting, before hupbench (e.g. copy an old file in).
-        listing: a file outside the mounts that receives ``find``'s list of the tmpfs folder
-            (relative path and size per line) after the run, since the tmpfs dies with the namespace.
-        after: shell commands run after hupbench, still in the namespace (the exit code stays hupbench's).
-    """
-    q = shlex.quote
-    lines = []
-    if tmpfs is not None:
-        tmpfs[0].mkdir(parents=True, exist_ok=True)
-        lines.append(f"mount -t tmpfs -o size={tmpfs[1]}k tmpfs {q(str(tmpfs[0]))} || exit 97")
-    for folder in read_only:
-        lines.append(f"mount --bind -o ro {q(str(folder))} {q(str(folder))} || exit 97")
-    lines.append(setup)
-    lines.append(" ".join(q(a) for a in [sys.executable, "-m", "hupbench.cli", *map(str, argv)]))
-    lines.append("rc=$?")
-    if listing is not None and tmpfs is not None:
-        lines.append(f"find {q(str(tmpfs[0]))} -mindepth 1 -printf '%P %s\\n' > {q(str(listing))}")
-    lines.append(after)
-    lines.append("exit $rc")
-    try:
-        proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", "\n".join(lines)],
-                              capture_output=True, text=True, timeout=timeout, cwd=REPO,
-                              env=os.environ | {"PYTHONPATH": str(REPO)})
-    except FileNotFoundError:
-        pytest.skip("unshare is not installed: no private mount namespace for a read-only folder or a full disk")
-    if proc.returncode == 97 or "unshare failed" in proc.stderr or "unshare:" in proc.stderr:
-        pytest.skip(f"cannot mount in a private namespace here (needs root): {proc.stderr.strip()[:200]}")
-    return CliAnswer(proc.returncode, proc.stdout, proc.stderr)
 
 
 # ------------------------------------------------------------------ broken models

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import assert_clean_error, assert_nothing_complete, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, assert_nothing_complete, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 #: 2 orientations x 8 starts = 16 candidates, a short refinement: a case that slipped through would
 #: still end in seconds
 SMALL = ["generate.theta_vol_deg=[[0,0,0],[0,0,180]]", "generate.starts_per_theta=8", "refine.iterations=50",

@@ -15,8 +15,8 @@ from hupbench.training.losses import loss_terms
 from hupbench.data.loaders import EpochSampler
 from hupbench.training.schedule import warmup_cosine
 from models.hopenet import HOPENetOutput
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
 
 
 def tiny_cfg(dataset, run_dir, *extra):
@@ -350,7 +350,7 @@ def small_dataset(tmp_path_factory):
     from datagen.render.preview import handset_grasp
     from datagen.dataset.sphere import SphereSpec
 
-    from conftest import TINY_SPEC
+    from helpers.datasets import TINY_SPEC
 
     g = handset_grasp()
     poses, trans = [], []

@@ -19,10 +19,10 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import assert_clean_error, run_cli, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[2]
-#: conftest.TINY_SPEC as overrides (2 grasps: train 1, test 1; 64 px)
+#: helpers.datasets.TINY_SPEC as overrides (2 grasps: train 1, test 1; 64 px)
 TINY = ["dataset.splits={train:1,val:0,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=2",
         "dataset.n_gloves=1", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]", "dataset.width=64",
         "dataset.height=64", "dataset.fx=120.0", "dataset.fy=120.0", "dataset.cx=32.0", "dataset.cy=32.0",

@@ -19,7 +19,7 @@ from hupbench.cli import main
 from hupbench.config import compose
 from hupbench.verbs.generate import run_generate
 
-from conftest import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 #: one grasp, 2 chunks of 10 frames: the smallest dataset that gives two actors a chunk each
 ONE_GRASP = {"splits": {"train": 1, "val": 0, "test": 0}}

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_matrix_train import private_mount
 
-from conftest import CliAnswer, assert_clean_error
+from helpers.cli import CliAnswer, assert_clean_error
 from helpers.training import REPO, TRAIN_PREFIX, train_py
+from helpers.faults import dead_pid, private_mount
 
 STEPS = 6
 
@@ -234,11 +234,6 @@ def test_fault_train_sigkill_many_times(seed, tiny_dataset, tmp_path, reference)
                          window_s=20.0 + reference.wall_s)
 
 
-def dead_pid() -> int:
-    """The pid of a process that has exited (what a killed writer's temporary name carries)."""
-    proc = subprocess.Popen(["true"])
-    proc.wait()
-    return proc.pid
 
 
 @pytest.mark.matrix

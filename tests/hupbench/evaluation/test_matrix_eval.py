@@ -15,20 +15,15 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
-from test_export import exported_model, make_checkpoint
-from test_matrix_train import (
-    CHECKPOINT_CASES,
-    DATASET_CASES,
-    damage_checkpoint,
-    damage_dataset,
-    private_mount,
-)
 
-from conftest import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
+from helpers.cli import CliAnswer, assert_clean_error, assert_nothing_complete, run_cli
 from helpers.answers import assert_refusal
 from helpers.two_writers import finish, start_writing
 
 from hupbench.evaluation.evaluate import EvalOptions
+from helpers.damage import CHECKPOINT_CASES, DATASET_CASES, damage_checkpoint, damage_dataset
+from helpers.faults import dead_pid, full_disk_script, parse_full_disk, private_mount, run_killed_then_again
+from helpers.models import exported_model, make_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -178,19 +173,8 @@ def test_matrix_eval(case, exported, tiny_dataset, tmp_path, capsys):
 # faults: a full disk, SIGKILL then the same command
 
 
-def _full_disk_script(command: str, disk: Path) -> str:
-    """Fill the tmpfs on ``disk`` (8 kB) to the last byte, run ``command``, list what it left there."""
-    return (f'head -c 8192 /dev/zero > "{disk}/filler"; {command}; rc=$?; echo "RC=$rc"; '
-            f'find "{disk}" -name ".*.tmp*" -printf "TMP %p\\n"; find "{disk}" -type f -printf "FILE %p\\n"')
 
 
-def parse_full_disk(output: str) -> tuple[CliAnswer, list[str], list[str]]:
-    lines = output.splitlines()
-    rc = int(next(line for line in lines if line.startswith("RC="))[3:])
-    tmp = [line[4:] for line in lines if line.startswith("TMP ")]
-    files = [line[5:] for line in lines if line.startswith("FILE ")]
-    err = "\n".join(line for line in lines if not line.startswith(("RC=", "TMP ", "FILE ")))
-    return CliAnswer(rc, "", err), tmp, files
 
 
 @pytest.mark.matrix
@@ -200,51 +184,13 @@ def test_fault_eval_disk_full(exported, tiny_dataset, tmp_path):
     and no results file."""
     ckpt, _ = exported
     disk = tmp_path / "disk"
-    _, output = private_mount("size=8k", disk, _full_disk_script(
+    _, output = private_mount("size=8k", disk, full_disk_script(
         f'"{sys.executable}" -m hupbench.cli eval "{ckpt}" "{tiny_dataset}" --no-latency --out "{disk}/r.json"', disk))
     answer, tmp, files = parse_full_disk(output)
     assert_clean_error(answer, f"no space left on {disk} writing {disk}/.r.json.lock")
     assert answer.rc == 1 and not tmp and files == [f"{disk}/filler"], (tmp, files)
 
 
-def run_killed_then_again(argv: list[str], cwd: Path, seed: int, folder: Path, pattern: str,
-                          window_s: float, attempts: int = 5) -> list[str]:
-    """Run ``argv``; once a file matching ``pattern`` appears in ``folder`` (a temporary file: the run is
-    writing), SIGKILL it at a seeded random moment within ``window_s`` s; then run it again to the end.
-
-    A fast machine can finish writing inside the window (the kill then lands after the rename and tests
-    nothing): such an attempt is thrown away, ``folder`` emptied, and the kill tried again with half the
-    window, up to ``attempts`` times.
-
-    Returns:
-        The names in ``folder`` right after the kill (what the killed run left, a temporary file among them).
-    """
-    import os
-    import shutil
-    import signal
-    import subprocess
-    import time
-
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
-    rng = np.random.default_rng(seed)
-    for _ in range(attempts):
-        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd, env=env)
-        while not list(folder.glob(pattern)) and proc.poll() is None:
-            time.sleep(0.005)
-        time.sleep(float(rng.uniform(0.0, window_s)))
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        left = sorted(p.name for p in folder.iterdir())
-        if list(folder.glob(pattern)):
-            break
-        for path in folder.iterdir():  # the run outran its kill: start over with a shorter window
-            shutil.rmtree(path) if path.is_dir() else path.unlink()
-        window_s /= 2
-    else:
-        raise AssertionError(f"{attempts} runs each finished writing before their kill: {argv}")
-    done = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=900)
-    assert done.returncode == 0, f"killed leaving {left}, then: {done.stderr[-3000:]}"
-    return left
 
 
 #: results fields that differ between two evaluations of one model on one dataset: when it ran, and timings
@@ -284,7 +230,6 @@ def test_fault_eval_stale_tmp_removed(exported, tiny_dataset, tmp_path, capsys):
     for latency) are removed by the next eval; a live writer's are kept."""
     import os
 
-    from test_train_faults import dead_pid
 
     ckpt, _ = exported
     out = tmp_path / "out" / "r.json"

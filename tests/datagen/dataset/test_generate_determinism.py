@@ -18,7 +18,7 @@ from datagen.render.renderer import Renderer
 from datagen.render.scene import Grasp, scene_parts
 from datagen.dataset.sphere import viewpoints
 
-from conftest import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
 #: the tiny sphere at 256 px (fx 480, principal point 127.5): frame 1 (grasp 0, view 1) and frame 11 (grasp 1,
 #: view 1) each hold one pixel where the hand and the forearm are at the same depth

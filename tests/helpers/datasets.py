@@ -1,0 +1,39 @@
+"""Small datasets for tests: the tiny spec, a grasps file of the hand-set grasp, annotation reading."""
+
+import numpy as np
+
+from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from datagen.io import save_npz
+from datagen.render.preview import handset_grasp
+from datagen.dataset.sphere import SphereSpec
+
+
+# a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so
+# coarse a sphere is near the elbow, so the default exclusion would keep all 12), 64 x 64 images; the
+# sphere axis and the look-at are the paper protocol's defaults
+TINY_SPEC = dict(splits={"train": 1, "val": 0, "test": 1}, z_ego_m=(0.5,), n_backgrounds=2, n_gloves=1,
+                 sphere=SphereSpec(r_circ_m=0.4, exclude=("poles",)), width=64, height=64, fx=120.0, fy=120.0,
+                 cx=32.0, cy=32.0)
+
+
+def write_grasps(path, n=2):
+    """The hand-set grasp, turned about the probe axis n ways, as a grasps.npz."""
+    g = handset_grasp()
+    poses, trans = [], []
+    for k in range(n):
+        Rz = axis_angle_to_matrix(np.array([0.0, 0.0, k * np.pi / 2]))
+        pose = g.hand_pose.copy()
+        pose[:3] = matrix_to_axis_angle(Rz @ axis_angle_to_matrix(g.hand_pose[:3]))
+        poses.append(pose)
+        trans.append(Rz @ g.hand_trans)
+    return save_npz(path, {"hand_pose": np.array(poses), "hand_trans": np.array(trans),
+                           "grasp_id": np.arange(n, dtype=np.int64)})
+
+
+def annotations(root, splits=("train", "test")):
+    """{split: {array name: array}} of a finished dataset's annotation files."""
+    out = {}
+    for split in splits:
+        with np.load(root / split / "annotations.npz") as data:
+            out[split] = {k: data[k] for k in data.files}
+    return out

@@ -1,0 +1,40 @@
+"""Checkpoints and exported models for tests: an untrained HOPE-Net on a dataset, exported once per session."""
+
+import numpy as np
+import torch
+from datagen.io import file_sha256
+from hupbench.checkpoint import Checkpoint
+from hupbench.inference import export as E
+from models.build import build_model
+
+from datagen import keypoints as kp
+from hupbench.data import HUPDataset, ReaderConfig
+
+INPUT_SIZE = 64
+
+
+def make_checkpoint(path, dataset, **model_cfg):
+    """An untrained model (ResNet-10 backbone by default) with the train split's mean layout as its 3D prior."""
+    torch.manual_seed(0)
+    with np.load(dataset / "train" / "annotations.npz") as ann:
+        mean = ann["keypoints_3d_cam"].mean(axis=0)
+    cfg = {"name": "hopenet", "backbone": "resnet10", "points3d_mean": mean.tolist()} | model_cfg
+    if cfg.get("n_keypoints", kp.NUM_KEYPOINTS) != kp.NUM_KEYPOINTS:
+        cfg["points3d_mean"] = None
+    model = build_model(cfg)
+    K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    return Checkpoint(
+        model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=INPUT_SIZE,
+        K_input=K.tolist(), config={"run_name": "tiny_hopenet"},
+        dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
+
+
+def exported_model(tmp_path_factory, dataset):
+    """(checkpoint, onnx) of an untrained HOPE-Net, exported once per session (shared with test_eval)."""
+    folder = tmp_path_factory.getbasetemp() / "exported_hopenet_r10_64"
+    ckpt, onnx_path = folder / "model.pt", folder / "model.onnx"
+    if not onnx_path.is_file():
+        folder.mkdir(exist_ok=True)
+        make_checkpoint(ckpt, dataset)
+        E.run_export(E.ExportOptions(ckpt, onnx_path), log=lambda *_: None)
+    return ckpt, onnx_path
