@@ -107,15 +107,13 @@ class EvalOptions:
         object.__setattr__(self, "out", out)
 
 
-def _backbone_label(name: str) -> str:
-    return f"ResNet-{name[len('resnet'):]}" if name.startswith("resnet") else name
-
-
 def model_label(model_config: dict, input_size: int) -> str:
     """Human label naming the model, backbone and input size, e.g. "HOPE-Net (ResNet-18, 128 px)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
-    backbone = model_config.get("backbone")
-    parts = ([_backbone_label(backbone)] if backbone else []) + [f"{input_size} px"]
+    backbone = model_config.get("backbone") or ""
+    if backbone.startswith("resnet"):
+        backbone = f"ResNet-{backbone[len('resnet'):]}"
+    parts = ([backbone] if backbone else []) + [f"{input_size} px"]
     if model_config.get("name") == "resnet_regressor" and model_config.get("predict_2d"):
         parts.append("2D head")
     return f"{name} ({', '.join(parts)})"
@@ -387,11 +385,28 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
     Returns:
         {"results": the validated results dict, "out": str path, "table": str}
     """
+    from datagen.dataset.contract import read_manifest
+    from datagen.io import OutputLock, check_writable, clean_stale_tmp
+    from hupbench.evaluation.results import write_results
+
     previous_threads = torch.get_num_threads()
     if options.threads is not None:
         torch.set_num_threads(options.threads)
     try:
-        return _run_eval(options, log)
+        if not options.model.is_file():
+            raise MissingFileError(f"model file {options.model} does not exist")
+        if options.out is not None:  # an unwritable --out is refused before minutes of work
+            check_writable(options.out, "--out", file=True)
+        manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
+        net = EvalModel(options.model)
+        run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
+        out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out",
+                                                 file=True)
+        with OutputLock.for_file(out_path, "eval"):
+            clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
+            results = _results(options, net, manifest, run_name, out_path, log)
+            write_results(out_path, results)
+        return {"results": results, "out": str(out_path), "table": format_table(results)}
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -443,26 +458,6 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
         return _latencies(net.module, onnx_path, net.input_size, torch.get_num_threads(), log, progress, export)
     finally:
         onnx_path.unlink(missing_ok=True)
-
-
-def _run_eval(options: EvalOptions, log) -> dict[str, Any]:
-    from datagen.dataset.contract import read_manifest
-    from datagen.io import OutputLock, check_writable, clean_stale_tmp
-    from hupbench.evaluation.results import write_results
-
-    if not options.model.is_file():
-        raise MissingFileError(f"model file {options.model} does not exist")
-    if options.out is not None:  # an unwritable --out is refused before minutes of work
-        check_writable(options.out, "--out", file=True)
-    manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
-    net = EvalModel(options.model)
-    run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
-    out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out", file=True)
-    with OutputLock.for_file(out_path, "eval"):
-        clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
-        results = _results(options, net, manifest, run_name, out_path, log)
-        write_results(out_path, results)
-    return {"results": results, "out": str(out_path), "table": format_table(results)}
 
 
 def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str, out_path: Path, log) -> dict:
