@@ -183,18 +183,10 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
 
 
 def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) -> tuple[tuple[int, ...], ...]:
-    """The probe corners' symmetry group (identity and the half turn about the long axis) read from annotations.
-
-    The true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
-    between frames and map onto each other under the half turn about z.
-
-    Args:
-        keypoints_3d_cam: (N, 29, 3) float, metres, OpenCV camera frame (annotations ``keypoints_3d_cam``).
-        T_cam_world: (N, 4, 4) float, world -> camera (annotations ``T_cam_world``).
-
-    Returns:
-        ((0, ..., 7), half-turn permutation of the 8 corners), as in ``metrics.PROBE_SYMMETRIES``.
-    """
+    """((0, ..., 7), the half turn's permutation of the 8 corners), as ``metrics.PROBE_SYMMETRIES``, read from
+    the annotations ``keypoints_3d_cam`` ((N, 29, 3) metres, camera frame) and ``T_cam_world`` ((N, 4, 4)):
+    the true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
+    between frames and map onto each other under the half turn about z."""
     corners_cam = np.asarray(keypoints_3d_cam, np.float64)[:, kp.CORNER_SLICE]       # (N, 8, 3)
     T = np.asarray(T_cam_world, np.float64)
     # world = R^T (cam - t)
