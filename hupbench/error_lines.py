@@ -34,13 +34,9 @@ def error_line(exc: BaseException) -> str:
 
 
 def hydra_error_line(exc: BaseException, config: str = "conf/train.yaml", example: str = "model=hopenet") -> str:
-    """Hydra's multi-line report of a malformed override, an unknown key or config option as one line.
-
-    Args:
-        exc: the HydraException / OmegaConf error.
-        config: the config file named when a key is not in it.
-        example: an override of that config, shown when one cannot be parsed.
-    """
+    """Hydra's or OmegaConf's multi-line report of a malformed override, an unknown key or config option as one
+    line, naming the ``config`` file when a key is not in it and showing the override ``example`` when one
+    cannot be parsed."""
     from hydra.errors import OverrideParseException
 
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]

@@ -275,7 +275,6 @@ class RunState:
     last_val: dict | None = None
 
 
-
 @contextmanager
 def _run_folder(folder: Path, is_main: bool, log):
     """Hold the run folder while the run writes it: one run per folder (a second would append every step to
