@@ -33,11 +33,10 @@ class BatchAugment:
     1 + 0.4 p] and a hue shift in [-0.05 p, 0.05 p] turns, per sample, in an order drawn once per batch
     (kornia's ColorJiggle ranges).
 
-    Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch; returns
-    the batch with "image" (B, 3, S, S) float32 in [0, 1] and "keypoints_3d", "keypoints_2d",
-    "keypoints_2d_px", "visible" turned with the image. Draws depend only on (seed, epoch, item index), so a
-    run and its resume see the same augmentation in any batch composition but the jitter's operation
-    order, which is drawn from (seed, epoch, the batch's first item).
+    Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch: "image"
+    becomes (B, 3, S, S) float32 in [0, 1], the keypoints and "visible" turn with it. Draws depend only on
+    (seed, epoch, item index), so a run and its resume see the same augmentation in any batch composition
+    (but the jitter's operation order, drawn from the batch's first item).
     """
 
     def __init__(self, config) -> None:

@@ -57,20 +57,13 @@ class EvalOptions:
 
     Attributes:
         model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
-        dataset: a finished dataset folder (with ``manifest.json``).
-        split: "train", "val" or "test".
-        out: results ``.json`` (default ``leaderboard/results/<run_name>.json`` under the current folder); its
-            stem is the run name.
-        run_name: default: the checkpoint's training ``run_name`` (or file stem), the ONNX metadata's run
-            name, or the stem of ``out``.
-        batch_size: frames per forward pass.
-        latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
-        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current
-            setting); the device string records the count.
-        training_command: the committed command that reproduces the training run (the leaderboard requires
-            one for a measured row), stored as ``training.command``.
-        training_log: the run's metrics.jsonl as a path relative to the leaderboard folder (e.g.
-            ``logs/<run_name>.jsonl``), stored as ``training.log``.
+        dataset: a finished dataset folder. split: "train", "val" or "test".
+        out: results ``.json`` (default ``leaderboard/results/<run_name>.json``); its stem is the run name.
+        run_name: default: the checkpoint's training ``run_name`` (or file stem) or the ONNX metadata's.
+        batch_size: frames per forward pass. latency: time PyTorch and onnxruntime (batch 1 and 32).
+        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current setting).
+        training_command, training_log: stored as ``training.command`` (the leaderboard requires one for a
+            measured row) and ``training.log`` (metrics.jsonl relative to the leaderboard folder).
         label: the model's name in the results (default: the training config's ``label``, else model,
             backbone and input size).
         progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.

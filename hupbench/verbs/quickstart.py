@@ -50,14 +50,9 @@ def _is_number(value) -> bool:
 class QuickstartRun:
     """``conf/quickstart.yaml`` (``_recursive_: false``: the camera and the view are built after the types of
     their fields are checked here, since Hydra passes ``fast=maybe`` on as a string and ``camera.fx=nan`` as
-    a float). The later stages' configs are composed from the lists by :func:`run_quickstart`.
-
-    Attributes:
-        out_dir: where everything goes. fast: the smoke version (reads ``fast_overrides``).
-        stop_after: the last stage, None for all. grasps, dataset, train: key=value overrides of those
-            stages' verbs. eval_latency: time the model in the eval stage. fast_overrides: the same four
-            for ``fast``. camera, view: the preview's :class:`datagen.camera.Intrinsics` and
-            :class:`datagen.render.preview.PreviewView`. render: the preview's platform and modalities.
+    a float). grasps, dataset, train: key=value overrides of those stages' verbs, composed by
+    :func:`run_quickstart`; ``fast`` reads them and ``eval_latency`` from ``fast_overrides`` instead.
+    camera, view, render: the preview's intrinsics, viewpoint, platform and modalities.
     """
 
     out_dir: str
