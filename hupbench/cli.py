@@ -42,8 +42,7 @@ def _grasps(overrides: list[str]) -> int:
     from hupbench.config import compose
     from hupbench.verbs.grasps import run_grasps
 
-    cfg = compose("grasps", overrides)
-    result = run_grasps(cfg)
+    result = run_grasps(compose("grasps", overrides))
     print(f"hupbench grasps finished in {result['seconds']:.0f} s: {result['plausible']} of "
           f"{result['candidates']} candidates plausible, {result['selected']} selected")
     for key in ("grasps_npz", "grasps_json", "contact_sheet"):

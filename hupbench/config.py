@@ -53,15 +53,8 @@ def config_dir() -> Path:
 
 
 def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
-    """Compose a config with Hydra overrides (``key=value``), as the CLI does.
-
-    Args:
-        config_name: top-level config file name without ``.yaml``.
-        overrides: Hydra override strings.
-
-    Returns:
-        The composed config, read-only.
-    """
+    """The config ``conf/<config_name>.yaml`` with Hydra's ``key=value`` overrides, as the CLI composes it,
+    read-only."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 

@@ -17,13 +17,9 @@ USER_ERRORS = (UserError,)
 
 
 def error_line(exc: BaseException) -> str:
-    """The one line the user sees for ``exc``.
-
-    A DataLoader worker's exception reaches the training process re-raised by torch with the worker's
-    whole traceback in its message ("Caught FileNotFoundError in DataLoader worker process 0. Original
-    Traceback ..."); its last line is the original message, which names the file. An OSError's
-    ``[Errno N]`` means nothing to the user and is dropped; its text stays.
-    """
+    """The one line the user sees for ``exc``: of a DataLoader worker's exception, which torch re-raises with
+    the worker's whole traceback in its message, the last line (the original message, naming the file); of
+    an OSError, the text without its ``[Errno N]``, which means nothing to the user."""
     text = str(exc)
     if "Original Traceback" in text:
         last = [line for line in text.splitlines() if line.strip()][-1].strip()
@@ -34,13 +30,9 @@ def error_line(exc: BaseException) -> str:
 
 
 def hydra_error_line(exc: BaseException, config: str = "conf/train.yaml", example: str = "model=hopenet") -> str:
-    """Hydra's multi-line report of a malformed override, an unknown key or config option as one line.
-
-    Args:
-        exc: the HydraException / OmegaConf error.
-        config: the config file named when a key is not in it.
-        example: an override of that config, shown when one cannot be parsed.
-    """
+    """Hydra's or OmegaConf's multi-line report of a malformed override, an unknown key or config option as one
+    line, naming the ``config`` file when a key is not in it and showing the override ``example`` when one
+    cannot be parsed."""
     from hydra.errors import OverrideParseException
 
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]

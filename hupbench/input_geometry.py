@@ -38,54 +38,24 @@ def _size(size):
 
 
 def pixels_to_normalized(uv, size):
-    """Pixels -> normalised coordinates, x_n = (2 u + 1) / S - 1.
-
-    Args:
-        uv: (..., 2) float, pixels (numpy, or a torch tensor with an int ``size``).
-        size: S, side of a square image, pixels; or (W, H).
-
-    Returns:
-        (..., 2) float, [-1, 1] across the image.
-    """
+    """(..., 2) float pixels (numpy, or a torch tensor with an int ``size``) of an image of side ``size``
+    (S, or (W, H)) -> (..., 2) normalised coordinates, x_n = (2 u + 1) / S - 1."""
     return (2.0 * uv + 1.0) / _size(size) - 1.0
 
 
 def normalized_to_pixels(xy_norm, size):
-    """Normalised coordinates -> pixels, u = ((x_n + 1) S - 1) / 2 (inverse of :func:`pixels_to_normalized`).
-
-    Args:
-        xy_norm: (..., 2) float, [-1, 1] across the image.
-        size: S, pixels; or (W, H).
-
-    Returns:
-        (..., 2) float, pixels.
-    """
+    """(..., 2) normalised coordinates -> (..., 2) pixels, u = ((x_n + 1) S - 1) / 2 (the inverse of
+    :func:`pixels_to_normalized`)."""
     return ((xy_norm + 1.0) * _size(size) - 1.0) / 2.0
 
 
 def inside_input(uv, size):
-    """Whether points lie on the S x S input, i.e. in [-0.5, S - 0.5) on both axes.
-
-    Args:
-        uv: (..., 2) float, input pixels (numpy or torch).
-        size: S, pixels.
-
-    Returns:
-        (...,) bool.
-    """
+    """(...,) bool: whether (..., 2) input pixels (numpy or torch) lie on the S x S input, in [-0.5, S - 0.5)."""
     return ((uv >= -0.5) & (uv < size - 0.5)).all(axis=-1)
 
 
 def apply_affine(matrix: np.ndarray, uv) -> np.ndarray:
-    """Points through pixel maps.
-
-    Args:
-        matrix: (3, 3) pixel map (last row (0, 0, 1)), or (B, 3, 3) one per item.
-        uv: (..., 2) float pixels for a (3, 3) map; (B, N, 2) for (B, 3, 3) maps.
-
-    Returns:
-        (..., 2) float64 pixels.
-    """
+    """(..., 2) float64 pixels: ``uv`` (..., 2) through a (3, 3) pixel map, or (B, N, 2) through (B, 3, 3)."""
     uv = np.asarray(uv, dtype=np.float64)
     if matrix.ndim == 2:
         return uv @ matrix[:2, :2].T + matrix[:2, 2]
@@ -93,16 +63,9 @@ def apply_affine(matrix: np.ndarray, uv) -> np.ndarray:
 
 
 def rotation_pixel_map(angle, centre) -> np.ndarray:
-    """The in-plane rotation as a pixel map (``cv2.getRotationMatrix2D(centre, degrees(angle), 1)`` plus the
-    row (0, 0, 1)).
-
-    Args:
-        angle: scalar or (B,) radians, counter-clockwise on screen.
-        centre: (2,) or (B, 2) pixels, the fixed point (the principal point (cx, cy)).
-
-    Returns:
-        (3, 3) or (B, 3, 3) float64: [[c, s, (1 - c) cx - s cy], [-s, c, s cx + (1 - c) cy], [0, 0, 1]].
-    """
+    """(3, 3) or (B, 3, 3) float64 pixel map of the in-plane rotation by a scalar or (B,) ``angle`` (radians,
+    counter-clockwise on screen) about a (2,) or (B, 2) ``centre`` (pixels, the principal point):
+    ``cv2.getRotationMatrix2D(centre, degrees(angle), 1)`` plus the row (0, 0, 1)."""
     c, s = np.cos(angle), np.sin(angle)
     centre = np.asarray(centre, dtype=np.float64)
     cx, cy = centre[..., 0], centre[..., 1]
@@ -112,14 +75,8 @@ def rotation_pixel_map(angle, centre) -> np.ndarray:
 
 
 def camera_rotation(angle) -> np.ndarray:
-    """The camera-frame rotation matching :func:`rotation_pixel_map`: -angle about +z (y points down).
-
-    Args:
-        angle: scalar or (B,) radians.
-
-    Returns:
-        (3, 3) or (B, 3, 3) float64; exact for square pixels (fx == fy) about the principal point.
-    """
+    """(3, 3) or (B, 3, 3) float64: the camera-frame rotation matching :func:`rotation_pixel_map` of a scalar
+    or (B,) ``angle`` (radians), -angle about +z; exact for square pixels (fx == fy) about the principal point."""
     return rotation_pixel_map(angle, np.zeros(np.shape(angle) + (2,)))
 
 
@@ -191,16 +148,8 @@ class InputGeometry:
 
 
 def pad_and_resize(image: np.ndarray, input_size: int, pad_value: float = 0.0) -> tuple[np.ndarray, InputGeometry]:
-    """Pad an image to a centred square with a constant and resize it to the input (``cv2.INTER_AREA``).
-
-    Args:
-        image: (H, W, C) uint8 or float32, C <= 4.
-        input_size: S, pixels.
-        pad_value: the padding, in the image's own unit (0.5 is mid-grey for float [0, 1]).
-
-    Returns:
-        (S, S, C) image of the same dtype, and its :class:`InputGeometry`.
-    """
+    """(S, S, C) image of the same dtype, and its :class:`InputGeometry`: an (H, W, C) uint8 or float32 image
+    (C <= 4) padded to a centred square with ``pad_value`` (in its own unit) and resized (``cv2.INTER_AREA``)."""
     height, width = image.shape[:2]
     geometry = InputGeometry(width=width, height=height, input_size=input_size)
     if width != height:

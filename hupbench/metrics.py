@@ -4,13 +4,10 @@ Convention:
     Inputs are metres (3D, OpenCV camera frame of the model-input camera) or pixels (2D); every
     reported number is millimetres (``_mm``), pixels (``_px``) or a fraction in [0, 1]. Keypoint
     order is :mod:`datagen.keypoints`: 0..20 the hand (0 = wrist, the root), 21..28 the probe box
-    corners. MPJPE is the absolute camera-frame error (no alignment); "all" is keypoint-weighted
-    (``ALL_AVERAGING``; why the paper's own "all" is not: docs/metrics.md).
+    corners. MPJPE is the absolute camera-frame error (no alignment); docs/metrics.md defines each metric.
 
-The probe's corners are scored also up to the half turn about its long axis (BOP-style,
-:func:`probe_symmetric_errors_mm`), and :func:`spread_ratios` guards against a model that gives one
-layout for every image (docs/metrics.md). Callers pass well-formed arrays (eval, validation and the
-losses build them): shapes are asserted, not re-checked for users.
+Callers pass well-formed arrays (eval, validation and the losses build them): shapes are asserted, not
+re-checked for users.
 """
 
 from __future__ import annotations
@@ -89,24 +86,15 @@ def keypoint_errors_mm(pred_m, gt_m):
 
 
 def mpjpe_mm(pred_m, gt_m, keypoints=None):
-    """Mean per-joint position error (absolute, no alignment) over frames and the chosen keypoints.
-
-    Args:
-        pred_m, gt_m: (N, K, 3) float, metres, same frame.
-        keypoints: None (all K), a slice or a sequence of keypoint indices.
-
-    Returns:
-        millimetres: a python float for numpy input, a 0-dim tensor for torch input.
-    """
+    """MPJPE, mm, of (N, K, 3) float keypoints in metres, same frame, over frames and ``keypoints`` (None:
+    all K, a slice or indices); a python float, or a 0-dim tensor for torch input."""
     errors = keypoint_errors_mm(pred_m, gt_m)
     return _mean(errors[:, _index(keypoints, errors.shape[1])])
 
 
 def split_from_errors_mm(errors_mm) -> dict[str, float]:
-    """{"all", "hand", "probe"} MPJPE (python floats, mm) from (N, 29) per-keypoint errors in mm.
-
-    "all" is the mean over all 29 keypoints and all frames (see ``ALL_AVERAGING``).
-    """
+    """{"all", "hand", "probe"} MPJPE (python floats, mm) from (N, 29) per-keypoint errors in mm
+    ("all" as ``ALL_AVERAGING`` says)."""
     assert errors_mm.ndim == 2 and errors_mm.shape[0] > 0 and errors_mm.shape[1] == NUM_KEYPOINTS, errors_mm.shape
     return {"all": float(errors_mm.mean()), "hand": float(errors_mm[:, HAND_SLICE].mean()),
             "probe": float(errors_mm[:, CORNER_SLICE].mean())}
@@ -134,13 +122,11 @@ def procrustes_align(pred_m, gt_m):
     Minimises sum_k ||s R p_k + t - g_k||^2 per frame (Umeyama 1991): R = U D V^T from the SVD
     U S V^T of the cross-covariance of the centred sets, D = diag(1, 1, sign(det U det V)) so that
     R is a proper rotation (never a reflection), s = tr(S D) / var(p), t = mean(g) - s R mean(p).
-    Computed in float64. Degenerate sets stay finite: collinear or coplanar sets give one of the
-    equally optimal rotations; a prediction with (near) zero spread gets s = 0, i.e. every point is
-    mapped to the ground-truth centroid.
+    Degenerate sets stay finite: collinear or coplanar sets give one of the equally optimal rotations;
+    a prediction with (near) zero spread is mapped to the ground-truth centroid (s = 0).
 
     Args:
-        pred_m: (N, K, 3) float, metres, predicted points.
-        gt_m: (N, K, 3) float, metres, target points (K >= 1).
+        pred_m, gt_m: (N, K, 3) float, metres, predicted and target points (K >= 1).
 
     Returns:
         (N, K, 3) the aligned prediction, same type and dtype as ``pred_m``.
@@ -237,19 +223,9 @@ def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
 
 
 def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) -> tuple[int, ...]:
-    """The permutation by which a rotation maps a point set onto itself.
-
-    Args:
-        points_m: (K, 3) float, metres, the points in the object's own frame (e.g. the probe's box
-            corners in the probe frame, ``datagen.assets.probe.Probe.corners_probe``).
-        rotation: (3, 3) a proper rotation about that frame's origin (e.g. :data:`HALF_TURN_Z`).
-        rel_tol: largest allowed distance between a rotated point and its match, relative to the
-            set's size (its largest distance from its centroid).
-
-    Returns:
-        ``perm`` with ``rotation @ points[k] == points[perm[k]]`` (within the tolerance), a
-        permutation of range(K) as python ints; a set the rotation does not map onto itself is an error.
-    """
+    """``perm`` (python ints) with ``rotation @ points[k] == points[perm[k]]`` within ``rel_tol`` of the
+    set's size, for (K, 3) points in metres in the object's own frame and a (3, 3) proper rotation about
+    its origin (e.g. :data:`HALF_TURN_Z`); a set the rotation does not map onto itself is an error."""
     p = np.asarray(points_m, np.float64)
     r = np.asarray(rotation, np.float64)
     assert p.ndim == 2 and p.shape[-1] == 3 and len(p) >= 1, p.shape
@@ -267,9 +243,8 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
 
 
 def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
-    # an axis-centred box with three different side lengths, corners in the documented order
-    # (datagen.keypoints.CORNER_BITS, itertools.product((min, max), repeat=3) over x, y, z):
-    # the permutation is read off the coordinates, not written by hand
+    # a box with three different sides, corners in datagen.keypoints.CORNER_BITS order: the
+    # permutation is read off the coordinates, not written by hand
     box = (2.0 * np.array(CORNER_BITS, np.float64) - 1.0) * np.array([0.036, 0.015, 0.0825]) + [0.0, 0.0, 0.0825]
     identity = tuple(range(NUM_CORNERS))
     return {"none": (identity,), "half_turn": (identity, symmetry_permutation(box, HALF_TURN_Z))}
@@ -289,22 +264,17 @@ def _permutations(permutations, k: int) -> np.ndarray:
 
 
 def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = False):
-    """Error of the chosen keypoints under each element of a symmetry group, per frame.
-
-    ``cost[n, g]`` is the mean over the selected keypoints k of ``|pred[n, sel[k]] - gt[n,
-    sel[perm_g[k]]]|`` (or its square): the prediction labelled k is compared with the true point
-    the symmetry g relabels as k.
+    """Error of the chosen keypoints under each element of a symmetry group, per frame: ``cost[n, g]`` is
+    the mean over the selected keypoints k of ``|pred[n, sel[k]] - gt[n, sel[perm_g[k]]]|`` (squared with
+    ``squared``).
 
     Args:
-        pred, gt: (N, K, D) float, same frame and unit (metres for 3D, any for 2D); numpy or torch.
-        permutations: (G, S) permutations of range(S), S = number of selected keypoints
-            (e.g. ``PROBE_SYMMETRIES["half_turn"]`` for the 8 corners).
-        keypoints: the selected keypoints (default 21..28, the probe corners).
-        squared: mean squared distance instead of mean distance.
+        pred, gt: (N, K, D) float, same frame and unit; numpy or torch.
+        permutations: (G, S) permutations of range(S) over the S selected ``keypoints`` (default the
+            probe corners), e.g. ``PROBE_SYMMETRIES["half_turn"]``.
 
     Returns:
-        (N, G) in the input's unit (squared with ``squared``): float64 numpy, or a tensor of the
-        input dtype (differentiable) for torch input.
+        (N, G) in the input's unit: float64 numpy, or a differentiable tensor of the input dtype.
     """
     _assert_points(pred, gt, pred.shape[-1])
     idx = _index(keypoints, pred.shape[1])
@@ -323,20 +293,16 @@ def symmetry_costs(pred, gt, permutations, keypoints=PROBE, squared: bool = Fals
 
 
 def permute_keypoints(points, permutations, choice, keypoints=PROBE):
-    """Relabel the chosen keypoints of each frame by one element of a symmetry group.
-
-    ``out[n, sel[k]] = points[n, sel[perm[k]]]`` with ``perm = permutations[choice[n]]``; the other
-    keypoints are copied unchanged. With ``choice`` the argmin of :func:`symmetry_costs`, the truth
-    is relabelled to the symmetric copy nearest the prediction.
+    """``out[n, sel[k]] = points[n, sel[perm[k]]]`` with ``perm = permutations[choice[n]]``, the other
+    keypoints unchanged: with ``choice`` the argmin of :func:`symmetry_costs`, the truth relabelled to the
+    symmetric copy nearest the prediction.
 
     Args:
-        points: (N, K, D) float, numpy or torch (e.g. 3D or 2D targets).
-        permutations: (G, S) permutations of range(S), S = number of selected keypoints.
-        choice: (N,) int, the group element per frame, numpy or torch like ``points``.
-        keypoints: the selected keypoints (default the probe corners).
+        points: (N, K, D) float, numpy or torch. permutations: as :func:`symmetry_costs`'.
+        choice: (N,) int, the group element per frame.
 
     Returns:
-        (N, K, D) of the same type, dtype and device (a new array; gradients flow for torch).
+        (N, K, D), a new array of the same type, dtype and device (gradients flow for torch).
     """
     assert points.ndim == 3, tuple(points.shape)
     idx = _index(keypoints, points.shape[1])
@@ -358,18 +324,9 @@ def permute_keypoints(points, permutations, choice, keypoints=PROBE):
 
 
 def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_turn"]):
-    """Per-frame probe corner error, minimised over the probe box's symmetry group.
-
-    Args:
-        pred_m, gt_m: (N, 29, 3) float, metres, same frame (numpy or torch).
-        permutations: the group as permutations of the 8 corners (default identity and the half
-            turn about the long axis, :data:`PROBE_SYMMETRIES`).
-
-    Returns:
-        (errors, choice): (N,) mean corner error in mm under the best group element, and (N,) int64
-        index of that element (0 = identity when it is listed first); numpy for numpy input, tensors
-        for torch input.
-    """
+    """(errors, choice): (N,) mean probe corner error, mm, under the best element of the group
+    ``permutations`` of the 8 corners (:data:`PROBE_SYMMETRIES`), and (N,) int64 its index, of (N, 29, 3)
+    float keypoints in metres, same frame (numpy, or tensors for torch input)."""
     _assert_points(pred_m, gt_m, 3)
     assert pred_m.shape[1] == NUM_KEYPOINTS, tuple(pred_m.shape)
     costs = symmetry_costs(pred_m, gt_m, permutations) * _MM_PER_M               # (N, G) mm
@@ -385,18 +342,16 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
 def spread_ratios(pred_m, gt_m) -> dict[str, float | None]:
     """How much the predicted 3D keypoints vary across frames, relative to the truth, per camera axis.
 
-    For each axis a of the camera frame (x right, y down, z forward):
-    ``spread_a(P) = mean over keypoints k of std over frames n of P[n, k, a]`` (population standard
-    deviation), and the ratio is ``spread_a(pred) / spread_a(gt)``. 1 means the prediction varies as
-    much as the truth, 0 that it is the same for every frame along that axis (a collapsed model);
-    a prediction scaled by s about its per-keypoint mean gives s. The ratio is None on an axis
-    along which the truth does not vary (spread below ``SPREAD_MIN_M``, e.g. a single frame).
+    For each camera axis a, ``spread_a(P)`` is the mean over keypoints of the (population) standard
+    deviation over frames of ``P[n, k, a]``, and the ratio ``spread_a(pred) / spread_a(gt)``: 1 when the
+    prediction varies as much as the truth, 0 when it is the same for every frame (a collapsed model);
+    None where the truth does not vary (spread below ``SPREAD_MIN_M``, e.g. a single frame).
 
     Args:
         pred_m, gt_m: (N, K, 3) float, metres, the same frames and keypoints (numpy or torch).
 
     Returns:
-        {"x": ratio, "y": ratio, "z": ratio}, python floats (or None), for either input.
+        {"x", "y", "z"}: python floats or None.
     """
     _assert_points(pred_m, gt_m, 3)
     if _is_torch(pred_m):

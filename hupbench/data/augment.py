@@ -16,17 +16,8 @@ from hupbench.input_geometry import apply_affine, camera_rotation, inside_input,
 
 
 def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False) -> torch.Tensor:
-    """A loader's images as the model's input on ``device``.
-
-    Args:
-        images: (B, S, S, 3) uint8 RGB frames (moved to the device as bytes: a quarter of the float
-            traffic), or (B, 3, S, S) float32 in [0, 1] model images.
-        device: where the model runs.
-        channels_last: return channels_last memory format.
-
-    Returns:
-        (B, 3, S, S) float32 in [0, 1] on ``device``.
-    """
+    """(B, 3, S, S) float32 in [0, 1] on ``device`` (channels_last memory format if asked) from a loader's
+    (B, S, S, 3) uint8 RGB frames, moved as bytes (a quarter of the float traffic), or model images."""
     images = images.to(device, non_blocking=True)
     if images.dtype == torch.uint8:
         images = images.permute(0, 3, 1, 2).float().div_(255.0)  # (B, S, S, 3) -> (B, 3, S, S)
@@ -42,11 +33,10 @@ class BatchAugment:
     1 + 0.4 p] and a hue shift in [-0.05 p, 0.05 p] turns, per sample, in an order drawn once per batch
     (kornia's ColorJiggle ranges).
 
-    Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch; returns
-    the batch with "image" (B, 3, S, S) float32 in [0, 1] and "keypoints_3d", "keypoints_2d",
-    "keypoints_2d_px", "visible" turned with the image. Draws depend only on (seed, epoch, item index), so a
-    run and its resume see the same augmentation in any batch composition but the jitter's operation
-    order, which is drawn from (seed, epoch, the batch's first item).
+    Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch: "image"
+    becomes (B, 3, S, S) float32 in [0, 1], the keypoints and "visible" turn with it. Draws depend only on
+    (seed, epoch, item index), so a run and its resume see the same augmentation in any batch composition
+    (but the jitter's operation order, drawn from the batch's first item).
     """
 
     def __init__(self, config) -> None:

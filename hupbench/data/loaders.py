@@ -51,7 +51,6 @@ class EpochSampler(torch.utils.data.Sampler):
         return (self.batches_per_epoch - self.start_batch) * self.batch_size
 
 
-
 class FrameBatches(torch.utils.data.Dataset):
     """A split's uint8 frames with their labels, a whole batch per call (``__getitems__``).
 

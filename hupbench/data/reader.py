@@ -77,8 +77,7 @@ def input_labels(ann: dict, scale: float, size: int) -> dict[str, np.ndarray]:
     Args:
         ann: "keypoints_3d_cam" (..., 29, 3) metres, OpenCV camera frame; "keypoints_2d" (..., 29, 2)
             pixels of the stored image; "K" (..., 3, 3) its intrinsics; "visible" (..., 29) bool.
-        scale: input pixels per stored pixel (S / stored width).
-        size: S, side of the input image.
+        scale: input pixels per stored pixel (S / stored width). size: S, side of the input image.
 
     Returns:
         float32 "keypoints_3d" (..., 29, 3) metres, "keypoints_2d_px" (..., 29, 2) input pixels,
@@ -99,8 +98,7 @@ class HUPDataset(torch.utils.data.Dataset):
     """The frames of one split at the model's input size, un-augmented, with their labels.
 
     Args:
-        root: dataset folder (with ``manifest.json``).
-        split: "train", "val" or "test".
+        root: dataset folder. split: "train", "val" or "test".
         config: the input size (the augmentation fields are :class:`hupbench.data.augment.BatchAugment`'s).
 
     Attributes:

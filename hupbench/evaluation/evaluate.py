@@ -57,20 +57,13 @@ class EvalOptions:
 
     Attributes:
         model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
-        dataset: a finished dataset folder (with ``manifest.json``).
-        split: "train", "val" or "test".
-        out: results ``.json`` (default ``leaderboard/results/<run_name>.json`` under the current folder); its
-            stem is the run name.
-        run_name: default: the checkpoint's training ``run_name`` (or file stem), the ONNX metadata's run
-            name, or the stem of ``out``.
-        batch_size: frames per forward pass.
-        latency: time PyTorch and onnxruntime (batch 1 and 32); off gives null latencies.
-        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current
-            setting); the device string records the count.
-        training_command: the committed command that reproduces the training run (the leaderboard requires
-            one for a measured row), stored as ``training.command``.
-        training_log: the run's metrics.jsonl as a path relative to the leaderboard folder (e.g.
-            ``logs/<run_name>.jsonl``), stored as ``training.log``.
+        dataset: a finished dataset folder. split: "train", "val" or "test".
+        out: results ``.json`` (default ``leaderboard/results/<run_name>.json``); its stem is the run name.
+        run_name: default: the checkpoint's training ``run_name`` (or file stem) or the ONNX metadata's.
+        batch_size: frames per forward pass. latency: time PyTorch and onnxruntime (batch 1 and 32).
+        threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current setting).
+        training_command, training_log: stored as ``training.command`` (the leaderboard requires one for a
+            measured row) and ``training.log`` (metrics.jsonl relative to the leaderboard folder).
         label: the model's name in the results (default: the training config's ``label``, else model,
             backbone and input size).
         progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
@@ -107,15 +100,13 @@ class EvalOptions:
         object.__setattr__(self, "out", out)
 
 
-def _backbone_label(name: str) -> str:
-    return f"ResNet-{name[len('resnet'):]}" if name.startswith("resnet") else name
-
-
 def model_label(model_config: dict, input_size: int) -> str:
     """Human label naming the model, backbone and input size, e.g. "HOPE-Net (ResNet-18, 128 px)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
-    backbone = model_config.get("backbone")
-    parts = ([_backbone_label(backbone)] if backbone else []) + [f"{input_size} px"]
+    backbone = model_config.get("backbone") or ""
+    if backbone.startswith("resnet"):
+        backbone = f"ResNet-{backbone[len('resnet'):]}"
+    parts = ([backbone] if backbone else []) + [f"{input_size} px"]
     if model_config.get("name") == "resnet_regressor" and model_config.get("predict_2d"):
         parts.append("2D head")
     return f"{name} ({', '.join(parts)})"
@@ -185,18 +176,10 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
 
 
 def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) -> tuple[tuple[int, ...], ...]:
-    """The probe corners' symmetry group (identity and the half turn about the long axis) read from annotations.
-
-    The true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
-    between frames and map onto each other under the half turn about z.
-
-    Args:
-        keypoints_3d_cam: (N, 29, 3) float, metres, OpenCV camera frame (annotations ``keypoints_3d_cam``).
-        T_cam_world: (N, 4, 4) float, world -> camera (annotations ``T_cam_world``).
-
-    Returns:
-        ((0, ..., 7), half-turn permutation of the 8 corners), as in ``metrics.PROBE_SYMMETRIES``.
-    """
+    """((0, ..., 7), the half turn's permutation of the 8 corners), as ``metrics.PROBE_SYMMETRIES``, read from
+    the annotations ``keypoints_3d_cam`` ((N, 29, 3) metres, camera frame) and ``T_cam_world`` ((N, 4, 4)):
+    the true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
+    between frames and map onto each other under the half turn about z."""
     corners_cam = np.asarray(keypoints_3d_cam, np.float64)[:, kp.CORNER_SLICE]       # (N, 8, 3)
     T = np.asarray(T_cam_world, np.float64)
     # world = R^T (cam - t)
@@ -387,11 +370,28 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
     Returns:
         {"results": the validated results dict, "out": str path, "table": str}
     """
+    from datagen.dataset.contract import read_manifest
+    from datagen.io import OutputLock, check_writable, clean_stale_tmp
+    from hupbench.evaluation.results import write_results
+
     previous_threads = torch.get_num_threads()
     if options.threads is not None:
         torch.set_num_threads(options.threads)
     try:
-        return _run_eval(options, log)
+        if not options.model.is_file():
+            raise MissingFileError(f"model file {options.model} does not exist")
+        if options.out is not None:  # an unwritable --out is refused before minutes of work
+            check_writable(options.out, "--out", file=True)
+        manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
+        net = EvalModel(options.model)
+        run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
+        out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out",
+                                                 file=True)
+        with OutputLock.for_file(out_path, "eval"):
+            clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
+            results = _results(options, net, manifest, run_name, out_path, log)
+            write_results(out_path, results)
+        return {"results": results, "out": str(out_path), "table": format_table(results)}
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -443,26 +443,6 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
         return _latencies(net.module, onnx_path, net.input_size, torch.get_num_threads(), log, progress, export)
     finally:
         onnx_path.unlink(missing_ok=True)
-
-
-def _run_eval(options: EvalOptions, log) -> dict[str, Any]:
-    from datagen.dataset.contract import read_manifest
-    from datagen.io import OutputLock, check_writable, clean_stale_tmp
-    from hupbench.evaluation.results import write_results
-
-    if not options.model.is_file():
-        raise MissingFileError(f"model file {options.model} does not exist")
-    if options.out is not None:  # an unwritable --out is refused before minutes of work
-        check_writable(options.out, "--out", file=True)
-    manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
-    net = EvalModel(options.model)
-    run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
-    out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out", file=True)
-    with OutputLock.for_file(out_path, "eval"):
-        clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
-        results = _results(options, net, manifest, run_name, out_path, log)
-        write_results(out_path, results)
-    return {"results": results, "out": str(out_path), "table": format_table(results)}
 
 
 def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str, out_path: Path, log) -> dict:

@@ -1,16 +1,12 @@
-"""``hupbench leaderboard``: ``README.md`` (a table per track beside the test split's floor, the notes, and
-each row's details with a per-grasp table), ``mpjpe_vs_latency.png`` (with the Pareto frontier) and
-``val_mpjpe_vs_training_time.png`` (from the training logs under ``logs/``), rebuilt from
-``leaderboard/results/*.json``. (layout: long because the README's tables, notes and row details and the
-two plots share the row helpers; the plots are the part to move out.)
+"""``hupbench leaderboard``: ``README.md`` (a table per track, the notes and each row's details) and two plots
+(error against latency and against training time), rebuilt from ``leaderboard/results/*.json`` and the
+training logs under ``logs/``. (layout: long because the README and both plots share the row helpers.)
 
-A broken input (a results file or training log missing, damaged or against its schema, an unwritable
-folder, a folder in an output's place) is an error naming the file, and nothing is rewritten: a row that
-silently dropped out of the table would be a wrong leaderboard nobody notices. The three outputs are
-written under temporary names and renamed together, so a full disk or a kill leaves the old set or the
-new one. The same files give the same bytes: rows are sorted, numbers formatted explicitly, nothing reads
-the clock, and the plots use matplotlib's defaults at a fixed size with a PNG ``Software`` tag naming only
-the matplotlib and Pillow versions (which decide the pixels).
+A broken input is an error naming the file, and nothing is rewritten: a row that silently dropped out of
+the table would be a wrong leaderboard nobody notices. The three outputs are renamed into place together,
+so a full disk or a kill leaves the old set or the new one. The same files give the same bytes: rows are
+sorted, numbers formatted explicitly, nothing reads the clock, and the plots use matplotlib's defaults at a
+fixed size with a PNG ``Software`` tag naming only the versions that decide the pixels.
 
 Convention: errors in mm, latency in ms per image at batch 1, times in seconds inside and minutes or hours
 on the plot axes.
@@ -41,8 +37,7 @@ DPI = 100  # FIGSIZE_IN x DPI = 900 x 600 px
 MISSING = "—"
 # "all" that differs from the keypoint-weighted mean by more than the two-decimal rounding of the inputs
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
-#: the track of rows whose results name none: the paper's rows and results of datasets made before tracks,
-#: which all hold out whole grasps
+#: the track of rows whose results name none (the paper's, and datasets made before tracks)
 PAPER_TRACK = UNSEEN_GRASPS
 #: each track's table heading and what it holds out
 TRACK_TITLES = {
@@ -114,12 +109,9 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
 
 
 def read_validation_curve(path: str | Path) -> list[tuple[float, float]]:
-    """``(train_wall_s, val_mpjpe_all_mm)`` of the ``"event": "val"`` lines of a training run's
-    ``metrics.jsonl``, in file order (train_wall_s counts training only, validation passes excluded).
-
-    Every line is checked: an event's step logged twice means two trainings appended to one log (a
-    resumed run drops the lines after its checkpoint before it logs again).
-    """
+    """``(train_wall_s, val_mpjpe_all_mm)`` of the ``"event": "val"`` lines of a training run's ``metrics.jsonl``,
+    in file order. Every line is checked: an event's step logged twice means two trainings appended to one log
+    (a resumed run drops the lines after its checkpoint before it logs again)."""
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"training log not found: {path}")
@@ -541,7 +533,6 @@ def _png_bytes(fig, ax, xlabel: str, ylabel: str, title: str, legend_loc: str) -
     ax.legend(loc=legend_loc, fontsize=8)
     fig.tight_layout()
     buffer = io.BytesIO()
-    # The default Software tag is fine, but say so explicitly: the versions that decide the pixels, no date.
     fig.savefig(buffer, format="png", dpi=DPI,
                 metadata={"Software": f"hupbench leaderboard; matplotlib {matplotlib.__version__}; "
                                       f"Pillow {PIL.__version__}"})

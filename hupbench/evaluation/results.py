@@ -1,11 +1,9 @@
 """The results JSON: one file per evaluated model, schema version 3; ``hupbench eval`` writes it,
 ``hupbench leaderboard`` reads it.
 
-The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types (an
-``int`` field refuses ``True`` and ``1.5``), finite numbers, non-negative errors and latencies, a PCK AUC
-in [0, 1]. A ``"reported"`` row (quoted from a paper) may leave almost every field ``null`` but needs
-``metrics.mpjpe_mm.all`` and a ``source``. Versions 1 and 2 load upgraded to 3 with the fields added
-since ``null`` (they were not measured; docs/metrics.md says what each version added); only 3 is written.
+The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
+finite numbers. A ``"reported"`` row (quoted from a paper) needs only ``metrics.mpjpe_mm.all`` and a
+``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written.
 
 Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
 counted as 2 x multiply-adds.

@@ -51,10 +51,8 @@ class ExportOptions:
     """What ``hupbench export`` is asked to do, checked once where it enters.
 
     Attributes:
-        checkpoint: a hupbench checkpoint (``.pt``).
-        out: destination ``.onnx`` (default: the checkpoint path with suffix ``.onnx``); missing folders are
-            made.
-        dataset: dataset of the parity images (default: the checkpoint's training dataset).
+        checkpoint: a hupbench checkpoint (``.pt``). out: destination ``.onnx`` (default: the checkpoint path
+            with suffix ``.onnx``). dataset: of the parity images (default: the checkpoint's training dataset).
         opset: ONNX opset, from :data:`OPSET_MIN` to the newest this torch writes.
         run_name: "hupbench.run_name" metadata (default: :func:`default_run_name`).
         parity_frames: images compared (from the test split, else val, else train).
@@ -87,20 +85,10 @@ class ExportOptions:
 
 
 class ContractModule(nn.Module):
-    """A model of :mod:`models` behind the ONNX contract: image -> (points2d, points3d).
-
-    Args:
-        model: a HOPENet or ResNetRegressor (anything returning a named tuple with ``points3d``
-            and ``points2d`` that may be None), in eval mode.
-        K_input: (3, 3) intrinsics of the model input image, pixels.
-        input_size: S, side of the square model input, pixels.
-
-    Forward:
-        image: (B, 3, S, S) float32 RGB in [0, 1].
-        Returns ``(points2d, points3d)``: (B, N, 2) normalised [-1, 1] of the input image and
-        (B, N, 3) metres, OpenCV camera frame of K_input. Without a 2D head, points2d is the
-        projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``).
-    """
+    """A model of :mod:`models` (its output has ``points3d``, and ``points2d`` or None) behind the ONNX contract
+    of :mod:`hupbench.inference.model_file`, image -> (points2d, points3d), for an S = ``input_size`` pixel
+    input with (3, 3) intrinsics ``K_input``. Without a 2D head, points2d is the projection of points3d
+    with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``)."""
 
     def __init__(self, model: nn.Module, K_input, input_size: int) -> None:
         super().__init__()

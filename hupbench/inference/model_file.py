@@ -52,16 +52,12 @@ def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges
 
 
 def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any]:
-    """Read and check the ``hupbench.*`` metadata of an exported model.
-
-    Args:
-        props: the ONNX model's metadata_props (string to string).
-        source: the file's name, for error messages.
+    """Read and check the ``hupbench.*`` metadata of an exported model from its metadata_props (string to
+    string); ``source`` names the file in errors.
 
     Returns:
-        ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str,
-        "skeleton_edges": tuple of (i, j), "model_config": dict ({} when absent), "run_name": str,
-        "git_commit": str}``.
+        ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str, "skeleton_edges":
+        tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str}``.
     """
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "

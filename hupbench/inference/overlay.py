@@ -39,21 +39,10 @@ def line_width(height: int, width: int) -> int:
 
 def draw_prediction(image_rgb: np.ndarray, uv: np.ndarray, names: Sequence[str],
                     edges: Sequence[Sequence[int]]) -> np.ndarray:
-    """Draw predicted keypoints and their skeleton on an image.
-
-    Edges between two probe corners (the probe's box) are drawn first, hand edges over them,
-    then a marker at every keypoint, so that the hand stays on top where it covers the probe.
-
-    Args:
-        image_rgb: (H, W, 3) uint8 RGB, the original image.
-        uv: (N, 2) float, pixels of ``image_rgb``, pixel centres at integers; rows with a
-            non-finite value are not drawn (nor their edges).
-        names: N keypoint names (colours, see the module docstring).
-        edges: pairs (i, j) of keypoint indices in [0, N) to join with a line.
-
-    Returns:
-        (H, W, 3) uint8, a drawn copy of ``image_rgb``.
-    """
+    """A drawn (H, W, 3) uint8 copy of the original ``image_rgb``: the keypoints ``uv`` ((N, 2) float, its
+    pixels; a non-finite row is not drawn, nor its edges) named by ``names``, joined by ``edges`` (pairs of
+    indices). Probe box edges go first, hand edges over them, then the markers: the hand stays on top
+    where it covers the probe."""
     uv = np.asarray(uv, dtype=np.float64)
     assert image_rgb.dtype == np.uint8 and image_rgb.shape[2:] == (3,) and uv.shape == (len(names), 2)
     edge_array = np.asarray(edges, dtype=np.int64).reshape(-1, 2)

@@ -1,9 +1,8 @@
 """``hupbench predict``: 2D and 3D keypoints for new images with an exported ONNX model, without torch.
 
 Only onnxruntime, numpy and OpenCV run here: a deployment needs neither PyTorch nor the training code.
-An H x W image is padded with mid-grey (0.5) to a centred L x L square, L = max(H, W), and resized to
-S x S (:func:`hupbench.input_geometry.pad_and_resize`): padding, unlike a centre crop, keeps a hand near
-the border in view, and a constant grey holds no mirrored copy of it.
+An image is padded with mid-grey to a centred square and resized to the input (``PREPROCESSING``): padding,
+unlike a centre crop, keeps a hand near the border in view, and a constant grey holds no mirrored copy of it.
 
 Camera: without ``--K`` the image is assumed to come from the training camera K_input scaled to the
 image ("assumed training camera"): the 3D points are the network's output as it is, which is what
@@ -185,10 +184,8 @@ def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometr
     """Map one image's network outputs to its original pixels and to the chosen camera.
 
     Args:
-        points2d_norm: (N, 2) normalised [-1, 1] input coordinates.
-        points3d: (N, 3) metres, camera frame of K_input.
-        geometry: how the image became the input.
-        K_input: (3, 3) the network's training camera at the model input.
+        points2d_norm: (N, 2) normalised input coordinates. points3d: (N, 3) metres, camera frame of K_input.
+        geometry: how the image became the input. K_input: (3, 3) the training camera at the model input.
         K_user: (3, 3) the user's intrinsics of the original image, or None to assume the training camera.
 
     Returns:
@@ -205,14 +202,6 @@ def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometr
             "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
 
 
-def _progress_bar(total: int, enabled: bool):
-    """A tqdm bar over images on stderr that shows itself only when the run lasts more than 2 s."""
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="image", desc="hupbench predict", disable=not enabled, delay=2.0,
-                dynamic_ncols=True, file=sys.stderr)
-
-
 def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -> dict[str, Any]:
     """Predict 2D and 3D keypoints for image files; write ``predictions.json`` and overlays (module
     docstring). ``log`` receives per-file errors and notes.
@@ -221,6 +210,8 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
         "records": [per-image dicts as in the JSON]}``.
     """
+    from tqdm import tqdm
+
     out_dir = check_writable(options.out_dir, "output folder (--out)")
     model = load_onnx_model(options.model)
     files, skipped = expand_inputs(options.inputs)
@@ -234,7 +225,9 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
     overlays: list[Path] = []
     used_stems: set[str] = set()
     finished = False
-    bar = _progress_bar(len(files), options.progress)
+    # on stderr, and only once the run has lasted 2 s
+    bar = tqdm(total=len(files), unit="image", desc="hupbench predict", disable=not options.progress, delay=2.0,
+               dynamic_ncols=True, file=sys.stderr)
     if options.progress and log is _stderr:
         def log(line: str) -> None:
             # above the bar once it shows; tqdm.write before that would print a stray carriage return

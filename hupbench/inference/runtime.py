@@ -89,16 +89,8 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
 
 
 def run_onnx(model: OnnxModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The model's outputs on a batch of inputs.
-
-    Args:
-        model: from :func:`load_onnx_model`.
-        images: (B, 3, S, S) float32 RGB in [0, 1].
-
-    Returns:
-        points2d (B, N, 2) float32, normalised [-1, 1] input coordinates; points3d (B, N, 3) float32, metres,
-        OpenCV camera frame of K_input.
-    """
+    """The outputs on (B, 3, S, S) float32 RGB ``images`` in [0, 1]: points2d (B, N, 2) float32, normalised
+    input coordinates; points3d (B, N, 3) float32, metres, OpenCV camera frame of K_input."""
     S = model.input_size
     assert images.dtype == np.float32 and images.shape[1:] == (3, S, S), (images.shape, images.dtype)
     try:

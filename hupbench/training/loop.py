@@ -74,12 +74,8 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
     is written: a run is complete only when what it wrote is whole.
 
     Returns:
-        summary.json's dict: "run_dir", "checkpoint" (last.pt), "best_checkpoint", "steps", "samples_seen",
-        "epochs", "train_seconds", "wall_seconds", "val_mpjpe_mm" (last), "first_val_mpjpe_mm",
-        "best_val_mpjpe_mm", "world_size" and "complete" (False when train.stop_after stopped it early).
-
-    Raises:
-        datagen.errors.UserError: naming the dataset, checkpoint, run folder or value that cannot be used.
+        summary.json's dict: the checkpoints, counters, timings and validations (mm), and "complete" (False
+        when train.stop_after stopped the run early).
     """
     from hupbench.data import read_manifest
 
@@ -273,7 +269,6 @@ class RunState:
     best: float = math.inf
     first_val: dict | None = None
     last_val: dict | None = None
-
 
 
 @contextmanager

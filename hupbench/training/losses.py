@@ -22,17 +22,14 @@ def loss_terms(output, batch: dict, weights: LossConfig) -> tuple[torch.Tensor, 
     no gradient.
 
     Args:
-        output: HOPENetOutput (points2d_init, points2d, points3d) or RegressorOutput (points2d or
-            None, points3d); 2D (B, 29, 2) normalised image units, 3D (B, 29, 3) metres.
-        batch: "keypoints_2d" (B, 29, 2) normalised, "keypoints_3d" (B, 29, 3) metres, camera frame.
-        weights: the ``loss`` node: w2d_init, w2d, w3d, unit_3d_m (the 3D loss is measured in that many
-            metres) and probe_symmetry ("none" or "half_turn").
+        output: HOPENetOutput or RegressorOutput (points2d may be None); 2D (B, 29, 2) normalised, 3D
+            (B, 29, 3) metres. batch: "keypoints_2d" and "keypoints_3d" likewise, camera frame.
+        weights: the ``loss`` node (the 3D loss is measured in units of ``unit_3d_m`` metres).
 
     Returns:
-        (total loss, {term name: 0-dim detached tensor on the loss's device}) with the unweighted
-        terms for logging (tensors, so that the training loop reads them without waiting for the
-        device at every step); with half_turn also "probe_half_turned", the fraction of samples
-        whose corners were relabelled.
+        (total loss, {term name: unweighted 0-dim detached tensor}): tensors, so that the loop logs them
+        without waiting for the device every step; with half_turn also "probe_half_turned", the fraction
+        of samples whose corners were relabelled.
     """
     from hupbench.metrics import PROBE_SYMMETRIES, permute_keypoints, symmetry_costs
 

@@ -13,15 +13,9 @@ if TYPE_CHECKING:
 
 def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_steps: int = 100,
                   final_lr_fraction: float = 0.02) -> torch.optim.lr_scheduler.LambdaLR:
-    """Linear warm-up to the base learning rate, then cosine decay to ``final_lr_fraction`` of it.
-
-    Args:
-        optimizer: the optimiser whose learning rates are scaled.
-        total_steps: optimiser steps in the whole run, >= 1.
-        warmup_steps: steps of linear warm-up (shortened to a tenth of the run for short runs).
-        final_lr_fraction: learning rate at the last step, as a fraction of the base rate, in [0, 1]
-            (the ``optim.scheduler`` node's values are checked by :class:`hupbench.training.run_config.OptimConfig`).
-    """
+    """Linear warm-up over ``warmup_steps`` (at most a tenth of the run's ``total_steps``) to the base learning
+    rate, then cosine decay to ``final_lr_fraction`` of it at the last step (values checked by
+    :class:`hupbench.training.run_config.OptimConfig`)."""
     assert total_steps >= 1 and 0.0 <= final_lr_fraction <= 1.0, (total_steps, final_lr_fraction)
     warmup = max(0, min(int(warmup_steps), total_steps // 10))
 

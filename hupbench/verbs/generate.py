@@ -27,14 +27,9 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
 
 
 def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
-    """Make the default grasps if needed, and render (or resume) the dataset.
-
-    Args:
-        run: the built ``generate`` config. resolved: :func:`resolved_config` of it, for the manifest.
-
-    Returns:
-        :func:`datagen.dataset.writer.generate`'s dict.
-    """
+    """Make the default grasps if needed, and render (or resume) the dataset of the built ``run``;
+    ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`datagen.dataset.writer.generate`'s
+    dict."""
     from datagen.assets.backgrounds import BackgroundSet
     from datagen.dataset.grasps_file import read_grasps
     from datagen.dataset.writer import generate, run_lock

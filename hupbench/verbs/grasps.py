@@ -60,15 +60,8 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
 
 
 def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
-    """Run the grasp generator; the output folder is this run's until it returns.
-
-    Args:
-        run: the built ``grasps`` config. cfg: the composed one, recorded in run.json.
-        log: progress printer.
-
-    Returns:
-        dict with the output paths, counts and timings.
-    """
+    """Run the grasp generator of the built ``run`` (``cfg``, the composed config, goes into run.json); the
+    output folder is this run's until it returns. Returns the output paths, counts and timings."""
     from datagen.render.draw import write_png
     from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from datagen.grasps.sheet import contact_sheet
@@ -107,14 +100,8 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
 
 
 def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
-    """Make the refinement corpus and train the grasp CVAE (``hupbench train-grasp-sampler``).
-
-    Args:
-        cfg: the composed ``train_grasp_sampler`` config.
-
-    Returns:
-        dict with the weights path, corpus size and timing.
-    """
+    """Make the refinement corpus and train the grasp CVAE of a composed ``train_grasp_sampler`` config;
+    returns the weights path, corpus size and timing."""
     import torch
 
     from datagen.grasps.cvae import SHIPPED_WEIGHTS

@@ -30,6 +30,7 @@ from datagen.dataset.writer import GenerateRun, check_platform
 from datagen.render.preview import PreviewView
 from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
+from hupbench.training.run_config import TrainRun, train_config
 from hupbench.verbs.grasps import GraspsRun
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
@@ -49,14 +50,9 @@ def _is_number(value) -> bool:
 class QuickstartRun:
     """``conf/quickstart.yaml`` (``_recursive_: false``: the camera and the view are built after the types of
     their fields are checked here, since Hydra passes ``fast=maybe`` on as a string and ``camera.fx=nan`` as
-    a float). The later stages' configs are composed from the lists by :func:`run_quickstart`.
-
-    Attributes:
-        out_dir: where everything goes. fast: the smoke version (reads ``fast_overrides``).
-        stop_after: the last stage, None for all. grasps, dataset, train: key=value overrides of those
-            stages' verbs. eval_latency: time the model in the eval stage. fast_overrides: the same four
-            for ``fast``. camera, view: the preview's :class:`datagen.camera.Intrinsics` and
-            :class:`datagen.render.preview.PreviewView`. render: the preview's platform and modalities.
+    a float). grasps, dataset, train: key=value overrides of those stages' verbs, composed by
+    :func:`run_quickstart`; ``fast`` reads them and ``eval_latency`` from ``fast_overrides`` instead.
+    camera, view, render: the preview's intrinsics, viewpoint, platform and modalities.
     """
 
     out_dir: str
@@ -158,15 +154,13 @@ class _Stages:
     grasps: GraspsRun
     generate_cfg: DictConfig
     generate: GenerateRun
-    train_cfg: DictConfig
+    train: TrainRun
     eval_latency: bool
 
 
 def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
     """Compose and build the grasps, generate and train configs of the later stages (so a bad stage
     override fails before the preview renders)."""
-    from hupbench.training.run_config import train_config
-
     with _stage_errors("grasps", fast):
         grasps_cfg = compose("grasps", [*overrides["grasps"], f"out_dir={work / 'grasps'}"])
         grasps = build(grasps_cfg)
@@ -176,10 +170,9 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
                                             f"grasps_path={work / 'grasps' / 'grasps.npz'}"])
         generate = build(generate_cfg)
     with _stage_errors("train", fast):
-        train_cfg = compose("train", [*overrides["train"], f"data.root={dataset_dir}", f"run_dir={work / 'run'}",
-                                      "run_name=quickstart"])
-        train_config(train_cfg)
-    return _Stages(work, grasps_cfg, grasps, generate_cfg, generate, train_cfg, overrides["eval_latency"])
+        train = train_config(compose("train", [*overrides["train"], f"data.root={dataset_dir}",
+                                               f"run_dir={work / 'run'}", "run_name=quickstart"]))
+    return _Stages(work, grasps_cfg, grasps, generate_cfg, generate, train, overrides["eval_latency"])
 
 
 def run_quickstart(cfg: DictConfig, log=print) -> dict:
@@ -242,10 +235,10 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
     from hupbench.verbs.generate import generate_dataset, resolved_config, run_verify
     from hupbench.verbs.grasps import make_grasps
     from hupbench.inference.predict import PredictOptions, run_predict
-    from hupbench.training.loop import run_train
+    from hupbench.training.loop import train
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
-    work, train_cfg = stages.work, stages.train_cfg
+    work, run = stages.work, stages.train
     out: dict = {}
     t0 = stage(1, "grasps", f"synthesise and select {stages.grasps.generate.n_select} grasps")
     grasps = make_grasps(stages.grasps, stages.grasps_cfg, log=quiet)
@@ -270,8 +263,8 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
     if done("verify", t0):
         return out
 
-    t0 = stage(4, "train", f"{train_cfg.model_id}, {train_cfg.train.max_steps} steps of {train_cfg.data.batch_size}")
-    trained = run_train(train_cfg, log=lambda line: log("      " + line))
+    t0 = stage(4, "train", f"{run.model_id}, {run.train.max_steps} steps of {run.data.batch_size}")
+    trained = train(run, run.folder, log=lambda line: log("      " + line))
     out["checkpoint"] = trained["checkpoint"]
     out["val_mpjpe_mm"] = {"first": trained["first_val_mpjpe_mm"]["all"], "last": trained["val_mpjpe_mm"]["all"]}
     if done("train", t0):
