@@ -92,7 +92,8 @@ def _start_train_py(tiny_dataset, tmp_path, *extra: str) -> subprocess.Popen:
     argv = [sys.executable, str(REPO / "train.py"),
             *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache", *extra)]
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-                            env={**os.environ, "PYTHONPATH": str(REPO)}, start_new_session=True)
+                            env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1"},
+                            start_new_session=True)
 
 
 @pytest.mark.matrix
@@ -108,7 +109,15 @@ def test_matrix_train_ctrl_c(tiny_dataset, tmp_path):
         assert time.monotonic() < deadline, "training did not start"
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
+    try:
+        out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:  # a hang: every thread's stack (faulthandler) and who is still alive
+        alive = subprocess.run(["ps", "-o", "pid,stat,etime,cmd", "-g", str(proc.pid)], capture_output=True,
+                               text=True).stdout
+        os.kill(proc.pid, signal.SIGABRT)
+        out, err = proc.communicate(timeout=60)
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError(f"train.py did not end within 120 s of Ctrl-C; alive:\n{alive}\n{err[-8000:]}")
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == [err.strip()] and err.startswith("train.py: interrupted"), err
     record_answer(err.strip())
