@@ -24,6 +24,7 @@ from typing import ClassVar, NamedTuple
 import torch
 from torch import nn
 
+from models.coords import pixels_to_normalized
 from models.model_config import ModelConfig, check_camera, check_whole
 from models.graph import GraphNet2D, GraphUNet
 from models.prior import PointPrior
@@ -50,8 +51,8 @@ def normalized_intrinsics(K_input, input_size: int) -> torch.Tensor:
         input_size: S, side of the square model input, pixels.
     """
     K = torch.as_tensor(K_input, dtype=torch.float64)
-    S = float(input_size)
-    return torch.stack([2 * K[0, 0] / S, 2 * K[1, 1] / S, (2 * K[0, 2] + 1) / S - 1, (2 * K[1, 2] + 1) / S - 1]).float()
+    centre = pixels_to_normalized(K[:2, 2], input_size, input_size)
+    return torch.cat([2 * torch.diagonal(K)[:2] / input_size, centre]).float()
 
 
 def unproject_normalized(points2d: torch.Tensor, depth: torch.Tensor, intrinsics: torch.Tensor) -> torch.Tensor:
