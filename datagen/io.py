@@ -300,7 +300,7 @@ class OutputLock:
         except OSError as exc:
             self.path.unlink(missing_ok=True)  # an empty lock file would outlive the failed run
             os.close(fd)
-            raise _explain(exc, self.path) from exc
+            raise _explain(exc, self.target) from exc  # the user knows the output, not its lock file
         self._fd = fd
         return self
 

@@ -32,6 +32,8 @@ QUOTED = re.compile(r"``\s?(?:.*?error:.*?)\s?``|`(?:[^`]*?error:[^`]*)`")
 TMP_FOLDER = re.compile(r"/tmp/(?:pytest-of-[^/\s]+/pytest-\d+/[^/\s'\"]+|tmp[\w-]+)(/?)")
 HOLDER = re.compile(r"pid \d+ on [^\s,]+, since [0-9TZ:-]+")
 MAX_LINE = 400
+#: words the doc writes for a test's own folders and files
+PLACEHOLDERS = ("DATASET", "FOLDER", "DISK", "RUN", "MODEL", "CKPT", "PATH", "FILE", "RESULTS")
 
 
 def record(markers: str = "matrix") -> Path:
@@ -86,8 +88,18 @@ def answer_cell(cell: str, lines: list[str]) -> str:
     if not spans:
         return " ".join(quote(line) for line in lines) if cell.startswith("error:") else cell
     for span, line in zip(spans, lines):
-        cell = cell.replace(span, quote(line), 1)
+        if not same_answer(span, line):
+            cell = cell.replace(span, quote(line), 1)
     return cell
+
+
+def same_answer(span: str, line: str) -> bool:
+    """Whether the quoted ``span`` already says ``line``, its hand-written placeholders (DATASET, FOLDER,
+    ...) standing for any path and its ``...`` for any text: such a row keeps its readable wording."""
+    text = span.strip("`").strip()
+    pattern = "".join(".*?" if part.rstrip("/") in (*PLACEHOLDERS, "...") else re.escape(part)
+                      for part in re.split(r"(\.\.\.|\b(?:%s)\b/?)" % "|".join(PLACEHOLDERS), text) if part)
+    return re.fullmatch(pattern, line, flags=re.S) is not None
 
 
 def rebuild(text: str, cases: list[tuple[str, str]], answers: dict[str, list[str]], inputs: dict[str, str]) -> str:

@@ -187,7 +187,7 @@ def test_fault_eval_disk_full(exported, tiny_dataset, tmp_path):
     _, output = private_mount("size=8k", disk, full_disk_script(
         f'"{sys.executable}" -m hupbench.cli eval "{ckpt}" "{tiny_dataset}" --no-latency --out "{disk}/r.json"', disk))
     answer, tmp, files = parse_full_disk(output)
-    assert_clean_error(answer, f"no space left on {disk} writing {disk}/.r.json.lock")
+    assert_clean_error(answer, f"no space left on {disk} writing {disk}/r.json")
     assert answer.rc == 1 and not tmp and files == [f"{disk}/filler"], (tmp, files)
 
 
