@@ -15,7 +15,9 @@ Usage:
     Each pipeline item is PIPELINE:WORKERS[:cl][:bf16]: loader workers, channels_last, bf16 autocast;
     the first item is the reference the others are compared with.
 
-The frame cache is built before timing (its one-off cost is printed separately).
+The frame cache is built before timing (its one-off cost is printed separately). A train split smaller than
+(warm-up + steps) x batch frames is cycled epoch after epoch, as training does. The first line names the CPU,
+torch's CPU capability and whether bf16 is native there (elsewhere the bf16 items run emulated).
 """
 
 from __future__ import annotations
@@ -52,7 +54,8 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     optimizer = run.optim.optimizer(model.parameters(), lr=learning_rate(run.optim, args.batch))
     scheduler = run.optim.scheduler(optimizer, total_steps=args.warmup + args.steps)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    data.sampler.set_position(0, 0)
+    epoch = 0
+    data.sampler.set_position(epoch, 0)
     batches = iter(data.train_loader)
     waits, steps = [], []
     start = None
@@ -61,9 +64,14 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
             sync()
             start = time.perf_counter()
         t_wait = time.perf_counter()
-        batch = next(batches)
+        batch = next(batches, None)
+        if batch is None:  # a small train split: the next epoch, as training does (its start is timed too)
+            epoch += 1
+            data.sampler.set_position(epoch, 0)
+            batches = iter(data.train_loader)
+            batch = next(batches)
         t_step = time.perf_counter()
-        loss, _ = train_step(train_model, optimizer, batch, 0, data, run, device)
+        loss, _ = train_step(train_model, optimizer, batch, epoch, data, run, device)
         scheduler.step()
         float(loss)  # waits for the device
         t_end = time.perf_counter()
@@ -91,7 +99,13 @@ def main() -> None:
 
     import torch
 
+    from hupbench.provenance import hardware_description
+    from hupbench.training.loop import native_bf16
+
     torch.set_num_threads(args.threads)
+    device = torch.device(args.device)
+    print(f"{hardware_description(device)}; torch CPU capability {torch.backends.cpu.get_cpu_capability()}, "
+          f"native bf16: {'yes' if native_bf16(device) else 'no (bf16 autocast is emulated)'}")
     print(f"{args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, {args.device}"
           f"{', compiled' if args.compile else ''}, torch threads {args.threads}")
     rows = []

@@ -147,7 +147,7 @@ class TrainRun:
     run_dir: str | None = None
     seed: int = 0
     device: str = "cpu"
-    precision: str = "fp32"
+    precision: str = "auto"
     channels_last: bool = True
     threads: int | None = None
     compile: bool = False
@@ -162,7 +162,7 @@ class TrainRun:
                                 f"use; set threads to at most {cores}, or null for torch's default")
         whole(self.seed, "seed", 0, high=2**31 - 1)
         choice(self.device, "device", ("cpu", "cuda"))
-        choice(self.precision, "precision", ("fp32", "bf16"))
+        choice(self.precision, "precision", ("auto", "fp32", "bf16"))
         if self.model.n_keypoints != kp.NUM_KEYPOINTS:
             raise BadValueError(f"model.n_keypoints must be {kp.NUM_KEYPOINTS} (21 hand joints + 8 probe corners, "
                                 f"as every dataset has), got {self.model.n_keypoints}")

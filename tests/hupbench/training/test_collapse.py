@@ -43,7 +43,7 @@ def short_run(model: str, dataset, folder: Path, steps: int):
         f"data.reader.input_size={INPUT_SIZE}", "data.batch_size=8", "data.val_frames=8", f"train.max_steps={steps}",
         f"train.val_every={steps}", f"train.ckpt_every={steps}", f"train.log_every={steps}",
         "train.bn_recompute_frames=20", "train.progress=false", "train.tensorboard=false", "data.reader.rotate_deg=0",
-        "data.reader.photometric=0", "threads=2"]))
+        "data.reader.photometric=0", "threads=2", "precision=fp32"]))
 
 
 def trained_model(run, folder: Path) -> torch.nn.Module:

@@ -10,7 +10,8 @@ import torch
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.config import compose
 from hupbench.training.run_config import LossConfig, train_config
-from hupbench.training.loop import run_train
+from hupbench.training import loop
+from hupbench.training.loop import resolve_precision, run_train
 from hupbench.training.losses import loss_terms
 from hupbench.data.loaders import EpochSampler
 from hupbench.training.schedule import warmup_cosine
@@ -25,7 +26,7 @@ def tiny_cfg(dataset, run_dir, *extra):
         "model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", "data.reader.input_size=64",
         "data.batch_size=4", "data.num_workers=0", "data.val_frames=8", "train.max_steps=4", "train.val_every=2",
         "train.ckpt_every=2", "train.log_every=1", "train.progress=false", "train.tensorboard=false", "threads=2",
-        *extra])
+        "precision=fp32", *extra])
 
 
 def read_log(run_dir):
@@ -40,7 +41,7 @@ def test_short_run_writes_everything(tiny_dataset, tmp_path):
         assert (run_dir / name).is_file(), name
     assert any(p.name.startswith("events.out.tfevents") for p in (run_dir / "tb").iterdir())
     info = json.loads((run_dir / "run.json").read_text())
-    assert info["config"]["model"]["_target_"] == "models.hopenet.HOPENetConfig"
+    assert info["config"]["model"]["_target_"] == "models.hopenet.HOPENetConfig" and info["precision"] == "fp32"
     assert len(info["git_commit"]) >= 40 and info["packages"]["torch"].startswith("2.13")
     log = read_log(run_dir)
     vals = [r for r in log if r["event"] == "val"]
@@ -426,3 +427,31 @@ def test_error_line_is_one_line_naming_the_file():
     assert error_line(PermissionError(30, "cannot write /r/.hupbench.lock: Read-only file system")) == \
         "cannot write /r/.hupbench.lock: Read-only file system"
     assert error_line(ValueError("first\n  second\n")) == "first second"
+
+
+@pytest.mark.parametrize("avx512_bf16, amx, expected", [(False, False, "fp32"), (True, False, "bf16"),
+                                                         (False, True, "bf16")])
+def test_precision_auto_is_bf16_only_on_a_cpu_that_runs_it_natively(monkeypatch, avx512_bf16, amx, expected):
+    """auto reads the CPU's bf16 support (an AVX2-only CPU emulates bf16, 12x slower than fp32); fp32 and bf16
+    are taken as given."""
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
+    monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
+    cpu = torch.device("cpu")
+    assert resolve_precision("auto", cpu) == expected
+    assert resolve_precision("fp32", cpu) == "fp32" and resolve_precision("bf16", cpu) == "bf16"
+
+
+@pytest.mark.parametrize("supported, expected", [(False, "fp32"), (True, "bf16")])
+def test_precision_auto_on_a_gpu_asks_cuda(monkeypatch, supported, expected):
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *a, **k: supported)
+    assert resolve_precision("auto", torch.device("cuda", 0)) == expected
+
+
+def test_precision_auto_is_printed_and_recorded(tiny_dataset, tmp_path, monkeypatch):
+    """A run with precision=auto says what it chose on its first line and records it in run.json."""
+    monkeypatch.setattr(loop, "native_bf16", lambda device: False)
+    run_dir, lines = tmp_path / "run", []
+    run_train(tiny_cfg(tiny_dataset, run_dir, "train.max_steps=1", "precision=auto"), log=lines.append)
+    assert json.loads((run_dir / "run.json").read_text())["precision"] == "fp32"
+    assert any("on cpu in fp32 (precision=auto)" in line for line in lines), lines
+

@@ -30,7 +30,7 @@ def overrides(dataset, run_dir, cache, *extra) -> list[str]:
     return ["model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", f"data.cache_dir={cache}",
             "data.reader.input_size=64", "data.batch_size=4", "data.num_workers=0", "data.val_frames=8",
             f"train.max_steps={STEPS}", "train.val_every=2", "train.ckpt_every=2", "train.log_every=1",
-            "train.progress=false", "train.tensorboard=false", "threads=2", *extra]
+            "train.progress=false", "train.tensorboard=false", "threads=2", "precision=fp32", *extra]
 
 
 def read_log(run_dir: Path) -> list[dict]:
