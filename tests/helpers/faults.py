@@ -132,3 +132,22 @@ def dead_pid() -> int:
     proc = subprocess.Popen(["true"])
     proc.wait()
     return proc.pid
+
+
+def like_a_terminal() -> None:
+    """``preexec_fn`` of a process that Ctrl-C must reach: SIGINT handled by default and not blocked, as a
+    shell starts a program. The test process itself may have inherited an ignored or blocked SIGINT (a full
+    suite run left the Ctrl-C tests' children deaf to it: they trained on for the whole 120 s)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def sigint_state(pid: int | str = "self") -> str:
+    """How process ``pid`` treats SIGINT, from /proc: ignored, blocked (a diagnosis when Ctrl-C went unheard)."""
+    bit = 1 << (signal.SIGINT - 1)
+    try:
+        fields = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines() if ":" in line)
+    except OSError:
+        return "unknown"
+    return ", ".join(f"{name} {'yes' if int(fields[key], 16) & bit else 'no'}"
+                     for name, key in (("ignored", "SigIgn"), ("blocked", "SigBlk")) if key in fields)

@@ -19,6 +19,7 @@ import pytest
 from helpers.cli import assert_clean_error, assert_nothing_complete
 from datagen.processes import usable_cores
 from helpers.answers import record_answer
+from helpers.faults import like_a_terminal, sigint_state
 from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer
 
 
@@ -93,7 +94,7 @@ def _start_train_py(tiny_dataset, tmp_path, *extra: str) -> subprocess.Popen:
             *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache", *extra)]
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                             env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONFAULTHANDLER": "1"},
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=like_a_terminal)
 
 
 @pytest.mark.matrix
@@ -108,6 +109,7 @@ def test_matrix_train_ctrl_c(tiny_dataset, tmp_path):
     while not (log.exists() and log.read_text().count("\n") >= 4) and proc.poll() is None:
         assert time.monotonic() < deadline, "training did not start"
         time.sleep(0.05)
+    state = f"SIGINT of train.py: {sigint_state(proc.pid)}; of this test process: {sigint_state()}"
     os.killpg(proc.pid, signal.SIGINT)
     try:
         out, err = proc.communicate(timeout=120)
@@ -117,7 +119,7 @@ def test_matrix_train_ctrl_c(tiny_dataset, tmp_path):
         os.kill(proc.pid, signal.SIGABRT)
         out, err = proc.communicate(timeout=60)
         os.killpg(proc.pid, signal.SIGKILL)
-        raise AssertionError(f"train.py did not end within 120 s of Ctrl-C; alive:\n{alive}\n{err[-8000:]}")
+        raise AssertionError(f"train.py did not end within 120 s of Ctrl-C ({state}); alive:\n{alive}\n{err[-8000:]}")
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == [err.strip()] and err.startswith("train.py: interrupted"), err
     record_answer(err.strip())

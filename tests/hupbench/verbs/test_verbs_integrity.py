@@ -12,6 +12,7 @@ import pytest
 
 from hupbench.cli import main
 from helpers import REPO
+from helpers.faults import like_a_terminal, sigint_state
 
 #: 2 orientations x 8 starts, a short refinement: seconds
 SMALL_GRASPS = ["generate.theta_vol_deg=[[0,0,0],[0,0,180]]", "generate.starts_per_theta=8", "refine.iterations=50",
@@ -51,7 +52,8 @@ def _interrupt(argv, started, tmp_path, timeout=240):
     stderr = tmp_path / "stderr.txt"
     with open(stderr, "w") as err_file:
         proc = subprocess.Popen([sys.executable, "-m", "hupbench.cli", *argv], stdout=subprocess.PIPE, stderr=err_file,
-                                text=True, env=env, start_new_session=True, cwd=tmp_path)
+                                text=True, env=env, start_new_session=True, cwd=tmp_path,
+                                preexec_fn=like_a_terminal)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
     deadline = time.monotonic() + timeout
@@ -59,8 +61,13 @@ def _interrupt(argv, started, tmp_path, timeout=240):
         assert proc.poll() is None, stderr.read_text()
         assert time.monotonic() < deadline, "the run never got to the point of the interrupt"
         time.sleep(0.2)
+    state = f"SIGINT of the run: {sigint_state(proc.pid)}; of this test process: {sigint_state()}"
     os.killpg(proc.pid, signal.SIGINT)
-    proc.wait(timeout=120)
+    try:
+        proc.wait(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail(f"the run did not end within 120 s of Ctrl-C ({state})")
     err = stderr.read_text()
     for _ in range(100):  # the workers follow their parent within seconds
         try:
