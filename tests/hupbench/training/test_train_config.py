@@ -64,7 +64,7 @@ CASES = {
     # more threads than cores only contend (threads=4096: a 1-step run took more than 300 s)
     "threads-over-cores": (lambda: run(threads=usable_cores() + 1), ("threads", "CPU core", "at most")),
     "seed-negative": (lambda: run(seed=-1), ("seed", ">= 0")),
-    "precision-fp16": (lambda: run(precision="fp16"), ("precision", "'auto', 'fp32' or 'bf16'")),
+    "precision-fp16": (lambda: run(precision="fp16"), ("precision", "'auto' or 'fp32' or 'bf16'")),
     "n-keypoints-21": (lambda: run(model=HOPENetConfig(n_keypoints=21)), ("model.n_keypoints", "29")),
 }
 
