@@ -10,8 +10,6 @@ nothing changed).
 import json
 import os
 import shutil
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -19,8 +17,8 @@ import cv2
 import numpy as np
 import pytest
 
+from helpers.faults import run_in_namespace
 from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
-from helpers import REPO
 
 #: helpers.datasets.TINY_SPEC as overrides (2 grasps: train 1, test 1; 64 px)
 TINY = ["dataset.splits={train:1,val:0,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=2",
@@ -228,23 +226,10 @@ def test_matrix_generate(case, tmp_path, tiny_grasps, tiny_dataset, capsys, monk
 @pytest.mark.matrix
 def test_matrix_generate_read_only_out_dir(tmp_path, tiny_grasps):
     """An output folder on a read-only filesystem (root writes through file modes, so a read-only
-    tmpfs in a private mount namespace; skipped where one cannot be mounted)."""
-    if shutil.which("unshare") is None:
-        pytest.skip("unshare(1) is not installed")
+    bind mount in a private mount namespace; skipped where one cannot be made)."""
     mount = tmp_path / "ro"
     mount.mkdir()
-    argv = [sys.executable, "-m", "hupbench.cli", "generate", f"out_dir={mount / 'ds'}", f"grasps_path={tiny_grasps}",
-            *TINY]
-    script = f"mount -t tmpfs -o ro,size=64k tmpfs {mount} && exec " + " ".join(f"'{a}'" for a in argv)
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", f"mount -t tmpfs tmpfs {mount}"],
-                           capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs in a private mount namespace here: {probe.stderr.strip()}")
-    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script], capture_output=True,
-                          text=True, env=env, timeout=300)
-    assert proc.returncode == 1, proc
-    errors = [line for line in proc.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert errors[0].startswith("hupbench generate: error:") and f"{mount / 'ds'}" in errors[0], errors
-    assert "read-only" in errors[0].lower() or "not writable" in errors[0], errors
+    answer = run_in_namespace(["generate", f"out_dir={mount / 'ds'}", f"grasps_path={tiny_grasps}", *TINY],
+                              read_only=(mount,))
+    assert_clean_error(answer, mount / "ds", "read-only", prefix="hupbench generate: error:")
+    assert answer.rc == 1

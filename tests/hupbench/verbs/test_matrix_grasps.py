@@ -8,17 +8,13 @@ sheet, no temporary file (before the fixes a bad sheet option or out_dir was fou
 refinement, with grasps.npz and grasps.json already written).
 """
 
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from helpers.faults import run_in_namespace
 from helpers.cli import assert_clean_error, assert_nothing_complete, run_cli  # noqa: E402  (tests/ is on sys.path)
-from helpers import REPO
 
 #: 2 orientations x 8 starts = 16 candidates, a short refinement: a case that slipped through would
 #: still end in seconds
@@ -118,27 +114,14 @@ def test_matrix_grasps(case, tmp_path, capsys, monkeypatch):
 @pytest.mark.matrix
 def test_matrix_grasps_read_only_out_dir(tmp_path):
     """out_dir on a read-only file system, refused before the refinement (root writes through file
-    modes, so a read-only tmpfs in a private mount namespace; skipped where one cannot be mounted)."""
-    if shutil.which("unshare") is None:
-        pytest.skip("unshare(1) is not installed")
+    modes, so a read-only bind mount in a private mount namespace; skipped where one cannot be made)."""
     mount = tmp_path / "ro"
     mount.mkdir()
-    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", f"mount -t tmpfs tmpfs {mount}"],
-                           capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs in a private mount namespace here: {probe.stderr.strip()}")
-    argv = [sys.executable, "-m", "hupbench.cli", "grasps", f"out_dir={mount / 'g'}", *SMALL]
-    script = f"mount -t tmpfs -o ro,size=64k tmpfs {mount} && exec " + " ".join(f"'{a}'" for a in argv)
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script], capture_output=True,
-                          text=True, env=env, timeout=120)
-    assert proc.returncode == 1, proc
-    errors = [line for line in proc.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert errors[0].startswith("hupbench grasps: error:") and f"{mount / 'g'}" in errors[0], errors
-    assert "read-only file system" in errors[0], errors
+    answer = run_in_namespace(["grasps", f"out_dir={mount / 'g'}", *SMALL], read_only=(mount,), timeout=120)
+    assert_clean_error(answer, mount / "g", "read-only file system", prefix="hupbench grasps: error:")
+    assert answer.rc == 1
     # refused before the work: the refinement's progress lines never came
-    assert "candidates refined" not in proc.stdout, proc.stdout
+    assert "candidates refined" not in answer.out, answer.out
 
 
 @pytest.mark.matrix

@@ -9,16 +9,12 @@ at once: one line `hupbench quickstart: error: ...` naming the option and what w
 line) and nothing written under out_dir.
 """
 
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from helpers.faults import run_in_namespace
 from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
-from helpers import REPO
 
 
 
@@ -88,23 +84,10 @@ def test_matrix_quickstart(case, tmp_path, capsys):
 @pytest.mark.matrix
 def test_matrix_quickstart_read_only_out_dir(tmp_path):
     """out_dir on a read-only file system, refused before the preview (root writes through file modes,
-    so a read-only tmpfs in a private mount namespace; skipped where one cannot be mounted)."""
-    if shutil.which("unshare") is None:
-        pytest.skip("unshare(1) is not installed")
+    so a read-only bind mount in a private mount namespace; skipped where one cannot be made)."""
     mount = tmp_path / "ro"
     mount.mkdir()
-    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", f"mount -t tmpfs tmpfs {mount}"],
-                           capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs in a private mount namespace here: {probe.stderr.strip()}")
-    argv = [sys.executable, "-m", "hupbench.cli", "quickstart", "--fast", f"out_dir={mount / 'qs'}"]
-    script = f"mount -t tmpfs -o ro,size=64k tmpfs {mount} && exec " + " ".join(f"'{a}'" for a in argv)
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script], capture_output=True,
-                          text=True, env=env, timeout=120)
-    assert proc.returncode == 1, proc
-    errors = [line for line in proc.stderr.splitlines() if "error:" in line]
-    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert errors[0].startswith("hupbench quickstart: error:") and f"{mount / 'qs'}" in errors[0], errors
-    assert "read-only file system" in errors[0], errors
-    assert "[1/" not in proc.stdout, proc.stdout
+    answer = run_in_namespace(["quickstart", "--fast", f"out_dir={mount / 'qs'}"], read_only=(mount,), timeout=120)
+    assert_clean_error(answer, mount / "qs", "read-only file system", prefix="hupbench quickstart: error:")
+    assert answer.rc == 1
+    assert "[1/" not in answer.out, answer.out
