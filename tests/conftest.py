@@ -21,3 +21,11 @@ def tiny_dataset(tmp_path_factory):
     spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 1, "val": 1, "test": 1}}))
     generate(spec, root, grasps, {"test": "tiny_dataset"}, progress=False, log=lambda *_: None)
     return root
+
+
+@pytest.fixture(scope="session")
+def exported(tmp_path_factory, tiny_dataset):
+    """(checkpoint, onnx) of an untrained HOPE-Net on the tiny dataset, exported once per session. Read only."""
+    from helpers.models import exported_model
+
+    return exported_model(tmp_path_factory, tiny_dataset)

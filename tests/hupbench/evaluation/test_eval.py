@@ -14,17 +14,12 @@ from datagen.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results
-from helpers.models import INPUT_SIZE, exported_model, make_checkpoint
+from helpers.models import INPUT_SIZE, make_checkpoint
 
 
 def evaluate(model, dataset, log=lambda *_: None, **options):
     """``run_eval`` of the options given as keywords, quiet unless ``log`` is given."""
     return EV.run_eval(EV.EvalOptions(model, dataset, **options), log=log)
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory, tiny_dataset):
-    return exported_model(tmp_path_factory, tiny_dataset)
 
 
 def _flatten(d, prefix=""):

@@ -23,12 +23,7 @@ from helpers.two_writers import finish, start_writing
 from hupbench.evaluation.evaluate import EvalOptions
 from helpers.damage import CHECKPOINT_CASES, DATASET_CASES, damage_checkpoint, damage_dataset
 from helpers.faults import dead_pid, full_disk_script, parse_full_disk, private_mount, run_killed_then_again
-from helpers.models import exported_model, make_checkpoint
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory, tiny_dataset):
-    return exported_model(tmp_path_factory, tiny_dataset)
+from helpers.models import make_checkpoint
 
 
 def edited_onnx(src: Path, dst: Path, **props: str) -> Path:

@@ -19,18 +19,13 @@ from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from models.baseline import RegressorOutput
 from models.coords import pixels_to_normalized
-from helpers.models import INPUT_SIZE, exported_model, make_checkpoint
+from helpers.models import INPUT_SIZE, make_checkpoint
 from helpers import REPO
 
 
 
 
 
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory, tiny_dataset):
-    return exported_model(tmp_path_factory, tiny_dataset)
 
 
 def _images(dataset, n):
