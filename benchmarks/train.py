@@ -34,7 +34,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     from hupbench.config import compose
     from hupbench.data import setup_data
     from hupbench.training.run_config import train_config
-    from hupbench.training.loop import build_run_model, train_step
+    from hupbench.training.loop import autocast_args, build_run_model, resolve_precision, train_step
     from hupbench.training.schedule import learning_rate
 
     cfg = compose("train", [f"model={model_name}", f"data.root={dataset}", f"data.pipeline={pipeline}",
@@ -43,6 +43,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
                             "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true"])
     run = train_config(cfg)
     device = torch.device(args.device)
+    autocast = autocast_args(resolve_precision(run.precision, device), device)
     t0 = time.perf_counter()
     data = setup_data(cfg, 1, 0, device, log=print)
     setup_s = time.perf_counter() - t0
@@ -71,7 +72,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
             batches = iter(data.train_loader)
             batch = next(batches)
         t_step = time.perf_counter()
-        loss, _ = train_step(train_model, optimizer, batch, epoch, data, run, device)
+        loss, _ = train_step(train_model, optimizer, batch, epoch, data, run, device, autocast)
         scheduler.step()
         float(loss)  # waits for the device
         t_end = time.perf_counter()

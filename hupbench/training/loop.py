@@ -110,7 +110,7 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
         if run.channels_last:
             model.to(memory_format=torch.channels_last)
         precision = resolve_precision(run.precision, device)
-        autocast = _autocast(precision, device)
+        autocast = autocast_args(precision, device)
         train_model = model
         if world > 1:
             if not torch.distributed.is_initialized():
@@ -185,7 +185,7 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
             epoch, start_batch = divmod(state.step, steps_per_epoch)
             data.sampler.set_position(epoch, start_batch)
             for batch in data.train_loader:
-                loss, terms = train_step(train_model, optimizer, batch, epoch, data, run, device)
+                loss, terms = train_step(train_model, optimizer, batch, epoch, data, run, device, autocast)
                 scheduler.step()
                 state.step += 1
                 state.samples_seen += batch_size
@@ -240,13 +240,13 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
 
 
 def train_step(model, optimizer, batch: dict, epoch: int, data: TrainData, run: TrainRun,
-               device: torch.device) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+               device: torch.device, autocast: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimiser step on one batch (the scheduler steps after it); returns the detached loss and its
     terms (no device sync)."""
     batch = data.augment({name: value.to(device, non_blocking=True) for name, value in batch.items()}, epoch)
     images = model_images(batch["image"], device, run.channels_last)
     targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d")}
-    with torch.autocast(**_autocast(resolve_precision(run.precision, device), device)):
+    with torch.autocast(**autocast):
         output = model(images)
     loss, terms = loss_terms(output, targets, run.loss)
     optimizer.zero_grad(set_to_none=True)
@@ -270,7 +270,7 @@ def resolve_precision(precision: str, device: torch.device) -> str:
     return "bf16" if native_bf16(device) else "fp32"
 
 
-def _autocast(precision: str, device: torch.device) -> dict:
+def autocast_args(precision: str, device: torch.device) -> dict:
     """torch.autocast's arguments for a resolved precision."""
     return {"device_type": device.type, "dtype": torch.bfloat16, "enabled": precision == "bf16"}
 
