@@ -24,12 +24,28 @@ import numpy as np
 
 from datagen.camera import resize_intrinsics
 
-__all__ = ["INPUT_SIZE_RANGE", "InputGeometry", "apply_affine", "camera_rotation", "inside_input",
+__all__ = ["DEPTH_CLIP_M", "INPUT_MODALITIES", "INPUT_SIZE_RANGE", "InputGeometry", "depth_channel", "apply_affine", "camera_rotation", "inside_input",
            "normalized_to_pixels", "pad_and_resize", "pixels_to_normalized", "rotation_pixel_map"]
 
 #: the model input side S, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a
 #: split's frame cache (N x S x S x 3 bytes) outgrows any disk long before a model could use the detail
 INPUT_SIZE_RANGE = (16, 2048)
+#: what a model reads (``data.reader.input_modalities``) -> the channels of its input tensor: RGB in [0, 1],
+#: then the depth channel (:func:`depth_channel`)
+INPUT_MODALITIES = {"rgb": 3, "rgb+depth": 4}
+#: the depth channel's ceiling, metres: a camera 0.45-0.8 m from the hand sees nothing of it beyond 2 m
+DEPTH_CLIP_M = 2.0
+
+
+def depth_channel(depth: np.ndarray, scale_m: float) -> np.ndarray:
+    """The model's depth channel from a stored depth map: (H, W) float32 metres, ``depth * scale_m`` clipped to
+    [0, DEPTH_CLIP_M], 0 where no surface was rendered (the dataset's 0).
+
+    Metres as they are, not a per-image min-max: the absolute distance is what pins a keypoint's depth, and
+    at the dataset's 0.45-0.8 m the values span the same order as the RGB channels' [0, 1]. A depth map is
+    resized with ``cv2.INTER_NEAREST`` (:func:`pad_and_resize`), so every value is that of a real surface.
+    """
+    return np.clip(np.asarray(depth, dtype=np.float32) * np.float32(scale_m), 0.0, DEPTH_CLIP_M)
 
 
 def _size(size):
@@ -147,9 +163,11 @@ class InputGeometry:
         return {"side": self.side, "pad_left": self.pad_left, "pad_top": self.pad_top, "scale": self.scale}
 
 
-def pad_and_resize(image: np.ndarray, input_size: int, pad_value: float = 0.0) -> tuple[np.ndarray, InputGeometry]:
-    """(S, S, C) image of the same dtype, and its :class:`InputGeometry`: an (H, W, C) uint8 or float32 image
-    (C <= 4) padded to a centred square with ``pad_value`` (in its own unit) and resized (``cv2.INTER_AREA``)."""
+def pad_and_resize(image: np.ndarray, input_size: int, pad_value: float = 0.0,
+                   interpolation: int = cv2.INTER_AREA) -> tuple[np.ndarray, InputGeometry]:
+    """(S, S, C) image of the same dtype, and its :class:`InputGeometry`: an (H, W, C) or (H, W) uint8, uint16 or
+    float32 image (C <= 4) padded to a centred square with ``pad_value`` (in its own unit) and resized
+    (``cv2.INTER_AREA`` for colours; ``cv2.INTER_NEAREST`` keeps a depth map's values those of real surfaces)."""
     height, width = image.shape[:2]
     geometry = InputGeometry(width=width, height=height, input_size=input_size)
     if width != height:
@@ -158,6 +176,6 @@ def pad_and_resize(image: np.ndarray, input_size: int, pad_value: float = 0.0) -
                                     cv2.BORDER_CONSTANT, value=(pad_value,) * 4)
         image = square.reshape(geometry.side, geometry.side, *image.shape[2:])
     if geometry.side != input_size:
-        image = cv2.resize(image, (input_size, input_size), interpolation=cv2.INTER_AREA).reshape(
+        image = cv2.resize(image, (input_size, input_size), interpolation=interpolation).reshape(
             input_size, input_size, *image.shape[2:])
     return image, geometry

@@ -64,7 +64,8 @@ class ResNetRegressor(nn.Module):
         super().__init__()
         self.config = config
         self.n_keypoints = n = config.n_keypoints
-        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual,
+                               in_channels=config.input_channels)
         self.head3d = nn.Linear(self.backbone.feature_dim, n * 3)
         self.head2d = nn.Linear(self.backbone.feature_dim, n * 2) if config.predict_2d else None
         self.prior3d = PointPrior(n, config.points3d_mean, config.points3d_scale)
@@ -73,7 +74,8 @@ class ResNetRegressor(nn.Module):
         """Regress keypoints.
 
         Args:
-            images: (B, 3, H, W) float, contiguous or channels_last.
+            images: (B, C, H, W) float, C = ``input_channels`` (RGB in [0, 1], then depth), contiguous or
+                channels_last.
 
         Returns:
             :class:`RegressorOutput`: ``points2d`` (B, N, 2) or None, ``points3d`` (B, N, 3).

@@ -126,7 +126,8 @@ class HUPNet(nn.Module):
         self.config = config
         self.n_keypoints = config.n_keypoints
         self.input_size = input_size = config.input_size
-        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual,
+                               in_channels=config.input_channels)
         _, c3, c4, c5 = self.backbone.stage_channels
         D = config.neck_channels
         self.lateral5, self.lateral4, self.lateral3 = nn.Conv2d(c5, D, 1), nn.Conv2d(c4, D, 1), nn.Conv2d(c3, D, 1)
@@ -150,13 +151,15 @@ class HUPNet(nn.Module):
         """Predict 2D and 3D keypoints.
 
         Args:
-            images: (B, 3, S, S) float in [0, 1], S = ``input_size``; contiguous or channels_last.
+            images: (B, C, S, S) float, C = ``input_channels`` (RGB in [0, 1], then depth), S = ``input_size``;
+                contiguous or channels_last.
 
         Returns:
             :class:`HUPNetOutput`: points2d (B, N, 2) normalised, points3d (B, N, 3).
         """
         if images.ndim != 4 or images.shape[-1] != self.input_size or images.shape[-2] != self.input_size:
-            raise ValueError(f"images must be (B, 3, {self.input_size}, {self.input_size}) (the model's input size), "
+            raise ValueError(f"images must be (B, {self.config.input_channels}, {self.input_size}, {self.input_size}) "
+                             "(the model's input size), "
                              f"got {tuple(images.shape)}")
         _, c3, c4, c5 = self.backbone.feature_maps(images)
         p = self.lateral5(c5)                                                        # (B, D, S/32, S/32)

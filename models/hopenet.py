@@ -191,7 +191,8 @@ class HOPENet(nn.Module):
         super().__init__()
         self.config = config
         self.n_keypoints = n = config.n_keypoints
-        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual)
+        self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual,
+                               in_channels=config.input_channels)
         feature_dim = self.backbone.feature_dim
         self.head2d = nn.Linear(feature_dim, n * 2)
         self.graphnet = GraphNet2D(feature_dim, n, hidden=config.graph_hidden)
@@ -208,7 +209,8 @@ class HOPENet(nn.Module):
         """Predict 2D and 3D keypoints.
 
         Args:
-            images: (B, 3, H, W) float, contiguous or channels_last.
+            images: (B, C, H, W) float, C = ``input_channels`` (RGB in [0, 1], then depth), contiguous or
+                channels_last.
 
         Returns:
             :class:`HOPENetOutput`: ``points2d_init`` (B, N, 2) and ``points2d`` (B, N, 2) in

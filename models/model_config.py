@@ -53,6 +53,8 @@ class ModelConfig:
         points3d_mean: (N, 3) prior keypoint layout added to the 3D output (:mod:`models.prior`), e.g. the
             training split's mean in metres; None for zeros.
         points3d_scale: target units per raw 3D output unit.
+        input_channels: C, channels of the input image: 3 (RGB) or 4 (RGB and the depth channel of
+            :func:`hupbench.input_geometry.depth_channel`); training sets it from ``data.reader.input_modalities``.
     """
 
     #: the model's name in a saved config (:data:`models.build.MODELS`)
@@ -65,12 +67,15 @@ class ModelConfig:
     zero_init_residual: bool = False
     points3d_mean: tuple[tuple[float, float, float], ...] | None = None
     points3d_scale: float = 1.0
+    input_channels: int = 3
 
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, nested(getattr(self, f.name)))
         check_backbone(self.backbone)
         check_whole("n_keypoints", self.n_keypoints, self.min_keypoints)
+        if self.input_channels not in (3, 4):
+            raise ValueError(f"input_channels must be 3 (RGB) or 4 (RGB and depth), got {self.input_channels!r}")
         scale = self.points3d_scale
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"points3d_scale must be a positive finite number, got {scale!r}")

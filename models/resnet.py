@@ -160,16 +160,19 @@ class ResNet(nn.Module):
         layers: tuple[int, int, int, int] | list[int],
         num_classes: int | None = None,
         zero_init_residual: bool = False,
+        in_channels: int = 3,
     ) -> None:
         super().__init__()
         assert block in (BasicBlock, Bottleneck) and len(layers) == 4 and min(layers) >= 1, (block, layers)
         assert num_classes is None or num_classes >= 1, num_classes
+        assert in_channels >= 1, in_channels
 
-        self.conv1 = nn.Conv2d(3, 64, kernel_size=7, stride=2, padding=3, bias=False)
+        self.in_channels = in_channels
+        self.conv1 = nn.Conv2d(in_channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
         self.bn1 = nn.BatchNorm2d(64)
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(kernel_size=3, stride=2, padding=1)
-        in_channels = 64
+        in_channels = 64  # from here on: each block's input
         stages = []
         for index, (planes, n_blocks) in enumerate(zip((64, 128, 256, 512), layers)):
             stride = 1 if index == 0 else 2
@@ -199,12 +202,12 @@ class ResNet(nn.Module):
         """The pooled feature, without the ``fc`` head.
 
         Args:
-            images: (B, 3, H, W) float, contiguous or channels_last.
+            images: (B, C, H, W) float (C = ``in_channels``), contiguous or channels_last.
 
         Returns:
             (B, F) float, F = ``feature_dim``.
         """
-        _check_images(images)
+        _check_images(images, self.in_channels)
         x = self.maxpool(self.relu(self.bn1(self.conv1(images))))
         x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
         return torch.flatten(self.avgpool(x), 1)  # (B, F, 1, 1) -> (B, F)
@@ -213,13 +216,13 @@ class ResNet(nn.Module):
         """The outputs of the four stages, for dense heads.
 
         Args:
-            images: (B, 3, H, W) float, contiguous or channels_last.
+            images: (B, C, H, W) float (C = ``in_channels``), contiguous or channels_last.
 
         Returns:
             (C2, C3, C4, C5): (B, C_k, H / s, W / s) at strides s = 4, 8, 16, 32 (rounded up), with
             C_k = 64, 128, 256, 512 times the block's expansion (1 basic, 4 bottleneck).
         """
-        _check_images(images)
+        _check_images(images, self.in_channels)
         x = self.maxpool(self.relu(self.bn1(self.conv1(images))))
         c2 = self.layer1(x)
         c3 = self.layer2(c2)
@@ -230,7 +233,7 @@ class ResNet(nn.Module):
         """Pooled feature and, when there is an ``fc``, class logits.
 
         Args:
-            images: (B, 3, H, W) float, contiguous or channels_last.
+            images: (B, C, H, W) float (C = ``in_channels``), contiguous or channels_last.
 
         Returns:
             :class:`ResNetOutput` with ``features`` (B, F) and ``logits`` (B, num_classes) or None.
@@ -240,9 +243,9 @@ class ResNet(nn.Module):
         return ResNetOutput(features, logits)
 
 
-def _check_images(images: torch.Tensor) -> None:
-    if images.ndim != 4 or images.shape[1] != 3 or not images.is_floating_point():
-        raise ValueError(f"images must be (B, 3, H, W) float, got {tuple(images.shape)} {images.dtype}")
+def _check_images(images: torch.Tensor, channels: int) -> None:
+    if images.ndim != 4 or images.shape[1] != channels or not images.is_floating_point():
+        raise ValueError(f"images must be (B, {channels}, H, W) float, got {tuple(images.shape)} {images.dtype}")
 
 
 def check_backbone(name: str) -> None:
@@ -251,7 +254,7 @@ def check_backbone(name: str) -> None:
         raise ValueError(f"unknown ResNet {name!r}; known: {', '.join(sorted(RESNET_SPECS))}")
 
 
-def resnet(name: str, num_classes: int | None = None, zero_init_residual: bool = False) -> ResNet:
+def resnet(name: str, num_classes: int | None = None, zero_init_residual: bool = False, in_channels: int = 3) -> ResNet:
     """Build a ResNet by name.
 
     Args:
@@ -259,13 +262,14 @@ def resnet(name: str, num_classes: int | None = None, zero_init_residual: bool =
         num_classes: size of the ``fc`` head (1000 to load an ImageNet checkpoint); None for
             a backbone without ``fc``.
         zero_init_residual: zero the last BN weight of every residual branch.
+        in_channels: channels of the input image (3: RGB; 4: RGB and depth).
 
     Returns:
         The :class:`ResNet`, pooled feature width 512 (10/18/34) or 2048 (50).
     """
     check_backbone(name)
     block, layers = RESNET_SPECS[name]
-    return ResNet(block, layers, num_classes=num_classes, zero_init_residual=zero_init_residual)
+    return ResNet(block, layers, num_classes=num_classes, zero_init_residual=zero_init_residual, in_channels=in_channels)
 
 
 def strip_classifier(state_dict: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

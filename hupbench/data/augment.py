@@ -15,12 +15,16 @@ import torch
 from hupbench.input_geometry import apply_affine, camera_rotation, inside_input, pixels_to_normalized, rotation_pixel_map
 
 
-def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False) -> torch.Tensor:
-    """(B, 3, S, S) float32 in [0, 1] on ``device`` (channels_last memory format if asked) from a loader's
-    (B, S, S, 3) uint8 RGB frames, moved as bytes (a quarter of the float traffic), or model images."""
+def model_images(images: torch.Tensor, device: torch.device, channels_last: bool = False,
+                 depth: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, C, S, S) float32 model images on ``device`` (channels_last memory format if asked): a loader's
+    (B, S, S, 3) uint8 RGB frames, moved as bytes (a quarter of the float traffic), as RGB in [0, 1], followed
+    by ``depth`` (B, S, S) float32 metres (the depth channel) when given; model images pass through."""
     images = images.to(device, non_blocking=True)
     if images.dtype == torch.uint8:
         images = images.permute(0, 3, 1, 2).float().div_(255.0)  # (B, S, S, 3) -> (B, 3, S, S)
+    if depth is not None:
+        images = torch.cat([images, depth.to(device, torch.float32, non_blocking=True)[:, None]], dim=1)
     return images.contiguous(memory_format=torch.channels_last if channels_last else torch.contiguous_format)
 
 
@@ -34,7 +38,9 @@ class BatchAugment:
     (kornia's ColorJiggle ranges).
 
     Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch: "image"
-    becomes (B, 3, S, S) float32 in [0, 1], the keypoints and "visible" turn with it. Draws depend only on
+    becomes the (B, C, S, S) float32 model images (a "depth" entry becomes their fourth channel: turned to the
+    nearest pixel with 0, no surface, beyond the border, and not jittered), the keypoints and "visible" turn
+    with it. Draws depend only on
     (seed, epoch, item index), so a run and its resume see the same augmentation in any batch composition
     (but the jitter's operation order, drawn from the batch's first item).
     """
@@ -58,8 +64,9 @@ class BatchAugment:
         return angles, factors
 
     def __call__(self, batch: dict, epoch: int) -> dict:
-        images = model_images(batch["image"], batch["image"].device)
         out = dict(batch)
+        images = model_images(batch["image"], batch["image"].device, depth=out.pop("depth", None))
+        rgb, depth = images[:, :3], images[:, 3:]
         device = images.device
         indices = batch["index"].cpu().numpy()
         angles, factors = self.draws(indices, epoch)
@@ -68,18 +75,21 @@ class BatchAugment:
 
             size = images.shape[-1]
             maps = rotation_pixel_map(angles, batch["K"].cpu().double().numpy()[:, :2, 2])    # (B, 3, 3) pixels
-            images = kornia.geometry.transform.warp_affine(
-                images, torch.from_numpy(maps[:, :2]).to(device, torch.float32), (size, size), mode="bilinear",
-                padding_mode="reflection", align_corners=True)
+            affine = torch.from_numpy(maps[:, :2]).to(device, torch.float32)
+            rgb = kornia.geometry.transform.warp_affine(rgb, affine, (size, size), mode="bilinear",
+                                                        padding_mode="reflection", align_corners=True)
+            if depth.shape[1]:
+                depth = kornia.geometry.transform.warp_affine(depth, affine, (size, size), mode="nearest",
+                                                              padding_mode="zeros", align_corners=True)
             uv = apply_affine(maps, batch["keypoints_2d_px"].cpu().numpy())                     # (B, 29, 2)
             points = batch["keypoints_3d"].cpu().double().numpy() @ camera_rotation(angles).transpose(0, 2, 1)
             turned = {"keypoints_3d": points, "keypoints_2d_px": uv, "keypoints_2d": pixels_to_normalized(uv, size)}
             out.update({name: torch.from_numpy(value).to(device, torch.float32) for name, value in turned.items()})
             out["visible"] = batch["visible"] & torch.from_numpy(inside_input(uv, size)).to(device)
         if self.photometric > 0:
-            images = self._jitter(images, torch.from_numpy(factors).to(device, images.dtype),
-                                  np.random.default_rng([self.seed, int(epoch), int(indices[0]), 2]).permutation(4))
-        out["image"] = images
+            rgb = self._jitter(rgb, torch.from_numpy(factors).to(device, rgb.dtype),
+                               np.random.default_rng([self.seed, int(epoch), int(indices[0]), 2]).permutation(4))
+        out["image"] = torch.cat([rgb, depth], dim=1) if depth.shape[1] else rgb
         return out
 
     @staticmethod

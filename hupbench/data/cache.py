@@ -1,5 +1,6 @@
 """The frame cache: every frame of a split decoded and resized once into a memory-mapped (N, S, S, 3) uint8
-file, ``<cache_dir>/<split>_<S>px.npy``, so that a training batch is a gather instead of N JPEG decodes.
+file, ``<cache_dir>/<split>_<S>px.npy``, so that a training batch is a gather instead of N JPEG decodes; for a
+model that reads depth, its depth maps likewise into (N, S, S) uint16 ``<split>_<S>px_depth.npy``.
 
 The file is built under a temporary name with a progress bar and renamed when whole; its key file
 ``<split>_<S>px.json`` is written last and checked on every open. The key holds what the frames depend
@@ -32,13 +33,17 @@ RESIZE = "cv2.INTER_AREA"
 _BUILD_CHUNK, _BUILD_THREADS = 64, 2
 
 
-def cache_paths(cache_dir, split: str, input_size: int) -> tuple[Path, Path]:
-    """(frames .npy, key .json) of one split at one input size."""
-    stem = f"{split}_{int(input_size)}px"
+#: what each cached modality holds: (the dataset's per-row reader, dtype, trailing shape after (N, S, S))
+_MODALITIES = {"rgb": ("frame", np.uint8, (3,)), "depth": ("depth_frame", np.uint16, ())}
+
+
+def cache_paths(cache_dir, split: str, input_size: int, modality: str = "rgb") -> tuple[Path, Path]:
+    """(frames .npy, key .json) of one split at one input size, for its RGB frames or its "depth" maps."""
+    stem = f"{split}_{int(input_size)}px" + ("" if modality == "rgb" else f"_{modality}")
     return Path(cache_dir) / f"{stem}.npy", Path(cache_dir) / f"{stem}.json"
 
 
-def cache_key(dataset) -> dict:
+def cache_key(dataset, modality: str = "rgb") -> dict:
     """What the cache of ``dataset`` (a :class:`hupbench.data.HUPDataset`) depends on, as JSON.
 
     Each frame file counts by name, size and modification time (ns): about 0.1 s for 20,000 frames,
@@ -47,14 +52,16 @@ def cache_key(dataset) -> dict:
     """
     stamps = hashlib.sha256()
     for row in range(len(dataset)):
-        path = dataset.path(row)
+        path = dataset.path(row, modality)
         try:
             stat = path.stat()
             stamps.update(f"{path.name} {stat.st_size} {stat.st_mtime_ns}\n".encode())
         except FileNotFoundError:
             stamps.update(f"{path.name} missing\n".encode())
-    return {"format": CACHE_FORMAT, "split": dataset.split, "input_size": int(dataset.config.input_size),
-            "image_size": [int(v) for v in dataset.manifest["image_size"]], "resize": RESIZE,
+    return {"format": CACHE_FORMAT, "split": dataset.split, "modality": modality,
+            "input_size": int(dataset.config.input_size),
+            "image_size": [int(v) for v in dataset.manifest["image_size"]],
+            "resize": RESIZE if modality == "rgb" else "cv2.INTER_NEAREST",
             "frames": len(dataset), "frame_files_sha256": stamps.hexdigest()}
 
 
@@ -69,13 +76,16 @@ def _reserve(path: Path) -> None:
                 raise
 
 
-def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) -> np.ndarray:
-    """(N, S, S, 3) uint8 RGB read-only memory map whose row i is ``dataset.frame(i)``, built (or rebuilt
-    when stale, said to ``log``) first in ``cache_dir`` (default ``<dataset root>/cache``)."""
+def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print, modality: str = "rgb") -> np.ndarray:
+    """(N, S, S, 3) uint8 RGB read-only memory map whose row i is ``dataset.frame(i)`` (for ``modality="depth"``,
+    (N, S, S) uint16 rows of ``dataset.depth_frame(i)``), built (or rebuilt when stale, said to ``log``) first in
+    ``cache_dir`` (default ``<dataset root>/cache``)."""
     cache_dir = dataset.root / "cache" if cache_dir is None else Path(cache_dir)
     size, split = int(dataset.config.input_size), dataset.split
-    npy_path, key_path = cache_paths(cache_dir, split, size)
-    key = cache_key(dataset)
+    reader_name, dtype, tail = _MODALITIES[modality]
+    read_row, shape = getattr(dataset, reader_name), (len(dataset), size, size, *tail)
+    npy_path, key_path = cache_paths(cache_dir, split, size, modality)
+    key = cache_key(dataset, modality)
     if key_path.is_file() and npy_path.is_file():
         try:
             stored = json.loads(key_path.read_text())
@@ -83,7 +93,7 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) 
             stored = None
         if stored == key:
             frames = np.load(npy_path, mmap_mode="r")
-            if frames.shape == (len(dataset), size, size, 3) and frames.dtype == np.uint8:
+            if frames.shape == shape and frames.dtype == dtype:
                 return frames
         log(f"frame cache {npy_path} is stale (the dataset or the reader changed); rebuilding it")
     try:
@@ -99,16 +109,16 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print) 
     n = len(dataset)
     # written under a temporary name, renamed when whole; a failure removes it (a full disk says so)
     with atomic_output(npy_path) as tmp:
-        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(n, size, size, 3))
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=shape)
         _reserve(tmp)
 
         def fill(start: int) -> int:
             stop = min(n, start + _BUILD_CHUNK)
             for row in range(start, stop):
-                out[row] = dataset.frame(row)
+                out[row] = read_row(row)
             return stop - start
 
-        with tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px", dynamic_ncols=True,
+        with tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px" + ("" if modality == "rgb" else f" {modality}"), dynamic_ncols=True,
                   disable=not progress) as bar, ThreadPoolExecutor(max_workers=_BUILD_THREADS) as pool:
             for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
                 bar.update(done)

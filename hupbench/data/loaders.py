@@ -57,27 +57,35 @@ class FrameBatches(torch.utils.data.Dataset):
     Args:
         dataset: the split (its labels, annotations and frames).
         frames: (N, S, S, 3) uint8, the split's frame cache; None decodes each frame when a batch needs it.
+        depths: (N, S, S) uint16, the split's depth cache, for a model that reads depth (None decodes each map).
 
-    Batches: "image" (B, S, S, 3) uint8 RGB, "index" (B,) int64 (the row in the split: the augmentation
-    key), and rows of every label of ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
+    Batches: "image" (B, S, S, 3) uint8 RGB, with depth "depth" (B, S, S) float32 metres (the model's depth
+    channel), "index" (B,) int64 (the row in the split: the augmentation key), and rows of every label of
+    ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
     """
 
-    def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None) -> None:
-        self.dataset, self.ann, self.frames = dataset, dataset.ann, frames
+    def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None, depths: np.ndarray | None = None) -> None:
+        self.dataset, self.ann, self.frames, self.depths = dataset, dataset.ann, frames, depths
 
     def __len__(self) -> int:
         return len(self.ann["frame_id"])
 
     def __getitems__(self, indices: list[int]) -> dict:
         order = np.asarray(indices, dtype=np.int64)
-        if self.frames is None:
-            images = np.stack([self.dataset.frame(row) for row in order.tolist()])
-        else:
-            rows = np.sort(order)  # a sorted gather reads the memory map front to back
-            images = self.frames[rows][np.searchsorted(rows, order)]
         index = torch.from_numpy(order)
-        return {"image": torch.from_numpy(images), "index": index,
-                **{name: value[index] for name, value in self.dataset.labels.items()}}
+        batch = {"image": torch.from_numpy(self._gather(self.frames, self.dataset.frame, order)), "index": index,
+                 **{name: value[index] for name, value in self.dataset.labels.items()}}
+        if self.dataset.config.depth:
+            batch["depth"] = self.dataset.depth_metres(self._gather(self.depths, self.dataset.depth_frame, order))
+        return batch
+
+    @staticmethod
+    def _gather(cache: np.ndarray | None, read_row, order: np.ndarray) -> np.ndarray:
+        """Rows ``order`` of a cache, or read one by one without it."""
+        if cache is None:
+            return np.stack([read_row(row) for row in order.tolist()])
+        rows = np.sort(order)  # a sorted gather reads the memory map front to back
+        return cache[rows][np.searchsorted(rows, order)]
 
     def __getitem__(self, index: int) -> dict:
         batch = self.__getitems__([int(index)])
@@ -124,8 +132,11 @@ def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log
     if reader.rotate_deg > 0 and not np.allclose(K[:, 0, 0], K[:, 1, 1]):
         raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0, 0]}, fy={K[0, 1, 1]}")
     cache_dir, show = cfg.data.get("cache_dir"), bool(cfg.train.progress) and rank == 0
-    train_set, val_set = (FrameBatches(split, open_frame_cache(split, cache_dir, show, log) if pipeline == "cache"
-                                       else None) for split in splits)
+    def cached(split: HUPDataset, modality: str) -> np.ndarray | None:
+        wanted = pipeline == "cache" and (modality == "rgb" or reader.depth)
+        return open_frame_cache(split, cache_dir, show, log, modality) if wanted else None
+
+    train_set, val_set = (FrameBatches(split, cached(split, "rgb"), cached(split, "depth")) for split in splits)
     workers = int(cfg.data.num_workers)
     loader_args = {"batch_size": int(cfg.data.batch_size), "num_workers": workers, "collate_fn": _stacked,
                    "pin_memory": device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,

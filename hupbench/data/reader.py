@@ -4,7 +4,9 @@ label moved into that input image, so that ``project(keypoints_3d, K) == keypoin
 Convention:
     3D keypoints: metres, OpenCV camera frame. 2D keypoints: pixels of the input image (pixel centres at
     integers) in ``keypoints_2d_px`` and normalised to [-1, 1] across it (:mod:`hupbench.input_geometry`)
-    in ``keypoints_2d``. Frames: (S, S, 3) uint8 RGB; model images: (3, S, S) float32 RGB in [0, 1].
+    in ``keypoints_2d``. Frames: (S, S, 3) uint8 RGB, and with ``input_modalities: rgb+depth`` (S, S) uint16
+    depth in the dataset's unit; model images: (C, S, S) float32, RGB in [0, 1] then, for C = 4, the depth
+    channel in metres (:func:`hupbench.input_geometry.depth_channel`).
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from datagen.dataset.contract import frame_path, read_annotations, read_manifest
 from datagen.errors import BadValueError, MissingFileError
 from datagen.input_checks import check_int, check_number
 from hupbench.data.augment import model_images
-from hupbench.input_geometry import INPUT_SIZE_RANGE, inside_input, pad_and_resize, pixels_to_normalized
+from hupbench.input_geometry import (INPUT_MODALITIES, INPUT_SIZE_RANGE, depth_channel, inside_input, pad_and_resize,
+                                     pixels_to_normalized)
 
 
 def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
@@ -45,6 +48,25 @@ def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
     return np.ascontiguousarray(image[..., ::-1])
 
 
+def read_depth(path: str | Path, image_size=None) -> np.ndarray:
+    """A stored depth map as (H, W) uint16 (the dataset's unit, 0 = no surface), checked like :func:`read_rgb`."""
+    path = Path(path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise MissingFileError(f"{path} does not exist (a depth map the annotations list)") from None
+    depth = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if depth is None:
+        raise BadValueError(f"cannot decode {path} as a PNG ({data.size} bytes): damaged or not a PNG")
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise BadValueError(f"{path} is {depth.dtype} with {1 if depth.ndim == 2 else depth.shape[2]} channel(s); "
+                            "a depth map is single-channel uint16")
+    if image_size is not None and depth.shape != (int(image_size[1]), int(image_size[0])):
+        raise BadValueError(f"{path} is {depth.shape[1]} x {depth.shape[0]} px; the manifest says "
+                            f"{int(image_size[0])} x {int(image_size[1])}")
+    return depth
+
+
 @dataclass(frozen=True)
 class ReaderConfig:
     """The ``data.reader`` config node: how frames become model inputs, checked here and nowhere else.
@@ -54,12 +76,15 @@ class ReaderConfig:
         rotate_deg: in-plane rotation range (+-) of the training augmentation, degrees in [0, 180]; 0 disables it.
         photometric: colour jitter strength of the training augmentation, in [0, 1]; 0 disables it.
         seed: augmentation seed (item i of epoch e draws from (seed, e, i)), >= 0.
+        input_modalities: what the model reads, a key of ``INPUT_MODALITIES``: "rgb", or "rgb+depth" (the
+            dataset's metric depth as a fourth channel).
     """
 
     input_size: int = 128
     rotate_deg: float = 0.0
     photometric: float = 0.0
     seed: int = 0
+    input_modalities: str = "rgb"
 
     def __post_init__(self) -> None:
         low, high = INPUT_SIZE_RANGE
@@ -69,6 +94,14 @@ class ReaderConfig:
         check_number(self.rotate_deg, "data.reader.rotate_deg", 0.0, 180.0)
         check_number(self.photometric, "data.reader.photometric", 0.0, 1.0)
         check_int(self.seed, "data.reader.seed", 0)
+        if self.input_modalities not in INPUT_MODALITIES:
+            raise BadValueError(f"data.reader.input_modalities must be {' or '.join(map(repr, INPUT_MODALITIES))}, "
+                                f"got {self.input_modalities!r}")
+
+    @property
+    def depth(self) -> bool:
+        """Whether the model reads depth as well as RGB."""
+        return self.input_modalities == "rgb+depth"
 
 
 def input_labels(ann: dict, scale: float, size: int) -> dict[str, np.ndarray]:
@@ -106,8 +139,8 @@ class HUPDataset(torch.utils.data.Dataset):
             tensors with a leading N axis ("keypoints_3d", "keypoints_2d", "keypoints_2d_px", "visible",
             "K" as :func:`input_labels`, and "frame_id" int64).
 
-    Items are dicts: "image" (3, S, S) float32, the model's input, and one row of every label.
-    Only RGB is read: the models use nothing else.
+    Items are dicts: "image" (C, S, S) float32, the model's input (C = 3, or 4 with depth), and one row of
+    every label.
     """
 
     def __init__(self, root, split: str, config: ReaderConfig = ReaderConfig()) -> None:
@@ -115,6 +148,9 @@ class HUPDataset(torch.utils.data.Dataset):
         self.manifest = read_manifest(self.root, split)
         if "rgb" not in self.manifest["modalities"]:
             raise BadValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
+        if config.depth and "depth" not in self.manifest["modalities"]:
+            raise BadValueError(f"{self.root} has no depth maps (modalities {self.manifest['modalities']}); "
+                                "input_modalities=rgb+depth needs them")
         self.split, self.config = split, config
         self.ann = read_annotations(self.root, split, ("keypoints_3d_cam", "keypoints_2d", "visible", "K"),
                                     self.manifest)
@@ -129,15 +165,26 @@ class HUPDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.ann["frame_id"])
 
-    def path(self, index: int) -> Path:
-        """The RGB file of row ``index``."""
-        return frame_path(self.root, self.split, "rgb", int(self.ann["frame_id"][index]), self.manifest["rgb_format"])
+    def path(self, index: int, modality: str = "rgb") -> Path:
+        """The file of row ``index``: its RGB image, or its "depth" map."""
+        return frame_path(self.root, self.split, modality, int(self.ann["frame_id"][index]), self.manifest["rgb_format"])
 
     def frame(self, index: int) -> np.ndarray:
         """(S, S, 3) uint8 RGB: row ``index``'s file decoded (checked by :func:`read_rgb`) and resized."""
         image, _ = pad_and_resize(read_rgb(self.path(index), self.manifest["image_size"]), self.config.input_size)
         return image
 
+    def depth_frame(self, index: int) -> np.ndarray:
+        """(S, S) uint16 depth in the dataset's unit: row ``index``'s map (checked by :func:`read_depth`), resized to
+        the nearest pixel (every value a real surface's)."""
+        depth = read_depth(self.path(index, "depth"), self.manifest["image_size"])
+        return pad_and_resize(depth, self.config.input_size, interpolation=cv2.INTER_NEAREST)[0]
+
+    def depth_metres(self, depth: np.ndarray) -> torch.Tensor:
+        """Stored depth (uint16, any shape) as the model's depth channel (float32 metres, clipped)."""
+        return torch.from_numpy(depth_channel(depth, float(self.manifest["depth_scale_m"])))
+
     def __getitem__(self, index: int) -> dict:
-        image = model_images(torch.from_numpy(self.frame(index))[None], torch.device("cpu"))[0]
+        depth = self.depth_metres(self.depth_frame(index))[None] if self.config.depth else None
+        image = model_images(torch.from_numpy(self.frame(index))[None], torch.device("cpu"), depth=depth)[0]
         return {"image": image, **{name: value[index] for name, value in self.labels.items()}}

@@ -28,7 +28,8 @@ from datagen.input_checks import check_int
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
-from hupbench.inference.runtime import load_onnx_model, run_onnx
+from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.input_geometry import INPUT_MODALITIES
 
 __all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms",
            "run_eval", "split_floor"]
@@ -101,7 +102,8 @@ class EvalOptions:
 
 
 def model_label(model_config: dict, input_size: int) -> str:
-    """Human label naming the model, backbone and input size, e.g. "HOPE-Net (ResNet-18, 128 px)"."""
+    """Human label naming the model, backbone, input size and a depth input, e.g. "HOPE-Net (ResNet-18, 128 px)",
+    "HUPNet (ResNet-18, 128 px, RGB-D)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -109,27 +111,29 @@ def model_label(model_config: dict, input_size: int) -> str:
     parts = ([backbone] if backbone else []) + [f"{input_size} px"]
     if model_config.get("name") == "resnet_regressor" and model_config.get("predict_2d"):
         parts.append("2D head")
+    if model_config.get("input_channels", 3) == INPUT_MODALITIES["rgb+depth"]:
+        parts.append("RGB-D")
     return f"{name} ({', '.join(parts)})"
 
 
-def count_flops(module: torch.nn.Module, input_size: int) -> int:
-    """FLOPs of one forward pass on one (1, 3, S, S) image (2 x multiply-adds, as FlopCounterMode counts)."""
+def count_flops(module: torch.nn.Module, input_size: int, channels: int = 3) -> int:
+    """FLOPs of one forward pass on one (1, C, S, S) model image (2 x multiply-adds, as FlopCounterMode counts)."""
     from torch.utils.flop_counter import FlopCounterMode
 
     counter = FlopCounterMode(display=False)
     with torch.inference_mode(), counter:
-        module(torch.zeros(1, 3, input_size, input_size))
+        module(torch.zeros(1, channels, input_size, input_size))
     return int(counter.get_total_flops())
 
 
 def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch: int,
-                       warmup: int, repeats: int) -> float:
-    """Median wall time per image of ``run`` on a (batch, 3, S, S) float32 array, milliseconds.
+                       warmup: int, repeats: int, channels: int = 3) -> float:
+    """Median wall time per image of ``run`` on a (batch, C, S, S) float32 array of model images, milliseconds.
 
     Warm-up: at least ``warmup`` runs and ``WARMUP_MIN_S`` seconds (at most ``WARMUP_MAX_RUNS`` runs);
     then the median of ``repeats`` timed runs, divided by ``batch``.
     """
-    images = np.random.default_rng(0).random((batch, 3, input_size, input_size), dtype=np.float32)
+    images = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
     start, runs = time.perf_counter(), 0
     while runs < warmup or (time.perf_counter() - start < WARMUP_MIN_S and runs < WARMUP_MAX_RUNS):
         run(images)
@@ -142,7 +146,7 @@ def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch:
     return statistics.median(times) * 1000.0 / batch
 
 
-def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, progress: bool = True,
+def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads: int, log, progress: bool = True,
                export: Callable[[], object] | None = None) -> dict[str, dict[str, float | None]]:
     """Latency medians of both runtimes; ``export()``, when given, first writes ``onnx_path`` (a stage of the
     progress bar: the exporter takes as long as the timings)."""
@@ -162,13 +166,15 @@ def _latencies(torch_module, onnx_path, input_size: int, threads: int, log, prog
                     torch_module(torch.from_numpy(images))
             for batch, (warmup, repeats) in LATENCY_RUNS.items():
                 bar.set_postfix_str(f"PyTorch batch {batch}")
-                out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats)
+                out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats,
+                                                                     channels)
                 bar.update(1)
         onnx_model = load_onnx_model(onnx_path, threads)
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
             bar.set_postfix_str(f"onnxruntime batch {batch}")
             out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
-                lambda images: run_onnx(onnx_model, images), input_size, batch, warmup, repeats)
+                lambda images: run_onnx(onnx_model, *split_model_images(images)), input_size, batch, warmup, repeats,
+                channels)
             bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
@@ -244,6 +250,7 @@ class EvalModel:
                 raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's "
                                     "cost")
             self.model_config, self.input_size = self.onnx.model_config, self.onnx.input_size
+            self.input_modalities = self.onnx.input_modalities
             self.K_input, self.run_name = self.onnx.K_input, self.onnx.run_name or path.stem
             return
         model, payload = load_model(path)
@@ -251,16 +258,17 @@ class EvalModel:
         self.module = contract_model(model, payload, str(path))
         self.model_config = dict(payload["model_config"])
         self.input_size = self.module.input_size
+        self.input_modalities = self.module.input_modalities
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-        """(B, 3, S, S) -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy."""
+        """(B, C, S, S) model images -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy."""
         if self.module is not None:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
             return points2d.double().numpy(), points3d.double().numpy()
-        points2d, points3d = run_onnx(self.onnx, images.numpy())
+        points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
         return points2d.astype(np.float64), points3d.astype(np.float64)
 
     def cost(self) -> tuple[int, int]:
@@ -272,7 +280,12 @@ class EvalModel:
         if module is None:
             module = ContractModule(build_model(self.model_config).eval(), self.K_input, self.input_size).eval()
         parameters = sum(p.numel() for p in module.model.parameters())
-        return int(parameters), count_flops(module, self.input_size)
+        return int(parameters), count_flops(module, self.input_size, self.channels)
+
+    @property
+    def channels(self) -> int:
+        """C, channels of the model images (3 RGB, 4 with depth)."""
+        return INPUT_MODALITIES[self.input_modalities]
 
 
 def _training_block(model_path: Path, payload: dict | None) -> dict:
@@ -425,7 +438,7 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
     from hupbench.provenance import git_commit
 
     if net.format == "onnx":
-        return _latencies(None, net.path, net.input_size, torch.get_num_threads(), log, progress)
+        return _latencies(None, net.path, net.input_size, net.channels, torch.get_num_threads(), log, progress)
     from hupbench.inference.export import export_onnx, onnx_metadata
 
     # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
@@ -440,7 +453,8 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
             raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
 
     try:
-        return _latencies(net.module, onnx_path, net.input_size, torch.get_num_threads(), log, progress, export)
+        return _latencies(net.module, onnx_path, net.input_size, net.channels, torch.get_num_threads(), log, progress,
+                          export)
     finally:
         onnx_path.unlink(missing_ok=True)
 
@@ -455,7 +469,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     from hupbench.provenance import git_commit, hardware_description
 
     dataset, split = options.dataset, options.split
-    reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size))
+    reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size, input_modalities=net.input_modalities))
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
                                                                 "grasp_id"), reader.manifest)}
     grasp_ids = sorted({int(g) for g in fields["grasp_id"]})

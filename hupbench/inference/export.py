@@ -26,8 +26,8 @@ from datagen import keypoints as kp
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.input_checks import check_int
 from hupbench.inference.model_file import write_metadata
-from hupbench.inference.runtime import load_onnx_model, run_onnx
-from hupbench.input_geometry import pixels_to_normalized
+from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.input_geometry import INPUT_MODALITIES, pixels_to_normalized
 
 __all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "contract_model", "default_run_name",
            "export_onnx", "onnx_metadata", "run_export"]
@@ -86,20 +86,27 @@ class ExportOptions:
 
 class ContractModule(nn.Module):
     """A model of :mod:`models` (its output has ``points3d``, and ``points2d`` or None) behind the ONNX contract
-    of :mod:`hupbench.inference.model_file`, image -> (points2d, points3d), for an S = ``input_size`` pixel
-    input with (3, 3) intrinsics ``K_input``. Without a 2D head, points2d is the projection of points3d
-    with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``)."""
+    of :mod:`hupbench.inference.model_file`, image (and depth, for a model that reads it) -> (points2d,
+    points3d), for an S = ``input_size`` pixel input with (3, 3) intrinsics ``K_input``. Without a 2D head,
+    points2d is the projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``)."""
 
     def __init__(self, model: nn.Module, K_input, input_size: int) -> None:
         super().__init__()
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         self.model = model
         self.input_size = input_size
+        self.reads_depth = model.config.input_channels == INPUT_MODALITIES["rgb+depth"]
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
         self.register_buffer("intrinsics", torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]), persistent=False)
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        out = self.model(image)
+    @property
+    def input_modalities(self) -> str:
+        return "rgb+depth" if self.reads_depth else "rgb"
+
+    def forward(self, image: torch.Tensor, depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """image (B, 3, S, S) RGB in [0, 1]; depth (B, 1, S, S) metres for a model that reads it (the model's input
+        is the two side by side); or one (B, C, S, S) model image."""
+        out = self.model(image if depth is None else torch.cat([image, depth], dim=1))
         points3d = out.points3d
         points2d = getattr(out, "points2d", None)
         if points2d is None:
@@ -135,8 +142,10 @@ def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
 
 def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str) -> dict[str, str]:
     """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`)."""
+    channels = payload["model_config"].get("input_channels", 3)
+    modalities = next(name for name, count in INPUT_MODALITIES.items() if count == channels)
     return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
-                          payload["model_config"], run_name, git_commit)
+                          payload["model_config"], run_name, git_commit, modalities)
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
@@ -145,7 +154,11 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     import onnx
 
     size = module.input_size
-    example = torch.rand(2, 3, size, size)
+    batch = torch.export.Dim("batch")
+    example, names, dynamic = (torch.rand(2, 3, size, size),), ["image"], {"image": {0: batch}}
+    if module.reads_depth:
+        example, names = (*example, torch.rand(2, 1, size, size)), ["image", "depth"]
+        dynamic["depth"] = {0: batch}
     # two exporter messages that a user cannot act on, silenced here and only here: the registry's
     # "torchvision is not installed. Skipping torchvision::roi_pool" (we use no torchvision operator)
     # and torch's own FutureWarning about LeafSpec, raised inside torch.export
@@ -155,10 +168,11 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
+            # the image and depth inputs share one batch axis, which the exporter notes once per input
+            warnings.filterwarnings("ignore", message=r".*The axis name: batch will not be used.*", category=UserWarning)
             program = torch.onnx.export(
-                module.eval(), (example,), dynamo=True, opset_version=opset, verbose=False,
-                input_names=["image"], output_names=["points2d", "points3d"],
-                dynamic_shapes={"image": {0: torch.export.Dim("batch")}})
+                module.eval(), example, dynamo=True, opset_version=opset, verbose=False,
+                input_names=names, output_names=["points2d", "points3d"], dynamic_shapes=dynamic)
     finally:
         registry_log.setLevel(level)
     proto = program.model_proto
@@ -171,25 +185,25 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     return path
 
 
-def _parity_images(dataset: Path, input_size: int, frames: int) -> torch.Tensor:
-    """(B, 3, S, S) real images of the dataset (test split, else val, else train), B <= ``frames``."""
+def _parity_images(dataset: Path, input_size: int, frames: int, modalities: str = "rgb") -> torch.Tensor:
+    """(B, C, S, S) real model images of the dataset (test split, else val, else train), B <= ``frames``."""
     from hupbench.data import HUPDataset, ReaderConfig, read_manifest
 
     counts = read_manifest(dataset)["counts"]
     split = next((s for s in ("test", "val", "train") if counts.get(s, 0) > 0), None)
     if split is None:
         raise BadValueError(f"{dataset} has no frames in any split")
-    reader = HUPDataset(dataset, split, ReaderConfig(input_size=input_size))
+    reader = HUPDataset(dataset, split, ReaderConfig(input_size=input_size, input_modalities=modalities))
     idx = np.linspace(0, len(reader) - 1, min(frames, len(reader))).round().astype(int)
     return torch.stack([reader[int(i)]["image"] for i in idx])
 
 
 def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float]:
-    """Max |onnxruntime - PyTorch| of both outputs on ``images`` (B, 3, S, S): {"points3d_mm",
+    """Max |onnxruntime - PyTorch| of both outputs on model ``images`` (B, C, S, S): {"points3d_mm",
     "points2d_norm", "points2d_px" (input-image pixels), "frames"}."""
     with torch.inference_mode():
         ref2d, ref3d = module(images)
-    got2d, got3d = run_onnx(load_onnx_model(onnx_path), images.numpy())
+    got2d, got3d = run_onnx(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
     d3 = float(np.max(np.abs(got3d.astype(np.float64) - ref3d.numpy().astype(np.float64)))) * 1000.0
     d2 = float(np.max(np.abs(got2d.astype(np.float64) - ref2d.numpy().astype(np.float64))))
     if not (np.isfinite(d3) and np.isfinite(d2)):
@@ -224,7 +238,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
         dataset = Path(recorded)
     if not dataset.exists():
         raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
-    images = _parity_images(dataset, module.input_size, options.parity_frames)
+    images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
     run_name = options.run_name or default_run_name(options.checkpoint, payload)
     metadata = onnx_metadata(payload, run_name, git_commit())
 

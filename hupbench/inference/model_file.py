@@ -6,9 +6,12 @@ Numpy only (no torch). The exporter writes through :func:`write_metadata`, which
 Metadata (``metadata_props``, strings): ``hupbench.onnx_schema`` (ONNX_SCHEMA), ``hupbench.input_size``
 (S), ``hupbench.K_input`` (JSON 3 x 3, the camera of the 3D output at the model input),
 ``hupbench.keypoint_names`` and ``hupbench.skeleton_edges`` (JSON), ``hupbench.model_config`` (JSON
-object), ``hupbench.run_name`` and ``hupbench.git_commit``. Graph: input ``image`` (B, 3, S, S) float32
-RGB in [0, 1]; outputs ``points2d`` (B, N, 2) normalised [-1, 1] input coordinates and ``points3d``
-(B, N, 3) metres, OpenCV camera frame of K_input, for the N keypoint names.
+object), ``hupbench.run_name`` and ``hupbench.git_commit``, ``hupbench.input_modalities`` ("rgb" or
+"rgb+depth"; "rgb" when absent) and, for a model that reads depth, ``hupbench.depth_input`` (JSON: what its
+depth input holds, :data:`DEPTH_INPUT`). Graph: input ``image`` (B, 3, S, S) float32 RGB in [0, 1], and for
+"rgb+depth" input ``depth`` (B, 1, S, S) float32 metres (0 where no surface, clipped to ``clip_m``; resized to
+the nearest pixel like the image); outputs ``points2d`` (B, N, 2) normalised [-1, 1] input coordinates and
+``points3d`` (B, N, 3) metres, OpenCV camera frame of K_input, for the N keypoint names.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 
 from datagen.errors import BadValueError
 from datagen.input_checks import check_int, is_whole
-from hupbench.input_geometry import INPUT_SIZE_RANGE
+from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
 __all__ = ["META", "ONNX_SCHEMA", "check_intrinsics", "check_io_shapes", "read_metadata", "write_metadata"]
 
@@ -31,13 +34,17 @@ META = "hupbench."
 #: graph outputs and the width of their last axis, in the order they are checked
 OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
 _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
+#: ``hupbench.depth_input`` of every model that reads depth: the input ``depth`` is the model's depth channel
+#: (:func:`hupbench.input_geometry.depth_channel`)
+DEPTH_INPUT = {"units": "metres", "no_surface": 0.0, "clip_m": DEPTH_CLIP_M, "resize": "nearest"}
 
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
-                   run_name: str, git_commit: str) -> dict[str, str]:
+                   run_name: str, git_commit: str, input_modalities: str = "rgb") -> dict[str, str]:
     """The ``metadata_props`` of an exported model, checked by :func:`read_metadata` (no time stamp: one
     checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels."""
     props = {
+        META + "input_modalities": input_modalities,
         META + "onnx_schema": ONNX_SCHEMA,
         META + "input_size": str(int(input_size)),
         META + "K_input": json.dumps(np.asarray(K_input, dtype=np.float64).tolist()),
@@ -47,6 +54,8 @@ def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges
         META + "run_name": run_name,
         META + "git_commit": git_commit,
     }
+    if input_modalities == "rgb+depth":
+        props[META + "depth_input"] = json.dumps(DEPTH_INPUT, sort_keys=True)
     read_metadata(props, "the metadata being written")
     return props
 
@@ -57,7 +66,8 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
 
     Returns:
         ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str, "skeleton_edges":
-        tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str}``.
+        tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str,
+        "input_modalities": "rgb" or "rgb+depth"}``.
     """
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
@@ -93,19 +103,36 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     if not isinstance(model_config, dict):
         raise BadValueError(f"{source}: metadata hupbench.model_config must be a JSON object, got "
                             f"{type(model_config).__name__}")
-    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names),
+    modalities = props.get(META + "input_modalities", "rgb")
+    if modalities not in INPUT_MODALITIES:
+        raise BadValueError(f"{source}: metadata hupbench.input_modalities must be "
+                            f"{' or '.join(map(repr, INPUT_MODALITIES))}, got {modalities!r:.80}")
+    if modalities == "rgb+depth" and (META + "depth_input" not in props or load("depth_input") != DEPTH_INPUT):
+        raise BadValueError(f"{source}: a model that reads depth needs metadata hupbench.depth_input = "
+                            f"{json.dumps(DEPTH_INPUT, sort_keys=True)}, got {props.get(META + 'depth_input')!r:.120}")
+    channels = model_config.get("input_channels", 3)
+    if channels != INPUT_MODALITIES[modalities]:
+        raise BadValueError(f"{source}: hupbench.model_config has input_channels {channels!r} but "
+                            f"hupbench.input_modalities is {modalities!r} ({INPUT_MODALITIES[modalities]} channels)")
+    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names), "input_modalities": modalities,
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
 
 
 def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_size: int, num_keypoints: int,
-                    source: str = "model") -> None:
+                    source: str = "model", input_modalities: str = "rgb") -> None:
     """The graph's declared input and outputs (name -> dimensions; a name or None for a dynamic axis)
     against the contract and the metadata: a file whose metadata and graph disagree would otherwise fail
     deep inside onnxruntime, or be drawn with the wrong names."""
     if "image" not in inputs:
         raise BadValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
     expected = {"image": ([3, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}
+    wanted = {"image", "depth"} if input_modalities == "rgb+depth" else {"image"}
+    if set(inputs) != wanted:
+        raise BadValueError(f"{source}: the graph's inputs are {sorted(inputs)}; hupbench.input_modalities "
+                            f"{input_modalities!r} needs {sorted(wanted)}")
+    if "depth" in wanted:
+        expected["depth"] = ([1, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")
     for name, width in OUTPUT_WIDTHS.items():
         if name not in outputs:
             raise BadValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")

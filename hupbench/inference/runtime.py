@@ -17,7 +17,7 @@ from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.io import file_sha256
 from hupbench.inference.model_file import check_io_shapes, read_metadata
 
-__all__ = ["OnnxModel", "load_onnx_model", "run_onnx"]
+__all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "split_model_images"]
 
 # onnxruntime raises its own exception types (not RuntimeError) for unreadable, invalid or failing models
 _LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.InvalidArgument,
@@ -36,7 +36,7 @@ class OnnxModel:
         K_input: (3, 3) float64 intrinsics of the model input, the camera of the 3D output.
         keypoint_names: N names. skeleton_edges: pairs (i, j) of keypoint indices.
         model_config: the architecture's config ({} when the file has none). run_name, git_commit: provenance.
-        sha256: hash of the file.
+        sha256: hash of the file. input_modalities: "rgb", or "rgb+depth" for a model with a ``depth`` input.
     """
 
     path: Path
@@ -49,6 +49,11 @@ class OnnxModel:
     run_name: str
     git_commit: str
     sha256: str
+    input_modalities: str = "rgb"
+
+    @property
+    def reads_depth(self) -> bool:
+        return self.input_modalities == "rgb+depth"
 
 
 def _reason(exc: BaseException, limit: int) -> str:
@@ -81,20 +86,35 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
     meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
     check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
                     {o.name: list(o.shape or []) for o in session.get_outputs()},
-                    meta["input_size"], len(meta["keypoint_names"]), str(path))
+                    meta["input_size"], len(meta["keypoint_names"]), str(path), meta["input_modalities"])
     model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
     # one blank image: a graph made for another input size under edited metadata fails here, before any work
-    run_onnx(model, np.zeros((1, 3, model.input_size, model.input_size), np.float32))
+    S = model.input_size
+    run_onnx(model, np.zeros((1, 3, S, S), np.float32), np.zeros((1, 1, S, S), np.float32) if model.reads_depth else None)
     return model
 
 
-def run_onnx(model: OnnxModel, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The outputs on (B, 3, S, S) float32 RGB ``images`` in [0, 1]: points2d (B, N, 2) float32, normalised
-    input coordinates; points3d (B, N, 3) float32, metres, OpenCV camera frame of K_input."""
+def split_model_images(images: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(B, C, S, S) float32 model images (RGB, then depth when C = 4) as the graph's inputs: image (B, 3, S, S)
+    and depth (B, 1, S, S) or None."""
+    depth = np.ascontiguousarray(images[:, 3:]) if images.shape[1] > 3 else None
+    return np.ascontiguousarray(images[:, :3]), depth
+
+
+def run_onnx(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The outputs on (B, 3, S, S) float32 RGB ``images`` in [0, 1] and, for a model that reads depth, (B, 1, S, S)
+    float32 ``depth`` (its depth input, :data:`hupbench.inference.model_file.DEPTH_INPUT`): points2d (B, N, 2)
+    float32, normalised input coordinates; points3d (B, N, 3) float32, metres, OpenCV camera frame of K_input."""
     S = model.input_size
     assert images.dtype == np.float32 and images.shape[1:] == (3, S, S), (images.shape, images.dtype)
+    feed = {"image": images}
+    if model.reads_depth:
+        assert depth is not None and depth.dtype == np.float32 and depth.shape == (len(images), 1, S, S), depth
+        feed["depth"] = depth
+    else:
+        assert depth is None, "the model reads no depth"
     try:
-        points2d, points3d = model.session.run(["points2d", "points3d"], {"image": images})
+        points2d, points3d = model.session.run(["points2d", "points3d"], feed)
     except _RUN_ERRORS as exc:
         # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
         # something else: a model made for another input size whose header was edited, or a broken graph

@@ -30,6 +30,7 @@ from datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
 from hupbench.checkpoint import Checkpoint
 from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
+from hupbench.input_geometry import INPUT_MODALITIES
 from hupbench.provenance import hardware_description, run_info
 from hupbench.training.run_config import TrainRun, train_config
 from hupbench.training.losses import loss_terms
@@ -164,7 +165,8 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
             return val
 
         if is_main:
-            log(f"training {model.config.name} ({model.config.backbone}, {input_size} px) on {root}: "
+            log(f"training {model.config.name} ({model.config.backbone}, {input_size} px "
+                f"{run.data.reader.input_modalities}) on {root}: "
                 f"{len(data.train_set)} train frames, {len(data.val_loader.dataset)} val frames, {total_steps} "
                 f"steps of {batch_size} on {device}{f' x {world} processes' if world > 1 else ''} in {precision}"
                 f"{' (precision=auto)' if run.precision == 'auto' else ''}; run folder {folder}")
@@ -352,9 +354,9 @@ def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
 
 def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
                     resumed: Checkpoint | None = None) -> torch.nn.Module:
-    """The run's model: its config with the training split's mean layout as its 3D prior (and the input
-    camera for models that unproject through it, where the config leaves them null), or the checkpoint's
-    model when resuming."""
+    """The run's model: its config with the training split's mean layout as its 3D prior, the input channels of
+    ``data.reader.input_modalities`` (and the input camera for models that unproject through it, where the
+    config leaves them null), or the checkpoint's model when resuming."""
     config = run.model
     if resumed is not None:
         name = resumed.model_config.get("name")
@@ -365,7 +367,8 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
         # the prior: the training split's mean camera-frame layout, (29, 3) metres
         mean = data.train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
     camera = {"K_input": K_input.tolist(), "input_size": run.data.reader.input_size}
-    config = replace(config, points3d_mean=mean,
+    channels = INPUT_MODALITIES[run.data.reader.input_modalities]
+    config = replace(config, points3d_mean=mean, input_channels=channels,
                      **{k: v for k, v in camera.items() if hasattr(config, k) and getattr(config, k) is None})
     torch.manual_seed(run.seed)  # the initial weights are a function of the seed
     try:

@@ -30,7 +30,7 @@ def recompute_bn_statistics(model: torch.nn.Module, loader, device: torch.device
     frames = 0
     for batch in loader:
         with torch.autocast(**autocast):
-            model(model_images(batch["image"], device))
+            model(model_images(batch["image"], device, depth=batch.get("depth")))
         frames += len(batch["image"])
     for m, momentum in zip(norms, momenta):
         m.momentum = momentum
@@ -53,7 +53,7 @@ def validate(model: torch.nn.Module, loader, device: torch.device, autocast: dic
     sums = torch.zeros(kp.NUM_KEYPOINTS, dtype=torch.float64)
     count = torch.zeros((), dtype=torch.float64)
     for batch in loader:
-        images = model_images(batch["image"], device)
+        images = model_images(batch["image"], device, depth=batch.get("depth"))
         with torch.autocast(**autocast):
             points3d = model(images).points3d.float()
         errors = keypoint_errors_mm(points3d.cpu().double(), batch["keypoints_3d"].double())  # (B, 29)
