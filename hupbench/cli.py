@@ -125,7 +125,7 @@ def _leaderboard(args: list[str]) -> int:
 
 def _predict(args: list[str]) -> int:
     # only hupbench.inference.predict: the inference path must run without torch
-    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, PredictOptions, run_predict
+    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, DEFAULT_DEPTH_SCALE_M, PredictOptions, run_predict
 
     parser = argparse.ArgumentParser(prog="hupbench predict",
                                      description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.")
@@ -134,12 +134,17 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--out", default="predictions", help="output folder (predictions.json, *_overlay.png)")
     parser.add_argument("--K", metavar="fx,fy,cx,cy", help="intrinsics of the original images, pixels "
                         "(default: the training camera scaled to each image)")
+    parser.add_argument("--depth", metavar="DIR", help="for a model that reads depth: a 16-bit depth PNG per image, "
+                        "DIR/<image stem>.png (a dataset's <split>/depth folder)")
+    parser.add_argument("--depth-scale-m", type=float, default=DEFAULT_DEPTH_SCALE_M, metavar="M",
+                        help="metres per unit of the depth PNGs (default: the dataset's 0.0001)")
     parser.add_argument("--no-overlay", action="store_true", help="write the JSON only")
     parser.add_argument("--batch-size", type=_count(1), default=DEFAULT_BATCH_SIZE,
                         help="images per onnxruntime call")
     ns = parser.parse_args(args)
     result = run_predict(PredictOptions(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay,
-                                        batch_size=ns.batch_size, progress=True))
+                                        batch_size=ns.batch_size, progress=True, depth_dir=ns.depth,
+                                        depth_scale_m=ns.depth_scale_m))
     print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed; "
           f"{result['json']}" + (f" and {len(result['overlays'])} overlay PNG(s)" if result["overlays"] else ""))
     return 1 if result["failed"] else 0

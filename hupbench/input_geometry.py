@@ -24,7 +24,8 @@ import numpy as np
 
 from datagen.camera import resize_intrinsics
 
-__all__ = ["DEPTH_CLIP_M", "INPUT_MODALITIES", "INPUT_SIZE_RANGE", "InputGeometry", "depth_channel", "apply_affine", "camera_rotation", "inside_input",
+__all__ = ["DEPTH_CLIP_M", "INPUT_MODALITIES", "INPUT_SIZE_RANGE", "InputGeometry", "apply_affine", "camera_rotation",
+           "depth_channel", "inside_input",
            "normalized_to_pixels", "pad_and_resize", "pixels_to_normalized", "rotation_pixel_map"]
 
 #: the model input side S, pixels: below 16 the backbones' five stride-2 stages leave nothing; above 2048 a

@@ -17,6 +17,14 @@ corners often lie outside the image; the root depth is one global regression fro
 stride-32 feature, added to every keypoint's relative depth and to the training split's mean
 depth of that keypoint (the prior of :mod:`models.prior`).
 
+With a depth input and ``depth_anchor``, a keypoint's depth is read from the measured surface instead:
+each keypoint has an anchor map over the canvas (softmax logits, restricted to cells where the input
+depth saw a surface) and an offset map, and its depth is the expectation of (the cell's mean measured
+depth + the cell's offset) under its anchor map. A joint lies about a centimetre under the skin and a
+probe corner a few centimetres off the probe's surface: the network learns where to look and how far
+behind or before the surface the point is, and the absolute distance comes from the measurement, not
+from a global regression.
+
 Convention:
     2D points in normalised image coordinates of the input image (models/coords.py: [-1, 1]
     across the image, pixel centres at integers); 3D points in the training target's units
@@ -94,6 +102,8 @@ class HUPNetConfig(ModelConfig):
         K_input: (3, 3) intrinsics of the model input image, pixels (required; training fills it in).
         input_size: S, side of the square model input, pixels (required, a multiple of 8; training fills
             it in).
+        depth_anchor: read each keypoint's depth from the input's depth channel (module docstring); needs
+            ``input_channels`` 4 (``data.reader.input_modalities=rgb+depth``).
     """
 
     name: ClassVar[str] = "hupnet"
@@ -102,10 +112,13 @@ class HUPNetConfig(ModelConfig):
     canvas_margin: float = 0.25
     K_input: tuple[tuple[float, ...], ...] | None = None
     input_size: int | None = None
+    depth_anchor: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_whole("neck_channels", self.neck_channels)
+        if not isinstance(self.depth_anchor, bool):
+            raise ValueError(f"depth_anchor must be true or false, got {self.depth_anchor!r}")
         if isinstance(self.canvas_margin, bool) or not 0.0 <= self.canvas_margin <= 2.0:
             raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got "
                              f"{self.canvas_margin!r}")
@@ -123,6 +136,8 @@ class HUPNet(nn.Module):
         if config.K_input is None:
             raise ValueError("HUPNet unprojects through the input camera: it needs K_input (3 x 3, pixels of the "
                              "model input) and input_size")
+        if config.depth_anchor and config.input_channels != 4:
+            raise ValueError("depth_anchor reads the depth channel: it needs data.reader.input_modalities=rgb+depth")
         self.config = config
         self.n_keypoints = config.n_keypoints
         self.input_size = input_size = config.input_size
@@ -133,9 +148,17 @@ class HUPNet(nn.Module):
         self.lateral5, self.lateral4, self.lateral3 = nn.Conv2d(c5, D, 1), nn.Conv2d(c4, D, 1), nn.Conv2d(c3, D, 1)
         self.smooth = nn.Sequential(_conv_bn_relu(D + 2, D), _conv_bn_relu(D, D))
         self.heatmap = nn.Conv2d(D, config.n_keypoints, 1)
-        self.depthmap = nn.Conv2d(D, config.n_keypoints, 1)
-        self.root_depth = nn.Linear(c5, 1)
-        for head in (self.heatmap, self.depthmap, self.root_depth):
+        if config.depth_anchor:
+            # where each keypoint reads the surface, and how far behind it (units of points3d_scale); zero at
+            # first: every keypoint starts at the mean depth of the surface the camera sees
+            self.anchor = nn.Conv2d(D, config.n_keypoints, 1)
+            self.anchor_offset = nn.Conv2d(D, config.n_keypoints, 1)
+            heads = [self.heatmap, self.anchor, self.anchor_offset]
+        else:
+            self.depthmap = nn.Conv2d(D, config.n_keypoints, 1)
+            self.root_depth = nn.Linear(c5, 1)
+            heads = [self.heatmap, self.depthmap, self.root_depth]
+        for head in heads:
             nn.init.normal_(head.weight, std=1e-3)
             nn.init.zeros_(head.bias)
         self.prior3d = PointPrior(config.n_keypoints, config.points3d_mean, config.points3d_scale)
@@ -171,8 +194,32 @@ class HUPNet(nn.Module):
         grid = self.grid.to(p.dtype)
         coords = torch.stack([grid.view(1, W).expand(H, W), grid.view(H, 1).expand(H, W)])  # (2, H, W)
         p = self.smooth(torch.cat([p, coords.unsqueeze(0).expand(B, -1, -1, -1)], dim=1))
-        points2d, relative = soft_argmax(self.heatmap(p), grid, grid, self.depthmap(p))  # (B, N, 2), (B, N)
-        root = self.root_depth(torch.flatten(self.backbone.avgpool(c5), 1))          # (B, 1)
-        depth = self.prior3d.mean[:, 2].to(relative.dtype) + (root.to(relative.dtype) + relative) * self.prior3d.scale
+        if self.config.depth_anchor:
+            points2d, _ = soft_argmax(self.heatmap(p), grid, grid)                  # (B, N, 2)
+            depth = self._anchored_depth(images, p)                                  # (B, N)
+        else:
+            points2d, relative = soft_argmax(self.heatmap(p), grid, grid, self.depthmap(p))  # (B, N, 2), (B, N)
+            root = self.root_depth(torch.flatten(self.backbone.avgpool(c5), 1))          # (B, 1)
+            depth = (self.prior3d.mean[:, 2].to(relative.dtype)
+                     + (root.to(relative.dtype) + relative) * self.prior3d.scale)
         points3d = unproject_normalized(points2d, depth, self.intrinsics)
         return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype))
+
+    def _anchored_depth(self, images: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """(B, N) depth of each keypoint read from the depth channel (class docstring), float32, metres.
+
+        The depth channel is pooled to the canvas cells: each cell's mean over the pixels with a surface
+        (0 where none), and the log of the fraction of such pixels added to every anchor logit, so that
+        cells without a surface weigh nothing (a softmax over cells that all lack one stays uniform and
+        finite)."""
+        depth = images[:, 3:4].float()                                          # (B, 1, S, S) metres, 0 = none
+        surface = (depth > 0).float()
+        k, m = self.STRIDE, self.margin_cells
+        covered = F.avg_pool2d(surface, k)                                      # (B, 1, S/8, S/8) fraction
+        mean_depth = F.avg_pool2d(depth, k) / covered.clamp(min=1e-6)           # mean over surface pixels
+        covered, mean_depth = F.pad(covered, (m, m, m, m)), F.pad(mean_depth, (m, m, m, m))
+        logits = self.anchor(p).float() + torch.log(covered.clamp(min=1e-4))    # (B, N, H, W)
+        values = mean_depth + self.anchor_offset(p).float() * self.prior3d.scale
+        grid = self.grid.float()
+        _, expected = soft_argmax(logits, grid, grid, values)
+        return expected

@@ -118,7 +118,8 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print, 
                 out[row] = read_row(row)
             return stop - start
 
-        with tqdm(total=n, unit="frame", desc=f"frame cache {split} {size}px" + ("" if modality == "rgb" else f" {modality}"), dynamic_ncols=True,
+        desc = f"frame cache {split} {size}px" + ("" if modality == "rgb" else f" {modality}")
+        with tqdm(total=n, unit="frame", desc=desc, dynamic_ncols=True,
                   disable=not progress) as bar, ThreadPoolExecutor(max_workers=_BUILD_THREADS) as pool:
             for done in pool.map(fill, range(0, n, _BUILD_CHUNK)):
                 bar.update(done)

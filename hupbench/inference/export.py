@@ -95,7 +95,8 @@ class ContractModule(nn.Module):
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         self.model = model
         self.input_size = input_size
-        self.reads_depth = model.config.input_channels == INPUT_MODALITIES["rgb+depth"]
+        channels = getattr(getattr(model, "config", None), "input_channels", INPUT_MODALITIES["rgb"])
+        self.reads_depth = channels == INPUT_MODALITIES["rgb+depth"]
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
         self.register_buffer("intrinsics", torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]), persistent=False)
 

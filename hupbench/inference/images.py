@@ -173,6 +173,37 @@ def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     return decode_image(data, str(path), notes)
 
 
+def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
+    """The depth map of an image for a model that reads depth: a single-channel 16-bit PNG of the image's
+    ``image_size`` (width, height), as (H, W) uint16 in the file's unit (``--depth-scale-m`` metres)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such depth map (--depth holds one <image stem>.png per image)")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
+    if not data.startswith(_PNG_MAGIC):
+        raise BadValueError(f"{path}: a depth map must be a 16-bit PNG; the file starts with {data[:8]!r}")
+    declared = image_size_from_header(data)
+    if declared is not None and tuple(declared) != tuple(image_size):
+        raise BadValueError(f"{path}: the depth map is {declared[0]} x {declared[1]} px, its image "
+                            f"{image_size[0]} x {image_size[1]} px")
+    with _c_library_messages() as said:
+        depth = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if depth is None or depth.size == 0:
+        detail = "; ".join(said)
+        raise BadValueError(f"{path}: PNG data could not be decoded (truncated or corrupt file"
+                            + (f": {detail})" if detail else ")"))
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise BadValueError(f"{path}: a depth map must be single-channel 16-bit, got {depth.dtype} with "
+                            f"{1 if depth.ndim == 2 else depth.shape[2]} channel(s)")
+    if depth.shape != (image_size[1], image_size[0]):
+        raise BadValueError(f"{path}: the depth map is {depth.shape[1]} x {depth.shape[0]} px, its image "
+                            f"{image_size[0]} x {image_size[1]} px")
+    return depth
+
+
 def to_uint8(image_rgb: np.ndarray) -> np.ndarray:
     """(H, W, 3) float in [0, 1] -> (H, W, 3) uint8."""
     return np.clip(np.round(np.asarray(image_rgb) * 255.0), 0, 255).astype(np.uint8)

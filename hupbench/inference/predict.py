@@ -9,6 +9,13 @@ image ("assumed training camera"): the 3D points are the network's output as it 
 ``hupbench eval`` scores. With ``--K fx,fy,cx,cy`` of the original images ("user K") the points are moved
 to the user's camera by :func:`user_camera_points`.
 
+Depth: a model exported from a run with ``data.reader.input_modalities=rgb+depth`` reads a depth map beside
+each image, ``--depth DIR``: ``DIR/<image stem>.png``, single-channel 16-bit, of the image's size, metres =
+value x ``--depth-scale-m`` (default the dataset's 0.1 mm), 0 where nothing was seen, padded with 0 and
+resized to the nearest pixel (a dataset's ``<split>/rgb`` and ``<split>/depth`` folders pair up as they are).
+A model that reads depth is refused without ``--depth``, an RGB model with it; an image whose depth map is
+missing or of another size fails alone, naming the file.
+
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
 (N, 3) metres in the camera frame of that K; and ``<stem>_overlay.png`` per image (``<stem>_<k>_overlay.png``
@@ -33,14 +40,16 @@ from datagen.errors import BadTypeError, BadValueError, UserError
 from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
 from datagen.render.draw import write_png
-from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_image, to_uint8
+from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_depth_png, read_image, to_uint8
 from hupbench.inference.model_file import check_intrinsics
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.runtime import OnnxModel, load_onnx_model, run_onnx
-from hupbench.input_geometry import InputGeometry, pad_and_resize
+from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
 
 SCHEMA_VERSION = 1
 DEFAULT_BATCH_SIZE = 16
+#: metres per unit of a depth PNG unless ``--depth-scale-m`` says otherwise: the dataset's (0.1 mm)
+DEFAULT_DEPTH_SCALE_M = 1e-4
 # a focal length or principal point beyond a million pixels is a typo (1e6 px on a 4000 px photo is a 0.2
 # degree field of view) and 1e308 overflows the 3D points to infinity
 MAX_FOCAL_PX = 1e6
@@ -70,6 +79,8 @@ class PredictOptions:
         overlay: write ``<stem>_overlay.png`` per image.
         batch_size: images per onnxruntime call.
         progress: a progress bar with ETA on stderr for runs longer than 2 s.
+        depth_dir: the depth maps of a model that reads depth, ``<image stem>.png`` each (module docstring).
+        depth_scale_m: metres per unit of those PNGs, in (0, 1].
     """
 
     model: Path
@@ -79,11 +90,20 @@ class PredictOptions:
     overlay: bool = True
     batch_size: int = DEFAULT_BATCH_SIZE
     progress: bool = False
+    depth_dir: Path | None = None
+    depth_scale_m: float = DEFAULT_DEPTH_SCALE_M
 
     def __post_init__(self) -> None:
         if isinstance(self.inputs, (str, Path)):
             raise BadTypeError("inputs must be a list of paths, got a single path")
         check_int(self.batch_size, "batch_size (--batch-size)", low=1)
+        scale = self.depth_scale_m
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
+            raise BadValueError(f"--depth-scale-m must be metres per PNG unit in (0, 1], got {scale!r}")
+        if self.depth_dir is not None:
+            if not Path(self.depth_dir).is_dir():
+                raise BadValueError(f"--depth {self.depth_dir} is not a folder (it holds one <image stem>.png per image)")
+            object.__setattr__(self, "depth_dir", Path(self.depth_dir))
         K = self.K
         if K is not None:
             K = parse_intrinsics(K) if isinstance(K, str) else check_user_K(K, "K")
@@ -119,13 +139,14 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
 
 
 def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
-                       K_user_in: np.ndarray) -> np.ndarray:
+                       K_user_in: np.ndarray, metric_depth: bool = False) -> np.ndarray:
     """3D keypoints for the user's camera from a network trained with another camera.
 
     The network judges depth from the object's size in pixels, so a point it sees at an input pixel with
     focal f_train lies, through the user's lens of focal f_user_in, at z_user = z * f_user_in / f_train
     (the geometric mean of the x and y ratios when fx != fy); x and y are back-projected from the 2D
-    prediction at that depth, so the points project through K_user_in exactly onto it.
+    prediction at that depth, so the points project through K_user_in exactly onto it. A network that reads
+    a depth map (``metric_depth``) measures z itself: it is kept.
 
     Args:
         uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
@@ -137,7 +158,7 @@ def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: n
         (N, 3) float64, metres, OpenCV camera frame of the user's camera.
     """
     uv_in, points3d_train = np.asarray(uv_in, dtype=np.float64), np.asarray(points3d_train, dtype=np.float64)
-    focal_ratio = np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
+    focal_ratio = 1.0 if metric_depth else np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
     z = points3d_train[:, 2] * focal_ratio
     x = (uv_in[:, 0] - K_user_in[0, 2]) * z / K_user_in[0, 0]
     y = (uv_in[:, 1] - K_user_in[1, 2]) * z / K_user_in[1, 1]
@@ -151,6 +172,15 @@ def preprocess(image_rgb: np.ndarray, input_size: int) -> tuple[np.ndarray, Inpu
     """(H, W, 3) float32 RGB in [0, 1] -> the (3, S, S) float32 model input and its :class:`InputGeometry`."""
     square, geometry = pad_and_resize(image_rgb, input_size, PAD_VALUE)
     return np.ascontiguousarray(square.transpose(2, 0, 1), dtype=np.float32), geometry
+
+
+def preprocess_depth(depth: np.ndarray, scale_m: float, input_size: int) -> np.ndarray:
+    """(H, W) uint16 depth PNG values -> the (1, S, S) float32 depth input: metres (``depth * scale_m``, the
+    model's depth channel), padded like the image with 0 (no surface) and resized to the nearest pixel."""
+    import cv2
+
+    square, _ = pad_and_resize(depth_channel(depth, scale_m), input_size, 0.0, cv2.INTER_NEAREST)
+    return np.ascontiguousarray(square[None], dtype=np.float32)
 
 
 # ---------------------------------------------------------------- run
@@ -180,13 +210,15 @@ def _stderr(message: str) -> None:
 
 
 def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometry: InputGeometry,
-                        K_input: np.ndarray, K_user: np.ndarray | None = None) -> dict[str, Any]:
+                        K_input: np.ndarray, K_user: np.ndarray | None = None,
+                        metric_depth: bool = False) -> dict[str, Any]:
     """Map one image's network outputs to its original pixels and to the chosen camera.
 
     Args:
         points2d_norm: (N, 2) normalised input coordinates. points3d: (N, 3) metres, camera frame of K_input.
         geometry: how the image became the input. K_input: (3, 3) the training camera at the model input.
         K_user: (3, 3) the user's intrinsics of the original image, or None to assume the training camera.
+        metric_depth: the network read a depth map (:func:`user_camera_points`).
 
     Returns:
         ``{"camera": str, "K": (3, 3) original pixels, "K_model_input": (3, 3), "keypoints_2d_px": (N, 2)
@@ -197,7 +229,7 @@ def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometr
         return {"camera": CAMERA_ASSUMED, "K": geometry.intrinsics_to_image(K_input), "K_model_input": K_input,
                 "keypoints_2d_px": uv_px, "keypoints_3d_m": np.asarray(points3d, dtype=np.float64)}
     K_user_in = geometry.intrinsics_to_input(K_user)
-    xyz = user_camera_points(geometry.normalized_to_input_px(points2d_norm), points3d, K_input, K_user_in)
+    xyz = user_camera_points(geometry.normalized_to_input_px(points2d_norm), points3d, K_input, K_user_in, metric_depth)
     return {"camera": CAMERA_USER, "K": np.asarray(K_user, dtype=np.float64), "K_model_input": K_user_in,
             "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
 
@@ -214,6 +246,12 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
 
     out_dir = check_writable(options.out_dir, "output folder (--out)")
     model = load_onnx_model(options.model)
+    if model.reads_depth and options.depth_dir is None:
+        raise BadValueError(f"{model.path} reads RGB and depth (hupbench.input_modalities rgb+depth): pass --depth "
+                            "DIR with a 16-bit depth PNG per image, named by the image's stem")
+    if options.depth_dir is not None and not model.reads_depth:
+        raise BadValueError(f"{model.path} reads RGB only; --depth is for a model trained with "
+                            "data.reader.input_modalities=rgb+depth")
     files, skipped = expand_inputs(options.inputs)
     if not files:
         raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "
@@ -245,8 +283,7 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
             (out_dir / "predictions.json").unlink(missing_ok=True)
             for start in range(0, len(files), options.batch_size):
                 chunk = [_empty_record(path, names, model.run_name) for path in files[start:start + options.batch_size]]
-                _predict_batch(model, chunk, options.K, out_dir if options.overlay else None, used_stems, overlays,
-                               log)
+                _predict_batch(model, chunk, options, out_dir if options.overlay else None, used_stems, overlays, log)
                 records.extend(chunk)
                 bar.update(len(chunk))
             json_path = write_bytes(out_dir / "predictions.json",
@@ -270,7 +307,8 @@ def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dic
         "schema_version": SCHEMA_VERSION,
         "tool": "hupbench predict",
         "model": {"path": str(model.path), "sha256": model.sha256, "run_name": model.run_name,
-                  "git_commit": model.git_commit, "input_size": model.input_size, "K_input": model.K_input.tolist()},
+                  "git_commit": model.git_commit, "input_size": model.input_size, "K_input": model.K_input.tolist(),
+                  "input_modalities": model.input_modalities},
         "keypoint_names": list(model.keypoint_names),
         "skeleton_edges": [list(e) for e in model.skeleton_edges],
         "preprocessing": PREPROCESSING,
@@ -280,17 +318,21 @@ def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dic
     }
 
 
-def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], K_user: np.ndarray | None,
+def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], options: PredictOptions,
                    overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log) -> None:
     """Read, predict and record one batch of images in place: a bad image's record gets its error (and
     the log a line), a good one its keypoints and, with ``overlay_dir``, its overlay (appended to
     ``overlays``)."""
     names = list(model.keypoint_names)
-    loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry]] = []
+    loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry, np.ndarray | None]] = []
     for record in chunk_records:
         notes: list[str] = []
         try:
             image = read_image(record["path"], notes)
+            depth = None
+            if model.reads_depth:
+                record["depth"] = str(options.depth_dir / f"{Path(record['path']).stem}.png")
+                depth = read_depth_png(record["depth"], (image.shape[1], image.shape[0]))
         except UserError as exc:  # a bad image fails alone: its record and the log say why
             record["error"] = str(exc)
             log(f"hupbench predict: error: {exc}")
@@ -298,15 +340,18 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], K_user
         for note in notes:
             log(f"hupbench predict: note: {record['path']}: {note}")
         model_input, geometry = preprocess(image, model.input_size)
-        loaded.append((record, image, model_input, geometry))
+        depth_input = None if depth is None else preprocess_depth(depth, options.depth_scale_m, model.input_size)
+        loaded.append((record, image, model_input, geometry, depth_input))
     if loaded:
-        points2d, points3d = run_onnx(model, np.stack([item[2] for item in loaded]))  # (B, 3, S, S) -> (B, N, *)
-        for b, (record, image, _, geometry) in enumerate(loaded):
+        depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
+        points2d, points3d = run_onnx(model, np.stack([item[2] for item in loaded]), depth)  # (B, C, S, S) -> (B, N, *)
+        K_user = options.K
+        for b, (record, image, _, geometry, _) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
                 record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
                 log(f"hupbench predict: error: {record['error']}")
                 continue
-            result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user)
+            result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user, model.reads_depth)
             record.update(
                 ok=True, image_size={"width": geometry.width, "height": geometry.height},
                 camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
@@ -323,7 +368,7 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], K_user
 
 def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]:
     """The JSON record of one input before (or without) a prediction: every key present, values null."""
-    return {"path": str(path), "ok": False, "error": None, "image_size": None, "camera": None, "K": None,
+    return {"path": str(path), "depth": None, "ok": False, "error": None, "image_size": None, "camera": None, "K": None,
             "K_model_input": None, "input_geometry": None, "keypoint_names": names, "keypoints_2d_px": None,
             "keypoints_3d_m": None, "run_name": run_name, "overlay": None}
 

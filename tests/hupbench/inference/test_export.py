@@ -45,7 +45,7 @@ def test_onnx_contract(exported, tiny_dataset):
     props = {p.key: p.value for p in proto.metadata_props}
     assert sorted(props) == sorted(META + k for k in (
         "onnx_schema", "input_size", "K_input", "keypoint_names", "skeleton_edges", "model_config", "run_name",
-        "git_commit"))
+        "git_commit", "input_modalities"))
     assert props["hupbench.onnx_schema"] == "1"
     assert props["hupbench.input_size"] == str(INPUT_SIZE)
     np.testing.assert_allclose(json.loads(props["hupbench.K_input"]), payload["K_input"])

@@ -42,12 +42,25 @@ def test_metadata_round_trips():
     ({"hupbench.skeleton_edges": "[[0, 29]]"}, ("skeleton_edges", "0 <= i, j < 29")),
     ({"hupbench.skeleton_edges": "[[true, 1]]"}, ("skeleton_edges",)),
     ({"hupbench.model_config": "[1]"}, ("model_config", "JSON object")),
+    ({"hupbench.input_modalities": "depth"}, ("hupbench.input_modalities", "'rgb' or 'rgb+depth'", "'depth'")),
+    ({"hupbench.input_modalities": "rgb+depth"}, ("reads depth needs metadata hupbench.depth_input", "metres")),
+    ({"hupbench.model_config": json.dumps({"name": "hopenet", "input_channels": 4})},
+     ("input_channels 4", "hupbench.input_modalities is 'rgb'")),
 ])
 def test_metadata_errors_name_the_key(changes, needles):
     with pytest.raises(ValueError) as info:
         read_metadata(_props(**changes), "m.onnx")
     for needle in needles:
         assert needle in str(info.value), (needle, str(info.value))
+
+
+def test_depth_metadata_round_trips():
+    props = write_metadata(64, K, kp.KEYPOINT_NAMES, kp.SKELETON_EDGES, {"name": "hupnet", "input_channels": 4}, "run",
+                           "0" * 40, "rgb+depth")
+    assert json.loads(props["hupbench.depth_input"]) == {"units": "metres", "no_surface": 0.0, "clip_m": 2.0,
+                                                         "resize": "nearest"}
+    assert read_metadata(props)["input_modalities"] == "rgb+depth"
+    assert read_metadata(_props(**{"hupbench.input_modalities": None}))["input_modalities"] == "rgb"  # older files
 
 
 def test_writer_refuses_what_the_reader_would():
@@ -66,12 +79,24 @@ def test_writer_refuses_what_the_reader_would():
      ("points3d is (1, 21, 3)", "(batch, 29, 3)", "29 keypoint names")),
     ({"image": [1, 3, 64, 64]}, {"points3d": [1, 29, 3], "points2d": [1, 29, 3]}, ("points2d", "(batch, 29, 2)")),
     ({"image": [3, 64, 64]}, {"points3d": [1, 29, 3], "points2d": [1, 29, 2]}, ("image is (3, 64, 64)",)),
+    ({"image": [1, 3, 64, 64], "depth": [1, 1, 64, 64]}, {"points3d": [1, 29, 3], "points2d": [1, 29, 2]},
+     ("inputs are ['depth', 'image']", "'rgb' needs ['image']")),
 ])
-def test_graph_shapes_against_the_metadata(inputs, outputs, needles):
+def test_graph_shapes_against_the_metadata(inputs, outputs, needles, modalities="rgb"):
     if needles is None:
-        check_io_shapes(inputs, outputs, 64, 29, "m.onnx")
+        check_io_shapes(inputs, outputs, 64, 29, "m.onnx", modalities)
         return
     with pytest.raises(ValueError) as info:
-        check_io_shapes(inputs, outputs, 64, 29, "m.onnx")
+        check_io_shapes(inputs, outputs, 64, 29, "m.onnx", modalities)
     for needle in needles:
         assert needle in str(info.value), (needle, str(info.value))
+
+
+@pytest.mark.parametrize("inputs,needles", [
+    ({"image": ["batch", 3, 64, 64], "depth": ["batch", 1, 64, 64]}, None),
+    ({"image": [1, 3, 64, 64]}, ("inputs are ['image']", "'rgb+depth' needs ['depth', 'image']")),
+    ({"image": [1, 3, 64, 64], "depth": [1, 3, 64, 64]}, ("depth is (1, 3, 64, 64)", "(batch, 1, 64, 64)")),
+])
+def test_a_depth_model_has_a_depth_input(inputs, needles):
+    test_graph_shapes_against_the_metadata(inputs, {"points3d": [1, 29, 3], "points2d": [1, 29, 2]}, needles,
+                                           "rgb+depth")

@@ -1,0 +1,114 @@
+"""A model that reads depth (data.reader.input_modalities=rgb+depth) through export and predict: the ONNX file has a
+second input with its metadata, predict reads a depth PNG per image exactly as the training reader does, and every
+missing or mismatched depth map is refused naming it."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from helpers.cli import assert_clean_error, run_cli
+from helpers.models import make_checkpoint
+from hupbench.checkpoint import load_model
+from hupbench.data import HUPDataset, ReaderConfig
+from hupbench.inference import export as E
+from hupbench.inference.predict import PredictOptions, preprocess_depth, run_predict
+
+
+@pytest.fixture(scope="module")
+def rgbd_model(tmp_path_factory, tiny_dataset):
+    """(checkpoint, onnx) of an untrained HOPE-Net that reads RGB and depth, at the tiny dataset's 64 px."""
+    folder = tmp_path_factory.mktemp("rgbd")
+    ckpt = make_checkpoint(folder / "rgbd.pt", tiny_dataset, input_channels=4)
+    result = E.run_export(E.ExportOptions(ckpt, folder / "rgbd.onnx", parity_frames=4), log=lambda *_: None)
+    return ckpt, Path(result["onnx"]), result
+
+
+def frames(dataset, n=4):
+    rgb = sorted((dataset / "test" / "rgb").iterdir())[:n]
+    return rgb, dataset / "test" / "depth"
+
+
+def test_export_writes_a_depth_input_and_its_metadata(rgbd_model):
+    _, onnx_path, result = rgbd_model
+    proto = onnx.load(str(onnx_path))
+    inputs = {i.name: [d.dim_param or d.dim_value for d in i.type.tensor_type.shape.dim] for i in proto.graph.input}
+    assert list(inputs) == ["image", "depth"] and inputs["depth"][1:] == [1, 64, 64] and inputs["image"][1:] == [3, 64, 64]
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert props["hupbench.input_modalities"] == "rgb+depth"
+    assert json.loads(props["hupbench.depth_input"])["units"] == "metres"
+    assert json.loads(props["hupbench.model_config"])["input_channels"] == 4
+    assert result["parity"]["points3d_mm"] < E.PARITY_MAX_3D_MM  # on the dataset's images and depth maps
+
+
+def test_predict_from_images_and_depth_pngs_equals_pytorch_on_the_reader(rgbd_model, tiny_dataset, tmp_path):
+    ckpt, onnx_path, _ = rgbd_model
+    images, depth_dir = frames(tiny_dataset)
+    result = run_predict(PredictOptions(onnx_path, images, tmp_path / "out", depth_dir=depth_dir))
+    assert result["failed"] == 0
+    reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=64, input_modalities="rgb+depth"))
+    module = E.contract_model(*load_model(ckpt), str(ckpt))
+    with torch.no_grad():
+        _, points3d = module(torch.stack([reader[i]["image"] for i in range(len(images))]))
+    for record, path, p3 in zip(result["records"], images, points3d.numpy()):
+        assert record["depth"] == str(depth_dir / f"{path.stem}.png")
+        np.testing.assert_allclose(record["keypoints_3d_m"], p3, atol=1e-4)  # 0.1 mm
+    doc = json.loads(result["json"].read_text())
+    assert doc["model"]["input_modalities"] == "rgb+depth"
+
+    # the depth is read: the same images over flat depth maps give other 3D points
+    flat = tmp_path / "flat"
+    flat.mkdir()
+    for path in images:
+        cv2.imwrite(str(flat / f"{path.stem}.png"), np.full((64, 64), 9000, np.uint16))
+    other = run_predict(PredictOptions(onnx_path, images, tmp_path / "out_flat", depth_dir=flat, overlay=False))
+    moved = [np.abs(np.subtract(a["keypoints_3d_m"], b["keypoints_3d_m"])).max()
+             for a, b in zip(result["records"], other["records"])]
+    assert min(moved) > 1e-4
+
+
+def test_depth_is_resized_like_the_reader():
+    """predict's depth input equals the training reader's depth channel at a smaller input (nearest pixel)."""
+    from hupbench.input_geometry import depth_channel, pad_and_resize
+
+    depth = np.random.default_rng(0).integers(0, 9000, (48, 64)).astype(np.uint16)
+    ours = preprocess_depth(depth, 1e-4, 32)
+    square = np.zeros((64, 64), np.uint16)
+    square[8:56] = depth
+    reader = depth_channel(pad_and_resize(square, 32, interpolation=cv2.INTER_NEAREST)[0], 1e-4)
+    assert ours.shape == (1, 32, 32) and np.array_equal(ours[0], reader)
+
+
+def test_depth_errors_name_the_file(rgbd_model, exported, tiny_dataset, tmp_path, capsys):
+    _, onnx_path, _ = rgbd_model
+    images, depth_dir = frames(tiny_dataset, 3)
+    answer = run_cli(capsys, "predict", onnx_path, *images, "--out", tmp_path / "a")
+    assert_clean_error(answer, str(onnx_path), "reads RGB and depth", "--depth")
+    answer = run_cli(capsys, "predict", exported[1], *images, "--out", tmp_path / "b", "--depth", depth_dir)
+    assert_clean_error(answer, "reads RGB only", "--depth", "input_modalities=rgb+depth")
+    answer = run_cli(capsys, "predict", onnx_path, *images, "--out", tmp_path / "c", "--depth", images[0])
+    assert_clean_error(answer, "--depth", str(images[0]), "not a folder")
+    answer = run_cli(capsys, "predict", onnx_path, *images, "--out", tmp_path / "c", "--depth", depth_dir,
+                     "--depth-scale-m", "0")
+    assert_clean_error(answer, "--depth-scale-m", "(0, 1]")
+
+    # per image: a missing map, one of another size, an 8-bit one; the others are predicted
+    bad = tmp_path / "depth"
+    bad.mkdir()
+    stored = cv2.imread(str(depth_dir / f"{images[0].stem}.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(bad / f"{images[0].stem}.png"), stored)
+    cv2.imwrite(str(bad / f"{images[1].stem}.png"), cv2.resize(stored, (32, 32), interpolation=cv2.INTER_NEAREST))
+    answer = run_cli(capsys, "predict", onnx_path, *images, "--out", tmp_path / "d", "--depth", bad)
+    assert answer.rc == 1 and "Traceback" not in answer.err
+    records = json.loads((tmp_path / "d" / "predictions.json").read_text())["images"]
+    assert [r["ok"] for r in records] == [True, False, False]
+    assert "32 x 32 px, its image 64 x 64 px" in records[1]["error"] and str(bad) in records[1]["error"]
+    assert "no such depth map" in records[2]["error"] and f"{images[2].stem}.png" in records[2]["error"]
+    cv2.imwrite(str(bad / f"{images[2].stem}.png"), (stored // 256).astype(np.uint8))
+    answer = run_cli(capsys, "predict", onnx_path, images[2], "--out", tmp_path / "e", "--depth", bad)
+    records = json.loads((tmp_path / "e" / "predictions.json").read_text())["images"]
+    assert answer.rc == 1 and "single-channel 16-bit, got uint8" in records[0]["error"]
