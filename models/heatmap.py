@@ -25,6 +25,15 @@ probe corner a few centimetres off the probe's surface: the network learns where
 behind or before the surface the point is, and the absolute distance comes from the measurement, not
 from a global regression.
 
+With ``probe_head: rigid`` the last 8 keypoints (the probe's box corners) are the known box posed rigidly
+instead of 8 free points: the box (``probe_half_extents``, the training split's) is centred on the mean of
+the 8 corners the heatmaps find and turned by a rotation that a small head regresses (the 6D representation
+of Zhou et al., "On the continuity of rotation representations", CVPR 2019, as a turn from the mean layout's
+box) from the backbone's pooled feature and the pyramid feature pooled where the corner heatmaps look. The
+corners' 2D points are the box's projection; the heatmaps' own 2D points are ``points2d_init``, trained
+towards the true corners as HOPE-Net's initial 2D points are. Free corners came out 21 mm away from any
+rigid box (scripts/diagnose_errors.py on paper_hupnet_rgbd_cpu, test split).
+
 Convention:
     2D points in normalised image coordinates of the input image (models/coords.py: [-1, 1]
     across the image, pixel centres at integers); 3D points in the training target's units
@@ -56,10 +65,12 @@ class HUPNetOutput(NamedTuple):
         points2d: (B, N, 2) float, normalised image coordinates of the input (may lie outside
             [-1, 1] by up to the canvas margin).
         points3d: (B, N, 3) float, the training target's units, OpenCV camera frame of K_input.
+        points2d_init: (B, N, 2) the heatmaps' own 2D points where the probe head replaces the corners', else None.
     """
 
     points2d: torch.Tensor
     points3d: torch.Tensor
+    points2d_init: torch.Tensor | None = None
 
 
 def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor,
@@ -104,6 +115,9 @@ class HUPNetConfig(ModelConfig):
             it in).
         depth_anchor: read each keypoint's depth from the input's depth channel (module docstring); needs
             ``input_channels`` 4 (``data.reader.input_modalities=rgb+depth``).
+        probe_head: "corners" (8 free corner keypoints) or "rigid" (the box posed rigidly, module docstring).
+        probe_half_extents: (3,) half the probe box's sides along its x, y, z, in the training target's units
+            (required by "rigid"; training fills it in from the training split).
     """
 
     name: ClassVar[str] = "hupnet"
@@ -113,12 +127,22 @@ class HUPNetConfig(ModelConfig):
     K_input: tuple[tuple[float, ...], ...] | None = None
     input_size: int | None = None
     depth_anchor: bool = False
+    probe_head: str = "corners"
+    probe_half_extents: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_whole("neck_channels", self.neck_channels)
         if not isinstance(self.depth_anchor, bool):
             raise ValueError(f"depth_anchor must be true or false, got {self.depth_anchor!r}")
+        if self.probe_head not in ("corners", "rigid"):
+            raise ValueError(f"probe_head must be 'corners' or 'rigid', got {self.probe_head!r}")
+        if self.probe_head == "rigid" and self.n_keypoints < N_CORNERS:
+            raise ValueError(f"probe_head 'rigid' poses the last {N_CORNERS} keypoints, the model has {self.n_keypoints}")
+        if self.probe_half_extents is not None:
+            extents = torch.as_tensor(self.probe_half_extents, dtype=torch.float64)
+            if extents.shape != (3,) or not torch.isfinite(extents).all() or (extents <= 0).any():
+                raise ValueError(f"probe_half_extents must be 3 positive finite numbers, got {self.probe_half_extents!r}")
         if isinstance(self.canvas_margin, bool) or not 0.0 <= self.canvas_margin <= 2.0:
             raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got "
                              f"{self.canvas_margin!r}")
@@ -163,6 +187,17 @@ class HUPNet(nn.Module):
             nn.init.zeros_(head.bias)
         self.prior3d = PointPrior(config.n_keypoints, config.points3d_mean, config.points3d_scale)
         self.register_buffer("intrinsics", normalized_intrinsics(config.K_input, input_size))
+        if config.probe_head == "rigid":
+            if config.probe_half_extents is None:
+                raise ValueError("probe_head 'rigid' needs probe_half_extents (training fills them in)")
+            box = torch.tensor(CORNER_SIGNS, dtype=torch.float32) * torch.tensor(config.probe_half_extents,
+                                                                                 dtype=torch.float32)
+            self.register_buffer("probe_box", box, persistent=False)                   # (8, 3) centred
+            self.register_buffer("probe_rotation0", _fit_rotation(box, self.prior3d.mean[-N_CORNERS:]),
+                                 persistent=False)                                       # the mean layout's turn
+            self.probe_rotation = nn.Sequential(nn.Linear(c5 + D, 256), nn.ReLU(inplace=True), nn.Linear(256, 6))
+            nn.init.normal_(self.probe_rotation[-1].weight, std=1e-3)
+            nn.init.zeros_(self.probe_rotation[-1].bias)
         cells = input_size // self.STRIDE
         self.margin_cells = int(round(float(config.canvas_margin) * cells))
         # normalised coordinate of each canvas cell's centre: cell j of the image covers pixels
@@ -203,7 +238,36 @@ class HUPNet(nn.Module):
             depth = (self.prior3d.mean[:, 2].to(relative.dtype)
                      + (root.to(relative.dtype) + relative) * self.prior3d.scale)
         points3d = unproject_normalized(points2d, depth, self.intrinsics)
+        if self.config.probe_head == "rigid":
+            pooled = torch.flatten(self.backbone.avgpool(c5), 1)
+            rigid2d, rigid3d = self._rigid_probe(p, pooled, points3d[:, -N_CORNERS:])
+            heatmap2d = points2d
+            points2d = torch.cat([points2d[:, :-N_CORNERS], rigid2d.to(points2d.dtype)], dim=1)
+            points3d = torch.cat([points3d[:, :-N_CORNERS], rigid3d.to(points3d.dtype)], dim=1)
+            return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), heatmap2d.to(images.dtype))
         return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype))
+
+    def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor,
+                     corners3d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The probe box posed rigidly: ((B, 8, 2) normalised 2D, (B, 8, 3) 3D) in float32 (class docstring).
+
+        Args:
+            p: (B, D, H, W) canvas features. pooled: (B, C5) the backbone's pooled feature.
+            corners3d: (B, 8, 3) the heatmaps' corners, whose mean is the box's centre.
+        """
+        B, D, H, W = p.shape
+        look = torch.softmax(self.heatmap(p)[:, -N_CORNERS:].float().reshape(B, N_CORNERS, H * W), dim=-1)
+        look = look.mean(dim=1)                                                     # (B, H W) where corners are
+        local = torch.bmm(p.float().reshape(B, D, H * W), look.unsqueeze(-1)).squeeze(-1)    # (B, D)
+        six = self.probe_rotation(torch.cat([pooled.float(), local], dim=1)).float()          # (B, 6)
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0], device=six.device)
+        rotation = rotation_from_6d(six + identity) @ self.probe_rotation0          # (B, 3, 3)
+        centre = corners3d.float().mean(dim=1, keepdim=True)                        # (B, 1, 3)
+        box3d = centre + self.probe_box @ rotation.transpose(1, 2)                   # (B, 8, 3)
+        f, c = self.intrinsics[:2], self.intrinsics[2:]
+        box2d = box3d[..., :2] / box3d[..., 2:].clamp(min=1e-3) * f + c              # x_n = fx X / Z + cx
+        return box2d, box3d
+
 
     def _anchored_depth(self, images: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         """(B, N) depth of each keypoint read from the depth channel (class docstring), float32, metres.
@@ -223,3 +287,31 @@ class HUPNet(nn.Module):
         grid = self.grid.float()
         _, expected = soft_argmax(logits, grid, grid, values)
         return expected
+
+
+#: the last N_CORNERS keypoints are the probe box's corners, in the order of datagen.keypoints.CORNER_BITS
+#: (index 4 ix + 2 iy + iz, each bit 0 = the min side): their signs along the box's x, y, z
+N_CORNERS = 8
+CORNER_SIGNS = tuple(tuple(2.0 * ((k >> shift) & 1) - 1.0 for shift in (2, 1, 0)) for k in range(N_CORNERS))
+
+
+def rotation_from_6d(six: torch.Tensor) -> torch.Tensor:
+    """(B, 3, 3) rotations from (B, 6) pairs of vectors by Gram-Schmidt (Zhou et al. 2019): the columns are
+    a / |a|, the part of b orthogonal to it, normalised, and their cross product."""
+    a, b = six[:, :3], six[:, 3:]
+    x = a / a.norm(dim=1, keepdim=True).clamp(min=1e-6)
+    b = b - (x * b).sum(dim=1, keepdim=True) * x
+    y = b / b.norm(dim=1, keepdim=True).clamp(min=1e-6)
+    return torch.stack([x, y, torch.cross(x, y, dim=1)], dim=2)
+
+
+def _fit_rotation(box: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
+    """(3, 3) proper rotation R minimising |corners - mean - box R^T| (Kabsch), float32; identity for an empty or
+    degenerate layout."""
+    x = box.double()
+    y = corners.double() - corners.double().mean(dim=0)
+    if not torch.isfinite(y).all() or y.abs().max() == 0:
+        return torch.eye(3)
+    u, _, vt = torch.linalg.svd(y.T @ x)
+    d = torch.sign(torch.linalg.det(u @ vt))
+    return (u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=torch.float64)) @ vt).float()

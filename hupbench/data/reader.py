@@ -94,7 +94,7 @@ class ReaderConfig:
         check_number(self.rotate_deg, "data.reader.rotate_deg", 0.0, 180.0)
         check_number(self.photometric, "data.reader.photometric", 0.0, 1.0)
         check_int(self.seed, "data.reader.seed", 0)
-        if self.input_modalities not in INPUT_MODALITIES:
+        if not isinstance(self.input_modalities, str) or self.input_modalities not in INPUT_MODALITIES:
             raise BadValueError(f"data.reader.input_modalities must be {' or '.join(map(repr, INPUT_MODALITIES))}, "
                                 f"got {self.input_modalities!r}")
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from datagen import keypoints as kp
 from datagen.camera import resize_intrinsics
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
@@ -363,10 +364,14 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
         if name != config.name:
             raise BadValueError(f"checkpoint {resumed.path} holds a {name!r} model, this run builds {config.name!r}")
         mean = resumed.model_config.get("points3d_mean")
+        extents = resumed.model_config.get("probe_half_extents")
     else:
         # the prior: the training split's mean camera-frame layout, (29, 3) metres
         mean = data.train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
-    camera = {"K_input": K_input.tolist(), "input_size": run.data.reader.input_size}
+        extents = None  # the box of a model that poses the probe rigidly (models.heatmap, probe_head)
+        if getattr(config, "probe_head", None) == "rigid":
+            extents = probe_half_extents(data.train_set.ann["keypoints_3d_cam"][:, kp.CORNER_SLICE]).tolist()
+    camera = {"K_input": K_input.tolist(), "input_size": run.data.reader.input_size, "probe_half_extents": extents}
     channels = INPUT_MODALITIES[run.data.reader.input_modalities]
     config = replace(config, points3d_mean=mean, input_channels=channels,
                      **{k: v for k, v in camera.items() if hasattr(config, k) and getattr(config, k) is None})
@@ -381,6 +386,19 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
         except (ValueError, TypeError) as exc:
             raise BadValueError(f"checkpoint {resumed.path}: {exc}") from exc
     return model
+
+
+def probe_half_extents(corners: np.ndarray) -> np.ndarray:
+    """(3,) float64 half the probe box's sides along its own x, y, z (metres): the mean over frames of its 4
+    edges along each axis, from (N, 8, 3) corners in the order of ``datagen.keypoints.CORNER_BITS``."""
+    corners = np.asarray(corners, dtype=np.float64)
+    halves = []
+    for axis in range(3):
+        low = [k for k, bits in enumerate(kp.CORNER_BITS) if bits[axis] == 0]
+        high = [next(j for j, other in enumerate(kp.CORNER_BITS) if other[axis] == 1
+                     and all(other[a] == kp.CORNER_BITS[k][a] for a in range(3) if a != axis)) for k in low]
+        halves.append(np.linalg.norm(corners[:, high] - corners[:, low], axis=-1).mean() / 2.0)
+    return np.array(halves)
 
 
 def _check_finite(step: int, what: str, values: dict) -> None:

@@ -70,6 +70,8 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
     ("photometric", 1.5, r"data.reader.photometric must be a finite number in \[0, 1\], got 1.5"),
     ("photometric", True, r"data.reader.photometric must be a finite number in \[0, 1\], got True"),
     ("seed", -1, "data.reader.seed must be a whole number >= 0, got -1"),
+    ("input_modalities", "depth", r"data.reader.input_modalities must be 'rgb' or 'rgb\+depth', got 'depth'"),
+    ("input_modalities", ["rgb"], r"data.reader.input_modalities must be 'rgb' or 'rgb\+depth', got \['rgb'\]"),
 ])
 def test_reader_config_checks_each_field(field, value, message):
     with pytest.raises(ValueError, match=f"^{message}$"):

@@ -33,7 +33,7 @@ STEPS_BY_MODEL = {"hopenet_r50": 400}
 
 
 def test_every_model_config_is_guarded():
-    assert {"hopenet", "hopenet_r10_128", "hupnet", "resnet50"} <= set(MODEL_CONFIGS)
+    assert {"hopenet", "hopenet_r10_128", "hupnet", "hupnet_depth", "resnet50"} <= set(MODEL_CONFIGS)
 
 
 def short_run(model: str, dataset, folder: Path, steps: int):
@@ -56,7 +56,8 @@ def trained_model(run, folder: Path) -> torch.nn.Module:
 def low_spread(net: torch.nn.Module, dataset) -> dict[str, float]:
     """The camera axes along which the model's predictions on the training frames vary less than
     SPREAD_RATIO_WARN times as much as the truth: {axis: ratio}."""
-    frames = HUPDataset(dataset, "train", ReaderConfig(input_size=INPUT_SIZE))
+    modalities = "rgb+depth" if net.config.input_channels == 4 else "rgb"
+    frames = HUPDataset(dataset, "train", ReaderConfig(input_size=INPUT_SIZE, input_modalities=modalities))
     batch = torch.utils.data.default_collate([frames[i] for i in range(len(frames))])
     with torch.no_grad():
         predicted = net(batch["image"]).points3d
