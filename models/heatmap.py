@@ -34,6 +34,14 @@ corners' 2D points are the box's projection; the heatmaps' own 2D points are ``p
 towards the true corners as HOPE-Net's initial 2D points are. Free corners came out 21 mm away from any
 rigid box (scripts/diagnose_errors.py on paper_hupnet_rgbd_cpu, test split).
 
+The probe's orientation marker spans 2-4 pixels at 128 px, and on unseen grasps a model that cannot see it
+has the probe the wrong way round (the half-turned labels closer on 66-72 % of test frames). With
+``backbone_size`` below ``input_size`` the backbone sees the input downsampled (RGB averaged, depth to the
+nearest pixel) while ``probe_crop_px`` crops a square of that many input pixels around the probe at full
+resolution (the corner heatmaps' 2D centre, no gradient through it) for a second, small ResNet, whose pooled
+feature joins the rotation head's: the probe at twice the detail for a fraction of the cost of a backbone
+at the full size.
+
 Convention:
     2D points in normalised image coordinates of the input image (models/coords.py: [-1, 1]
     across the image, pixel centres at integers); 3D points in the training target's units
@@ -53,7 +61,7 @@ from torch.nn import functional as F
 from models.model_config import ModelConfig, check_camera, check_whole
 from models.hopenet import normalized_intrinsics, unproject_normalized
 from models.prior import PointPrior
-from models.resnet import resnet
+from models.resnet import check_backbone, resnet
 
 __all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "soft_argmax"]
 
@@ -118,6 +126,10 @@ class HUPNetConfig(ModelConfig):
         probe_head: "corners" (8 free corner keypoints) or "rigid" (the box posed rigidly, module docstring).
         probe_half_extents: (3,) half the probe box's sides along its x, y, z, in the training target's units
             (required by "rigid"; training fills it in from the training split).
+        backbone_size: side of the image the backbone sees, pixels: ``input_size`` divided by a whole number
+            (None: the input size itself).
+        probe_crop_px: side of the full-resolution crop around the probe for the rotation head, input pixels
+            (0: none; needs probe_head "rigid"). probe_crop_backbone: the crop's ResNet.
     """
 
     name: ClassVar[str] = "hupnet"
@@ -129,6 +141,9 @@ class HUPNetConfig(ModelConfig):
     depth_anchor: bool = False
     probe_head: str = "corners"
     probe_half_extents: tuple[float, float, float] | None = None
+    backbone_size: int | None = None
+    probe_crop_px: int = 0
+    probe_crop_backbone: str = "resnet10"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -139,6 +154,12 @@ class HUPNetConfig(ModelConfig):
             raise ValueError(f"probe_head must be 'corners' or 'rigid', got {self.probe_head!r}")
         if self.probe_head == "rigid" and self.n_keypoints < N_CORNERS:
             raise ValueError(f"probe_head 'rigid' poses the last {N_CORNERS} keypoints, the model has {self.n_keypoints}")
+        check_whole("probe_crop_px", self.probe_crop_px, 0)
+        check_backbone(self.probe_crop_backbone)
+        if self.probe_crop_px and self.probe_head != "rigid":
+            raise ValueError("probe_crop_px feeds the rigid probe head: it needs probe_head 'rigid'")
+        if self.backbone_size is not None:
+            check_whole("backbone_size", self.backbone_size, 16)
         if self.probe_half_extents is not None:
             extents = torch.as_tensor(self.probe_half_extents, dtype=torch.float64)
             if extents.shape != (3,) or not torch.isfinite(extents).all() or (extents <= 0).any():
@@ -148,6 +169,12 @@ class HUPNetConfig(ModelConfig):
                              f"{self.canvas_margin!r}")
         if self.K_input is not None or self.input_size is not None:
             check_camera(self.K_input, self.input_size, self.STRIDE)
+            backbone = self.backbone_size or self.input_size
+            if self.input_size % backbone or backbone % self.STRIDE:
+                raise ValueError(f"backbone_size must divide input_size {self.input_size} and be a multiple of "
+                                 f"{self.STRIDE}, got {backbone}")
+            if self.probe_crop_px > self.input_size:
+                raise ValueError(f"probe_crop_px must be at most input_size {self.input_size}, got {self.probe_crop_px}")
 
 
 class HUPNet(nn.Module):
@@ -165,6 +192,8 @@ class HUPNet(nn.Module):
         self.config = config
         self.n_keypoints = config.n_keypoints
         self.input_size = input_size = config.input_size
+        self.factor = input_size // (config.backbone_size or input_size)   # input pixels per backbone pixel
+        self.stride = self.STRIDE * self.factor                           # input pixels per canvas cell
         self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual,
                                in_channels=config.input_channels)
         _, c3, c4, c5 = self.backbone.stage_channels
@@ -195,13 +224,23 @@ class HUPNet(nn.Module):
             self.register_buffer("probe_box", box, persistent=False)                   # (8, 3) centred
             self.register_buffer("probe_rotation0", _fit_rotation(box, self.prior3d.mean[-N_CORNERS:]),
                                  persistent=False)                                       # the mean layout's turn
-            self.probe_rotation = nn.Sequential(nn.Linear(c5 + D, 256), nn.ReLU(inplace=True), nn.Linear(256, 6))
+            crop_features = 0
+            if config.probe_crop_px:
+                self.crop_net = resnet(config.probe_crop_backbone, num_classes=None, in_channels=config.input_channels)
+                crop_features = self.crop_net.feature_dim
+                # normalised input coordinates of the crop's pixel centres relative to its centre, (C, C, 2) x, y
+                C = config.probe_crop_px
+                offsets = ((torch.arange(C, dtype=torch.float32) + 0.5) / C * 2.0 - 1.0) * (C / input_size)
+                self.register_buffer("crop_offsets", torch.stack(torch.meshgrid(offsets, offsets, indexing="xy"), -1),
+                                     persistent=False)
+            self.probe_rotation = nn.Sequential(nn.Linear(c5 + D + crop_features, 256), nn.ReLU(inplace=True),
+                                                nn.Linear(256, 6))
             nn.init.normal_(self.probe_rotation[-1].weight, std=1e-3)
             nn.init.zeros_(self.probe_rotation[-1].bias)
-        cells = input_size // self.STRIDE
+        cells = input_size // self.stride
         self.margin_cells = int(round(float(config.canvas_margin) * cells))
-        # normalised coordinate of each canvas cell's centre: cell j of the image covers pixels
-        # [8 j, 8 j + 8), centre 8 j + 3.5 -> (j + 0.5) / cells * 2 - 1
+        # normalised coordinate of each canvas cell's centre: cell j of the image covers input pixels
+        # [s j, s j + s) (s = stride), centre s j + (s - 1) / 2 -> (j + 0.5) / cells * 2 - 1
         index = torch.arange(-self.margin_cells, cells + self.margin_cells, dtype=torch.float32)
         self.register_buffer("grid", (index + 0.5) / cells * 2.0 - 1.0, persistent=False)
 
@@ -219,7 +258,13 @@ class HUPNet(nn.Module):
             raise ValueError(f"images must be (B, {self.config.input_channels}, {self.input_size}, {self.input_size}) "
                              "(the model's input size), "
                              f"got {tuple(images.shape)}")
-        _, c3, c4, c5 = self.backbone.feature_maps(images)
+        seen = images
+        if self.factor > 1:  # RGB averaged, depth to the nearest pixel (no blend of a surface with nothing)
+            f = self.factor
+            seen = F.avg_pool2d(images[:, :3], f)
+            if images.shape[1] > 3:
+                seen = torch.cat([seen, images[:, 3:, f // 2::f, f // 2::f]], dim=1)
+        _, c3, c4, c5 = self.backbone.feature_maps(seen)
         p = self.lateral5(c5)                                                        # (B, D, S/32, S/32)
         p = self.lateral4(c4) + F.interpolate(p, size=c4.shape[-2:], mode="nearest")  # (B, D, S/16, S/16)
         p = self.lateral3(c3) + F.interpolate(p, size=c3.shape[-2:], mode="nearest")  # (B, D, S/8, S/8)
@@ -240,26 +285,34 @@ class HUPNet(nn.Module):
         points3d = unproject_normalized(points2d, depth, self.intrinsics)
         if self.config.probe_head == "rigid":
             pooled = torch.flatten(self.backbone.avgpool(c5), 1)
-            rigid2d, rigid3d = self._rigid_probe(p, pooled, points3d[:, -N_CORNERS:])
+            rigid2d, rigid3d = self._rigid_probe(p, pooled, points3d[:, -N_CORNERS:], images, points2d[:, -N_CORNERS:])
             heatmap2d = points2d
             points2d = torch.cat([points2d[:, :-N_CORNERS], rigid2d.to(points2d.dtype)], dim=1)
             points3d = torch.cat([points3d[:, :-N_CORNERS], rigid3d.to(points3d.dtype)], dim=1)
             return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), heatmap2d.to(images.dtype))
         return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype))
 
-    def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor,
-                     corners3d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor, corners3d: torch.Tensor, images: torch.Tensor,
+                     corners2d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The probe box posed rigidly: ((B, 8, 2) normalised 2D, (B, 8, 3) 3D) in float32 (class docstring).
 
         Args:
             p: (B, D, H, W) canvas features. pooled: (B, C5) the backbone's pooled feature.
             corners3d: (B, 8, 3) the heatmaps' corners, whose mean is the box's centre.
+            images: (B, C, S, S) the model input, cropped around the probe when ``probe_crop_px`` is set.
+            corners2d: (B, 8, 2) the heatmaps' corners, normalised: the crop's centre is their mean.
         """
         B, D, H, W = p.shape
         look = torch.softmax(self.heatmap(p)[:, -N_CORNERS:].float().reshape(B, N_CORNERS, H * W), dim=-1)
         look = look.mean(dim=1)                                                     # (B, H W) where corners are
         local = torch.bmm(p.float().reshape(B, D, H * W), look.unsqueeze(-1)).squeeze(-1)    # (B, D)
-        six = self.probe_rotation(torch.cat([pooled.float(), local], dim=1)).float()          # (B, 6)
+        features = [pooled.float(), local]
+        if self.config.probe_crop_px:
+            centre2d = corners2d.detach().float().mean(dim=1)                        # (B, 2) normalised
+            where = centre2d[:, None, None, :] + self.crop_offsets                   # (B, C, C, 2)
+            crop = F.grid_sample(images.float(), where, mode="bilinear", padding_mode="zeros", align_corners=False)
+            features.append(self.crop_net.features(crop.to(images.dtype)).float())  # (B, F)
+        six = self.probe_rotation(torch.cat(features, dim=1)).float()                # (B, 6)
         identity = torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0], device=six.device)
         rotation = rotation_from_6d(six + identity) @ self.probe_rotation0          # (B, 3, 3)
         centre = corners3d.float().mean(dim=1, keepdim=True)                        # (B, 1, 3)
@@ -278,7 +331,7 @@ class HUPNet(nn.Module):
         finite)."""
         depth = images[:, 3:4].float()                                          # (B, 1, S, S) metres, 0 = none
         surface = (depth > 0).float()
-        k, m = self.STRIDE, self.margin_cells
+        k, m = self.stride, self.margin_cells
         covered = F.avg_pool2d(surface, k)                                      # (B, 1, S/8, S/8) fraction
         mean_depth = F.avg_pool2d(depth, k) / covered.clamp(min=1e-6)           # mean over surface pixels
         covered, mean_depth = F.pad(covered, (m, m, m, m)), F.pad(mean_depth, (m, m, m, m))

@@ -102,8 +102,8 @@ class EvalOptions:
 
 
 def model_label(model_config: dict, input_size: int) -> str:
-    """Human label naming the model, backbone, input size and a depth input, e.g. "HOPE-Net (ResNet-18, 128 px)",
-    "HUPNet (ResNet-18, 128 px, RGB-D)"."""
+    """Human label naming the model, backbone, input size, a depth input and HUPNet's heads, e.g. "HOPE-Net
+    (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -111,8 +111,15 @@ def model_label(model_config: dict, input_size: int) -> str:
     parts = ([backbone] if backbone else []) + [f"{input_size} px"]
     if model_config.get("name") == "resnet_regressor" and model_config.get("predict_2d"):
         parts.append("2D head")
+    if model_config.get("backbone_size") and model_config["backbone_size"] != input_size:
+        parts.append(f"backbone at {model_config['backbone_size']} px")
     if model_config.get("input_channels", 3) == INPUT_MODALITIES["rgb+depth"]:
         parts.append("RGB-D")
+    if model_config.get("depth_anchor"):
+        parts.append("depth-anchored")
+    if model_config.get("probe_head") == "rigid":
+        parts.append("rigid probe" + (f", {model_config['probe_crop_px']} px probe crop"
+                                      if model_config.get("probe_crop_px") else ""))
     return f"{name} ({', '.join(parts)})"
 
 

@@ -373,3 +373,14 @@ def test_checkpoint_eval_times_pytorch_and_onnxruntime(exported, tiny_dataset, t
     for runtime in ("pytorch", "onnxruntime"):
         assert all(v > 0 for v in r["latency_ms_per_image"][runtime].values()), runtime
     assert not list(tmp_path.glob("*.onnx"))
+
+
+def test_model_label_names_what_the_model_reads_and_its_heads():
+    from hupbench.evaluation.evaluate import model_label
+
+    assert model_label({"name": "hupnet", "backbone": "resnet18"}, 128) == "HUPNet (ResNet-18, 128 px)"
+    assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4}, 128) == \
+        "HUPNet (ResNet-18, 128 px, RGB-D)"
+    assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
+                        "probe_head": "rigid", "probe_crop_px": 64, "backbone_size": 128}, 256) == \
+        "HUPNet (ResNet-18, 256 px, backbone at 128 px, RGB-D, depth-anchored, rigid probe, 64 px probe crop)"

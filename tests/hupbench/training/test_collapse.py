@@ -37,9 +37,14 @@ def test_every_model_config_is_guarded():
 
 
 def short_run(model: str, dataset, folder: Path, steps: int):
-    """The typed run of a config shrunk to ``steps`` steps of 8 frames at INPUT_SIZE px, un-augmented."""
+    """The typed run of a config shrunk to ``steps`` steps of 8 frames at INPUT_SIZE px, un-augmented (a backbone
+    and a probe crop smaller than the input shrink with it, in the same ratios)."""
+    composed = compose("train", [f"model={model}"])
+    shrink = INPUT_SIZE / composed.data.reader.input_size
+    sizes = [f"model.{name}={int(composed.model[name] * shrink)}" for name in ("backbone_size", "probe_crop_px")
+             if composed.model.get(name)]
     return train_config(compose("train", [
-        f"model={model}", f"data.root={dataset}", f"run_dir={folder}", f"data.cache_dir={folder.parent / 'cache'}",
+        *sizes, f"model={model}", f"data.root={dataset}", f"run_dir={folder}", f"data.cache_dir={folder.parent / 'cache'}",
         f"data.reader.input_size={INPUT_SIZE}", "data.batch_size=8", "data.val_frames=8", f"train.max_steps={steps}",
         f"train.val_every={steps}", f"train.ckpt_every={steps}", f"train.log_every={steps}",
         "train.bn_recompute_frames=20", "train.progress=false", "train.tensorboard=false", "data.reader.rotate_deg=0",

@@ -268,21 +268,27 @@ MODEL_CONFIGS = sorted(p.stem for p in (REPO / "conf" / "model").glob("*.yaml"))
 @pytest.mark.parametrize("model", MODEL_CONFIGS)
 def test_every_model_config_composes_and_builds(model, batch):
     """Each config of conf/model/ is a typed node that builds its model once training fills in the input
-    camera (the default one, resized) and the prior."""
+    camera (the default one, resized), the input channels of its data.reader.input_modalities and the probe
+    box of a rigid probe head."""
     from dataclasses import fields, replace
 
+    from hupbench.input_geometry import INPUT_MODALITIES
     from models.build import build_model
 
     run = train_config(compose("train", [f"model={model}"]))
     size = run.data.reader.input_size
-    assert size in (128, 224)
+    assert size in (128, 224, 256)
     f, c = 480.0 * size / 256, (128.0 + 0.5) * size / 256 - 0.5
-    camera = {"K_input": [[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]], "input_size": size}
-    config = replace(run.model, **{k: v for k, v in camera.items() if k in {f.name for f in fields(run.model)}})
+    filled = {"K_input": [[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]], "input_size": size,
+              "probe_half_extents": [0.036, 0.015, 0.0825] if getattr(run.model, "probe_head", None) == "rigid"
+              else None}
+    channels = INPUT_MODALITIES[run.data.reader.input_modalities]
+    config = replace(run.model, input_channels=channels,
+                     **{k: v for k, v in filled.items() if k in {f.name for f in fields(run.model)}})
     net = build_model(config.saved())
     assert net.config == config
     with torch.no_grad():
-        out = net.eval()(torch.rand(batch, 3, size, size))
+        out = net.eval()(torch.rand(batch, channels, size, size))
     assert out.points3d.shape == (batch, 29, 3)
     if config.name == "hopenet":
         assert out.points2d_init.shape == out.points2d.shape == (batch, 29, 2)
