@@ -27,43 +27,41 @@ from hupbench.input_geometry import (INPUT_MODALITIES, INPUT_SIZE_RANGE, depth_c
                                      pixels_to_normalized)
 
 
-def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
-    """A stored frame as (H, W, 3) uint8 RGB, checked: it exists, decodes, and has the manifest's
-    ``image_size`` (width, height) unless that is None (a frame of another size would put every label in
-    the wrong place)."""
+def _decode_stored(path: str | Path, flags: int, what: str, image_size) -> np.ndarray:
+    """A stored frame file decoded with OpenCV ``flags``, checked: it exists (``what`` names it otherwise),
+    decodes, and has the manifest's ``image_size`` (width, height) unless that is None (a frame of another
+    size would put every label in the wrong place)."""
     path = Path(path)
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except FileNotFoundError:
-        raise MissingFileError(f"{path} does not exist (a frame the annotations list)") from None
+        raise MissingFileError(f"{path} does not exist ({what} the annotations list)") from None
     # imdecode, not imread: imread prints OpenCV's own warning for a missing or foreign file before
     # returning None, which a user cannot act on (the error below names the file)
-    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    image = cv2.imdecode(data, flags) if data.size else None
     if image is None:
-        raise BadValueError(f"cannot decode {path} as an image ({data.size} bytes): damaged or not a JPG/PNG")
+        kind = "an image" if flags == cv2.IMREAD_COLOR else "a PNG"
+        raise BadValueError(f"cannot decode {path} as {kind} ({data.size} bytes): damaged or not "
+                            + ("a JPG/PNG" if flags == cv2.IMREAD_COLOR else "a PNG"))
     if image_size is not None:
         width, height = (int(v) for v in image_size)
         if image.shape[:2] != (height, width):
             raise BadValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
-    return np.ascontiguousarray(image[..., ::-1])
+    return image
+
+
+def read_rgb(path: str | Path, image_size=None) -> np.ndarray:
+    """A stored frame as (H, W, 3) uint8 RGB, checked by :func:`_decode_stored`."""
+    return np.ascontiguousarray(_decode_stored(path, cv2.IMREAD_COLOR, "a frame", image_size)[..., ::-1])
 
 
 def read_depth(path: str | Path, image_size=None) -> np.ndarray:
-    """A stored depth map as (H, W) uint16 (the dataset's unit, 0 = no surface), checked like :func:`read_rgb`."""
-    path = Path(path)
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except FileNotFoundError:
-        raise MissingFileError(f"{path} does not exist (a depth map the annotations list)") from None
-    depth = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if depth is None:
-        raise BadValueError(f"cannot decode {path} as a PNG ({data.size} bytes): damaged or not a PNG")
+    """A stored depth map as (H, W) uint16 (the dataset's unit, 0 = no surface), checked by :func:`_decode_stored`
+    and for its type."""
+    depth = _decode_stored(path, cv2.IMREAD_UNCHANGED, "a depth map", image_size)
     if depth.dtype != np.uint16 or depth.ndim != 2:
         raise BadValueError(f"{path} is {depth.dtype} with {1 if depth.ndim == 2 else depth.shape[2]} channel(s); "
                             "a depth map is single-channel uint16")
-    if image_size is not None and depth.shape != (int(image_size[1]), int(image_size[0])):
-        raise BadValueError(f"{path} is {depth.shape[1]} x {depth.shape[0]} px; the manifest says "
-                            f"{int(image_size[0])} x {int(image_size[1])}")
     return depth
 
 

@@ -185,10 +185,15 @@ def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
         raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
     if not data.startswith(_PNG_MAGIC):
         raise BadValueError(f"{path}: a depth map must be a 16-bit PNG; the file starts with {data[:8]!r}")
+
+    def check_size(width: int, height: int) -> None:
+        if (width, height) != tuple(image_size):
+            raise BadValueError(f"{path}: the depth map is {width} x {height} px, its image "
+                                f"{image_size[0]} x {image_size[1]} px")
+
     declared = image_size_from_header(data)
-    if declared is not None and tuple(declared) != tuple(image_size):
-        raise BadValueError(f"{path}: the depth map is {declared[0]} x {declared[1]} px, its image "
-                            f"{image_size[0]} x {image_size[1]} px")
+    if declared is not None:  # before decoding: a huge file of the wrong size is refused from its header
+        check_size(*declared)
     with _c_library_messages() as said:
         depth = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if depth is None or depth.size == 0:
@@ -198,9 +203,7 @@ def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
     if depth.dtype != np.uint16 or depth.ndim != 2:
         raise BadValueError(f"{path}: a depth map must be single-channel 16-bit, got {depth.dtype} with "
                             f"{1 if depth.ndim == 2 else depth.shape[2]} channel(s)")
-    if depth.shape != (image_size[1], image_size[0]):
-        raise BadValueError(f"{path}: the depth map is {depth.shape[1]} x {depth.shape[0]} px, its image "
-                            f"{image_size[0]} x {image_size[1]} px")
+    check_size(depth.shape[1], depth.shape[0])
     return depth
 
 
