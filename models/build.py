@@ -56,7 +56,11 @@ def build_model(saved: Mapping[str, Any]) -> nn.Module:
     unexpected = sorted(set(saved) - set(known) - {"name"})
     if unexpected:
         raise ValueError(f"model {name!r} does not take {', '.join(unexpected)}; it takes: {', '.join(known)}")
-    return model(config(**{key: value for key, value in saved.items() if key != "name"}))
+    built = config(**{key: value for key, value in saved.items() if key != "name"})
+    if built.probe_fit == "depth" and built.input_channels != 4:  # the channels are filled in after composition
+        raise ValueError("probe_fit 'depth' fits the probe to the depth input: it needs "
+                         "data.reader.input_modalities=rgb+depth")
+    return model(built)
 
 
 def load_checkpoint_state(model: nn.Module, state_dict: Mapping[str, torch.Tensor]) -> nn.Module:

@@ -130,6 +130,8 @@ class HUPNetConfig(ModelConfig):
             (None: the input size itself).
         probe_crop_px: side of the full-resolution crop around the probe for the rotation head, input pixels
             (0: none; needs probe_head "rigid"). probe_crop_backbone: the crop's ResNet.
+        heatmap_stride: backbone pixels per heatmap cell, 8 (the pyramid down to the stride-8 stage) or 4 (one
+            level further, from the first stage: four times the cells, finer 2D where a finger is a few pixels).
     """
 
     name: ClassVar[str] = "hupnet"
@@ -144,6 +146,7 @@ class HUPNetConfig(ModelConfig):
     backbone_size: int | None = None
     probe_crop_px: int = 0
     probe_crop_backbone: str = "resnet10"
+    heatmap_stride: int = 8
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -155,6 +158,8 @@ class HUPNetConfig(ModelConfig):
         if self.probe_head == "rigid" and self.n_keypoints < N_CORNERS:
             raise ValueError(f"probe_head 'rigid' poses the last {N_CORNERS} keypoints, the model has {self.n_keypoints}")
         check_whole("probe_crop_px", self.probe_crop_px, 0)
+        if isinstance(self.heatmap_stride, bool) or self.heatmap_stride not in (4, 8):
+            raise ValueError(f"heatmap_stride must be 4 or 8, got {self.heatmap_stride!r}")
         check_backbone(self.probe_crop_backbone)
         if self.probe_crop_px and self.probe_head != "rigid":
             raise ValueError("probe_crop_px feeds the rigid probe head: it needs probe_head 'rigid'")
@@ -178,7 +183,7 @@ class HUPNetConfig(ModelConfig):
 
 
 class HUPNet(nn.Module):
-    """ResNet + feature pyramid -> per-keypoint heatmaps and depth maps at stride 8 -> 3D via K."""
+    """ResNet + feature pyramid -> per-keypoint heatmaps and depth maps at stride 8 (or 4) -> 3D via K."""
 
     STRIDE = HUPNetConfig.STRIDE
 
@@ -193,13 +198,17 @@ class HUPNet(nn.Module):
         self.n_keypoints = config.n_keypoints
         self.input_size = input_size = config.input_size
         self.factor = input_size // (config.backbone_size or input_size)   # input pixels per backbone pixel
-        self.stride = self.STRIDE * self.factor                           # input pixels per canvas cell
+        self.stride = config.heatmap_stride * self.factor                 # input pixels per canvas cell
         self.backbone = resnet(config.backbone, num_classes=None, zero_init_residual=config.zero_init_residual,
                                in_channels=config.input_channels)
-        _, c3, c4, c5 = self.backbone.stage_channels
+        c2, c3, c4, c5 = self.backbone.stage_channels
         D = config.neck_channels
         self.lateral5, self.lateral4, self.lateral3 = nn.Conv2d(c5, D, 1), nn.Conv2d(c4, D, 1), nn.Conv2d(c3, D, 1)
         self.smooth = nn.Sequential(_conv_bn_relu(D + 2, D), _conv_bn_relu(D, D))
+        if config.heatmap_stride == 4:  # the stride-8 canvas doubled, the first stage added, one conv to D / 2
+            self.lateral2 = nn.Conv2d(c2, D, 1)
+            self.fine = _conv_bn_relu(D, D // 2)
+            D = D // 2
         self.heatmap = nn.Conv2d(D, config.n_keypoints, 1)
         if config.depth_anchor:
             # where each keypoint reads the surface, and how far behind it (units of points3d_scale); zero at
@@ -237,12 +246,16 @@ class HUPNet(nn.Module):
                                                 nn.Linear(256, 6))
             nn.init.normal_(self.probe_rotation[-1].weight, std=1e-3)
             nn.init.zeros_(self.probe_rotation[-1].bias)
-        cells = input_size // self.stride
-        self.margin_cells = int(round(float(config.canvas_margin) * cells))
-        # normalised coordinate of each canvas cell's centre: cell j of the image covers input pixels
-        # [s j, s j + s) (s = stride), centre s j + (s - 1) / 2 -> (j + 0.5) / cells * 2 - 1
-        index = torch.arange(-self.margin_cells, cells + self.margin_cells, dtype=torch.float32)
-        self.register_buffer("grid", (index + 0.5) / cells * 2.0 - 1.0, persistent=False)
+        # the canvas at stride 8 (where the coordinate channels join) and at the heatmaps' stride: normalised
+        # coordinate of each cell's centre, cell j of the image covering input pixels [s j, s j + s) (s the
+        # stride), centre s j + (s - 1) / 2 -> (j + 0.5) / cells * 2 - 1
+        cells8 = input_size // (self.STRIDE * self.factor)
+        self.margin_cells8 = int(round(float(config.canvas_margin) * cells8))
+        up = self.STRIDE // config.heatmap_stride
+        cells, self.margin_cells = cells8 * up, self.margin_cells8 * up
+        for name, n, margin in (("grid8", cells8, self.margin_cells8), ("grid", cells, self.margin_cells)):
+            index = torch.arange(-margin, n + margin, dtype=torch.float32)
+            self.register_buffer(name, (index + 0.5) / n * 2.0 - 1.0, persistent=False)
 
     def forward(self, images: torch.Tensor) -> HUPNetOutput:
         """Predict 2D and 3D keypoints.
@@ -264,16 +277,19 @@ class HUPNet(nn.Module):
             seen = F.avg_pool2d(images[:, :3], f)
             if images.shape[1] > 3:
                 seen = torch.cat([seen, images[:, 3:, f // 2::f, f // 2::f]], dim=1)
-        _, c3, c4, c5 = self.backbone.feature_maps(seen)
+        c2, c3, c4, c5 = self.backbone.feature_maps(seen)
         p = self.lateral5(c5)                                                        # (B, D, S/32, S/32)
         p = self.lateral4(c4) + F.interpolate(p, size=c4.shape[-2:], mode="nearest")  # (B, D, S/16, S/16)
         p = self.lateral3(c3) + F.interpolate(p, size=c3.shape[-2:], mode="nearest")  # (B, D, S/8, S/8)
-        m = self.margin_cells
+        m = self.margin_cells8
         p = F.pad(p, (m, m, m, m))                                                   # the canvas beyond the image
         B, _, H, W = p.shape
-        grid = self.grid.to(p.dtype)
+        grid = self.grid8.to(p.dtype)
         coords = torch.stack([grid.view(1, W).expand(H, W), grid.view(H, 1).expand(H, W)])  # (2, H, W)
         p = self.smooth(torch.cat([p, coords.unsqueeze(0).expand(B, -1, -1, -1)], dim=1))
+        if self.config.heatmap_stride == 4:                                          # (B, D / 2, 2 H, 2 W)
+            p = self.fine(F.interpolate(p, scale_factor=2, mode="nearest") + F.pad(self.lateral2(c2), (2 * m,) * 4))
+        grid = self.grid.to(p.dtype)
         if self.config.depth_anchor:
             points2d, _ = soft_argmax(self.heatmap(p), grid, grid)                  # (B, N, 2)
             depth = self._anchored_depth(images, p)                                  # (B, N)

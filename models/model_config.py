@@ -16,6 +16,10 @@ import torch
 from models.resnet import check_backbone
 
 
+#: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`)
+PROBE_FITS = ("none", "depth")
+
+
 def nested(value: Any) -> Any:
     """Lists (JSON, a Hydra list) as tuples all the way down, so that a frozen config is immutable."""
     return tuple(nested(v) for v in value) if isinstance(value, (list, tuple)) else value
@@ -55,6 +59,9 @@ class ModelConfig:
         points3d_scale: target units per raw 3D output unit.
         input_channels: C, channels of the input image: 3 (RGB) or 4 (RGB and the depth channel of
             :func:`hupbench.input_geometry.depth_channel`); training sets it from ``data.reader.input_modalities``.
+        probe_fit: what runs after the network on its output: "none", or "depth" (the probe's corners refined by
+            fitting the probe's surface to the depth input, :mod:`hupbench.inference.probe_fit`; needs
+            ``input_channels`` 4). Eval and predict run it; training and its validation curve do not.
     """
 
     #: the model's name in a saved config (:data:`models.build.MODELS`)
@@ -68,6 +75,7 @@ class ModelConfig:
     points3d_mean: tuple[tuple[float, float, float], ...] | None = None
     points3d_scale: float = 1.0
     input_channels: int = 3
+    probe_fit: str = "none"
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -76,6 +84,8 @@ class ModelConfig:
         check_whole("n_keypoints", self.n_keypoints, self.min_keypoints)
         if self.input_channels not in (3, 4):
             raise ValueError(f"input_channels must be 3 (RGB) or 4 (RGB and depth), got {self.input_channels!r}")
+        if self.probe_fit not in PROBE_FITS:
+            raise ValueError(f"probe_fit must be one of {', '.join(PROBE_FITS)}, got {self.probe_fit!r}")
         scale = self.points3d_scale
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"points3d_scale must be a positive finite number, got {scale!r}")

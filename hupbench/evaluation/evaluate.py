@@ -29,6 +29,8 @@ from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
 from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.inference.model_file import fits_probe
+from hupbench.inference.probe_fit import fit_probe
 from hupbench.input_geometry import INPUT_MODALITIES
 
 __all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms",
@@ -103,7 +105,8 @@ class EvalOptions:
 
 def model_label(model_config: dict, input_size: int) -> str:
     """Human label naming the model, backbone, input size, a depth input and HUPNet's heads, e.g. "HOPE-Net
-    (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)"."""
+    (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)", "HUPNet (ResNet-18,
+    128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -117,9 +120,13 @@ def model_label(model_config: dict, input_size: int) -> str:
         parts.append("RGB-D")
     if model_config.get("depth_anchor"):
         parts.append("depth-anchored")
+    if model_config.get("heatmap_stride", 8) != 8:
+        parts.append(f"stride-{model_config['heatmap_stride']} heatmaps")
     if model_config.get("probe_head") == "rigid":
         parts.append("rigid probe" + (f", {model_config['probe_crop_px']} px probe crop"
                                       if model_config.get("probe_crop_px") else ""))
+    if fits_probe(model_config):
+        parts.append("probe fitted to depth")
     return f"{name} ({', '.join(parts)})"
 
 
@@ -154,9 +161,12 @@ def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch:
 
 
 def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads: int, log, progress: bool = True,
-               export: Callable[[], object] | None = None) -> dict[str, dict[str, float | None]]:
+               export: Callable[[], object] | None = None,
+               after: Callable[[np.ndarray, tuple], object] | None = None) -> dict[str, dict[str, float | None]]:
     """Latency medians of both runtimes; ``export()``, when given, first writes ``onnx_path`` (a stage of the
-    progress bar: the exporter takes as long as the timings)."""
+    progress bar: the exporter takes as long as the timings); ``after(images, outputs)``, when given, runs
+    after the network inside the timing (the probe's fit)."""
+    after = after or (lambda images, outputs: None)
     from tqdm import tqdm
 
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
@@ -170,7 +180,8 @@ def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads:
         if torch_module is not None:
             def run_torch(images):
                 with torch.inference_mode():
-                    torch_module(torch.from_numpy(images))
+                    points2d, points3d = torch_module(torch.from_numpy(images))
+                after(images, (points2d.double().numpy(), points3d.double().numpy()))
             for batch, (warmup, repeats) in LATENCY_RUNS.items():
                 bar.set_postfix_str(f"PyTorch batch {batch}")
                 out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats,
@@ -180,8 +191,8 @@ def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads:
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
             bar.set_postfix_str(f"onnxruntime batch {batch}")
             out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
-                lambda images: run_onnx(onnx_model, *split_model_images(images)), input_size, batch, warmup, repeats,
-                channels)
+                lambda images: after(images, run_onnx(onnx_model, *split_model_images(images))), input_size, batch,
+                warmup, repeats, channels)
             bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
@@ -259,6 +270,7 @@ class EvalModel:
             self.model_config, self.input_size = self.onnx.model_config, self.onnx.input_size
             self.input_modalities = self.onnx.input_modalities
             self.K_input, self.run_name = self.onnx.K_input, self.onnx.run_name or path.stem
+            self.fits_probe = fits_probe(self.model_config)
             return
         model, payload = load_model(path)
         self.format, self.payload, self.onnx = "pytorch", payload, None
@@ -268,15 +280,21 @@ class EvalModel:
         self.input_modalities = self.module.input_modalities
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
+        self.fits_probe = fits_probe(self.model_config)
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-        """(B, C, S, S) model images -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy."""
+        """(B, C, S, S) model images -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy:
+        the network's output, and the probe's fit to the depth input after it where the model asks for it."""
         if self.module is not None:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
-            return points2d.double().numpy(), points3d.double().numpy()
-        points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
-        return points2d.astype(np.float64), points3d.astype(np.float64)
+            points2d, points3d = points2d.double().numpy(), points3d.double().numpy()
+        else:
+            points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
+            points2d, points3d = points2d.astype(np.float64), points3d.astype(np.float64)
+        if self.fits_probe:
+            points2d, points3d, _ = fit_probe(points2d, points3d, images.numpy(), self.K_input)
+        return points2d, points3d
 
     def cost(self) -> tuple[int, int]:
         """(parameters, FLOPs per image) of the architecture, rebuilt from its config when needed."""
@@ -444,8 +462,13 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
     from datagen.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
+    after = None
+    if net.fits_probe:
+        def after(images, outputs):
+            fit_probe(outputs[0], outputs[1], images, net.K_input)
     if net.format == "onnx":
-        return _latencies(None, net.path, net.input_size, net.channels, torch.get_num_threads(), log, progress)
+        return _latencies(None, net.path, net.input_size, net.channels, torch.get_num_threads(), log, progress,
+                          after=after)
     from hupbench.inference.export import export_onnx, onnx_metadata
 
     # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
@@ -461,7 +484,7 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
 
     try:
         return _latencies(net.module, onnx_path, net.input_size, net.channels, torch.get_num_threads(), log, progress,
-                          export)
+                          export, after)
     finally:
         onnx_path.unlink(missing_ok=True)
 

@@ -25,7 +25,8 @@ from datagen.errors import BadValueError
 from datagen.input_checks import check_int, is_whole
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
-__all__ = ["META", "ONNX_SCHEMA", "check_intrinsics", "check_io_shapes", "read_metadata", "write_metadata"]
+__all__ = ["META", "ONNX_SCHEMA", "check_intrinsics", "check_io_shapes", "fits_probe", "read_metadata",
+           "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
 ONNX_SCHEMA = "1"
@@ -37,6 +38,13 @@ _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
 #: ``hupbench.depth_input`` of every model that reads depth: the input ``depth`` is the model's depth channel
 #: (:func:`hupbench.input_geometry.depth_channel`)
 DEPTH_INPUT = {"units": "metres", "no_surface": 0.0, "clip_m": DEPTH_CLIP_M, "resize": "nearest"}
+
+
+def fits_probe(model_config: dict) -> bool:
+    """Whether a model's saved config (a checkpoint's, or an ONNX file's ``hupbench.model_config``) asks for the
+    probe's fit to the depth input after the network (``probe_fit: depth``, :mod:`hupbench.inference.probe_fit`);
+    a config from before the field fits nothing."""
+    return model_config.get("probe_fit", "none") == "depth"
 
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,

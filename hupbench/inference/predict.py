@@ -41,7 +41,7 @@ from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
 from datagen.render.draw import write_png
 from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_depth_png, read_image, to_uint8
-from hupbench.inference.model_file import check_intrinsics
+from hupbench.inference.model_file import check_intrinsics, fits_probe
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.runtime import OnnxModel, load_onnx_model, run_onnx
 from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
@@ -344,7 +344,13 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
         loaded.append((record, image, model_input, geometry, depth_input))
     if loaded:
         depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
-        points2d, points3d = run_onnx(model, np.stack([item[2] for item in loaded]), depth)  # (B, C, S, S) -> (B, N, *)
+        images = np.stack([item[2] for item in loaded])
+        points2d, points3d = run_onnx(model, images, depth)  # (B, C, S, S) -> (B, N, *)
+        if fits_probe(model.model_config):  # torch is imported only for a model that fits
+            from hupbench.inference.probe_fit import fit_probe
+
+            points2d, points3d, _ = fit_probe(points2d, points3d, np.concatenate([images, depth], axis=1),
+                                              model.K_input)
         K_user = options.K
         for b, (record, image, _, geometry, _) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):

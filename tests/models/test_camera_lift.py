@@ -87,10 +87,10 @@ def hupnet(**kw):
                                    "points3d_scale": 0.01} | kw)))
 
 
-@pytest.mark.parametrize("batch", [1, 3])
-def test_hupnet_outputs_project_onto_their_2d(batch):
+@pytest.mark.parametrize("batch, stride", [(1, 8), (3, 8), (2, 4)])
+def test_hupnet_outputs_project_onto_their_2d(batch, stride):
     torch.manual_seed(1)
-    model = hupnet().eval()
+    model = hupnet(heatmap_stride=stride).eval()
     with torch.no_grad():
         out = model(torch.rand(batch, 3, 64, 64))
     assert out.points2d.shape == (batch, 29, 2) and out.points3d.shape == (batch, 29, 3)
@@ -114,10 +114,24 @@ def test_hupnet_canvas_reaches_beyond_the_image():
     assert float(xy[0, 0, 0]) == pytest.approx(-1.375) and float(xy[0, 0, 0]) < -1.0
 
 
-def test_hupnet_learns_a_point_and_its_depth():
+def test_hupnet_stride_4_canvas_halves_the_cells_and_keeps_the_margin():
+    model = hupnet(canvas_margin=0.25, heatmap_stride=4)   # 64 px -> 16 cells, 4 more on each side
+    assert model.margin_cells == 4 and model.grid.shape == (24,) and model.stride == 4
+    torch.testing.assert_close(model.grid[[0, 4, -1]], torch.tensor([-1.4375, -0.9375, 1.4375]))
+    # the stride-8 canvas it is built from reaches as far: its outer edge is the same
+    assert float(model.grid8[0] - 1 / 8) == pytest.approx(float(model.grid[0] - 1 / 16))
+    with torch.no_grad():
+        out = model(torch.rand(2, 3, 64, 64))
+    assert torch.isfinite(out.points3d).all()
+    with pytest.raises(ValueError, match="heatmap_stride must be 4 or 8"):
+        hupnet(heatmap_stride=2)
+
+
+@pytest.mark.parametrize("stride", [8, 4])
+def test_hupnet_learns_a_point_and_its_depth(stride):
     """A few Adam steps on one image pull the 2D and 3D outputs onto a target (gradients reach both heads)."""
     torch.manual_seed(0)
-    model = hupnet(backbone="resnet10").train()
+    model = hupnet(backbone="resnet10", heatmap_stride=stride).train()
     images = torch.rand(4, 3, 64, 64)
     target2d = torch.full((4, 29, 2), 0.3)
     target_depth = torch.full((4, 29), 0.6)

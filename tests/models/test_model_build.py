@@ -102,3 +102,13 @@ def test_backbone_mismatch_and_bad_state():
     state["head3d.bias"] = [0.0] * 87
     with pytest.raises(ValueError, match="head3d.bias \\(not a tensor: list\\)"):
         load_checkpoint_state(r10, state)
+
+
+def test_probe_fit_is_checked_where_the_model_is_built():
+    with pytest.raises(ValueError, match="probe_fit must be one of none, depth, got 'icp'"):
+        build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "icp"})
+    with pytest.raises(ValueError, match="probe_fit 'depth' fits the probe to the depth input: it needs "
+                                         "data.reader.input_modalities=rgb\\+depth"):
+        build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "depth"})
+    built = build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "depth", "input_channels": 4})
+    assert built.config.saved()["probe_fit"] == "depth"

@@ -384,3 +384,6 @@ def test_model_label_names_what_the_model_reads_and_its_heads():
     assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
                         "probe_head": "rigid", "probe_crop_px": 64, "backbone_size": 128}, 256) == \
         "HUPNet (ResNet-18, 256 px, backbone at 128 px, RGB-D, depth-anchored, rigid probe, 64 px probe crop)"
+    assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
+                        "heatmap_stride": 4, "probe_fit": "depth"}, 128) == \
+        "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)"

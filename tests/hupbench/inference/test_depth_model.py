@@ -112,3 +112,41 @@ def test_depth_errors_name_the_file(rgbd_model, exported, tiny_dataset, tmp_path
     answer = run_cli(capsys, "predict", onnx_path, images[2], "--out", tmp_path / "e", "--depth", bad)
     records = json.loads((tmp_path / "e" / "predictions.json").read_text())["images"]
     assert answer.rc == 1 and "single-channel 16-bit, got uint8" in records[0]["error"]
+
+
+def test_a_model_that_fits_the_probe_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp_path, monkeypatch):
+    """probe_fit: depth travels in the checkpoint and the ONNX metadata, and eval (either format) and predict run
+    hupbench.inference.probe_fit after the network on its output and its RGB-D input (the fit itself:
+    test_probe_fit.py); here a stand-in fit moves the corners by 1 cm so that its use is seen."""
+    from datagen import keypoints as kp
+    from hupbench.evaluation import evaluate
+    from hupbench.inference import probe_fit
+
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth")
+    onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
+                                  log=lambda *_: None)["onnx"])
+    props = {p.key: p.value for p in onnx.load(str(onnx_path)).metadata_props}
+    assert json.loads(props["hupbench.model_config"])["probe_fit"] == "depth"
+    inputs = []
+
+    def stand_in(points2d, points3d, images, K_input):
+        inputs.append(images.shape)
+        moved = np.array(points3d, dtype=np.float64)
+        moved[:, kp.CORNER_SLICE] += 0.01
+        return np.array(points2d, dtype=np.float64), moved, None
+
+    monkeypatch.setattr(probe_fit, "fit_probe", stand_in)
+    monkeypatch.setattr(evaluate, "fit_probe", stand_in)
+    images, depth_dir = frames(tiny_dataset, 2)
+    result = run_predict(PredictOptions(onnx_path, images, tmp_path / "out", depth_dir=depth_dir))
+    reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=64, input_modalities="rgb+depth"))
+    batch = torch.stack([reader[i]["image"] for i in range(len(images))])
+    with torch.no_grad():
+        raw = E.contract_model(*load_model(ckpt), str(ckpt))(batch)[1].double().numpy()
+    expected = raw.copy()
+    expected[:, kp.CORNER_SLICE] += 0.01
+    for net in (evaluate.EvalModel(ckpt), evaluate.EvalModel(onnx_path)):
+        np.testing.assert_allclose(net.predict(batch)[1], expected, atol=1e-4)
+    for record, row in zip(result["records"], expected):
+        np.testing.assert_allclose(record["keypoints_3d_m"], row, atol=1e-4)
+    assert inputs and all(shape[1:] == (4, 64, 64) for shape in inputs)

@@ -1,0 +1,304 @@
+"""The probe posed from the measured depth: a model's 8 box corners refined by a rigid fit of the probe's
+surface to the depth input, and its half turn read from the orientation marker.
+
+Why: on unseen grasps a network places the probe the way the training grasps held it. Measured on the paper
+protocol's test split (paper_hupnet_depth_sym_cpu, scripts/probe_fit_ablation.py): its corners are off by a
+turn of 60-130 degrees about the probe's long axis on grasp 41, while their centroid is within 7 mm. The
+depth input sees the probe's surface; the probe's shape is known (:mod:`datagen.assets.probe`, its signed
+distance); a fit of that shape to the measured points recovers the turn the image shows.
+
+How, per frame, in the camera of the model input (``K_input``):
+    1. The network's pose: the probe's box (:attr:`datagen.assets.probe.Probe.corners_probe`) fitted to its
+       8 corners (Kabsch), R0, t0.
+    2. The measured points: every pixel with a surface, unprojected with its depth, within the probe's half
+       diagonal + ``REACH_M`` of the network's box centre; ``MAX_POINTS`` of them in a fixed pseudo-random
+       order (fingers, palm and arm are among them: the fit is robust to them).
+    3. ``HYPOTHESES`` turns of that pose about the probe's long axis (+z), each refined by ``ITERATIONS``
+       Gauss-Newton steps of the points' signed distance to the probe (points farther than ``TRIM_M`` from
+       the surface are left out: the hand), and scored by the points on the surface (within ``INLIER_M``)
+       less ``INSIDE_PENALTY`` times the points inside the probe (deeper than ``INSIDE_M``), which no real
+       surface can be. The best is the pose up to the probe's half turn: its shape is mirror-symmetric but
+       for the marker.
+    4. The half turn: at the marker's site of each of the two poses (the pose and its half turn), the pixel
+       window where the measured depth agrees with the site's (``MARKER_DEPTH_M``) is looked at. A site
+       whose pixels have the marker's colour (its strongest channel ahead of the others by
+       ``MARKER_CHROMA``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
+       loses ("no marker"); else the network's own turn decides ("network").
+    5. When fewer than ``MIN_INLIERS`` points lie on the surface of the best pose (no depth, or the probe
+       hidden), the network's corners stay ("kept").
+
+The corners out are the probe's box in the chosen pose: an exact rigid box. Their 2D points are its
+projection with ``K_input``. The hand's keypoints are not touched.
+
+The fit runs after the network, on its output and input, in :class:`hupbench.evaluation.evaluate.EvalModel`
+and ``hupbench predict`` alike, for a model whose config asks for it (``probe_fit: depth``, models/model_config.py);
+an ONNX file carries that in its ``hupbench.model_config`` metadata. Its cost is quoted by
+scripts/probe_fit_ablation.py.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from datagen import keypoints as kp
+from hupbench.input_geometry import pixels_to_normalized
+
+__all__ = ["DECISIONS", "ProbeFit", "fit_probe"]
+
+#: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
+DECISIONS = ("kept", "marker", "no marker", "network")
+
+HYPOTHESES = 24            # turns about the long axis, every 15 degrees
+ITERATIONS = 6             # Gauss-Newton steps per turn
+MAX_POINTS = 768           # measured points per frame
+COARSE_POINTS = 384        # of them, for the first round over every turn
+FINALISTS = 3              # turns refined again on all the points
+REACH_M = 0.03             # points this far beyond the probe's half diagonal from the network's box centre
+TRIM_M = (0.015, 0.006)    # points farther from the surface are left out: first half, second half of the steps
+INLIER_M = 0.0025          # on the surface
+INSIDE_M = 0.004           # inside the probe
+INSIDE_PENALTY = 3.0
+MIN_INLIERS = 30
+MARKER_WINDOW = 2          # the marker's pixel window reaches this many pixels each side of its site
+MARKER_DEPTH_M = 0.008     # a window pixel shows the site when its depth is this close to the site's
+MARKER_CHROMA = 0.25       # the marker's colour: its strongest channel ahead of the others by this much
+MARKER_FACING = 0.3        # a site faces the camera: cosine between its normal and the way to the camera
+MARKER_SEEN = 0.5          # a site is unoccluded: this share of its window shows it
+
+
+@dataclass(frozen=True)
+class ProbeFit:
+    """What :func:`fit_probe` did, per frame: ``decision`` (B,) int64 indexing :data:`DECISIONS`, ``inliers``
+    (B,) int64 measured points on the chosen pose's surface."""
+
+    decision: np.ndarray
+    inliers: np.ndarray
+
+
+@dataclass(frozen=True)
+class _ProbeModel:
+    corners: torch.Tensor         # (8, 3) box corners, probe frame, metres
+    grid: torch.Tensor            # (nx, ny, nz) signed distances, metres, negative inside
+    origin: torch.Tensor          # (3,) the node (0, 0, 0)
+    spacing: float
+    marker: torch.Tensor          # (3,) the marker's centre, probe frame
+    marker_normal: torch.Tensor   # (3,) its outward normal
+    marker_channel: int           # the marker colour's strongest channel
+
+
+@functools.lru_cache(maxsize=1)
+def _probe_model() -> _ProbeModel:
+    from datagen.assets.probe import build_probe
+    from datagen.render.scene import PROBE_MARKER_RGB
+
+    probe = build_probe()
+    mesh = probe.mesh
+    marked = np.flatnonzero(probe.marker_face_mask)
+    area = mesh.area_faces[marked]
+    centre = (mesh.triangles_center[marked] * area[:, None]).sum(0) / area.sum()
+    normal = (mesh.face_normals[marked] * area[:, None]).sum(0)
+    as_t = lambda a: torch.tensor(np.array(a, dtype=np.float64), dtype=torch.float32)  # noqa: E731
+    return _ProbeModel(as_t(probe.corners_probe), as_t(probe.sdf_grid), as_t(probe.sdf_origin),
+                       float(probe.sdf_spacing), as_t(centre), as_t(normal / np.linalg.norm(normal)),
+                       int(np.argmax(PROBE_MARKER_RGB)))
+
+
+def _signed_distance(model: _ProbeModel, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Trilinear signed distance (...) and its gradient (..., 3) at probe-frame points q (..., 3); outside the
+    grid the distance to the grid box is added (its gradient points away from the box)."""
+    grid, h = model.grid, model.spacing
+    n = torch.tensor(grid.shape)
+    upper = model.origin + h * (n - 1).to(torch.float32)
+    clamped = torch.maximum(torch.minimum(q, upper), model.origin)
+    u = (clamped - model.origin) / h
+    i0 = torch.minimum(torch.floor(u).long().clamp_min(0), n - 2)
+    f = u - i0.to(u.dtype)
+    flat = grid.reshape(-1)
+    sx, sy = grid.shape[1] * grid.shape[2], grid.shape[2]
+    base = i0[..., 0] * sx + i0[..., 1] * sy + i0[..., 2]
+    fx, fy, fz = f.unbind(-1)
+    # along x, then y, then z; the derivative along each axis from the differences of the same lerps
+    ax, dx = {}, {}
+    for b in (0, 1):
+        for c in (0, 1):
+            v0, v1 = flat[base + b * sy + c], flat[base + sx + b * sy + c]
+            dx[b, c] = v1 - v0
+            ax[b, c] = v0 + fx * dx[b, c]
+    by = {c: ax[0, c] + fy * (ax[1, c] - ax[0, c]) for c in (0, 1)}
+    bdx = {c: dx[0, c] + fy * (dx[1, c] - dx[0, c]) for c in (0, 1)}
+    bdy = {c: ax[1, c] - ax[0, c] for c in (0, 1)}
+    value = by[0] + fz * (by[1] - by[0])
+    gx = bdx[0] + fz * (bdx[1] - bdx[0])
+    gy = bdy[0] + fz * (bdy[1] - bdy[0])
+    gz = by[1] - by[0]
+    grad = torch.stack([gx, gy, gz], dim=-1) / h
+    out = q - clamped
+    dist_out = out.norm(dim=-1)
+    outside = dist_out > 0
+    grad = torch.where(outside[..., None], out / dist_out.clamp_min(1e-12)[..., None], grad)
+    return value + dist_out, grad
+
+
+def _kabsch(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, 3, 3) proper rotations R and (B, 3) t with dst ~ src R^T + t for (B, K, 3) point sets (src may be
+    (K, 3))."""
+    src = src.expand_as(dst)
+    ms, md = src.mean(1, keepdim=True), dst.mean(1, keepdim=True)
+    u, _, vt = torch.linalg.svd((dst - md).transpose(1, 2) @ (src - ms))
+    sign = torch.sign(torch.linalg.det(u @ vt))
+    u = torch.cat([u[..., :2], u[..., 2:] * sign[:, None, None]], dim=-1)
+    rotation = u @ vt
+    return rotation, (md - ms @ rotation.transpose(1, 2)).squeeze(1)
+
+
+def _turn_z(angles: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotations by ``angles`` about +z."""
+    c, s = torch.cos(angles), torch.sin(angles)
+    zero, one = torch.zeros_like(c), torch.ones_like(c)
+    return torch.stack([c, -s, zero, s, c, zero, zero, zero, one], dim=-1).reshape(*angles.shape, 3, 3)
+
+
+def _exp_so3(w: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotations of axis-angle vectors (..., 3) (Rodrigues)."""
+    theta = w.norm(dim=-1, keepdim=True)
+    k = w / theta.clamp_min(1e-12)
+    zero = torch.zeros_like(k[..., 0])
+    cross = torch.stack([zero, -k[..., 2], k[..., 1], k[..., 2], zero, -k[..., 0], -k[..., 1], k[..., 0], zero],
+                        dim=-1).reshape(*k.shape[:-1], 3, 3)
+    s, c = torch.sin(theta)[..., None], torch.cos(theta)[..., None]
+    return torch.eye(3) + s * cross + (1 - c) * cross @ cross
+
+
+def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor, reach: float
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, P, 3) camera-frame points of the depth map (B, S, S) near ``centre`` (B, 3) and their (B, P) weights
+    (1 real, 0 padding), P = ``MAX_POINTS``."""
+    B, S, _ = depth.shape
+    v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
+    z = depth.reshape(B, -1)
+    points = torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
+    near = (z > 0) & ((points - centre[:, None]).norm(dim=-1) < reach)
+    order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
+    keys = torch.where(near, order + 1.0, torch.zeros_like(z))
+    count = min(MAX_POINTS, S * S)
+    top = keys.topk(count, dim=1).indices
+    chosen = torch.gather(points, 1, top[..., None].expand(-1, -1, 3))
+    return chosen, torch.gather(near, 1, top).float()
+
+
+def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Poses (N, 3, 3), (N, 3) refined by Gauss-Newton on the signed distance of points (N, P, 3) with weights
+    (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
+    for step in range(ITERATIONS):
+        q = (p - t[:, None]) @ R                                                 # R^T (p - t), probe frame
+        d, g = _signed_distance(model, q)
+        trim = TRIM_M[0] if step < ITERATIONS // 2 else TRIM_M[1]
+        w = w_real * (d.abs() < trim).float()
+        J = torch.cat([torch.cross(q, g, dim=-1), g], dim=-1)                   # (N, P, 6)
+        A = (J * w[..., None]).transpose(1, 2) @ J + 1e-6 * w.sum(1).clamp_min(1.0)[:, None, None] * torch.eye(6)
+        delta = torch.linalg.solve(A, -((J * (w * d)[..., None]).sum(1)))      # (N, 6)
+        R = R @ _exp_so3(delta[:, :3]).transpose(1, 2)
+        t = t - (R @ delta[:, 3:, None]).squeeze(-1)
+    d, _ = _signed_distance(model, (p - t[:, None]) @ R)
+    inliers = (w_real * (d.abs() < INLIER_M)).sum(1)
+    return R, t, inliers - INSIDE_PENALTY * (w_real * (d < -INSIDE_M)).sum(1), inliers
+
+
+def _marker_site(model: _ProbeModel, rotation: torch.Tensor, translation: torch.Tensor, rgb: torch.Tensor,
+                 depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """For poses (B, 3, 3), (B, 3): (facing, seen, chroma), each (B,): the site's normal towards the camera
+    (cosine), the share of its pixel window whose depth shows it, the marker colour's lead there."""
+    B, _, S, _ = rgb.shape
+    site = rotation @ model.marker + translation                                  # (B, 3)
+    normal = rotation @ model.marker_normal
+    facing = -(normal * site).sum(-1) / site.norm(dim=-1).clamp_min(1e-9)
+    z = site[:, 2].clamp_min(1e-3)
+    u = torch.round(K[0, 0] * site[:, 0] / z + K[0, 2]).long()
+    v = torch.round(K[1, 1] * site[:, 1] / z + K[1, 2]).long()
+    r = MARKER_WINDOW
+    offsets = torch.arange(-r, r + 1)
+    cols = (u[:, None] + offsets).clamp(0, S - 1)                                 # (B, W)
+    rows = (v[:, None] + offsets).clamp(0, S - 1)
+    inside = ((u >= r) & (u < S - r) & (v >= r) & (v < S - r) & (site[:, 2] > 1e-3)).float()
+    index = torch.arange(B)[:, None, None]
+    window_depth = depth[index, rows[:, :, None], cols[:, None, :]]               # (B, W, W)
+    window_rgb = rgb.permute(0, 2, 3, 1)[index, rows[:, :, None], cols[:, None, :]]  # (B, W, W, 3)
+    shows = (window_depth - site[:, 2, None, None]).abs() < MARKER_DEPTH_M
+    c = model.marker_channel
+    others = torch.cat([window_rgb[..., :c], window_rgb[..., c + 1:]], dim=-1).amax(-1)
+    lead = torch.where(shows, window_rgb[..., c] - others, torch.full_like(others, -1.0))
+    return facing, shows.float().mean(dim=(1, 2)) * inside, lead.amax(dim=(1, 2)) * inside
+
+
+def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
+    """The probe's corners of a model's output refined against its depth input (module docstring).
+
+    Args:
+        points2d: (B, 29, 2) float, normalised input coordinates, and points3d: (B, 29, 3) float, metres, camera
+            frame of ``K_input``: the model's output.
+        images: (B, 4, S, S) float32 model images: RGB in [0, 1], then the depth channel (metres, 0 = none).
+        K_input: (3, 3) intrinsics of the model input, pixels.
+
+    Returns:
+        (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 8 corners replaced where the fit holds,
+        and :class:`ProbeFit`.
+    """
+    assert images.ndim == 4 and images.shape[1] == 4, images.shape
+    assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
+    model = _probe_model()
+    with torch.inference_mode():
+        K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
+        rgb = torch.as_tensor(images[:, :3], dtype=torch.float32)
+        depth = torch.as_tensor(images[:, 3], dtype=torch.float32)
+        corners = torch.as_tensor(points3d[:, kp.CORNER_SLICE], dtype=torch.float64).float()
+        B = len(images)
+        R0, t0 = _kabsch(model.corners, corners)                                  # network's pose
+        box_centre = model.corners.mean(0)
+        reach = float((model.corners - box_centre).norm(dim=-1).max()) + REACH_M
+        points, weight = _measured_points(depth, K, box_centre @ R0.transpose(1, 2) + t0, reach)
+
+        # every turn refined on a few points, the best two again on all of them
+        H = HYPOTHESES
+        angles = torch.arange(H, dtype=torch.float32) * (2 * np.pi / H)
+        R = (R0[:, None] @ _turn_z(angles)).reshape(B * H, 3, 3)
+        t = t0.repeat_interleave(H, dim=0)
+        few = COARSE_POINTS
+        R, t, score, _ = _refine(model, points[:, :few].repeat_interleave(H, dim=0),
+                                 weight[:, :few].repeat_interleave(H, dim=0), R, t)
+        top = score.reshape(B, H).topk(FINALISTS, dim=1).indices + torch.arange(B)[:, None] * H    # (B, F)
+        R, t = R[top.reshape(-1)], t[top.reshape(-1)]
+        R, t, score, inliers = _refine(model, points.repeat_interleave(FINALISTS, dim=0),
+                                       weight.repeat_interleave(FINALISTS, dim=0), R, t)
+        pick = torch.arange(B) * FINALISTS + score.reshape(B, FINALISTS).argmax(dim=1)
+        RA, tA, inliers = R[pick], t[pick], inliers[pick].long()
+        RB = RA @ _turn_z(torch.tensor(np.pi, dtype=torch.float32))
+
+        facing_a, seen_a, lead_a = _marker_site(model, RA, tA, rgb, depth, K)
+        facing_b, seen_b, lead_b = _marker_site(model, RB, tA, rgb, depth, K)
+        turn = R0.transpose(1, 2) @ RA                                             # the fit relative to the network
+        network_a = torch.atan2(turn[:, 1, 0], turn[:, 0, 0]).abs() <= np.pi / 2
+        marker = torch.maximum(lead_a, lead_b) > MARKER_CHROMA
+        absent_a = (facing_a > MARKER_FACING) & (seen_a > MARKER_SEEN)
+        absent_b = (facing_b > MARKER_FACING) & (seen_b > MARKER_SEEN)
+        choose_a = torch.where(marker, lead_a >= lead_b,
+                               torch.where(absent_a, False, torch.where(absent_b, True, network_a)))
+        decision = torch.where(marker, 1, torch.where(absent_a | absent_b, 2, 3))
+        kept = inliers < MIN_INLIERS
+        decision = torch.where(kept, 0, decision)
+        rotation = torch.where(choose_a[:, None, None], RA, RB)
+        fitted = model.corners @ rotation.transpose(1, 2) + tA[:, None]
+        fitted = fitted.double().numpy()
+    K64 = np.asarray(K_input, dtype=np.float64)
+    z = np.maximum(fitted[..., 2], 1e-3)
+    uv = np.stack([K64[0, 0] * fitted[..., 0] / z + K64[0, 2], K64[1, 1] * fitted[..., 1] / z + K64[1, 2]], -1)
+    use = ~kept.numpy()
+    out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
+    out3d[use, kp.CORNER_SLICE] = fitted[use]
+    out2d[use, kp.CORNER_SLICE] = pixels_to_normalized(uv[use], images.shape[-1])
+    return out2d, out3d, ProbeFit(decision.numpy().astype(np.int64), inliers.numpy().astype(np.int64))

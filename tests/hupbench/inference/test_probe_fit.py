@@ -1,0 +1,153 @@
+"""The probe's fit to the depth input (hupbench.inference.probe_fit) on scenes ray-cast by trimesh, an independent
+renderer: the probe mesh in a known pose, its marker in the marker's colour, a finger-sized cylinder against its
+handle. The fit must find the pose the depth shows from a network's pose turned away from it, read the half turn
+from the marker's colour (or its absence), fall back to the network's turn where neither site is in view, and
+leave the network's corners where no surface is measured."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from datagen import keypoints as kp
+from datagen.assets.probe import build_probe
+from datagen.render.scene import PROBE_BODY_RGB, PROBE_MARKER_RGB
+from hupbench.inference import probe_fit as F
+
+S = 128
+K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
+
+
+def turn_z(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def pose(x_towards, z_along, origin):
+    """Probe-to-camera rotation with the probe's +x as near ``x_towards`` as its +z = ``z_along`` allows."""
+    z = np.asarray(z_along, float) / np.linalg.norm(z_along)
+    x = np.asarray(x_towards, float) - np.dot(x_towards, z) * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z]), np.asarray(origin, float)
+
+
+#: the marker (+x side) towards the camera; and the head's broad face towards it, both sites edge-on
+MARKER_IN_VIEW = pose((0.3, 0.2, -1.0), (1.0, 0.1, 0.3), (-0.06, 0.0, 0.6))
+SITES_EDGE_ON = pose((1.0, 0.05, 0.0), (0.1, 1.0, 0.25), (0.0, -0.07, 0.6))
+
+
+def render(R, t, marker_coloured=True, finger=True):
+    """(4, S, S) float32 model image of the probe posed by (R, t), ray-cast with trimesh."""
+    probe = build_probe()
+    meshes = [trimesh.Trimesh(probe.mesh.vertices @ R.T + t, probe.mesh.faces, process=False)]
+    colours = [np.where(probe.marker_face_mask[:, None] & marker_coloured, PROBE_MARKER_RGB, PROBE_BODY_RGB)]
+    if finger:  # across the handle, touching its -y side
+        cylinder = trimesh.creation.cylinder(radius=0.009, height=0.09, sections=24)
+        along_x = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # the cylinder's z onto x
+        local = cylinder.vertices @ along_x.T + [0.0, -0.026, 0.12]
+        meshes.append(trimesh.Trimesh(local @ R.T + t, cylinder.faces, process=False))
+        colours.append(np.tile([0.76, 0.57, 0.45], (len(cylinder.faces), 1)))
+    scene = trimesh.util.concatenate(meshes)
+    face_rgb = np.concatenate(colours)
+    v, u = np.mgrid[0:S, 0:S]
+    rays = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1], np.ones(S * S)], 1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    hits, ray, tri = scene.ray.intersects_location(np.zeros_like(rays), rays, multiple_hits=False)
+    image = np.zeros((4, S * S), np.float32)
+    image[:3] = 0.5  # a grey background, no depth
+    image[:3, ray] = face_rgb[tri].T
+    image[3, ray] = hits[:, 2]
+    return image.reshape(4, S, S)
+
+
+def corners(R, t):
+    return build_probe().corners_probe @ R.T + t
+
+
+def network_output(R, t, turn=0.0, shift=(0.0, 0.0, 0.0)):
+    """(1, 29, 2), (1, 29, 3): a network's output whose probe is (R, t) turned about its long axis and shifted."""
+    points3d = np.zeros((1, kp.NUM_KEYPOINTS, 3))
+    points3d[0, :kp.NUM_HAND] = t + [0.0, 0.05, 0.0]
+    points3d[0, kp.CORNER_SLICE] = corners(R @ turn_z(turn), t + np.asarray(shift))
+    return np.zeros((1, kp.NUM_KEYPOINTS, 2)), points3d
+
+
+def fit(image, points2d, points3d):
+    out2d, out3d, report = F.fit_probe(points2d, points3d, image[None], K)
+    return out2d[0], out3d[0], F.DECISIONS[report.decision[0]]
+
+
+def error_mm(points, R, t):
+    return float(np.linalg.norm(points[kp.CORNER_SLICE] - corners(R, t), axis=1).mean() * 1000)
+
+
+def test_signed_distance_and_gradient_match_the_probe():
+    probe = build_probe()
+    q = np.random.default_rng(0).uniform([-0.06, -0.04, -0.03], [0.06, 0.04, 0.2], (4000, 3))
+    import torch
+
+    d, g = F._signed_distance(F._probe_model(), torch.tensor(q, dtype=torch.float32))
+    np.testing.assert_allclose(d.numpy(), probe.signed_distance(q), atol=2e-6)
+    # the gradient inside the grid's box (outside it the fit leaves the points out: they are far from the surface)
+    upper = probe.sdf_origin + probe.sdf_spacing * (np.array(probe.sdf_grid.shape) - 1)
+    inside = ((q > probe.sdf_origin) & (q < upper)).all(axis=1)
+    assert inside.mean() > 0.5
+    np.testing.assert_allclose(g.numpy()[inside], probe.signed_distance_gradient(q[inside]), atol=1e-3)
+
+
+@pytest.mark.parametrize("turn", [np.pi / 2, -np.pi / 3, np.pi])
+def test_the_fit_finds_the_pose_the_depth_shows(turn):
+    R, t = MARKER_IN_VIEW
+    points2d, points3d = network_output(R, t, turn, shift=(0.006, -0.004, 0.005))
+    assert error_mm(points3d[0], R, t) > 15
+    out2d, out3d, decision = fit(render(R, t), points2d, points3d)
+    assert decision == "marker"
+    assert error_mm(out3d, R, t) < 2.0
+    # an exact box, its 2D the projection; the hand as it was
+    box = corners(np.eye(3), np.zeros(3))
+    got = out3d[kp.CORNER_SLICE]
+    np.testing.assert_allclose(np.linalg.norm(got[:, None] - got[None], axis=-1),
+                               np.linalg.norm(box[:, None] - box[None], axis=-1), atol=1e-5)
+    uv = got[:, :2] / got[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    np.testing.assert_allclose(out2d[kp.CORNER_SLICE], (2 * uv + 1) / S - 1, atol=1e-6)
+    np.testing.assert_array_equal(out3d[:kp.NUM_HAND], points3d[0, :kp.NUM_HAND])
+    np.testing.assert_array_equal(out2d[:kp.NUM_HAND], points2d[0, :kp.NUM_HAND])
+
+
+def test_a_marker_site_in_view_without_the_colour_means_the_other_turn():
+    R, t = MARKER_IN_VIEW
+    points2d, points3d = network_output(R, t)        # the network right, the marker painted over
+    _, out3d, decision = fit(render(R, t, marker_coloured=False), points2d, points3d)
+    assert decision == "no marker"
+    assert error_mm(out3d, R @ turn_z(np.pi), t) < 2.0
+
+
+@pytest.mark.parametrize("turn, expected", [(np.pi / 3, 0.0), (np.pi * 5 / 6, np.pi)])
+def test_with_both_sites_out_of_view_the_network_picks_the_half_turn(turn, expected):
+    """Both sites edge-on (neither faces the camera), and no pixel of the marker's colour: its 2 mm stand out of
+    the silhouette is painted over, so that nothing in the image tells the half turn."""
+    R, t = SITES_EDGE_ON
+    points2d, points3d = network_output(R, t, turn)
+    _, out3d, decision = fit(render(R, t, marker_coloured=False), points2d, points3d)
+    assert decision == "network"
+    assert error_mm(out3d, R @ turn_z(expected), t) < 2.0
+
+
+def test_without_a_measured_surface_the_network_stays():
+    R, t = MARKER_IN_VIEW
+    points2d, points3d = network_output(R, t, np.pi / 2)
+    image = render(R, t)
+    image[3] = 0.0
+    out2d, out3d, decision = fit(image, points2d, points3d)
+    assert decision == "kept"
+    np.testing.assert_array_equal(out3d, points3d[0])
+    np.testing.assert_array_equal(out2d, points2d[0])
+
+
+def test_a_batch_is_fitted_frame_by_frame():
+    (R1, t1), (R2, t2) = MARKER_IN_VIEW, SITES_EDGE_ON
+    a, b = network_output(R1, t1, np.pi / 2), network_output(R2, t2, np.pi / 3)
+    images = np.stack([render(R1, t1), render(R2, t2, marker_coloured=False)])
+    out2d, out3d, report = F.fit_probe(np.concatenate([a[0], b[0]]), np.concatenate([a[1], b[1]]), images, K)
+    assert [F.DECISIONS[d] for d in report.decision] == ["marker", "network"]
+    assert error_mm(out3d[0], R1, t1) < 2.0 and error_mm(out3d[1], R2, t2) < 2.0
+    assert (report.inliers > F.MIN_INLIERS).all()
