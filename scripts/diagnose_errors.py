@@ -7,6 +7,9 @@ For the probe's 8 corners and the hand's 21 joints of each frame:
     rigid        MPJPE after the best rotation and translation (no scale): what no rigid pose could fix (shape)
     z / xy       mean |error| along the optical axis and in the image plane, per keypoint, mm
 and the same for the probe under its half turn (the closer labelling per frame, as eval's symmetric score).
+Per test grasp, the probe's turn: the rotation between the box fitted to the predicted corners and the true
+box (median angle, the share of frames turned 60-150 degrees, and how much of the turn is about the probe's
+long axis: the mean |cosine| between the rotation's axis and it), beside the centroid's error.
 
 Usage: python scripts/diagnose_errors.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 64]
 """
@@ -22,11 +25,16 @@ import torch
 def rigid_align(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(N, K, 3) predictions moved by the best rotation and translation onto gt (Kabsch, no scale)."""
     mu_p, mu_g = pred.mean(axis=1, keepdims=True), gt.mean(axis=1, keepdims=True)
-    x, y = pred - mu_p, gt - mu_g
+    return np.einsum("nij,nkj->nki", rigid_rotation(gt, pred), pred - mu_p) + mu_g
+
+
+def rigid_rotation(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) proper rotations R turning each centred gt set onto its centred pred set (Kabsch)."""
+    x, y = gt - gt.mean(axis=1, keepdims=True), pred - pred.mean(axis=1, keepdims=True)
     u, _, vt = np.linalg.svd(np.einsum("nki,nkj->nij", y, x))
     d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)
     u[:, :, 2] *= d[:, None]
-    return np.einsum("nij,nkj->nki", u @ vt, x) + mu_g
+    return u @ vt
 
 
 def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
@@ -86,6 +94,20 @@ def main() -> None:
                          "probe, half turn": (pred[:, probe], gt_sym)}.items():
         print(f"{name:18s}" + "".join(f"{v:15.2f}" for v in decompose(p, g).values()))
     print(f"probe half-turned labels closer on {closer.mean():.0%} of frames")
+    grasp = read_annotations(args.dataset, args.split, ("grasp_id",), reader.manifest)["grasp_id"][rows]
+    R = rigid_rotation(pred[:, probe], gt[:, probe])
+    angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    axis = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    centred = gt[:, probe] - gt[:, probe].mean(1, keepdims=True)
+    long_axis = np.linalg.svd(centred)[2][:, 0]                                   # (F, 3) the box's longest axis
+    about_long = np.abs((axis * long_axis).sum(1))
+    centroid = np.linalg.norm(pred[:, probe].mean(1) - gt[:, probe].mean(1), axis=-1) * 1000.0
+    for g in sorted(np.unique(grasp).tolist()):
+        s = grasp == g
+        print(f"grasp {g}: probe turned {np.median(angle[s]):.0f} deg (median), 60-150 deg on "
+              f"{((angle[s] >= 60) & (angle[s] <= 150)).mean():.0%} of frames, about the long axis "
+              f"{about_long[s].mean():.2f} (mean |cos|); centroid {centroid[s].mean():.2f} mm")
 
 
 if __name__ == "__main__":

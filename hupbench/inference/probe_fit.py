@@ -2,8 +2,8 @@
 surface to the depth input, and its half turn read from the orientation marker.
 
 Why: on unseen grasps a network places the probe the way the training grasps held it. Measured on the paper
-protocol's test split (paper_hupnet_depth_sym_cpu, scripts/probe_fit_ablation.py): its corners are off by a
-turn of 60-130 degrees about the probe's long axis on grasp 41, while their centroid is within 7 mm. The
+protocol's test split (paper_hupnet_depth_sym_cpu, scripts/diagnose_errors.py): its box is turned 103 degrees
+(median) about the probe's long axis on grasp 41, while its centroid is within 7.1 mm. The
 depth input sees the probe's surface; the probe's shape is known (:mod:`datagen.assets.probe`, its signed
 distance); a fit of that shape to the measured points recovers the turn the image shows.
 
@@ -15,8 +15,9 @@ How, per frame, in the camera of the model input (``K_input``):
        order (fingers, palm and arm are among them: the fit is robust to them).
     3. ``HYPOTHESES`` turns of that pose about the probe's long axis (+z), each refined by ``ITERATIONS``
        Gauss-Newton steps of the points' signed distance to the probe (points farther than ``TRIM_M`` from
-       the surface are left out: the hand), and scored by the points on the surface (within ``INLIER_M``)
-       less ``INSIDE_PENALTY`` times the points inside the probe (deeper than ``INSIDE_M``), which no real
+       the surface are left out: the hand) on ``COARSE_POINTS`` of the points, the best ``FINALISTS`` again
+       on all of them, and scored by the points on the surface (within ``INLIER_M``) less
+       ``INSIDE_PENALTY`` times the points inside the probe (deeper than ``INSIDE_M``), which no real
        surface can be. The best is the pose up to the probe's half turn: its shape is mirror-symmetric but
        for the marker.
     4. The half turn: at the marker's site of each of the two poses (the pose and its half turn), the pixel
