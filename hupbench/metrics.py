@@ -21,7 +21,7 @@ from datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_CORNERS
 __all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES", "ROOT_INDEX", "SPREAD_AXES",
            "SPREAD_RATIO_WARN", "breakdown_mpjpe_mm", "collapsed_axes", "keypoint_errors_mm", "mpjpe_mm",
            "mpjpe_split_mm", "pa_mpjpe_mm", "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px",
-           "pixel_errors_px", "probe_symmetric_errors_mm", "procrustes_align", "root_relative_mpjpe_mm",
+           "pixel_errors_px", "probe_symmetric_errors_mm", "procrustes_align", "root_relative_mpjpe_mm", "rotation_onto",
            "split_from_errors_mm", "spread_ratios", "symmetry_costs", "symmetry_permutation"]
 
 #: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
@@ -139,16 +139,30 @@ def procrustes_align(pred_m, gt_m):
         np.result_type(pred_m.dtype, np.float32), copy=False)
 
 
+def _proper_rotation(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kabsch on (N, 3, 3) Y^T X: the proper rotations R (N, 3, 3) minimising |Y - X R^T|, the singular values
+    (N, 3) and the reflection fix d (N,) of the SVD."""
+    u, s, vt = np.linalg.svd(cov)
+    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)         # (N,) reflection fix
+    u[:, :, 2] *= d[:, None]                                                     # U D
+    return u @ vt, s, d
+
+
+def rotation_onto(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) float64 proper rotations R turning each centred (N, K, 3) ``src`` onto its centred ``dst``
+    (minimising |dst_c - src_c R^T|, Kabsch, no scale)."""
+    x = np.asarray(src, np.float64) - np.asarray(src, np.float64).mean(axis=1, keepdims=True)
+    y = np.asarray(dst, np.float64) - np.asarray(dst, np.float64).mean(axis=1, keepdims=True)
+    return _proper_rotation(np.einsum("nki,nkj->nij", y, x))[0]
+
+
 def _procrustes_np(p: np.ndarray, g: np.ndarray) -> np.ndarray:
     # one float64 numpy path for both backends, so numpy and torch give the same numbers bit for bit
     mu_p, mu_g = p.mean(axis=1, keepdims=True), g.mean(axis=1, keepdims=True)  # (N, 1, 3)
     x, y = p - mu_p, g - mu_g                                                   # (N, K, 3) centred
     var_p = (x ** 2).sum(axis=(1, 2)) / p.shape[1]                               # (N,)
     cov = np.einsum("nki,nkj->nij", y, x) / p.shape[1]                           # (N, 3, 3) = Y^T X / K
-    u, s, vt = np.linalg.svd(cov)
-    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)         # (N,) reflection fix
-    u[:, :, 2] *= d[:, None]                                                     # U D
-    rot = u @ vt                                                                 # (N, 3, 3)
+    rot, s, d = _proper_rotation(cov)                                            # (N, 3, 3), (N, 3), (N,)
     trace = s[:, 0] + s[:, 1] + d * s[:, 2]                                      # tr(S D)
     has_scale = var_p > PROCRUSTES_MIN_VARIANCE_M2
     scale = np.where(has_scale, trace / np.where(has_scale, var_p, 1.0), 0.0)   # (N,)

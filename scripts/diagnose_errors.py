@@ -24,17 +24,10 @@ import torch
 
 def rigid_align(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(N, K, 3) predictions moved by the best rotation and translation onto gt (Kabsch, no scale)."""
+    from hupbench.metrics import rotation_onto
+
     mu_p, mu_g = pred.mean(axis=1, keepdims=True), gt.mean(axis=1, keepdims=True)
-    return np.einsum("nij,nkj->nki", rigid_rotation(gt, pred), pred - mu_p) + mu_g
-
-
-def rigid_rotation(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) proper rotations R turning each centred gt set onto its centred pred set (Kabsch)."""
-    x, y = gt - gt.mean(axis=1, keepdims=True), pred - pred.mean(axis=1, keepdims=True)
-    u, _, vt = np.linalg.svd(np.einsum("nki,nkj->nij", y, x))
-    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)
-    u[:, :, 2] *= d[:, None]
-    return u @ vt
+    return np.einsum("nij,nkj->nki", rotation_onto(pred, gt), pred - mu_p) + mu_g
 
 
 def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
@@ -49,40 +42,60 @@ def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
             "xy": float(np.linalg.norm(pred[..., :2] - gt[..., :2], axis=-1).mean() * 1000.0)}
 
 
-def main() -> None:
-    from datagen import keypoints as kp
+def split_outputs(description: str, batch: int, modalities: str | None = None):
+    """The command line CHECKPOINT DATASET [--split] [--frames] [--batch] of these scripts, parsed, and the
+    checkpoint run on its frames: (args, module, payload, reader, rows, outputs), outputs a list of (images,
+    points2d, points3d) per batch (numpy float64 outputs). ``modalities``: the input the script needs (an
+    error naming it when the checkpoint reads another); None: what the checkpoint reads."""
     from hupbench.checkpoint import load_model
     from hupbench.data import HUPDataset, ReaderConfig
-    from hupbench.evaluation.evaluate import probe_symmetry_group
     from hupbench.inference.export import contract_model
-    from datagen.dataset.contract import read_annotations
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("checkpoint")
     parser.add_argument("dataset")
     parser.add_argument("--split", default="test")
     parser.add_argument("--frames", type=int, default=960, help="evenly spaced frames of the split (0: all)")
-    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--batch", type=int, default=batch)
     args = parser.parse_args()
-
     model, payload = load_model(args.checkpoint)
     module = contract_model(model, payload, args.checkpoint)
-    modalities = "rgb+depth" if module.reads_depth else "rgb"
+    if modalities is not None and module.input_modalities != modalities:
+        raise SystemExit(f"{args.checkpoint} reads {module.input_modalities}; this script needs {modalities}")
     reader = HUPDataset(args.dataset, args.split, ReaderConfig(input_size=module.input_size,
-                                                                input_modalities=modalities))
+                                                                input_modalities=module.input_modalities))
     n = len(reader)
     rows = np.arange(n) if not args.frames or args.frames >= n else np.linspace(0, n - 1, args.frames).round().astype(int)
-    preds = []
+    outputs = []
     with torch.inference_mode():
         for start in range(0, len(rows), args.batch):
             images = torch.stack([reader[int(i)]["image"] for i in rows[start:start + args.batch]])
-            preds.append(module(images)[1].double().numpy())
-    pred = np.concatenate(preds)
-    gt = reader.labels["keypoints_3d"][rows].double().numpy()
-    ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world"), reader.manifest)
-    group = probe_symmetry_group(ann["keypoints_3d_cam"], ann["T_cam_world"])
+            points2d, points3d = module(images)
+            outputs.append((images.numpy(), points2d.double().numpy(), points3d.double().numpy()))
+    return args, module, payload, reader, rows, outputs
+
+
+def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(keypoints (F, 29, 3) metres, the probe corners half-turned (F, 8, 3), grasp ids (F,)) of the frames."""
+    from datagen import keypoints as kp
+    from datagen.dataset.contract import read_annotations
+    from hupbench.evaluation.evaluate import probe_symmetry_group
+
+    ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world", "grasp_id"), reader.manifest)
+    gt = ann["keypoints_3d_cam"][rows].astype(np.float64)
+    turned = gt[:, kp.CORNER_SLICE][:, list(probe_symmetry_group(ann["keypoints_3d_cam"], ann["T_cam_world"])[1])]
+    return gt, turned, ann["grasp_id"][rows]
+
+
+def main() -> None:
+    from datagen import keypoints as kp
+    from hupbench.metrics import rotation_onto
+
+    args, module, _, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=64)
+    n, modalities = len(reader), module.input_modalities
+    pred = np.concatenate([points3d for _, _, points3d in outputs])
+    gt, turned, grasp = split_labels(args, reader, rows)
     hand, probe = slice(0, kp.NUM_HAND), slice(kp.NUM_HAND, kp.NUM_KEYPOINTS)
-    turned = gt[:, probe][:, list(group[1])]
     closer = (np.linalg.norm(pred[:, probe] - turned, axis=-1).mean(1)
               < np.linalg.norm(pred[:, probe] - gt[:, probe], axis=-1).mean(1))
     gt_sym = np.where(closer[:, None, None], turned, gt[:, probe])
@@ -94,8 +107,7 @@ def main() -> None:
                          "probe, half turn": (pred[:, probe], gt_sym)}.items():
         print(f"{name:18s}" + "".join(f"{v:15.2f}" for v in decompose(p, g).values()))
     print(f"probe half-turned labels closer on {closer.mean():.0%} of frames")
-    grasp = read_annotations(args.dataset, args.split, ("grasp_id",), reader.manifest)["grasp_id"][rows]
-    R = rigid_rotation(pred[:, probe], gt[:, probe])
+    R = rotation_onto(gt[:, probe], pred[:, probe])
     angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     axis = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
     axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)

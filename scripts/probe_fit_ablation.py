@@ -10,7 +10,6 @@ Usage: python scripts/probe_fit_ablation.py CHECKPOINT DATASET [--split test] [-
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -21,47 +20,23 @@ import torch
 
 def main() -> None:
     from datagen import keypoints as kp
-    from datagen.dataset.contract import read_annotations
-    from hupbench.checkpoint import load_model
-    from hupbench.data import HUPDataset, ReaderConfig
-    from hupbench.evaluation.evaluate import probe_symmetry_group
-    from hupbench.inference.export import contract_model
+    from diagnose_errors import split_labels, split_outputs
     from hupbench.inference.probe_fit import DECISIONS, fit_probe
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoint")
-    parser.add_argument("dataset")
-    parser.add_argument("--split", default="test")
-    parser.add_argument("--frames", type=int, default=960, help="evenly spaced frames of the split (0: all)")
-    parser.add_argument("--batch", type=int, default=32)
-    args = parser.parse_args()
-
-    model, payload = load_model(args.checkpoint)
-    module = contract_model(model, payload, args.checkpoint)
-    if not module.reads_depth:
-        raise SystemExit(f"{args.checkpoint} reads no depth: the fit needs data.reader.input_modalities=rgb+depth")
-    reader = HUPDataset(args.dataset, args.split, ReaderConfig(input_size=module.input_size,
-                                                                input_modalities="rgb+depth"))
+    args, _, payload, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth")
     n = len(reader)
-    rows = np.arange(n) if not args.frames or args.frames >= n else np.linspace(0, n - 1, args.frames).round().astype(int)
     K = np.asarray(payload["K_input"], dtype=np.float64)
     net, fitted, decisions, fit_s = [], [], [], 0.0
-    with torch.inference_mode():
-        for start in range(0, len(rows), args.batch):
-            images = torch.stack([reader[int(i)]["image"] for i in rows[start:start + args.batch]])
-            points2d, points3d = module(images)
-            points2d, points3d = points2d.double().numpy(), points3d.double().numpy()
-            began = time.perf_counter()
-            _, refined, report = fit_probe(points2d, points3d, images.numpy(), K)
-            fit_s += time.perf_counter() - began
-            net.append(points3d[:, kp.CORNER_SLICE])
-            fitted.append(refined[:, kp.CORNER_SLICE])
-            decisions.append(report.decision)
+    for images, points2d, points3d in outputs:
+        began = time.perf_counter()
+        _, refined, report = fit_probe(points2d, points3d, images, K)
+        fit_s += time.perf_counter() - began
+        net.append(points3d[:, kp.CORNER_SLICE])
+        fitted.append(refined[:, kp.CORNER_SLICE])
+        decisions.append(report.decision)
     net, fitted, decisions = np.concatenate(net), np.concatenate(fitted), np.concatenate(decisions)
-    ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world", "grasp_id"), reader.manifest)
-    gt = ann["keypoints_3d_cam"][rows][:, kp.CORNER_SLICE].astype(np.float64)
-    turned = gt[:, list(probe_symmetry_group(ann["keypoints_3d_cam"], ann["T_cam_world"])[1])]
-    grasp = ann["grasp_id"][rows]
+    labels, turned, grasp = split_labels(args, reader, rows)
+    gt = labels[:, kp.CORNER_SLICE]
 
     def error(pred, truth):
         return np.linalg.norm(pred - truth, axis=-1).mean(axis=1) * 1000.0      # (F,) mm per frame

@@ -166,7 +166,6 @@ def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads:
     """Latency medians of both runtimes; ``export()``, when given, first writes ``onnx_path`` (a stage of the
     progress bar: the exporter takes as long as the timings); ``after(images, outputs)``, when given, runs
     after the network inside the timing (the probe's fit)."""
-    after = after or (lambda images, outputs: None)
     from tqdm import tqdm
 
     out = {"pytorch": {"batch1": None, "batch32": None}, "onnxruntime": {"batch1": None, "batch32": None}}
@@ -181,18 +180,23 @@ def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads:
             def run_torch(images):
                 with torch.inference_mode():
                     points2d, points3d = torch_module(torch.from_numpy(images))
-                after(images, (points2d.double().numpy(), points3d.double().numpy()))
+                if after is not None:
+                    after(images, (points2d.double().numpy(), points3d.double().numpy()))
             for batch, (warmup, repeats) in LATENCY_RUNS.items():
                 bar.set_postfix_str(f"PyTorch batch {batch}")
                 out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, input_size, batch, warmup, repeats,
                                                                      channels)
                 bar.update(1)
         onnx_model = load_onnx_model(onnx_path, threads)
+
+        def run_onnx_and_after(images):
+            outputs = run_onnx(onnx_model, *split_model_images(images))
+            if after is not None:
+                after(images, outputs)
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
             bar.set_postfix_str(f"onnxruntime batch {batch}")
             out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(
-                lambda images: after(images, run_onnx(onnx_model, *split_model_images(images))), input_size, batch,
-                warmup, repeats, channels)
+                run_onnx_and_after, input_size, batch, warmup, repeats, channels)
             bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
@@ -270,7 +274,6 @@ class EvalModel:
             self.model_config, self.input_size = self.onnx.model_config, self.onnx.input_size
             self.input_modalities = self.onnx.input_modalities
             self.K_input, self.run_name = self.onnx.K_input, self.onnx.run_name or path.stem
-            self.fits_probe = fits_probe(self.model_config)
             return
         model, payload = load_model(path)
         self.format, self.payload, self.onnx = "pytorch", payload, None
@@ -280,7 +283,19 @@ class EvalModel:
         self.input_modalities = self.module.input_modalities
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name(path, payload)
-        self.fits_probe = fits_probe(self.model_config)
+
+    @property
+    def fits_probe(self) -> bool:
+        """Whether the model's config asks for the probe's fit after the network."""
+        return fits_probe(self.model_config)
+
+    def after_network(self, images: np.ndarray, outputs: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """What runs on the network's (points2d, points3d) float64 outputs for (B, C, S, S) model images: the probe's
+        fit to the depth input where the model asks for it, else nothing."""
+        if not self.fits_probe:
+            return outputs
+        points2d, points3d, _ = fit_probe(*outputs, images, self.K_input)
+        return points2d, points3d
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """(B, C, S, S) model images -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy:
@@ -292,9 +307,7 @@ class EvalModel:
         else:
             points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
             points2d, points3d = points2d.astype(np.float64), points3d.astype(np.float64)
-        if self.fits_probe:
-            points2d, points3d, _ = fit_probe(points2d, points3d, images.numpy(), self.K_input)
-        return points2d, points3d
+        return self.after_network(images.numpy(), (points2d, points3d))
 
     def cost(self) -> tuple[int, int]:
         """(parameters, FLOPs per image) of the architecture, rebuilt from its config when needed."""
@@ -462,10 +475,7 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
     from datagen.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
-    after = None
-    if net.fits_probe:
-        def after(images, outputs):
-            fit_probe(outputs[0], outputs[1], images, net.K_input)
+    after = net.after_network if net.fits_probe else None  # the fit is part of the model's run time
     if net.format == "onnx":
         return _latencies(None, net.path, net.input_size, net.channels, torch.get_num_threads(), log, progress,
                           after=after)

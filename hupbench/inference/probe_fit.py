@@ -1,7 +1,7 @@
 """The probe posed from the measured depth: a model's 8 box corners refined by a rigid fit of the probe's
 surface to the depth input, and its half turn read from the orientation marker.
 
-Why: on unseen grasps a network places the probe the way the training grasps held it. Measured on the paper
+Why: on unseen grasps a network's probe is turned as recalling the training grasps would turn it. Measured on the paper
 protocol's test split (paper_hupnet_depth_sym_cpu, scripts/diagnose_errors.py): its box is turned 103 degrees
 (median) about the probe's long axis on grasp 41, while its centroid is within 7.1 mm. The
 depth input sees the probe's surface; the probe's shape is known (:mod:`datagen.assets.probe`, its signed
@@ -46,7 +46,9 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
+from datagen.rotations_torch import axis_angle_to_matrix
 from hupbench.input_geometry import pixels_to_normalized
+from hupbench.metrics import rotation_onto
 
 __all__ = ["DECISIONS", "ProbeFit", "fit_probe"]
 
@@ -144,34 +146,11 @@ def _signed_distance(model: _ProbeModel, q: torch.Tensor) -> tuple[torch.Tensor,
     return value + dist_out, grad
 
 
-def _kabsch(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B, 3, 3) proper rotations R and (B, 3) t with dst ~ src R^T + t for (B, K, 3) point sets (src may be
-    (K, 3))."""
-    src = src.expand_as(dst)
-    ms, md = src.mean(1, keepdim=True), dst.mean(1, keepdim=True)
-    u, _, vt = torch.linalg.svd((dst - md).transpose(1, 2) @ (src - ms))
-    sign = torch.sign(torch.linalg.det(u @ vt))
-    u = torch.cat([u[..., :2], u[..., 2:] * sign[:, None, None]], dim=-1)
-    rotation = u @ vt
-    return rotation, (md - ms @ rotation.transpose(1, 2)).squeeze(1)
-
-
 def _turn_z(angles: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotations by ``angles`` about +z."""
     c, s = torch.cos(angles), torch.sin(angles)
     zero, one = torch.zeros_like(c), torch.ones_like(c)
     return torch.stack([c, -s, zero, s, c, zero, zero, zero, one], dim=-1).reshape(*angles.shape, 3, 3)
-
-
-def _exp_so3(w: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotations of axis-angle vectors (..., 3) (Rodrigues)."""
-    theta = w.norm(dim=-1, keepdim=True)
-    k = w / theta.clamp_min(1e-12)
-    zero = torch.zeros_like(k[..., 0])
-    cross = torch.stack([zero, -k[..., 2], k[..., 1], k[..., 2], zero, -k[..., 0], -k[..., 1], k[..., 0], zero],
-                        dim=-1).reshape(*k.shape[:-1], 3, 3)
-    s, c = torch.sin(theta)[..., None], torch.cos(theta)[..., None]
-    return torch.eye(3) + s * cross + (1 - c) * cross @ cross
 
 
 def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor, reach: float
@@ -203,7 +182,7 @@ def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.
         J = torch.cat([torch.cross(q, g, dim=-1), g], dim=-1)                   # (N, P, 6)
         A = (J * w[..., None]).transpose(1, 2) @ J + 1e-6 * w.sum(1).clamp_min(1.0)[:, None, None] * torch.eye(6)
         delta = torch.linalg.solve(A, -((J * (w * d)[..., None]).sum(1)))      # (N, 6)
-        R = R @ _exp_so3(delta[:, :3]).transpose(1, 2)
+        R = R @ axis_angle_to_matrix(delta[:, :3]).transpose(1, 2)
         t = t - (R @ delta[:, 3:, None]).squeeze(-1)
     d, _ = _signed_distance(model, (p - t[:, None]) @ R)
     inliers = (w_real * (d.abs() < INLIER_M)).sum(1)
@@ -257,9 +236,12 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         rgb = torch.as_tensor(images[:, :3], dtype=torch.float32)
         depth = torch.as_tensor(images[:, 3], dtype=torch.float32)
-        corners = torch.as_tensor(points3d[:, kp.CORNER_SLICE], dtype=torch.float64).float()
+        corners = np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64)
         B = len(images)
-        R0, t0 = _kabsch(model.corners, corners)                                  # network's pose
+        box = model.corners.double().numpy()
+        rotation0 = rotation_onto(np.broadcast_to(box, corners.shape), corners)  # the network's pose
+        R0 = torch.as_tensor(rotation0, dtype=torch.float32)
+        t0 = torch.as_tensor(corners.mean(1) - box.mean(0) @ rotation0.transpose(0, 2, 1), dtype=torch.float32)
         box_centre = model.corners.mean(0)
         reach = float((model.corners - box_centre).norm(dim=-1).max()) + REACH_M
         points, weight = _measured_points(depth, K, box_centre @ R0.transpose(1, 2) + t0, reach)

@@ -389,3 +389,16 @@ def test_spread_ratio_hand_computed_and_undefined():
     assert M.spread_ratios(pred, gt) == {"x": 0.5, "y": None, "z": None}
     assert M.collapsed_axes({"x": 0.5, "y": None, "z": 0.49}) == ["z"]
     assert M.spread_ratios(pred[:1], gt[:1]) == {"x": None, "y": None, "z": None}   # one frame
+
+
+def test_rotation_onto_recovers_a_turn_and_stays_proper():
+    from datagen.geometry import axis_angle_to_matrix
+    from hupbench.metrics import rotation_onto
+
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(4, 8, 3))
+    turns = np.stack([axis_angle_to_matrix(v) for v in rng.normal(size=(4, 3))])
+    dst = np.einsum("nij,nkj->nki", turns, src) + rng.normal(size=(4, 1, 3))   # turned and moved
+    np.testing.assert_allclose(rotation_onto(src, dst), turns, atol=1e-10)
+    mirrored = dst * np.array([1.0, 1.0, -1.0])                                  # no rotation can do this
+    assert np.allclose(np.linalg.det(rotation_onto(src, mirrored)), 1.0)
