@@ -18,7 +18,7 @@ import torch
 from datagen.errors import BadValueError
 from datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_CORNERS, NUM_HAND, NUM_KEYPOINTS
 
-__all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES", "ROOT_INDEX", "SPREAD_AXES",
+__all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "MIDDLE_MCP_INDEX", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES", "ROOT_INDEX", "SPREAD_AXES",
            "SPREAD_RATIO_WARN", "breakdown_mpjpe_mm", "collapsed_axes", "keypoint_errors_mm", "mpjpe_mm",
            "mpjpe_split_mm", "pa_mpjpe_mm", "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px",
            "pixel_errors_px", "probe_symmetric_errors_mm", "procrustes_align", "root_relative_mpjpe_mm", "rotation_onto",
@@ -28,6 +28,9 @@ __all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIE
 ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
 #: the hand root for root-relative errors: the wrist (OpenPose keypoint 0)
 ROOT_INDEX = 0
+#: the second reference of root-relative errors: the middle finger's MCP joint (OpenPose keypoint 9), the
+#: centre of the hand's 2D box and so of every hupbench frame, and less often hidden than the wrist
+MIDDLE_MCP_INDEX = 9
 #: thresholds of the 3D PCK curve whose area is :func:`pck_auc_from_errors`: 0 to 50 mm in 0.5 mm steps (101)
 PCK_THRESHOLDS_MM = np.linspace(0.0, 50.0, 101)
 #: a set whose mean squared distance from its centroid is below this (m^2, i.e. 1e-12 m RMS) has
@@ -109,8 +112,9 @@ def mpjpe_split_mm(pred_m, gt_m) -> dict[str, float]:
 
 def root_relative_mpjpe_mm(pred_m, gt_m, root: int = ROOT_INDEX, keypoints=HAND):
     """MPJPE, mm, of (N, K, 3) keypoints in metres after translating prediction and truth by their own
-    ``root`` (the wrist), averaged over ``keypoints`` (the 21 hand joints, the root with its zero error
-    included, as in the FreiHAND / HO-3D evaluation); a python float, or a 0-dim tensor for torch input."""
+    ``root`` (the wrist; ``MIDDLE_MCP_INDEX`` for the middle-finger MCP), averaged over ``keypoints`` (the 21
+    hand joints, the root with its zero error included, as in the FreiHAND / HO-3D evaluation); a python
+    float, or a 0-dim tensor for torch input."""
     _assert_points(pred_m, gt_m, 3)
     (root,) = _index([root], pred_m.shape[1])
     return mpjpe_mm(pred_m - pred_m[:, root:root + 1], gt_m - gt_m[:, root:root + 1], keypoints)

@@ -33,8 +33,8 @@ from hupbench.inference.model_file import fits_probe
 from hupbench.inference.probe_fit import fit_probe
 from hupbench.input_geometry import INPUT_MODALITIES
 
-__all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "format_table", "grasp_theta_vol_deg", "measure_latency_ms",
-           "run_eval", "split_floor"]
+__all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "default_figures_dir", "default_results_path", "format_table", "grasp_theta_vol_deg",
+           "measure_latency_ms", "run_eval", "split_floor"]
 
 #: (least warm-up runs, timed runs) per batch size for the latency medians
 LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
@@ -61,7 +61,8 @@ class EvalOptions:
     Attributes:
         model: a hupbench checkpoint (``.pt``) or an ONNX file from ``hupbench export``.
         dataset: a finished dataset folder. split: "train", "val" or "test".
-        out: results ``.json`` (default ``leaderboard/results/<run_name>.json``); its stem is the run name.
+        out: results ``.json`` (default :func:`default_results_path`: beside the model, never on the
+            leaderboard); when given, its stem is the run name.
         run_name: default: the checkpoint's training ``run_name`` (or file stem) or the ONNX metadata's.
         batch_size: frames per forward pass. latency: time PyTorch and onnxruntime (batch 1 and 32).
         threads: intra-op threads of PyTorch and onnxruntime during the run (default: torch's current setting).
@@ -70,6 +71,8 @@ class EvalOptions:
         label: the model's name in the results (default: the training config's ``label``, else model,
             backbone and input size).
         progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
+        figures: also draw prediction beside ground truth (sample and worst frames) and the PCK curve
+            (:mod:`hupbench.evaluation.figures`) into ``figures_dir`` (default :func:`default_figures_dir`).
     """
 
     model: Path
@@ -84,6 +87,8 @@ class EvalOptions:
     training_log: str | None = None
     label: str | None = None
     progress: bool = True
+    figures: bool = False
+    figures_dir: Path | None = None
 
     def __post_init__(self) -> None:
         check_int(self.batch_size, "batch_size", low=1)
@@ -101,6 +106,21 @@ class EvalOptions:
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "dataset", Path(self.dataset))
         object.__setattr__(self, "out", out)
+        if self.figures_dir is not None:
+            object.__setattr__(self, "figures", True)
+            object.__setattr__(self, "figures_dir", Path(self.figures_dir))
+
+
+def default_results_path(model: Path, split: str) -> Path:
+    """Where eval writes without ``--out``: ``<model folder>/eval/<model file name>.<split>.json`` (e.g.
+    ``checkpoints/eval/last.pt.test.json``), beside the model and never in the tracked
+    ``leaderboard/results/``: a row joins the leaderboard only when ``--out`` names it there."""
+    return model.parent / "eval" / f"{model.name}.{split}.json"
+
+
+def default_figures_dir(model: Path, split: str) -> Path:
+    """Where ``--figures`` draws without a folder: ``<model folder>/eval/<model file name>.<split>.figures/``."""
+    return model.parent / "eval" / f"{model.name}.{split}.figures"
 
 
 def model_label(model_config: dict, input_size: int) -> str:
@@ -361,7 +381,8 @@ def format_table(results: dict) -> str:
                     f"{results['dataset']['frames']} frames")),
         ("MPJPE all / hand / probe", (f"{f(m['mpjpe_mm']['all'])} / {f(m['mpjpe_mm']['hand'])} / "
                                      f"{f(m['mpjpe_mm']['probe'])} mm")),
-        ("root-relative hand MPJPE", f"{f(m['root_relative_hand_mpjpe_mm'])} mm"),
+        ("root-relative hand MPJPE, wrist / middle MCP",
+         f"{f(m['root_relative_hand_mpjpe_mm'])} / {f(m.get('middle_mcp_relative_hand_mpjpe_mm'))} mm"),
         ("probe MPJPE, half-turn symmetric", f"{f(m['probe_symmetric_mpjpe_mm'])} mm"),
         ("spread ratio x / y / z", " / ".join(f(m["spread_ratio"][a]) for a in metrics.SPREAD_AXES)),
         ("PA-MPJPE hand", f"{f(m['pa_mpjpe_hand_mm'])} mm"),
@@ -419,7 +440,8 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
     locked (a second eval writing it is refused) until it is written, and any failure writes none.
 
     Returns:
-        {"results": the validated results dict, "out": str path, "table": str}
+        {"results": the validated results dict, "out": str path, "table": str, and with ``figures``
+        "figures": {"samples", "worst", "pck"} str paths}
     """
     from datagen.dataset.contract import read_manifest
     from datagen.io import OutputLock, check_writable, clean_stale_tmp
@@ -433,16 +455,23 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
             raise MissingFileError(f"model file {options.model} does not exist")
         if options.out is not None:  # an unwritable --out is refused before minutes of work
             check_writable(options.out, "--out", file=True)
+        figures_dir = None
+        if options.figures:
+            figures_dir = check_writable(options.figures_dir or default_figures_dir(options.model, options.split),
+                                         "--figures")
         manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
         net = EvalModel(options.model)
         run_name = options.out.stem if options.out is not None else options.run_name or net.run_name
-        out_path = options.out or check_writable(Path("leaderboard") / "results" / f"{run_name}.json", "--out",
+        out_path = options.out or check_writable(default_results_path(options.model, options.split), "--out",
                                                  file=True)
         with OutputLock.for_file(out_path, "eval"):
             clean_stale_tmp(out_path.parent, recursive=False)  # evaluations that were killed
-            results = _results(options, net, manifest, run_name, out_path, log)
+            results, outputs = _results(options, net, manifest, run_name, out_path, log)
             write_results(out_path, results)
-        return {"results": results, "out": str(out_path), "table": format_table(results)}
+        answer = {"results": results, "out": str(out_path), "table": format_table(results)}
+        if figures_dir is not None:
+            answer["figures"] = {k: str(p) for k, p in _figures(figures_dir, results, outputs).items()}
+        return answer
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -499,8 +528,25 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
         onnx_path.unlink(missing_ok=True)
 
 
-def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str, out_path: Path, log) -> dict:
-    """The results dict of the model on the split: metrics, breakdowns, floors, latency and provenance."""
+def _figures(figures_dir: Path, results: dict, outputs: dict) -> dict[str, Path]:
+    """:func:`hupbench.evaluation.figures.write_eval_figures` of the evaluated split, keypoints in the stored
+    frames' pixels."""
+    from hupbench.data.reader import read_rgb
+    from hupbench.evaluation.figures import write_eval_figures
+    from hupbench.input_geometry import normalized_to_pixels
+
+    reader, image_size = outputs["reader"], outputs["image_size"]
+    return write_eval_figures(
+        figures_dir, results["model"]["label"], results["dataset"]["split"],
+        lambda i: read_rgb(reader.path(i), image_size), reader.ann["frame_id"],
+        normalized_to_pixels(outputs["gt2d"], image_size), normalized_to_pixels(outputs["pred2d"], image_size),
+        outputs["errors"])
+
+
+def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str, out_path: Path,
+             log) -> tuple[dict, dict]:
+    """(the results dict of the model on the split: metrics, breakdowns, floors, latency and provenance; the
+    outputs behind it: "pred2d", "gt2d" (N, 29, 2) normalised, "errors" (N, 29) mm, "reader", "image_size")."""
     from datagen.dataset.contract import read_annotations
     from datagen.io import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
@@ -543,6 +589,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     results["metrics"] = {
         "mpjpe_mm": metrics.split_from_errors_mm(errors) | {"all_averaging": metrics.ALL_AVERAGING},
         "root_relative_hand_mpjpe_mm": metrics.root_relative_mpjpe_mm(pred3d, gt3d),
+        "middle_mcp_relative_hand_mpjpe_mm": metrics.root_relative_mpjpe_mm(pred3d, gt3d, root=metrics.MIDDLE_MCP_INDEX),
         "pa_mpjpe_hand_mm": metrics.pa_mpjpe_mm(pred3d, gt3d),
         "pck_auc_0_50mm": metrics.pck_auc_from_errors(errors),
         "pixel_error_px": pixel_error,
@@ -573,4 +620,4 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     results["training"]["log"] = options.training_log
     results["git_commit"] = git_commit()
     results["created_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    return results
+    return results, {"pred2d": pred2d, "gt2d": gt2d, "errors": errors, "reader": reader, "image_size": image_size}

@@ -71,13 +71,18 @@ def load_rows(results_dir: str | Path) -> list[dict]:
         row = load_results(path)
         if row["run_name"] != path.stem:
             raise BadValueError(f"{path}: results['run_name'] must equal the file stem {path.stem!r}, "
-                                f"got {row['run_name']!r}")
+                                f"got {row['run_name']!r} (rename the file to {row['run_name']}.json, or rerun "
+                                f"hupbench eval with --out {path})")
         if row["dataset"]["split"] != "test":
             raise BadValueError(f"{path}: the leaderboard compares test-split results, "
-                                f"got results['dataset']['split'] = {row['dataset']['split']!r}")
+                                f"got results['dataset']['split'] = {row['dataset']['split']!r} (rerun hupbench "
+                                f"eval with --split test --out {path}, or move the file out of {results_dir})")
         if row["kind"] == "measured" and row["training"]["command"] is None:
             raise BadValueError(f"{path}: a measured row must name the command that reproduces it in "
-                                "results['training']['command'], got None")
+                                "results['training']['command'], got None: rerun hupbench eval MODEL DATASET "
+                                f"--out {path} --training-command 'COMMAND THAT TRAINED IT' (as "
+                                f"scripts/paper_protocol.sh does), or move the file out of {results_dir} if it "
+                                "is not a leaderboard row")
         rows.append(row)
     return sorted(rows, key=sort_key)
 
@@ -295,8 +300,10 @@ def _details(row: dict) -> list[str]:
                      f"{'that axis' if len(low) == 1 else 'those axes'} (collapsed)")
         lines.append(line)
     if row["metrics"]["root_relative_hand_mpjpe_mm"] is not None or row["metrics"]["pixel_error_px"] is not None:
-        lines.append(f"- root-relative hand MPJPE {_number(row['metrics']['root_relative_hand_mpjpe_mm'])} mm; "
-                     f"2D error {_number(row['metrics']['pixel_error_px'])} px")
+        middle = row["metrics"].get("middle_mcp_relative_hand_mpjpe_mm")  # absent in files written before it
+        lines.append(f"- root-relative hand MPJPE {_number(row['metrics']['root_relative_hand_mpjpe_mm'])} mm"
+                     + ("" if middle is None else f" (relative to the middle-finger MCP: {middle:.2f} mm)")
+                     + f"; 2D error {_number(row['metrics']['pixel_error_px'])} px")
     if model["flops"] is not None or model["format"] is not None:
         flops = MISSING if model["flops"] is None else f"{model['flops'] / 1e9:.2f}"
         lines.append(f"- GFLOPs per image {flops}; evaluated from {model['format'] or MISSING}")
@@ -505,16 +512,17 @@ def render_readme(rows: list[dict]) -> str:
 # ----------------------------------------------------------------------------- plots
 
 @contextlib.contextmanager
-def _figure(rows: list[dict]):
+def _figure(rows: list[dict], extra_height_in: float = 0.0):
     """(figure, axes, reported rows) on the Agg canvas (no pyplot, no global backend switch) in matplotlib's
-    default style, the reported rows drawn as reference lines."""
+    default style, the reported rows drawn as reference lines; ``extra_height_in`` inches are added below
+    the axes (for a list of the points)."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     with matplotlib.rc_context():
         matplotlib.rcdefaults()  # the user's matplotlibrc must not change the committed bytes
-        fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
+        fig = Figure(figsize=(FIGSIZE_IN[0], FIGSIZE_IN[1] + extra_height_in), dpi=DPI)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
         reported = [row for row in rows if row["kind"] == "reported"]
@@ -522,7 +530,8 @@ def _figure(rows: list[dict]):
         yield fig, ax, reported
 
 
-def _png_bytes(fig, ax, xlabel: str, ylabel: str, title: str, legend_loc: str) -> bytes:
+def _png_bytes(fig, ax, xlabel: str, ylabel: str, title: str, legend_loc: str, bottom_in: float = 0.0) -> bytes:
+    """The figure as PNG bytes, labelled; ``bottom_in`` inches at the bottom are kept clear of the axes."""
     import matplotlib
     import PIL
 
@@ -531,7 +540,8 @@ def _png_bytes(fig, ax, xlabel: str, ylabel: str, title: str, legend_loc: str) -
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc=legend_loc, fontsize=8)
-    fig.tight_layout()
+    height_in = fig.get_size_inches()[1]
+    fig.tight_layout(rect=(0.0, bottom_in / height_in, 1.0, 1.0))
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI,
                 metadata={"Software": f"hupbench leaderboard; matplotlib {matplotlib.__version__}; "
@@ -573,47 +583,65 @@ def _y_limit(values: list[float]) -> float:
     return max(values) * 1.2 if values else 1.0
 
 
+#: latencies spread over more than this ratio (slowest / fastest) are drawn on a log axis
+LATENCY_LOG_RATIO = 20.0
+#: inches of figure height per row listed under the latency plot
+LIST_ROW_IN = 0.13
+
+
+def latency_axis(latencies_ms: Sequence[float]) -> tuple[str, float, float]:
+    """("linear" | "log", low, high) x limits of the latency plot: from 0 on a linear axis, so that a few
+    hundredths of a millisecond between rows look as small as they are; a log axis (a factor 2 beyond the
+    extremes) where the latencies span more than ``LATENCY_LOG_RATIO`` times; 1 to 1000 ms with none."""
+    if not latencies_ms:
+        return "log", 1.0, 1000.0
+    low, high = min(latencies_ms), max(latencies_ms)
+    if high / max(low, 1e-9) > LATENCY_LOG_RATIO:
+        return "log", low / 2, high * 2
+    return "linear", 0.0, high * 1.15 if high > 0 else 1.0
+
+
 def plot_latency(rows: list[dict]) -> bytes:
-    """PNG of MPJPE all against inference latency: measured rows with a batch-1 latency as points with
-    their Pareto frontier, reported rows as horizontal reference lines."""
-    with _figure(rows) as (fig, ax, reported):
-        points, labels, runtimes = [], [], []
-        for row in rows:
-            ms, runtime = inference_latency_ms(row)
-            if row["kind"] == "measured" and ms is not None:
-                points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
-                labels.append(plot_label(row))
-                runtimes.append(runtime)
+    """PNG of MPJPE all against inference latency: measured rows with a batch-1 latency as numbered points
+    (the numbers listed under the plot), their Pareto frontier where it joins two or more rows, reported
+    rows as horizontal reference lines."""
+    points, labels, runtimes = [], [], []
+    for row in rows:
+        ms, runtime = inference_latency_ms(row)
+        if row["kind"] == "measured" and ms is not None:
+            points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
+            labels.append(plot_label(row))
+            runtimes.append(runtime)
+    with _figure(rows, extra_height_in=LIST_ROW_IN * (len(points) + 1) if points else 0.0) as (fig, ax, reported):
         for runtime, marker in (("ONNX Runtime", "o"), ("PyTorch", "s")):
             chosen = [p for p, r in zip(points, runtimes) if r == runtime]
             if chosen:
                 ax.scatter([p[0] for p in chosen], [p[1] for p in chosen], marker=marker, s=45, zorder=3,
                            color="tab:blue" if runtime == "ONNX Runtime" else "tab:orange",
-                           label=f"measured, {runtime} latency")
-        for (x, y), label in zip(points, labels):
-            ax.annotate(label, (x, y), xytext=(6, 5), textcoords="offset points", fontsize=8)
-        if points:
-            front = [points[i] for i in pareto_front(points)]
+                           label=f"measured, {runtime} latency (numbered as listed below)")
+        for k, (x, y) in enumerate(points, start=1):
+            ax.annotate(str(k), (x, y), xytext=(5, 3), textcoords="offset points", fontsize=8)
+        front = [points[i] for i in pareto_front(points)]
+        if len(front) > 1:  # one row alone is no frontier: a legend entry for it would name an invisible line
             ax.plot([p[0] for p in front], [p[1] for p in front], color="tab:green", linewidth=1.5, zorder=2,
-                    drawstyle="steps-post" if len(front) > 1 else "default", label="Pareto frontier")
-            xs = [p[0] for p in points]
-            low, high = min(xs), max(xs)
-            if high / max(low, 1e-9) > 20:
-                ax.set_xscale("log")
-                ax.set_xlim(low / 2, high * 2)
-                _plain_log_ticks(ax.xaxis)
-            else:
-                pad = max((high - low) * 0.15, high * 0.1, 0.5)
-                ax.set_xlim(max(0.0, low - pad), high + pad)
-        else:
-            ax.set_xscale("log")
-            ax.set_xlim(1, 1000)
+                    drawstyle="steps-post", label=f"Pareto frontier ({len(front)} of {len(points)} rows)")
+        scale, low, high = latency_axis([p[0] for p in points])
+        ax.set_xscale(scale)
+        ax.set_xlim(low, high)
+        if scale == "log":
             _plain_log_ticks(ax.xaxis)
+        if not points:
             ax.text(0.5, 0.5, "no measured rows with a latency yet\n(hupbench eval writes them)",
                     transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.set_ylim(0, _y_limit([p[1] for p in points] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]))
-        return _png_bytes(fig, ax, "inference latency (ms per image, batch 1)", "test MPJPE, all 29 keypoints (mm)",
-                          "Error against inference latency (lower left is better)", "lower right")
+        if points:
+            listing = "\n".join(f"{k}: {label} ({x:.2f} ms, {y:.2f} mm)"
+                                 for k, (label, (x, y)) in enumerate(zip(labels, points), start=1))
+            fig.text(0.01, 0.01, listing, ha="left", va="bottom", fontsize=7.5, family="monospace")
+        log_scale = ", log scale" if scale == "log" else ""
+        return _png_bytes(fig, ax, f"inference latency (ms per image, batch 1{log_scale})",
+                          "test MPJPE, all 29 keypoints (mm)", "Error against inference latency (lower left is better)",
+                          "lower right", bottom_in=LIST_ROW_IN * (len(points) + 1) if points else 0.0)
 
 
 def plot_training(rows: list[dict], leaderboard_dir: str | Path) -> bytes:

@@ -3,7 +3,9 @@
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
 finite numbers. A ``"reported"`` row (quoted from a paper) needs only ``metrics.mpjpe_mm.all`` and a
-``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written.
+``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written. One metric joined
+version 3 later, ``metrics.middle_mcp_relative_hand_mpjpe_mm``: eval writes it, files written before lack
+it (readers take it as unknown).
 
 Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
 counted as 2 x multiply-adds.
@@ -51,6 +53,8 @@ _DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
 _DATASET_KEYS = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
 _METRIC_KEYS_V1 = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
 _METRIC_KEYS = _METRIC_KEYS_V1 + ("probe_symmetric_mpjpe_mm", "spread_ratio")
+#: metrics added within version 3: eval writes them, files written before lack them (readers: ``.get``)
+_OPTIONAL_METRIC_KEYS = ("middle_mcp_relative_hand_mpjpe_mm",)
 _SPREAD_KEYS = ("x", "y", "z")
 # the symmetric probe error is a minimum that includes the identity: it may exceed the plain one only by rounding
 _SYMMETRIC_SLACK_MM = 1e-6
@@ -88,16 +92,17 @@ def _fail(parts: tuple, expected: str, value) -> None:
     raise BadValueError(f"{_path(parts)} must be {expected}, got {_show(value)}")
 
 
-def _keys(d, parts: tuple, keys: tuple) -> None:
-    """``d`` is a dict with exactly ``keys``."""
+def _keys(d, parts: tuple, keys: tuple, optional: tuple = ()) -> None:
+    """``d`` is a dict with exactly ``keys``, and any of ``optional``."""
     if not isinstance(d, dict):
         _fail(parts, "a dict", d)
     missing = [k for k in keys if k not in d]
+    expected = f"expected keys {list(keys)}" + (f" (and optionally {list(optional)})" if optional else "")
     if missing:
-        raise BadValueError(f"{_path(parts)} is missing key(s) {missing}; expected keys {list(keys)}")
-    unknown = sorted(str(k) for k in d if k not in keys)
+        raise BadValueError(f"{_path(parts)} is missing key(s) {missing}; {expected}")
+    unknown = sorted(str(k) for k in d if k not in keys and k not in optional)
     if unknown:
-        raise BadValueError(f"{_path(parts)} has unknown key(s) {unknown}; expected keys {list(keys)}")
+        raise BadValueError(f"{_path(parts)} has unknown key(s) {unknown}; {expected}")
 
 
 def _is_number(v) -> bool:
@@ -144,10 +149,16 @@ def _validate_mpjpe_triplet(m: dict, parts: tuple, keys: tuple, *, all_nullable:
 def _validate_metrics(metrics, version: int) -> None:
     """``results['metrics']``: MPJPE by part, the other errors, and (version 2) the probe-symmetric MPJPE
     and the spread ratios."""
-    _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
+    if version >= 3:
+        _keys(metrics, ("metrics",), _METRIC_KEYS, _OPTIONAL_METRIC_KEYS)
+    else:
+        _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
     _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
     _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
     _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
+    for key in _OPTIONAL_METRIC_KEYS:
+        if key in metrics:
+            _number(metrics, ("metrics", key), nullable=True)
     _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
     _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
     _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
@@ -357,7 +368,7 @@ def blank_results(kind: str, run_name: str) -> dict:
         "schema_version": SCHEMA_VERSION, "kind": kind, "run_name": run_name,
         "model": dict.fromkeys(_MODEL_KEYS),
         "dataset": dict.fromkeys(_DATASET_KEYS) | {"split": "test"},
-        "metrics": dict.fromkeys(_METRIC_KEYS) | {"mpjpe_mm": dict.fromkeys(_MPJPE_KEYS),
+        "metrics": dict.fromkeys(_METRIC_KEYS + _OPTIONAL_METRIC_KEYS) | {"mpjpe_mm": dict.fromkeys(_MPJPE_KEYS),
                                                    "spread_ratio": dict.fromkeys(_SPREAD_KEYS)},
         "breakdowns": {},
         "latency_ms_per_image": {r: dict.fromkeys(_LATENCY_BATCHES) for r in _LATENCY_RUNTIMES},
@@ -371,7 +382,8 @@ def blank_results(kind: str, run_name: str) -> dict:
 def upgrade_results(d: dict) -> dict:
     """``d`` validated, as is in version 3, else as an upgraded deep copy: version 1 gains
     ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, version 2 (and an upgraded 1)
-    ``track``, ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured)."""
+    ``track``, ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured). A metric
+    added within version 3 (``metrics.middle_mcp_relative_hand_mpjpe_mm``) stays absent where a file lacks it."""
     validate_results(d)
     if d["schema_version"] == SCHEMA_VERSION:
         return d

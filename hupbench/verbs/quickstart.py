@@ -150,6 +150,7 @@ class _Stages:
     """The later stages' configs, composed and built before the first stage runs."""
 
     work: Path
+    fast: bool
     grasps_cfg: DictConfig
     grasps: GraspsRun
     generate_cfg: DictConfig
@@ -172,7 +173,7 @@ def _stage_configs(work: Path, overrides: dict, fast: bool) -> _Stages:
     with _stage_errors("train", fast):
         train = train_config(compose("train", [*overrides["train"], f"data.root={dataset_dir}",
                                                f"run_dir={work / 'run'}", "run_name=quickstart"]))
-    return _Stages(work, grasps_cfg, grasps, generate_cfg, generate, train, overrides["eval_latency"])
+    return _Stages(work, fast, grasps_cfg, grasps, generate_cfg, generate, train, overrides["eval_latency"])
 
 
 def run_quickstart(cfg: DictConfig, log=print) -> dict:
@@ -240,15 +241,18 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
     work, run = stages.work, stages.train
     out: dict = {}
-    t0 = stage(1, "grasps", f"synthesise and select {stages.grasps.generate.n_select} grasps")
+    t0 = stage(1, "grasps", f"synthesise, score and select {stages.grasps.generate.n_select} grasps "
+                            f"({'under a minute' if stages.fast else 'a few minutes'} on 2 cores; nothing is printed "
+                            "until it ends)")
     grasps = make_grasps(stages.grasps, stages.grasps_cfg, log=quiet)
     out["grasps_npz"] = grasps["grasps_npz"]
+    out["contact_sheet"] = grasps["contact_sheet"]
     log(f"      {grasps['plausible']} of {grasps['candidates']} candidates plausible, {grasps['selected']} selected")
     if done("grasps", t0):
         return out
 
     spec = stages.generate.dataset
-    t0 = stage(2, "dataset", f"render {spec.width} px frames, splits {dict(spec.splits)}")
+    t0 = stage(2, "dataset", f"render {spec.width} px frames; {split_words(dict(spec.splits))}")
     generated = generate_dataset(stages.generate, resolved_config(stages.generate_cfg), log=quiet)
     out["dataset"] = generated["out_dir"]
     log("      frames per split: " + ", ".join(f"{k} {v}" for k, v in generated["counts"].items()))
@@ -266,15 +270,19 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
     t0 = stage(4, "train", f"{run.model_id}, {run.train.max_steps} steps of {run.data.batch_size}")
     trained = train(run, run.folder, log=lambda line: log("      " + line))
     out["checkpoint"] = trained["checkpoint"]
-    out["val_mpjpe_mm"] = {"first": trained["first_val_mpjpe_mm"]["all"], "last": trained["val_mpjpe_mm"]["all"]}
+    out["run_dir"] = trained["run_dir"]
+    out["val_mpjpe_mm"] = {"first": trained["first_val_mpjpe_mm"]["all"], "last": trained["val_mpjpe_mm"]["all"],
+                           "steps": trained["steps"]}
     if done("train", t0):
         return out
 
-    t0 = stage(5, "eval", "all metrics on the test split")
+    t0 = stage(5, "eval", "all metrics on the test split, and figures of prediction against truth")
     evaluated = run_eval(EvalOptions(trained["checkpoint"], out["dataset"], split="test",
-                                     out=work / "results" / "quickstart.json", latency=stages.eval_latency),
+                                     out=work / "results" / "quickstart.json", latency=stages.eval_latency,
+                                     figures_dir=work / "results" / "figures"),
                          log=quiet)
     out["results"] = evaluated["out"]
+    out["eval_figures"] = evaluated["figures"]
     out["metrics"] = {k: evaluated["results"]["metrics"]["mpjpe_mm"][k] for k in ("all", "hand", "probe")}
     out["floor_mm"] = (evaluated["results"]["split_floor"] or {}).get("floor_mm")
     out["latency_ms_per_image"] = evaluated["results"]["latency_ms_per_image"]
@@ -308,26 +316,78 @@ def _first_test_image(dataset: Path) -> Path:
     return frame_path(dataset, "test", "rgb", frame_id, manifest["rgb_format"])
 
 
+def split_words(splits: dict) -> str:
+    """``{"train": 3, "val": 1, "test": 1}`` (grasps per split) in words: "3 grasps to train on, 1 to validate
+    on, 1 held out for the test"."""
+    def grasps(n: int) -> str:
+        return f"{n} grasp{'s' if n != 1 else ''}"
+    return (f"{grasps(splits['train'])} to train on, {splits['val']} to validate on, {splits['test']} held out "
+            "for the test (each grasp seen from every camera view of the sphere)")
+
+
+#: what each folder of a quickstart run holds, by its name under ``<out_dir>/fast`` or ``<out_dir>/full``
+FOLDERS = (
+    ("grasps", "the selected grasps (grasps.npz/json) and their contact sheet"),
+    ("dataset", "the rendered dataset: <split>/rgb, depth, seg, annotations.npz, manifest.json"),
+    ("run", "the training run: checkpoints/, metrics.jsonl, tb/ (TensorBoard), run.json, summary.json"),
+    ("results", "the test results JSON and figures/ (prediction against truth, PCK curve)"),
+    ("predict", "predictions.json and the overlay PNG of predict"),
+)
+
+
 def summary_lines(result: dict) -> list[str]:
-    """The end-of-run summary the CLI prints: what was made, where, and the metrics."""
+    """The end-of-run summary the CLI prints: what was made, where, the metrics, and what to run next."""
     lines = [f"hupbench quickstart finished in {result['seconds'] / 60:.1f} min "
              f"(renderer: {result['render_platform']}); stage times: "
              + ", ".join(f"{k} {v:.0f} s" for k, v in result["stages"].items())]
-    paths = (("preview sheet", "preview"), ("grasps", "grasps_npz"), ("dataset", "dataset"),
-             ("checkpoint", "checkpoint"), ("results", "results"), ("ONNX model", "onnx"),
-             ("predictions", "predictions"), ("overlay", "overlay"), ("run record", "run_info"))
-    lines += [f"  {label:14s}: {result[key]}" for label, key in paths if key in result]
+    out_dir = Path(result["out_dir"])
+    work = Path(result.get("dataset", out_dir / "full" / "dataset")).parent
+    lines.append(f"folders: {out_dir} holds the preview and run.json; {out_dir / 'full'} everything the full run "
+                 f"makes, {out_dir / 'fast'} everything --fast makes (the two never share files):")
+    lines += [f"  {work / name}/: {what}" for name, what in FOLDERS if (work / name).exists()]
+    paths = (("grasps", "grasps_npz"), ("dataset", "dataset"), ("checkpoint", "checkpoint"),
+             ("results", "results"), ("ONNX model", "onnx"), ("predictions", "predictions"),
+             ("run record", "run_info"))
+    made = [(label, result[key]) for label, key in paths if key in result]
+    if made:
+        lines.append("files:")
+        lines += [f"  {label:14s}: {path}" for label, path in made]
+    pictures = [("preview sheet (hand-set grasp: RGB, depth, labels, keypoints)", result.get("preview")),
+                ("grasps contact sheet", result.get("contact_sheet")),
+                *((f"eval figure, {name}", path) for name, path in (result.get("eval_figures") or {}).items()),
+                ("predict overlay", result.get("overlay"))]
+    lines.append("pictures:")
+    lines += [f"  {label}: {path}" for label, path in pictures if path]
     if "val_mpjpe_mm" in result:
         v = result["val_mpjpe_mm"]
-        lines.append(f"  validation MPJPE: {v['first']:.1f} mm before training -> {v['last']:.1f} mm after")
+        lines.append(f"validation MPJPE (all 29 keypoints): {v['first']:.1f} mm untrained -> {v['last']:.1f} mm at "
+                     f"step {v['steps']} (the progress bar's last figure)")
     if "metrics" in result:
         m = result["metrics"]
-        lines.append(f"  test MPJPE: all {m['all']:.1f} mm (mean over 29 keypoints), hand {m['hand']:.1f} mm, "
+        lines.append(f"test MPJPE: all {m['all']:.1f} mm (mean over 29 keypoints), hand {m['hand']:.1f} mm, "
                      f"probe {m['probe']:.1f} mm  (a short CPU run: see leaderboard/ for the real ones)")
         if result.get("floor_mm"):
             f = result["floor_mm"]
-            lines.append(f"  test split's floor (the nearest training grasp under the true camera, what recalling "
+            lines.append(f"test split's floor (the nearest training grasp under the true camera, what recalling "
                          f"training grasps scores): all {f['all']:.1f} mm, hand {f['hand']:.1f} mm, probe {f['probe']:.1f} mm")
     if "parity" in result:
-        lines.append(f"  ONNX vs PyTorch: max 3D difference {result['parity']['points3d_mm']:.2e} mm")
-    return lines
+        lines.append(f"ONNX vs PyTorch: max 3D difference {result['parity']['points3d_mm']:.2e} mm")
+    return lines + next_lines(result)
+
+
+def next_lines(result: dict) -> list[str]:
+    """Commands to run next, filled with this run's paths where it made them."""
+    dataset = result.get("dataset", "hupbench_out/dataset")
+    onnx = result.get("onnx", "model.onnx")
+    checkpoint = result.get("checkpoint", "hupbench_out/runs/RUN/checkpoints/last.pt")
+    run_dir = result.get("run_dir", "hupbench_out/runs/RUN")
+    return [
+        "next:",
+        f"  predict on your own images:  hupbench predict {onnx} my_photos/ --out predictions",
+        f"  look at the dataset:         hupbench verify {dataset} --sample-sheet sample_sheet.png",
+        f"  training curves:             tensorboard --logdir {Path(run_dir) / 'tb'}",
+        f"  evaluate with figures:       hupbench eval {checkpoint} {dataset} --figures",
+        ("  train a real model:          hupbench train +experiment=paper_hupnet_fit_cpu   "
+         "(or: python train.py +experiment=paper_hupnet_fit_cpu; its dataset first: hupbench generate +track=unseen_grasps)"),
+        "  the leaderboard's protocol:  bash scripts/paper_protocol.sh paper_hupnet_fit_cpu",
+    ]

@@ -71,6 +71,22 @@ def test_root_relative_known_answer():
     assert M.mpjpe_mm(pred, gt) > 19.0  # the absolute error keeps the 20 mm shift
 
 
+def test_middle_mcp_relative_known_answer():
+    """Only the reference joint wrong: absolute and wrist-relative errors see one joint off, the error relative
+    to that joint sees the 20 others off by as much (why the reference point matters, docs/metrics.md)."""
+    gt = np.zeros((2, 21, 3))
+    gt[..., 2] = 0.5
+    pred = gt.copy()
+    pred[:, M.MIDDLE_MCP_INDEX, 0] += 0.021  # the middle MCP 21 mm off
+    assert M.MIDDLE_MCP_INDEX == 9
+    assert M.mpjpe_mm(pred, gt) == pytest.approx(1.0)
+    assert M.root_relative_mpjpe_mm(pred, gt) == pytest.approx(1.0)
+    assert M.root_relative_mpjpe_mm(pred, gt, root=M.MIDDLE_MCP_INDEX) == pytest.approx(20 * 21.0 / 21)
+    # a joint error shared by the wrist and the hand (a translation) is what subtracting a root removes
+    moved = gt + np.array([0.0, 0.0, 0.03])
+    assert M.root_relative_mpjpe_mm(moved, gt, root=M.MIDDLE_MCP_INDEX) == pytest.approx(0.0, abs=1e-9)
+
+
 def test_pa_mpjpe_zero_for_similarity_copy():
     _, gt = _random_points(n=3, k=21)
     R = _rotation([0.3, -1.0, 0.5], 2.1)

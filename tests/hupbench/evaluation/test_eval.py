@@ -101,6 +101,7 @@ def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, mo
     assert m["mpjpe_mm"]["hand"] == pytest.approx(5.2, abs=1e-4)
     assert m["mpjpe_mm"]["probe"] == pytest.approx(5.2, abs=1e-4)
     assert m["root_relative_hand_mpjpe_mm"] == pytest.approx(0.0, abs=1e-4)
+    assert m["middle_mcp_relative_hand_mpjpe_mm"] == pytest.approx(0.0, abs=1e-4)
     assert m["pa_mpjpe_hand_mm"] == pytest.approx(0.0, abs=1e-4)
     # PCK steps from 0 to 1 between the 5.0 and 5.5 mm thresholds: area (0.25 + 44.5) / 50
     assert m["pck_auc_0_50mm"] == pytest.approx(44.75 / 50)
@@ -387,3 +388,62 @@ def test_model_label_names_what_the_model_reads_and_its_heads():
     assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
                         "heatmap_stride": 4, "probe_fit": "depth"}, 128) == \
         "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)"
+
+
+def test_eval_without_out_writes_beside_the_model_not_the_leaderboard(exported, tiny_dataset, tmp_path, monkeypatch,
+                                                                      capsys):
+    """No --out: the results go to <model folder>/eval/<model file>.<split>.json, and nothing appears under
+    leaderboard/ (a first eval must not leave the repository's leaderboard broken)."""
+    import shutil
+
+    _, onnx_path = exported
+    model = tmp_path / "run" / "model.onnx"
+    model.parent.mkdir()
+    shutil.copy(onnx_path, model)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "leaderboard" / "results").mkdir(parents=True)
+    assert main(["eval", str(model), str(tiny_dataset), "--no-latency", "--split", "val"]) == 0
+    expected = tmp_path / "run" / "eval" / "model.onnx.val.json"
+    assert EV.default_results_path(model, "val") == expected
+    printed = capsys.readouterr().out
+    assert f"results written to {expected}" in printed
+    assert "not a leaderboard row: --out leaderboard/results/NAME.json --training-command" in printed
+    results = load_results(expected)
+    assert (results["dataset"]["split"], results["run_name"]) == ("val", "tiny_hopenet")  # the ONNX metadata's
+    assert list((tmp_path / "leaderboard" / "results").iterdir()) == []
+
+
+def test_eval_figures(exported, tiny_dataset, tmp_path, monkeypatch, capsys):
+    """--figures DIR: sample frames, the worst frames and the PCK curve as PNGs; the worst are the frames of
+    largest MPJPE."""
+    import cv2
+
+    from hupbench.evaluation import figures as F
+
+    ckpt, _ = exported
+    monkeypatch.setattr(EV.EvalModel, "predict", _shifted_truth_predictor(tiny_dataset, 8))
+    figures = tmp_path / "figs"
+    assert main(["eval", str(ckpt), str(tiny_dataset), "--out", str(tmp_path / "r.json"), "--no-latency",
+                 "--batch-size", "8", "--figures", str(figures)]) == 0
+    printed = capsys.readouterr().out
+    for key, name in F.FIGURES.items():
+        path = figures / name
+        assert f"figure, {key}: {path}" in printed
+        image = cv2.imread(str(path))
+        assert image is not None and image.std() > 10, name  # drawn, not blank
+    # two panels of PANEL_IN inches per row, N_SAMPLE rows: a 64 px frame is drawn enlarged
+    samples = cv2.imread(str(figures / "samples.png"))
+    assert samples.shape[1] == round(2 * F.PANEL_IN * F.DPI)
+    assert samples.shape[0] > F.N_SAMPLE * F.PANEL_IN * F.DPI
+    # the default folder is beside the model
+    assert EV.default_figures_dir(ckpt, "test") == ckpt.parent / "eval" / "model.pt.test.figures"
+
+
+def test_frame_choice_known_answer():
+    from hupbench.evaluation.figures import frame_choice
+
+    errors = np.array([1.0, 9.0, 3.0, 9.0, 2.0, 7.0, 0.5, 4.0, 8.0])
+    samples, worst = frame_choice(errors, n_sample=3, n_worst=4)
+    assert samples == [0, 4, 8]
+    assert worst == [1, 3, 8, 5]  # largest first, ties by row
+    assert frame_choice(np.array([5.0]), n_sample=4, n_worst=4) == ([0], [0])

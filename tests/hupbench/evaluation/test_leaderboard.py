@@ -133,10 +133,17 @@ def test_rebuild_reproduces_committed_files_byte_for_byte(tmp_path):
 
 
 def test_plots_have_fixed_size_and_no_date(synthetic_board):
+    from hupbench.evaluation.leaderboard import LIST_ROW_IN, inference_latency_ms
+
     run_leaderboard(synthetic_board)
+    rows = load_rows(synthetic_board / "results")
+    timed = sum(r["kind"] == "measured" and inference_latency_ms(r)[0] is not None for r in rows)
+    assert timed == 3
+    # the latency plot lists its numbered points below the axes: one line each, and a margin
+    heights = {TRAINING_PLOT: 600, LATENCY_PLOT: round((FIGSIZE_IN[1] + LIST_ROW_IN * (timed + 1)) * DPI)}
     for name in (LATENCY_PLOT, TRAINING_PLOT):
         data = (synthetic_board / name).read_bytes()
-        assert png_size(data) == (int(FIGSIZE_IN[0] * DPI), int(FIGSIZE_IN[1] * DPI)) == (900, 600)
+        assert png_size(data) == (int(FIGSIZE_IN[0] * DPI), heights[name]) and FIGSIZE_IN[0] * DPI == 900
         text_keys = [p.partition(b"\0")[0] for kind in ("tEXt", "iTXt", "zTXt") for p in png_chunks(data).get(kind, [])]
         assert text_keys == [b"Software"]  # no creation time or other varying metadata
         assert "tIME" not in png_chunks(data)
@@ -371,9 +378,13 @@ def _edit(board: Path, name: str, edit) -> None:
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda d: d.update(run_name="other"), r"slow_big\.json: results\['run_name'\] must equal the file stem"),
-    (lambda d: d["dataset"].update(split="val"), r"slow_big\.json: the leaderboard compares test-split results"),
-    (lambda d: d["training"].update(command=None), r"slow_big\.json: a measured row must name the command"),
+    (lambda d: d.update(run_name="other"), (r"slow_big\.json: results\['run_name'\] must equal the file stem "
+     r"'slow_big', got 'other' \(rename the file to other\.json, or rerun hupbench eval with --out .*slow_big\.json\)")),
+    (lambda d: d["dataset"].update(split="val"), (r"slow_big\.json: the leaderboard compares test-split results, .*"
+     r"\(rerun hupbench eval with --split test --out .*slow_big\.json, or move the file out of .*results\)")),
+    (lambda d: d["training"].update(command=None), (r"slow_big\.json: a measured row must name the command that "
+     r"reproduces it in results\['training'\]\['command'\], got None: rerun hupbench eval MODEL DATASET --out "
+     r".*slow_big\.json --training-command 'COMMAND THAT TRAINED IT'")),
 ])
 def test_rows_the_leaderboard_refuses(synthetic_board, edit, message):
     _edit(synthetic_board, "slow_big", edit)
@@ -415,3 +426,45 @@ def test_write_together_raises_rather_than_loops(tmp_path):
         pytest.fail("_write_together did not return within 60 s")
     assert done.returncode == 0 and "RAISED" in done.stdout, done.stderr
     assert not (tmp_path / "a.md").exists() and not list(tmp_path.glob(".*.tmp*"))
+
+
+def test_latency_axis_is_honest():
+    """From 0 on a linear axis: 0.07 ms between two rows is drawn as the small difference it is, not zoomed
+    onto; a log axis only where the latencies span more than LATENCY_LOG_RATIO times."""
+    from hupbench.evaluation.leaderboard import LATENCY_LOG_RATIO, latency_axis
+
+    assert latency_axis([3.60, 3.67]) == ("linear", 0.0, pytest.approx(3.67 * 1.15))
+    assert latency_axis([3.7]) == ("linear", 0.0, pytest.approx(3.7 * 1.15))
+    assert latency_axis([1.0, 1.0 * LATENCY_LOG_RATIO * 1.5]) == ("log", 0.5, pytest.approx(60.0))
+    assert latency_axis([]) == ("log", 1.0, 1000.0)
+
+
+def test_one_measured_row_draws_no_pareto_frontier(synthetic_board, monkeypatch):
+    """A frontier of one row is no line: its legend entry is left out (it named an invisible line)."""
+    from matplotlib.axes import Axes
+
+    from hupbench.evaluation.leaderboard import plot_latency
+
+    rows = load_rows(synthetic_board / "results")
+    labels = []
+    original = Axes.legend
+
+    def spy(self, *args, **kwargs):
+        labels.extend(self.get_legend_handles_labels()[1])
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Axes, "legend", spy)
+    measured_rows = [r for r in rows if r["kind"] == "measured"]
+    plot_latency([r for r in rows if r["kind"] == "reported"] + measured_rows[:1])
+    assert not any("Pareto" in label for label in labels)
+    labels.clear()
+    plot_latency(rows)
+    assert [label for label in labels if "Pareto" in label] == [
+        f"Pareto frontier ({len(pareto_front_of(measured_rows))} of {len(measured_rows)} rows)"]
+
+
+def pareto_front_of(rows):
+    from hupbench.evaluation.leaderboard import inference_latency_ms
+
+    points = [(inference_latency_ms(r)[0], r["metrics"]["mpjpe_mm"]["all"]) for r in rows]
+    return pareto_front(points)

@@ -336,3 +336,25 @@ def test_load_names_the_file(tmp_path):
         load_results(broken)
     with pytest.raises(FileNotFoundError, match="missing.json"):
         load_results(tmp_path / "missing.json")
+
+
+def test_middle_mcp_relative_error_is_optional_in_version_3(tmp_path):
+    """Files written before the metric lack it and still load unchanged; present, it is checked like the others."""
+    old = measured_row()
+    assert "middle_mcp_relative_hand_mpjpe_mm" not in old["metrics"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    assert load_results(path) == old
+    new = measured_row()
+    new["metrics"]["middle_mcp_relative_hand_mpjpe_mm"] = 6.5
+    assert validate_results(new)["metrics"]["middle_mcp_relative_hand_mpjpe_mm"] == 6.5
+    assert "middle_mcp_relative_hand_mpjpe_mm" in blank_results("measured", "r")["metrics"]
+    new["metrics"]["middle_mcp_relative_hand_mpjpe_mm"] = -1.0
+    with pytest.raises(ValueError, match=r"results\['metrics'\]\['middle_mcp_relative_hand_mpjpe_mm'\] must be a "
+                                         r"finite number >= 0 or null, got -1.0"):
+        validate_results(new)
+    # version 2 has no room for it
+    v2 = version_2_row()
+    v2["metrics"]["middle_mcp_relative_hand_mpjpe_mm"] = 6.5
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['middle_mcp_relative_hand_mpjpe_mm'\]"):
+        validate_results(v2)

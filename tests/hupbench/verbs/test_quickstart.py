@@ -77,5 +77,11 @@ def test_fast_quickstart_runs_every_stage(tmp_path, capsys):
     assert len(record["keypoints_3d_m"]) == 29
     assert cv2.imread(str(next((work / "predict").glob("*_overlay.png")))).shape[:2] == (64, 64)
     assert (work / "model.onnx").is_file() and (work / "run" / "summary.json").is_file()
+    # the summary lists every picture it made, and they exist
+    for picture in (tmp_path / "preview.png", work / "grasps" / "contact_sheet.png",
+                    *(work / "results" / "figures" / n for n in ("samples.png", "worst.png", "pck.png"))):
+        assert picture.is_file() and str(picture) in out, picture
+    assert "1 grasp to train on, 1 to validate on, 1 held out for the test" in out
+    assert f"tensorboard --logdir {work / 'run' / 'tb'}" in out and "\nnext:\n" in out
     record = json.loads((tmp_path / "run.json").read_text())
     assert set(record["stages"]) == {"preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict"}
