@@ -14,12 +14,71 @@ VERBS = {
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n, launcher=ray",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",
+    "train": "train a pose model on a dataset (conf/train.yaml; the same as python train.py); resumable, -m sweeps",
     "eval": "evaluate a checkpoint or ONNX model on a dataset split: metrics, breakdowns, latency; results JSON",
     "export": "export a checkpoint to ONNX (opset 18, dynamic batch) with a parity check against PyTorch",
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
     "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
 }
-OWN_OPTION_VERBS = {"leaderboard", "predict", "eval", "export", "quickstart"}
+#: the verbs over a Hydra config: the config's name (conf/NAME.yaml) and the examples of their --help
+HYDRA_VERBS = {
+    "quickstart": ("quickstart", ("hupbench quickstart --fast    # the one-to-two-minute smoke version",
+                                  "hupbench quickstart out_dir=/tmp/qs view.azimuth_deg=120 stop_after=verify",
+                                  "hupbench quickstart --cfg job --fast    # the composed config, nothing run")),
+    "grasps": ("grasps", ("hupbench grasps out_dir=/tmp/grasps generate.n_select=5",
+                          "hupbench grasps generate.sampler=random refine.iterations=500 threads=4",
+                          "hupbench grasps --cfg job generate.n_select=5    # the composed config, nothing run")),
+    "train-grasp-sampler": ("train_grasp_sampler", (
+        "hupbench train-grasp-sampler out=/tmp/grasp_cvae.npz    # leave the shipped weights alone",
+        "hupbench train-grasp-sampler out=/tmp/small.npz corpus.n_orientations=16 cvae.epochs=20",
+        "hupbench train-grasp-sampler --cfg job cvae.latent_dim=32    # the composed config, nothing run")),
+    "generate": ("generate", ("hupbench generate workers=4 out_dir=/data/hupbench",
+                              "hupbench generate +track=unseen_views dataset.width=128 dataset.height=128",
+                              "hupbench generate shard=0/2 out_dir=/shared/ds    # and shard=1/2 on a second machine",
+                              "hupbench generate --cfg job dataset.n_gloves=1    # the composed config, nothing run")),
+}
+
+
+class _DefaultsHelp(argparse.HelpFormatter):
+    """Help with each option's default, ``(default: X)``, where it has one that its text does not already give;
+    a description or epilog of several lines (examples) is printed as written, one line is wrapped."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (action.option_strings and action.default not in (None, False, argparse.SUPPRESS)
+                and "default" not in text):
+            text += " (default: %(default)s)"
+        return text
+
+
+def _hydra_verb(verb: str, args: list[str], run) -> int:
+    """A verb over a Hydra config: ``--help`` (the config's keys with defaults), ``--cfg job`` (the composed
+    config as YAML, nothing run), else ``run(args)``. ``run`` gets the command line when the verb has options of
+    its own (quickstart's ``--fast``), else the overrides."""
+    from hupbench.config import compose, config_yaml, hydra_verb_parser
+
+    config_name, examples = HYDRA_VERBS[verb]
+    overrides = [a for a in args if "=" in a and not a.startswith("-")]
+    if "-h" in args or "--help" in args:
+        compose(config_name, overrides)  # a bad override is an error, not a help of other defaults
+    parser = hydra_verb_parser(f"hupbench {verb}", config_name, VERBS[verb], examples,
+                               overrides if "-h" in args or "--help" in args else ())
+    if verb == "quickstart":
+        parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version (fast=true)")
+    # intermixed: options may stand anywhere among the overrides
+    ns = parser.parse_intermixed_args(args)
+    fast = ["fast=true"] if getattr(ns, "fast", False) else []
+    if ns.cfg:
+        print(config_yaml(config_name, [*ns.overrides, *fast], resolve=ns.resolve), end="")
+        return 0
+    if ns.resolve:
+        parser.error("--resolve goes with --cfg job")
+    return run(args if verb == "quickstart" else ns.overrides)
 
 
 def _quickstart(args: list[str]) -> int:
@@ -91,9 +150,15 @@ def _verify(args: list[str]) -> int:
     from datagen.dataset.verify import report_lines
     from hupbench.verbs.generate import run_verify
 
-    parser = argparse.ArgumentParser(prog="hupbench verify", description="Re-check a dataset: files, counts, "
-                                     "projections, depth, masks, and each RGB image against its own labels.")
-    parser.add_argument("dataset")
+    parser = argparse.ArgumentParser(
+        prog="hupbench verify", formatter_class=_DefaultsHelp,
+        description="Re-check a dataset: files, counts, projections, depth, masks, and each RGB image against its "
+                    "own labels. Exit code 0 when every check passes, 1 when a problem is reported.",
+        epilog="examples:\n"
+               "  hupbench verify hupbench_out/dataset\n"
+               "  hupbench verify --workers 1 --max-report 10 hupbench_out/dataset\n"
+               "  hupbench verify hupbench_out/dataset --sample-sheet /tmp/samples.png    # and a picture of it")
+    parser.add_argument("dataset", help="a dataset folder written by hupbench generate (with manifest.json)")
     parser.add_argument("--workers", type=_count(1), default=2, help="processes for the per-frame checks")
     parser.add_argument("--max-report", type=_count(0), default=50, help="problems printed in full")
     parser.add_argument("--sample-sheet", metavar="PNG", help="also write one frame per background and glove")
@@ -104,8 +169,8 @@ def _verify(args: list[str]) -> int:
     print("\n".join(report_lines(result, ns.max_report)))
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
-        from datagen.render.draw import write_png
         from datagen.dataset.sample_sheet import sample_sheet
+        from datagen.render.draw import write_png
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1
@@ -114,7 +179,9 @@ def _verify(args: list[str]) -> int:
 def _leaderboard(args: list[str]) -> int:
     from hupbench.evaluation.leaderboard import run_leaderboard
 
-    parser = argparse.ArgumentParser(prog="hupbench leaderboard")
+    parser = argparse.ArgumentParser(prog="hupbench leaderboard", formatter_class=_DefaultsHelp, epilog="examples:\n"
+                                     "  hupbench leaderboard    # leaderboard/README.md and its plots\n"
+                                     "  hupbench leaderboard --dir /tmp/my_leaderboard")
     parser.add_argument("--dir", default="leaderboard", help="leaderboard folder holding results/ (and logs/)")
     ns = parser.parse_args(args)
     result = run_leaderboard(ns.dir)
@@ -125,10 +192,20 @@ def _leaderboard(args: list[str]) -> int:
 
 def _predict(args: list[str]) -> int:
     # only hupbench.inference.predict: the inference path must run without torch
-    from hupbench.inference.predict import DEFAULT_BATCH_SIZE, DEFAULT_DEPTH_SCALE_M, PredictOptions, run_predict
+    from hupbench.inference.predict import (
+        DEFAULT_BATCH_SIZE,
+        DEFAULT_DEPTH_SCALE_M,
+        PredictOptions,
+        run_predict,
+    )
 
-    parser = argparse.ArgumentParser(prog="hupbench predict",
-                                     description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.")
+    parser = argparse.ArgumentParser(
+        prog="hupbench predict", formatter_class=_DefaultsHelp,
+        description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.",
+        epilog="examples:\n"
+               "  hupbench predict RUN/checkpoints/last.onnx my_photos/ --out /tmp/predictions\n"
+               "  hupbench predict RUN/checkpoints/last.onnx hupbench_out/dataset/test/rgb/000000.jpg \\\n"
+               "      --depth hupbench_out/dataset/test/depth    # a model that reads depth (model=hupnet_fit)")
     parser.add_argument("model", metavar="MODEL.onnx", help="a model written by `hupbench export`")
     parser.add_argument("inputs", nargs="+", metavar="IMAGE_OR_DIR", help="image files and/or folders of images")
     parser.add_argument("--out", default="predictions", help="output folder (predictions.json, *_overlay.png)")
@@ -151,15 +228,27 @@ def _predict(args: list[str]) -> int:
 
 
 def _eval(args: list[str]) -> int:
+    from pathlib import Path
+
     from hupbench.evaluation.evaluate import EvalOptions, run_eval
 
-    parser = argparse.ArgumentParser(prog="hupbench eval")
+    parser = argparse.ArgumentParser(
+        prog="hupbench eval", formatter_class=_DefaultsHelp,
+        description="Every benchmark metric of a model on one dataset split; a results JSON (docs/metrics.md).",
+        epilog="examples:\n"
+               "  hupbench eval RUN/checkpoints/last.pt hupbench_out/dataset --figures\n"
+               "      -> RUN/checkpoints/eval/last.pt.test.json and RUN/checkpoints/eval/last.pt.test.figures/\n"
+               "  hupbench eval RUN/checkpoints/last.pt hupbench_out/dataset --out leaderboard/results/NAME.json \\\n"
+               "      --training-command 'python train.py +experiment=NAME'   # a leaderboard row "
+               "(then: hupbench leaderboard)")
     parser.add_argument("model", help="a hupbench checkpoint (.pt) or an exported ONNX model (.onnx)")
     parser.add_argument("dataset", help="a finished dataset folder (with manifest.json)")
-    parser.add_argument("--split", default="test", choices=("train", "val", "test"))
-    parser.add_argument("--out", help="results JSON (default leaderboard/results/<run name>.json); its stem is the run name")
+    parser.add_argument("--split", default="test", choices=("train", "val", "test"), help="the split to evaluate")
+    parser.add_argument("--out", help="results JSON (default: beside the model, <model folder>/eval/<model file>."
+                        "<split>.json); its stem is then the run name. Only --out leaderboard/results/NAME.json "
+                        "adds a leaderboard row")
     parser.add_argument("--run-name", help="default: the training run name, the ONNX metadata's, or the stem of --out")
-    parser.add_argument("--batch-size", type=_count(1), default=32)
+    parser.add_argument("--batch-size", type=_count(1), default=32, help="frames per forward pass")
     parser.add_argument("--latency", action=argparse.BooleanOptionalAction, default=True,
                         help="time PyTorch and onnxruntime at batch 1 and 32")
     parser.add_argument("--threads", type=_count(1),
@@ -170,24 +259,38 @@ def _eval(args: list[str]) -> int:
                         "model, backbone and input size)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="progress bars with ETA on a terminal")
+    parser.add_argument("--figures", nargs="?", const="", metavar="DIR",
+                        help="also draw PNGs: prediction beside ground truth on sample and worst frames, the PCK "
+                        "curve (default DIR: <model folder>/eval/<model file>.<split>.figures)")
     ns = parser.parse_args(args)
     result = run_eval(EvalOptions(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
                                   batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
                                   training_command=ns.training_command, training_log=ns.training_log,
-                                  label=ns.label, progress=ns.progress))
+                                  label=ns.label, progress=ns.progress, figures=ns.figures is not None,
+                                  figures_dir=ns.figures or None))
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
+    for name, path in result.get("figures", {}).items():
+        print(f"  figure, {name}: {path}")
+    if Path(result["out"]).resolve().parent != Path("leaderboard/results").resolve():
+        print("  (not a leaderboard row: --out leaderboard/results/NAME.json --training-command '...' adds one, "
+              "then hupbench leaderboard)")
     return 0
 
 
 def _export(args: list[str]) -> int:
     from hupbench.inference.export import OPSET, ExportOptions, run_export
 
-    parser = argparse.ArgumentParser(prog="hupbench export")
+    parser = argparse.ArgumentParser(
+        prog="hupbench export", formatter_class=_DefaultsHelp,
+        description="Export a checkpoint to ONNX (dynamic batch) and check it against PyTorch on dataset images.",
+        epilog="examples:\n"
+               "  hupbench export hupbench_out/runs/hopenet_r10_128/checkpoints/last.pt    # -> .../last.onnx\n"
+               "  hupbench export RUN/checkpoints/best.pt --out /tmp/model.onnx --dataset hupbench_out/dataset")
     parser.add_argument("checkpoint", help="a hupbench checkpoint (.pt)")
     parser.add_argument("--out", help="destination .onnx (default: the checkpoint path with suffix .onnx)")
     parser.add_argument("--dataset", help="dataset for the parity images (default: the checkpoint's training dataset)")
-    parser.add_argument("--opset", type=int, default=OPSET)
+    parser.add_argument("--opset", type=int, default=OPSET, help="ONNX opset")
     parser.add_argument("--run-name", help="hupbench.run_name metadata (default: the training run name)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="a progress bar over the stages on a terminal")
@@ -203,21 +306,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="hupbench",
         description="Synthetic hand + ultrasound-probe data, training and benchmarks (HUP-3D).",
-        epilog="Config overrides are Hydra's key=value, e.g. hupbench quickstart camera.width=128",
+        epilog="Config overrides are Hydra's key=value, e.g. hupbench quickstart camera.width=128; "
+               "hupbench VERB --help lists a verb's keys or options with their defaults, and examples",
     )
     parser.add_argument("--version", action="version", version=f"hupbench {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb, help_text in VERBS.items():
-        # a verb that parses its own options (leading "--dir ...") gets them all: REMAINDER does not
-        # capture a first argument that looks like an option of this parser
-        own = verb in OWN_OPTION_VERBS
-        p = sub.add_parser(verb, help=help_text, add_help=not own, prefix_chars="+" if own else "-")
-        p.add_argument("overrides", nargs=argparse.REMAINDER, metavar="key=value", help="Hydra config overrides")
+        sub.add_parser(verb, help=help_text, add_help=False)
     argv = list(sys.argv[1:] if argv is None else argv)
     # --debug is hupbench's, wherever it stands (after the verb it would be taken as the verb's option)
     debug = "--debug" in argv
-    args = parser.parse_args([a for a in argv if a != "--debug"])
+    argv = [a for a in argv if a != "--debug"]
+    # everything after the verb is the verb's: its own parser reads it (options in any order, +key=value)
+    at = next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))
+    args = parser.parse_args(argv[: at + 1])
     args.debug = debug
     if args.verb is None:
         # the help lists the verbs; the error line says what was missing (argparse's usage errors exit 2 too)
@@ -225,6 +328,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hupbench: error: a verb is required, one of: {', '.join(VERBS)} (hupbench VERB --help describes "
               f"one)", file=sys.stderr)
         return 2
+    verb_args = argv[at + 1:]
+    if args.verb == "train":
+        from hupbench.verbs.train import main as train_main
+
+        return train_main(verb_args, prog="hupbench train", debug=True if debug else None)
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
@@ -232,7 +340,9 @@ def main(argv: list[str] | None = None) -> int:
         handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
                     "predict": _predict, "eval": _eval, "export": _export}
-        return handlers[args.verb](args.overrides)
+        if args.verb in HYDRA_VERBS:
+            return _hydra_verb(args.verb, verb_args, handlers[args.verb])
+        return handlers[args.verb](verb_args)
     except KeyboardInterrupt:
         if args.debug:
             raise

@@ -1,0 +1,141 @@
+"""``hupbench train`` and ``python train.py``: training as a Hydra app over conf/train.yaml.
+
+Both run :func:`main`, which hands the command line to Hydra (``key=value`` overrides, ``-m`` for a sweep,
+``--cfg job``) with the packaged configs (:func:`hupbench.config.config_dir`) and runs
+:func:`hupbench.training.loop.main` in Hydra's output folder; ``--help`` lists the config's keys instead of
+Hydra's generic page. Every deliberate refusal is one line, ``PROG: error: ...``, exit code 1: Hydra's own (a
+malformed override, an unknown key or config option) as well as the run's; Ctrl-C is one line and exit code
+130. Anything else is a bug and keeps its traceback; ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py) shows
+the traceback of a refusal too.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+from omegaconf import DictConfig, open_dict
+
+from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
+
+DESCRIPTION = ("Train a 3D hand + probe pose model on a dataset made by `hupbench generate` (conf/train.yaml: the "
+               "groups model, data and optim). Writes OUT_ROOT/RUN_NAME/: run.json, metrics.jsonl, "
+               "checkpoints/last.pt and best.pt, tb/, summary.json; the same command resumes an interrupted run. "
+               "Recommended model: the best measured row of leaderboard/README.md is the depth-anchored HUPNet "
+               "with the probe fitted to the depth, model=hupnet_fit (its recipe: +experiment=paper_hupnet_fit_cpu; "
+               "it reads depth, so the dataset needs its depth modality, the default). The quickstart trains "
+               "model=hopenet_r10_128, the smallest.")
+
+
+def run_train(cfg: DictConfig) -> dict:
+    """Train the run of a composed conf/train.yaml (:func:`hupbench.config.compose`) in its run folder (run_dir,
+    else out_root/run_name); returns the run's summary (:func:`hupbench.training.loop.run_train`)."""
+    from hupbench.training import loop
+
+    return loop.run_train(cfg)
+
+
+def _command(prog: str) -> str:
+    return "python train.py" if prog == "train.py" else prog
+
+
+def examples(prog: str) -> list[str]:
+    """The examples of ``PROG --help``, each a command line to run."""
+    command = _command(prog)
+    return [f"{command} +experiment=paper_hupnet_fit_cpu    # the recommended model's recipe (conf/experiment/)",
+            (f"{command} model=hopenet_r10_128 train.max_steps=400 data.batch_size=32 precision=fp32"
+             "    # a short run of the quickstart's model"),
+            f"{command} model=hupnet_fit data.root=hupbench_out/dataset device=cuda",
+            f"{command} -m model=hopenet_r10_128,resnet50_128 train.max_steps=500    # a sweep, one folder per job",
+            f"{command} --cfg job +experiment=paper_hupnet_fit_cpu    # print the composed config, run nothing"]
+
+
+def help_text(prog: str, overrides: Sequence[str] = ()) -> str:
+    """``PROG --help``: Hydra's command line, conf/train.yaml's keys with defaults and meanings, examples."""
+    from hupbench.config import hydra_verb_parser
+
+    parser = hydra_verb_parser(prog, "train", DESCRIPTION, examples(prog), overrides)
+    parser.add_argument("-m", "--multirun", action="store_true",
+                        help="a sweep: one run per combination of comma-separated values (model=a,b)")
+    parser.add_argument("--info", nargs="?", const="all", metavar="WHAT",
+                        help="Hydra's information on the config search path and defaults")
+    return parser.format_help()
+
+
+def main(argv: Sequence[str], prog: str = "hupbench train", debug: bool | None = None) -> int:
+    """Training from the command line ``argv``: ``--help`` here, everything else by Hydra. Returns the exit code.
+
+    ``debug`` (default: ``HYDRA_FULL_ERROR=1``) lets the traceback of a refusal through.
+    """
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    argv = list(argv)
+    if debug is None:
+        debug = os.environ.get("HYDRA_FULL_ERROR") == "1"
+    try:
+        if "-h" in argv or "--help" in argv:
+            from hupbench.config import compose
+
+            overrides = [a for a in argv if "=" in a and not a.startswith("-")]
+            compose("train", overrides)  # a bad override is an error, not a help of other defaults
+            print(help_text(prog, overrides), end="")
+            return 0
+        _run_hydra(argv, prog, debug)
+    except SystemExit as exc:  # Hydra's usage errors (exit 2) and a refused run (exit 1, its line printed)
+        return exc.code if isinstance(exc.code, int) else 1
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        # the loader workers, in the same process group, got the same SIGINT and end quietly
+        print(f"{prog}: interrupted (Ctrl-C); the same command continues from the run's last checkpoint",
+              file=sys.stderr)
+        return 130
+    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:  # composing the config
+        if debug:
+            raise
+        print(f"{prog}: error: {hydra_error_line(exc)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_hydra(argv: list[str], prog: str, debug: bool) -> None:
+    """Hydra's main over conf/train.yaml with the command line ``argv``; a refused run prints its line and
+    exits 1."""
+    import hydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from hupbench.config import HYDRA_VERSION_BASE, config_dir
+
+    def task(cfg: DictConfig) -> float:
+        from hydra.core.hydra_config import HydraConfig
+
+        from hupbench.training import loop
+
+        if cfg.run_dir is None:
+            with open_dict(cfg):
+                cfg.run_dir = HydraConfig.get().runtime.output_dir
+        try:
+            return loop.main(cfg, debug=True)  # its refusal is answered here, in the name of this program
+        except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
+            if debug:
+                raise
+            print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
+            raise SystemExit(1) from None
+
+    saved_argv, saved_full_error = sys.argv, os.environ.get("HYDRA_FULL_ERROR")
+    # Hydra prints its own errors over several lines (and a hint about this variable); with it set they
+    # reach main's handler, which answers them in one line like every other error
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    sys.argv = [prog, *argv]  # Hydra reads its command line there
+    try:
+        # Hydra names the job after this module (train): the log file is RUN/train.log as with train.py
+        hydra.main(config_path=str(config_dir()), config_name="train", version_base=HYDRA_VERSION_BASE)(task)()
+    finally:
+        sys.argv = saved_argv
+        if saved_full_error is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = saved_full_error
