@@ -5,6 +5,7 @@ calls :func:`main`.
 Run folder:
     run.json             resolved config, git commit, package versions, hardware
     metrics.jsonl        one JSON object per line: "train" and "val" events (the leaderboard reads it)
+    train.log            what the run printed, time-stamped, with a line per log step and validation
     checkpoints/last.pt  the latest state (:class:`hupbench.checkpoint.Checkpoint`); best.pt: lowest val MPJPE
     tb/                  TensorBoard scalars
     summary.json         written last, only when the run finished with finite weights: final metrics, timings
@@ -12,8 +13,10 @@ Run folder:
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import shlex
 import sys
 import time
 from contextlib import contextmanager
@@ -33,9 +36,9 @@ from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
 from hupbench.input_geometry import INPUT_MODALITIES
 from hupbench.provenance import hardware_description, run_info
-from hupbench.training.run_config import TrainRun, train_config
 from hupbench.training.losses import loss_terms
-from hupbench.training.run_log import MetricsLog
+from hupbench.training.run_config import TrainRun, train_config
+from hupbench.training.run_log import MetricsLog, RunConsole, bar_postfix, loss_window
 from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
 from models.build import build_model, load_checkpoint_state
@@ -61,7 +64,17 @@ def main(cfg: DictConfig, log=print, debug: bool = False) -> float:
             raise
         print(f"train.py: error: {error_line(exc)}", file=sys.stderr)
         raise SystemExit(1) from None
+    if result["complete"] and int(os.environ.get("RANK", "0")) == 0:
+        for line in next_commands(result["checkpoint"], cfg.data.root):
+            log(line)
     return result["val_mpjpe_mm"]["all"]
+
+
+def next_commands(checkpoint: str, dataset: str) -> list[str]:
+    """The lines that end a finished run: what to run on its checkpoint next."""
+    ckpt, data = shlex.quote(str(checkpoint)), shlex.quote(str(dataset))
+    return [f"next: hupbench eval {ckpt} {data}    # MPJPE and the other metrics on the test split",
+            f"      hupbench export {ckpt}    # ONNX model, checked against PyTorch"]
 
 
 def run_train(cfg: DictConfig, log=print) -> dict:
@@ -96,9 +109,17 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
     if folder.exists() and not folder.is_dir():
         raise BadValueError(f"run_dir {folder} is a file; expected a folder for the run (or a path to make one)")
 
-    with _run_folder(folder, is_main, log):
+    console = RunConsole(log, is_main)
+    with _run_folder(folder, is_main, console.line):
         # -- setup: everything that can be wrong is checked before the first step
         resumed = _resume_checkpoint(run, folder, root)
+        finished = _finished_run(folder, resumed)
+        if finished is not None:
+            console.open_file(folder)
+            console.line(f"already complete: nothing to do (checkpoint {finished['checkpoint']}: step "
+                         f"{finished['steps']}, val MPJPE {finished['val_mpjpe_mm']['all']:.1f} mm; use "
+                         f"{new_run_override(run)} for a new run)")
+            return finished
         data = setup_data(OmegaConf.create(run.config), world, rank, device, log)
         input_size = run.data.reader.input_size
         K_input = resize_intrinsics(data.train_set.ann["K"][0], input_size / int(manifest["image_size"][0]))
@@ -133,6 +154,7 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
             write_json(folder / "run.json", run_info(run.config, verb="train", world_size=world,
                                                      hardware=hardware_description(device), precision=precision,
                                                      resumed_from=str(resumed.path) if resumed else None))
+            console.open_file(folder)
         logger = MetricsLog(folder, is_main, run.train.tensorboard, state.step if resumed else None)
         dataset = {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / "manifest.json")}
         start = time.perf_counter()
@@ -152,7 +174,9 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
 
         def validation() -> dict:
             if data.bn_loader is not None and state.step > 0:
+                console.phase("recomputing batch-norm statistics")
                 recompute_bn_statistics(model, data.bn_loader, device, autocast)
+            console.phase("validating")
             val = validate(model, data.val_loader, device, autocast, world)
             _check_finite(state.step, "weights", model.state_dict())
             _check_finite(state.step, "validation MPJPE", val)
@@ -160,28 +184,37 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
                     "samples_seen": state.samples_seen, "wall_s": wall(), "train_wall_s": state.train_seconds,
                     "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]})
             state.last_val = val
-            if is_main and val["all"] < state.best:
+            best = val["all"] < state.best
+            console.progress_line(f"step {state.step}: val MPJPE {val['all']:.1f} mm (hand {val['hand']:.1f}, probe "
+                                  f"{val['probe']:.1f}) on {val['frames']} frames"
+                                  f"{', the best so far' if best and state.step > 0 else ''}")
+            if is_main and best:
                 state.best = val["all"]
+                console.phase("saving checkpoint best.pt")
                 save("best.pt")
             return val
 
-        if is_main:
-            log(f"training {model.config.name} ({model.config.backbone}, {input_size} px "
-                f"{run.data.reader.input_modalities}) on {root}: "
-                f"{len(data.train_set)} train frames, {len(data.val_loader.dataset)} val frames, {total_steps} "
-                f"steps of {batch_size} on {device}{f' x {world} processes' if world > 1 else ''} in {precision}"
-                f"{' (precision=auto)' if run.precision == 'auto' else ''}; run folder {folder}")
+        console.line(f"training {model.config.name} ({model.config.backbone}, {input_size} px "
+                     f"{run.data.reader.input_modalities}) on {root}: "
+                     f"{len(data.train_set)} train frames, {len(data.val_loader.dataset)} val frames, {total_steps} "
+                     f"steps of {batch_size} on {device}{f' x {world} processes' if world > 1 else ''} in {precision}"
+                     f"{' (precision=auto)' if run.precision == 'auto' else ''}; run folder {folder}")
+        console.line(config_summary(run, type(optimizer).__name__, learning_rate(run.optim, batch_size),
+                                    steps_per_epoch, total_steps), console=False)
+        if resumed is not None:
+            console.line(f"resuming from {resumed.path} at step {resumed.step} of {total_steps}")
         state.first_val = validation() if resumed is None else resumed.first_val_mpjpe_mm
 
         # -- the loop: the device is waited for only when a number is read (log, validation and checkpoint
         # steps); train_seconds counts the time between them, data loading included, validation excluded
         schedule = run.train
         stop = min(total_steps, schedule.stop_after or total_steps)
-        progress = None
-        if is_main and schedule.progress:
-            from tqdm import tqdm
-
-            progress = tqdm(total=total_steps, initial=state.step, unit="step", dynamic_ncols=True)
+        epochs = -(-total_steps // steps_per_epoch)
+        if schedule.progress:
+            console.start_bar(run.run_name, total_steps, state.step)
+        # the loss summed on the device over the steps since the last log step: its mean is read where the
+        # loop reads numbers anyway, and on a CPU every step (no queue to wait for: float() costs 0.15 us)
+        window, window_first, shown = torch.zeros((), device=device), state.step + 1, None
         model.train()
         segment = time.perf_counter()
         while state.step < stop:
@@ -192,34 +225,44 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
                 scheduler.step()
                 state.step += 1
                 state.samples_seen += batch_size
-                if progress is not None:
-                    progress.update(1)
+                window += loss
                 validating = state.step % schedule.val_every == 0 or state.step == total_steps
                 saving = state.step % schedule.ckpt_every == 0 or state.step == stop
-                logging = state.step % schedule.log_every == 0 or state.step == 1
+                logging = state.step % schedule.log_every == 0 or state.step in (1, stop)
                 if logging or validating or saving:
                     _check_finite(state.step, "loss", {"loss": loss, **terms})
                     state.train_seconds += time.perf_counter() - segment  # float(loss) waited for the device
+                if logging or validating or saving or device.type == "cpu":
+                    shown = loss_window(float(window) / (state.step + 1 - window_first), window_first, state.step)
+                lr = scheduler.get_last_lr()[0]
+                console.step(bar_postfix(epoch + 1, epochs, lr, shown,
+                                         state.last_val["all"] if state.last_val else None))
                 if logging:
                     logger({"event": "train", "step": state.step, "samples_seen": state.samples_seen, "wall_s": wall(),
                             "train_wall_s": state.train_seconds, "loss": float(loss),
-                            **{k: float(v) for k, v in terms.items()}, "lr": scheduler.get_last_lr()[0]})
-                    if progress is not None:
-                        progress.set_postfix(loss=f"{float(loss):.4f}",
-                                             val_mm=f"{state.last_val['all']:.1f}" if state.last_val else "-")
+                            **{k: float(v) for k, v in terms.items()}, "lr": lr})
+                    console.progress_line(f"step {state.step}/{total_steps} (epoch {epoch + 1}/{epochs}): {shown}, "
+                                          f"lr {lr:.2e}")
+                    window.zero_()
+                    window_first = state.step + 1
                 if validating:
                     validation()
                 if saving:
                     if data.bn_loader is not None and not validating:
+                        console.phase("recomputing batch-norm statistics")
                         recompute_bn_statistics(model, data.bn_loader, device, autocast)
                     if is_main:
+                        console.phase("saving checkpoint last.pt")
                         save("last.pt")
+                if validating or saving:
+                    console.phase(None)
+                if validating:  # the bar ends on the figure the summary reports
+                    console.show(bar_postfix(epoch + 1, epochs, lr, shown, state.last_val["all"]))
                 if logging or validating or saving:
                     segment = time.perf_counter()
                 if state.step >= stop:
                     break
-        if progress is not None:
-            progress.close()
+        console.close_bar()
         logger.close()
 
         # -- summary
@@ -231,14 +274,18 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
                   "first_val_mpjpe_mm": first, "best_val_mpjpe_mm": state.best, "world_size": world,
                   "complete": state.step >= total_steps}
         if not result["complete"]:
+            console.line(f"stopped at step {state.step} of {total_steps} (train.stop_after), checkpoint "
+                         f"{result['checkpoint']}; the same command with train.stop_after=null"
+                         f"{'' if schedule.resume == 'auto' else ' train.resume=auto'} continues it")
+        else:
             if is_main:
-                log(f"stopped at step {state.step} of {total_steps} (train.stop_after); rerun with train.resume=auto "
-                    "to continue")
-        elif is_main:
-            write_json(folder / "summary.json", result)
+                write_json(folder / "summary.json", result)
             speed = state.samples_seen / max(state.train_seconds, 1e-9)
-            log(f"finished {state.step} steps in {wall() / 60:.1f} min ({speed:.1f} img/s training); val MPJPE "
-                f"{first['all']:.1f} -> {last['all']:.1f} mm (hand {last['hand']:.1f}, probe {last['probe']:.1f})")
+            console.line(f"finished {state.step} steps in {wall() / 60:.1f} min ({speed:.1f} img/s training); val "
+                         f"MPJPE {first['all']:.1f} -> {last['all']:.1f} mm (hand {last['hand']:.1f}, probe "
+                         f"{last['probe']:.1f})")
+            console.line(f"checkpoint {result['checkpoint']} (lowest validation MPJPE, {state.best:.1f} mm: "
+                         f"{result['best_checkpoint']})")
         return result
 
 
@@ -317,8 +364,8 @@ def _resume_checkpoint(run: TrainRun, folder: Path, root: Path) -> Checkpoint | 
     """The checkpoint this run continues (``train.resume``), checked to be of this run's config and dataset."""
     mode, last = run.train.resume, folder / "checkpoints" / "last.pt"
     if mode in (None, "never") and last.exists():
-        raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it "
-                            "or another run_name")
+        raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it, "
+                            f"or {new_run_override(run)} for a new run")
     if mode in (None, "never") or (mode == "auto" and not last.exists()):
         return None
     path = last if mode == "auto" else Path(mode)
@@ -329,14 +376,61 @@ def _resume_checkpoint(run: TrainRun, folder: Path, root: Path) -> Checkpoint | 
     if diff:
         shown = "; ".join(diff[:MAX_DIFFS_SHOWN]) + (f"; and {len(diff) - MAX_DIFFS_SHOWN} more"
                                                      if len(diff) > MAX_DIFFS_SHOWN else "")
-        raise BadValueError(f"checkpoint {path} was trained with another config; differences: {shown}")
+        fix = (f"to train with the new values start a new run, {new_run_override(run)}; to continue this run, "
+               "give it the values it was trained with" if mode == "auto" else
+               "resume it with the values it was trained with, or leave train.resume out to start afresh")
+        raise BadValueError(f"checkpoint {path} was trained with another config; differences: {shown}; {fix}")
     trained_on = (checkpoint.dataset or {}).get("manifest_sha256")
     now = file_sha256(root / "manifest.json")
     if trained_on != now:
         raise BadValueError(f"checkpoint {path} was trained on another dataset: manifest sha256 {trained_on} "
                             f"({(checkpoint.dataset or {}).get('path')}), but {root / 'manifest.json'} has {now}; "
-                            "resume on the dataset it was trained on, or start a new run (another run_name)")
+                            f"resume on the dataset it was trained on, or start a new run: {new_run_override(run)}")
     return checkpoint
+
+
+def _finished_run(folder: Path, resumed: Checkpoint | None) -> dict | None:
+    """The summary of the run in ``folder`` when it already finished at ``resumed``, its last checkpoint (whose
+    config and dataset are this run's), with the paths of where it is now and "already_complete"; else None."""
+    path = folder / "summary.json"
+    if resumed is None or resumed.path != folder / "checkpoints" / "last.pt" or not path.is_file():
+        return None
+    try:
+        summary = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise BadValueError(f"{path} is not JSON ({exc.msg}, line {exc.lineno}): the run's summary was damaged; "
+                            "move it away and the same command writes it again") from exc
+    if not summary.get("complete") or summary.get("steps") != resumed.step:
+        return None
+    return {**summary, "run_dir": str(folder), "checkpoint": str(folder / "checkpoints" / "last.pt"),
+            "best_checkpoint": str(folder / "checkpoints" / "best.pt"), "already_complete": True}
+
+
+def new_run_override(run: TrainRun) -> str:
+    """The override that starts a new run beside this one: ``run_name=NAME_K`` with the first K >= 2 whose folder
+    does not exist, or ``run_dir=FOLDER_K`` when run_dir names a folder outside the run name's."""
+    if run.run_dir is None or run.run_name in Path(run.run_dir).parts:
+        key, base = "run_name", Path(run.out_root) / run.run_name
+    else:
+        key, base = "run_dir", Path(run.run_dir)
+    k = 2
+    while Path(f"{base}_{k}").exists():
+        k += 1
+    return f"{key}={shlex.quote((run.run_name if key == 'run_name' else str(base)) + f'_{k}')}"
+
+
+def config_summary(run: TrainRun, optimizer: str, lr: float, steps_per_epoch: int, total_steps: int) -> str:
+    """train.log's line of the run's main settings (run.json holds the whole resolved config); ``lr``: the
+    optimiser's base learning rate (:func:`learning_rate`)."""
+    schedule = run.train
+    return (f"config: model={run.model_id} seed={run.seed} data.root={run.data.root} "
+            f"data.batch_size={run.data.batch_size} data.reader.input_size={run.data.reader.input_size} "
+            f"{total_steps} steps ({steps_per_epoch} per epoch) {optimizer} lr {lr:.2e} "
+            f"weight_decay {run.optim.optimizer.keywords.get('weight_decay', 0.0):g} "
+            f"scheduler {run.optim.scheduler.func.__name__} "
+            f"train.log_every={schedule.log_every} train.val_every={schedule.val_every} "
+            f"train.ckpt_every={schedule.ckpt_every} precision={run.precision} device={run.device}; "
+            "the whole config: run.json")
 
 
 def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
