@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from datagen.camera import Intrinsics, look_at
-from datagen.render.draw import grid, titled
 from datagen.geometry import axis_angle_to_matrix
+from datagen.render.draw import grid, stack, text_block, titled
 from datagen.render.renderer import PointLight, Renderer, RenderSettings
 from datagen.render.scene import Grasp, scene_parts
 
@@ -40,7 +40,11 @@ def grasp_views(hand_pose: np.ndarray) -> list[np.ndarray]:
     return views
 
 
-def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None) -> np.ndarray:
+VIEW_NAMES = ("from 55 degrees one side", "from 55 degrees the other", "from below the lens")
+
+
+def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
+                  split_of: dict[int, str] | None = None) -> np.ndarray:
     """Render the contact sheet of ``grasps.npz``-style arrays.
 
     Args:
@@ -48,20 +52,37 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None) ->
             (N, 21, 3) and "score_*" entries.
         size: tile side, pixels.
         platform: GL platform.
+        split_of: {grasp id: split name} to print beside each grasp id (a dataset's manifest
+            ``grasp_ids``), or None.
 
     Returns:
-        (H, W, 3) uint8: one row per grasp, three views each.
+        (H, W, 3) uint8: a header saying what the views and scores are, then one row per grasp,
+        three views each, every tile titled.
     """
+    from datagen.grasps.refine import PADS
+    from datagen.grasps.scores import CONTACT_MM
+
     intrinsics = Intrinsics.from_lens(60.0, 32.0, size, size)
     tiles = []
     with Renderer(intrinsics, platform=platform) as renderer:
         for i, gid in enumerate(arrays["grasp_id"]):
             renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i])))
-            label = (f"#{int(gid)} pen {arrays['score_max_penetration_mm'][i]:.1f}mm "
-                     f"pads {int(arrays['score_pads_in_contact'][i])} fc {arrays['score_force_closure_residual'][i]:.2f}")
+            split = f" ({split_of[int(gid)]})" if split_of and int(gid) in split_of else ""
+            labels = (f"grasp {int(gid)}{split}",
+                      f"pen {arrays['score_max_penetration_mm'][i]:.1f} mm, pads {int(arrays['score_pads_in_contact'][i])}",
+                      f"fc {arrays['score_force_closure_residual'][i]:.2f}")
             for k, T in enumerate(grasp_views(arrays["hand_pose"][i])):
                 eye = np.linalg.inv(T)[:3, 3]
                 settings = RenderSettings(lights=[PointLight(eye + [0.0, 0.0, 0.15], intensity=0.5)], ambient=0.3)
                 rgb = renderer.render(T, ("rgb",), settings)["rgb"]
-                tiles.append(titled(rgb, label if k == 0 else ""))
-    return grid(tiles, columns=3)
+                tiles.append(titled(rgb, f"{labels[k]}\n{VIEW_NAMES[k]}"))
+    sheet = grid(tiles, columns=3)
+    header = text_block([
+        (f"{len(arrays['grasp_id'])} grasps, one per row, each from three cameras: two 20 degrees above the grip, "
+         "55 degrees either side of the direction opposite the forearm, and one 40 degrees below it, looking at "
+         "the lens (which must stay uncovered). The green patch on the probe is its orientation marker."),
+        ("pen: deepest hand point inside the probe. "
+         f"pads: how many of the {len(PADS)} pads (thumb, four fingertips, palm) lie within {CONTACT_MM:g} mm "
+         "of the probe. fc: force-closure residual, 0 when the contacts can hold the probe still.")],
+        sheet.shape[1], scale=0.42, line_px=17)
+    return stack([header, sheet])
