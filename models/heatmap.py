@@ -63,7 +63,7 @@ from models.hopenet import normalized_intrinsics, unproject_normalized
 from models.prior import PointPrior
 from models.resnet import check_backbone, resnet
 
-__all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "soft_argmax"]
+__all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "heatmap_confidence", "soft_argmax"]
 
 
 class HUPNetOutput(NamedTuple):
@@ -74,11 +74,14 @@ class HUPNetOutput(NamedTuple):
             [-1, 1] by up to the canvas margin).
         points3d: (B, N, 3) float, the training target's units, OpenCV camera frame of K_input.
         points2d_init: (B, N, 2) the heatmaps' own 2D points where the probe head replaces the corners', else None.
+        confidence: (B, N) float32 in [0, 1], each keypoint's :func:`heatmap_confidence` (for the probe head's
+            corners, their heatmaps'); no gradient flows through it.
     """
 
     points2d: torch.Tensor
     points3d: torch.Tensor
     points2d_init: torch.Tensor | None = None
+    confidence: torch.Tensor | None = None
 
 
 def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor,
@@ -103,6 +106,24 @@ def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor
     y = (prob.sum(dim=3) * grid_y.to(dtype)).sum(dim=-1)  # (B, N, H) marginal -> (B, N)
     expected = None if values is None else (prob * values.to(dtype)).sum(dim=(2, 3))
     return torch.stack([x, y], dim=-1), expected
+
+
+def heatmap_confidence(logits: torch.Tensor) -> torch.Tensor:
+    """How peaked each heatmap is: the softmax probability mass of its most probable 3 x 3 cells.
+
+    1 when the whole distribution sits within one cell's neighbours, 9 / (H W) for a flat map; the 2D point
+    (soft-argmax) of a spread map lies between its modes, on none of them.
+
+    Args:
+        logits: (B, N, H, W) float heatmap logits.
+
+    Returns:
+        (B, N) float32 in [0, 1], detached.
+    """
+    B, N, H, W = logits.shape
+    prob = torch.softmax(logits.detach().float().reshape(B, N, H * W), dim=-1).reshape(B * N, 1, H, W)
+    window = F.avg_pool2d(prob, 3, stride=1, padding=1, count_include_pad=True) * 9.0  # (B N, 1, H, W) 3x3 sums
+    return window.reshape(B, N, H * W).amax(dim=-1).clamp(max=1.0)
 
 
 def _conv_bn_relu(in_channels: int, out_channels: int) -> nn.Sequential:
@@ -265,7 +286,7 @@ class HUPNet(nn.Module):
                 contiguous or channels_last.
 
         Returns:
-            :class:`HUPNetOutput`: points2d (B, N, 2) normalised, points3d (B, N, 3).
+            :class:`HUPNetOutput`: points2d (B, N, 2) normalised, points3d (B, N, 3), confidence (B, N).
         """
         if images.ndim != 4 or images.shape[-1] != self.input_size or images.shape[-2] != self.input_size:
             raise ValueError(f"images must be (B, {self.config.input_channels}, {self.input_size}, {self.input_size}) "
@@ -290,11 +311,13 @@ class HUPNet(nn.Module):
         if self.config.heatmap_stride == 4:                                          # (B, D / 2, 2 H, 2 W)
             p = self.fine(F.interpolate(p, scale_factor=2, mode="nearest") + F.pad(self.lateral2(c2), (2 * m,) * 4))
         grid = self.grid.to(p.dtype)
+        logits = self.heatmap(p)                                                     # (B, N, H, W)
+        confidence = heatmap_confidence(logits)                                      # (B, N)
         if self.config.depth_anchor:
-            points2d, _ = soft_argmax(self.heatmap(p), grid, grid)                  # (B, N, 2)
+            points2d, _ = soft_argmax(logits, grid, grid)                            # (B, N, 2)
             depth = self._anchored_depth(images, p)                                  # (B, N)
         else:
-            points2d, relative = soft_argmax(self.heatmap(p), grid, grid, self.depthmap(p))  # (B, N, 2), (B, N)
+            points2d, relative = soft_argmax(logits, grid, grid, self.depthmap(p))   # (B, N, 2), (B, N)
             root = self.root_depth(torch.flatten(self.backbone.avgpool(c5), 1))          # (B, 1)
             depth = (self.prior3d.mean[:, 2].to(relative.dtype)
                      + (root.to(relative.dtype) + relative) * self.prior3d.scale)
@@ -305,8 +328,9 @@ class HUPNet(nn.Module):
             heatmap2d = points2d
             points2d = torch.cat([points2d[:, :-N_CORNERS], rigid2d.to(points2d.dtype)], dim=1)
             points3d = torch.cat([points3d[:, :-N_CORNERS], rigid3d.to(points3d.dtype)], dim=1)
-            return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), heatmap2d.to(images.dtype))
-        return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype))
+            return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), heatmap2d.to(images.dtype),
+                                confidence)
+        return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), confidence=confidence)
 
     def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor, corners3d: torch.Tensor, images: torch.Tensor,
                      corners2d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -1,9 +1,11 @@
 """``hupbench export CKPT``: ONNX export with a parity check of onnxruntime against PyTorch.
 
 The file follows the model-file contract of :mod:`hupbench.inference.model_file` (input ``image``, outputs
-``points2d`` and ``points3d``, the ``hupbench.*`` metadata) at the fixed opset ``OPSET``, exported with the
-dynamo exporter. :class:`ContractModule` wraps any model of :mod:`models` into that interface, and
-``hupbench eval`` runs the same wrapper, so the PyTorch and ONNX numbers mean the same thing.
+``points2d`` and ``points3d``, and ``confidence`` for a model with a per-keypoint confidence, the
+``hupbench.*`` metadata) at the fixed opset ``OPSET``, exported with the dynamo exporter.
+:class:`ContractModule` wraps any model of :mod:`models` into that interface, and ``hupbench eval`` runs the
+same wrapper, so the PyTorch and ONNX numbers mean the same thing. The export also calibrates predict's
+out-of-distribution check on the dataset's frames (:mod:`hupbench.inference.image_statistics`).
 
 The file is written under a temporary name while the output is locked, onnxruntime runs it on real dataset
 images beside PyTorch, and it is renamed to its final name only when the 3D outputs agree within
@@ -25,12 +27,17 @@ from torch import nn
 from datagen import keypoints as kp
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.input_checks import check_int
-from hupbench.inference.model_file import write_metadata
-from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.inference.image_statistics import ImageStatistics
+from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, write_metadata
+from hupbench.inference.runtime import (
+    load_onnx_model,
+    run_onnx_with_confidence,
+    split_model_images,
+)
 from hupbench.input_geometry import INPUT_MODALITIES, pixels_to_normalized
 
-__all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "contract_model", "default_run_name",
-           "export_onnx", "onnx_metadata", "run_export"]
+__all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "calibrate_image_statistics",
+           "contract_model", "default_run_name", "export_onnx", "onnx_metadata", "run_export"]
 
 #: the ONNX opset of every exported file (fixed: the contract with ``hupbench predict``)
 OPSET = 18
@@ -44,6 +51,8 @@ PARITY_MAX_3D_MM = 0.1
 EXPORT_DEPTH_CLAMP_M = 1e-3
 #: frames of real images the parity check runs
 PARITY_FRAMES = 8
+#: largest allowed |onnxruntime - PyTorch| of the per-keypoint confidence (in [0, 1])
+PARITY_MAX_CONFIDENCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -88,13 +97,16 @@ class ContractModule(nn.Module):
     """A model of :mod:`models` (its output has ``points3d``, and ``points2d`` or None) behind the ONNX contract
     of :mod:`hupbench.inference.model_file`, image (and depth, for a model that reads it) -> (points2d,
     points3d), for an S = ``input_size`` pixel input with (3, 3) intrinsics ``K_input``. Without a 2D head,
-    points2d is the projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``)."""
+    points2d is the projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``).
+    With ``confidence`` and a model that has one (:data:`hupbench.inference.model_file.CONFIDENCE`), a third
+    output: its ``confidence`` (B, N) (the exported file's; eval reads the first two)."""
 
-    def __init__(self, model: nn.Module, K_input, input_size: int) -> None:
+    def __init__(self, model: nn.Module, K_input, input_size: int, confidence: bool = False) -> None:
         super().__init__()
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         self.model = model
         self.input_size = input_size
+        self.with_confidence = confidence and getattr(getattr(model, "config", None), "name", None) in CONFIDENCE
         channels = getattr(getattr(model, "config", None), "input_channels", INPUT_MODALITIES["rgb"])
         self.reads_depth = channels == INPUT_MODALITIES["rgb+depth"]
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
@@ -104,9 +116,15 @@ class ContractModule(nn.Module):
     def input_modalities(self) -> str:
         return "rgb+depth" if self.reads_depth else "rgb"
 
-    def forward(self, image: torch.Tensor, depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The graph outputs, in the order :meth:`forward` returns them."""
+        return (*BASE_OUTPUTS, "confidence") if self.with_confidence else BASE_OUTPUTS
+
+    def forward(self, image: torch.Tensor, depth: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         """image (B, 3, S, S) RGB in [0, 1]; depth (B, 1, S, S) metres for a model that reads it (the model's input
-        is the two side by side); or one (B, C, S, S) model image."""
+        is the two side by side); or one (B, C, S, S) model image. Returns (points2d, points3d) and, with
+        ``with_confidence``, confidence (B, N)."""
         out = self.model(image if depth is None else torch.cat([image, depth], dim=1))
         points3d = out.points3d
         points2d = getattr(out, "points2d", None)
@@ -116,17 +134,20 @@ class ContractModule(nn.Module):
             u = fx * points3d[..., 0] / z + cx                                   # (B, N) pixels
             v = fy * points3d[..., 1] / z + cy
             points2d = pixels_to_normalized(torch.stack([u, v], dim=-1), self.input_size)
+        if self.with_confidence:
+            return points2d, points3d, out.confidence
         return points2d, points3d
 
 
-def contract_model(model: nn.Module, payload: dict[str, Any], source: str) -> ContractModule:
+def contract_model(model: nn.Module, payload: dict[str, Any], source: str, confidence: bool = False) -> ContractModule:
     """:class:`ContractModule` in eval mode for a model and payload of :func:`hupbench.checkpoint.load_model`
-    (which checked K_input and the input size); ``source`` names the checkpoint in errors."""
+    (which checked K_input and the input size); ``source`` names the checkpoint in errors; ``confidence``: the
+    third output where the model has one (the exported file's)."""
     n = model.config.n_keypoints
     if n != kp.NUM_KEYPOINTS:
         raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
                             f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
-    return ContractModule(model, payload["K_input"], int(payload["input_size"])).eval()
+    return ContractModule(model, payload["K_input"], int(payload["input_size"]), confidence).eval()
 
 
 def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
@@ -141,19 +162,26 @@ def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
     return clean[:128] or "model"
 
 
-def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str) -> dict[str, str]:
-    """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`)."""
+def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outputs: tuple[str, ...] = BASE_OUTPUTS,
+                  image_statistics: ImageStatistics | None = None) -> dict[str, str]:
+    """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`):
+    ``outputs`` those of the :class:`ContractModule` exported, ``image_statistics`` predict's calibration."""
     channels = payload["model_config"].get("input_channels", 3)
     modalities = next(name for name, count in INPUT_MODALITIES.items() if count == channels)
     return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
-                          payload["model_config"], run_name, git_commit, modalities)
+                          payload["model_config"], run_name, git_commit, modalities, outputs, image_statistics)
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
     """Export a :class:`ContractModule` (eval mode, CPU) with a dynamic batch axis and ``metadata`` as its
-    metadata_props to ``path``, written directly (callers that need atomicity pass a temporary name)."""
+    metadata_props to ``path``, written directly (callers that need atomicity pass a temporary name). The
+    metadata's ``hupbench.outputs`` must be the module's :attr:`ContractModule.outputs`."""
+    import json
+
     import onnx
 
+    declared = tuple(json.loads(metadata.get("hupbench.outputs", "null")) or BASE_OUTPUTS)
+    assert declared == module.outputs, (declared, module.outputs)
     size = module.input_size
     batch = torch.export.Dim("batch")
     example, names, dynamic = (torch.rand(2, 3, size, size),), ["image"], {"image": {0: batch}}
@@ -173,7 +201,7 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
             warnings.filterwarnings("ignore", message=r".*The axis name: batch will not be used.*", category=UserWarning)
             program = torch.onnx.export(
                 module.eval(), example, dynamo=True, opset_version=opset, verbose=False,
-                input_names=names, output_names=["points2d", "points3d"], dynamic_shapes=dynamic)
+                input_names=names, output_names=list(module.outputs), dynamic_shapes=dynamic)
     finally:
         registry_log.setLevel(level)
     proto = program.model_proto
@@ -199,18 +227,44 @@ def _parity_images(dataset: Path, input_size: int, frames: int, modalities: str 
     return torch.stack([reader[int(i)]["image"] for i in idx])
 
 
-def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float]:
-    """Max |onnxruntime - PyTorch| of both outputs on model ``images`` (B, C, S, S): {"points3d_mm",
-    "points2d_norm", "points2d_px" (input-image pixels), "frames"}."""
+def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float | None]:
+    """Max |onnxruntime - PyTorch| of the outputs on model ``images`` (B, C, S, S): {"points3d_mm",
+    "points2d_norm", "points2d_px" (input-image pixels), "confidence" (None without that output), "frames"}."""
     with torch.inference_mode():
-        ref2d, ref3d = module(images)
-    got2d, got3d = run_onnx(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
-    d3 = float(np.max(np.abs(got3d.astype(np.float64) - ref3d.numpy().astype(np.float64)))) * 1000.0
-    d2 = float(np.max(np.abs(got2d.astype(np.float64) - ref2d.numpy().astype(np.float64))))
-    if not (np.isfinite(d3) and np.isfinite(d2)):
+        ref = module(images)
+    got = run_onnx_with_confidence(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
+
+    def gap(a: np.ndarray, b: torch.Tensor) -> float:
+        return float(np.max(np.abs(a.astype(np.float64) - b.numpy().astype(np.float64))))
+
+    d3, d2 = gap(got[1], ref[1]) * 1000.0, gap(got[0], ref[0])
+    dc = gap(got[2], ref[2]) if module.with_confidence else None
+    if not (np.isfinite(d3) and np.isfinite(d2) and (dc is None or np.isfinite(dc))):
         raise RunFailedError("the ONNX or PyTorch outputs hold NaN or inf on real images")
-    return {"points3d_mm": d3, "points2d_norm": d2, "points2d_px": d2 * module.input_size / 2.0,
+    return {"points3d_mm": d3, "points2d_norm": d2, "points2d_px": d2 * module.input_size / 2.0, "confidence": dc,
             "frames": int(images.shape[0])}
+
+
+def calibrate_image_statistics(dataset: Path, input_size: int) -> ImageStatistics:
+    """Predict's out-of-distribution calibration (:func:`hupbench.inference.image_statistics.calibrate`) on the
+    dataset's frames, read and resized exactly as predict reads an image: up to ``TRAIN_FRAMES`` training frames,
+    the threshold from up to ``THRESHOLD_FRAMES`` validation frames (else test, else training frames)."""
+    from hupbench.data import read_manifest
+    from hupbench.inference import image_statistics as stats
+    from hupbench.inference.images import read_image
+
+    counts = read_manifest(dataset)["counts"]
+
+    def statistics(split: str, frames: int) -> np.ndarray:
+        files = sorted(p for p in (dataset / split / "rgb").iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
+        idx = np.unique(np.linspace(0, len(files) - 1, min(frames, len(files))).round().astype(int))
+        return np.stack([stats.image_statistics(read_image(files[i]), input_size) for i in idx])
+
+    if counts.get("train", 0) < 2:
+        raise BadValueError(f"{dataset} has {counts.get('train', 0)} training frames; the out-of-distribution "
+                            "calibration needs at least 2")
+    split = next(s for s in ("val", "test", "train") if counts.get(s, 0) > 0)
+    return stats.calibrate(statistics("train", stats.TRAIN_FRAMES), statistics(split, stats.THRESHOLD_FRAMES), split)
 
 
 def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
@@ -219,7 +273,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
 
     Returns:
         {"onnx": str path, "parity": :func:`parity`'s dict, "dataset": str, "opset": int, "run_name": str,
-         "metadata": dict}
+         "metadata": dict, "image_statistics": the calibration's :meth:`ImageStatistics.describe`}
     """
     from tqdm import tqdm
 
@@ -229,7 +283,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
 
     out = check_writable(options.out, "--out", file=True)
     model, payload = load_model(options.checkpoint)
-    module = contract_model(model, payload, f"checkpoint {options.checkpoint}")
+    module = contract_model(model, payload, f"checkpoint {options.checkpoint}", confidence=True)
     dataset = options.dataset
     if dataset is None:
         recorded = (payload.get("dataset") or {}).get("path")
@@ -241,7 +295,8 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
         raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
     images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
     run_name = options.run_name or default_run_name(options.checkpoint, payload)
-    metadata = onnx_metadata(payload, run_name, git_commit())
+    calibration = calibrate_image_statistics(dataset, module.input_size)
+    metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration)
 
     with OutputLock.for_file(out, "export"):
         clean_stale_tmp(out.parent, recursive=False)  # exports that were killed
@@ -263,5 +318,12 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
                 raise RunFailedError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
                                      f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
                                      f"to {out}")
+            if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE:
+                raise RunFailedError(f"ONNX parity check failed: the keypoint confidence differs by up to "
+                                     f"{diff['confidence']:.2e} (> {PARITY_MAX_CONFIDENCE:g}) between onnxruntime and "
+                                     f"PyTorch; nothing written to {out}")
+    log(f"out-of-distribution check calibrated on {calibration.frames['train']} training frames; threshold "
+        f"{calibration.threshold:.2f} = percentile 99 of {calibration.frames['threshold']} "
+        f"{calibration.frames['threshold_split']} frames")
     return {"onnx": str(out), "parity": diff, "dataset": str(dataset), "opset": options.opset, "run_name": run_name,
-            "metadata": metadata}
+            "metadata": metadata, "image_statistics": calibration.describe()}

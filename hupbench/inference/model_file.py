@@ -12,6 +12,12 @@ depth input holds, :data:`DEPTH_INPUT`). Graph: input ``image`` (B, 3, S, S) flo
 "rgb+depth" input ``depth`` (B, 1, S, S) float32 metres (0 where no surface, clipped to ``clip_m``; resized to
 the nearest pixel like the image); outputs ``points2d`` (B, N, 2) normalised [-1, 1] input coordinates and
 ``points3d`` (B, N, 3) metres, OpenCV camera frame of K_input, for the N keypoint names.
+
+Optional, and absent from files exported before they existed (which still load): ``hupbench.outputs`` (JSON
+list of the graph outputs, :data:`OUTPUTS`; ``["points2d", "points3d"]`` when absent), where ``confidence``
+is (B, N) float32 in [0, 1] for a model with a per-keypoint confidence (:data:`CONFIDENCE`); and
+``hupbench.image_statistics``, the calibration of predict's out-of-distribution check
+(:class:`hupbench.inference.image_statistics.ImageStatistics`).
 """
 
 from __future__ import annotations
@@ -23,9 +29,10 @@ import numpy as np
 
 from datagen.errors import BadValueError
 from datagen.input_checks import check_int, is_whole
+from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
-__all__ = ["META", "ONNX_SCHEMA", "check_intrinsics", "check_io_shapes", "fits_probe", "read_metadata",
+__all__ = ["CONFIDENCE", "META", "ONNX_SCHEMA", "OUTPUTS", "check_intrinsics", "check_io_shapes", "fits_probe", "read_metadata",
            "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
@@ -34,6 +41,15 @@ ONNX_SCHEMA = "1"
 META = "hupbench."
 #: graph outputs and the width of their last axis, in the order they are checked
 OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
+#: the outputs a file may declare in ``hupbench.outputs`` (the first two always), and the default
+OUTPUTS = ("points2d", "points3d", "confidence")
+BASE_OUTPUTS = ("points2d", "points3d")
+#: what the ``confidence`` output means, by model name (``hupbench.model_config["name"]``); a model without a
+#: per-keypoint score of its own has no entry (why: :data:`NO_CONFIDENCE`)
+CONFIDENCE = {"hupnet": "the softmax probability mass of the keypoint's heatmap within its most probable 3 x 3 "
+                        "cells: 1 = one sharp peak, 9 / cells = flat"}
+NO_CONFIDENCE = ("this model regresses coordinates (no heatmap): it has no per-keypoint score, and its points' "
+                 "spread is not measured; null rather than a made-up number")
 _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
 #: ``hupbench.depth_input`` of every model that reads depth: the input ``depth`` is the model's depth channel
 #: (:func:`hupbench.input_geometry.depth_channel`)
@@ -48,9 +64,12 @@ def fits_probe(model_config: dict) -> bool:
 
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
-                   run_name: str, git_commit: str, input_modalities: str = "rgb") -> dict[str, str]:
+                   run_name: str, git_commit: str, input_modalities: str = "rgb",
+                   outputs: tuple[str, ...] = BASE_OUTPUTS,
+                   image_statistics: ImageStatistics | None = None) -> dict[str, str]:
     """The ``metadata_props`` of an exported model, checked by :func:`read_metadata` (no time stamp: one
-    checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels."""
+    checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels. ``outputs``: the
+    graph's outputs (:data:`OUTPUTS`); ``image_statistics``: the out-of-distribution calibration, or None."""
     props = {
         META + "input_modalities": input_modalities,
         META + "onnx_schema": ONNX_SCHEMA,
@@ -64,6 +83,10 @@ def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges
     }
     if input_modalities == "rgb+depth":
         props[META + "depth_input"] = json.dumps(DEPTH_INPUT, sort_keys=True)
+    if tuple(outputs) != BASE_OUTPUTS:
+        props[META + "outputs"] = json.dumps(list(outputs))
+    if image_statistics is not None:
+        props[META + "image_statistics"] = image_statistics.to_json()
     read_metadata(props, "the metadata being written")
     return props
 
@@ -75,7 +98,8 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     Returns:
         ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str, "skeleton_edges":
         tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str,
-        "input_modalities": "rgb" or "rgb+depth"}``.
+        "input_modalities": "rgb" or "rgb+depth", "outputs": tuple of str, "image_statistics":
+        :class:`ImageStatistics` or None}``.
     """
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
@@ -122,16 +146,25 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     if channels != INPUT_MODALITIES[modalities]:
         raise BadValueError(f"{source}: hupbench.model_config has input_channels {channels!r} but "
                             f"hupbench.input_modalities is {modalities!r} ({INPUT_MODALITIES[modalities]} channels)")
+    outputs = load("outputs") if META + "outputs" in props else list(BASE_OUTPUTS)
+    if (not isinstance(outputs, list) or outputs[:2] != list(BASE_OUTPUTS) or len(set(outputs)) != len(outputs)
+            or not set(outputs) <= set(OUTPUTS)):
+        raise BadValueError(f"{source}: metadata hupbench.outputs must list {list(BASE_OUTPUTS)} and then any of "
+                            f"{list(OUTPUTS[2:])}, got {props[META + 'outputs'][:120]!r}")
+    statistics = props.get(META + "image_statistics")
     return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names), "input_modalities": modalities,
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
-            "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", "")}
+            "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", ""),
+            "outputs": tuple(outputs),
+            "image_statistics": None if statistics is None else ImageStatistics.from_json(statistics, source)}
 
 
 def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_size: int, num_keypoints: int,
-                    source: str = "model", input_modalities: str = "rgb") -> None:
+                    source: str = "model", input_modalities: str = "rgb",
+                    declared_outputs: tuple[str, ...] = BASE_OUTPUTS) -> None:
     """The graph's declared input and outputs (name -> dimensions; a name or None for a dynamic axis)
-    against the contract and the metadata: a file whose metadata and graph disagree would otherwise fail
-    deep inside onnxruntime, or be drawn with the wrong names."""
+    against the contract and the metadata (``declared_outputs``: its ``hupbench.outputs``): a file whose
+    metadata and graph disagree would otherwise fail deep inside onnxruntime, or be drawn with the wrong names."""
     if "image" not in inputs:
         raise BadValueError(f"{source}: the graph has no input 'image' (inputs {sorted(inputs)}); not a hupbench export")
     expected = {"image": ([3, input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}
@@ -145,6 +178,11 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
         if name not in outputs:
             raise BadValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")
         expected[name] = ([num_keypoints, width], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
+    if "confidence" in declared_outputs:
+        if "confidence" not in outputs:
+            raise BadValueError(f"{source}: hupbench.outputs declares 'confidence' but the graph has no such output "
+                                f"(outputs {sorted(outputs)})")
+        expected["confidence"] = ([num_keypoints], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
     for name, (tail, why) in expected.items():
         dims = list(inputs.get(name, outputs.get(name)) or [])
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):

@@ -16,10 +16,17 @@ resized to the nearest pixel (a dataset's ``<split>/rgb`` and ``<split>/depth`` 
 A model that reads depth is refused without ``--depth``, an RGB model with it; an image whose depth map is
 missing or of another size fails alone, naming the file.
 
+Trust: ``keypoint_confidence`` (N,) in [0, 1] per image for a model with a per-keypoint confidence (HUPNet:
+its heatmap's peak mass, :data:`hupbench.inference.model_file.CONFIDENCE`), null for a regression model (HOPE-Net,
+ResNet), which has no such score; the document's ``keypoint_confidence`` says which and why. ``ood`` per image:
+the out-of-distribution check of :mod:`hupbench.inference.image_statistics` (distance, threshold, flagged),
+calibrated at export on the training frames; a flagged image gets one warning line, and its overlay a red
+banner. A file exported before the check existed has ``ood`` null and the document says so.
+
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
-(N, 3) metres in the camera frame of that K; and ``<stem>_overlay.png`` per image (``<stem>_<k>_overlay.png``
-when two inputs share a stem). A file that is no readable image gets an error in its record and on
+(N, 3) metres in the camera frame of that K, ``keypoint_confidence`` and ``ood``; and ``<stem>_overlay.png`` per
+image (``<stem>_<k>_overlay.png`` when two inputs share a stem). A file that is no readable image gets an error in its record and on
 stderr; the others are still processed. Everything checkable is checked before any image is read; the
 output folder is locked meanwhile, and a run that fails while writing removes the overlays it wrote, so
 a folder with a ``predictions.json`` holds one finished run.
@@ -29,7 +36,7 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,13 +47,30 @@ from datagen.errors import BadTypeError, BadValueError, UserError
 from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
 from datagen.render.draw import write_png
-from hupbench.inference.images import IMAGE_SUFFIXES, PAD_VALUE, expand_inputs, read_depth_png, read_image, to_uint8
-from hupbench.inference.model_file import check_intrinsics, fits_probe
+from hupbench.inference.image_statistics import image_statistics
+from hupbench.inference.images import (
+    IMAGE_SUFFIXES,
+    PAD_VALUE,
+    expand_inputs,
+    read_depth_png,
+    read_image,
+    to_uint8,
+)
+from hupbench.inference.model_file import (
+    CONFIDENCE,
+    NO_CONFIDENCE,
+    check_intrinsics,
+    fits_probe,
+)
 from hupbench.inference.overlay import draw_prediction
-from hupbench.inference.runtime import OnnxModel, load_onnx_model, run_onnx
+from hupbench.inference.runtime import (
+    OnnxModel,
+    load_onnx_model,
+    run_onnx_with_confidence,
+)
 from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: keypoint_confidence and ood
 DEFAULT_BATCH_SIZE = 16
 #: metres per unit of a depth PNG unless ``--depth-scale-m`` says otherwise: the dataset's (0.1 mm)
 DEFAULT_DEPTH_SCALE_M = 1e-4
@@ -58,6 +82,9 @@ CAMERA_USER = "user K"
 _DECIMALS_M = 6  # 1 um: far below any model's error, keeps the JSON readable
 _DECIMALS_PX = 3
 _DECIMALS_K = 6
+_DECIMALS_SCORE = 4
+NO_CALIBRATION = ("the model file has no hupbench.image_statistics (exported before the check existed): "
+                  "re-export its checkpoint with `hupbench export CKPT`")
 
 PREPROCESSING = (
     "pad the H x W image to a centred L x L square (L = max(H, W), pad_left = (L - W) // 2, "
@@ -240,7 +267,8 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
 
     Returns:
         ``{"json": Path, "images": int, "ok": int, "failed": int, "overlays": [Path], "skipped": [...],
-        "records": [per-image dicts as in the JSON]}``.
+        "flagged": [paths of images the out-of-distribution check flagged], "records": [per-image dicts as in
+        the JSON]}``.
     """
     from tqdm import tqdm
 
@@ -296,8 +324,9 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
                     with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
                         path.unlink(missing_ok=True)
     failed = sum(not r["ok"] for r in records)
+    flagged = [r["path"] for r in records if r["ood"] is not None and r["ood"]["flagged"]]
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
-            "overlays": overlays, "skipped": skipped, "records": records}
+            "overlays": overlays, "skipped": skipped, "flagged": flagged, "records": records}
 
 
 def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dict[str, str]]) -> dict[str, Any]:
@@ -312,6 +341,12 @@ def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dic
         "keypoint_names": list(model.keypoint_names),
         "skeleton_edges": [list(e) for e in model.skeleton_edges],
         "preprocessing": PREPROCESSING,
+        "keypoint_confidence": ({"available": True, "definition": CONFIDENCE.get(model.model_config.get("name"),
+                                                                             "the model's own, in [0, 1]")}
+                                if model.has_confidence else {"available": False, "reason": NO_CONFIDENCE}),
+        "ood_check": ({"available": True, **model.image_statistics.describe(),
+                       "flagged": sum(r["ood"] is not None and r["ood"]["flagged"] for r in records)}
+                      if model.image_statistics is not None else {"available": False, "reason": NO_CALIBRATION}),
         "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
         "skipped": skipped,
         "images": records,
@@ -345,7 +380,7 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
     if loaded:
         depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
         images = np.stack([item[2] for item in loaded])
-        points2d, points3d = run_onnx(model, images, depth)  # (B, C, S, S) -> (B, N, *)
+        points2d, points3d, confidence = run_onnx_with_confidence(model, images, depth)  # (B, C, S, S) -> (B, N, *)
         if fits_probe(model.model_config):  # torch is imported only for a model that fits
             from hupbench.inference.probe_fit import fit_probe
 
@@ -358,16 +393,28 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
                 log(f"hupbench predict: error: {record['error']}")
                 continue
             result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user, model.reads_depth)
+            ood = None
+            if model.image_statistics is not None:
+                distance = float(model.image_statistics.distance(image_statistics(image, model.input_size)[None])[0])
+                ood = {"distance": round(distance, _DECIMALS_SCORE), "flagged": distance > model.image_statistics.threshold,
+                       "threshold": round(model.image_statistics.threshold, _DECIMALS_SCORE)}
+                if ood["flagged"]:
+                    log(f"hupbench predict: warning: {record['path']} looks unlike the training images (image-statistics "
+                        f"distance {distance:.2f} > {model.image_statistics.threshold:.2f}, the 99th percentile of "
+                        "the calibration frames): its keypoints are likely wrong")
             record.update(
                 ok=True, image_size={"width": geometry.width, "height": geometry.height},
                 camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
                 K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
                 keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
                 keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
+                keypoint_confidence=None if confidence is None else _plain(confidence[b], _DECIMALS_SCORE), ood=ood,
             )
             if overlay_dir is not None:
                 stem = _unique_stem(Path(record["path"]).stem, used_stems)
-                drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges)
+                drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges,
+                                        None if confidence is None else confidence[b],
+                                        "unlike the training images" if ood is not None and ood["flagged"] else None)
                 overlays.append(write_png(overlay_dir / f"{stem}_overlay.png", drawn))
                 record["overlay"] = str(overlays[-1])
 
@@ -376,7 +423,7 @@ def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]
     """The JSON record of one input before (or without) a prediction: every key present, values null."""
     return {"path": str(path), "depth": None, "ok": False, "error": None, "image_size": None, "camera": None, "K": None,
             "K_model_input": None, "input_geometry": None, "keypoint_names": names, "keypoints_2d_px": None,
-            "keypoints_3d_m": None, "run_name": run_name, "overlay": None}
+            "keypoints_3d_m": None, "keypoint_confidence": None, "ood": None, "run_name": run_name, "overlay": None}
 
 
 def _unique_stem(stem: str, used: set[str]) -> str:

@@ -15,9 +15,10 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.io import file_sha256
-from hupbench.inference.model_file import check_io_shapes, read_metadata
+from hupbench.inference.image_statistics import ImageStatistics
+from hupbench.inference.model_file import BASE_OUTPUTS, check_io_shapes, read_metadata
 
-__all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "split_model_images"]
+__all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "run_onnx_with_confidence", "split_model_images"]
 
 # onnxruntime raises its own exception types (not RuntimeError) for unreadable, invalid or failing models
 _LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.InvalidArgument,
@@ -37,6 +38,8 @@ class OnnxModel:
         keypoint_names: N names. skeleton_edges: pairs (i, j) of keypoint indices.
         model_config: the architecture's config ({} when the file has none). run_name, git_commit: provenance.
         sha256: hash of the file. input_modalities: "rgb", or "rgb+depth" for a model with a ``depth`` input.
+        outputs: the graph's outputs (``hupbench.outputs``). image_statistics: the out-of-distribution
+            calibration, None for a file exported without it.
     """
 
     path: Path
@@ -50,10 +53,16 @@ class OnnxModel:
     git_commit: str
     sha256: str
     input_modalities: str = "rgb"
+    outputs: tuple[str, ...] = BASE_OUTPUTS
+    image_statistics: ImageStatistics | None = None
 
     @property
     def reads_depth(self) -> bool:
         return self.input_modalities == "rgb+depth"
+
+    @property
+    def has_confidence(self) -> bool:
+        return "confidence" in self.outputs
 
 
 def _reason(exc: BaseException, limit: int) -> str:
@@ -86,11 +95,13 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
     meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
     check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
                     {o.name: list(o.shape or []) for o in session.get_outputs()},
-                    meta["input_size"], len(meta["keypoint_names"]), str(path), meta["input_modalities"])
+                    meta["input_size"], len(meta["keypoint_names"]), str(path), meta["input_modalities"],
+                    meta["outputs"])
     model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
     # one blank image: a graph made for another input size under edited metadata fails here, before any work
     S = model.input_size
-    run_onnx(model, np.zeros((1, 3, S, S), np.float32), np.zeros((1, 1, S, S), np.float32) if model.reads_depth else None)
+    run_onnx_with_confidence(model, np.zeros((1, 3, S, S), np.float32),
+                             np.zeros((1, 1, S, S), np.float32) if model.reads_depth else None)
     return model
 
 
@@ -105,6 +116,26 @@ def run_onnx(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None = No
     """The outputs on (B, 3, S, S) float32 RGB ``images`` in [0, 1] and, for a model that reads depth, (B, 1, S, S)
     float32 ``depth`` (its depth input, :data:`hupbench.inference.model_file.DEPTH_INPUT`): points2d (B, N, 2)
     float32, normalised input coordinates; points3d (B, N, 3) float32, metres, OpenCV camera frame of K_input."""
+    points2d, points3d = _run(model, images, depth, BASE_OUTPUTS)
+    return points2d, points3d
+
+
+def run_onnx_with_confidence(model: OnnxModel, images: np.ndarray,
+                             depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`run_onnx`'s outputs and the per-keypoint confidence (B, N) float32 in [0, 1], or None for a file
+    without that output (``hupbench.outputs``)."""
+    if not model.has_confidence:
+        return (*run_onnx(model, images, depth), None)
+    points2d, points3d, confidence = _run(model, images, depth, (*BASE_OUTPUTS, "confidence"))
+    b, n = images.shape[0], len(model.keypoint_names)
+    if confidence.shape != (b, n):
+        raise RunFailedError(f"{model.path}: output confidence must be ({b}, {n}) for {n} keypoint names, got "
+                             f"{confidence.shape}")
+    return points2d, points3d, confidence
+
+
+def _run(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None, names: tuple[str, ...]) -> list[np.ndarray]:
+    """The named outputs of one run (:func:`run_onnx`), points2d and points3d first, their shapes checked."""
     S = model.input_size
     assert images.dtype == np.float32 and images.shape[1:] == (3, S, S), (images.shape, images.dtype)
     feed = {"image": images}
@@ -114,7 +145,7 @@ def run_onnx(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None = No
     else:
         assert depth is None, "the model reads no depth"
     try:
-        points2d, points3d = model.session.run(["points2d", "points3d"], feed)
+        outputs = model.session.run(list(names), feed)
     except _RUN_ERRORS as exc:
         # the declared input shape and the metadata agree (load_onnx_model), so the graph inside wants
         # something else: a model made for another input size whose header was edited, or a broken graph
@@ -122,7 +153,8 @@ def run_onnx(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None = No
                              f"the input size its metadata declare ({S} px): {type(exc).__name__}: "
                              f"{_reason(exc, 240)}") from None
     n, b = len(model.keypoint_names), images.shape[0]
+    points2d, points3d = outputs[:2]
     if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
         raise RunFailedError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
                              f"names, got {points2d.shape} and {points3d.shape}")
-    return points2d, points3d
+    return outputs

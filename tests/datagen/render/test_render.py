@@ -6,6 +6,7 @@ import textwrap
 import numpy as np
 import pytest
 import trimesh
+from helpers import needs_osmesa
 
 from datagen.camera import Intrinsics, look_at, project_points
 from datagen.geometry import transform_points
@@ -163,6 +164,7 @@ def test_modalities_are_checked_and_put_in_canonical_order():
         check_modalities(())
 
 
+@needs_osmesa
 def test_osmesa_fallback_renders_the_same_depth():
     """OSMesa, in its own process (PyOpenGL's platform is fixed per process), matches EGL's depth."""
     code = textwrap.dedent(

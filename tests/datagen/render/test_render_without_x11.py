@@ -25,7 +25,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from helpers import REPO
+from helpers import REPO, needs_osmesa
 
 # the process that renders: the X11 block first, then the project's renderer
 RENDER_WITHOUT_X11 = textwrap.dedent(
@@ -107,7 +107,7 @@ RENDER_WITHOUT_X11 = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize("platform", ["egl", "osmesa"])
+@pytest.mark.parametrize("platform", ["egl", pytest.param("osmesa", marks=needs_osmesa)])
 def test_renders_rgb_depth_and_labels_without_x11_libraries(platform):
     env = {k: v for k, v in os.environ.items() if k not in ("PYOPENGL_PLATFORM", "DISPLAY")}
     proc = subprocess.run([sys.executable, "-c", RENDER_WITHOUT_X11, platform], capture_output=True, text=True,
@@ -156,7 +156,7 @@ def _install_sh_packages() -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("platform", ["egl", "osmesa"])
+@pytest.mark.parametrize("platform", ["egl", pytest.param("osmesa", marks=needs_osmesa)])
 def test_install_sh_packages_are_enough_on_a_machine_without_the_others(tmp_path, platform):
     """A bare Debian box after install.sh, simulated: in a private mount namespace every library file of
     the X11, GL and EGL packages outside the dependency closure of install.sh's DEB_PACKAGES reads as empty

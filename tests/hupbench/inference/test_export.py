@@ -9,23 +9,18 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from helpers import REPO
+from helpers.models import INPUT_SIZE, make_checkpoint
 
 from datagen import keypoints as kp
-from hupbench.inference.model_file import META
-from hupbench.inference import export as E
-from hupbench.inference.runtime import load_onnx_model
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
+from hupbench.inference import export as E
+from hupbench.inference.model_file import META
+from hupbench.inference.runtime import load_onnx_model
 from models.baseline import RegressorOutput
 from models.coords import pixels_to_normalized
-from helpers.models import INPUT_SIZE, make_checkpoint
-from helpers import REPO
-
-
-
-
-
 
 
 def _images(dataset, n):
@@ -45,7 +40,7 @@ def test_onnx_contract(exported, tiny_dataset):
     props = {p.key: p.value for p in proto.metadata_props}
     assert sorted(props) == sorted(META + k for k in (
         "onnx_schema", "input_size", "K_input", "keypoint_names", "skeleton_edges", "model_config", "run_name",
-        "git_commit", "input_modalities"))
+        "git_commit", "input_modalities", "image_statistics"))  # no hupbench.outputs: the two base outputs
     assert props["hupbench.onnx_schema"] == "1"
     assert props["hupbench.input_size"] == str(INPUT_SIZE)
     np.testing.assert_allclose(json.loads(props["hupbench.K_input"]), payload["K_input"])
@@ -166,7 +161,8 @@ def test_export_models_that_unproject_through_the_camera(model_cfg, tiny_dataset
     ckpt = make_checkpoint(tmp_path / "cam.pt", tiny_dataset, **model_cfg, K_input=K.tolist(), input_size=INPUT_SIZE)
     result = E.run_export(E.ExportOptions(ckpt), log=lambda *_: None)
     assert result["parity"]["points3d_mm"] <= E.PARITY_MAX_3D_MM
-    points2d, points3d = load_onnx_model(result["onnx"]).session.run(None, {"image": _images(tiny_dataset, 3).numpy()})
+    points2d, points3d = load_onnx_model(result["onnx"]).session.run(["points2d", "points3d"],
+                                                                      {"image": _images(tiny_dataset, 3).numpy()})
     uv = (points3d @ K.T)[..., :2] / points3d[..., 2:]
     if model_cfg["name"] == "hupnet":  # HOPE-Net's 3D carries the U-Net's own 2D correction
         np.testing.assert_allclose(points2d, (2 * uv + 1) / INPUT_SIZE - 1, atol=1e-4)

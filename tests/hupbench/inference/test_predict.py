@@ -15,13 +15,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import REPO
+from helpers.dot_model import (
+    DEPTHS_M,
+    K_TRAIN,
+    OFFSETS_NORM,
+    N,
+    S,
+    contract_metadata,
+    dot_image,
+    make_dot_model,
+    photo_like,
+)
 
 from datagen import keypoints as kp
 from datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
-from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.inference.images import decode_image, expand_inputs
 from hupbench.inference.model_file import read_metadata
+from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.inference.predict import (
     CAMERA_ASSUMED,
     CAMERA_USER,
@@ -36,15 +48,6 @@ from hupbench.inference.predict import (
 )
 from hupbench.inference.runtime import load_onnx_model
 from hupbench.input_geometry import InputGeometry, apply_affine
-from helpers.dot_model import DEPTHS_M, K_TRAIN, N, OFFSETS_NORM, S, contract_metadata, dot_image, make_dot_model, photo_like
-from helpers import REPO
-
-
-
-
-
-
-
 
 
 @pytest.fixture(scope="module")
@@ -315,8 +318,12 @@ def test_predict_grey_image_known_answer(predicted):
 
 def test_predict_json_content_and_assumed_camera(predicted):
     doc = predicted["doc"]
-    assert doc["schema_version"] == 1 and doc["model"]["run_name"] == "dot-run"
+    assert doc["schema_version"] == 2 and doc["model"]["run_name"] == "dot-run"
     assert doc["counts"] == {"images": 9, "ok": 6, "failed": 3}
+    # a file exported before the confidence output and the calibration existed: both null, and said why
+    assert doc["keypoint_confidence"]["available"] is False and doc["ood_check"]["available"] is False
+    assert "re-export" in doc["ood_check"]["reason"]
+    assert all(r["keypoint_confidence"] is None and r["ood"] is None for r in doc["images"])
     assert [Path(r["path"]).stem for r in doc["images"]] == [
         "wide", "broken", "tall", "square", "empty", "small", "grey", "photo", "readme"]  # input order kept
     for stem in ("wide", "tall", "square", "small", "grey", "photo"):

@@ -1,0 +1,147 @@
+"""The out-of-distribution check of ``hupbench predict``: is an image like the frames the model was trained on?
+
+Numpy and OpenCV only (the torch-free path). Ten statistics of an image (:data:`STATISTIC_NAMES`), taken on
+the image resized so that its longer side is the model's input size S, without the square's padding (a
+padded photo and a square one of the same scene score alike):
+
+    mean and standard deviation of R, G and B (in [0, 1]); mean and standard deviation of the HSV saturation;
+    log of the mean Sobel gradient magnitude of the grey image; log of the variance of its Laplacian.
+
+``hupbench export`` calibrates them on the model's dataset (:func:`calibrate`): the mean and a shrunk
+covariance (:data:`SHRINKAGE` of the way to its average variance, so that few frames still give an
+invertible matrix) of up to :data:`TRAIN_FRAMES` training frames; the threshold is the :data:`PERCENTILE`
+percentile of the distance of up to :data:`THRESHOLD_FRAMES` validation frames (test frames when a dataset
+has no validation split, training frames when it has neither). An image whose Mahalanobis distance to the
+training frames exceeds it is flagged: about 1 % of frames like the validation frames are.
+
+Why these statistics and not the network's features (``scripts/measure_ood_statistics.py``, numbers in
+README's prediction section): the Mahalanobis distance of the backbone's pooled feature flags about as many real
+photographs, but also a quarter of rendered test frames once they are cropped to 4:3 and padded, and it would
+need another graph output; these need none and work for every model type (RGB of a depth model). They judge
+how an image looks, not whether it holds a hand: a rendered frame without any hand passes.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from datagen.errors import BadValueError
+
+__all__ = ["PERCENTILE", "SHRINKAGE", "STATISTIC_NAMES", "ImageStatistics", "calibrate", "image_statistics"]
+
+STATISTIC_NAMES = ("mean_r", "mean_g", "mean_b", "std_r", "std_g", "std_b", "saturation_mean", "saturation_std",
+                   "log_gradient_mean", "log_laplacian_var")
+#: fraction of the way from the training frames' covariance to its mean variance times the identity
+SHRINKAGE = 0.1
+#: percentile of the calibration frames' distances that becomes the threshold
+PERCENTILE = 99.0
+#: frames, evenly spaced over the split, for the mean and covariance (train) and for the threshold
+TRAIN_FRAMES = 2000
+THRESHOLD_FRAMES = 500
+_EPS = 1e-6  # keeps the logs finite on a constant image
+STATISTIC = ("Mahalanobis distance of 10 image statistics (mean and std of R, G, B and of HSV saturation, log mean "
+             "Sobel gradient, log Laplacian variance; image resized to the model input's scale, no padding) to the "
+             "training frames' mean and covariance")
+
+
+def image_statistics(image_rgb: np.ndarray, input_size: int) -> np.ndarray:
+    """The :data:`STATISTIC_NAMES` of one image.
+
+    Args:
+        image_rgb: (H, W, 3) float32 RGB in [0, 1], the image as :func:`hupbench.inference.images.read_image`
+            returns it.
+        input_size: S, the model's input size in pixels: the image is resized (``cv2.INTER_AREA``) so that its
+            longer side is S.
+
+    Returns:
+        (10,) float64.
+    """
+    height, width = image_rgb.shape[:2]
+    scale = input_size / max(height, width)
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    image = cv2.resize(np.asarray(image_rgb, dtype=np.float32), size, interpolation=cv2.INTER_AREA).reshape(
+        size[1], size[0], 3)
+    saturation = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)[..., 1]
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    gradient = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
+    laplacian = cv2.Laplacian(grey, cv2.CV_32F)
+    return np.array([*image.mean(axis=(0, 1)), *image.std(axis=(0, 1)), saturation.mean(), saturation.std(),
+                     np.log(gradient.mean() + _EPS), np.log(laplacian.var() + _EPS)], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class ImageStatistics:
+    """A calibration of the check (module docstring), as stored in ``hupbench.image_statistics``.
+
+    Attributes:
+        mean: (10,) float64, the training frames' mean statistics.
+        precision: (10, 10) float64, the inverse of their shrunk covariance.
+        threshold: distances above it are flagged.
+        frames: {"train": frames of the mean and covariance, "threshold": frames of the threshold,
+            "threshold_split": the split they came from}.
+    """
+
+    mean: np.ndarray
+    precision: np.ndarray
+    threshold: float
+    frames: dict
+
+    def distance(self, statistics: np.ndarray) -> np.ndarray:
+        """(B,) float64 Mahalanobis distances of (B, 10) statistics."""
+        d = np.asarray(statistics, dtype=np.float64) - self.mean
+        return np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", d, self.precision, d), 0.0))
+
+    def to_json(self) -> str:
+        return json.dumps({"statistic": STATISTIC, "names": list(STATISTIC_NAMES), "mean": self.mean.tolist(),
+                           "precision": self.precision.tolist(), "threshold": self.threshold,
+                           "percentile": PERCENTILE, "shrinkage": SHRINKAGE, "frames": self.frames}, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, source: str) -> ImageStatistics:
+        """Read ``hupbench.image_statistics``; ``source`` names the file in errors."""
+        name = f"{source}: metadata hupbench.image_statistics"
+        try:
+            data = json.loads(text)
+            names, frames = data["names"], data["frames"]
+            mean = np.asarray(data["mean"], dtype=np.float64)
+            precision = np.asarray(data["precision"], dtype=np.float64)
+            threshold = float(data["threshold"])
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise BadValueError(f"{name} is not a calibration of {len(STATISTIC_NAMES)} image statistics "
+                                f"({type(exc).__name__}: {exc}): {text[:80]!r}") from None
+        n = len(STATISTIC_NAMES)
+        if tuple(names) != STATISTIC_NAMES:
+            raise BadValueError(f"{name} names the statistics {names!r:.160}; this hupbench computes "
+                                f"{list(STATISTIC_NAMES)}")
+        if (mean.shape != (n,) or precision.shape != (n, n) or not np.all(np.isfinite(mean))
+                or not np.all(np.isfinite(precision)) or not np.isfinite(threshold) or threshold <= 0):
+            raise BadValueError(f"{name} must hold a finite mean ({n},), precision ({n}, {n}) and threshold > 0, got "
+                                f"shapes {mean.shape}, {precision.shape} and threshold {threshold!r}")
+        return cls(mean, precision, threshold, dict(frames))
+
+    def describe(self) -> dict[str, Any]:
+        """What ``predictions.json`` says about the check."""
+        return {"statistic": STATISTIC, "threshold": round(self.threshold, 4),
+                "threshold_rule": f"percentile {PERCENTILE:g} of the calibration frames' distances",
+                "frames": self.frames}
+
+
+def calibrate(train_statistics: np.ndarray, threshold_statistics: np.ndarray, threshold_split: str) -> ImageStatistics:
+    """The check's calibration (module docstring) from (T, 10) training-frame statistics (T >= 2) and (V, 10)
+    statistics of the frames that set the threshold (V >= 1), taken from ``threshold_split``."""
+    train = np.asarray(train_statistics, dtype=np.float64)
+    assert train.ndim == 2 and train.shape[0] >= 2, train.shape
+    covariance = np.cov(train, rowvar=False)
+    n = covariance.shape[0]
+    shrunk = (1.0 - SHRINKAGE) * covariance + SHRINKAGE * np.trace(covariance) / n * np.eye(n)
+    shrunk += _EPS * np.eye(n)  # identical frames: a zero covariance
+    provisional = ImageStatistics(train.mean(axis=0), np.linalg.inv(shrunk), 1.0, {})
+    threshold = float(np.percentile(provisional.distance(threshold_statistics), PERCENTILE))
+    frames = {"train": int(train.shape[0]), "threshold": len(threshold_statistics),
+              "threshold_split": threshold_split}
+    return ImageStatistics(provisional.mean, provisional.precision, max(threshold, _EPS), frames)
