@@ -38,7 +38,7 @@ def test_summary_lists_folders_pictures_and_next_commands(tmp_path):
     for name, path in result["eval_figures"].items():
         assert f"eval figure, {name}: {path}" in text
     # the validation figure names its step; the next commands use this run's paths
-    assert "250.0 mm untrained -> 120.1 mm at step 10, the final validation" in text
+    assert "250.0 mm untrained -> 120.1 mm at step 10 (the progress bar's last figure)" in text
     assert f"hupbench predict {result['onnx']} my_photos/" in text
     assert f"tensorboard --logdir {work / 'run' / 'tb'}" in text
     assert f"hupbench verify {result['dataset']} --sample-sheet" in text
