@@ -23,18 +23,35 @@ Convention:
 from __future__ import annotations
 
 import functools
+from dataclasses import asdict
 
 import numpy as np
 import torch
 import trimesh
 
 from datagen import tolerances as tol
+from datagen.assets.probe_marker import add_marker
+from datagen.assets.probe_mesh import (
+    ProbeMeshSpec,
+    ProbeSource,
+    TriangleDistance,
+    marker_patch,
+    probe_geometry_sha256,
+    read_cached,
+    regions,
+    signed_grid,
+)
+from datagen.assets.probe_shape import (
+    ProbeSpec,
+    RegionZ,
+    build_rings,
+    lens_sag,
+    ring_faces,
+)
 from datagen.keypoints import CORNER_BITS
 from datagen.mesh_distance import MeshDistance
-from datagen.assets.probe_marker import add_marker
-from datagen.assets.probe_shape import ProbeSpec, RegionZ, build_rings, lens_sag, ring_faces
 
-__all__ = ["ProbeSpec", "Probe", "RegionZ", "build_probe"]
+__all__ = ["Probe", "ProbeSpec", "RegionZ", "build_mesh_probe", "build_probe", "probe_of"]
 
 
 def _patch_grid(grid: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray], distance: "MeshDistance",
@@ -85,7 +102,11 @@ class Probe:
     changing it).
 
     Attributes:
-        spec: the :class:`ProbeSpec` it was built from.
+        spec: the :class:`ProbeSpec` it was built from, or for a mesh probe
+            (:func:`build_mesh_probe`) its :class:`datagen.assets.probe_mesh.ProbeMeshSpec`.
+        marker_patch: a mesh probe's orientation marker, a patch laid on its
+            surface (``trimesh.Trimesh``, probe frame; None without one); None
+            for the procedural probe, whose marker is part of ``mesh``.
         mesh: ``trimesh.Trimesh`` in the probe frame, metres: watertight,
             outward-wound, smooth vertex normals (no creases anywhere);
             exactly mirror-symmetric about y = 0, and about x = 0 except for
@@ -110,10 +131,12 @@ class Probe:
         sdf_spacing: node spacing, metres.
     """
 
-    def __init__(self, spec: ProbeSpec, mesh: trimesh.Trimesh, lens_face_mask: np.ndarray,
-                 marker_face_mask: np.ndarray, region_z: RegionZ, distance: MeshDistance,
-                 sdf_axes: tuple[np.ndarray, np.ndarray, np.ndarray], sdf_grid: np.ndarray):
+    def __init__(self, spec, mesh: trimesh.Trimesh, lens_face_mask: np.ndarray,
+                 marker_face_mask: np.ndarray, region_z: RegionZ, distance,
+                 sdf_axes: tuple[np.ndarray, np.ndarray, np.ndarray], sdf_grid: np.ndarray,
+                 marker_patch: trimesh.Trimesh | None = None):
         self.spec = spec
+        self.marker_patch = marker_patch
         self.mesh = mesh
         self.lens_face_mask = lens_face_mask
         self.marker_face_mask = marker_face_mask
@@ -130,6 +153,14 @@ class Probe:
                     self._sdf_upper):
             arr.flags.writeable = False
         self._torch_cache: dict[tuple[str, torch.dtype], tuple[torch.Tensor, ...]] = {}
+
+    @property
+    def record(self) -> dict:
+        """Which probe this is, as a dataset's manifest and a grasps file record it: ``{"kind": "procedural"}``
+        or ``{"kind": "mesh", "path", "sha256" (of the file), "unit", "align", "geometry_sha256"}``."""
+        if isinstance(self.spec, ProbeSpec):
+            return {"kind": "procedural"} if self.spec == ProbeSpec() else {"kind": "procedural", "spec": asdict(self.spec)}
+        return {**self.spec.record(), "geometry_sha256": probe_geometry_sha256(self.mesh.vertices, self.mesh.faces)}
 
     # ---------------------------------------------------------------- numpy
 
@@ -343,3 +374,49 @@ def build_probe(spec: ProbeSpec = ProbeSpec()) -> Probe:
         ValueError: the spec gives a self-folding surface or a marker off the head.
     """
     return _build_probe_cached(spec)
+
+
+# --------------------------------------------------------------------------- mesh probes
+
+
+_MESH_PROBES: dict[tuple[str, ProbeMeshSpec], Probe] = {}
+
+
+def probe_from_geometry(vertices: np.ndarray, faces: np.ndarray, spec: ProbeMeshSpec) -> Probe:
+    """The probe of a closed, outward-wound mesh already in the probe frame (cached by geometry and spec).
+
+    Everything is derived from the mesh (:mod:`datagen.assets.probe_mesh`): corners, regions, lens,
+    marker patch and the signed-distance grid (about 2 s for a few thousand triangles).
+
+    Args:
+        vertices: (V, 3) float64, metres, probe frame. faces: (F, 3) int64.
+        spec: the file it came from and the grid.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    key = (probe_geometry_sha256(vertices, faces), spec)
+    if key not in _MESH_PROBES:
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        region_z, lens = regions(mesh)
+        distance = TriangleDistance(vertices, faces)
+        axes = _sdf_axes(spec, np.asarray(mesh.bounds))
+        grid = signed_grid(distance, axes, spec.sdf_spacing)
+        _MESH_PROBES[key] = Probe(spec, mesh, lens, np.zeros(len(faces), dtype=bool), region_z, distance, axes, grid,
+                                  marker_patch=marker_patch(mesh))
+    return _MESH_PROBES[key]
+
+
+def build_mesh_probe(spec: ProbeMeshSpec) -> Probe:
+    """Read a probe mesh file (:func:`datagen.assets.probe_mesh.load_probe_mesh`) and build its probe.
+
+    Raises:
+        BadValueError: the file cannot be used (one line naming why).
+    """
+    vertices, faces = read_cached(spec)
+    return probe_from_geometry(vertices, faces, spec)
+
+
+def probe_of(source: ProbeSource) -> Probe:
+    """The probe a ``probe`` config node names: the procedural one, or its mesh."""
+    spec = source.spec
+    return build_probe() if spec is None else build_mesh_probe(spec)

@@ -159,7 +159,7 @@ class ChunkRenderer:
             cam = frame_camera(spec, grasps, layout, index)
             g = cam["grasp"]
             if self._grasp_loaded != g:
-                renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g])))
+                renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]), probe=grasps.probe))
                 self._grasp_loaded = g
             view = self._view(cam)
             light = lamp(spec, index)

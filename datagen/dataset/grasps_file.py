@@ -6,13 +6,18 @@ import io
 import zipfile
 import zlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from datagen.dataset.spec import BOX_CENTRE
 from datagen.geometry import axis_angle_to_matrix
 from datagen import keypoints as kp
+from datagen.assets.probe_mesh import PROBE_MESH_FIELDS
 from datagen.errors import BadValueError, MissingFileError
+
+if TYPE_CHECKING:
+    from datagen.assets.probe import Probe
 
 
 #: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
@@ -20,6 +25,36 @@ GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id"
 #: what a dataset records of a grasps.npz when it is there: the probe orientation Theta_Vol (Euler
 #: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
 OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
+def read_grasps_probe(path: str | Path | bytes):
+    """The probe a grasps file (or its bytes) was made for: a :class:`datagen.assets.probe.Probe` built
+    from the mesh it carries, or None when it carries none (the procedural probe's grasps).
+
+    Raises:
+        BadValueError: the probe arrays are incomplete or malformed.
+    """
+    import json
+
+    from datagen.assets.probe import probe_from_geometry
+    from datagen.assets.probe_mesh import ProbeMeshSpec, probe_geometry_sha256
+
+    name = "grasps (bytes)" if isinstance(path, bytes) else str(path)
+    if not isinstance(path, bytes) and not Path(path).is_file():
+        raise MissingFileError(f"grasps file {path} not found (it carries the probe mesh)")
+    with np.load(io.BytesIO(path) if isinstance(path, bytes) else path, allow_pickle=False) as data:
+        present = [k for k in PROBE_MESH_FIELDS if k in data.files]
+        if not present:
+            return None
+        if len(present) != len(PROBE_MESH_FIELDS):
+            raise BadValueError(f"grasps file {name} holds {present} but not all of {list(PROBE_MESH_FIELDS)}: its "
+                                "probe mesh is incomplete; write it again with `hupbench grasps`")
+        vertices, faces = data["probe_mesh_vertices"], data["probe_mesh_faces"]
+        record = json.loads(str(data["probe_mesh_record"]))
+    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,) \
+            or faces.dtype.kind not in "iu" or probe_geometry_sha256(vertices, faces) != record.get("geometry_sha256"):
+        raise BadValueError(f"grasps file {name}: its probe mesh does not match its record (damaged); write it again "
+                            "with `hupbench grasps`")
+    spec = ProbeMeshSpec(record["path"], record["unit"], record["align"], record["sha256"])
+    return probe_from_geometry(vertices, faces, spec)
 
 
 def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
@@ -141,7 +176,9 @@ class GraspSet:
         #: (G, 3) degrees, the probe orientation each grasp was made for, or None per grasp when not recorded
         self.probe_euler_deg = arrays.get("probe_euler_deg", [None] * len(self.hand_pose))
         self.path = None if isinstance(path, bytes) else Path(path)
-        hand, probe = build_hand(), build_probe()
+        #: the probe the grasps were made for (:func:`read_grasps_probe`, else the procedural one)
+        self.probe = read_grasps_probe(path) or build_probe()
+        hand, probe = build_hand(), self.probe
         self.keypoints_world = np.concatenate(
             [hand.keypoints(self.hand_pose, self.hand_trans, clamp=False),
              np.broadcast_to(probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
@@ -159,3 +196,53 @@ class GraspSet:
             return self.box_centre
         assert look_at in kp.KEYPOINT_NAMES, look_at  # DatasetSpec checked it
         return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]
+
+
+def probe_of_dataset(root_or_manifest) -> "Probe":
+    """The probe a dataset was rendered with, from its manifest's ``probe`` record.
+
+    Given the dataset folder, a mesh probe is rebuilt from the geometry its ``grasps.npz`` carries (the
+    dataset needs nothing outside its folder); given the manifest (a dict), from the mesh file the record
+    names, whose sha256 must still match. A manifest without a record (older datasets) means the
+    procedural probe.
+
+    Args:
+        root_or_manifest: the dataset folder (str or Path) or its parsed ``manifest.json``.
+
+    Returns:
+        :class:`Probe` (shared and cached: do not modify it).
+
+    Raises:
+        MissingFileError, BadValueError: the manifest, the grasps file or the mesh is missing or does not
+            match the record.
+    """
+    import json
+
+    from datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
+    from datagen.assets.probe_mesh import ProbeMeshSpec, file_sha256
+
+    if isinstance(root_or_manifest, dict):
+        manifest, root = root_or_manifest, None
+    else:
+        root = Path(root_or_manifest)
+        path = root / "manifest.json"
+        if not path.is_file():
+            raise MissingFileError(f"{root} has no manifest.json: not a finished hupbench dataset")
+        manifest = json.loads(path.read_text())
+    record = manifest.get("probe", {"kind": "procedural"})
+    if record.get("kind") == "procedural":
+        return build_probe(ProbeSpec(**record["spec"]) if "spec" in record else ProbeSpec())
+    spec = ProbeMeshSpec(record["path"], record["unit"], record["align"], record["sha256"])
+    if root is not None:
+        probe = read_grasps_probe(root / "grasps.npz")
+        if probe is None or probe.record["geometry_sha256"] != record["geometry_sha256"]:
+            raise BadValueError(f"{root / 'grasps.npz'} does not hold the probe mesh the manifest records "
+                                f"({record['path']}); the dataset's grasps file was changed")
+        return probe
+    if not Path(spec.path).is_file():
+        raise MissingFileError(f"the dataset's probe mesh {spec.path} not found; pass the dataset folder instead of "
+                               "its manifest (its grasps.npz carries the mesh)")
+    if file_sha256(spec.path) != spec.sha256:
+        raise BadValueError(f"the dataset's probe mesh {spec.path} has changed since the dataset was made (sha256 "
+                            "differs); pass the dataset folder instead (its grasps.npz carries the mesh)")
+    return build_mesh_probe(spec)

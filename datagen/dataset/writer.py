@@ -39,6 +39,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from datagen.assets.backgrounds import BackgroundSet
+from datagen.assets.probe_mesh import ProbeSource
 from datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
                                       read_annotations, read_manifest)
 from datagen.dataset.grasps_file import GraspSet, read_grasps, rendered_with
@@ -131,6 +132,8 @@ class GenerateRun:
         dataset: what the frames are. out_dir: the dataset folder.
         grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
         progress: a progress bar on stderr.
+        probe: which probe; the grasps file must have been made for it (checked by
+            :func:`check_grasps_probe` before rendering).
         job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
             ``backgrounds.dir``.
     """
@@ -139,6 +142,7 @@ class GenerateRun:
     out_dir: str
     grasps_path: str | None = None
     progress: bool = True
+    probe: ProbeSource = ProbeSource()
     workers: InitVar[int] = 1
     launcher: InitVar[str] = "local"
     shard: InitVar[str | None] = None
@@ -153,6 +157,21 @@ class GenerateRun:
         if not isinstance(self.progress, bool):
             raise BadValueError(f"progress must be true or false, got {self.progress!r}")
         check_writable(self.out_dir, "out_dir")
+
+
+def check_grasps_probe(grasps: GraspSet, source: ProbeSource) -> None:
+    """The grasps were made for the probe ``source`` names (the same file, unit and alignment), or one line
+    saying which probe each is."""
+    record = grasps.probe.record
+    spec = source.spec
+    wanted = {"kind": "procedural"} if spec is None else spec.record()
+    made = {k: v for k, v in record.items() if k in wanted}
+    if made != wanted:
+        def say(r: dict) -> str:
+            return "the procedural probe" if r["kind"] == "procedural" else \
+                f"probe.mesh={r['path']} (sha256 {r['sha256'][:12]}, unit {r['unit']}, align {r['align']})"
+        raise BadValueError(f"grasps file {grasps.path} was made for {say(record)} but this run names {say(wanted)}: "
+                            "pass the grasps' probe or make grasps for this one (`hupbench grasps probe.mesh=...`)")
 
 
 def config_hash(resolved: dict) -> str:
@@ -542,6 +561,8 @@ def _finalise(run: _Run) -> dict:
                         "fingerprint": backgrounds.fingerprint()},
         "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
         "arm_rgb": list(ARM_RGB),
+        # the probe the frames show (datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
+        "probe": grasps.probe.record,
     }
     write_json(out_dir / "manifest.json", manifest)
     _remove_scaffolding(out_dir)

@@ -44,7 +44,7 @@ VIEW_NAMES = ("from 55 degrees one side", "from 55 degrees the other", "from bel
 
 
 def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
-                  split_of: dict[int, str] | None = None) -> np.ndarray:
+                  split_of: dict[int, str] | None = None, probe=None) -> np.ndarray:
     """Render the contact sheet of ``grasps.npz``-style arrays.
 
     Args:
@@ -54,6 +54,7 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
         platform: GL platform.
         split_of: {grasp id: split name} to print beside each grasp id (a dataset's manifest
             ``grasp_ids``), or None.
+        probe: the probe the grasps hold (a mesh probe); None for the procedural one.
 
     Returns:
         (H, W, 3) uint8: a header saying what the views and scores are, then one row per grasp,
@@ -66,7 +67,7 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
     tiles = []
     with Renderer(intrinsics, platform=platform) as renderer:
         for i, gid in enumerate(arrays["grasp_id"]):
-            renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i])))
+            renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i]), probe=probe))
             split = f" ({split_of[int(gid)]})" if split_of and int(gid) in split_of else ""
             labels = (f"grasp {int(gid)}{split}",
                       f"pen {arrays['score_max_penetration_mm'][i]:.1f} mm, pads {int(arrays['score_pads_in_contact'][i])}",

@@ -23,16 +23,29 @@ import numpy as np
 import torch
 
 from datagen import keypoints as kp
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
+from datagen.assets.probe import Probe, ProbeSpec, build_probe
+from datagen.assets.probe_mesh import PROBE_MESH_FIELDS, probe_arrays
+from datagen.errors import BadValueError
 from datagen.geometry import matrix_to_axis_angle
 from datagen.grasps.approach import approach_azimuth, to_generator_frame
 from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
-from datagen.grasps.refine import MAX_ITERATIONS, GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
-from datagen.grasps.scores import PLAUSIBLE, SCORE_NAMES, farthest_point_selection, score_grasps
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
-from datagen.assets.probe import ProbeSpec, build_probe
+from datagen.grasps.refine import (
+    MAX_ITERATIONS,
+    GraspBatch,
+    GraspEnergy,
+    RefineConfig,
+    random_starts,
+    refine,
+)
+from datagen.grasps.scores import (
+    PLAUSIBLE,
+    SCORE_NAMES,
+    farthest_point_selection,
+    score_grasps,
+)
 from datagen.input_checks import check_int, is_whole
-from datagen.errors import BadValueError
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch, whose arrays grow with it
@@ -122,14 +135,15 @@ def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspB
 
 def generate_candidates(config: GraspGenConfig, hand_spec: HandSpec = HandSpec(),
                         probe_spec: ProbeSpec = ProbeSpec(), refine_config: RefineConfig | None = None,
-                        log=print) -> dict:
-    """Make, refine and score the candidates of every Theta_Vol.
+                        log=print, probe: Probe | None = None) -> dict:
+    """Make, refine and score the candidates of every Theta_Vol (on ``probe``, default the procedural
+    probe of ``probe_spec``).
 
     Returns:
         dict with "grasps" (:class:`GraspBatch`, probe frame), "theta_index" (M,),
         "scores" (dict of (M,) arrays), "seconds" (float).
     """
-    hand, probe = build_hand(hand_spec), build_probe(probe_spec)
+    hand, probe = build_hand(hand_spec), probe or build_probe(probe_spec)
     settings = refine_config or RefineConfig()
     energy = GraspEnergy(hand, probe, settings)
     rng = np.random.default_rng(config.seed)
@@ -199,13 +213,13 @@ def grasp_arrays(candidates: dict, ids: np.ndarray, config: GraspGenConfig, prob
     }
     for name in SCORE_NAMES:
         out[f"score_{name}"] = candidates["scores"][name][ids]
-    return out
+    return out | probe_arrays(probe)
 
 
 def take_rows(arrays: dict, ids: np.ndarray) -> dict[str, np.ndarray]:
     """The rows ``ids`` of :func:`grasp_arrays` output for all candidates (per-probe scalars kept)."""
     n = len(arrays["grasp_id"])
-    return {k: (v[ids] if v.ndim and len(v) == n else v) for k, v in arrays.items()}
+    return {k: (v[ids] if v.ndim and len(v) == n and k not in PROBE_MESH_FIELDS else v) for k, v in arrays.items()}
 
 
 def scores_json(arrays: dict, config: GraspGenConfig) -> dict:

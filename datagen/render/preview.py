@@ -65,7 +65,7 @@ def handset_grasp() -> Grasp:
 
 def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = PreviewView(),
                    models: SceneModels = SceneModels(), modalities=MODALITIES,
-                   platform: str | None = None) -> dict:
+                   platform: str | None = None, probe=None) -> dict:
     """Render a grasp and compose the preview sheet.
 
     Args:
@@ -75,6 +75,8 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         models: model specs.
         modalities: which of "rgb", "depth", "seg" to render (and show).
         platform: GL platform, see :mod:`datagen.render.gl`.
+        probe: a mesh probe (:func:`datagen.assets.probe.probe_of`), drawn with its frame's axes
+            (x red, y green, z blue, 5 cm); None for ``models.probe``.
 
     Returns:
         dict with "sheet" (H, W, 3) uint8, the rendered modalities,
@@ -82,7 +84,7 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         "keypoints_2d" (29, 2) float64 pixels, "T_cam_world" (4, 4).
     """
     modalities = check_modalities(modalities)
-    points_world = keypoints_world(grasp, models)
+    points_world = keypoints_world(grasp, models, probe=probe)
     target = 0.5 * (points_world.min(axis=0) + points_world.max(axis=0))
     az, el = np.deg2rad(view.azimuth_deg), np.deg2rad(view.elevation_deg)
     direction = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -95,7 +97,7 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
     settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3,
                               lights=[PointLight(lamp, (1.0, 1.0, 0.95), intensity=1.3 * view.distance_m**2 * 4)])
     with Renderer(intrinsics, platform=platform) as renderer:
-        renderer.set_parts(scene_parts(grasp, models))
+        renderer.set_parts(scene_parts(grasp, models, probe=probe))
         frames = renderer.render(T_cam_world, modalities, settings)
 
     tiles = []
@@ -109,9 +111,23 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         tiles.append(titled(colorize_labels(frames["seg"]), "labels: hand (blue) arm (orange) probe (grey)"))
     base = frames["rgb"] if "rgb" in frames else np.full((intrinsics.height, intrinsics.width, 3), 255, np.uint8)
     tiles.append(titled(draw_keypoints(base, keypoints_2d), f"{kp.NUM_KEYPOINTS} keypoints"))
+    if probe is not None and probe.record["kind"] == "mesh":
+        tiles.append(titled(_probe_axes(base, T_cam_world, intrinsics), "probe frame: x red, y green, z blue"))
     sheet = grid(tiles, columns=2)
     return {**frames, "sheet": sheet, "keypoints_cam": keypoints_cam, "keypoints_2d": keypoints_2d,
             "T_cam_world": T_cam_world}
+
+
+def _probe_axes(image: np.ndarray, T_cam_world: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """The probe frame's axes (5 cm) drawn over an image: how a mesh was taken or aligned."""
+    import cv2
+
+    ends = transform_points(T_cam_world, np.array([[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0], [0, 0, 0.05]], float))
+    uv = np.round(project_points(ends, intrinsics.K)).astype(int)
+    out = np.ascontiguousarray(image.copy())
+    for k, colour in ((1, (230, 30, 30)), (2, (30, 170, 30)), (3, (30, 60, 230))):
+        cv2.arrowedLine(out, tuple(map(int, uv[0])), tuple(map(int, uv[k])), colour, 2, tipLength=0.15)
+    return out
 
 
 def write_preview(path: str | Path, result: dict) -> Path:
@@ -123,7 +139,8 @@ def write_preview(path: str | Path, result: dict) -> Path:
 
 
 def preview(path: str | Path, grasp: Grasp | None = None, intrinsics: Intrinsics | None = None,
-            view: PreviewView = PreviewView(), modalities=MODALITIES, platform: str | None = None) -> dict:
+            view: PreviewView = PreviewView(), modalities=MODALITIES, platform: str | None = None,
+            probe=None) -> dict:
     """Render a grasp (default: :func:`handset_grasp`) and write its preview sheet to ``path``.
 
     Args:
@@ -133,10 +150,12 @@ def preview(path: str | Path, grasp: Grasp | None = None, intrinsics: Intrinsics
         view: camera placement around the grasp.
         modalities: which of "rgb", "depth", "seg" to render.
         platform: GL platform, see :mod:`datagen.render.gl`.
+        probe: a mesh probe to show instead of the procedural one (with its frame's axes).
 
     Returns:
         :func:`render_preview`'s dict plus "path".
     """
     intrinsics = intrinsics or Intrinsics.from_lens(60.0, 32.0, 256, 256)
-    result = render_preview(grasp or handset_grasp(), intrinsics, view, modalities=modalities, platform=platform)
+    result = render_preview(grasp or handset_grasp(), intrinsics, view, modalities=modalities, platform=platform,
+                            probe=probe)
     return {**result, "path": write_preview(path, result)}

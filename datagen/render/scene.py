@@ -17,7 +17,7 @@ from datagen.assets.arm import ArmSpec, forearm_mesh
 from datagen.geometry import axis_angle_to_matrix, transform_points
 from datagen.assets.hand import build_hand
 from datagen.assets.hand_anatomy import HandSpec, clamp_pose
-from datagen.assets.probe import ProbeSpec, build_probe
+from datagen.assets.probe import Probe, ProbeSpec, build_probe
 from datagen.render.renderer import SEG_LABELS, MeshPart
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
@@ -69,18 +69,19 @@ class SceneModels:
     arm: ArmSpec = ArmSpec()
 
 
-def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels()) -> np.ndarray:
+def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels(), probe: Probe | None = None) -> np.ndarray:
     """The 29 keypoints of a grasp.
 
     Args:
         grasp: the hand and probe placement.
         models: model specs.
+        probe: the probe (e.g. a mesh probe, :func:`datagen.assets.probe.probe_of`); None builds ``models.probe``.
 
     Returns:
         (29, 3) float64, metres, world frame, in ``datagen.keypoints`` order.
     """
     hand = build_hand(models.hand)
-    probe = build_probe(models.probe)
+    probe = probe or build_probe(models.probe)
     out = np.zeros((kp.NUM_KEYPOINTS, 3))
     out[kp.HAND_SLICE] = hand.keypoints(grasp.hand_pose, grasp.hand_trans)
     out[kp.CORNER_SLICE] = transform_points(grasp.T_world_probe, probe.corners_probe)
@@ -88,12 +89,13 @@ def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels()) -> np.nda
 
 
 def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLOVE_RGB[0],
-                arm_rgb=ARM_RGB) -> list[MeshPart]:
+                arm_rgb=ARM_RGB, probe: Probe | None = None) -> list[MeshPart]:
     """Posed, coloured meshes of a grasp, ready for :class:`datagen.render.renderer.Renderer`.
 
     Args:
         grasp: the hand and probe placement.
         models: model specs.
+        probe: the probe (e.g. a mesh probe); None builds ``models.probe``.
         glove_rgb: (3,) hand colour in [0, 1].
         arm_rgb: (3,) forearm colour in [0, 1].
 
@@ -104,7 +106,7 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
     import trimesh
 
     hand = build_hand(models.hand)
-    probe = build_probe(models.probe)
+    probe = probe or build_probe(models.probe)
     pose = clamp_pose(grasp.hand_pose, scale=models.hand.scale)
     hand_mesh = hand.mesh(pose, grasp.hand_trans, clamp=False)
     arm_mesh = forearm_mesh(
@@ -115,14 +117,22 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
     lens, marker = probe.lens_face_mask, probe.marker_face_mask
     body_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[~lens & ~marker], process=False)
     lens_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[lens], process=False)
+    marker_mesh = None
+    if marker.any():
+        marker_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[marker], process=False)
+    if not isinstance(probe.spec, ProbeSpec):
+        # a mesh probe's edges may be sharp (a CAD box): normals are shared only across gentle folds
+        body_mesh, lens_mesh = body_mesh.smooth_shaded, lens_mesh.smooth_shaded
+        if probe.marker_patch is not None:
+            marker_mesh = probe.marker_patch.copy()
+            marker_mesh.apply_transform(grasp.T_world_probe)
     parts = [
         MeshPart("hand", hand_mesh, SEG_LABELS["hand"], tuple(glove_rgb), roughness=0.8),
         MeshPart("arm", arm_mesh, SEG_LABELS["arm"], tuple(arm_rgb), roughness=0.6),
         MeshPart("probe_body", body_mesh, SEG_LABELS["probe"], PROBE_BODY_RGB, roughness=0.35),
         MeshPart("probe_lens", lens_mesh, SEG_LABELS["probe"], PROBE_LENS_RGB, roughness=0.5),
     ]
-    if marker.any():
-        marker_mesh = trimesh.Trimesh(probe_mesh.vertices, probe_mesh.faces[marker], process=False)
+    if marker_mesh is not None:
         parts.append(MeshPart("probe_marker", marker_mesh, SEG_LABELS["probe"], PROBE_MARKER_RGB, roughness=0.3,
                               emissive=PROBE_MARKER_EMISSIVE))
     return parts

@@ -21,6 +21,13 @@ def resolved_config(cfg: DictConfig) -> dict:
     return resolved
 
 
+def _override_value(path) -> str:
+    """A path as a Hydra override's value (quoted: it may hold '=' or spaces), or null."""
+    if path is None:
+        return "null"
+    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
 def run_generate(cfg: DictConfig, log=print) -> dict:
     """Build the ``generate`` config and render (or resume) its dataset (:func:`generate_dataset`)."""
     return generate_dataset(build(cfg), resolved_config(cfg), log)
@@ -31,8 +38,8 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`datagen.dataset.writer.generate`'s
     dict."""
     from datagen.assets.backgrounds import BackgroundSet
-    from datagen.dataset.grasps_file import read_grasps
-    from datagen.dataset.writer import generate, run_lock
+    from datagen.dataset.grasps_file import GraspSet
+    from datagen.dataset.writer import check_grasps_probe, generate, run_lock
 
     # a bad photographs' folder fails before the default grasps take minutes
     if run.job.backgrounds_dir is not None:
@@ -43,14 +50,17 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     if make_grasps:
         from hupbench.config import compose
 
-        grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}"])
+        probe = run.probe
+        grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}", f"probe.mesh={_override_value(probe.mesh)}",
+                                        f"probe.mesh_unit={probe.mesh_unit}", f"probe.align={str(probe.align).lower()}"])
         n_grasps = grasps_cfg.generate.n_select
         splits = run.dataset.splits
         if splits is not None and sum(splits.values()) != n_grasps:
             raise BadValueError(f"splits {splits} add up to {sum(splits.values())} grasps but the default grasps "
                                 f"config selects {n_grasps}")
     else:
-        read_grasps(grasps_path)  # a bad file fails before the folder is taken
+        # a bad file, or grasps made for another probe, fail before the folder is taken
+        check_grasps_probe(GraspSet(grasps_path), run.probe)
     # one run per folder (or shard), from the default grasps to the manifest
     with run_lock(out_dir, run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():

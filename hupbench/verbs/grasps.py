@@ -16,6 +16,7 @@ from datagen.input_checks import check_int
 from datagen.io import OutputLock, check_writable, save_npz, write_json
 from datagen.processes import check_threads
 from datagen.dataset.writer import check_platform
+from datagen.assets.probe_mesh import ProbeSource
 from hupbench.config import build, build_group
 from hupbench.provenance import run_info
 
@@ -27,6 +28,7 @@ class GraspsRun:
     Attributes:
         out_dir: the output folder. threads: torch CPU threads (results are reproducible at a fixed count).
         generate: what to generate. refine: the refinement.
+        probe: which probe (the procedural one, or your mesh: README "Your own probe").
         tile_px, platform: the contact sheet's tile side (pixels) and GL platform, from ``sheet``.
     """
 
@@ -34,6 +36,7 @@ class GraspsRun:
     threads: int = 2
     generate: GraspGenConfig = GraspGenConfig()
     refine: RefineConfig = RefineConfig()
+    probe: ProbeSource = ProbeSource()
     sheet: InitVar[dict] = None
     tile_px: int = field(init=False)
     platform: str | None = field(init=False)
@@ -41,6 +44,9 @@ class GraspsRun:
     def __post_init__(self, sheet) -> None:
         for group in ("generate", "refine"):
             object.__setattr__(self, group, build_group(getattr(self, group), group))
+        # its messages name probe.mesh, probe.mesh_unit, probe.align themselves
+        if isinstance(self.probe, (dict, DictConfig)):
+            object.__setattr__(self, "probe", build(self.probe))
         # what would fail after minutes of refinement fails here
         check_selection(self.generate)
         check_threads(self.threads)
@@ -66,7 +72,7 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from datagen.grasps.sheet import contact_sheet
     from datagen.assets.hand import build_hand
-    from datagen.assets.probe import build_probe
+    from datagen.assets.probe import probe_of
 
     import torch
 
@@ -76,13 +82,17 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     out_dir, gen_config = Path(run.out_dir), run.generate
     # beside the folder, which a refused or failed run does not create
     with OutputLock.for_file(out_dir, "grasps"):
+        probe = probe_of(run.probe)
+        if run.probe.mesh is not None:
+            log(f"probe: {run.probe.mesh} ({len(probe.mesh.faces)} triangles, {probe.mesh.extents[2] * 1000:.0f} mm "
+                f"long, marker {'placed' if probe.marker_patch is not None else 'none: no surface at its spot'})")
         log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
             f"({gen_config.sampler} sampler)")
-        candidates = generate_candidates(gen_config, refine_config=run.refine, log=log)
+        candidates = generate_candidates(gen_config, refine_config=run.refine, log=log, probe=probe)
         scores = candidates["scores"]
         ids = select_grasps(candidates, build_hand(), gen_config.n_select, gen_config.seed, gen_config.pinned_ids)
         all_ids = np.arange(len(candidates["grasps"]))
-        candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, build_probe())
+        candidate_arrays = grasp_arrays(candidates, all_ids, gen_config, probe)
         arrays = take_rows(candidate_arrays, ids)
         save_npz(out_dir / "candidates.npz", candidate_arrays)
         npz = save_npz(out_dir / "grasps.npz", arrays)
@@ -91,7 +101,7 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
                                  "refine_seconds": round(candidates["seconds"], 1)}
         js = write_json(out_dir / "grasps.json", summary)
         log(f"rendering the contact sheet of {len(ids)} grasps")
-        sheet = write_png(out_dir / "contact_sheet.png", contact_sheet(arrays, run.tile_px, run.platform))
+        sheet = write_png(out_dir / "contact_sheet.png", contact_sheet(arrays, run.tile_px, run.platform, probe=probe))
         seconds = time.perf_counter() - start
         write_json(out_dir / "run.json", run_info(cfg, verb="grasps", seconds=seconds))
     return {"grasps_npz": str(npz), "grasps_json": str(js), "contact_sheet": str(sheet),

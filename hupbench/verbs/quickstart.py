@@ -66,6 +66,7 @@ class QuickstartRun:
     eval_latency: bool = True
     fast_overrides: dict = None
     render: dict = None
+    probe: dict = None
 
     def __post_init__(self) -> None:
         if self.stop_after is not None and self.stop_after not in STAGES:
@@ -122,7 +123,16 @@ class QuickstartRun:
     def stage_overrides(self) -> dict:
         """{stage: its list of overrides, "eval_latency": bool}, from ``fast_overrides`` when ``fast``."""
         source = self.fast_overrides if self.fast else vars(self)
-        return {**{stage: list(source[stage]) for stage in STAGE_LISTS}, "eval_latency": source["eval_latency"]}
+        out = {**{stage: list(source[stage]) for stage in STAGE_LISTS}, "eval_latency": source["eval_latency"]}
+        probe = self.probe or {}
+        if probe.get("mesh") is not None:
+            # grasps and dataset use the same probe
+            mesh = "'" + str(probe["mesh"]).replace("'", "\\'") + "'"
+            same = [f"probe.mesh={mesh}", f"probe.mesh_unit={probe.get('mesh_unit', 'm')}",
+                    f"probe.align={str(probe.get('align', False)).lower()}"]
+            out["grasps"] += same
+            out["dataset"] += same
+        return out
 
 
 @contextlib.contextmanager
@@ -191,6 +201,7 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
         "parity" (ONNX vs PyTorch), "render_platform", "keypoints_in_view", "run_info" and "seconds".
     """
     from datagen.render import gl
+    from datagen.assets.probe import probe_of
     from datagen.render.preview import handset_grasp, preview
 
     start = time.perf_counter()
@@ -215,7 +226,8 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
         t0 = stage(0, "preview", "render a hand-set grasp (RGB, depth, labels, keypoints)")
         render = run.render or {}
         shot = preview(out_dir / "preview.png", handset_grasp(), run.camera, run.view,
-                       modalities=list(render.get("modalities", MODALITIES)), platform=render.get("platform"))
+                       modalities=list(render.get("modalities", MODALITIES)), platform=render.get("platform"),
+                       probe=None if stages.generate.probe.mesh is None else probe_of(stages.generate.probe))
         uv = shot["keypoints_2d"]
         result["preview"] = str(shot["path"])
         result["render_platform"] = gl.configure()

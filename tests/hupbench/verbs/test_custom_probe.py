@@ -1,0 +1,68 @@
+"""Your own probe end to end: a linear probe built with trimesh, written as STL, through grasps -> a tiny
+dataset -> verify -> a few training steps."""
+
+import json
+
+import numpy as np
+import pytest
+from helpers.datasets import annotations
+from helpers.training import tiny_cfg
+
+from datagen.dataset.grasps_file import probe_of_dataset
+from datagen.assets.probe_mesh import linear_probe_mesh
+from datagen.dataset.verify import verify
+from datagen.errors import BadValueError
+from hupbench.config import compose
+from hupbench.training.loop import run_train
+from hupbench.verbs.generate import run_generate
+from hupbench.verbs.grasps import run_grasps
+
+# three pinned candidates: the test checks the plumbing, not how many refined grasps pass the thresholds
+GRASPS = ["generate.theta_vol_deg=[[0,0,0],[0,0,180]]", "generate.starts_per_theta=2", "generate.pinned_ids=[0,1,2]",
+          "refine.iterations=20", "generate.short_refine_iterations=10", "sheet.tile_px=48", "threads=1"]
+TINY = ["dataset.splits={train:1,val:1,test:1}", "dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=1",
+        "dataset.n_gloves=1", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]", "dataset.width=64",
+        "dataset.height=64", "workers=1", "progress=false"]
+
+
+@pytest.fixture(scope="module")
+def linear_grasps(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("custom_probe")
+    stl = folder / "linear.stl"
+    linear_probe_mesh().export(stl)
+    run_grasps(compose("grasps", [f"out_dir={folder / 'grasps'}", f"probe.mesh={stl}", *GRASPS]), log=lambda *_: None)
+    return stl, folder / "grasps" / "grasps.npz"
+
+
+def test_linear_probe_grasps_dataset_verify_train(linear_grasps, tmp_path):
+    stl, grasps = linear_grasps
+    with np.load(grasps) as data:
+        assert data["probe_mesh_faces"].shape == (32, 3) and "probe_mesh_record" in data.files
+        assert np.load(grasps)["hand_pose"].shape == (3, 48)
+    root = tmp_path / "dataset"
+    run_generate(compose("generate", [f"out_dir={root}", f"grasps_path={grasps}", f"probe.mesh={stl}", *TINY]),
+                 log=lambda *_: None)
+    manifest = json.loads((root / "manifest.json").read_text())
+    record = manifest["probe"]
+    assert record["kind"] == "mesh" and record["path"] == str(stl.resolve()) and record["unit"] == "m"
+    probe = probe_of_dataset(root)
+    assert probe.record == record and probe_of_dataset(manifest).record == record
+    # the 8 corners in the annotations are the linear probe's box, moved into each camera
+    ann = annotations(root, splits=("train",))["train"]
+    T = ann["T_cam_world"][0]
+    corners_cam = probe.corners_probe @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(ann["keypoints_3d_cam"][0, 21:], corners_cam, atol=1e-6)
+    assert np.ptp(probe.corners_probe[:, 2]) == pytest.approx(0.155, abs=1e-6)
+    # verify measures the probe's pixels against the linear probe (it would find them off the procedural one)
+    checked = verify(root, workers=1, log=lambda *_: None, progress=False)
+    assert checked["ok"], checked["problems"][:3]
+    result = run_train(tiny_cfg(root, tmp_path / "run", tmp_path / "cache"), log=lambda *_: None)
+    assert result["complete"] and result["steps"] == 2
+
+
+def test_generate_refuses_grasps_of_another_probe(linear_grasps, tmp_path):
+    _, grasps = linear_grasps
+    with pytest.raises(BadValueError, match=r"was made for probe.mesh=.*linear.stl .* but this run names the "
+                                            r"procedural probe"):
+        run_generate(compose("generate", [f"out_dir={tmp_path / 'ds'}", f"grasps_path={grasps}", *TINY]),
+                     log=lambda *_: None)
