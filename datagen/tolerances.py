@@ -86,3 +86,10 @@ VERIFY_GLOVE_PAIR_RATIO = 0.55
 #: verify glove colour: the limit when one of the two hands shows fewer than VERIFY_GLOVE_MIN_BLOCKS
 #: (correct pairs then up to 0.44, swapped from 2.3)
 VERIFY_GLOVE_PAIR_RATIO_FEW = 1.0
+#: import-hup3d: the published meta's float32 camera matrices equal the renderer's within this
+IMPORT_META_MATCH = 1e-4
+#: import-hup3d: a frame's pose[:3] (float32 axis-angle) is a sphere view's rotation within this; the
+#: published views lie 20 degrees or more apart
+IMPORT_VIEW_RAD = 1e-3
+#: import-hup3d: the published coords_2d equal coords_3d projected (float32 keypoints: ~1e-4 px)
+IMPORT_COORDS_2D_PX = 0.01

@@ -88,6 +88,14 @@ KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "f
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
          "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
          "rgb_channels", "grasps_file")
+#: what verify leaves out on a dataset converted from another format (manifest "imported"), and why
+IMPORTED_SKIPS = (
+    ("pose_mismatch: the stored hand pose is the source's MANO parameters and the probe its own mesh; hupbench's "
+     "hand and probe cannot rebuild the keypoints"),
+    "probe_depth, image_shift: they measure against hupbench's probe surface, not the source's mesh",
+    "grasps_file: an imported dataset has no grasps.npz",
+    "look_at, rgb_channels: the source records no protocol and no forearm colour",
+)
 #: fewer frames than this are checked in this process (starting workers would take longer)
 POOL_MIN_FRAMES = 64
 #: annotation fields the per-frame checks use
@@ -150,6 +158,12 @@ def _check_manifest_extras(manifest: dict, root: Path) -> None:
         look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
         if look_at != "box_centre" and look_at not in kp.KEYPOINT_NAMES:
             raise BadValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+    imported = manifest.get("imported")
+    error = imported.get("depth", {}).get("error_max_m") if isinstance(imported, dict) and \
+        isinstance(imported.get("depth"), dict) else None
+    if imported is not None and (isinstance(error, bool) or not isinstance(error, (int, float))
+                                 or not math.isfinite(error) or error < 0):
+        raise BadValueError(f"{path}: imported.depth.error_max_m must be a number >= 0 (metres), got {error!r}")
     gloves = manifest.get("gloves_rgb")
     if gloves is not None:
         try:
@@ -306,8 +320,9 @@ def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[di
     return floors, problems
 
 
-def check_geometry(ann: dict, split: str) -> list[dict]:
-    """Checks that need no image: reprojection and the stored pose."""
+def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None) -> list[dict]:
+    """Checks that need no image: reprojection and (``stored_pose``) the stored pose, against ``probe``
+    (the dataset's, :func:`datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)."""
     from datagen.assets.hand import build_hand
     from datagen.assets.probe import build_probe
 
@@ -320,7 +335,9 @@ def check_geometry(ann: dict, split: str) -> list[dict]:
     for i in np.flatnonzero(~(err <= tol.VERIFY_REPROJECTION_PX)):
         problems.append(_problem(split, ann["frame_id"][i], "reprojection", f"2D off the projection by {err[i]:.4f} px",
                                  rel))
-    hand, probe = build_hand(), build_probe()
+    if not stored_pose:
+        return problems
+    hand, probe = build_hand(), probe or build_probe()
     world = np.concatenate([hand.keypoints(ann["hand_pose"], ann["hand_trans"], clamp=False),
                             np.broadcast_to(probe.corners_probe, (len(ann["frame_id"]), 8, 3))], axis=1)
     cam = transform_points(ann["T_cam_world"], world)
@@ -419,78 +436,11 @@ def _collapse_image_size(problems: list[dict], frames: int, size: tuple[int, int
     return out
 
 
-def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> dict:
-    """Verify a dataset folder (module docstring: what is fatal, what is a problem).
-
-    Args:
-        root: the dataset folder.
-        workers: processes for the per-frame image checks (>= 1).
-        log: where the progress lines go.
-        progress: a progress bar with ETA on stderr; None: when stderr is a terminal.
-
-    Returns:
-        dict with "frames" (frames whose images were checked), "problems" (dicts with split,
-        frame_id, kind, file, detail), "by_kind" counts, "skipped" (checks that could not run, and
-        why), "ok", "split_floors" (:func:`datagen.dataset.floors.split_floors` of the annotations, None
-        without a training split) and "image_shift" ({"median_px": [du, dv], "frames"}: the frames'
-        median :func:`image_shift_px`, None when no frame allowed the measurement).
-
-    Raises:
-        FileNotFoundError, ValueError: nothing to verify against (module docstring).
-    """
+def _check_frames(jobs: list, workers: int, progress: bool | None) -> tuple[list[dict], list]:
+    """:func:`check_frame` over ``jobs`` (in ``workers`` processes when there are enough), with a progress bar:
+    (the problems found, the image shifts measured)."""
     from tqdm import tqdm
 
-    check_workers(workers)
-    root = Path(root)
-    manifest, problems = _read_manifest(root)
-    _check_manifest_extras(manifest, root)
-    skipped = []
-    backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
-    if "rgb" in manifest["modalities"] and "seg" in manifest["modalities"]:
-        backgrounds, why = _load_backgrounds(manifest)
-        if why:
-            skipped.append(f"RGB against background images: {why}")
-        gloves = manifest.get("gloves_rgb")
-        if gloves is None:
-            skipped.append("RGB against glove colours: the manifest records no gloves_rgb")
-    jobs, all_ids, complete, annotations = [], [], True, {}
-    for split in SPLITS:
-        if manifest["counts"].get(split, 0) == 0:
-            continue
-        ann, found = _read_split(root, split, manifest)
-        problems += found
-        if ann is None:
-            complete = False
-            continue
-        all_ids.append(ann["frame_id"])
-        found, usable = _check_rows(ann, split, manifest)
-        problems += found
-        ann = {k: v[usable] for k, v in ann.items()}
-        annotations[split] = ann
-        problems += check_geometry(ann, split)
-        # datasets made before the manifest recorded a protocol have no look-at to check
-        if "protocol" in manifest:
-            problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
-        partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
-        for i in range(len(ann["frame_id"])):
-            row = {k: ann[k][i] for k in FRAME_KEYS}
-            p = partners.get(i)
-            row["partner"] = None if p is None else {k: ann[k][p] for k in ("frame_id", "glove_id", "light_color")}
-            jobs.append((split, row))
-    if complete:
-        ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)
-        total = math.prod(manifest["layout"]["shape"])
-        if len(np.unique(ids)) != len(ids) or len(ids) != total or (len(ids) and (ids.min() < 0 or ids.max() >= total)):
-            problems.append(_problem(None, None, "frame_ids", f"{len(ids)} frame ids, {len(np.unique(ids))} unique, "
-                                                              f"the layout holds ids 0 to {total - 1}"))
-    floors, found = check_split_floors(annotations, manifest) if complete else (None, [])
-    problems += found
-    problems += check_grasps_file(root, annotations)
-    for note in skipped:
-        log(f"not checked: {note}")
-    log(f"checking {len(jobs)} frames with {workers} worker(s)")
-    _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality,
-                    gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
     bar = tqdm(total=len(jobs), unit="frame", desc="verify", disable=not (sys.stderr.isatty() if progress is None
                                                                           else progress),
                dynamic_ncols=True, smoothing=0.1)
@@ -513,6 +463,93 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
                 bar.update()
     finally:
         bar.close()
+    return frame_problems, shifts
+
+
+def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> dict:
+    """Verify a dataset folder (module docstring: what is fatal, what is a problem).
+
+    Args:
+        root: the dataset folder.
+        workers: processes for the per-frame image checks (>= 1).
+        log: where the progress lines go.
+        progress: a progress bar with ETA on stderr; None: when stderr is a terminal.
+
+    Returns:
+        dict with "frames" (frames whose images were checked), "problems" (dicts with split,
+        frame_id, kind, file, detail), "by_kind" counts, "skipped" (checks that could not run, and
+        why), "ok", "split_floors" (:func:`datagen.dataset.floors.split_floors` of the annotations, None
+        without a training split) and "image_shift" ({"median_px": [du, dv], "frames"}: the frames'
+        median :func:`image_shift_px`, None when no frame allowed the measurement).
+
+    Raises:
+        FileNotFoundError, ValueError: nothing to verify against (module docstring).
+    """
+    check_workers(workers)
+    root = Path(root)
+    manifest, problems = _read_manifest(root)
+    _check_manifest_extras(manifest, root)
+    skipped = []
+    imported = manifest.get("imported")
+    # the probe the frames show (a mesh probe's geometry is in the dataset's grasps.npz)
+    from datagen.dataset.grasps_file import probe_of_dataset
+
+    probe = probe_of_dataset(root) if imported is None else None
+    if imported is not None:
+        skipped += IMPORTED_SKIPS
+    backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
+    if "rgb" in manifest["modalities"] and "seg" in manifest["modalities"]:
+        backgrounds, why = _load_backgrounds(manifest)
+        if why:
+            skipped.append(f"RGB against background images: {why}")
+        gloves = manifest.get("gloves_rgb")
+        if gloves is None:
+            skipped.append("RGB against glove colours: the manifest records no gloves_rgb")
+    jobs, all_ids, complete, annotations = [], [], True, {}
+    for split in SPLITS:
+        if manifest["counts"].get(split, 0) == 0:
+            continue
+        ann, found = _read_split(root, split, manifest)
+        problems += found
+        if ann is None:
+            complete = False
+            continue
+        all_ids.append(ann["frame_id"])
+        found, usable = _check_rows(ann, split, manifest)
+        problems += found
+        ann = {k: v[usable] for k, v in ann.items()}
+        annotations[split] = ann
+        problems += check_geometry(ann, split, stored_pose=imported is None, probe=probe)
+        # datasets made before the manifest recorded a protocol have no look-at to check
+        if "protocol" in manifest:
+            problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
+        partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
+        for i in range(len(ann["frame_id"])):
+            row = {k: ann[k][i] for k in FRAME_KEYS}
+            p = partners.get(i)
+            row["partner"] = None if p is None else {k: ann[k][p] for k in ("frame_id", "glove_id", "light_color")}
+            jobs.append((split, row))
+    if complete:
+        ids = np.concatenate(all_ids) if all_ids else np.zeros(0, dtype=np.int64)
+        total = math.prod(manifest["layout"]["shape"])
+        if len(np.unique(ids)) != len(ids) or len(ids) != total or (len(ids) and (ids.min() < 0 or ids.max() >= total)):
+            problems.append(_problem(None, None, "frame_ids", f"{len(ids)} frame ids, {len(np.unique(ids))} unique, "
+                                                              f"the layout holds ids 0 to {total - 1}"))
+    floors, found = check_split_floors(annotations, manifest) if complete else (None, [])
+    problems += found
+    if imported is None:
+        problems += check_grasps_file(root, annotations)
+    for note in skipped:
+        log(f"not checked: {note}")
+    if imported is not None:
+        log(f"imported ({imported.get('format')}): visibility checked with the depth's precision, "
+            f"{1000 * imported['depth']['error_max_m']:.2f} mm")
+    log(f"checking {len(jobs)} frames with {workers} worker(s)")
+    _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality, probe=probe,
+                    gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
+    try:
+        frame_problems, shifts = _check_frames(jobs, workers, progress)
+    finally:
         _CONTEXT.clear()
     problems += _collapse_image_size(frame_problems, len(jobs), tuple(manifest["image_size"]))
     by_kind = {kind: sum(p["kind"] == kind for p in problems) for kind in KINDS}

@@ -80,8 +80,10 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
     frame_id = int(row["frame_id"])
     problems = []
     h, w = seg.shape
+    # an imported depth is as precise as its source (verify checked the record)
+    slack = max(manifest["depth_scale_m"], (manifest.get("imported") or {"depth": {}})["depth"].get("error_max_m", 0))
     seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64), depth_m, seg,
-                      slack_m=manifest["depth_scale_m"])
+                      slack_m=slack)
     uv = np.round(row["keypoints_2d"]).astype(np.int64)
     for i in np.flatnonzero(row["visible"][: kp.NUM_HAND] & ~seen[: kp.NUM_HAND]):
         u, v = np.clip(uv[i], 0, [w - 1, h - 1])
@@ -90,13 +92,15 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
                                  f"vs z {row['keypoints_3d_cam'][i, 2]:.4f} m", files))
     # the bounds narrowed by the depth's quantum: what passes them was visible before the depth was stored
     surely_seen = visibility(row["keypoints_3d_cam"].astype(np.float64), row["keypoints_2d"].astype(np.float64),
-                             depth_m, seg, slack_m=-manifest["depth_scale_m"])
+                             depth_m, seg, slack_m=-slack)
     hidden = np.flatnonzero(surely_seen & ~row["visible"])
     if len(hidden):
         names = ", ".join(kp.KEYPOINT_NAMES[i] for i in hidden[:4]) + (", ..." if len(hidden) > 4 else "")
         problems.append(_problem(split, frame_id, "marked_invisible",
                                  f"{len(hidden)} keypoint(s) marked invisible are in view and unoccluded ({names})",
                                  files))
+    if manifest.get("imported") is not None:
+        return problems, None  # the probe checks measure against hupbench's probe (verify.IMPORTED_SKIPS)
     probe_mask = shrink_mask(seg == SEG_LABELS["probe"], 1)
     ys, xs = np.nonzero(probe_mask & (depth_m > 0))
     shift = None
@@ -107,7 +111,7 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
         cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
         T_world_cam = invert_transform(row["T_cam_world"])
         world = transform_points(T_world_cam, cam)
-        probe = build_probe()
+        probe = _CONTEXT.get("probe") or build_probe()
         signed = probe.signed_distance(world)
         off = np.abs(signed)
         # a pixel's depth stands for its whole footprint (z / f metres wide): on slanted

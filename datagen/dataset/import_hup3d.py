@@ -1,0 +1,565 @@
+"""The published HUP-3D dataset converted into a hupbench dataset (:mod:`datagen.dataset.contract`).
+
+The published layout, as ``manuelbirlo/HUP-3D_renderer`` (``grasp_renderer.py``) writes it into one
+folder per split (``<split>/``) or, merged, into one folder::
+
+    meta/img_meta_N.pkl        a pickled dict, N = 1, 2, ...: coords_3d (21, 3) metres in Blender's world
+                               axes (= the camera's OpenGL axes: the renderer keeps the camera at the
+                               identity), coords_2d (21, 2), cam_calib (3, 3), cam_extr (3, 4) =
+                               diag(1, -1, -1) (Blender -> OpenCV axes), affine_transform (4, 4) probe
+                               mesh -> Blender world, z (camera distance, m), pose[:3] (the body's global
+                               rotation, axis-angle: the sphere view), hand_pose (48,) and hand_trans (3,)
+                               (the grasp's MANO parameters), bg_path, depth_min and depth_max (swapped:
+                               depth_min holds the largest depth)
+    rgb/img_rgb_N.jpg          256 x 256 JPEG
+    depth/img_depth_N.png      8-bit: 0 background, 1 the farthest, 255 the nearest surface,
+                               round(254 (far - r) / (far - near) + 1) of Cycles' radial depth r
+    depth/img_depth_N0001.exr  the radial depth itself, float, 1e10 = background (when kept)
+    segm/img_segm_N.png        3 channels as OpenCV reads them: the full scene, the hand alone, the probe
+                               alone; 0 background, 15 forearm, 16 palm, 17 fingers, 100 probe
+
+What is converted, per frame (the module's functions, in order): the 21 joints (already in OpenPose
+order, :data:`PUBLISHED_TO_HUPBENCH` checks it) and the 8 corners of the probe mesh's axis-aligned box,
+moved by ``affine_transform``, into the OpenCV camera frame; 2D keypoints projected with K; depth
+unprojected to planar z (from the EXR where it exists, else from the 8-bit PNG with the meta's range);
+the full-scene labels mapped to hupbench's; the view (from ``pose[:3]``), distance, background and
+grasp (distinct hand poses) recovered. The glove and the lamp are not in the meta: glove_id is -1,
+the lamp zeros, and the manifest's ``imported.unknown`` says so.
+
+Convention:
+    Pixel centres: Blender's K puts the principal point at (128, 128) for pixels covering [i, i + 1);
+    hupbench's pixel centres are at integers (:mod:`datagen.dataset.contract`), so K's cx and cy and
+    the published coords_2d shift by -0.5 px. Depth precision from the 8-bit PNG: a step of
+    (far - near) / 254 per level, rounded to the nearest level, so up to (far - near) / 508 off (plus
+    half a uint16 step); such depth is marked approximate in the manifest.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import pickle
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from datagen import keypoints as kp
+from datagen import tolerances as tol
+from datagen.camera import project_points, swap_gl_cv_axes
+from datagen.dataset.contract import (
+    ANNOTATION_FIELDS,
+    ANNOTATIONS,
+    DEPTH_SCALE_M,
+    MANIFEST,
+    SCHEMA_VERSION,
+    SEG_LABELS,
+    SPLITS,
+    frame_path,
+)
+from datagen.dataset.sphere import SphereSpec, all_viewpoints, latitude_count
+from datagen.errors import BadValueError, MissingFileError
+from datagen.geometry import (
+    axis_angle_to_matrix,
+    euler_to_matrix,
+    invert_transform,
+    transform_points,
+)
+from datagen.io import file_sha256, save_npz, write_bytes, write_json
+
+FORMAT = "HUP-3D"
+#: the published mask's material pass indices -> hupbench's labels
+PUBLISHED_SEG = {0: SEG_LABELS["background"], 15: SEG_LABELS["arm"], 16: SEG_LABELS["hand"],
+                 17: SEG_LABELS["hand"], 100: SEG_LABELS["probe"]}
+#: Blender writes this depth where a ray hits nothing
+EXR_BACKGROUND_M = 1e9
+#: the published 8-bit depth: levels 1..255 span [near, far]
+DEPTH_LEVELS = 254
+DEPTH_SOURCES = ("auto", "png")
+#: what a published frame's number looks like in its file names
+_META_NAME = re.compile(r"^img_meta_(\d+)\.pkl$")
+#: the meta fields the conversion reads (coords_2d is checked when present)
+REQUIRED_META = ("coords_3d", "cam_calib", "cam_extr", "affine_transform", "depth_min", "depth_max", "pose", "z",
+                 "hand_pose", "hand_trans", "bg_path")
+#: the renderer's joints before it reorders them: the hand root, SMPL-H's right-hand joints in MANO's
+#: finger order (index, middle, little, ring, thumb; three each, proximal first), the five fingertip
+#: vertices (thumb to little)
+_RENDERER_JOINTS = (("wrist",)
+                    + tuple(kp.HAND_NAMES[kp.FINGER_START[f] + k] for f in kp.MANO_FINGER_ORDER for k in range(3))
+                    + tuple(kp.HAND_NAMES[tip] for tip in kp.FINGERTIPS))
+#: coordutils.get_hand_body_info's reordering of those joints (``idxs``)
+_RENDERER_REORDER = (0, 13, 14, 15, 16, 1, 2, 3, 17, 4, 5, 6, 18, 10, 11, 12, 19, 7, 8, 9, 20)
+#: the joint names of the published coords_3d, in its order
+PUBLISHED_HAND_NAMES = tuple(_RENDERER_JOINTS[i] for i in _RENDERER_REORDER)
+#: hupbench hand keypoint i is published joint PUBLISHED_TO_HUPBENCH[i]
+PUBLISHED_TO_HUPBENCH = tuple(PUBLISHED_HAND_NAMES.index(name) for name in kp.HAND_NAMES)
+#: the renderer's camera pose in Blender's world (camutils.check_camera asserts the identity), OpenGL axes
+T_BLENDER_CAMGL = np.eye(4)
+#: fields the published meta does not hold, and what the importer writes for them
+UNKNOWN = {"glove_id": "-1: the meta does not record the hand texture (setHandTextures is not saved)",
+           "light_position_cam": "zeros: the meta does not record the lamp (setLighting saves nothing)",
+           "light_color": "zeros: as light_position_cam", "light_energy_w": "0: as light_position_cam"}
+
+
+@dataclass(frozen=True)
+class SourceFrame:
+    """One published frame: its split, its number N and its folder (holding meta/, rgb/, depth/, segm/)."""
+
+    split: str
+    number: int
+    folder: Path
+
+    def file(self, kind: str) -> Path:
+        names = {"meta": f"meta/img_meta_{self.number}.pkl", "rgb": f"rgb/img_rgb_{self.number}.jpg",
+                 "depth": f"depth/img_depth_{self.number}.png", "exr": f"depth/img_depth_{self.number}0001.exr",
+                 "segm": f"segm/img_segm_{self.number}.png"}
+        return self.folder / names[kind]
+
+
+# --- finding and reading the published files -------------------------------------------------
+
+
+def find_frames(root: Path, split: str | None) -> tuple[list[SourceFrame], str]:
+    """The published frames under ``root``, sorted by (split, number), and where their split came from.
+
+    Split folders (``root/train/meta``, ...) give each frame its published split; a folder with
+    ``meta/`` itself puts every frame in ``split`` (default "test").
+
+    Raises:
+        MissingFileError: no root, no meta folder, or no meta files. BadValueError: ``split`` given
+        for a root that has split folders.
+    """
+    if not root.is_dir():
+        raise MissingFileError(f"HUP-3D folder {root} does not exist" if not root.exists()
+                               else f"HUP-3D folder {root} is a file; expected the folder holding meta/, rgb/, ...")
+    folders = {s: root / s for s in SPLITS if (root / s / "meta").is_dir()}
+    if folders and split is not None:
+        raise BadValueError(f"{root} has its own split folders ({', '.join(folders)}): --split is for a folder "
+                            "holding meta/ itself")
+    if not folders:
+        if not (root / "meta").is_dir():
+            raise MissingFileError(f"{root} holds no meta/ folder (nor train/, val/ or test/ with one): not the "
+                                   "published HUP-3D layout")
+        folders = {split or "test": root}
+        split_from = f"--split {split or 'test'} (a folder without split folders)"
+    else:
+        split_from = "the published split folders"
+    frames = []
+    for name, folder in folders.items():
+        numbers = sorted(int(m.group(1)) for p in (folder / "meta").iterdir() if (m := _META_NAME.match(p.name)))
+        frames += [SourceFrame(name, n, folder) for n in numbers]
+    if not frames:
+        where = ", ".join(str(f / "meta") for f in folders.values())
+        raise MissingFileError(f"no img_meta_N.pkl files in {where}: nothing to import")
+    return sorted(frames, key=lambda f: (SPLITS.index(f.split), f.number)), split_from
+
+
+def _array(meta: dict, key: str, shape: tuple[int, ...], path: Path) -> np.ndarray:
+    try:
+        value = np.asarray(meta[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        value = np.zeros(0)
+    if value.shape != shape or not np.isfinite(value).all():
+        raise BadValueError(f"{path}: {key} must be finite numbers of shape {shape}, got "
+                            f"{getattr(value, 'shape', type(meta[key]).__name__)}")
+    return value
+
+
+def read_meta(path: Path) -> dict:
+    """A published meta pickle, its fields checked and as float64 arrays.
+
+    Returns:
+        {"coords_3d": (21, 3) metres, Blender world axes; "coords_2d": (21, 2) published pixels or None;
+        "cam_calib": (3, 3); "cam_extr": (3, 4); "affine_transform": (4, 4) probe mesh -> Blender world;
+        "far_m", "near_m": the radial depth range (the published depth_min and depth_max, swapped back);
+        "pose3": (3,) axis-angle; "z": metres; "hand_pose": (48,); "hand_trans": (3,); "bg_name": str}.
+
+    Raises:
+        BadValueError: not a pickle of a dict, a field missing or malformed.
+    """
+    try:
+        with open(path, "rb") as f:
+            meta = pickle.load(f)  # the user's own dataset files
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError, ValueError) as exc:
+        raise BadValueError(f"{path}: not a readable meta pickle ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(meta, dict):
+        raise BadValueError(f"{path}: expected a pickled dict, got {type(meta).__name__}")
+    missing = [k for k in REQUIRED_META if k not in meta]
+    if missing:
+        raise BadValueError(f"{path} lacks {', '.join(missing)}: not a published HUP-3D meta file")
+    pose = np.asarray(meta["pose"], dtype=np.float64).reshape(-1)
+    if len(pose) < 3 or not np.isfinite(pose[:3]).all():
+        raise BadValueError(f"{path}: pose must hold at least 3 finite numbers (the view's rotation)")
+    out = {"coords_3d": _array(meta, "coords_3d", (kp.NUM_HAND, 3), path),
+           "coords_2d": None if meta.get("coords_2d") is None else _array(meta, "coords_2d", (kp.NUM_HAND, 2), path),
+           "cam_calib": _array(meta, "cam_calib", (3, 3), path),
+           "cam_extr": _array(meta, "cam_extr", (3, 4), path),
+           "affine_transform": _array(meta, "affine_transform", (4, 4), path),
+           "pose3": pose[:3], "z": float(_array(meta, "z", (), path)),
+           "hand_pose": _array(meta, "hand_pose", (48,), path),
+           "hand_trans": _array(meta, "hand_trans", (3,), path).reshape(3),
+           "bg_name": Path(str(meta["bg_path"])).name}
+    # the renderer swaps them: depth_min holds the largest depth (depthutils returns max, min)
+    out["far_m"] = float(_array(meta, "depth_min", (), path))
+    out["near_m"] = float(_array(meta, "depth_max", (), path))
+    if not 0 < out["near_m"] <= out["far_m"]:
+        raise BadValueError(f"{path}: depth_min {out['far_m']} and depth_max {out['near_m']} are not the published "
+                            "swapped range (depth_min >= depth_max > 0)")
+    if np.abs(out["cam_extr"] - invert_transform(swap_gl_cv_axes(T_BLENDER_CAMGL))[:3]).max() > tol.IMPORT_META_MATCH:
+        raise BadValueError(f"{path}: cam_extr is {out['cam_extr'].tolist()}, not the published renderer's camera "
+                            "(at Blender's origin: diag(1, -1, -1))")
+    return out
+
+
+def probe_box_ply(path: Path) -> np.ndarray:
+    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`datagen.keypoints.CORNER_BITS`
+    order (the published ``get_obj_corners3d`` order: the same).
+
+    Args:
+        path: the probe PLY the dataset was rendered with (not in the public repositories).
+
+    Returns:
+        (8, 3) float64 metres, the mesh's frame.
+
+    Raises:
+        MissingFileError: no file. BadValueError: not a mesh with faces.
+    """
+    import trimesh
+
+    if not path.is_file():
+        raise MissingFileError(f"probe mesh {path} does not exist (the PLY the dataset was rendered with, e.g. "
+                               "voluson_painted_downscaled.ply)")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds on a malformed file; all mean the same to the user
+        raise BadValueError(f"probe mesh {path}: not a readable mesh ({type(exc).__name__}: {exc})") from exc
+    faces = getattr(mesh, "faces", None)
+    if not isinstance(mesh, trimesh.Trimesh) or faces is None or len(faces) == 0 or len(mesh.vertices) < 4:
+        raise BadValueError(f"probe mesh {path}: not a triangle mesh (no faces); expected the probe's PLY")
+    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    return np.array([[(low, high)[b][axis] for axis, b in enumerate(bits)] for bits in kp.CORNER_BITS])
+
+
+# --- the conversion of one frame -------------------------------------------------------------
+
+
+def hupbench_K(cam_calib: np.ndarray) -> np.ndarray:
+    """(3, 3) K with hupbench's integer pixel centres from Blender's (principal point -0.5 px)."""
+    K = np.array(cam_calib, dtype=np.float64)
+    K[:2, 2] -= 0.5
+    return K
+
+
+def keypoints_cam(meta: dict, corners_probe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 29 keypoints in the OpenCV camera frame and ``T_cam_world`` (world = the probe mesh's frame).
+
+    Args:
+        meta: :func:`read_meta`'s dict. corners_probe: (8, 3) metres, the mesh's frame.
+
+    Returns:
+        keypoints_3d_cam (29, 3) float64 metres, OpenCV camera frame; T_cam_probe (4, 4) float64.
+    """
+    T_cam_blender = invert_transform(swap_gl_cv_axes(T_BLENDER_CAMGL))
+    hand_cam = transform_points(T_cam_blender, meta["coords_3d"][list(PUBLISHED_TO_HUPBENCH)])
+    T_cam_probe = T_cam_blender @ meta["affine_transform"]
+    return np.concatenate([hand_cam, transform_points(T_cam_probe, corners_probe)]), T_cam_probe
+
+
+def planar_depth(radial_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Depth along the optical axis from depth along each pixel's ray.
+
+    Args:
+        radial_m: (H, W) metres from the camera centre, 0 = background. K: (3, 3) hupbench pixel centres.
+
+    Returns:
+        (H, W) float64 metres, z of the OpenCV camera frame, 0 = background.
+    """
+    h, w = radial_m.shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    ray = np.sqrt(1.0 + ((u - K[0, 2]) / K[0, 0]) ** 2 + ((v - K[1, 2]) / K[1, 1]) ** 2)
+    return radial_m / ray
+
+
+def radial_from_png(levels: np.ndarray, far_m: float, near_m: float) -> np.ndarray:
+    """Undo the published 8-bit depth: level 1 is ``far_m``, 255 ``near_m``, 0 background.
+
+    Args:
+        levels: (H, W) uint8. far_m, near_m: the frame's range (the meta's depth_min, depth_max).
+
+    Returns:
+        (H, W) float64 radial metres, 0 = background; off by at most ``(far_m - near_m) / 508``.
+    """
+    radial = far_m - (levels.astype(np.float64) - 1.0) * (far_m - near_m) / DEPTH_LEVELS
+    return np.where(levels > 0, radial, 0.0)
+
+
+def read_exr_depth(path: Path) -> np.ndarray:
+    """(H, W) float64 radial metres of a Blender depth EXR, 0 = background.
+
+    Raises:
+        BadValueError: no EXR reader installed (the OpenEXR package), or the file is not a depth EXR.
+    """
+    try:
+        import OpenEXR
+    except ImportError:
+        raise BadValueError(f"{path}: reading the EXR depth needs the OpenEXR package (pip install OpenEXR); "
+                            "--depth png uses the 8-bit depth instead") from None
+    try:
+        with OpenEXR.File(str(path)) as exr:
+            channels = exr.channels()
+    except Exception as exc:  # OpenEXR raises plain exceptions for damaged files
+        raise BadValueError(f"{path}: not a readable EXR ({exc})") from exc
+    name = next((c for c in ("V", "Z", "R", "Y") if c in channels), None) if len(channels) > 1 else next(iter(channels))
+    if name is None:
+        raise BadValueError(f"{path}: no depth channel among {sorted(channels)}")
+    pixels = np.asarray(channels[name].pixels, dtype=np.float64)
+    if pixels.ndim == 3:
+        pixels = pixels[..., 0]
+    return np.where(np.isfinite(pixels) & (pixels < EXR_BACKGROUND_M), pixels, 0.0)
+
+
+def read_labels(path: Path) -> np.ndarray:
+    """(H, W) uint8 hupbench labels of a published 3-channel mask (its full-scene channel, OpenCV's 0)."""
+    image = _read_image(path, cv2.IMREAD_UNCHANGED)
+    if image.ndim != 3 or image.shape[2] < 1 or image.dtype != np.uint8:
+        raise BadValueError(f"{path}: expected an 8-bit 3-channel mask (scene, hand, probe), got {image.dtype} "
+                            f"{image.shape}")
+    scene = image[..., 0]
+    present = set(np.flatnonzero(np.bincount(scene.ravel(), minlength=256)).tolist())
+    unknown = sorted(present - set(PUBLISHED_SEG))
+    if unknown:
+        raise BadValueError(f"{path}: labels {unknown[:8]} are not the published ones {sorted(PUBLISHED_SEG)} "
+                            "(background, forearm, palm, fingers, probe)")
+    lut = np.zeros(256, dtype=np.uint8)
+    for published, label in PUBLISHED_SEG.items():
+        lut[published] = label
+    return lut[scene]
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    if not path.is_file():
+        raise MissingFileError(f"{path} is missing (every meta file has its rgb, depth and segm images)")
+    image = cv2.imdecode(np.frombuffer(path.read_bytes(), np.uint8), flags)
+    if image is None:
+        raise BadValueError(f"{path}: not a decodable image")
+    return image
+
+
+def view_rotations() -> np.ndarray:
+    """The published renderer's body rotation for every sphere view (hupbench's view ids).
+
+    ``camera_sphere.py`` turns a view (theta, phi) into roll = atan2(y, x), pitch = atan2(-z, |(x, y)|)
+    (degrees mod 360), then Euler XYZ angles (360 - pitch, 360 - roll, 0) for the rings up to
+    N_lat / 2 + 1 and (-pitch, 360 - roll, 0) below; ``mesh_manip.randomized_verts`` stores that
+    rotation in ``pose[:3]``.
+
+    Returns:
+        (V, 3, 3) float64 rotation matrices, V = all views of :func:`datagen.dataset.sphere.all_viewpoints`.
+    """
+    spec = SphereSpec()  # the published sphere: 0.8 m, 0.15 m circles, N_lat by ceil
+    angles = all_viewpoints(spec)
+    n_lat = latitude_count(spec)
+    theta, phi = angles[:, 0], angles[:, 1]
+    x, y, z = np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)
+    roll = np.degrees(np.arctan2(y, x)) % 360.0
+    pitch = np.degrees(np.arctan2(-z, np.hypot(x, y))) % 360.0
+    ring = np.rint(theta / (math.pi / n_lat))
+    first = np.where(ring <= n_lat / 2 + 1, 360.0 - pitch, -pitch)
+    euler = np.radians(np.stack([first, 360.0 - roll, np.zeros_like(roll)], axis=1))
+    return euler_to_matrix(euler, "xyz")
+
+
+def view_of(pose3: np.ndarray, rotations: np.ndarray) -> int:
+    """The view id whose published rotation ``pose3`` (axis-angle) is, or -1 when none is within
+    ``tol.IMPORT_VIEW_RAD``."""
+    R = axis_angle_to_matrix(pose3)
+    cosine = (np.trace(np.swapaxes(rotations, -1, -2) @ R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    angle = np.arccos(np.clip(cosine, -1.0, 1.0))
+    best = int(np.argmin(angle))
+    return best if angle[best] <= tol.IMPORT_VIEW_RAD else -1
+
+
+# --- the verb ---------------------------------------------------------------------------------
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise BadValueError(f"output {out} is not empty: import-hup3d writes a new dataset into an empty or new "
+                            "folder")
+
+
+class ViewLookup(NamedTuple):
+    """The sphere's views: their body rotations (:func:`view_rotations`) and (theta, phi) angles."""
+    rotations: np.ndarray
+    angles: np.ndarray
+
+
+def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray, corners_probe: np.ndarray,
+                   views: ViewLookup, backgrounds: list[str], grasp_keys: dict[bytes, int], out: Path):
+    """One published frame written into ``out`` in hupbench's layout; returns (its annotation row, its image
+    size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from)."""
+    # chunks imports the renderer: only when converting
+    from datagen.dataset.chunks import visibility
+
+    rgb = _read_image(f.file("rgb"), cv2.IMREAD_COLOR)
+    rgb_bytes = f.file("rgb").read_bytes()
+    if not rgb_bytes.startswith(b"\xff\xd8"):
+        raise BadValueError(f"{f.file('rgb')}: not a JPEG")
+    size = size or (rgb.shape[1], rgb.shape[0])
+    labels = read_labels(f.file("segm"))
+    levels = _read_image(f.file("depth"), cv2.IMREAD_UNCHANGED)
+    for name, image, want in (("rgb", rgb, 3), ("segm", labels, 2), ("depth", levels, 2)):
+        if image.shape[:2] != size[::-1] or (name == "depth" and (image.ndim != 2 or image.dtype != np.uint8)):
+            raise BadValueError(f"{f.file(name)}: {image.dtype} {image.shape}, expected {size[0]} x {size[1]}"
+                                + (" 8-bit single-channel" if name == "depth" else ""))
+    if depth == "auto" and f.file("exr").is_file():
+        radial, approx, depth_kind = read_exr_depth(f.file("exr")), 0.0, "exr"
+    else:
+        radial = radial_from_png(levels, meta["far_m"], meta["near_m"])
+        approx, depth_kind = (meta["far_m"] - meta["near_m"]) / (2 * DEPTH_LEVELS), "png"
+    z = planar_depth(radial, K)
+    stored = np.where(z > 0, np.clip(np.rint(z / DEPTH_SCALE_M), 1, 65535), 0).astype(np.uint16)
+    # the slack of a stored depth: the PNG's rounding and the uint16's
+    slack = approx + DEPTH_SCALE_M / 2
+    kp3d, T_cam_probe = keypoints_cam(meta, corners_probe)
+    kp3d = kp3d.astype(np.float32)
+    kp2d = project_points(kp3d.astype(np.float64), K).astype(np.float32)
+    if meta["coords_2d"] is not None:
+        off = np.abs(kp2d[kp.HAND_SLICE] - (meta["coords_2d"][list(PUBLISHED_TO_HUPBENCH)] - 0.5)).max()
+        if off > tol.IMPORT_COORDS_2D_PX:
+            raise BadValueError(f"{f.file('meta')}: coords_2d is {off:.3f} px from coords_3d projected with "
+                                "cam_calib and cam_extr: the meta is not self-consistent")
+    visible = visibility(kp3d.astype(np.float64), kp2d.astype(np.float64),
+                         stored.astype(np.float64) * DEPTH_SCALE_M, labels, slack_m=slack)
+    view = view_of(meta["pose3"], views.rotations)
+    key = np.concatenate([meta["hand_pose"], meta["hand_trans"]]).astype(np.float32).tobytes()
+    grasp = grasp_keys.setdefault(key, len(grasp_keys))
+    row = {"frame_id": frame_id, "keypoints_3d_cam": kp3d, "keypoints_2d": kp2d, "visible": visible, "K": K,
+           "T_cam_world": T_cam_probe, "grasp_id": grasp, "grasp_index": grasp, "view_id": view,
+           "theta": views.angles[view, 0] if view >= 0 else -1.0,
+           "phi": views.angles[view, 1] if view >= 0 else -1.0, "z_ego": meta["z"],
+           "background_id": backgrounds.index(meta["bg_name"]), "glove_id": -1, "hand_pose": meta["hand_pose"],
+           "hand_trans": meta["hand_trans"], "light_position_cam": np.zeros(3), "light_color": np.zeros(3),
+           "light_energy_w": 0.0}
+    write_bytes(frame_path(out, f.split, "rgb", frame_id), rgb_bytes)
+    write_bytes(frame_path(out, f.split, "depth", frame_id), _png(stored))
+    write_bytes(frame_path(out, f.split, "seg", frame_id), _png(labels))
+    return row, size, slack, depth_kind
+
+
+def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path, split: str | None = None,
+                     depth: str = "auto", log=print) -> dict:
+    """Convert a published HUP-3D folder into a hupbench dataset at ``out``.
+
+    Args:
+        source: the published folder (split folders train/val/test each holding meta/, rgb/, depth/,
+            segm/; or one such folder). probe_mesh: the probe PLY the frames were rendered with.
+        out: a new or empty folder. split: the split of a folder without split folders (default "test").
+        depth: "auto" (the EXR where it exists, else the 8-bit PNG) or "png" (always the PNG).
+        log: where the summary line goes.
+
+    Returns:
+        {"out", "counts", "frames", "depth_from": {"exr": n, "png": n}, "depth_error_max_m", "views_unknown"}.
+
+    Raises:
+        MissingFileError, BadValueError: bad input (each message names the file or option).
+    """
+    source, out, probe_mesh = Path(source), Path(out), Path(probe_mesh)
+    if split is not None and split not in SPLITS:
+        raise BadValueError(f"--split must be one of {list(SPLITS)}, got {split!r}")
+    if depth not in DEPTH_SOURCES:
+        raise BadValueError(f"--depth must be one of {list(DEPTH_SOURCES)}, got {depth!r}")
+    _check_out(out)
+    frames, split_from = find_frames(source, split)
+    corners_probe = probe_box_ply(probe_mesh)
+    metas = [read_meta(f.file("meta")) for f in frames]
+    K = hupbench_K(metas[0]["cam_calib"])
+    for f, meta in zip(frames, metas):
+        if np.abs(hupbench_K(meta["cam_calib"]) - K).max() > tol.IMPORT_META_MATCH:
+            raise BadValueError(f"{f.file('meta')}: cam_calib differs from the first frame's; one K per dataset")
+    views = ViewLookup(view_rotations(), all_viewpoints(SphereSpec()))
+    backgrounds = sorted({m["bg_name"] for m in metas})
+    grasp_keys: dict[bytes, int] = {}
+    rows = {s: {name: [] for name in ANNOTATION_FIELDS} for s in SPLITS}
+    depth_from = {"exr": 0, "png": 0}
+    error_max, size, listing = 0.0, None, []
+    for frame_id, (f, meta) in enumerate(zip(frames, metas)):
+        row, frame_size, slack, depth_kind = _convert_frame(f, meta, frame_id, size, depth, K, corners_probe,
+                                                            views, backgrounds, grasp_keys, out)
+        size = size or frame_size
+        depth_from[depth_kind] += 1
+        error_max = max(error_max, slack)
+        for name, value in row.items():
+            rows[f.split][name].append(value)
+        listing.append((frame_id, f.split, f.file("meta").relative_to(source).as_posix(),
+                        "exr" if depth_kind == "exr" else "png8"))
+    counts = {}
+    for s in SPLITS:
+        n = len(rows[s]["frame_id"])
+        if n:
+            counts[s] = n
+            save_npz(out / s / ANNOTATIONS, {name: np.asarray(values, dtype=ANNOTATION_FIELDS[name][0])
+                                             for name, values in rows[s].items()})
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(["frame_id", "split", "published_meta", "depth_from"])
+    writer.writerows(listing)
+    write_bytes(out / "imported_frames.csv", text.getvalue().encode())
+    views_unknown = int(sum(np.count_nonzero(np.asarray(rows[s]["view_id"]) < 0) for s in counts))
+    manifest = _manifest(source, probe_mesh, corners_probe, frames, metas, rows, counts, size, K, backgrounds,
+                         split_from, depth_from, error_max, views_unknown)
+    write_json(out / MANIFEST, manifest)
+    log(f"hupbench import-hup3d: {len(frames)} frames ({', '.join(f'{s} {n}' for s, n in counts.items())}) -> {out}; "
+        f"depth from EXR {depth_from['exr']}, from 8-bit PNG {depth_from['png']}"
+        + (f" (approximate: up to {1000 * error_max:.2f} mm off)" if depth_from["png"] else "")
+        + (f"; {views_unknown} frame(s) of no published view (view_id -1)" if views_unknown else ""))
+    return {"out": out, "counts": counts, "frames": len(frames), "depth_from": depth_from,
+            "depth_error_max_m": error_max, "views_unknown": views_unknown}
+
+
+def _manifest(source: Path, probe_mesh: Path, corners_probe: np.ndarray, frames, metas, rows, counts, size, K,
+              backgrounds, split_from, depth_from, error_max, views_unknown) -> dict:
+    """The imported dataset's manifest: the contract's fields and an "imported" block saying what came from where
+    and what is unknown."""
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "generator": {"name": "hupbench.import_hup3d", "format": FORMAT},
+        "counts": counts, "keypoint_names": list(kp.KEYPOINT_NAMES),
+        "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES], "image_size": list(size), "K": K.tolist(),
+        "modalities": ["rgb", "depth", "seg"], "rgb_format": "jpg", "depth_scale_m": DEPTH_SCALE_M,
+        "seg_labels": dict(SEG_LABELS),
+        "layout": {"shape": [len(frames), 1, 1, 1, 1], "order": ["grasp", "z_ego", "background", "glove", "view"],
+                   "index": "imported: frame_id numbers the published frames in (split, published number) order; "
+                            "imported_frames.csv maps each to its published meta file"},
+        "grasp_ids": {s: sorted(set(rows[s]["grasp_id"])) for s in counts},
+        "grasp_indices": {s: sorted(set(rows[s]["grasp_index"])) for s in counts},
+        "backgrounds": {"names": backgrounds},
+        "z_ego_m": sorted({m["z"] for m in metas}),
+        "imported": {
+            "format": FORMAT, "source": str(source.resolve()),
+            "split_from": split_from,
+            "probe_mesh": {"path": str(probe_mesh.resolve()), "sha256": file_sha256(probe_mesh),
+                           "frame": "the mesh's own frame: T_cam_world maps it into the camera, the corners are "
+                                    "its vertices' axis-aligned box",
+                           "box_min_m": corners_probe[0].tolist(), "box_max_m": corners_probe[-1].tolist()},
+            "depth": {"approximate": depth_from["png"] > 0, "frames_from_exr": depth_from["exr"],
+                      "frames_from_png8": depth_from["png"], "error_max_m": error_max,
+                      "note": "planar z from Cycles' radial depth; from the 8-bit PNG each level is "
+                              "(far - near) / 254, so a depth is off by up to (far - near) / 508"},
+            "seg_map": {str(k): v for k, v in PUBLISHED_SEG.items()},
+            "hand": "coords_3d in OpenPose order (the renderer's reordering); hand_pose and hand_trans are the "
+                    "published MANO parameters, not hupbench's hand model",
+            "views_unknown": views_unknown,
+            "unknown": UNKNOWN,
+        },
+    }
+
+
+def _png(image: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", image)
+    assert ok, image.dtype
+    return data.tobytes()

@@ -1,0 +1,271 @@
+"""hupbench import-hup3d on a fixture written here in the published HUP-3D layout: known camera-frame
+geometry in, the same geometry out of the hupbench dataset, and verify passing with its skips named."""
+
+from __future__ import annotations
+
+import csv
+import json
+import pickle
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+from helpers.cli import assert_clean_error, run_cli
+from scipy.spatial.transform import Rotation
+
+from datagen import keypoints as kp
+from datagen.dataset import import_hup3d as H
+from datagen.dataset.contract import (
+    DEPTH_SCALE_M,
+    frame_path,
+    read_annotations,
+    read_manifest,
+)
+from datagen.dataset.verify import IMPORTED_SKIPS, verify
+
+SIZE = 64
+#: the published renderer's K for a SIZE x SIZE image (Blender: principal point at SIZE / 2)
+K_BLENDER = np.array([[120.0, 0.0, SIZE / 2], [0.0, 120.0, SIZE / 2], [0.0, 0.0, 1.0]])
+FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
+#: (rows, cols, published label, planar depth z in metres) of each flat patch of a frame
+PATCHES = ((slice(10, 30), slice(8, 40), 100, 0.48), (slice(30, 44), slice(20, 44), 16, 0.52),
+           (slice(44, 50), slice(20, 44), 17, 0.53), (slice(50, 60), slice(24, 40), 15, 0.56))
+#: (split, number, view's Euler XYZ degrees as the published renderer stores them, expected view id or -1, grasp, z)
+FRAMES = (("train", 1, (70.0, 360.0), 1, 0, 0.5), ("train", 2, (10.0, 270.0), 34, 0, 0.5),
+          ("test", 1, (70.0, 360.0), 1, 1, 0.5), ("test", 2, (10.0, 270.0), 34, 1, 0.5),
+          ("test", 3, (33.0, 12.0), -1, 1, 0.8))
+
+
+def _known_frame(rng, number: int) -> dict:
+    """A frame's hupbench-side truth: hand joints and the probe pose in the OpenCV camera frame."""
+    hand_cv = np.column_stack([rng.uniform(-0.02, 0.02, 21), rng.uniform(0.0, 0.03, 21), rng.uniform(0.52, 0.56, 21)])
+    R = Rotation.from_rotvec(rng.normal(size=3) * 0.5).as_matrix()
+    T_cam_probe = np.eye(4)
+    T_cam_probe[:3, :3], T_cam_probe[:3, 3] = R, [0.01 * number, -0.02, 0.5]
+    return {"hand_cv": hand_cv, "T_cam_probe": T_cam_probe}
+
+
+def _write_frame(folder, number: int, truth: dict, euler_deg, grasp: int, z: float, background: str) -> dict:
+    """One frame in the published layout; returns the planar depth it encodes and its labels (published)."""
+    for sub in ("meta", "rgb", "depth", "segm"):
+        (folder / sub).mkdir(parents=True, exist_ok=True)
+    planar = np.zeros((SIZE, SIZE))
+    scene = np.zeros((SIZE, SIZE), np.uint8)
+    for rows, cols, label, depth_z in PATCHES:
+        planar[rows, cols], scene[rows, cols] = depth_z + 0.001 * number, label
+    u, v = np.meshgrid(np.arange(SIZE) + 0.5, np.arange(SIZE) + 0.5)  # Blender's pixel centres
+    radial = planar * np.sqrt(1 + ((u - K_BLENDER[0, 2]) / K_BLENDER[0, 0]) ** 2
+                              + ((v - K_BLENDER[1, 2]) / K_BLENDER[1, 1]) ** 2)
+    fg = scene > 0
+    far, near = radial[fg].max(), radial[fg].min()
+    # depthutils.convert_depth_and_swap_pixed_intensity, stored through cv2.imwrite of a float image
+    levels = np.where(fg, 254 * np.abs(radial - far) / (far - near) + 1, 0)
+    cv2.imwrite(str(folder / f"depth/img_depth_{number}.png"), np.rint(levels).astype(np.uint8))
+    hand_only = np.where(np.isin(scene, (15, 16, 17)), scene, 0)
+    probe_only = np.where(scene == 100, scene, 0)
+    cv2.imwrite(str(folder / f"segm/img_segm_{number}.png"), np.stack([scene, hand_only, probe_only], axis=2))
+    rgb = np.full((SIZE, SIZE, 3), 200, np.uint8)
+    rgb[fg] = (90, 140, 210)
+    cv2.imwrite(str(folder / f"rgb/img_rgb_{number}.jpg"), rgb)
+    coords_3d = truth["hand_cv"] @ FLIP[:3, :3]  # OpenCV -> Blender axes (the flip is its own inverse)
+    cam_extr = np.hstack([FLIP[:3, :3], np.zeros((3, 1))])
+    projected = (K_BLENDER @ cam_extr @ np.vstack([coords_3d.T, np.ones(21)])).T
+    hand_pose = np.full(48, 0.1 * (grasp + 1))
+    meta = {"coords_3d": coords_3d.astype(np.float32), "coords_2d": (projected[:, :2] / projected[:, 2:]).astype(
+                np.float32), "cam_calib": K_BLENDER, "cam_extr": cam_extr,
+            "affine_transform": (FLIP @ truth["T_cam_probe"]).astype(np.float32),
+            "pose": np.concatenate([Rotation.from_euler("XYZ", np.radians([*euler_deg, 0.0])).as_rotvec(),
+                                    np.zeros(153)]).astype(np.float32),
+            "z": z, "hand_pose": list(hand_pose), "hand_trans": [0.0, 0.01 * grasp, 0.0],
+            "bg_path": f"assets/backgrounds/{background}.jpg", "depth_min": far, "depth_max": near,
+            "side": "right", "obj_visibility_ratio": 1.0}
+    with open(folder / f"meta/img_meta_{number}.pkl", "wb") as f:
+        pickle.dump(meta, f)
+    return {"planar": planar, "scene": scene, "far": far, "near": near}
+
+
+def _probe_ply(path):
+    mesh = trimesh.creation.box(extents=(0.03, 0.02, 0.16))
+    mesh.apply_translation([0.004, -0.002, 0.07])
+    mesh.export(path)
+    return mesh.bounds
+
+
+@pytest.fixture(scope="module")
+def published(tmp_path_factory):
+    """A published-layout folder (split folders train/, test/), its probe PLY and the truth of every frame."""
+    root = tmp_path_factory.mktemp("hup3d")
+    rng = np.random.default_rng(3)
+    bounds = _probe_ply(root / "probe.ply")
+    truths = []
+    for i, (split, number, euler, view, grasp, z) in enumerate(FRAMES):
+        truth = _known_frame(rng, number)
+        truth |= _write_frame(root / "HUP-3D" / split, number, truth, euler, grasp, z, ("phantom_1", "room")[i % 2])
+        truths.append(truth | {"view": view, "grasp": grasp, "z": z})
+    return root, bounds, truths
+
+
+@pytest.fixture(scope="module")
+def imported(published, tmp_path_factory):
+    root, _, _ = published
+    out = tmp_path_factory.mktemp("imported") / "ds"
+    result = H.run_import_hup3d(root / "HUP-3D", root / "probe.ply", out, log=lambda line: None)
+    return out, result
+
+
+def test_published_joint_order_is_hupbench_order():
+    # the renderer reorders SMPL-H's MANO-ordered joints into OpenPose order: hupbench's
+    assert H.PUBLISHED_HAND_NAMES == kp.HAND_NAMES
+    assert H.PUBLISHED_TO_HUPBENCH == tuple(range(21))
+
+
+def test_view_rotations_are_the_published_sphere():
+    rotations = H.view_rotations()
+    assert rotations.shape == (92, 3, 3)
+    # camera_sphere.py's north pole is Euler (90, 360, 0) degrees; the two views grasp_renderer.py drops are
+    # (10, 270) and (350, 270): hupbench's excluded ids 34 and 50
+    for view, euler in ((0, (90, 360)), (34, (10, 270)), (50, (350, 270)), (91, (270, 360))):
+        rotvec = Rotation.from_euler("XYZ", np.radians([*euler, 0])).as_rotvec()
+        assert H.view_of(rotvec, rotations) == view
+
+
+def test_import_round_trip(published, imported):
+    _, bounds, truths = published
+    out, result = imported
+    assert result["counts"] == {"train": 2, "test": 3} and result["depth_from"] == {"exr": 0, "png": 5}
+    manifest = read_manifest(out)
+    assert manifest["imported"]["format"] == "HUP-3D" and manifest["imported"]["depth"]["approximate"] is True
+    assert manifest["imported"]["split_from"] == "the published split folders"
+    K = np.asarray(manifest["K"])
+    np.testing.assert_allclose(K, [[120, 0, SIZE / 2 - 0.5], [0, 120, SIZE / 2 - 0.5], [0, 0, 1]])
+    corners_probe = np.array([[bounds[b][axis] for axis, b in enumerate(bits)] for bits in kp.CORNER_BITS])
+    rows = {s: read_annotations(out, s) for s in ("train", "test")}
+    ann = {k: np.concatenate([rows["train"][k], rows["test"][k]]) for k in rows["train"]}
+    np.testing.assert_array_equal(ann["frame_id"], np.arange(5))
+    for i, truth in enumerate(truths):
+        corners = corners_probe @ truth["T_cam_probe"][:3, :3].T + truth["T_cam_probe"][:3, 3]
+        np.testing.assert_allclose(ann["keypoints_3d_cam"][i, :21], truth["hand_cv"], atol=1e-6)
+        np.testing.assert_allclose(ann["keypoints_3d_cam"][i, 21:], corners, atol=1e-6)
+        np.testing.assert_allclose(ann["T_cam_world"][i], truth["T_cam_probe"], atol=1e-6)
+        # the published coords_2d, moved to integer pixel centres
+        uv = truth["hand_cv"][:, :2] / truth["hand_cv"][:, 2:] * 120 + SIZE / 2 - 0.5
+        np.testing.assert_allclose(ann["keypoints_2d"][i, :21], uv, atol=1e-3)
+        assert ann["view_id"][i] == truth["view"] and ann["grasp_id"][i] == truth["grasp"]
+        assert ann["z_ego"][i] == truth["z"] and ann["glove_id"][i] == -1
+        split = FRAMES[i][0]
+        depth = cv2.imread(str(frame_path(out, split, "depth", i)), cv2.IMREAD_UNCHANGED) * DEPTH_SCALE_M
+        fg = truth["scene"] > 0
+        bound = (truth["far"] - truth["near"]) / 508 + DEPTH_SCALE_M / 2
+        err = np.abs(depth[fg] - truth["planar"][fg])
+        assert err.max() <= bound + 1e-9 and err.max() > DEPTH_SCALE_M, (err.max(), bound)
+        assert (depth[~fg] == 0).all()
+        seg = cv2.imread(str(frame_path(out, split, "seg", i)), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(seg, np.select([truth["scene"] == 100, np.isin(truth["scene"], (16, 17)),
+                                                      truth["scene"] == 15], [3, 1, 2], 0))
+    np.testing.assert_allclose(ann["theta"][[0, 1]], np.radians([20, 80]))
+    np.testing.assert_allclose(ann["phi"][[0, 1]], np.radians([0, 90]), atol=1e-12)
+    assert ann["view_id"][4] == -1 and manifest["imported"]["views_unknown"] == 1
+    with open(out / "imported_frames.csv") as f:
+        listing = list(csv.reader(f))
+    assert listing[1] == ["0", "train", "train/meta/img_meta_1.pkl", "png8"]
+    assert listing[5] == ["4", "test", "test/meta/img_meta_3.pkl", "png8"]
+
+
+def test_verify_passes_and_names_its_skips(imported):
+    out, _ = imported
+    lines = []
+    result = verify(out, workers=1, log=lines.append, progress=False)
+    assert result["ok"], result["problems"]
+    assert result["frames"] == 5
+    assert all(f"not checked: {note}" in lines for note in IMPORTED_SKIPS), lines
+    assert any(line.startswith("imported (HUP-3D): visibility checked with the depth's precision") for line in lines)
+
+
+def test_verify_reports_a_swapped_depth(imported, tmp_path):
+    """The checks that still run find what they exist for: another frame's depth file."""
+    out, _ = imported
+    import shutil
+
+    copy = tmp_path / "ds"
+    shutil.copytree(out, copy)
+    shutil.copy(frame_path(copy, "test", "depth", 2), frame_path(copy, "test", "depth", 4))
+    result = verify(copy, workers=1, log=lambda line: None, progress=False)
+    assert not result["ok"] and result["by_kind"]["reprojection"] == 0
+    assert {p["frame_id"] for p in result["problems"]} == {4}
+
+
+def test_flat_folder_takes_the_split_option(published, tmp_path):
+    root, _, _ = published
+    result = H.run_import_hup3d(root / "HUP-3D" / "test", root / "probe.ply", tmp_path / "ds", split="val",
+                                depth="png", log=lambda line: None)
+    assert result["counts"] == {"val": 3}
+    assert json.loads((tmp_path / "ds" / "manifest.json").read_text())["imported"]["split_from"] == \
+        "--split val (a folder without split folders)"
+
+
+def test_radial_to_planar_on_the_optical_axis_and_off_it():
+    K = np.array([[100.0, 0, 1.0], [0, 100.0, 1.0], [0, 0, 1]])
+    radial = np.full((3, 3), 2.0)
+    planar = H.planar_depth(radial, K)
+    assert planar[1, 1] == 2.0
+    np.testing.assert_allclose(planar[0, 0], 2.0 / np.sqrt(1 + 2 * 0.01 ** 2))
+
+
+def test_png_levels_decode_to_the_swapped_range():
+    levels = np.array([[0, 1, 128, 255]], np.uint8)
+    np.testing.assert_allclose(H.radial_from_png(levels, far_m=0.9, near_m=0.4), [[0, 0.9, 0.9 - 127 * 0.5 / 254, 0.4]])
+
+
+# --- bad input: one line each -----------------------------------------------------------------
+
+
+def _cli(capsys, *args):
+    return run_cli(capsys, "import-hup3d", *map(str, args))
+
+
+def test_missing_dir(capsys, published, tmp_path):
+    root, _, _ = published
+    assert_clean_error(_cli(capsys, tmp_path / "nope", "--probe-mesh", root / "probe.ply", tmp_path / "o"),
+                       "nope", "does not exist")
+
+
+def test_no_meta_files(capsys, published, tmp_path):
+    root, _, _ = published
+    (tmp_path / "src" / "meta").mkdir(parents=True)
+    assert_clean_error(_cli(capsys, tmp_path / "src", "--probe-mesh", root / "probe.ply", tmp_path / "o"),
+                       "no img_meta_N.pkl files")
+
+
+def test_meta_without_coords_3d(capsys, published, tmp_path):
+    root, _, _ = published
+    import shutil
+
+    shutil.copytree(root / "HUP-3D" / "test", tmp_path / "src")
+    path = tmp_path / "src" / "meta" / "img_meta_2.pkl"
+    meta = pickle.loads(path.read_bytes())
+    del meta["coords_3d"]
+    path.write_bytes(pickle.dumps(meta))
+    assert_clean_error(_cli(capsys, tmp_path / "src", "--probe-mesh", root / "probe.ply", tmp_path / "o"),
+                       "img_meta_2.pkl lacks coords_3d")
+
+
+def test_missing_probe_mesh_option(capsys, published, tmp_path):
+    root, _, _ = published
+    assert_clean_error(_cli(capsys, root / "HUP-3D", tmp_path / "o"), "--probe-mesh")
+
+
+def test_ply_that_is_not_a_mesh(capsys, published, tmp_path):
+    root, _, _ = published
+    trimesh.PointCloud(np.random.default_rng(0).normal(size=(20, 3))).export(tmp_path / "points.ply")
+    assert_clean_error(_cli(capsys, root / "HUP-3D", "--probe-mesh", tmp_path / "points.ply", tmp_path / "o"),
+                       "points.ply", "not a triangle mesh")
+
+
+def test_out_not_empty(capsys, published, tmp_path):
+    root, _, _ = published
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "keep.txt").write_text("mine")
+    assert_clean_error(_cli(capsys, root / "HUP-3D", "--probe-mesh", root / "probe.ply", tmp_path / "o"),
+                       "is not empty")
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["keep.txt"]
