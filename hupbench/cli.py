@@ -19,6 +19,8 @@ VERBS = {
     "export": "export a checkpoint to ONNX (opset 18, dynamic batch) with a parity check against PyTorch",
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
     "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
+    "export-dataset": "write a dataset in the BOP format (the probe as the object) or as COCO keypoints (hand, probe)",
+    "import-hup3d": "convert the published HUP-3D dataset (meta pickles, 8-bit depth, 3-channel masks) into a dataset",
 }
 #: the verbs over a Hydra config: the config's name (conf/NAME.yaml) and the examples of their --help
 HYDRA_VERBS = {
@@ -174,6 +176,66 @@ def _verify(args: list[str]) -> int:
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1
+
+
+def _import_hup3d(args: list[str]) -> int:
+    from datagen.dataset.import_hup3d import DEPTH_SOURCES, run_import_hup3d
+
+    parser = argparse.ArgumentParser(
+        prog="hupbench import-hup3d", formatter_class=_DefaultsHelp,
+        description="Convert the published HUP-3D dataset (meta/img_meta_N.pkl, rgb/, depth/, segm/; in split "
+                    "folders train/ val/ test/ or one folder) into a hupbench dataset that verify, eval and training "
+                    "read. The probe PLY is not public: supply the one the dataset was rendered with.",
+        epilog="examples:\n"
+               "  hupbench import-hup3d /data/HUP-3D --probe-mesh voluson_painted_downscaled.ply /data/hup3d_hupbench\n"
+               "  hupbench import-hup3d /data/combined_train --split train --probe-mesh probe.ply /tmp/hup3d\n"
+               "  hupbench import-hup3d /data/HUP-3D --probe-mesh probe.ply --depth png /tmp/hup3d    # 8-bit depth only")
+    parser.add_argument("dir", help="the published HUP-3D folder")
+    parser.add_argument("out", help="a new or empty folder for the hupbench dataset")
+    parser.add_argument("--probe-mesh", required=True, metavar="PLY",
+                        help="the probe mesh the frames were rendered with (required)")
+    parser.add_argument("--split", choices=("train", "val", "test"),
+                        help="the split of a folder without split folders (default: test)")
+    parser.add_argument("--depth", choices=DEPTH_SOURCES, default="auto",
+                        help="auto: the raw EXR depth where kept, else the 8-bit PNG; png: always the PNG")
+    ns = parser.parse_args(args)
+    run_import_hup3d(ns.dir, ns.probe_mesh, ns.out, split=ns.split, depth=ns.depth)
+    return 0
+
+
+def _export_dataset(args: list[str]) -> int:
+    from hupbench.verbs.export_dataset import (
+        FORMATS,
+        IMAGE_MODES,
+        ExportOptions,
+        run_export_dataset,
+    )
+
+    parser = argparse.ArgumentParser(
+        prog="hupbench export-dataset", formatter_class=_DefaultsHelp,
+        description="Write a finished dataset in the BOP format (the probe as object 1: models/, per-grasp scenes with "
+                    "poses, cameras, depth and masks) or as COCO keypoints (categories hand and probe, visibility, "
+                    "3D keypoints in mm and K as extra fields). README: 'Exporting to BOP and COCO'.",
+        epilog="examples:\n"
+               "  hupbench export-dataset hupbench_out/dataset --format bop /data/bop/hupbench\n"
+               "  hupbench export-dataset hupbench_out/dataset --format coco /data/coco_hupbench --images copy\n"
+               "  hupbench export-dataset hupbench_out/dataset --format bop /data/bop/hupbench --force  # replace it")
+    parser.add_argument("dataset", help="a finished dataset folder (with manifest.json)")
+    parser.add_argument("--format", required=True, choices=FORMATS, help="bop or coco (required)")
+    parser.add_argument("out", metavar="OUT", help="a new or empty output folder")
+    parser.add_argument("--images", choices=IMAGE_MODES, default="hardlink",
+                        help="hard links to the dataset's image files (a copy where the file system has none), or copies")
+    parser.add_argument("--force", action="store_true", help="replace OUT when it holds an earlier export")
+    parser.add_argument("--no-symmetry", action="store_true",
+                        help="BOP: leave the probe's half turn about its long axis out of models_info.json")
+    ns = parser.parse_intermixed_args(args)
+    result = run_export_dataset(ExportOptions(ns.dataset, ns.out, ns.format, images=ns.images, force=ns.force,
+                                              symmetry=not ns.no_symmetry), log=lambda *_: None)
+    print(f"hupbench export-dataset: {result['format'].upper()} export of "
+          + ", ".join(f"{n} {split}" for split, n in result["frames"].items())
+          + f" frames in {result['seconds']:.0f} s -> {result['out']} ({result['linked']} image files linked, "
+          f"{result['copied']} copied)")
+    return 0
 
 
 def _leaderboard(args: list[str]) -> int:
@@ -339,7 +401,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
                     "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
-                    "predict": _predict, "eval": _eval, "export": _export}
+                    "predict": _predict, "eval": _eval, "export": _export,
+                    "export-dataset": _export_dataset, "import-hup3d": _import_hup3d}
         if args.verb in HYDRA_VERBS:
             return _hydra_verb(args.verb, verb_args, handlers[args.verb])
         return handlers[args.verb](verb_args)

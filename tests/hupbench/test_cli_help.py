@@ -30,6 +30,8 @@ ARGPARSE_DEFAULTS = {
     "export": ("--opset", "(default: 18)"),
     "leaderboard": ("--dir", "(default: leaderboard)"),
     "predict": ("--batch-size", "(default: 16)"),
+    "export-dataset": ("--images", "(default: hardlink)"),
+    "import-hup3d": ("--depth", "(default: auto)"),
 }
 
 
