@@ -16,12 +16,15 @@ import numpy as np
 import torch
 
 from datagen.errors import BadValueError
-from datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_CORNERS, NUM_HAND, NUM_KEYPOINTS
+from datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_HAND, NUM_KEYPOINTS
 
-__all__ = ["ALL_AVERAGING", "HALF_TURN_Z", "MIDDLE_MCP_INDEX", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES", "ROOT_INDEX", "SPREAD_AXES",
-           "SPREAD_RATIO_WARN", "breakdown_mpjpe_mm", "collapsed_axes", "keypoint_errors_mm", "mpjpe_mm",
-           "mpjpe_split_mm", "pa_mpjpe_mm", "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px",
-           "pixel_errors_px", "probe_symmetric_errors_mm", "procrustes_align", "root_relative_mpjpe_mm", "rotation_onto",
+__all__ = ["ADD_THRESHOLD_DIAMETER", "ALL_AVERAGING", "BOP_REFERENCE_WIDTH_PX", "HALF_TURN_Z", "MIDDLE_MCP_INDEX",
+           "MSPD_THRESHOLDS_PX", "MSSD_THRESHOLDS_DIAMETER", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES",
+           "PROBE_SYMMETRY_ROTATIONS", "ROOT_INDEX", "SPREAD_AXES", "SPREAD_RATIO_WARN", "add_mm", "add_s_mm",
+           "average_recall", "bop_scores", "breakdown_mpjpe_mm", "collapsed_axes", "fit_rigid_pose", "keypoint_errors_mm",
+           "mpjpe_mm", "mpjpe_split_mm", "mspd_px", "mspd_thresholds_px", "mssd_mm", "object_diameter_m", "pa_mpjpe_mm",
+           "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px", "pixel_errors_px",
+           "probe_symmetric_errors_mm", "procrustes_align", "recall", "root_relative_mpjpe_mm", "rotation_onto",
            "split_from_errors_mm", "spread_ratios", "symmetry_costs", "symmetry_permutation"]
 
 #: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
@@ -40,6 +43,22 @@ HAND = tuple(range(NUM_HAND))
 PROBE = tuple(range(NUM_HAND, NUM_KEYPOINTS))
 #: the half turn about the probe frame's long axis z: (x, y, z) -> (-x, -y, z)
 HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])
+#: the probe's symmetry groups as rotations of its own frame about its origin (BOP's symmetries, with t = 0):
+#: "none" the identity only, "half_turn" adds :data:`HALF_TURN_Z`; :data:`PROBE_SYMMETRIES` are these
+#: groups acting on the 8 box corners
+PROBE_SYMMETRY_ROTATIONS = {"none": (np.eye(3),), "half_turn": (np.eye(3), HALF_TURN_Z)}
+#: ADD(-S) accuracy: a pose is correct when its ADD (ADD-S) is below this fraction of the object's
+#: diameter (Hinterstoisser et al. 2012; the BOP toolkit's ``correct_th`` of "add" and "adi")
+ADD_THRESHOLD_DIAMETER = 0.1
+#: BOP 2019+ MSSD thresholds as fractions of the object's diameter: 0.05, 0.10, ..., 0.50
+#: (bop_toolkit scripts/eval_bop19_pose.py)
+MSSD_THRESHOLDS_DIAMETER = 0.05 * np.arange(1, 11)
+#: BOP 2019+ MSPD thresholds in pixels of an image ``BOP_REFERENCE_WIDTH_PX`` wide: 5, 10, ..., 50;
+#: :func:`mspd_thresholds_px` scales them to another width
+MSPD_THRESHOLDS_PX = 5.0 * np.arange(1, 11)
+BOP_REFERENCE_WIDTH_PX = 640
+#: frames per chunk of the dense point-to-point errors (a chunk holds (F, G, V, 3) float64)
+_POSE_ERROR_CHUNK = 64
 #: a point set maps onto itself under a symmetry when every mapped point lies within this of a point
 #: of the set, relative to the set's size (largest distance from its centroid)
 SYMMETRY_REL_TOL = 1e-6
@@ -264,8 +283,8 @@ def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
     # a box with three different sides, corners in datagen.keypoints.CORNER_BITS order: the
     # permutation is read off the coordinates, not written by hand
     box = (2.0 * np.array(CORNER_BITS, np.float64) - 1.0) * np.array([0.036, 0.015, 0.0825]) + [0.0, 0.0, 0.0825]
-    identity = tuple(range(NUM_CORNERS))
-    return {"none": (identity,), "half_turn": (identity, symmetry_permutation(box, HALF_TURN_Z))}
+    return {name: tuple(symmetry_permutation(box, r) for r in rotations)
+            for name, rotations in PROBE_SYMMETRY_ROTATIONS.items()}
 
 
 #: the probe corners' symmetry groups as permutations of the 8 corners (indices into 21..28 minus
@@ -352,6 +371,174 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
         best, choice = costs.min(dim=1)
         return best, choice
     return costs.min(axis=1), costs.argmin(axis=1).astype(np.int64)
+
+
+# ----------------------------------------------------------------------------- object pose (BOP)
+# The object side of the BOP benchmark (Hodan et al., bop_toolkit_lib/pose_error.py and
+# scripts/eval_calc_scores.py), for one rigid object seen once per frame. A pose is a (N, 4, 4)
+# T_cam_obj mapping object-frame points (metres) into the OpenCV camera frame.
+
+
+def fit_rigid_pose(points_obj_m: np.ndarray, points_cam_m: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) float64 T_cam_obj: the rotation and translation (Kabsch, :func:`rotation_onto`, no scale)
+    that best map the known (K, 3) object-frame points onto each frame's (N, K, 3) observed camera-frame
+    points (metres, K >= 3 not collinear), in the least-squares sense."""
+    obj = np.asarray(points_obj_m, np.float64)
+    cam = np.asarray(points_cam_m, np.float64)
+    assert obj.ndim == 2 and cam.ndim == 3 and cam.shape[1:] == obj.shape and obj.shape[-1] == 3, (obj.shape, cam.shape)
+    rot = rotation_onto(np.broadcast_to(obj, cam.shape), cam)                    # (N, 3, 3)
+    T = np.tile(np.eye(4), (len(cam), 1, 1))
+    T[:, :3, :3] = rot
+    T[:, :3, 3] = cam.mean(axis=1) - obj.mean(axis=0) @ rot.transpose(0, 2, 1)   # t = mean(cam) - R mean(obj)
+    return T
+
+
+def _assert_poses(T_cam_pred, T_cam_true, points_obj_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    pred, true = np.asarray(T_cam_pred, np.float64), np.asarray(T_cam_true, np.float64)
+    pts = np.asarray(points_obj_m, np.float64)
+    assert pred.shape == true.shape and pred.ndim == 3 and pred.shape[1:] == (4, 4), (pred.shape, true.shape)
+    assert pts.ndim == 2 and pts.shape[-1] == 3 and len(pts) >= 1, pts.shape
+    return pred, true, pts
+
+
+def _symmetries(symmetries) -> np.ndarray:
+    """(G, 3, 3) proper rotations, the identity among them."""
+    sym = np.asarray(symmetries, np.float64).reshape(-1, 3, 3)
+    assert np.allclose(sym @ sym.transpose(0, 2, 1), np.eye(3), atol=1e-9) and np.all(np.linalg.det(sym) > 0), sym
+    assert np.any(np.all(np.isclose(sym, np.eye(3)), axis=(1, 2))), "a symmetry group holds the identity"
+    return sym
+
+
+def _posed_chunks(T_cam_pred, T_cam_true, points_obj_m, symmetries):
+    """Yield (frames slice, (F, V, 3) predicted and (F, G, V, 3) truth-under-each-symmetry camera points, metres)."""
+    pred, true, pts = _assert_poses(T_cam_pred, T_cam_true, points_obj_m)
+    sym = _symmetries(symmetries)
+    for start in range(0, len(pred), _POSE_ERROR_CHUNK):
+        rows = slice(start, start + _POSE_ERROR_CHUNK)
+        p, t = pred[rows], true[rows]
+        posed_pred = pts @ p[:, :3, :3].transpose(0, 2, 1) + p[:, None, :3, 3]                 # (F, V, 3)
+        rot_true = np.einsum("fij,gjk->fgik", t[:, :3, :3], sym)                               # (F, G, 3, 3) R S
+        posed_true = np.einsum("vk,fgik->fgvi", pts, rot_true) + t[:, None, None, :3, 3]       # (F, G, V, 3)
+        yield rows, posed_pred, posed_true
+
+
+def add_mm(T_cam_pred, T_cam_true, points_obj_m) -> np.ndarray:
+    """ADD (Hinterstoisser et al. 2012): (N,) float64 mm, the mean over the (V, 3) object points (metres,
+    object frame) of the distance between each point under the predicted and under the true (N, 4, 4)
+    T_cam_obj; no symmetry."""
+    out = np.empty(len(T_cam_pred))
+    for rows, posed_pred, posed_true in _posed_chunks(T_cam_pred, T_cam_true, points_obj_m, np.eye(3)[None]):
+        out[rows] = np.linalg.norm(posed_pred - posed_true[:, 0], axis=-1).mean(axis=1)
+    return out * _MM_PER_M
+
+
+def add_s_mm(T_cam_pred, T_cam_true, points_obj_m) -> np.ndarray:
+    """ADD-S (ADI; Hinterstoisser et al. 2012, bop_toolkit ``adi``): (N,) float64 mm, the mean over the
+    (V, 3) object points (metres, object frame) under the true (N, 4, 4) T_cam_obj of the distance to the
+    nearest object point under the predicted pose; blind to every symmetry (and to some errors that are
+    none)."""
+    from scipy.spatial import cKDTree
+
+    pred, true, pts = _assert_poses(T_cam_pred, T_cam_true, points_obj_m)
+    tree = cKDTree(pts)
+    # distances are rigid-invariant: take the truth-posed points into the predicted object frame and
+    # query one tree of the model points, instead of a tree per frame
+    T_pred_true = np.linalg.inv(pred) @ true                                             # (N, 4, 4)
+    out = np.empty(len(pred))
+    for start in range(0, len(pred), _POSE_ERROR_CHUNK):
+        rows = slice(start, start + _POSE_ERROR_CHUNK)
+        T = T_pred_true[rows]
+        moved = pts @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]                 # (F, V, 3)
+        out[rows] = tree.query(moved.reshape(-1, 3))[0].reshape(len(T), -1).mean(axis=1)
+    return out * _MM_PER_M
+
+
+def mssd_mm(T_cam_pred, T_cam_true, points_obj_m, symmetries=PROBE_SYMMETRY_ROTATIONS["half_turn"]) -> np.ndarray:
+    """MSSD (BOP 2019+, bop_toolkit ``mssd``): (N,) float64 mm, over the symmetries S of a group (G, 3, 3)
+    rotations about the object origin, the smallest of the largest distance over the (V, 3) object
+    points (metres, object frame) between the point under the predicted (N, 4, 4) T_cam_obj and under the
+    true pose composed with S (T_true S)."""
+    out = np.empty(len(T_cam_pred))
+    for rows, posed_pred, posed_true in _posed_chunks(T_cam_pred, T_cam_true, points_obj_m, symmetries):
+        out[rows] = np.linalg.norm(posed_pred[:, None] - posed_true, axis=-1).max(axis=2).min(axis=1)
+    return out * _MM_PER_M
+
+
+def _project_px(points_cam_m: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(F, ..., 2) pixels of (F, ..., 3) camera points under the (F, 3, 3) pinhole K, no distortion."""
+    uvw = np.einsum("fij,f...j->f...i", K, points_cam_m)
+    return uvw[..., :2] / uvw[..., 2:]
+
+
+def mspd_px(T_cam_pred, T_cam_true, K, points_obj_m, symmetries=PROBE_SYMMETRY_ROTATIONS["half_turn"]) -> np.ndarray:
+    """MSPD (BOP 2019+, bop_toolkit ``mspd``): (N,) float64 pixels, as :func:`mssd_mm` but between the
+    points' projections through each frame's (N, 3, 3) K (pinhole, no distortion): the smallest over the
+    symmetries of the largest 2D distance. inf for a frame where a posed point is not in front of the
+    camera (z <= 0), whose projection is undefined."""
+    K = np.asarray(K, np.float64)
+    assert K.shape == (len(T_cam_pred), 3, 3), K.shape
+    out = np.empty(len(T_cam_pred))
+    for rows, posed_pred, posed_true in _posed_chunks(T_cam_pred, T_cam_true, points_obj_m, symmetries):
+        behind = (posed_pred[..., 2] <= 0.0).any(axis=1) | (posed_true[..., 2] <= 0.0).any(axis=(1, 2))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv_pred = _project_px(posed_pred, K[rows])                                    # (F, V, 2)
+            uv_true = _project_px(posed_true, K[rows])                                    # (F, G, V, 2)
+            e = np.linalg.norm(uv_pred[:, None] - uv_true, axis=-1).max(axis=2).min(axis=1)
+        out[rows] = np.where(behind, np.inf, e)
+    return out
+
+
+def object_diameter_m(points_obj_m: np.ndarray) -> float:
+    """The largest distance between two of the (V, 3) points, metres (BOP's ``models_info`` diameter)."""
+    from scipy.spatial import ConvexHull
+    from scipy.spatial.distance import pdist
+
+    pts = np.asarray(points_obj_m, np.float64)
+    assert pts.ndim == 2 and pts.shape[-1] == 3 and len(pts) >= 2, pts.shape
+    if len(pts) > 4096:  # the farthest pair lies on the convex hull: a few hundred points instead of thousands
+        pts = pts[ConvexHull(pts).vertices]
+    return float(pdist(pts).max())
+
+
+def recall(errors, thresholds) -> np.ndarray:
+    """(T,) float64 fractions of the (N,) errors strictly below each of the (T,) thresholds (same unit): BOP's
+    recall with one object per image and one estimate for it (a pose is correct when its error < threshold)."""
+    e = np.asarray(errors, np.float64).reshape(-1, 1)
+    assert e.size > 0, "recall of no frames"
+    return (e < np.asarray(thresholds, np.float64).reshape(1, -1)).mean(axis=0)
+
+
+def average_recall(errors, thresholds) -> float:
+    """BOP's average recall (AR_MSSD, AR_MSPD): the mean of :func:`recall` over the (T,) thresholds."""
+    return float(recall(errors, thresholds).mean())
+
+
+def mspd_thresholds_px(image_width_px: int) -> np.ndarray:
+    """(10,) MSPD thresholds in pixels of an image ``image_width_px`` wide: BOP's 5..50 px at 640 px scaled
+    by width / 640 (BOP scales the error by 640 / width, the same comparison)."""
+    return MSPD_THRESHOLDS_PX * float(image_width_px) / BOP_REFERENCE_WIDTH_PX
+
+
+def bop_scores(add, add_s, mssd, mspd, diameter_mm: float, image_width_px: int) -> dict[str, float | None]:
+    """The object's BOP-style summary over N frames from the (N,) per-frame errors of :func:`add_mm`,
+    :func:`add_s_mm`, :func:`mssd_mm` (mm) and :func:`mspd_px` (pixels of an image ``image_width_px`` wide).
+
+    Returns:
+        {"add_mm", "add_s_mm", "mssd_mm", "mspd_px": means over frames (mspd_px None when a frame's is inf),
+        "add_accuracy", "add_s_accuracy": fractions of frames below ``ADD_THRESHOLD_DIAMETER`` x diameter,
+        "ar_mssd": average recall at ``MSSD_THRESHOLDS_DIAMETER`` x diameter, "ar_mspd": at
+        :func:`mspd_thresholds_px`, "diameter_mm", "image_width_px"}, python floats (and int).
+    """
+    mspd = np.asarray(mspd, np.float64)
+    add_threshold = [ADD_THRESHOLD_DIAMETER * diameter_mm]
+    return {
+        "add_mm": float(np.mean(add)), "add_s_mm": float(np.mean(add_s)), "mssd_mm": float(np.mean(mssd)),
+        "mspd_px": float(mspd.mean()) if np.isfinite(mspd).all() else None,
+        "add_accuracy": float(recall(add, add_threshold)[0]), "add_s_accuracy": float(recall(add_s, add_threshold)[0]),
+        "ar_mssd": average_recall(mssd, MSSD_THRESHOLDS_DIAMETER * diameter_mm),
+        "ar_mspd": average_recall(mspd, mspd_thresholds_px(image_width_px)),
+        "diameter_mm": float(diameter_mm), "image_width_px": int(image_width_px),
+    }
 
 
 # ----------------------------------------------------------------------------- spread (collapse guard)

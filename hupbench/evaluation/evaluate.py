@@ -27,14 +27,15 @@ from datagen.errors import BadValueError, MissingFileError, RunFailedError
 from datagen.input_checks import check_int
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
+from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
 from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
 from hupbench.inference.model_file import fits_probe
 from hupbench.inference.probe_fit import fit_probe
 from hupbench.input_geometry import INPUT_MODALITIES
 
-__all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "default_figures_dir", "default_results_path", "format_table", "grasp_theta_vol_deg",
-           "measure_latency_ms", "run_eval", "split_floor"]
+__all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "default_figures_dir", "default_results_path",
+           "format_table", "grasp_theta_vol_deg", "measure_latency_ms", "run_eval", "split_floor"]
 
 #: (least warm-up runs, timed runs) per batch size for the latency medians
 LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
@@ -394,11 +395,17 @@ def format_table(results: dict) -> str:
         ("latency ORT b1 / b32", f"{f(lat['onnxruntime']['batch1'])} / {f(lat['onnxruntime']['batch32'])} ms/image"),
         ("track", results["track"] or "-"),
     ]
+    pose = m.get("probe_pose")
+    if pose is not None:
+        rows += probe_pose_rows("probe", pose, f)
     floor = results["split_floor"]
     if floor is not None:
         mm = floor["floor_mm"]
         rows.append(("split floor hand / probe / all",
                      f"{f(mm['hand'])} / {f(mm['probe'])} / {f(mm['all'])} mm ({floor['floor_kind']})"))
+    floor_pose = m.get("split_floor_probe_pose")
+    if floor_pose is not None:
+        rows += probe_pose_rows("split floor probe", floor_pose, f)
     for axis, buckets in results["breakdowns"].items():
         for label, b in buckets.items():
             rows.append((f"  {axis}: {label}", (f"{f(b['mpjpe_mm']['all'])} mm all, {f(b['mpjpe_mm']['hand'])} hand, "
@@ -557,7 +564,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     dataset, split = options.dataset, options.split
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size, input_modalities=net.input_modalities))
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
-                                                                "grasp_id"), reader.manifest)}
+                                                                "grasp_id", "view_id"), reader.manifest)}
     grasp_ids = sorted({int(g) for g in fields["grasp_id"]})
     manifest_path = str(dataset / "manifest.json")
     theta_vol_by_grasp = grasp_theta_vol_deg(manifest, grasp_ids, manifest_path)
@@ -596,6 +603,11 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
         "probe_symmetric_mpjpe_mm": _symmetric_probe_error(pred3d, gt3d, fields, log),
         "spread_ratio": _spread_ratio(pred3d, gt3d, log),
     }
+    probe = dataset_probe(dataset)
+    K_stored = np.asarray(fields["K"], np.float64)                                      # (N, 3, 3) stored images
+    results["metrics"]["probe_pose"] = logged_probe_pose(pred3d, gt3d, K_stored, image_size[0], probe, "model", log)
+    results["metrics"]["split_floor_probe_pose"] = floor_probe_pose(dataset, manifest, floor, fields, gt3d,
+                                                                     image_size[0], probe, log)
     results["breakdowns"] = {
         "latitude": metrics.breakdown_mpjpe_mm(errors, breakdowns.latitude_labels(fields["theta"])),
         "z_ego": metrics.breakdown_mpjpe_mm(errors, breakdowns.z_ego_labels(fields["z_ego"])),

@@ -3,9 +3,10 @@
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
 finite numbers. A ``"reported"`` row (quoted from a paper) needs only ``metrics.mpjpe_mm.all`` and a
-``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written. One metric joined
-version 3 later, ``metrics.middle_mcp_relative_hand_mpjpe_mm``: eval writes it, files written before lack
-it (readers take it as unknown).
+``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written. Metrics that joined
+version 3 later (``_OPTIONAL_METRIC_KEYS``: the middle-MCP-relative hand MPJPE, the probe's BOP pose
+scores and the split floor's): eval writes them, files written before lack them (readers take them as
+unknown).
 
 Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
 counted as 2 x multiply-adds.
@@ -54,7 +55,12 @@ _DATASET_KEYS = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
 _METRIC_KEYS_V1 = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
 _METRIC_KEYS = _METRIC_KEYS_V1 + ("probe_symmetric_mpjpe_mm", "spread_ratio")
 #: metrics added within version 3: eval writes them, files written before lack them (readers: ``.get``)
-_OPTIONAL_METRIC_KEYS = ("middle_mcp_relative_hand_mpjpe_mm",)
+_OPTIONAL_METRIC_KEYS = ("middle_mcp_relative_hand_mpjpe_mm", "probe_pose", "split_floor_probe_pose")
+#: a probe pose block (``metrics.bop_scores`` and the symmetry group's name and the mesh's vertex count)
+_POSE_MM_KEYS = ("add_mm", "add_s_mm", "mssd_mm")
+_POSE_FRACTION_KEYS = ("add_accuracy", "add_s_accuracy", "ar_mssd", "ar_mspd")
+_POSE_KEYS = _POSE_MM_KEYS + ("mspd_px",) + _POSE_FRACTION_KEYS + ("diameter_mm", "image_width_px", "symmetry",
+                                                                   "model_points")
 _SPREAD_KEYS = ("x", "y", "z")
 # the symmetric probe error is a minimum that includes the identity: it may exceed the plain one only by rounding
 _SYMMETRIC_SLACK_MM = 1e-6
@@ -156,9 +162,11 @@ def _validate_metrics(metrics, version: int) -> None:
     _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
     _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
     _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
-    for key in _OPTIONAL_METRIC_KEYS:
-        if key in metrics:
-            _number(metrics, ("metrics", key), nullable=True)
+    if "middle_mcp_relative_hand_mpjpe_mm" in metrics:
+        _number(metrics, ("metrics", "middle_mcp_relative_hand_mpjpe_mm"), nullable=True)
+    for key in ("probe_pose", "split_floor_probe_pose"):
+        if metrics.get(key) is not None:
+            _validate_probe_pose(metrics[key], ("metrics", key))
     _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
     _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
     _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
@@ -172,6 +180,25 @@ def _validate_metrics(metrics, version: int) -> None:
         _keys(metrics["spread_ratio"], ("metrics", "spread_ratio"), _SPREAD_KEYS)
         for axis in _SPREAD_KEYS:
             _number(metrics["spread_ratio"], ("metrics", "spread_ratio", axis), nullable=True)
+
+
+def _validate_probe_pose(pose, parts: tuple) -> None:
+    """A probe pose block: mean ADD, ADD-S (at most ADD), MSSD (mm) and MSPD (px, null when undefined), the
+    fractions, the diameter (mm > 0), the image width and vertex count (integers >= 1) and the symmetry
+    group's name."""
+    _keys(pose, parts, _POSE_KEYS)
+    for key in _POSE_MM_KEYS:
+        _number(pose, parts + (key,), nullable=False)
+    _number(pose, parts + ("mspd_px",), nullable=True)
+    for key in _POSE_FRACTION_KEYS:
+        _number(pose, parts + (key,), nullable=False, high=1.0)
+    _check(pose, parts + ("diameter_mm",), lambda v: _is_number(v) and math.isfinite(v) and v > 0.0,
+           "a finite number > 0", False)
+    _integer(pose, parts + ("image_width_px",), nullable=False, low=1)
+    _integer(pose, parts + ("model_points",), nullable=False, low=1)
+    _string(pose, parts + ("symmetry",), nullable=False)
+    if pose["add_s_mm"] > pose["add_mm"] + _SYMMETRIC_SLACK_MM:  # the nearest point is never further than its own
+        _fail(parts + ("add_s_mm",), f"at most add_mm ({pose['add_mm']!r})", pose["add_s_mm"])
 
 
 def _validate_breakdowns(breakdowns, version: int) -> None:
@@ -383,7 +410,7 @@ def upgrade_results(d: dict) -> dict:
     """``d`` validated, as is in version 3, else as an upgraded deep copy: version 1 gains
     ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, version 2 (and an upgraded 1)
     ``track``, ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured). A metric
-    added within version 3 (``metrics.middle_mcp_relative_hand_mpjpe_mm``) stays absent where a file lacks it."""
+    added within version 3 (``_OPTIONAL_METRIC_KEYS``) stays absent where a file lacks it."""
     validate_results(d)
     if d["schema_version"] == SCHEMA_VERSION:
         return d

@@ -330,7 +330,7 @@ def test_symmetric_probe_error_known_answers():
     # the plain probe error of the swapped labels is large, the symmetric one is zero
     assert M.mpjpe_split_mm(turned, gt)["probe"] > 20.0
     assert _symmetric_mm(turned, gt) == pytest.approx(0.0, abs=1e-9)
-    errors, choice = M.probe_symmetric_errors_mm(turned, gt)
+    _, choice = M.probe_symmetric_errors_mm(turned, gt)
     np.testing.assert_array_equal(choice, [1, 1, 1, 1])
     # only the identity in the group: the plain probe MPJPE
     assert _symmetric_mm(turned, gt, M.PROBE_SYMMETRIES["none"]) == pytest.approx(
@@ -418,3 +418,162 @@ def test_rotation_onto_recovers_a_turn_and_stays_proper():
     np.testing.assert_allclose(rotation_onto(src, dst), turns, atol=1e-10)
     mirrored = dst * np.array([1.0, 1.0, -1.0])                                  # no rotation can do this
     assert np.allclose(np.linalg.det(rotation_onto(src, mirrored)), 1.0)
+
+
+# ----------------------------------------------------------------------------- object pose (BOP)
+
+
+def _poses(n, seed=0):
+    """(n, 4, 4) random T_cam_obj about 0.5 m in front of the camera."""
+    rng = np.random.default_rng(seed)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for i in range(n):
+        T[i, :3, :3] = _rotation(rng.normal(size=3), rng.uniform(0, np.pi))
+        T[i, :3, 3] = [0.0, 0.0, 0.5] + rng.normal(0, 0.03, 3)
+    return T
+
+
+def _half_turn_symmetric_points(v=50, seed=0):
+    """(2v, 3) object points, metres, mapped onto themselves by the half turn about z."""
+    q = np.random.default_rng(seed).normal(0.0, 0.04, (v, 3))
+    return np.concatenate([q, q @ M.HALF_TURN_Z.T])
+
+
+K_256 = np.array([[480.0, 0.0, 128.0], [0.0, 480.0, 128.0], [0.0, 0.0, 1.0]])
+
+
+def test_fit_rigid_pose_recovers_the_pose_of_exact_points():
+    T = _poses(5)
+    _, box = _probe_frames()
+    observed = box @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]
+    np.testing.assert_allclose(M.fit_rigid_pose(box, observed), T, atol=1e-12)
+    # noise on the corners moves the fit less than the noise itself (least squares over 8 points)
+    noisy = observed + np.random.default_rng(1).normal(0.0, 0.001, observed.shape)
+    fitted = M.fit_rigid_pose(box, noisy)
+    assert np.abs(fitted[:, :3, 3] - T[:, :3, 3]).max() < 0.002
+    np.testing.assert_allclose(np.linalg.det(fitted[:, :3, :3]), 1.0)
+
+
+@pytest.mark.parametrize("n", [1, 70])   # 70 frames: more than one chunk
+def test_identity_pose_scores_zero(n):
+    T, pts = _poses(n), _half_turn_symmetric_points()
+    K = np.broadcast_to(K_256, (n, 3, 3))
+    for errors in (M.add_mm(T, T, pts), M.add_s_mm(T, T, pts), M.mssd_mm(T, T, pts), M.mspd_px(T, T, K, pts)):
+        assert errors.shape == (n,)
+        np.testing.assert_allclose(errors, 0.0, atol=1e-9)
+
+
+def test_translation_known_answers():
+    T_true, pts = _poses(4), _half_turn_symmetric_points()
+    shift = np.array([0.003, -0.004, 0.012])                                     # 13 mm
+    T_pred = T_true.copy()
+    T_pred[:, :3, 3] += shift
+    np.testing.assert_allclose(M.add_mm(T_pred, T_true, pts), 13.0)
+    # every point moves by the same 13 mm: the max is the mean, and the half turn is further
+    np.testing.assert_allclose(M.mssd_mm(T_pred, T_true, pts), 13.0)
+    add_s = M.add_s_mm(T_pred, T_true, pts)
+    assert np.all(add_s <= 13.0 + 1e-9) and np.all(add_s > 0.0)
+    # ADD-S is the nearest-point distance: brute force over all pairs
+    posed_true = pts @ T_true[0, :3, :3].T + T_true[0, :3, 3]
+    posed_pred = posed_true + shift
+    brute = np.linalg.norm(posed_true[:, None] - posed_pred[None], axis=-1).min(axis=1).mean() * 1000
+    assert add_s[0] == pytest.approx(brute, rel=1e-9)
+
+
+def test_half_turn_is_free_for_add_s_and_mssd_not_for_add():
+    T_true, pts = _poses(3), _half_turn_symmetric_points()
+    T_pred = T_true.copy()
+    T_pred[:, :3, :3] = T_true[:, :3, :3] @ M.HALF_TURN_Z                        # the object half-turned in place
+    K = np.broadcast_to(K_256, (3, 3, 3))
+    np.testing.assert_allclose(M.add_s_mm(T_pred, T_true, pts), 0.0, atol=1e-9)
+    np.testing.assert_allclose(M.mssd_mm(T_pred, T_true, pts), 0.0, atol=1e-9)
+    np.testing.assert_allclose(M.mspd_px(T_pred, T_true, K, pts), 0.0, atol=1e-6)
+    # ADD: a point at distance r from the axis moves by 2 r under the half turn
+    two_r = 2 * np.linalg.norm(pts[:, :2], axis=1) * 1000
+    np.testing.assert_allclose(M.add_mm(T_pred, T_true, pts), two_r.mean())
+    # without the symmetry MSSD is the largest of those moves
+    none = M.PROBE_SYMMETRY_ROTATIONS["none"]
+    np.testing.assert_allclose(M.mssd_mm(T_pred, T_true, pts, none), two_r.max())
+    assert M.mspd_px(T_pred, T_true, K, pts, none).min() > 1.0
+
+
+def test_mspd_matches_cv2_project_points():
+    import cv2
+
+    n = 6
+    T_true, pts = _poses(n, seed=1), _half_turn_symmetric_points(seed=2)
+    T_pred = _poses(n, seed=1)
+    T_pred[:, :3, :3] = T_pred[:, :3, :3] @ _rotation([0.3, 1.0, 0.2], 0.2)      # turned by 0.2 rad
+    T_pred[:, :3, 3] += [0.004, 0.0, -0.01]
+    K = np.stack([K_256 * [[1.0 + 0.1 * i], [1.0], [1.0]] for i in range(n)])   # a different fx per frame
+    K[:, 2, 2] = 1.0
+
+    def project(T, k):
+        rvec, _ = cv2.Rodrigues(T[:3, :3])
+        return cv2.projectPoints(pts, rvec, T[:3, 3], k, None)[0].reshape(-1, 2)
+
+    expected = []
+    for i in range(n):
+        uv_pred = project(T_pred[i], K[i])
+        per_symmetry = []
+        for S in M.PROBE_SYMMETRY_ROTATIONS["half_turn"]:
+            T_sym = T_true[i].copy()
+            T_sym[:3, :3] = T_true[i, :3, :3] @ S
+            per_symmetry.append(np.linalg.norm(uv_pred - project(T_sym, K[i]), axis=1).max())
+        expected.append(min(per_symmetry))
+    np.testing.assert_allclose(M.mspd_px(T_pred, T_true, K, pts), expected, rtol=1e-6)
+
+
+def test_mspd_is_inf_behind_the_camera():
+    T_true, pts = _poses(2), _half_turn_symmetric_points()
+    T_pred = T_true.copy()
+    T_pred[1, :3, 3] = [0.0, 0.0, -0.5]
+    errors = M.mspd_px(T_pred, T_true, np.broadcast_to(K_256, (2, 3, 3)), pts)
+    assert errors[0] == pytest.approx(0.0, abs=1e-9) and errors[1] == np.inf
+
+
+def test_diameter_and_thresholds():
+    _, box = _probe_frames()
+    assert M.object_diameter_m(box) == pytest.approx(math.sqrt(0.072 ** 2 + 0.030 ** 2 + 0.165 ** 2))
+    cloud = np.random.default_rng(0).normal(size=(5000, 3))                    # the convex-hull path
+    from scipy.spatial.distance import pdist
+    assert M.object_diameter_m(cloud) == pytest.approx(pdist(cloud).max())
+    np.testing.assert_allclose(M.MSSD_THRESHOLDS_DIAMETER, [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5])
+    np.testing.assert_allclose(M.mspd_thresholds_px(640), [5, 10, 15, 20, 25, 30, 35, 40, 45, 50])
+    np.testing.assert_allclose(M.mspd_thresholds_px(256), [2, 4, 6, 8, 10, 12, 14, 16, 18, 20])
+
+
+def test_recall_is_strict_and_averaged():
+    np.testing.assert_allclose(M.recall([1.0, 2.0, 3.0], [2.0, 3.5]), [1 / 3, 1.0])   # 2.0 < 2.0 is not correct
+    assert M.average_recall([1.0, 2.0, 3.0], [2.0, 3.5]) == pytest.approx(2 / 3)
+
+
+def test_bop_scores_known_answers():
+    scores = M.bop_scores(add=[5.0, 15.0], add_s=[5.0, 9.0], mssd=[0.0, 100.0], mspd=[3.0, 30.0],
+                          diameter_mm=100.0, image_width_px=640)
+    assert scores == pytest.approx({
+        "add_mm": 10.0, "add_s_mm": 7.0, "mssd_mm": 50.0, "mspd_px": 16.5,
+        "add_accuracy": 0.5, "add_s_accuracy": 1.0,                  # below 10 mm
+        "ar_mssd": 0.5,                                               # 0 passes all of 5..50 mm, 100 none
+        "ar_mspd": (10 + 4) / 20,                                     # 3 px passes all, 30 px 35..50 only
+        "diameter_mm": 100.0, "image_width_px": 640})
+    assert type(scores["image_width_px"]) is int and all(type(v) is float for k, v in scores.items()
+                                                         if k != "image_width_px")
+    behind = M.bop_scores([1.0], [1.0], [1.0], [np.inf], 100.0, 640)
+    assert behind["mspd_px"] is None and behind["ar_mspd"] == 0.0
+
+
+def test_the_probe_mesh_half_turned_costs_add_only():
+    """The probe as built: its mesh maps onto itself under the half turn except for the marker."""
+    from datagen.assets.probe import build_probe
+
+    probe = build_probe()
+    pts = np.asarray(probe.mesh.vertices)
+    T_true = _poses(2)
+    T_pred = T_true.copy()
+    T_pred[:, :3, :3] = T_true[:, :3, :3] @ M.HALF_TURN_Z
+    assert M.mssd_mm(T_pred, T_true, pts) == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert np.all(M.add_s_mm(T_pred, T_true, pts) < 0.2)                    # the marker and tessellation only
+    assert np.all(M.add_mm(T_pred, T_true, pts) > 20.0)
+    # the mesh's diameter is about its 165 mm length: the tapered probe does not reach its box's corners
+    assert 0.165 <= M.object_diameter_m(pts) < 0.166 < M.object_diameter_m(probe.corners_probe)

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from hupbench.evaluation import evaluate as EV
+from hupbench.evaluation.probe_pose import probe_pose_scores
 from hupbench import metrics as M
 from datagen.io import file_sha256
 from hupbench.cli import main
@@ -43,7 +44,10 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     # every metric and every breakdown within 0.1 mm (2D: 0.01 px, AUC: 0.001)
     fa, fb = _flatten(a["metrics"] | {"breakdowns": a["breakdowns"]}), _flatten(b["metrics"] | {"breakdowns": b["breakdowns"]})
     assert fa.keys() == fb.keys()
+    assert fa["probe_pose.symmetry"] == fb["probe_pose.symmetry"] == "half_turn"
     for key in fa:
+        if key.endswith("symmetry"):
+            continue
         if isinstance(fa[key], str):
             assert fa[key] == fb[key] == M.ALL_AVERAGING
         elif key.endswith("frames"):
@@ -112,6 +116,89 @@ def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, mo
     # a shift keeps the labels (the half turn is further) and moves every frame alike (spread unchanged)
     assert m["probe_symmetric_mpjpe_mm"] == pytest.approx(5.2, abs=1e-4)
     assert m["spread_ratio"] == pytest.approx({"x": 1.0, "y": 1.0, "z": 1.0}, abs=1e-6)
+    # the probe's pose: moved by 5.2 mm, every mesh point is 5.2 mm off (ADD, MSSD); ADD-S finds nearer points
+    pose = m["probe_pose"]
+    assert pose["add_mm"] == pytest.approx(5.2, abs=1e-3) and pose["mssd_mm"] == pytest.approx(5.2, abs=1e-3)
+    assert 0.0 < pose["add_s_mm"] < 5.2
+    assert (pose["symmetry"], pose["model_points"], pose["image_width_px"]) == ("half_turn", 6508, width)
+    assert 165.0 <= pose["diameter_mm"] < 166.0   # the mesh's diameter: about its 165 mm length
+    # 5.2 mm is below 0.1 and 0.05 of the diameter
+    assert (pose["add_accuracy"], pose["add_s_accuracy"], pose["ar_mssd"]) == (1.0, 1.0, 1.0)
+    # MSPD from the annotated pose (T_cam_world: the world is the probe frame) through cv2.projectPoints
+    mspd = _mspd_of_a_shift(tiny_dataset, [0.0, 0.0052, 0.0])                    # (N,) px
+    assert pose["mspd_px"] == pytest.approx(mspd.mean(), rel=1e-4)
+    thresholds = 5.0 * np.arange(1, 11) * width / 640                              # BOP's 5..50 px at 640 px
+    assert pose["ar_mspd"] == pytest.approx(np.mean([np.mean(mspd < t) for t in thresholds]))
+    assert 0.0 < pose["ar_mspd"] < 1.0   # the shift is 1-2 px at 64 px: some thresholds pass, some do not
+    assert r["metrics"]["split_floor_probe_pose"] == pytest.approx(_floor_probe_pose(tiny_dataset, width))
+    table = EV.format_table(r)
+    assert re.search(r"\nprobe ADD / ADD-S / MSSD +5\.20 / \d\.\d\d / 5\.20 mm \(diameter 165\.\d mm, symmetry "
+                     r"half_turn\)\n", table)
+    assert re.search(r"\nprobe BOP scores +ADD < 0\.1 d 1\.000, ADD-S < 0\.1 d 1\.000, AR_MSSD 1\.000, AR_MSPD "
+                     + re.escape(f"{pose['ar_mspd']:.3f}\n"), table)
+    assert re.search(r"\nprobe MSPD +\d\.\d\d px \(64 px wide images\)\n", table)
+    assert "\nsplit floor probe ADD / ADD-S / MSSD " in table
+
+
+def test_a_probe_mesh_that_is_not_the_datasets_gets_no_pose_metrics(exported, tiny_dataset, tmp_path, monkeypatch):
+    """A mesh whose box does not meet the dataset's corners (here 10 % larger) would score another object."""
+    from types import SimpleNamespace
+
+    from datagen.assets.probe import build_probe
+
+    ckpt, _ = exported
+    probe = build_probe()
+    larger = SimpleNamespace(corners_probe=probe.corners_probe * 1.1, mesh=probe.mesh)
+    monkeypatch.setattr(EV, "dataset_probe", lambda dataset: larger)
+    lines = []
+    r = evaluate(ckpt, tiny_dataset, out=tmp_path / "larger.json", latency=False, log=lines.append)["results"]
+    assert r["metrics"]["probe_pose"] is None and r["metrics"]["split_floor_probe_pose"] is None
+    assert any(re.fullmatch(r"warning: no probe pose metrics: the probe mesh's box meets the true corners only within "
+                            r"\d+\.\d{3} mm \(allowed 0\.01 mm\): the mesh is not the dataset's probe", line)
+               for line in lines)
+    assert "probe ADD" not in EV.format_table(r) and r["metrics"]["mpjpe_mm"]["probe"] > 0
+
+
+def _floor_probe_pose(dataset, width):
+    """The probe pose scores of the test split's floor, its frames matched here: each frame's prediction is the
+    probe of its grasp's nearest training grasp (as the manifest records it) in the same view and distance."""
+    from datagen.assets.probe import build_probe
+
+    floor = json.loads((dataset / "manifest.json").read_text())["split_floors"]["splits"]["test"]
+    with np.load(dataset / "train" / "annotations.npz") as tr, np.load(dataset / "test" / "annotations.npz") as te:
+        train, test = dict(tr), dict(te)
+    rows = []
+    for grasp, view, z in zip(test["grasp_id"], test["view_id"], test["z_ego"]):
+        nearest = floor["per_grasp"][str(grasp)]["nearest_train_grasp_id"]
+        same = (train["grasp_id"] == nearest) & (train["view_id"] == view) & (train["z_ego"] == z)
+        rows.append(np.flatnonzero(same)[0])
+    floor_corners = train["keypoints_3d_cam"][rows, 21:].astype(np.float64)
+    scores, _ = probe_pose_scores(floor_corners, test["keypoints_3d_cam"][:, 21:].astype(np.float64),
+                                     test["K"].astype(np.float64), width, build_probe())
+    assert scores["add_mm"] > 5.0   # another grasp's probe: not the truth
+    return scores
+
+
+def _mspd_of_a_shift(dataset, shift_m):
+    """(N,) per-frame MSPD (px) of the probe mesh moved by ``shift_m`` in the camera frame from its annotated
+    pose, under the half turn, computed with OpenCV's projection."""
+    import cv2
+
+    from datagen.assets.probe import build_probe
+
+    with np.load(dataset / "test" / "annotations.npz") as ann:
+        T, K = ann["T_cam_world"].astype(np.float64), ann["K"].astype(np.float64)
+    points = np.asarray(build_probe().mesh.vertices)
+    per_frame = []
+    for T_i, K_i in zip(T, K):
+        rvec = cv2.Rodrigues(T_i[:3, :3])[0]
+        moved = cv2.projectPoints(points, rvec, T_i[:3, 3] + shift_m, K_i, None)[0].reshape(-1, 2)
+        candidates = []
+        for S in M.PROBE_SYMMETRY_ROTATIONS["half_turn"]:
+            true = cv2.projectPoints(points, cv2.Rodrigues(T_i[:3, :3] @ S)[0], T_i[:3, 3], K_i, None)[0].reshape(-1, 2)
+            candidates.append(np.linalg.norm(moved - true, axis=1).max())
+        per_frame.append(min(candidates))
+    return np.array(per_frame)
 
 
 def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_path, monkeypatch):
@@ -312,6 +399,23 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
     assert re.search(r"\nsplit floor hand / probe / all +12\.00 / 30\.00 / 16\.97 mm \(nearest_train_grasp\)\n", table)
     assert re.search(r"\ntrack +unseen_grasps\n", table)
     assert f"grasp: {test_grasp}" in table and "theta_vol: theta_vol_z=180" in table
+    # the floor's probe pose: the manifest's nearest training grasp in each frame's view
+    width = manifest["image_size"][0]
+    assert r["metrics"]["split_floor_probe_pose"] == pytest.approx(_floor_probe_pose(dataset, width))
+    assert any(line.startswith("split floor probe pose (BOP): ADD ") for line in lines)
+    # a nearest-training-view floor does not record which frames it chose: no pose scores for it
+    def view_floor(m):
+        test_floor = _with_floors(m)["split_floors"]["splits"]["test"]
+        test_floor |= {"floor_kind": "nearest_train_view", "nearest_train_view_mm": _floor_triplet(3.0, 9.0)}
+        return _with_floors(m) | {"split_floors": {"definition": "d", "splits": {"test": test_floor}}}
+    view_dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_view_floor", view_floor)
+    monkeypatch.setattr(EV.EvalModel, "predict", _shifted_truth_predictor(tiny_dataset, 20))
+    lines.clear()
+    r = evaluate(ckpt, view_dataset, out=tmp_path / "view_floor.json", latency=False, batch_size=20,
+                 log=lines.append)["results"]
+    assert r["metrics"]["split_floor_probe_pose"] is None and r["metrics"]["probe_pose"] is not None
+    assert ("no probe pose metrics of the split floor: only the nearest-training-grasp floor records its choice"
+            in lines)
     # the train split has no floor, but the dataset's track
     monkeypatch.undo()
     r = evaluate(ckpt, dataset, split="train", out=tmp_path / "train.json", latency=False)["results"]

@@ -358,3 +358,43 @@ def test_middle_mcp_relative_error_is_optional_in_version_3(tmp_path):
     v2["metrics"]["middle_mcp_relative_hand_mpjpe_mm"] = 6.5
     with pytest.raises(ValueError, match=r"unknown key\(s\) \['middle_mcp_relative_hand_mpjpe_mm'\]"):
         validate_results(v2)
+
+
+def _probe_pose_block(**change):
+    return {"add_mm": 20.0, "add_s_mm": 8.0, "mssd_mm": 30.0, "mspd_px": 9.5, "add_accuracy": 0.4,
+            "add_s_accuracy": 0.9, "ar_mssd": 0.6, "ar_mspd": 0.5, "diameter_mm": 182.4, "image_width_px": 256,
+            "symmetry": "half_turn", "model_points": 6508} | change
+
+
+def test_probe_pose_blocks_are_optional_in_version_3(tmp_path):
+    """Files written before the BOP scores lack them and load unchanged; present, every field is checked."""
+    old = measured_row()
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    assert load_results(path) == old
+    assert {"probe_pose", "split_floor_probe_pose"} <= set(blank_results("measured", "r")["metrics"])
+    new = measured_row()
+    new["metrics"] |= {"probe_pose": _probe_pose_block(), "split_floor_probe_pose": None}
+    write_results(tmp_path / "new.json", new)
+    assert load_results(tmp_path / "new.json") == new
+    new["metrics"]["probe_pose"]["mspd_px"] = None   # a frame with a point behind the camera
+    validate_results(new)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"ar_mssd": 1.5}, r"\['probe_pose'\]\['ar_mssd'\] must be a finite number in \[0, 1\], got 1.5"),
+    ({"add_mm": None}, r"\['probe_pose'\]\['add_mm'\] must be a finite number >= 0, got None"),
+    ({"diameter_mm": 0.0}, r"\['probe_pose'\]\['diameter_mm'\] must be a finite number > 0, got 0.0"),
+    ({"image_width_px": 256.0}, r"\['probe_pose'\]\['image_width_px'\] must be an integer >= 1, got 256.0"),
+    ({"add_s_mm": 25.0}, r"\['probe_pose'\]\['add_s_mm'\] must be at most add_mm \(20.0\), got 25.0"),
+    ({"vsd": 0.1}, r"\['probe_pose'\] has unknown key\(s\) \['vsd'\]"),
+])
+def test_bad_probe_pose_fields_are_named(change, message):
+    row = measured_row()
+    row["metrics"]["probe_pose"] = _probe_pose_block(**change)
+    with pytest.raises(ValueError, match=message):
+        validate_results(row)
+    row = measured_row()
+    row["metrics"]["split_floor_probe_pose"] = _probe_pose_block(**change)
+    with pytest.raises(ValueError, match=message.replace("probe_pose", "split_floor_probe_pose", 1)):
+        validate_results(row)
