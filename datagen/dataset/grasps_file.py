@@ -25,6 +25,18 @@ GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id"
 #: what a dataset records of a grasps.npz when it is there: the probe orientation Theta_Vol (Euler
 #: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
 OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
+def read_grasps_probe_record(path: str | Path) -> dict:
+    """The record of the probe a grasps file was made for (:attr:`datagen.assets.probe.Probe.record`) without
+    building the probe: the JSON it carries, or ``{"kind": "procedural"}`` when it carries no mesh."""
+    import json
+
+    read_grasps(path)  # a missing or damaged file: its one-line error
+    with np.load(path, allow_pickle=False) as data:
+        if "probe_mesh_record" not in data.files:
+            return {"kind": "procedural"}
+        return json.loads(str(data["probe_mesh_record"]))
+
+
 def read_grasps_probe(path: str | Path | bytes):
     """The probe a grasps file (or its bytes) was made for: a :class:`datagen.assets.probe.Probe` built
     from the mesh it carries, or None when it carries none (the procedural probe's grasps).

@@ -42,7 +42,7 @@ from datagen.assets.backgrounds import BackgroundSet
 from datagen.assets.probe_mesh import ProbeSource
 from datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
                                       read_annotations, read_manifest)
-from datagen.dataset.grasps_file import GraspSet, read_grasps, rendered_with
+from datagen.dataset.grasps_file import GraspSet, read_grasps, read_grasps_probe_record, rendered_with
 from datagen.dataset.ray_launcher import RayOptions, check_launcher
 from datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
 from datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
@@ -159,10 +159,11 @@ class GenerateRun:
         check_writable(self.out_dir, "out_dir")
 
 
-def check_grasps_probe(grasps: GraspSet, source: ProbeSource) -> None:
-    """The grasps were made for the probe ``source`` names (the same file, unit and alignment), or one line
-    saying which probe each is."""
-    record = grasps.probe.record
+def check_grasps_probe(grasps_path: Path, source: ProbeSource) -> None:
+    """The grasps file was made for the probe ``source`` names (the same file, unit and alignment), or one line
+    saying which probe each is. Reads the file's probe record only (building the probe takes seconds, and this
+    runs before the folder's lock is asked for)."""
+    record = read_grasps_probe_record(grasps_path)
     spec = source.spec
     wanted = {"kind": "procedural"} if spec is None else spec.record()
     made = {k: v for k, v in record.items() if k in wanted}
@@ -170,7 +171,7 @@ def check_grasps_probe(grasps: GraspSet, source: ProbeSource) -> None:
         def say(r: dict) -> str:
             return "the procedural probe" if r["kind"] == "procedural" else \
                 f"probe.mesh={r['path']} (sha256 {r['sha256'][:12]}, unit {r['unit']}, align {r['align']})"
-        raise BadValueError(f"grasps file {grasps.path} was made for {say(record)} but this run names {say(wanted)}: "
+        raise BadValueError(f"grasps file {grasps_path} was made for {say(record)} but this run names {say(wanted)}: "
                             "pass the grasps' probe or make grasps for this one (`hupbench grasps probe.mesh=...`)")
 
 

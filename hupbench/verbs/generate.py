@@ -38,7 +38,6 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`datagen.dataset.writer.generate`'s
     dict."""
     from datagen.assets.backgrounds import BackgroundSet
-    from datagen.dataset.grasps_file import GraspSet
     from datagen.dataset.writer import check_grasps_probe, generate, run_lock
 
     # a bad photographs' folder fails before the default grasps take minutes
@@ -60,7 +59,7 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
                                 f"config selects {n_grasps}")
     else:
         # a bad file, or grasps made for another probe, fail before the folder is taken
-        check_grasps_probe(GraspSet(grasps_path), run.probe)
+        check_grasps_probe(grasps_path, run.probe)
     # one run per folder (or shard), from the default grasps to the manifest
     with run_lock(out_dir, run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():
