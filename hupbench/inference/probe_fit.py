@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -84,10 +85,8 @@ class ProbeFit:
 
 @dataclass(frozen=True)
 class _ProbeModel:
+    probe: Any                    # datagen.assets.probe.Probe: its signed distance and gradient
     corners: torch.Tensor         # (8, 3) box corners, probe frame, metres
-    grid: torch.Tensor            # (nx, ny, nz) signed distances, metres, negative inside
-    origin: torch.Tensor          # (3,) the node (0, 0, 0)
-    spacing: float
     marker: torch.Tensor          # (3,) the marker's centre, probe frame
     marker_normal: torch.Tensor   # (3,) its outward normal
     marker_channel: int           # the marker colour's strongest channel
@@ -105,45 +104,8 @@ def _probe_model() -> _ProbeModel:
     centre = (mesh.triangles_center[marked] * area[:, None]).sum(0) / area.sum()
     normal = (mesh.face_normals[marked] * area[:, None]).sum(0)
     as_t = lambda a: torch.tensor(np.array(a, dtype=np.float64), dtype=torch.float32)  # noqa: E731
-    return _ProbeModel(as_t(probe.corners_probe), as_t(probe.sdf_grid), as_t(probe.sdf_origin),
-                       float(probe.sdf_spacing), as_t(centre), as_t(normal / np.linalg.norm(normal)),
+    return _ProbeModel(probe, as_t(probe.corners_probe), as_t(centre), as_t(normal / np.linalg.norm(normal)),
                        int(np.argmax(PROBE_MARKER_RGB)))
-
-
-def _signed_distance(model: _ProbeModel, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Trilinear signed distance (...) and its gradient (..., 3) at probe-frame points q (..., 3); outside the
-    grid the distance to the grid box is added (its gradient points away from the box)."""
-    grid, h = model.grid, model.spacing
-    n = torch.tensor(grid.shape)
-    upper = model.origin + h * (n - 1).to(torch.float32)
-    clamped = torch.maximum(torch.minimum(q, upper), model.origin)
-    u = (clamped - model.origin) / h
-    i0 = torch.minimum(torch.floor(u).long().clamp_min(0), n - 2)
-    f = u - i0.to(u.dtype)
-    flat = grid.reshape(-1)
-    sx, sy = grid.shape[1] * grid.shape[2], grid.shape[2]
-    base = i0[..., 0] * sx + i0[..., 1] * sy + i0[..., 2]
-    fx, fy, fz = f.unbind(-1)
-    # along x, then y, then z; the derivative along each axis from the differences of the same lerps
-    ax, dx = {}, {}
-    for b in (0, 1):
-        for c in (0, 1):
-            v0, v1 = flat[base + b * sy + c], flat[base + sx + b * sy + c]
-            dx[b, c] = v1 - v0
-            ax[b, c] = v0 + fx * dx[b, c]
-    by = {c: ax[0, c] + fy * (ax[1, c] - ax[0, c]) for c in (0, 1)}
-    bdx = {c: dx[0, c] + fy * (dx[1, c] - dx[0, c]) for c in (0, 1)}
-    bdy = {c: ax[1, c] - ax[0, c] for c in (0, 1)}
-    value = by[0] + fz * (by[1] - by[0])
-    gx = bdx[0] + fz * (bdx[1] - bdx[0])
-    gy = bdy[0] + fz * (bdy[1] - bdy[0])
-    gz = by[1] - by[0]
-    grad = torch.stack([gx, gy, gz], dim=-1) / h
-    out = q - clamped
-    dist_out = out.norm(dim=-1)
-    outside = dist_out > 0
-    grad = torch.where(outside[..., None], out / dist_out.clamp_min(1e-12)[..., None], grad)
-    return value + dist_out, grad
 
 
 def _turn_z(angles: torch.Tensor) -> torch.Tensor:
@@ -176,7 +138,7 @@ def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.
     (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
     for step in range(ITERATIONS):
         q = (p - t[:, None]) @ R                                                 # R^T (p - t), probe frame
-        d, g = _signed_distance(model, q)
+        d, g = model.probe.signed_distance_and_gradient_torch(q)
         trim = TRIM_M[0] if step < ITERATIONS // 2 else TRIM_M[1]
         w = w_real * (d.abs() < trim).float()
         J = torch.cat([torch.cross(q, g, dim=-1), g], dim=-1)                   # (N, P, 6)
@@ -184,7 +146,7 @@ def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.
         delta = torch.linalg.solve(A, -((J * (w * d)[..., None]).sum(1)))      # (N, 6)
         R = R @ axis_angle_to_matrix(delta[:, :3]).transpose(1, 2)
         t = t - (R @ delta[:, 3:, None]).squeeze(-1)
-    d, _ = _signed_distance(model, (p - t[:, None]) @ R)
+    d, _ = model.probe.signed_distance_and_gradient_torch((p - t[:, None]) @ R)
     inliers = (w_real * (d.abs() < INLIER_M)).sum(1)
     return R, t, inliers - INSIDE_PENALTY * (w_real * (d < -INSIDE_M)).sum(1), inliers
 

@@ -85,7 +85,7 @@ def test_signed_distance_and_gradient_match_the_probe():
     q = np.random.default_rng(0).uniform([-0.06, -0.04, -0.03], [0.06, 0.04, 0.2], (4000, 3))
     import torch
 
-    d, g = F._signed_distance(F._probe_model(), torch.tensor(q, dtype=torch.float32))
+    d, g = probe.signed_distance_and_gradient_torch(torch.tensor(q, dtype=torch.float32))
     np.testing.assert_allclose(d.numpy(), probe.signed_distance(q), atol=2e-6)
     # the gradient inside the grid's box (outside it the fit leaves the points out: they are far from the surface)
     upper = probe.sdf_origin + probe.sdf_spacing * (np.array(probe.sdf_grid.shape) - 1)
