@@ -60,16 +60,13 @@ class _DefaultsHelp(argparse.HelpFormatter):
 
 def _hydra_verb(verb: str, args: list[str], run) -> int:
     """A verb over a Hydra config: ``--help`` (the config's keys with defaults), ``--cfg job`` (the composed
-    config as YAML, nothing run), else ``run(args)``. ``run`` gets the command line when the verb has options of
-    its own (quickstart's ``--fast``), else the overrides."""
-    from hupbench.config import compose, config_yaml, hydra_verb_parser
+    config as YAML, nothing run), else ``run(overrides)`` (quickstart's ``--fast`` as ``fast=true``)."""
+    from hupbench.config import config_yaml, hydra_verb_parser
 
     config_name, examples = HYDRA_VERBS[verb]
     overrides = [a for a in args if "=" in a and not a.startswith("-")]
-    if "-h" in args or "--help" in args:
-        compose(config_name, overrides)  # a bad override is an error, not a help of other defaults
     parser = hydra_verb_parser(f"hupbench {verb}", config_name, VERBS[verb], examples,
-                               overrides if "-h" in args or "--help" in args else ())
+                               overrides if "-h" in args or "--help" in args else None)
     if verb == "quickstart":
         parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version (fast=true)")
     # intermixed: options may stand anywhere among the overrides
@@ -80,20 +77,13 @@ def _hydra_verb(verb: str, args: list[str], run) -> int:
         return 0
     if ns.resolve:
         parser.error("--resolve goes with --cfg job")
-    return run(args if verb == "quickstart" else ns.overrides)
+    return run([*ns.overrides, *fast])
 
 
-def _quickstart(args: list[str]) -> int:
+def _quickstart(overrides: list[str]) -> int:
     from hupbench.config import compose
     from hupbench.verbs.quickstart import run_quickstart, summary_lines
 
-    parser = argparse.ArgumentParser(prog="hupbench quickstart", epilog="overrides: Hydra key=value of "
-                                     "conf/quickstart.yaml, e.g. out_dir=/tmp/qs stop_after=dataset")
-    parser.add_argument("--fast", action="store_true", help="the one-to-two-minute smoke version")
-    parser.add_argument("overrides", nargs="*", metavar="key=value")
-    # intermixed: `--fast` may stand anywhere among the overrides (after one, argparse refused the rest)
-    ns = parser.parse_intermixed_args(args)
-    overrides = [*ns.overrides, "fast=true"] if ns.fast else ns.overrides
     result = run_quickstart(compose("quickstart", overrides))
     print("\n".join(summary_lines(result)))
     return 0

@@ -251,14 +251,15 @@ def _shortened(text: str, limit: int) -> str:
 
 
 def hydra_verb_parser(prog: str, config_name: str, description: str, examples: Sequence[str],
-                      overrides: Sequence[str] = ()) -> argparse.ArgumentParser:
+                      overrides: Sequence[str] | None = ()) -> argparse.ArgumentParser:
     """The command line of a verb over ``conf/<config_name>.yaml``: ``key=value`` overrides, ``--cfg job``
     and ``--resolve`` as Hydra apps have them, and a ``--help`` that lists the config's keys with their
-    defaults (composed with ``overrides``) and meanings, then ``examples``."""
-    epilog = (f"config keys (conf/{config_name}.yaml composed"
-              f"{' with ' + ' '.join(overrides) if overrides else ''}; key=default, then its meaning):\n"
-              f"{keys_help(config_name, overrides)}\n\n"
-              "examples:\n" + "\n".join(f"  {e}" for e in examples))
+    defaults (composed with ``overrides``, where a bad one is an error) and meanings, then ``examples``.
+    ``overrides`` None: no key table (composing and reading the YAML files is for a help that was asked for)."""
+    keys = "" if overrides is None else (
+        f"config keys (conf/{config_name}.yaml composed{' with ' + ' '.join(overrides) if overrides else ''}; "
+        f"key=default, then its meaning):\n{keys_help(config_name, overrides)}\n\n")
+    epilog = keys + "examples:\n" + "\n".join(f"  {e}" for e in examples)
     width = _help_width() - 2
     parser = argparse.ArgumentParser(prog=prog, description=textwrap.fill(description, width), epilog=epilog,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

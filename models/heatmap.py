@@ -74,7 +74,7 @@ class HUPNetOutput(NamedTuple):
             [-1, 1] by up to the canvas margin).
         points3d: (B, N, 3) float, the training target's units, OpenCV camera frame of K_input.
         points2d_init: (B, N, 2) the heatmaps' own 2D points where the probe head replaces the corners', else None.
-        confidence: (B, N) float32 in [0, 1], each keypoint's :func:`heatmap_confidence` (for the probe head's
+        confidence: (B, N) float32 in [0, 1], in eval mode, each keypoint's :func:`heatmap_confidence` (for the probe head's
             corners, their heatmaps'); no gradient flows through it.
     """
 
@@ -312,7 +312,8 @@ class HUPNet(nn.Module):
             p = self.fine(F.interpolate(p, scale_factor=2, mode="nearest") + F.pad(self.lateral2(c2), (2 * m,) * 4))
         grid = self.grid.to(p.dtype)
         logits = self.heatmap(p)                                                     # (B, N, H, W)
-        confidence = heatmap_confidence(logits)                                      # (B, N)
+        # for predict only: the loss never reads it, so training skips the second softmax
+        confidence = None if self.training else heatmap_confidence(logits)          # (B, N)
         if self.config.depth_anchor:
             points2d, _ = soft_argmax(logits, grid, grid)                            # (B, N, 2)
             depth = self._anchored_depth(images, p)                                  # (B, N)

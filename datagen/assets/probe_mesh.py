@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from datagen.assets.probe_shape import RegionZ
 from datagen.errors import BadValueError, MissingFileError
+from datagen.io import file_sha256
 from datagen.mesh_distance import (
     FEATURE_EAB,
     FEATURE_EBC,
@@ -124,10 +125,6 @@ def check_mesh_path(path) -> Path:
     if not path.is_file():
         raise MissingFileError(f"probe.mesh {path} not found")
     return path
-
-
-def file_sha256(path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 @dataclass(frozen=True)

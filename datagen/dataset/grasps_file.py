@@ -231,7 +231,8 @@ def probe_of_dataset(root_or_manifest) -> "Probe":
     import json
 
     from datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
-    from datagen.assets.probe_mesh import ProbeMeshSpec, file_sha256
+    from datagen.assets.probe_mesh import ProbeMeshSpec
+    from datagen.io import file_sha256
 
     if isinstance(root_or_manifest, dict):
         manifest, root = root_or_manifest, None

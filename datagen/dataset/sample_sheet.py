@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from datagen.dataset.contract import frame_path, read_annotations, read_manifest
+from datagen.dataset.contract import SEG_LABELS, SPLITS, frame_path, read_annotations, read_manifest
 from datagen.dataset.verify_images import read_image
 from datagen.errors import BadValueError
 from datagen.render.draw import (
@@ -39,7 +39,6 @@ from datagen.render.draw import (
 
 _KEYS = ("frame_id", "keypoints_2d", "visible", "background_id", "glove_id", "grasp_index", "grasp_id", "z_ego",
          "view_id", "theta", "phi")
-SPLITS = ("train", "val", "test")
 
 
 def _check_modalities(manifest: dict) -> None:
@@ -94,7 +93,7 @@ def legends(manifest: dict, depth_range_m: tuple[float, float], width: int) -> n
     Returns:
         (H, width, 3) uint8.
     """
-    labels = sorted(manifest.get("seg_labels", {"background": 0, "hand": 1, "arm": 2, "probe": 3}).items(),
+    labels = sorted(manifest.get("seg_labels", SEG_LABELS).items(),
                     key=lambda item: item[1])
     side = width >= 900  # three columns side by side, or one under another on a narrow sheet
     part = width // 3 if side else width

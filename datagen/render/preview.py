@@ -14,13 +14,31 @@ from pathlib import Path
 import numpy as np
 
 from datagen import keypoints as kp
-from datagen.camera import Intrinsics, look_at, project_points
-from datagen.render.draw import colorize_depth, colorize_labels, draw_keypoints, grid, titled, write_png
-from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle, transform_points
 from datagen.assets.hand_anatomy import anatomical_to_pose
-from datagen.render.renderer import MODALITIES, PointLight, Renderer, RenderSettings, check_modalities
-from datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
+from datagen.assets.probe_shape import ProbeSpec
+from datagen.camera import Intrinsics, look_at, project_points
 from datagen.errors import BadValueError
+from datagen.geometry import (
+    axis_angle_to_matrix,
+    matrix_to_axis_angle,
+    transform_points,
+)
+from datagen.render.draw import (
+    colorize_depth,
+    colorize_labels,
+    draw_keypoints,
+    grid,
+    titled,
+    write_png,
+)
+from datagen.render.renderer import (
+    MODALITIES,
+    PointLight,
+    Renderer,
+    RenderSettings,
+    check_modalities,
+)
+from datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
 
 
 @dataclass(frozen=True)
@@ -111,7 +129,7 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         tiles.append(titled(colorize_labels(frames["seg"]), "labels: hand (blue) arm (orange) probe (grey)"))
     base = frames["rgb"] if "rgb" in frames else np.full((intrinsics.height, intrinsics.width, 3), 255, np.uint8)
     tiles.append(titled(draw_keypoints(base, keypoints_2d), f"{kp.NUM_KEYPOINTS} keypoints"))
-    if probe is not None and probe.record["kind"] == "mesh":
+    if probe is not None and not isinstance(probe.spec, ProbeSpec):  # a mesh probe (its record hashes the mesh)
         tiles.append(titled(_probe_axes(base, T_cam_world, intrinsics), "probe frame: x red, y green, z blue"))
     sheet = grid(tiles, columns=2)
     return {**frames, "sheet": sheet, "keypoints_cam": keypoints_cam, "keypoints_2d": keypoints_2d,

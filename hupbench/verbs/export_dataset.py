@@ -251,12 +251,11 @@ def models_info(mesh_m, symmetric: bool) -> dict:
     """BOP's ``models_info`` entry of the probe: the box and the diameter (largest distance between two vertices)
     in mm, and, when ``symmetric``, the half turn about the model's z axis as ``symmetries_discrete`` (a
     row-major 4 x 4, mm)."""
-    from scipy.spatial.distance import pdist
+    from hupbench.metrics import object_diameter_m
 
     vertices = np.asarray(mesh_m.vertices, np.float64) * MM_PER_M
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    hull = vertices[_hull_indices(mesh_m)]
-    info = {"diameter": float(pdist(hull).max()),
+    info = {"diameter": object_diameter_m(mesh_m.vertices) * MM_PER_M,
             **{f"min_{a}": float(v) for a, v in zip("xyz", lo)}, **{f"size_{a}": float(v) for a, v in zip("xyz", hi - lo)}}
     if symmetric:
         from hupbench.metrics import HALF_TURN_Z
@@ -265,13 +264,6 @@ def models_info(mesh_m, symmetric: bool) -> dict:
         half_turn[:3, :3] = HALF_TURN_Z
         info["symmetries_discrete"] = [half_turn.ravel().tolist()]
     return info
-
-
-def _hull_indices(mesh_m) -> np.ndarray:
-    """Indices of the mesh's vertices on its convex hull (the diameter is reached between two of them)."""
-    from scipy.spatial import ConvexHull
-
-    return ConvexHull(np.asarray(mesh_m.vertices, np.float64)).vertices
 
 
 def _probe_symmetric(ann_by_split: dict) -> bool:

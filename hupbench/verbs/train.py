@@ -76,11 +76,8 @@ def main(argv: Sequence[str], prog: str = "hupbench train", debug: bool | None =
         debug = os.environ.get("HYDRA_FULL_ERROR") == "1"
     try:
         if "-h" in argv or "--help" in argv:
-            from hupbench.config import compose
-
             overrides = [a for a in argv if "=" in a and not a.startswith("-")]
-            compose("train", overrides)  # a bad override is an error, not a help of other defaults
-            print(help_text(prog, overrides), end="")
+            print(help_text(prog, overrides), end="")  # composed with them: a bad one is an error
             return 0
         _run_hydra(argv, prog, debug)
     except SystemExit as exc:  # Hydra's usage errors (exit 2) and a refused run (exit 1, its line printed)
