@@ -6,7 +6,8 @@ For the probe's 8 corners and the hand's 21 joints of each frame:
     about centroid   MPJPE after moving the prediction's centroid onto the truth's (how the set is turned or shaped)
     rigid        MPJPE after the best rotation and translation (no scale): what no rigid pose could fix (shape)
     z / xy       mean |error| along the optical axis and in the image plane, per keypoint, mm
-and the same for the probe under its half turn (the closer labelling per frame, as eval's symmetric score).
+and the same for the probe under its half turn (the closer labelling per frame, as eval's symmetric score);
+the wrist's own error and the hand MPJPE relative to the wrist and to the middle MCP (keypoint 9).
 Per test grasp, the probe's turn: the rotation between the box fitted to the predicted corners and the true
 box (median angle, the share of frames turned 60-150 degrees, and how much of the turn is about the probe's
 long axis: the mean |cosine| between the rotation's axis and it), beside the centroid's error.
@@ -107,6 +108,12 @@ def main() -> None:
                          "probe, half turn": (pred[:, probe], gt_sym)}.items():
         print(f"{name:18s}" + "".join(f"{v:15.2f}" for v in decompose(p, g).values()))
     print(f"probe half-turned labels closer on {closer.mean():.0%} of frames")
+    from hupbench import metrics
+
+    wrist = float(metrics.keypoint_errors_mm(pred, gt)[:, metrics.ROOT_INDEX].mean())
+    print(f"hand: wrist (keypoint 0) {wrist:.2f} mm absolute; hand MPJPE relative to the wrist "
+          f"{metrics.root_relative_mpjpe_mm(pred, gt):.2f}, to the middle MCP (keypoint 9) "
+          f"{metrics.root_relative_mpjpe_mm(pred, gt, root=metrics.MIDDLE_MCP_INDEX):.2f}")
     R = rotation_onto(gt[:, probe], pred[:, probe])
     angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     axis = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
