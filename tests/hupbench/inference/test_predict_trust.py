@@ -71,6 +71,13 @@ def test_calibration_known_answer_and_round_trip():
     held_out = rng.normal(size=(200, 10)) * np.arange(1, 11) + 5.0
     cal = stats.calibrate(train, held_out, "val")
     assert cal.distance(train.mean(axis=0)[None])[0] == pytest.approx(0.0, abs=1e-9)
+    # against scipy's Mahalanobis distance with the documented shrunk covariance, written out here
+    from scipy.spatial.distance import mahalanobis
+
+    cov = np.cov(train, rowvar=False)
+    shrunk = (1 - stats.SHRINKAGE) * cov + stats.SHRINKAGE * np.trace(cov) / 10 * np.eye(10)
+    expected = [mahalanobis(x, train.mean(0), np.linalg.inv(shrunk)) for x in held_out[:5]]
+    np.testing.assert_allclose(cal.distance(held_out[:5]), expected, rtol=1e-5)
     distances = cal.distance(held_out)
     assert cal.threshold == pytest.approx(np.percentile(distances, 99))
     assert np.mean(distances > cal.threshold) == pytest.approx(0.01, abs=0.006)

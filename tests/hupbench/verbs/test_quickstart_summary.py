@@ -51,3 +51,13 @@ def test_split_in_words():
     assert split_words({"train": 3, "val": 1, "test": 1}).startswith(
         "3 grasps to train on, 1 to validate on, 1 held out for the test")
     assert split_words({"train": 1, "val": 1, "test": 1}).startswith("1 grasp to train on")
+
+
+def test_summary_prints_the_test_error_beside_the_split_floor(tmp_path):
+    result = _result(tmp_path) | {"floor_mm": {"all": 22.27, "hand": 8.17, "probe": 59.3}}
+    lines = summary_lines(result)
+    assert ("test MPJPE: all 100.0 mm (mean over 29 keypoints), hand 90.0 mm, probe 126.2 mm  (a short CPU run: see "
+            "leaderboard/ for the real ones)") in lines
+    floor = lines.index("test split's floor (the nearest training grasp under the true camera, what recalling training "
+                        "grasps scores): all 22.3 mm, hand 8.2 mm, probe 59.3 mm")
+    assert lines[floor - 1].startswith("test MPJPE: ")
