@@ -257,7 +257,7 @@ def _predict(args: list[str]) -> int:
         epilog="examples:\n"
                "  hupbench predict RUN/checkpoints/last.onnx my_photos/ --out /tmp/predictions\n"
                "  hupbench predict RUN/checkpoints/last.onnx hupbench_out/dataset/test/rgb/000000.jpg \\\n"
-               "      --depth hupbench_out/dataset/test/depth    # a model that reads depth (model=hupnet_fit)")
+               "      --depth hupbench_out/dataset/test/depth    # a model that reads depth (model=hupnet_handfit)")
     parser.add_argument("model", metavar="MODEL.onnx", help="a model written by `hupbench export`")
     parser.add_argument("inputs", nargs="+", metavar="IMAGE_OR_DIR", help="image files and/or folders of images")
     parser.add_argument("--out", default="predictions", help="output folder (predictions.json, *_overlay.png)")

@@ -57,9 +57,10 @@ def build_model(saved: Mapping[str, Any]) -> nn.Module:
     if unexpected:
         raise ValueError(f"model {name!r} does not take {', '.join(unexpected)}; it takes: {', '.join(known)}")
     built = config(**{key: value for key, value in saved.items() if key != "name"})
-    if built.probe_fit == "depth" and built.input_channels != 4:  # the channels are filled in after composition
-        raise ValueError("probe_fit 'depth' fits the probe to the depth input: it needs "
-                         "data.reader.input_modalities=rgb+depth")
+    for name, part in (("probe_fit", "the probe"), ("hand_fit", "the hand")):
+        if getattr(built, name) == "depth" and built.input_channels != 4:  # the channels are filled in after composition
+            raise ValueError(f"{name} 'depth' fits {part} to the depth input: it needs "
+                             "data.reader.input_modalities=rgb+depth")
     return model(built)
 
 

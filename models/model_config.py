@@ -15,9 +15,8 @@ import torch
 
 from models.resnet import check_backbone
 
-
-#: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`)
-PROBE_FITS = ("none", "depth")
+#: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
+FITS = ("none", "depth")
 
 
 def nested(value: Any) -> Any:
@@ -62,6 +61,8 @@ class ModelConfig:
         probe_fit: what runs after the network on its output: "none", or "depth" (the probe's corners refined by
             fitting the probe's surface to the depth input, :mod:`hupbench.inference.probe_fit`; needs
             ``input_channels`` 4). Eval and predict run it; training and its validation curve do not.
+        hand_fit: the same for the hand: "none", or "depth" (the 21 joints refined by fitting a capsule hand to
+            the depth input, :mod:`hupbench.inference.hand_fit`, after the probe's fit where both are asked).
     """
 
     #: the model's name in a saved config (:data:`models.build.MODELS`)
@@ -76,6 +77,7 @@ class ModelConfig:
     points3d_scale: float = 1.0
     input_channels: int = 3
     probe_fit: str = "none"
+    hand_fit: str = "none"
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -84,8 +86,9 @@ class ModelConfig:
         check_whole("n_keypoints", self.n_keypoints, self.min_keypoints)
         if self.input_channels not in (3, 4):
             raise ValueError(f"input_channels must be 3 (RGB) or 4 (RGB and depth), got {self.input_channels!r}")
-        if self.probe_fit not in PROBE_FITS:
-            raise ValueError(f"probe_fit must be one of {', '.join(PROBE_FITS)}, got {self.probe_fit!r}")
+        for name in ("probe_fit", "hand_fit"):
+            if getattr(self, name) not in FITS:
+                raise ValueError(f"{name} must be one of {', '.join(FITS)}, got {getattr(self, name)!r}")
         scale = self.points3d_scale
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"points3d_scale must be a positive finite number, got {scale!r}")

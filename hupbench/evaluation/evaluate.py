@@ -29,9 +29,8 @@ from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
 from hupbench.evaluation.results import FLOOR_NAMES, validate_grasp_theta_vol, validate_split_floor
+from hupbench.inference.model_file import after_network, fits
 from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
-from hupbench.inference.model_file import fits_probe
-from hupbench.inference.probe_fit import fit_probe
 from hupbench.input_geometry import INPUT_MODALITIES
 
 __all__ = ["LATENCY_RUNS", "EvalOptions", "count_flops", "default_figures_dir", "default_results_path",
@@ -146,8 +145,7 @@ def model_label(model_config: dict, input_size: int) -> str:
     if model_config.get("probe_head") == "rigid":
         parts.append("rigid probe" + (f", {model_config['probe_crop_px']} px probe crop"
                                       if model_config.get("probe_crop_px") else ""))
-    if fits_probe(model_config):
-        parts.append("probe fitted to depth")
+    parts += [f"{part} fitted to depth" for part in fits(model_config)]
     return f"{name} ({', '.join(parts)})"
 
 
@@ -306,21 +304,18 @@ class EvalModel:
         self.run_name = default_run_name(path, payload)
 
     @property
-    def fits_probe(self) -> bool:
-        """Whether the model's config asks for the probe's fit after the network."""
-        return fits_probe(self.model_config)
+    def fits(self) -> bool:
+        """Whether the model's config asks for a fit after the network (:func:`hupbench.inference.model_file.fits`)."""
+        return bool(fits(self.model_config))
 
     def after_network(self, images: np.ndarray, outputs: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """What runs on the network's (points2d, points3d) float64 outputs for (B, C, S, S) model images: the probe's
-        fit to the depth input where the model asks for it, else nothing."""
-        if not self.fits_probe:
-            return outputs
-        points2d, points3d, _ = fit_probe(*outputs, images, self.K_input)
-        return points2d, points3d
+        """What runs on the network's (points2d, points3d) float64 outputs for (B, C, S, S) model images: the fits
+        to the depth input the model asks for, else nothing."""
+        return after_network(self.model_config, *outputs, images, self.K_input)
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """(B, C, S, S) model images -> points2d (B, 29, 2) normalised, points3d (B, 29, 3) metres, float64 numpy:
-        the network's output, and the probe's fit to the depth input after it where the model asks for it."""
+        the network's output, and the fits to the depth input after it where the model asks for them."""
         if self.module is not None:
             with torch.inference_mode():
                 points2d, points3d = self.module(images)
@@ -511,7 +506,7 @@ def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progre
     from datagen.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
-    after = net.after_network if net.fits_probe else None  # the fit is part of the model's run time
+    after = net.after_network if net.fits else None  # the fits are part of the model's run time
     if net.format == "onnx":
         return _latencies(None, net.path, net.input_size, net.channels, torch.get_num_threads(), log, progress,
                           after=after)

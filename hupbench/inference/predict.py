@@ -59,8 +59,9 @@ from hupbench.inference.images import (
 from hupbench.inference.model_file import (
     CONFIDENCE,
     NO_CONFIDENCE,
+    after_network,
     check_intrinsics,
-    fits_probe,
+    fits,
 )
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.runtime import (
@@ -381,11 +382,9 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
         depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
         images = np.stack([item[2] for item in loaded])
         points2d, points3d, confidence = run_onnx_with_confidence(model, images, depth)  # (B, C, S, S) -> (B, N, *)
-        if fits_probe(model.model_config):  # torch is imported only for a model that fits
-            from hupbench.inference.probe_fit import fit_probe
-
-            points2d, points3d, _ = fit_probe(points2d, points3d, np.concatenate([images, depth], axis=1),
-                                              model.K_input)
+        if fits(model.model_config):
+            points2d, points3d = after_network(model.model_config, points2d, points3d,
+                                               np.concatenate([images, depth], axis=1), model.K_input)
         K_user = options.K
         for b, (record, image, _, geometry, _) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):

@@ -49,7 +49,7 @@ import torch
 from datagen import keypoints as kp
 from datagen.rotations_torch import axis_angle_to_matrix
 from hupbench.input_geometry import pixels_to_normalized
-from hupbench.metrics import rotation_onto
+from hupbench.metrics import fit_rigid_pose
 
 __all__ = ["DECISIONS", "ProbeFit", "fit_probe"]
 
@@ -200,10 +200,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         depth = torch.as_tensor(images[:, 3], dtype=torch.float32)
         corners = np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64)
         B = len(images)
-        box = model.corners.double().numpy()
-        rotation0 = rotation_onto(np.broadcast_to(box, corners.shape), corners)  # the network's pose
-        R0 = torch.as_tensor(rotation0, dtype=torch.float32)
-        t0 = torch.as_tensor(corners.mean(1) - box.mean(0) @ rotation0.transpose(0, 2, 1), dtype=torch.float32)
+        network = torch.as_tensor(fit_rigid_pose(model.corners.double().numpy(), corners), dtype=torch.float32)
+        R0, t0 = network[:, :3, :3], network[:, :3, 3]                            # the network's pose
         box_centre = model.corners.mean(0)
         reach = float((model.corners - box_centre).norm(dim=-1).max()) + REACH_M
         points, weight = _measured_points(depth, K, box_centre @ R0.transpose(1, 2) + t0, reach)

@@ -32,6 +32,7 @@ from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
 from hupbench.training.run_config import TrainRun, train_config
 from hupbench.verbs.grasps import GraspsRun
+from hupbench.verbs.train import RECOMMENDED_EXPERIMENT
 
 STAGES = ("preview", "grasps", "dataset", "verify", "train", "eval", "export", "predict")
 #: the stages whose verbs take a list of overrides (the quickstart's keys of the same names)
@@ -399,7 +400,8 @@ def next_lines(result: dict) -> list[str]:
         f"  look at the dataset:         hupbench verify {dataset} --sample-sheet sample_sheet.png",
         f"  training curves:             tensorboard --logdir {Path(run_dir) / 'tb'}",
         f"  evaluate with figures:       hupbench eval {checkpoint} {dataset} --figures",
-        ("  train a real model:          hupbench train +experiment=paper_hupnet_fit_cpu   "
-         "(or: python train.py +experiment=paper_hupnet_fit_cpu; its dataset first: hupbench generate +track=unseen_grasps)"),
-        "  the leaderboard's protocol:  bash scripts/paper_protocol.sh paper_hupnet_fit_cpu",
+        (f"  train a real model:          hupbench train +experiment={RECOMMENDED_EXPERIMENT}   "
+         f"(or: python train.py +experiment={RECOMMENDED_EXPERIMENT}; its dataset first: hupbench generate "
+         "+track=unseen_grasps)"),
+        f"  the leaderboard's protocol:  bash scripts/paper_protocol.sh {RECOMMENDED_EXPERIMENT}",
     ]

@@ -19,13 +19,17 @@ from omegaconf import DictConfig, open_dict
 
 from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
 
+#: the best measured row of leaderboard/README.md: its model (conf/model/) and its recipe (conf/experiment/)
+RECOMMENDED_MODEL = "hupnet_handfit"
+RECOMMENDED_EXPERIMENT = "paper_hupnet_handfit_cpu"
+
 DESCRIPTION = ("Train a 3D hand + probe pose model on a dataset made by `hupbench generate` (conf/train.yaml: the "
                "groups model, data and optim). Writes OUT_ROOT/RUN_NAME/: run.json, metrics.jsonl, "
                "checkpoints/last.pt and best.pt, tb/, summary.json; the same command resumes an interrupted run. "
                "Recommended model: the best measured row of leaderboard/README.md is the depth-anchored HUPNet "
-               "with the probe fitted to the depth, model=hupnet_fit (its recipe: +experiment=paper_hupnet_fit_cpu; "
-               "it reads depth, so the dataset needs its depth modality, the default). The quickstart trains "
-               "model=hopenet_r10_128, the smallest.")
+               f"with the probe and the hand fitted to the depth, model={RECOMMENDED_MODEL} (its recipe: "
+               f"+experiment={RECOMMENDED_EXPERIMENT}; it reads depth, so the dataset needs its depth modality, the "
+               "default). The quickstart trains model=hopenet_r10_128, the smallest.")
 
 
 def run_train(cfg: DictConfig) -> dict:
@@ -43,12 +47,12 @@ def _command(prog: str) -> str:
 def examples(prog: str) -> list[str]:
     """The examples of ``PROG --help``, each a command line to run."""
     command = _command(prog)
-    return [f"{command} +experiment=paper_hupnet_fit_cpu    # the recommended model's recipe (conf/experiment/)",
+    return [f"{command} +experiment={RECOMMENDED_EXPERIMENT}    # the recommended model's recipe (conf/experiment/)",
             (f"{command} model=hopenet_r10_128 train.max_steps=400 data.batch_size=32 precision=fp32"
              "    # a short run of the quickstart's model"),
-            f"{command} model=hupnet_fit data.root=hupbench_out/dataset device=cuda",
+            f"{command} model={RECOMMENDED_MODEL} data.root=hupbench_out/dataset device=cuda",
             f"{command} -m model=hopenet_r10_128,resnet50_128 train.max_steps=500    # a sweep, one folder per job",
-            f"{command} --cfg job +experiment=paper_hupnet_fit_cpu    # print the composed config, run nothing"]
+            f"{command} --cfg job +experiment={RECOMMENDED_EXPERIMENT}    # print the composed config, run nothing"]
 
 
 def help_text(prog: str, overrides: Sequence[str] = ()) -> str:

@@ -104,11 +104,12 @@ def test_backbone_mismatch_and_bad_state():
         load_checkpoint_state(r10, state)
 
 
-def test_probe_fit_is_checked_where_the_model_is_built():
-    with pytest.raises(ValueError, match="probe_fit must be one of none, depth, got 'icp'"):
-        build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "icp"})
-    with pytest.raises(ValueError, match="probe_fit 'depth' fits the probe to the depth input: it needs "
+@pytest.mark.parametrize(("key", "part"), [("probe_fit", "the probe"), ("hand_fit", "the hand")])
+def test_the_fits_are_checked_where_the_model_is_built(key, part):
+    with pytest.raises(ValueError, match=f"{key} must be one of none, depth, got 'icp'"):
+        build_model({"name": "hopenet", "backbone": "resnet10", key: "icp"})
+    with pytest.raises(ValueError, match=f"{key} 'depth' fits {part} to the depth input: it needs "
                                          "data.reader.input_modalities=rgb\\+depth"):
-        build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "depth"})
-    built = build_model({"name": "hopenet", "backbone": "resnet10", "probe_fit": "depth", "input_channels": 4})
-    assert built.config.saved()["probe_fit"] == "depth"
+        build_model({"name": "hopenet", "backbone": "resnet10", key: "depth"})
+    built = build_model({"name": "hopenet", "backbone": "resnet10", key: "depth", "input_channels": 4})
+    assert built.config.saved()[key] == "depth"

@@ -114,29 +114,36 @@ def test_depth_errors_name_the_file(rgbd_model, exported, tiny_dataset, tmp_path
     assert answer.rc == 1 and "single-channel 16-bit, got uint8" in records[0]["error"]
 
 
-def test_a_model_that_fits_the_probe_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp_path, monkeypatch):
-    """probe_fit: depth travels in the checkpoint and the ONNX metadata, and eval (either format) and predict run
-    hupbench.inference.probe_fit after the network on its output and its RGB-D input (the fit itself:
-    test_probe_fit.py); here a stand-in fit moves the corners by 1 cm so that its use is seen."""
+@pytest.mark.parametrize("asked", [("probe",), ("hand",), ("probe", "hand")])
+def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp_path, monkeypatch, asked):
+    """probe_fit / hand_fit: depth travel in the checkpoint and the ONNX metadata, and eval (either format) and
+    predict run hupbench.inference.probe_fit and hand_fit after the network, the probe's first, on its output and
+    its RGB-D input (the fits themselves: test_probe_fit.py, test_hand_fit.py); here stand-in fits move the corners
+    by 1 cm and the hand by 2 cm so that their use and order are seen."""
     from datagen import keypoints as kp
     from hupbench.evaluation import evaluate
-    from hupbench.inference import probe_fit
+    from hupbench.inference import hand_fit, probe_fit
 
-    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth")
+    fits = {f"{part}_fit": "depth" for part in asked}
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, **fits)
     onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
                                   log=lambda *_: None)["onnx"])
     props = {p.key: p.value for p in onnx.load(str(onnx_path)).metadata_props}
-    assert json.loads(props["hupbench.model_config"])["probe_fit"] == "depth"
-    inputs = []
+    saved = json.loads(props["hupbench.model_config"])
+    assert {key: saved[key] for key in ("probe_fit", "hand_fit")} == {
+        key: fits.get(key, "none") for key in ("probe_fit", "hand_fit")}
+    calls = []
 
-    def stand_in(points2d, points3d, images, K_input):
-        inputs.append(images.shape)
-        moved = np.array(points3d, dtype=np.float64)
-        moved[:, kp.CORNER_SLICE] += 0.01
-        return np.array(points2d, dtype=np.float64), moved, None
+    def stand_in(part, where, by):
+        def fit(points2d, points3d, images, K_input):
+            calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
+            moved = np.array(points3d, dtype=np.float64)
+            moved[:, where] += by
+            return np.array(points2d, dtype=np.float64), moved, None
+        return fit
 
-    monkeypatch.setattr(probe_fit, "fit_probe", stand_in)
-    monkeypatch.setattr(evaluate, "fit_probe", stand_in)
+    monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe", kp.CORNER_SLICE, 0.01))
+    monkeypatch.setattr(hand_fit, "fit_hand", stand_in("hand", kp.HAND_SLICE, 0.02))
     images, depth_dir = frames(tiny_dataset, 2)
     result = run_predict(PredictOptions(onnx_path, images, tmp_path / "out", depth_dir=depth_dir))
     reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=64, input_modalities="rgb+depth"))
@@ -144,9 +151,13 @@ def test_a_model_that_fits_the_probe_is_fitted_by_eval_and_predict_alike(tiny_da
     with torch.no_grad():
         raw = E.contract_model(*load_model(ckpt), str(ckpt))(batch)[1].double().numpy()
     expected = raw.copy()
-    expected[:, kp.CORNER_SLICE] += 0.01
+    expected[:, kp.CORNER_SLICE] += 0.01 if "probe" in asked else 0.0
+    expected[:, kp.HAND_SLICE] += 0.02 if "hand" in asked else 0.0
     for net in (evaluate.EvalModel(ckpt), evaluate.EvalModel(onnx_path)):
         np.testing.assert_allclose(net.predict(batch)[1], expected, atol=1e-4)
     for record, row in zip(result["records"], expected):
         np.testing.assert_allclose(record["keypoints_3d_m"], row, atol=1e-4)
-    assert inputs and all(shape[1:] == (4, 64, 64) for shape in inputs)
+    assert calls and all(shape[1:] == (4, 64, 64) for _, shape, _ in calls)
+    assert [part for part, _, _ in calls[:len(asked)]] == list(asked)    # the probe's fit first
+    if asked == ("probe", "hand"):  # the hand's fit sees the probe the probe's fit left
+        assert np.isclose(calls[1][2], calls[0][2] + 0.01, atol=1e-6)

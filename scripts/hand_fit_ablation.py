@@ -1,0 +1,75 @@
+"""What the hand's fit to the depth input (hupbench.inference.hand_fit) does to a checkpoint's hand, on a split: the
+hand MPJPE of the network alone and after the fit, and after the fit without each of its parts (the bones' turns,
+i.e. a rigid hand; the free-space term), per grasp, with where the error is (scripts/diagnose_errors.py's
+centroid / about centroid / rigid), and the fit's time per frame. The probe's fit runs first, as in eval.
+
+The checkpoint must read depth (data.reader.input_modalities=rgb+depth); whether its config asks for the fits does
+not matter here: both are measured. The fit's weights were chosen with ``--split val``; quote the test split once,
+with its floor (printed from the manifest).
+
+Usage: python scripts/hand_fit_ablation.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 32]
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+#: the fit's parts taken out, each as the module constants it runs with instead
+VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free space": {"FREE_WEIGHT": 0.0}}
+
+
+def main() -> None:
+    from datagen import keypoints as kp
+    from diagnose_errors import decompose, split_labels, split_outputs
+    from hupbench.inference import hand_fit
+    from hupbench.inference.probe_fit import fit_probe
+
+    args, _, payload, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth")
+    K = np.asarray(payload["K_input"], dtype=np.float64)
+    probe_fitted = [fit_probe(points2d, points3d, images, K)[:2] for images, points2d, points3d in outputs]
+    hands = {"network": np.concatenate([points3d[:, kp.HAND_SLICE] for _, points3d in probe_fitted])}
+    seconds = {}
+    for name, constants in VARIANTS.items():
+        saved = {key: getattr(hand_fit, key) for key in constants}
+        for key, value in constants.items():
+            setattr(hand_fit, key, value)
+        try:
+            began, out = time.perf_counter(), []
+            for (images, _, _), (points2d, points3d) in zip(outputs, probe_fitted):
+                out.append(hand_fit.fit_hand(points2d, points3d, images, K)[1][:, kp.HAND_SLICE])
+            seconds[name] = time.perf_counter() - began
+            hands[name] = np.concatenate(out)
+        finally:
+            for key, value in saved.items():
+                setattr(hand_fit, key, value)
+    labels, _, grasp = split_labels(args, reader, rows)
+    gt = labels[:, kp.HAND_SLICE]
+    print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {len(reader)} frames; hand, mm")
+    floors = reader.manifest.get("split_floors", {}).get("splits", {}).get(args.split)
+    if floors:
+        print("floor (nearest training grasp): hand {:.2f}; per grasp {}".format(
+            floors["floor_mm"]["hand"],
+            ", ".join(f"{g} {v['floor_mm']['hand']:.2f}" for g, v in sorted(floors["per_grasp"].items()))))
+    grasps = sorted(np.unique(grasp).tolist())
+    print(f"{'':20s}{'hand':>8s}{'median':>8s}{'centroid':>10s}{'about c.':>10s}{'rigid':>8s}"
+          + "".join(f"{'grasp ' + str(g):>10s}" for g in grasps))
+    summary = {}
+    for name, pred in hands.items():
+        per_frame = np.linalg.norm(pred - gt, axis=-1).mean(axis=1) * 1000.0
+        parts = decompose(pred, gt)
+        summary[name] = round(float(per_frame.mean()), 2)
+        print(f"{name:20s}{per_frame.mean():8.2f}{np.median(per_frame):8.2f}{parts['centroid']:10.2f}"
+              f"{parts['about_centroid']:10.2f}{parts['rigid']:8.2f}"
+              + "".join(f"{per_frame[grasp == g].mean():10.2f}" for g in grasps))
+    print(f"the fit: {seconds['fit'] / len(rows) * 1000:.1f} ms per frame ({torch.get_num_threads()} threads)")
+    print(json.dumps({"checkpoint": str(Path(args.checkpoint)), "split": args.split, "frames": len(rows),
+                      "hand_mm": summary}))
+
+
+if __name__ == "__main__":
+    main()

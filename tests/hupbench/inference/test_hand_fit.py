@@ -1,0 +1,170 @@
+"""The hand's fit to the depth input (hupbench.inference.hand_fit) on scenes ray-cast by trimesh: the generator's
+skinned hand mesh (not the fit's capsules) in a known pose. From the true joints the fit must stay near them (what
+its capsule hand gets wrong); from a network's hand moved, turned and with a finger bent it must come back most of
+the way; without a measured surface, or with the probe covering the hand's points, it must leave the network's
+hand as it was; frames of a batch are fitted each on its own."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from datagen import keypoints as kp
+from datagen.assets.hand import build_hand
+from datagen.assets.hand_anatomy import anatomical_to_pose
+from datagen.assets.probe import build_probe
+from hupbench.inference import hand_fit as F
+
+S = 128
+K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
+
+
+def rotation(axis, degrees):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return trimesh.transformations.rotation_matrix(np.radians(degrees), axis)[:3, :3]
+
+
+#: hand frame -> camera: fingers along +x, the palm (hand -y) towards the camera, tilted 25 degrees
+HAND_TO_CAMERA = rotation((1, 0, 0), 25) @ np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+WRIST = np.array([-0.08, 0.01, 0.45])
+
+
+def hand_pose(curl: float) -> np.ndarray:
+    angles = np.zeros((15, 3))
+    angles[:12, 0] = curl            # the four fingers' flexion (MANO order: thumb last)
+    angles[12:, 0] = 0.3 * curl
+    return anatomical_to_pose(angles)
+
+
+def scene(curl=0.5, probe_over_hand=False):
+    """(4, S, S) model image of the hand (and the probe, held in front of the palm when asked), and the true
+    (21, 3) joints in the camera frame."""
+    hand = build_hand()
+    pose = hand_pose(curl)
+    to_camera = lambda p: p @ HAND_TO_CAMERA.T + WRIST  # noqa: E731
+    meshes = [trimesh.Trimesh(to_camera(hand.vertices(pose, np.zeros(3))), hand.faces, process=False)]
+    joints = to_camera(hand.keypoints(pose, np.zeros(3)))
+    if probe_over_hand:  # the probe across the palm, between it and the camera
+        probe = build_probe()
+        R = rotation((1, 0, 0), 90) @ rotation((0, 1, 0), 90)
+        meshes.append(trimesh.Trimesh(probe.mesh.vertices @ R.T + joints.mean(0) + [0.0, 0.0, -0.035],
+                                      probe.mesh.faces, process=False))
+    mesh = trimesh.util.concatenate(meshes)
+    v, u = np.mgrid[0:S, 0:S]
+    rays = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1], np.ones(S * S)], 1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    hits, ray, _ = mesh.ray.intersects_location(np.zeros_like(rays), rays, multiple_hits=False)
+    image = np.zeros((4, S * S), np.float32)
+    image[:3] = 0.5
+    image[3, ray] = hits[:, 2]
+    return image.reshape(4, S, S), joints
+
+
+def network_output(joints, probe_at=(0.3, 0.3, 2.0)):
+    """(1, 29, 2), (1, 29, 3): the hand ``joints`` as a network's output, the probe's box where asked (far off)."""
+    points3d = np.zeros((1, kp.NUM_KEYPOINTS, 3))
+    points3d[0, kp.HAND_SLICE] = joints
+    points3d[0, kp.CORNER_SLICE] = build_probe().corners_probe + np.asarray(probe_at)
+    return np.zeros((1, kp.NUM_KEYPOINTS, 2)), points3d
+
+
+def error_mm(points3d, joints):
+    return float(np.linalg.norm(points3d[kp.HAND_SLICE] - joints, axis=1).mean() * 1000)
+
+
+def test_from_the_true_joints_the_fit_stays_near_them():
+    image, joints = scene()
+    out2d, out3d, report = F.fit_hand(*network_output(joints), image[None], K)
+    assert report.points[0] == F.MAX_POINTS and report.fitted[0]
+    assert error_mm(out3d[0], joints) < 3.0
+    z = out3d[0, kp.HAND_SLICE, 2]
+    pixels = np.stack([K[0, 0] * out3d[0, kp.HAND_SLICE, 0] / z + K[0, 2], K[1, 1] * out3d[0, kp.HAND_SLICE, 1] / z
+                       + K[1, 2]], -1)
+    np.testing.assert_allclose(out2d[0, kp.HAND_SLICE], (pixels + 0.5) / S * 2 - 1, atol=1e-6)
+
+
+@pytest.mark.parametrize("curl", [0.2, 0.6])
+def test_a_hand_moved_turned_and_bent_comes_back(curl):
+    image, joints = scene(curl)
+    centre = joints.mean(0)
+    wrong = (joints - centre) @ rotation((0.3, 1.0, 0.2), 8).T + centre + [0.006, -0.004, 0.007]
+    index = slice(kp.FINGER_START["index"] + 1, kp.FINGER_START["index"] + 4)    # the index finger bent 20 deg
+    base = wrong[kp.FINGER_START["index"]]
+    wrong[index] = (wrong[index] - base) @ rotation((0.0, 0.0, 1.0), 20).T + base
+    before = error_mm(wrong, joints)
+    _, out3d, _ = F.fit_hand(*network_output(wrong), image[None], K)
+    assert before > 8.0 and error_mm(out3d[0], joints) < 0.4 * before
+
+
+def test_without_a_measured_surface_the_network_stays():
+    image, joints = scene()
+    image[3] = 0.0
+    points2d, points3d = network_output(joints + 0.01)
+    out2d, out3d, report = F.fit_hand(points2d, points3d, image[None], K)
+    assert report.points[0] == 0 and not report.fitted[0]
+    np.testing.assert_array_equal(out3d, points3d)
+    np.testing.assert_array_equal(out2d, points2d)
+
+
+def test_too_few_measured_points_leave_the_network_s_hand():
+    """A depth map showing only a few pixels of the hand cannot fix 51 parameters: the network's hand stays."""
+    image, joints = scene()
+    seen = np.flatnonzero(image[3].reshape(-1) > 0)
+    keep = np.zeros(image[3].size, bool)
+    keep[seen[:: max(1, len(seen) // (F.MIN_POINTS - 5))][: F.MIN_POINTS - 5]] = True
+    image[3].reshape(-1)[~keep] = 0.0
+    points2d, points3d = network_output(joints + 0.004)
+    out2d, out3d, report = F.fit_hand(points2d, points3d, image[None], K)
+    assert 0 < report.points[0] < F.MIN_POINTS and not report.fitted[0]
+    np.testing.assert_array_equal(out3d, points3d)
+
+
+@pytest.mark.parametrize("points", [1, 3])
+def test_a_handful_of_points_or_noise_neither_fails_nor_moves_the_hand(points):
+    """What eval's latency timing feeds the fit (images of noise), and a depth map with one or three of the hand's
+    pixels: the normal equations are rank-deficient there; the fit answers, and keeps the network's hand."""
+    image, joints = scene()
+    seen = np.flatnonzero(image[3].reshape(-1) > 0)
+    sparse = image.copy()
+    sparse[3].reshape(-1)[seen[points:]] = 0.0
+    rng = np.random.default_rng(0)
+    noise = rng.random((3, 4, S, S), dtype=np.float32)
+    images = np.concatenate([sparse[None], noise])
+    points2d, points3d = network_output(joints)
+    points2d, points3d = np.repeat(points2d, 4, axis=0), np.repeat(points3d, 4, axis=0)
+    out2d, out3d, report = F.fit_hand(points2d, points3d, images, K)
+    assert report.points[0] == points and not report.fitted[0]
+    kept = ~report.fitted
+    np.testing.assert_array_equal(out3d[kept], points3d[kept])
+    assert np.isfinite(out3d).all() and np.isfinite(out2d).all()
+
+
+def test_the_probe_s_points_are_left_out():
+    """The probe in front of the palm, within reach of the hand's capsules: with its box where it is, none of its
+    surface is taken for the hand's, and the fit lands nearer the truth than with the box far away."""
+    import torch
+
+    image, joints = scene(probe_over_hand=True)
+    R = rotation((1, 0, 0), 90) @ rotation((0, 1, 0), 90)
+    t = joints.mean(0) + [0.0, 0.0, -0.035]
+    points2d, points3d = network_output(joints)
+    points3d[0, kp.CORNER_SLICE] = build_probe().corners_probe @ R.T + t
+    f32 = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64)[None], dtype=torch.float32)  # noqa: E731
+    points, real = F._measured_points(f32(image[3])[0][None], torch.as_tensor(K, dtype=torch.float32),
+                                      f32(joints), f32(R), f32(t))
+    used = points[0][real[0] > 0].double().numpy()
+    to_probe = build_probe().mesh.nearest.signed_distance((used - t) @ R)       # trimesh: positive inside
+    assert len(used) == F.MAX_POINTS and (-to_probe).min() > F.PROBE_GAP_M - 5e-4
+    _, with_probe, _ = F.fit_hand(points2d, points3d, image[None], K)
+    _, without, _ = F.fit_hand(*network_output(joints), image[None], K)      # the box far away: its points stay in
+    assert error_mm(with_probe[0], joints) < 4.0 and error_mm(with_probe[0], joints) < error_mm(without[0], joints)
+
+
+def test_a_batch_is_fitted_frame_by_frame():
+    frames = [scene(curl) for curl in (0.2, 0.6)]
+    outputs = [network_output(joints + [0.005, 0.0, 0.004]) for _, joints in frames]
+    images = np.stack([image for image, _ in frames])
+    _, batch3d, _ = F.fit_hand(np.concatenate([o[0] for o in outputs]), np.concatenate([o[1] for o in outputs]),
+                               images, K)
+    for i, (image, _) in enumerate(frames):
+        _, alone, _ = F.fit_hand(*outputs[i], image[None], K)
+        np.testing.assert_allclose(batch3d[i], alone[0], atol=1e-5)
