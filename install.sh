@@ -3,7 +3,7 @@
 #   1. the Debian packages of the offscreen renderer: Mesa EGL (libegl1 + libegl-mesa0, the DRI drivers
 #      with llvmpipe in libgl1-mesa-dri, and libopengl0, the GL library without GLX/X11 that PyOpenGL's
 #      EGL platform loads) and OSMesa as the fallback (libosmesa6). No X11 client library is needed:
-#      datagen.render.gl imports pyrender without its pyglet viewer. And, as test data only, opencv-doc:
+#      hupbench.datagen.render.gl imports pyrender without its pyglet viewer. And, as test data only, opencv-doc:
 #      its two real hand photographs (handSrc.jpg, handDst.jpg) are the fixture of predict's
 #      out-of-distribution test (about 96 MB; --no-test-data leaves it out, and that test is then skipped).
 #      Only packages that are missing are installed, with --no-upgrade. A missing package whose install would

@@ -27,9 +27,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = parser.parse_args()
 
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import RenderJob, generate
-    from datagen.io import save_npz
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import RenderJob, generate
+    from hupbench.datagen.io import save_npz
 
     with np.load(args.grasps) as data:
         one = {k: (data[k][:1] if data[k].ndim and len(data[k]) > 1 else data[k]) for k in data.files}

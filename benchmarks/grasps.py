@@ -52,13 +52,13 @@ def main() -> None:
         parser.error("--orientations and --starts must be positive, --budgets >= 0")
     torch.set_num_threads(args.threads)
 
-    from datagen.grasps.cvae_sampling import sample_grasps
-    from datagen.grasps.approach import approach_azimuth
-    from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, heuristic_starts, random_starts, refine
-    from datagen.grasps.scores import score_grasps
-    from datagen.assets.hand import build_hand
-    from datagen.assets.probe import build_probe
-    from datagen.grasps.cvae import load_shipped_cvae
+    from hupbench.datagen.grasps.cvae_sampling import sample_grasps
+    from hupbench.datagen.grasps.approach import approach_azimuth
+    from hupbench.datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, heuristic_starts, random_starts, refine
+    from hupbench.datagen.grasps.scores import score_grasps
+    from hupbench.datagen.assets.hand import build_hand
+    from hupbench.datagen.assets.probe import build_probe
+    from hupbench.datagen.grasps.cvae import load_shipped_cvae
 
     hand, probe = build_hand(), build_probe()
     thetas = [(0.0, 0.0, 360.0 * k / args.orientations) for k in range(args.orientations)]

@@ -27,10 +27,10 @@ def main() -> None:
     if args.frames < 1 or args.repeats < 1 or args.size < 1:
         parser.error("--frames, --repeats and --size must be positive")
 
-    from datagen.camera import Intrinsics, look_at
-    from datagen.render.preview import handset_grasp
-    from datagen.render.renderer import Renderer
-    from datagen.render.scene import keypoints_world, scene_parts
+    from hupbench.datagen.camera import Intrinsics, look_at
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.render.renderer import Renderer
+    from hupbench.datagen.render.scene import keypoints_world, scene_parts
 
     intrinsics = Intrinsics.from_lens(60.0, 32.0, args.size, args.size)
     grasp = handset_grasp()

@@ -33,8 +33,8 @@ import numpy as np
 
 def _one_grasp(path: Path, grasps: str | None) -> Path:
     """The first grasp of a grasps file, or the hand-set preview grasp, as a one-grasp grasps.npz."""
-    from datagen.io import save_npz
-    from datagen.render.preview import handset_grasp
+    from hupbench.datagen.io import save_npz
+    from hupbench.datagen.render.preview import handset_grasp
 
     if grasps is None:
         g = handset_grasp()
@@ -66,10 +66,10 @@ def _rate_after_start_up(out: Path, chunk_size: int, workers: int) -> float | No
 def generation(args: argparse.Namespace) -> None:
     import ray
 
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import RenderJob, generate
-    from datagen.dataset.ray_launcher import RayOptions
-    from datagen.dataset.sphere import SphereSpec
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import RenderJob, generate
+    from hupbench.datagen.dataset.ray_launcher import RayOptions
+    from hupbench.datagen.dataset.sphere import SphereSpec
 
     scale = args.size / 256
     spec = DatasetSpec(splits={"train": 1, "val": 0, "test": 0}, z_ego_m=(0.5,), n_backgrounds=args.backgrounds,

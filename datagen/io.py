@@ -29,7 +29,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from datagen.errors import BadValueError, NotWritableError, UserError
+from hupbench.datagen.errors import BadValueError, NotWritableError, UserError
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")

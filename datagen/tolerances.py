@@ -40,7 +40,7 @@ VERIFY_PROBE_SURFACE_M = 0.003
 #: verify: the annotations' K must equal the manifest's within this
 VERIFY_K_PX = 1e-6
 #: verify: the images sit this close to the labels (pixels, per axis): measured on correct 256 px frames
-#: within 0.07 px, a half-pixel shift 0.49-0.55 px (datagen.dataset.verify_images.image_shift_px)
+#: within 0.07 px, a half-pixel shift 0.49-0.55 px (hupbench.datagen.dataset.verify_images.image_shift_px)
 VERIFY_IMAGE_SHIFT_PX = 0.25
 #: verify: the shift is measured from at least this many probe pixels on the probe's surface ...
 VERIFY_SHIFT_MIN_PIXELS = 30

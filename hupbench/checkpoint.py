@@ -16,19 +16,36 @@ import numpy as np
 import torch
 from torch import nn
 
-from datagen.errors import BadValueError, MissingFileError
-from datagen.input_checks import check_int
-from datagen.io import write_with
+from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.io import write_with
 from hupbench.inference.model_file import INPUT_SIZE_RANGE
-from models.build import build_model, load_checkpoint_state
+from hupbench.models.build import build_model, load_checkpoint_state
 
 FORMAT = "hupbench-checkpoint"
 VERSION = 1
 
+#: ``_target_`` prefixes of checkpoints written before the packages moved under hupbench (0.1: top-level
+#: ``models`` and ``datagen``), and what they are now
+LEGACY_TARGETS = {"models.": "hupbench.models.", "datagen.": "hupbench.datagen."}
+
+
+def installed_targets(config):
+    """A saved training config with every ``_target_`` under its installed name (:data:`LEGACY_TARGETS`), so that
+    a run trained before the move resumes and compares equal."""
+    if isinstance(config, Mapping):
+        out = {key: installed_targets(value) for key, value in config.items()}
+        target = out.get("_target_")
+        if isinstance(target, str):
+            old = next((p for p in LEGACY_TARGETS if target.startswith(p)), None)
+            out["_target_"] = LEGACY_TARGETS[old] + target[len(old):] if old else target
+        return out
+    return config
+
 
 @dataclass(frozen=True)
 class Checkpoint:
-    """The record of one checkpoint: the model's saved config (:func:`models.build.build_model`) and state dict,
+    """The record of one checkpoint: the model's saved config (:func:`hupbench.models.build.build_model`) and state dict,
     the model input's side (pixels) and (3, 3) intrinsics K_input (the camera the 3D output is trained for), the
     resolved training config, and for a resume the optimiser, scheduler and torch RNG states, the counters
     (train_seconds excludes validation) and validations (mm); ``path`` (not saved) names the file in errors."""
@@ -102,6 +119,7 @@ class Checkpoint:
         if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal "
                                 f"lengths, got {payload['K_input']!r:.80}")
+        payload["config"] = installed_targets(payload["config"])
         return cls(**{f.name: payload[f.name] for f in fields(cls) if f.name in payload}, path=path)
 
     def build_model(self) -> nn.Module:

@@ -139,7 +139,7 @@ def _count(minimum: int):
 
 
 def _verify(args: list[str]) -> int:
-    from datagen.dataset.verify import report_lines
+    from hupbench.datagen.dataset.verify import report_lines
     from hupbench.verbs.generate import run_verify
 
     parser = argparse.ArgumentParser(
@@ -161,15 +161,15 @@ def _verify(args: list[str]) -> int:
     print("\n".join(report_lines(result, ns.max_report)))
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
-        from datagen.dataset.sample_sheet import sample_sheet
-        from datagen.render.draw import write_png
+        from hupbench.datagen.dataset.sample_sheet import sample_sheet
+        from hupbench.datagen.render.draw import write_png
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1
 
 
 def _import_hup3d(args: list[str]) -> int:
-    from datagen.dataset.import_hup3d import DEPTH_SOURCES, run_import_hup3d
+    from hupbench.datagen.dataset.import_hup3d import DEPTH_SOURCES, run_import_hup3d
 
     parser = argparse.ArgumentParser(
         prog="hupbench import-hup3d", formatter_class=_DefaultsHelp,

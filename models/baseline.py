@@ -5,9 +5,9 @@ coordinates directly, with no graph stage. A 29 x 2 side output can be
 switched on so that the baseline trains with the same 2D terms as HOPE-Net.
 
 Convention:
-    As :mod:`models.hopenet`: 2D points in normalised image coordinates
+    As :mod:`hupbench.models.hopenet`: 2D points in normalised image coordinates
     ([-1, 1] across the input image, pixel centres at integers, see
-    :mod:`models.coords`); 3D points in the training target's units and
+    :mod:`hupbench.models.coords`); 3D points in the training target's units and
     frame (the training code uses metres).
 """
 
@@ -19,9 +19,9 @@ from typing import ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from models.model_config import ModelConfig
-from models.prior import PointPrior
-from models.resnet import resnet
+from hupbench.models.model_config import ModelConfig
+from hupbench.models.prior import PointPrior
+from hupbench.models.resnet import resnet
 
 __all__ = ["RegressorOutput", "ResNetRegressor", "ResNetRegressorConfig"]
 
@@ -41,7 +41,7 @@ class RegressorOutput(NamedTuple):
 
 @dataclass(frozen=True)
 class ResNetRegressorConfig(ModelConfig):
-    """The baseline's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
+    """The baseline's architecture (:class:`hupbench.models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         predict_2d: also regress (B, N, 2) 2D keypoints from the same feature.

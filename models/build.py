@@ -14,9 +14,9 @@ from typing import Any
 import torch
 from torch import nn
 
-from models.baseline import ResNetRegressor, ResNetRegressorConfig
-from models.heatmap import HUPNet, HUPNetConfig
-from models.hopenet import HOPENet, HOPENetConfig
+from hupbench.models.baseline import ResNetRegressor, ResNetRegressorConfig
+from hupbench.models.heatmap import HUPNet, HUPNetConfig
+from hupbench.models.hopenet import HOPENet, HOPENetConfig
 
 __all__ = ["MODELS", "build_model", "load_checkpoint_state"]
 
@@ -41,7 +41,7 @@ def build_model(saved: Mapping[str, Any]) -> nn.Module:
     """The model of a saved config, ``Model(ModelConfig(**fields))``, freshly initialised.
 
     Args:
-        saved: ``{"name": <a key of MODELS>, **config fields}`` (:meth:`models.model_config.ModelConfig.saved`,
+        saved: ``{"name": <a key of MODELS>, **config fields}`` (:meth:`hupbench.models.model_config.ModelConfig.saved`,
             a checkpoint's ``model_config``), e.g. ``{"name": "hopenet", "backbone": "resnet10"}``;
             omitted fields take their defaults.
 

@@ -8,7 +8,7 @@ identity, and mixes nodes with the symmetric normalisation D^-1/2 A D^-1/2
 Convention:
     Layers are unit-agnostic: they carry whatever the input carries (the 2D
     input of :class:`GraphUNet` is in normalised image coordinates, its 3D
-    output in the training target's units; see :mod:`models.hopenet`).
+    output in the training target's units; see :mod:`hupbench.models.hopenet`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from itertools import pairwise
 import torch
 from torch import nn
 
-from models.model_tolerances import ADJACENCY_DEGREE_EPS
+from hupbench.models.model_tolerances import ADJACENCY_DEGREE_EPS
 
 __all__ = [
     "ACTIVATION_SLOPE",

@@ -15,7 +15,7 @@ What is our own: the heatmap canvas extends ``canvas_margin`` of the image width
 edge (zero-padded features plus coordinate channels, CoordConv-style), because the probe's box
 corners often lie outside the image; the root depth is one global regression from the pooled
 stride-32 feature, added to every keypoint's relative depth and to the training split's mean
-depth of that keypoint (the prior of :mod:`models.prior`).
+depth of that keypoint (the prior of :mod:`hupbench.models.prior`).
 
 With a depth input and ``depth_anchor``, a keypoint's depth is read from the measured surface instead:
 each keypoint has an anchor map over the canvas (softmax logits, restricted to cells where the input
@@ -58,10 +58,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from models.model_config import ModelConfig, check_camera, check_whole
-from models.hopenet import normalized_intrinsics, unproject_normalized
-from models.prior import PointPrior
-from models.resnet import check_backbone, resnet
+from hupbench.models.model_config import ModelConfig, check_camera, check_whole
+from hupbench.models.hopenet import normalized_intrinsics, unproject_normalized
+from hupbench.models.prior import PointPrior
+from hupbench.models.resnet import check_backbone, resnet
 
 __all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "heatmap_confidence", "soft_argmax"]
 
@@ -133,7 +133,7 @@ def _conv_bn_relu(in_channels: int, out_channels: int) -> nn.Sequential:
 
 @dataclass(frozen=True)
 class HUPNetConfig(ModelConfig):
-    """HUPNet's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
+    """HUPNet's architecture (:class:`hupbench.models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         neck_channels: width D of the pyramid and heads.
@@ -383,7 +383,7 @@ class HUPNet(nn.Module):
         return expected
 
 
-#: the last N_CORNERS keypoints are the probe box's corners, in the order of datagen.keypoints.CORNER_BITS
+#: the last N_CORNERS keypoints are the probe box's corners, in the order of hupbench.datagen.keypoints.CORNER_BITS
 #: (index 4 ix + 2 iy + iz, each bit 0 = the min side): their signs along the box's x, y, z
 N_CORNERS = 8
 CORNER_SIGNS = tuple(tuple(2.0 * ((k >> shift) & 1) - 1.0 for shift in (2, 1, 0)) for k in range(N_CORNERS))

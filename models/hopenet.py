@@ -1,14 +1,14 @@
 """HOPE-Net (Doosti et al., CVPR 2020): image -> 2D keypoints -> refined 2D -> 3D keypoints.
 
 A ResNet backbone pools the image into a feature (B, F); a linear layer
-reads 29 initial 2D points from it; :class:`models.graph.GraphNet2D` refines
+reads 29 initial 2D points from it; :class:`hupbench.models.graph.GraphNet2D` refines
 them with the feature appended to every node; the adaptive Graph U-Net
-(:class:`models.graph.GraphUNet`) lifts the refined 2D points to 3D.
+(:class:`hupbench.models.graph.GraphUNet`) lifts the refined 2D points to 3D.
 
 Convention:
     2D points are in normalised image coordinates of the input image:
     [-1, 1] from the left (top) edge to the right (bottom) edge, pixel
-    centres at integers (:mod:`models.coords` converts to and from pixels).
+    centres at integers (:mod:`hupbench.models.coords` converts to and from pixels).
     3D points are in the training target's units and frame: the network
     regresses whatever it is trained on (the training code uses metres; see
     its docs for the frame and origin). Keypoint order is the dataset's
@@ -24,11 +24,11 @@ from typing import ClassVar, NamedTuple
 import torch
 from torch import nn
 
-from models.coords import pixels_to_normalized
-from models.model_config import ModelConfig, check_camera, check_whole
-from models.graph import GraphNet2D, GraphUNet
-from models.prior import PointPrior
-from models.resnet import resnet
+from hupbench.models.coords import pixels_to_normalized
+from hupbench.models.model_config import ModelConfig, check_camera, check_whole
+from hupbench.models.graph import GraphNet2D, GraphUNet
+from hupbench.models.prior import PointPrior
+from hupbench.models.resnet import resnet
 
 __all__ = ["LIFTS", "GraphLifter", "HOPENet", "HOPENetConfig", "HOPENetOutput", "normalized_intrinsics",
            "unproject_normalized"]
@@ -47,7 +47,7 @@ def normalized_intrinsics(K_input, input_size: int) -> torch.Tensor:
 
     Args:
         K_input: (3, 3) intrinsics of the model input image, pixels (nested lists or array), as
-            :func:`models.model_config.check_camera` takes them.
+            :func:`hupbench.models.model_config.check_camera` takes them.
         input_size: S, side of the square model input, pixels.
     """
     K = torch.as_tensor(K_input, dtype=torch.float64)
@@ -96,7 +96,7 @@ class GraphLifter(nn.Module):
     Args:
         lift: "direct" or "camera".
         n_keypoints, unet_channels, unet_node_counts, unet_bottleneck: the Graph U-Net's (see
-            :class:`models.graph.GraphUNet`).
+            :class:`hupbench.models.graph.GraphUNet`).
         points3d_mean: (N, 3) prior layout, target units (metres in training); None for zeros.
         points3d_scale: target units per raw output unit.
         K_input: (3, 3) intrinsics of the model input image, pixels; needed by lift="camera".
@@ -146,7 +146,7 @@ class HOPENetOutput(NamedTuple):
 
 @dataclass(frozen=True)
 class HOPENetConfig(ModelConfig):
-    """HOPE-Net's architecture (:class:`models.model_config.ModelConfig`'s fields and these).
+    """HOPE-Net's architecture (:class:`hupbench.models.model_config.ModelConfig`'s fields and these).
 
     Attributes:
         graph_hidden: widths of the two hidden graph convolutions of the 2D refinement.

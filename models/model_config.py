@@ -1,8 +1,8 @@
 """What every model's config shares: a frozen dataclass that checks its fields once, saved as a plain dict.
 
 A model is built one way, ``Model(ModelConfig(**fields))`` (nanoGPT's ``GPT(GPTConfig(**args))``): training
-gets the config from its Hydra node (``_target_: models.hopenet.HOPENetConfig``), and a checkpoint, eval and
-export rebuild it from the saved dict (:meth:`ModelConfig.saved`, :func:`models.build.build_model`).
+gets the config from its Hydra node (``_target_: hupbench.models.hopenet.HOPENetConfig``), and a checkpoint, eval and
+export rebuild it from the saved dict (:meth:`ModelConfig.saved`, :func:`hupbench.models.build.build_model`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from models.resnet import check_backbone
+from hupbench.models.resnet import check_backbone
 
 #: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
 FITS = ("none", "depth")
@@ -53,7 +53,7 @@ class ModelConfig:
         backbone: ResNet name: "resnet10", "resnet18", "resnet34" or "resnet50".
         n_keypoints: N, keypoints predicted (29 = 21 hand joints + 8 probe corners).
         zero_init_residual: zero the last BN of each residual branch of the backbone.
-        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (:mod:`models.prior`), e.g. the
+        points3d_mean: (N, 3) prior keypoint layout added to the 3D output (:mod:`hupbench.models.prior`), e.g. the
             training split's mean in metres; None for zeros.
         points3d_scale: target units per raw 3D output unit.
         input_channels: C, channels of the input image: 3 (RGB) or 4 (RGB and the depth channel of
@@ -65,7 +65,7 @@ class ModelConfig:
             the depth input, :mod:`hupbench.inference.hand_fit`, after the probe's fit where both are asked).
     """
 
-    #: the model's name in a saved config (:data:`models.build.MODELS`)
+    #: the model's name in a saved config (:data:`hupbench.models.build.MODELS`)
     name: ClassVar[str]
     #: the fewest keypoints the model's layers can take
     min_keypoints: ClassVar[int] = 1

@@ -30,7 +30,7 @@ class PointPrior(nn.Module):
 
     def __init__(self, n_keypoints: int, mean: Sequence[Sequence[float]] | None = None, scale: float = 1.0) -> None:
         super().__init__()
-        # checked by the model's config (models.model_config.ModelConfig)
+        # checked by the model's config (hupbench.models.model_config.ModelConfig)
         self.register_buffer("mean", torch.zeros(n_keypoints, 3) if mean is None else
                              torch.as_tensor(mean, dtype=torch.float32))
         self.scale = float(scale)

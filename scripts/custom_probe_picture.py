@@ -1,6 +1,6 @@
 """Make docs/custom_probe.png: a frame of a tiny dataset of the example linear probe, and its preview.
 
-Builds :func:`datagen.assets.probe_mesh.linear_probe_mesh`, writes it as STL, makes 3 grasps for it
+Builds :func:`hupbench.datagen.assets.probe_mesh.linear_probe_mesh`, writes it as STL, makes 3 grasps for it
 (``hupbench grasps probe.mesh=...``), renders a tiny dataset (``hupbench generate``) and puts three of its
 RGB frames beside the quickstart preview of the probe with its frame's axes.
 
@@ -21,11 +21,11 @@ def main() -> None:
 
     import cv2
 
-    from datagen.assets.probe import probe_of
-    from datagen.assets.probe_mesh import ProbeSource, linear_probe_mesh
-    from datagen.camera import Intrinsics
-    from datagen.render.draw import grid, titled, write_png
-    from datagen.render.preview import PreviewView, handset_grasp, render_preview
+    from hupbench.datagen.assets.probe import probe_of
+    from hupbench.datagen.assets.probe_mesh import ProbeSource, linear_probe_mesh
+    from hupbench.datagen.camera import Intrinsics
+    from hupbench.datagen.render.draw import grid, titled, write_png
+    from hupbench.datagen.render.preview import PreviewView, handset_grasp, render_preview
     from hupbench.config import compose
     from hupbench.verbs.generate import run_generate
     from hupbench.verbs.grasps import run_grasps

@@ -78,8 +78,8 @@ def split_outputs(description: str, batch: int, modalities: str | None = None):
 
 def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(keypoints (F, 29, 3) metres, the probe corners half-turned (F, 8, 3), grasp ids (F,)) of the frames."""
-    from datagen import keypoints as kp
-    from datagen.dataset.contract import read_annotations
+    from hupbench.datagen import keypoints as kp
+    from hupbench.datagen.dataset.contract import read_annotations
     from hupbench.evaluation.evaluate import probe_symmetry_group
 
     ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world", "grasp_id"), reader.manifest)
@@ -89,7 +89,7 @@ def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def main() -> None:
-    from datagen import keypoints as kp
+    from hupbench.datagen import keypoints as kp
     from hupbench.metrics import rotation_onto
 
     args, module, _, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=64)

@@ -1,7 +1,7 @@
 """Can HOPE-Net's Graph U-Net lift 2D keypoints to absolute camera-frame 3D? Measured from true 2D.
 
 The official HOPE-Net code trains its Graph U-Net alone from ground-truth 2D (``Graph.py``); this
-does the same on a hupbench dataset, for each lifting variant of ``models.hopenet.HOPENet``:
+does the same on a hupbench dataset, for each lifting variant of ``hupbench.models.hopenet.HOPENet``:
 
     constant     the training split's mean layout for every frame (the floor any model must beat)
     direct       the faithful U-Net: 2D points in, camera-frame 3D out (an offset from the mean layout)
@@ -36,7 +36,7 @@ def load(root, split: str, size: int) -> tuple[torch.Tensor, torch.Tensor, np.nd
 
 
 def lifter(variant: str, mean: np.ndarray, K: np.ndarray, size: int) -> torch.nn.Module:
-    from models.hopenet import GraphLifter
+    from hupbench.models.hopenet import GraphLifter
 
     return GraphLifter(lift=variant, points3d_mean=mean.tolist(), points3d_scale=0.01,
                        K_input=K.tolist(), input_size=size)

@@ -15,11 +15,11 @@ import numpy as np
 
 
 def main() -> None:
-    from datagen.dataset.contract import read_manifest
-    from datagen.dataset.sample_sheet import overview
-    from datagen.grasps.sheet import contact_sheet
-    from datagen.render.draw import write_png
-    from datagen.render.preview import preview
+    from hupbench.datagen.dataset.contract import read_manifest
+    from hupbench.datagen.dataset.sample_sheet import overview
+    from hupbench.datagen.grasps.sheet import contact_sheet
+    from hupbench.datagen.render.draw import write_png
+    from hupbench.datagen.render.preview import preview
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", nargs="?", default="hupbench_out/dataset", help="a finished dataset folder")

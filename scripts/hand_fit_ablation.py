@@ -24,7 +24,7 @@ VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free s
 
 
 def main() -> None:
-    from datagen import keypoints as kp
+    from hupbench.datagen import keypoints as kp
     from diagnose_errors import decompose, split_labels, split_outputs
     from hupbench.inference import hand_fit
     from hupbench.inference.probe_fit import fit_probe

@@ -1,4 +1,4 @@
-"""A heatmap model's per-keypoint confidence (:func:`models.heatmap.heatmap_confidence`) on test frames and on
+"""A heatmap model's per-keypoint confidence (:func:`hupbench.models.heatmap.heatmap_confidence`) on test frames and on
 images of uniform noise: how much it says.
 
     python scripts/measure_keypoint_confidence.py CHECKPOINT DATASET [--frames 256]
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
+from hupbench.datagen import keypoints as kp
 from hupbench.checkpoint import load_model
 from hupbench.data import HUPDataset, ReaderConfig
 

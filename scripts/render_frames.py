@@ -23,14 +23,14 @@ FRAMES = (5, 1450, 3000 + 90 + 40, 9000 + 180 * 3 + 60, 16000 + 33, 28990)
 
 
 def render(grasps: str, out: str, shading: str | None) -> None:
-    from datagen.dataset.chunks import ChunkRenderer
-    from datagen.dataset.spec import DatasetSpec, Layout
+    from hupbench.datagen.dataset.chunks import ChunkRenderer
+    from hupbench.datagen.dataset.spec import DatasetSpec, Layout
 
     spec = DatasetSpec()
     layout = Layout(11, 2, 8, 2, 90)
     renderer = ChunkRenderer(spec, grasps, None, None)
     if shading is not None:  # the same frames through another colour shader
-        from datagen.render.renderer import Renderer
+        from hupbench.datagen.render.renderer import Renderer
 
         renderer.renderer.close()
         renderer.renderer = Renderer(spec.intrinsics, shading=shading)

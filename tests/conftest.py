@@ -13,8 +13,8 @@ def tiny_grasps(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory):
     """A finished 64 x 64 dataset with 20 frames in each of train, val and test (one grasp each). Read only."""
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import generate
 
     grasps = write_grasps(tmp_path_factory.mktemp("grasps3") / "grasps.npz", n=3)
     root = tmp_path_factory.mktemp("tiny") / "dataset"

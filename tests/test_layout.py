@@ -1,7 +1,8 @@
 """The package layout stays readable: no import cycles, no upward imports, no giant files or functions.
 
 DESIGN.md: data flows conf -> datagen -> dataset on disk -> hupbench -> models' predictions -> metrics;
-``models`` never imports ``datagen`` or ``hupbench``; ``datagen`` never imports ``models`` or ``hupbench``;
+``models`` never imports ``datagen`` or ``hupbench``; ``datagen`` never imports ``models`` or ``hupbench``
+(installed as ``hupbench.models`` and ``hupbench.datagen``: the folders keep their names, pyproject.toml maps them);
 the inference path (``hupbench.inference.predict``) imports no torch. Each subpackage's ``__init__``
 docstring says what it may import; this test holds the rules that can be read from the code.
 """
@@ -13,8 +14,16 @@ from pathlib import Path
 from helpers import REPO
 
 PACKAGES = ("datagen", "models", "hupbench")
-#: package -> packages it must never import
+#: folder -> the name it is installed and imported under (pyproject.toml's package-dir)
+INSTALLED = {"datagen": "hupbench.datagen", "models": "hupbench.models", "hupbench": "hupbench"}
+#: package (folder) -> packages it must never import
 FORBIDDEN = {"datagen": ("models", "hupbench"), "models": ("datagen", "hupbench")}
+
+
+def folder_of(name: str) -> str:
+    """The package folder a module's installed name lives in: hupbench.datagen.io -> datagen."""
+    parts = name.split(".")
+    return parts[1] if parts[0] == "hupbench" and len(parts) > 1 and parts[1] in ("datagen", "models") else parts[0]
 MAX_FILE_LINES = 700
 MAX_FUNCTION_LINES = 100
 #: a file or function may stay longer with this marker and a reason on the line of its start
@@ -26,6 +35,7 @@ def project_modules() -> dict[str, Path]:
     for package in PACKAGES:
         for path in (REPO / package).rglob("*.py"):
             parts = path.relative_to(REPO).with_suffix("").parts
+            parts = (*INSTALLED[package].split("."), *parts[1:])
             name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
             modules[name] = path
     return modules
@@ -47,7 +57,7 @@ def imports_of(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
         else:
             continue
         for target in targets:
-            # "from datagen import keypoints" imports the module datagen.keypoints, not datagen
+            # "from hupbench.datagen import keypoints" imports the module hupbench.datagen.keypoints, not the package
             if target in modules and target != name:
                 found.add(target)
     return found
@@ -105,17 +115,18 @@ def test_no_import_cycle():
 
 def test_no_upward_import():
     bad = [f"{name} imports {target}" for name, targets in import_graph().items() for target in targets
-           if target.split(".")[0] in FORBIDDEN.get(name.split(".")[0], ())]
+           if folder_of(target) in FORBIDDEN.get(folder_of(name), ())]
     assert not bad, bad
 
 
 #: subpackage -> modules (prefixes) it must never import, as its __init__ docstring says
 NEVER = {
-    "datagen.assets": ("datagen.render", "datagen.dataset", "datagen.grasps"),
-    "datagen.render": ("datagen.grasps", "datagen.dataset.writer", "datagen.dataset.verify",
-                       "datagen.dataset.ray_launcher", "datagen.dataset.sphere"),
-    "datagen.dataset": ("datagen.grasps",),
-    "datagen.grasps": ("datagen.dataset",),
+    "hupbench.datagen.assets": ("hupbench.datagen.render", "hupbench.datagen.dataset", "hupbench.datagen.grasps"),
+    "hupbench.datagen.render": ("hupbench.datagen.grasps", "hupbench.datagen.dataset.writer",
+                                "hupbench.datagen.dataset.verify", "hupbench.datagen.dataset.ray_launcher",
+                                "hupbench.datagen.dataset.sphere"),
+    "hupbench.datagen.dataset": ("hupbench.datagen.grasps",),
+    "hupbench.datagen.grasps": ("hupbench.datagen.dataset",),
     "hupbench.training": ("hupbench.evaluation", "hupbench.inference", "hupbench.verbs", "hupbench.cli"),
     "hupbench.evaluation": ("hupbench.training", "hupbench.verbs", "hupbench.cli"),
     "hupbench.inference": ("hupbench.training", "hupbench.evaluation", "hupbench.verbs", "hupbench.cli"),
@@ -127,8 +138,9 @@ TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupben
               "hupbench.inference.model_file", "hupbench.inference.runtime",
               "hupbench.error_lines", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
-SHARED_TOP = ("datagen.keypoints", "datagen.geometry", "datagen.rotations_torch", "datagen.mesh_distance",
-              "datagen.camera", "datagen.tolerances", "datagen.io", "datagen.processes", "datagen.input_checks")
+SHARED_TOP = tuple(f"hupbench.datagen.{name}" for name in (
+    "keypoints", "geometry", "rotations_torch", "mesh_distance", "camera", "tolerances", "io", "processes",
+    "input_checks"))
 
 
 def test_subpackages_import_only_what_their_docstring_allows():
@@ -139,8 +151,49 @@ def test_subpackages_import_only_what_their_docstring_allows():
             if name == package or name.startswith(package + "."):
                 bad += [f"{name} imports {t}" for t in targets if any(t == n or t.startswith(n + ".") for n in never)]
         if name in SHARED_TOP:
-            bad += [f"{name} imports {t}" for t in targets if t.count(".") >= 2]
+            bad += [f"{name} imports {t}" for t in targets if t.count(".") >= 3]
     assert not bad, bad
+
+
+def test_nothing_imports_a_top_level_models_or_datagen():
+    """Installed, there is no top-level ``models`` or ``datagen`` (a user's own folder of that name would shadow
+    it): every file of the repository imports them as ``hupbench.models`` and ``hupbench.datagen``, and
+    pyproject.toml installs nothing outside ``hupbench``."""
+    import tomllib
+
+    bad = []
+    files = [REPO / "train.py"] + [p for folder in (*PACKAGES, "tests", "scripts", "benchmarks")
+                                    for p in (REPO / folder).rglob("*.py")]
+    for path in sorted(files):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([alias.name for alias in node.names] if isinstance(node, ast.Import) else
+                     [node.module] if isinstance(node, ast.ImportFrom) and not node.level and node.module else [])
+            bad += [f"{path.relative_to(REPO)}:{node.lineno} imports {n}" for n in names
+                    if n.split(".")[0] in ("models", "datagen")]
+    assert not bad, bad
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    outside = [p for p in setuptools["packages"] if p.split(".")[0] != "hupbench"]
+    assert not outside, f"pyproject.toml installs top-level packages {outside}"
+    assert setuptools["package-dir"] == {"hupbench.conf": "conf", "hupbench.datagen": "datagen",
+                                         "hupbench.models": "models"}
+
+
+def test_a_user_s_own_models_and_datagen_folders_do_not_shadow_ours(tmp_path):
+    """Run from a folder holding a user's own ``models`` and ``datagen`` packages, hupbench builds its model and
+    reads its keypoints from its own, and the user's stay importable under their names."""
+    import subprocess
+    import sys
+
+    for name in ("models", "datagen"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text(f"MINE = {name!r}\n")
+    code = ("import models, datagen; from hupbench.models.build import build_model; "
+            "from hupbench.datagen import keypoints; "
+            "m = build_model({'name': 'hopenet', 'backbone': 'resnet10'}); "
+            "print(models.MINE, datagen.MINE, keypoints.NUM_KEYPOINTS, type(m).__module__)")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["models", "datagen", "29", "hupbench.models.hopenet"]
 
 
 def test_every_subpackage_says_what_it_owns_and_may_import():

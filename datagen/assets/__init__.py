@@ -7,6 +7,6 @@ tracking marker), the forearm (``arm``) and the backgrounds (``backgrounds``,
 ``background_scenes``).
 
 May import: numpy, scipy, torch, trimesh, OpenCV and the shared modules at the top of
-``datagen`` (keypoints, geometry, mesh_distance, rotations_torch, camera, tolerances, io). Never ``datagen.render``,
-``datagen.dataset``, ``datagen.grasps``, ``models`` or ``hupbench``.
+``datagen`` (keypoints, geometry, mesh_distance, rotations_torch, camera, tolerances, io). Never ``hupbench.datagen.render``,
+``hupbench.datagen.dataset``, ``hupbench.datagen.grasps``, ``models`` or ``hupbench``.
 """

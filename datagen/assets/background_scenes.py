@@ -3,7 +3,7 @@
 HUP-3D's photographs (plain white, a consultation room, 3 x an ultrasound fetal phantom scene and
 3 x real pregnant abdomens) are not redistributable; these are stand-ins of the same categories.
 :data:`SCENES` holds one painter per built-in, in the order of
-:data:`datagen.assets.backgrounds.BUILTIN_NAMES`; :mod:`datagen.assets.backgrounds` crops, resizes and caches them.
+:data:`hupbench.datagen.assets.backgrounds.BUILTIN_NAMES`; :mod:`hupbench.datagen.assets.backgrounds` crops, resizes and caches them.
 
 Convention:
     Canvases are float32 RGB in [0, 1], (BASE_PX, BASE_PX, 3); masks are float32 coverage in

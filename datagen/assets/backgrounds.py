@@ -4,7 +4,7 @@ HUP-3D composites every frame over one of 8 photographs: plain white, a
 consultation room, 3 x an ultrasound fetal phantom scene and 3 x real
 pregnant abdomens (light, brown, dark skin). The photographs are not
 redistributable, so :meth:`BackgroundSet.builtin` paints procedural stand-ins
-of the same 8 categories with numpy and OpenCV (:mod:`datagen.assets.background_scenes`); :class:`BackgroundSet` also
+of the same 8 categories with numpy and OpenCV (:mod:`hupbench.datagen.assets.background_scenes`); :class:`BackgroundSet` also
 reads a folder of the user's own photographs.
 
 Convention:
@@ -37,8 +37,8 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from datagen.assets.background_scenes import SCENES
-from datagen.errors import BadValueError
+from hupbench.datagen.assets.background_scenes import SCENES
+from hupbench.datagen.errors import BadValueError
 
 #: the built-in backgrounds; the position in this tuple is the background_id
 BUILTIN_NAMES: tuple[str, ...] = (

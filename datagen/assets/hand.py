@@ -30,9 +30,9 @@ import functools
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
-from datagen.geometry import axis_angle_to_matrix
-from datagen.assets.hand_anatomy import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.assets.hand_anatomy import (
     NUM_JOINTS,
     POSE_DIM,
     HandSpec,
@@ -42,7 +42,7 @@ from datagen.assets.hand_anatomy import (
     joint_limits_rad,
     rest_skeleton,
 )
-from datagen.assets.hand_mesh import build_mesh
+from hupbench.datagen.assets.hand_mesh import build_mesh
 
 
 def forward_kinematics_torch(R_local: torch.Tensor, trans: torch.Tensor, joints_rest: torch.Tensor):
@@ -229,7 +229,7 @@ class HandModel:
         Returns:
             keypoints: (..., 21, 3) OpenPose order; vertices: (..., V', 3); both metres, world.
         """
-        from datagen.rotations_torch import euler_xyz_to_matrix
+        from hupbench.datagen.rotations_torch import euler_xyz_to_matrix
 
         b = self.buffers(angles.dtype, angles.device)
         frames = b["frames"]

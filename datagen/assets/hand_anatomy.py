@@ -2,7 +2,7 @@
 
 Adult right hand, 50th percentile (REFERENCE.md); MANO's kinematic tree (16 joints) plus 5
 fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
-:mod:`datagen.assets.hand_mesh` builds the skinned surface, :mod:`datagen.assets.hand` the posable model.
+:mod:`hupbench.datagen.assets.hand_mesh` builds the skinned surface, :mod:`hupbench.datagen.assets.hand` the posable model.
 
 Convention:
     Metres and radians. Hand frame (the rest pose): origin at the wrist
@@ -26,14 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.geometry import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.geometry import (
     axis_angle_to_matrix,
     euler_to_matrix,
     matrix_to_axis_angle,
     matrix_to_euler_xyz,
 )
-from datagen.errors import BadValueError
+from hupbench.datagen.errors import BadValueError
 
 MM = 1e-3
 NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
@@ -197,7 +197,7 @@ def as_pose(pose: np.ndarray) -> np.ndarray:
     """A hand pose as float64: (48,) or (B, 48) axis-angle, radians.
 
     Poses come from this package or from a file whose reader checked their shape and finiteness
-    (``datagen.dataset.grasps_file``, ``datagen.dataset.contract.read_annotations``).
+    (``hupbench.datagen.dataset.grasps_file``, ``hupbench.datagen.dataset.contract.read_annotations``).
     """
     pose = np.asarray(pose, dtype=np.float64)
     assert pose.ndim in (1, 2) and pose.shape[-1] == POSE_DIM, pose.shape

@@ -5,7 +5,7 @@ cubes on a narrow band, decimated to under 8k triangles, and skinned by linear b
 compact blend zones at the joints.
 
 Convention:
-    Metres, hand frame of the rest pose (see :mod:`datagen.assets.hand_anatomy`).
+    Metres, hand frame of the rest pose (see :mod:`hupbench.datagen.assets.hand_anatomy`).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.assets.hand_anatomy import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.hand_anatomy import (
     FINGER_RADII_MM,
     MM,
     NUM_JOINTS,

@@ -1,11 +1,11 @@
 """The procedural convex-array abdominal ultrasound probe and its signed distance.
 
-:func:`build_probe` assembles the probe: the swept shape of :mod:`datagen.assets.probe_shape` with the
-orientation marker of :mod:`datagen.assets.probe_marker`, its box corners (keypoints 21-28), regions
+:func:`build_probe` assembles the probe: the swept shape of :mod:`hupbench.datagen.assets.probe_shape` with the
+orientation marker of :mod:`hupbench.datagen.assets.probe_marker`, its box corners (keypoints 21-28), regions
 and a gridded signed distance.
 
 The signed distance is gridded: exact point-to-triangle distances
-(:mod:`datagen.mesh_distance`) at the nodes of a regular grid, signed with angle-weighted
+(:mod:`hupbench.datagen.mesh_distance`) at the nodes of a regular grid, signed with angle-weighted
 pseudo-normals, then interpolated trilinearly (numpy and differentiable torch versions of the
 same formula). The grid of the symmetric sweep is computed on one quadrant and mirrored;
 the nodes the marker can affect are then recomputed exactly on the marked
@@ -29,9 +29,9 @@ import numpy as np
 import torch
 import trimesh
 
-from datagen import tolerances as tol
-from datagen.assets.probe_marker import add_marker
-from datagen.assets.probe_mesh import (
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.assets.probe_marker import add_marker
+from hupbench.datagen.assets.probe_mesh import (
     ProbeMeshSpec,
     ProbeSource,
     TriangleDistance,
@@ -41,15 +41,15 @@ from datagen.assets.probe_mesh import (
     regions,
     signed_grid,
 )
-from datagen.assets.probe_shape import (
+from hupbench.datagen.assets.probe_shape import (
     ProbeSpec,
     RegionZ,
     build_rings,
     lens_sag,
     ring_faces,
 )
-from datagen.keypoints import CORNER_BITS
-from datagen.mesh_distance import MeshDistance
+from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.datagen.mesh_distance import MeshDistance
 
 __all__ = ["Probe", "ProbeSpec", "RegionZ", "build_mesh_probe", "build_probe", "probe_of"]
 
@@ -103,7 +103,7 @@ class Probe:
 
     Attributes:
         spec: the :class:`ProbeSpec` it was built from, or for a mesh probe
-            (:func:`build_mesh_probe`) its :class:`datagen.assets.probe_mesh.ProbeMeshSpec`.
+            (:func:`build_mesh_probe`) its :class:`hupbench.datagen.assets.probe_mesh.ProbeMeshSpec`.
         marker_patch: a mesh probe's orientation marker, a patch laid on its
             surface (``trimesh.Trimesh``, probe frame; None without one); None
             for the procedural probe, whose marker is part of ``mesh``.
@@ -121,7 +121,7 @@ class Probe:
             minimum-volume oriented box), corner k at
             ``(x, y, z)[(min, max)[bit]]`` with bits ``CORNER_BITS[k]``, the
             ``itertools.product((min, max), repeat=3)`` order of
-            :mod:`datagen.keypoints`.
+            :mod:`hupbench.datagen.keypoints`.
         region_z: :class:`RegionZ`, z ranges of lens, head, neck, handle and
             strain relief, metres, probe frame.
         sdf_grid: (nx, ny, nz) float64 exact signed distances (metres,
@@ -421,7 +421,7 @@ _MESH_PROBES: dict[tuple[str, ProbeMeshSpec], Probe] = {}
 def probe_from_geometry(vertices: np.ndarray, faces: np.ndarray, spec: ProbeMeshSpec) -> Probe:
     """The probe of a closed, outward-wound mesh already in the probe frame (cached by geometry and spec).
 
-    Everything is derived from the mesh (:mod:`datagen.assets.probe_mesh`): corners, regions, lens,
+    Everything is derived from the mesh (:mod:`hupbench.datagen.assets.probe_mesh`): corners, regions, lens,
     marker patch and the signed-distance grid (about 2 s for a few thousand triangles).
 
     Args:
@@ -443,7 +443,7 @@ def probe_from_geometry(vertices: np.ndarray, faces: np.ndarray, spec: ProbeMesh
 
 
 def build_mesh_probe(spec: ProbeMeshSpec) -> Probe:
-    """Read a probe mesh file (:func:`datagen.assets.probe_mesh.load_probe_mesh`) and build its probe.
+    """Read a probe mesh file (:func:`hupbench.datagen.assets.probe_mesh.load_probe_mesh`) and build its probe.
 
     Raises:
         BadValueError: the file cannot be used (one line naming why).

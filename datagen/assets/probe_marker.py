@@ -1,14 +1,14 @@
-"""The probe's orientation marker, moulded into the swept mesh of :mod:`datagen.assets.probe_shape`.
+"""The probe's orientation marker, moulded into the swept mesh of :mod:`hupbench.datagen.assets.probe_shape`.
 
 An orientation marker (a raised green pad on the +x end of the head, see
-:class:`datagen.assets.probe_shape.ProbeSpec`) is moulded into the sweep by refining the quads under it
+:class:`hupbench.datagen.assets.probe_shape.ProbeSpec`) is moulded into the sweep by refining the quads under it
 and pushing them out, so the mesh stays one closed surface. Without it the
 probe would be exactly mirror-symmetric about x = 0 and y = 0, hence
 unchanged by a half turn about its long axis; with it only the mirror
 y -> -y remains, which no rigid motion can produce.
 
 Convention:
-    Metres, probe frame (see :mod:`datagen.assets.probe_shape`).
+    Metres, probe frame (see :mod:`hupbench.datagen.assets.probe_shape`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
-from datagen.assets.probe_shape import ProbeSpec, smoothstep
-from datagen.errors import BadValueError
+from hupbench.datagen.assets.probe_shape import ProbeSpec, smoothstep
+from hupbench.datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- orientation marker

@@ -16,7 +16,7 @@ A mesh probe carries everything the pipeline takes from the procedural one, deri
   in the segmentation; it is not part of the signed distance. A mesh with no surface there gets no marker.
 
 Convention:
-    The probe frame of :mod:`datagen.assets.probe`: metres; origin at the centre of the transducer face
+    The probe frame of :mod:`hupbench.datagen.assets.probe`: metres; origin at the centre of the transducer face
     (the lowest point on the long axis); +z along the long axis from the face towards the cable end;
     +x along the transducer face (its longer side); +y across it; right-handed. A mesh is taken in its
     own coordinates, which must be that frame (checked: the longest side of its box along z, the lowest
@@ -36,10 +36,10 @@ import trimesh
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from datagen.assets.probe_shape import RegionZ
-from datagen.errors import BadValueError, MissingFileError
-from datagen.io import file_sha256
-from datagen.mesh_distance import (
+from hupbench.datagen.assets.probe_shape import RegionZ
+from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.datagen.io import file_sha256
+from hupbench.datagen.mesh_distance import (
     FEATURE_EAB,
     FEATURE_EBC,
     FEATURE_ECA,
@@ -134,7 +134,7 @@ class ProbeMeshSpec:
     Attributes:
         path: the mesh file (absolute). unit: metres per file unit, by name (:data:`MESH_UNITS`).
         align: turned by its principal axes. sha256: of the file's bytes.
-        sdf_spacing, sdf_margin: the grid, as in :class:`datagen.assets.probe_shape.ProbeSpec`.
+        sdf_spacing, sdf_margin: the grid, as in :class:`hupbench.datagen.assets.probe_shape.ProbeSpec`.
     """
 
     path: str
@@ -393,7 +393,7 @@ class TriangleDistance:
 
     Each point's search is bounded by its distance to the nearest face centre; the faces whose bounding
     sphere lies within that bound are checked exactly and the sign comes from the angle-weighted
-    pseudo-normal of the closest feature (as :class:`datagen.mesh_distance.MeshDistance`).
+    pseudo-normal of the closest feature (as :class:`hupbench.datagen.mesh_distance.MeshDistance`).
 
     Args:
         vertices: (V, 3) float64, metres. faces: (F, 3) int64.
@@ -506,7 +506,7 @@ def read_cached(spec: ProbeMeshSpec) -> tuple[np.ndarray, np.ndarray]:
 
 #: a grasps file made for a probe mesh (``hupbench grasps probe.mesh=PATH``) carries that probe: its
 #: geometry as used (probe frame, metres) and a JSON record of where it came from
-#: (:attr:`datagen.assets.probe.Probe.record`); without them the grasps are the procedural probe's
+#: (:attr:`hupbench.datagen.assets.probe.Probe.record`); without them the grasps are the procedural probe's
 PROBE_MESH_FIELDS = ("probe_mesh_vertices", "probe_mesh_faces", "probe_mesh_record")
 
 

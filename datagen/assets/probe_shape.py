@@ -16,7 +16,7 @@ a small fillet joins it to the housing. Near the lens the housing rings are
 sheared along z by the same lens sag, so the lower edge of the housing
 follows the lens arc and the head reads as a fan; the shear fades out
 towards the neck. The orientation marker is moulded in by
-:mod:`datagen.assets.probe_marker`; :mod:`datagen.assets.probe` assembles the probe.
+:mod:`hupbench.datagen.assets.probe_marker`; :mod:`hupbench.datagen.assets.probe` assembles the probe.
 
 Convention:
     Metres. Probe frame: origin at the lens apex (the centre of the curved
@@ -35,9 +35,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from datagen import tolerances as tol
-from datagen.input_checks import check_int
-from datagen.errors import BadValueError
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- spec
@@ -64,7 +64,7 @@ class ProbeSpec:
     both rounded edges, to y = +-9.3 mm), its height rising smoothly over
     3 mm from its outline to 2 mm above the housing. It is drawn in its own
     bright green, glowing a little like a marker light
-    (``datagen.render.scene.PROBE_MARKER_RGB`` and ``PROBE_MARKER_EMISSIVE``), and
+    (``hupbench.datagen.render.scene.PROBE_MARKER_RGB`` and ``PROBE_MARKER_EMISSIVE``), and
     labelled probe (3) in the segmentation. It makes the probe no longer
     symmetric under the half turn about its long axis (x, y) -> (-x, -y),
     which otherwise maps the picture onto itself and swaps the 8 box corners

@@ -6,7 +6,7 @@ and resumes a dataset (``writer``: the dataset spec, frame layout and protocol, 
 of frames rendered in worker processes, locks and resume), the Ray launcher (``ray_launcher``, handed a chunk-renderer
 factory) and the re-check of a finished dataset (``verify``).
 
-May import: ``datagen.assets``, ``datagen.render``, the shared modules at the top of ``datagen``.
-Never ``datagen.grasps`` (the writer reads a grasps file), ``models`` or ``hupbench``. Readers in
+May import: ``hupbench.datagen.assets``, ``hupbench.datagen.render``, the shared modules at the top of ``datagen``.
+Never ``hupbench.datagen.grasps`` (the writer reads a grasps file), ``models`` or ``hupbench``. Readers in
 ``hupbench`` import ``contract`` only, which pulls in neither the renderer nor the assets.
 """

@@ -1,10 +1,10 @@
 """Rendering one chunk of frames and writing it.
 
-A chunk is the frames of one (grasp, z_ego, background) block in one split (:func:`datagen.dataset.spec.chunk_plan`),
+A chunk is the frames of one (grasp, z_ego, background) block in one split (:func:`hupbench.datagen.dataset.spec.chunk_plan`),
 sharing the meshes. Its
 image files are written atomically, then its annotation rows, also atomically: a chunk whose rows exist
 is done. :class:`ChunkRenderer` renders chunks in the local worker processes (which die with their
-parent) and on Ray actors (:mod:`datagen.dataset.ray_launcher`); :func:`write_chunk` writes them.
+parent) and on Ray actors (:mod:`hupbench.datagen.dataset.ray_launcher`); :func:`write_chunk` writes them.
 
 Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the stored image. World =
@@ -26,18 +26,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from datagen.camera import project_points
-from datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
-from datagen.dataset.grasps_file import GraspSet
-from datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
-from datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
-from datagen.geometry import invert_transform, transform_points
-from datagen.io import DiskFullError, save_npz, write_bytes
-from datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
-from datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
-from datagen import keypoints as kp
-from datagen import tolerances as tol
-from datagen.errors import RunFailedError
+from hupbench.datagen.camera import project_points
+from hupbench.datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
+from hupbench.datagen.dataset.grasps_file import GraspSet
+from hupbench.datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
+from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
+from hupbench.datagen.geometry import invert_transform, transform_points
+from hupbench.datagen.io import DiskFullError, save_npz, write_bytes
+from hupbench.datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
+from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.errors import RunFailedError
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -56,7 +56,7 @@ def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int
 
 def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.ndarray, seg: np.ndarray,
                slack_m: float = 0.0) -> np.ndarray:
-    """(29,) bool: inside the image and not occluded (definitions in :mod:`datagen.tolerances`).
+    """(29,) bool: inside the image and not occluded (definitions in :mod:`hupbench.datagen.tolerances`).
 
     Args:
         keypoints_cam: (29, 3) metres, camera frame. keypoints_2d: (29, 2) pixels.
@@ -115,19 +115,19 @@ class ChunkRenderer:
     """Renders chunks of a dataset; owns one GL renderer (build one per process and reuse it).
 
     Both launchers use it: the local worker processes and the Ray actors
-    (:mod:`datagen.dataset.ray_launcher`), so a frame comes out the same whichever ran it.
+    (:mod:`hupbench.datagen.dataset.ray_launcher`), so a frame comes out the same whichever ran it.
 
     Args:
         spec: the dataset spec.
         grasps: path of the dataset's grasps.npz, or its bytes (a Ray actor on another machine).
         backgrounds_dir: folder of background photographs, None for the built-ins.
-        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.render.gl`.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`hupbench.datagen.render.gl`.
     """
 
     def __init__(self, spec: DatasetSpec, grasps: str | Path | bytes, backgrounds_dir: str | None,
                  platform: str | None) -> None:
-        from datagen.assets.backgrounds import BackgroundSet
-        from datagen.render.renderer import Renderer
+        from hupbench.datagen.assets.backgrounds import BackgroundSet
+        from hupbench.datagen.render.renderer import Renderer
 
         import torch
 
@@ -145,13 +145,13 @@ class ChunkRenderer:
         """Render and encode every frame of one chunk (nothing is written).
 
         Args:
-            chunk: chunk number (:func:`datagen.dataset.spec.chunk_plan`). split: its split.
+            chunk: chunk number (:func:`hupbench.datagen.dataset.spec.chunk_plan`). split: its split.
             frames: its frame indices. layout: the frame layout.
 
         Returns:
             The chunk's encoded image files and annotation rows.
         """
-        from datagen.assets.backgrounds import composite
+        from hupbench.datagen.assets.backgrounds import composite
 
         spec, grasps, renderer = self.spec, self.grasps, self.renderer
         rows, files = [], []
@@ -240,7 +240,7 @@ def die_with_parent(parent_pid: int) -> None:
     (and racing) the next run there. On Linux the kernel sends the signal (``PR_SET_PDEATHSIG``);
     a watchdog thread that polls ``os.getppid()`` covers the other systems and a parent that died
     before this was called. Anything a killed worker was writing is a temporary file, removed by the
-    next run (:func:`datagen.io.clean_stale_tmp`).
+    next run (:func:`hupbench.datagen.io.clean_stale_tmp`).
 
     Args:
         parent_pid: the pid of the process that started this one.

@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from datagen.dataset.spec import BOX_CENTRE
-from datagen.geometry import axis_angle_to_matrix
-from datagen import keypoints as kp
-from datagen.assets.probe_mesh import PROBE_MESH_FIELDS
-from datagen.errors import BadValueError, MissingFileError
+from hupbench.datagen.dataset.spec import BOX_CENTRE
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS
+from hupbench.datagen.errors import BadValueError, MissingFileError
 
 if TYPE_CHECKING:
-    from datagen.assets.probe import Probe
+    from hupbench.datagen.assets.probe import Probe
 
 
 #: what a dataset needs of a grasps.npz: array -> (dtype kind: "f" float / "i" integer, row shape)
@@ -26,7 +26,7 @@ GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id"
 #: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
 OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
 def read_grasps_probe_record(path: str | Path) -> dict:
-    """The record of the probe a grasps file was made for (:attr:`datagen.assets.probe.Probe.record`) without
+    """The record of the probe a grasps file was made for (:attr:`hupbench.datagen.assets.probe.Probe.record`) without
     building the probe: the JSON it carries, or ``{"kind": "procedural"}`` when it carries no mesh."""
     import json
 
@@ -38,7 +38,7 @@ def read_grasps_probe_record(path: str | Path) -> dict:
 
 
 def read_grasps_probe(path: str | Path | bytes):
-    """The probe a grasps file (or its bytes) was made for: a :class:`datagen.assets.probe.Probe` built
+    """The probe a grasps file (or its bytes) was made for: a :class:`hupbench.datagen.assets.probe.Probe` built
     from the mesh it carries, or None when it carries none (the procedural probe's grasps).
 
     Raises:
@@ -46,8 +46,8 @@ def read_grasps_probe(path: str | Path | bytes):
     """
     import json
 
-    from datagen.assets.probe import probe_from_geometry
-    from datagen.assets.probe_mesh import ProbeMeshSpec, probe_geometry_sha256
+    from hupbench.datagen.assets.probe import probe_from_geometry
+    from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec, probe_geometry_sha256
 
     name = "grasps (bytes)" if isinstance(path, bytes) else str(path)
     if not isinstance(path, bytes) and not Path(path).is_file():
@@ -180,8 +180,8 @@ class GraspSet:
     """
 
     def __init__(self, path: str | Path | bytes) -> None:
-        from datagen.assets.hand import build_hand
-        from datagen.assets.probe import build_probe
+        from hupbench.datagen.assets.hand import build_hand
+        from hupbench.datagen.assets.probe import build_probe
 
         arrays = read_grasps(path)
         self.hand_pose, self.hand_trans, self.grasp_id = arrays["hand_pose"], arrays["hand_trans"], arrays["grasp_id"]
@@ -230,9 +230,9 @@ def probe_of_dataset(root_or_manifest) -> "Probe":
     """
     import json
 
-    from datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
-    from datagen.assets.probe_mesh import ProbeMeshSpec
-    from datagen.io import file_sha256
+    from hupbench.datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
+    from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec
+    from hupbench.datagen.io import file_sha256
 
     if isinstance(root_or_manifest, dict):
         manifest, root = root_or_manifest, None

@@ -1,4 +1,4 @@
-"""The published HUP-3D dataset converted into a hupbench dataset (:mod:`datagen.dataset.contract`).
+"""The published HUP-3D dataset converted into a hupbench dataset (:mod:`hupbench.datagen.dataset.contract`).
 
 The published layout, as ``manuelbirlo/HUP-3D_renderer`` (``grasp_renderer.py``) writes it into one
 folder per split (``<split>/``) or, merged, into one folder::
@@ -28,7 +28,7 @@ the lamp zeros, and the manifest's ``imported.unknown`` says so.
 
 Convention:
     Pixel centres: Blender's K puts the principal point at (128, 128) for pixels covering [i, i + 1);
-    hupbench's pixel centres are at integers (:mod:`datagen.dataset.contract`), so K's cx and cy and
+    hupbench's pixel centres are at integers (:mod:`hupbench.datagen.dataset.contract`), so K's cx and cy and
     the published coords_2d shift by -0.5 px. Depth precision from the 8-bit PNG: a step of
     (far - near) / 254 per level, rounded to the nearest level, so up to (far - near) / 508 off (plus
     half a uint16 step); such depth is marked approximate in the manifest.
@@ -48,10 +48,10 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen import tolerances as tol
-from datagen.camera import project_points, swap_gl_cv_axes
-from datagen.dataset.contract import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.camera import project_points, swap_gl_cv_axes
+from hupbench.datagen.dataset.contract import (
     ANNOTATION_FIELDS,
     ANNOTATIONS,
     DEPTH_SCALE_M,
@@ -61,15 +61,15 @@ from datagen.dataset.contract import (
     SPLITS,
     frame_path,
 )
-from datagen.dataset.sphere import SphereSpec, all_viewpoints, latitude_count
-from datagen.errors import BadValueError, MissingFileError
-from datagen.geometry import (
+from hupbench.datagen.dataset.sphere import SphereSpec, all_viewpoints, latitude_count
+from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.datagen.geometry import (
     axis_angle_to_matrix,
     euler_to_matrix,
     invert_transform,
     transform_points,
 )
-from datagen.io import file_sha256, save_npz, write_bytes, write_json
+from hupbench.datagen.io import file_sha256, save_npz, write_bytes, write_json
 
 FORMAT = "HUP-3D"
 #: the published mask's material pass indices -> hupbench's labels
@@ -216,7 +216,7 @@ def read_meta(path: Path) -> dict:
 
 
 def probe_box_ply(path: Path) -> np.ndarray:
-    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`datagen.keypoints.CORNER_BITS`
+    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`hupbench.datagen.keypoints.CORNER_BITS`
     order (the published ``get_obj_corners3d`` order: the same).
 
     Args:
@@ -358,7 +358,7 @@ def view_rotations() -> np.ndarray:
     rotation in ``pose[:3]``.
 
     Returns:
-        (V, 3, 3) float64 rotation matrices, V = all views of :func:`datagen.dataset.sphere.all_viewpoints`.
+        (V, 3, 3) float64 rotation matrices, V = all views of :func:`hupbench.datagen.dataset.sphere.all_viewpoints`.
     """
     spec = SphereSpec()  # the published sphere: 0.8 m, 0.15 m circles, N_lat by ceil
     angles = all_viewpoints(spec)
@@ -403,7 +403,7 @@ def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray
     """One published frame written into ``out`` in hupbench's layout; returns (its annotation row, its image
     size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from)."""
     # chunks imports the renderer: only when converting
-    from datagen.dataset.chunks import visibility
+    from hupbench.datagen.dataset.chunks import visibility
 
     rgb = _read_image(f.file("rgb"), cv2.IMREAD_COLOR)
     rgb_bytes = f.file("rgb").read_bytes()

@@ -1,10 +1,10 @@
 """Rendering a dataset's chunks on Ray: one actor per worker, each owning a renderer.
 
-``hupbench generate launcher=ray`` hands the chunks that :func:`datagen.dataset.writer.generate`
-still needs to Ray actors. Each actor builds one :class:`datagen.dataset.chunks.ChunkRenderer`
+``hupbench generate launcher=ray`` hands the chunks that :func:`hupbench.datagen.dataset.writer.generate`
+still needs to Ray actors. Each actor builds one :class:`hupbench.datagen.dataset.chunks.ChunkRenderer`
 (the same class the local worker processes use) when it starts, renders the chunks it is
 given and returns them encoded; the driver writes them with
-:func:`datagen.dataset.chunks.write_chunk`. So the output folder only has to exist where the
+:func:`hupbench.datagen.dataset.chunks.write_chunk`. So the output folder only has to exist where the
 driver runs, and a Ray run writes exactly the files a local run writes, through the same
 resumable chunk mechanism.
 
@@ -29,8 +29,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from datagen.input_checks import check_int
-from datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.errors import BadValueError, RunFailedError
 
 RAY_MISSING = "launcher=ray needs Ray: pip install 'hupbench[ray]'"
 LAUNCHERS = ("local", "ray")
@@ -123,7 +123,7 @@ class ChunkActor:
 
     def __init__(self, factory: str, spec, grasps_npz: bytes, backgrounds_dir: str | None,
                  platform: str | None) -> None:
-        from datagen.render import gl
+        from hupbench.datagen.render import gl
 
         # an actor is its own process: fix PYOPENGL_PLATFORM here, before anything imports
         # pyrender or PyOpenGL (each node picks what works on it when platform is None)
@@ -135,7 +135,7 @@ class ChunkActor:
         return {"pid": os.getpid(), "host": socket.gethostname(), "platform": self.platform}
 
     def render(self, chunk: int, split: str, frames: tuple[int, ...], layout):
-        """Render one chunk; returns a :class:`datagen.dataset.chunks.ChunkOutput`."""
+        """Render one chunk; returns a :class:`hupbench.datagen.dataset.chunks.ChunkOutput`."""
         return self._chunks.render(chunk, split, frames, layout)
 
 
@@ -146,10 +146,10 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
     Args:
         factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
         jobs: (chunk, split, frame indices) of the chunks to render.
-        layout: the dataset's :class:`datagen.dataset.spec.Layout`.
-        spec: the :class:`datagen.dataset.spec.DatasetSpec`.
+        layout: the dataset's :class:`hupbench.datagen.dataset.spec.Layout`.
+        spec: the :class:`hupbench.datagen.dataset.spec.DatasetSpec`.
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
-        job: the run's :class:`datagen.dataset.writer.RenderJob`: its ``ray`` options, ``workers`` (actors on a
+        job: the run's :class:`hupbench.datagen.dataset.writer.RenderJob`: its ``ray`` options, ``workers`` (actors on a
             private runtime when ``ray.num_workers`` is None), GL ``platform`` for every actor (None: each
             picks its own) and ``backgrounds_dir`` (must exist on every node).
         on_chunk: called once per finished chunk with its ``ChunkOutput`` (writes it).

@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from datagen.camera import Intrinsics
-from datagen.dataset.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
-from datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
-from datagen.render.renderer import MODALITIES, check_modalities
-from datagen import keypoints as kp
-from datagen.input_checks import check_int, is_whole
-from datagen.errors import BadValueError
+from hupbench.datagen.camera import Intrinsics
+from hupbench.datagen.dataset.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
+from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
+from hupbench.datagen.render.renderer import MODALITIES, check_modalities
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.input_checks import check_int, is_whole
+from hupbench.datagen.errors import BadValueError
 
 
 GENERATOR_VERSION = "0.3.0"
@@ -205,7 +205,7 @@ def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
 
 
 def split_of_views(spec: DatasetSpec, n_views: int) -> dict[str, list[int]]:
-    """View positions (into :func:`datagen.dataset.sphere.viewpoints`) of each split.
+    """View positions (into :func:`hupbench.datagen.dataset.sphere.viewpoints`) of each split.
 
     On the unseen_grasps track every split holds every view. On the unseen_views track the views,
     in the sphere's order (pole, then ring by ring from north to south), are dealt in runs of
@@ -263,7 +263,7 @@ def view_directions_arm(sphere: SphereSpec, angles: np.ndarray) -> np.ndarray:
     """(V, 3) float64 unit vectors from the target to the camera in the arm frame.
 
     The arm frame's columns are hand -> elbow, dorsal and their cross product (the thumb side of
-    a right hand), :func:`datagen.dataset.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
+    a right hand), :func:`hupbench.datagen.dataset.sphere.arm_frame`; ``angles`` is (V, 2) (theta, phi) radians.
     """
     # the sphere frame of an arm frame equal to the identity gives the sphere's axes in arm coordinates
     frame = sphere_frame(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), sphere.axis)

@@ -1,11 +1,11 @@
 """Re-check a dataset against its manifest, against geometry and against its own images.
 
-verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
+verify reads through :mod:`hupbench.datagen.dataset.contract`. Two kinds of answer:
 
 * **fatal** (``ValueError`` / ``FileNotFoundError``, one error line from the CLI): nothing to check
   against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
-  field is missing or malformed (:func:`datagen.dataset.contract.read_manifest`: keypoint names other than
-  the 29 of :mod:`datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
+  field is missing or malformed (:func:`hupbench.datagen.dataset.contract.read_manifest`: keypoint names other than
+  the 29 of :mod:`hupbench.datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
   an unknown ``protocol.look_at``, a malformed ``gloves_rgb`` and ``seg_labels`` other than the contract's).
 * **problems**, reported with a kind, the split, the frame and the file; the other splits and
   frames are still checked and the verdict is FAILED. Kinds:
@@ -38,7 +38,7 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
                         frames' median shift is reported beside the verdict
   ``mask_depth``        depth and seg disagree on foreground away from the silhouette's edge: one of
                         them belongs to another frame
-  ``split_floors``      the manifest's floor of a split (:mod:`datagen.dataset.floors`) differs from
+  ``split_floors``      the manifest's floor of a split (:mod:`hupbench.datagen.dataset.floors`) differs from
                         the one its annotations give
   ``rgb_mismatch``      the RGB image does not show this frame: pixels the mask calls background
                         differ from the frame's background image, or the hand's colour is explained
@@ -48,7 +48,7 @@ verify reads through :mod:`datagen.dataset.contract`. Two kinds of answer:
   ``grasps_file``       grasps.npz is missing, unreadable, or not the grasps the frames were rendered
                         with (their hand poses, translations and ids in the annotations)
 
-How the per-frame checks work: :mod:`datagen.dataset.verify_frames`.
+How the per-frame checks work: :mod:`hupbench.datagen.dataset.verify_frames`.
 """
 
 from __future__ import annotations
@@ -62,11 +62,11 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen import tolerances as tol
-from datagen.camera import project_points
-from datagen.input_checks import is_whole
-from datagen.dataset.contract import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.camera import project_points
+from hupbench.datagen.input_checks import is_whole
+from hupbench.datagen.dataset.contract import (
     ANNOTATIONS,
     MANIFEST,
     SEG_LABELS,
@@ -77,11 +77,11 @@ from datagen.dataset.contract import (
     read_annotations,
     read_manifest,
 )
-from datagen.dataset.floors import split_floors
-from datagen.geometry import invert_transform, transform_points
-from datagen.processes import check_workers, workers_ignore_ctrl_c
-from datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
-from datagen.errors import BadValueError
+from hupbench.datagen.dataset.floors import split_floors
+from hupbench.datagen.geometry import invert_transform, transform_points
+from hupbench.datagen.processes import check_workers, workers_ignore_ctrl_c
+from hupbench.datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
+from hupbench.datagen.errors import BadValueError
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
@@ -268,7 +268,7 @@ def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.n
 
 def _load_backgrounds(manifest: dict):
     """The BackgroundSet the dataset was rendered with (its fingerprint matches), or None and why."""
-    from datagen.assets.backgrounds import BackgroundSet
+    from hupbench.datagen.assets.backgrounds import BackgroundSet
 
     record = manifest.get("backgrounds")
     if not isinstance(record, dict) or not isinstance(record.get("fingerprint"), str):
@@ -292,7 +292,7 @@ def _load_backgrounds(manifest: dict):
 
 
 def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[dict | None, list[dict]]:
-    """The splits' floors (:mod:`datagen.dataset.floors`) recomputed from the annotations, and a problem
+    """The splits' floors (:mod:`hupbench.datagen.dataset.floors`) recomputed from the annotations, and a problem
     when the manifest records others (beyond ``tol.VERIFY_FLOOR_MM``).
 
     Returns:
@@ -322,9 +322,9 @@ def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[di
 
 def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None) -> list[dict]:
     """Checks that need no image: reprojection and (``stored_pose``) the stored pose, against ``probe``
-    (the dataset's, :func:`datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)."""
-    from datagen.assets.hand import build_hand
-    from datagen.assets.probe import build_probe
+    (the dataset's, :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)."""
+    from hupbench.datagen.assets.hand import build_hand
+    from hupbench.datagen.assets.probe import build_probe
 
     rel = f"{split}/{ANNOTATIONS}"
     problems = []
@@ -370,7 +370,7 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
 def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
     """grasps.npz against the frames: each row's hand pose, translation and grasp id must be those of its
     grasp (``grasp_index``) in the file, as the writer copied them."""
-    from datagen.dataset.grasps_file import read_grasps, rendered_with
+    from hupbench.datagen.dataset.grasps_file import read_grasps, rendered_with
 
     path = root / "grasps.npz"
     if not path.is_file():
@@ -404,7 +404,7 @@ def _glove_partners(ann: dict) -> dict[int, int]:
 
 def _jpeg_quality(manifest: dict) -> int | None:
     """The dataset's JPEG quality (None for PNG images); the generator's default when not recorded."""
-    from datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.spec import DatasetSpec
 
     if manifest["rgb_format"] == "png":
         return None
@@ -478,7 +478,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     Returns:
         dict with "frames" (frames whose images were checked), "problems" (dicts with split,
         frame_id, kind, file, detail), "by_kind" counts, "skipped" (checks that could not run, and
-        why), "ok", "split_floors" (:func:`datagen.dataset.floors.split_floors` of the annotations, None
+        why), "ok", "split_floors" (:func:`hupbench.datagen.dataset.floors.split_floors` of the annotations, None
         without a training split) and "image_shift" ({"median_px": [du, dv], "frames"}: the frames'
         median :func:`image_shift_px`, None when no frame allowed the measurement).
 
@@ -492,7 +492,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     skipped = []
     imported = manifest.get("imported")
     # the probe the frames show (a mesh probe's geometry is in the dataset's grasps.npz)
-    from datagen.dataset.grasps_file import probe_of_dataset
+    from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 
     probe = probe_of_dataset(root) if imported is None else None
     if imported is not None:
@@ -586,7 +586,7 @@ def report_lines(result: dict, max_report: int) -> list[str]:
 
 
 def _floor_line(floor: dict) -> str:
-    """One split's floors (:mod:`datagen.dataset.floors`) in one line."""
+    """One split's floors (:mod:`hupbench.datagen.dataset.floors`) in one line."""
     def mm(t: dict) -> str:
         return f"hand {t['hand']:.1f} / probe {t['probe']:.1f} / all {t['all']:.1f} mm"
 

@@ -1,8 +1,8 @@
-"""The per-frame checks of :mod:`datagen.dataset.verify`: one frame's image files read whole, its depth
+"""The per-frame checks of :mod:`hupbench.datagen.dataset.verify`: one frame's image files read whole, its depth
 against its mask, its labels against its keypoints and the probe, and its RGB image against its mask,
-background, glove and the forearm's colour (the pixel statistics: :mod:`datagen.dataset.verify_images`).
+background, glove and the forearm's colour (the pixel statistics: :mod:`hupbench.datagen.dataset.verify_images`).
 
-How the RGB checks work (thresholds and their measurements in :mod:`datagen.tolerances`):
+How the RGB checks work (thresholds and their measurements in :mod:`hupbench.datagen.tolerances`):
 
 * background: the renderer composites the foreground over the background image bit for bit where
   the mask is background, and OpenCV encodes the JPEG in independent 8 x 8 blocks (16 x 16 for the
@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen import tolerances as tol
-from datagen.dataset.contract import SEG_LABELS, frame_path
-from datagen.dataset.verify_images import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.dataset.contract import SEG_LABELS, frame_path
+from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
     glove_pair_ratio,
     image_format_problem,
@@ -44,7 +44,7 @@ from datagen.dataset.verify_images import (
     read_image,
     shrink_mask,
 )
-from datagen.geometry import invert_transform, transform_points
+from hupbench.datagen.geometry import invert_transform, transform_points
 
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
@@ -73,8 +73,8 @@ def _visibility_and_probe(row: dict, depth_m: np.ndarray, seg: np.ndarray, split
     Returns:
         (problems, (2,) shift in pixels or None when the probe shows too little to measure it).
     """
-    from datagen.dataset.chunks import visibility
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.dataset.chunks import visibility
+    from hupbench.datagen.assets.probe import build_probe
 
     manifest = _CONTEXT["manifest"]
     frame_id = int(row["frame_id"])

@@ -1,7 +1,7 @@
 """The pixel checks of verify: each image file read whole, depth against the mask, RGB against the frame's
 background and glove (the statistics and their measured margins: docs/robustness.md, section verify).
 
-Numpy and OpenCV only; :mod:`datagen.dataset.verify` runs them per frame."""
+Numpy and OpenCV only; :mod:`hupbench.datagen.dataset.verify` runs them per frame."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from datagen import tolerances as tol
-from datagen.dataset.contract import SEG_LABELS
-from datagen.errors import RunFailedError
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.dataset.contract import SEG_LABELS
+from hupbench.datagen.errors import RunFailedError
 
 
-#: the renderer's white ambient light (datagen.dataset.chunks.ChunkRenderer: RenderSettings(ambient=0.3))
+#: the renderer's white ambient light (hupbench.datagen.dataset.chunks.ChunkRenderer: RenderSettings(ambient=0.3))
 RENDER_AMBIENT = 0.3
 #: pyrender's output encoding: stored value = linear ** (1 / 2.2), clamped to [0, 1]
 RENDER_GAMMA = 2.2

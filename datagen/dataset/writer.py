@@ -12,8 +12,8 @@ sharing the meshes); a chunk's image files are written atomically, then its
 annotation rows, also atomically: a chunk whose rows exist is done, any
 other is rendered again on resume (overwriting, never duplicating).
 ``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. Chunks are
-rendered by :class:`datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
-(:mod:`datagen.dataset.ray_launcher`), and written by :func:`datagen.dataset.chunks.write_chunk`. When every
+rendered by :class:`hupbench.datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
+(:mod:`hupbench.datagen.dataset.ray_launcher`), and written by :func:`hupbench.datagen.dataset.chunks.write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
 ``manifest.json`` is written last. Run again on a finished dataset, generate renders the chunks whose
 image files are missing or empty once more, from the grasps the annotations were rendered from.
@@ -38,25 +38,25 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from datagen.assets.backgrounds import BackgroundSet
-from datagen.assets.probe_mesh import ProbeSource
-from datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
+from hupbench.datagen.assets.backgrounds import BackgroundSet
+from hupbench.datagen.assets.probe_mesh import ProbeSource
+from hupbench.datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
                                       read_annotations, read_manifest)
-from datagen.dataset.grasps_file import GraspSet, read_grasps, read_grasps_probe_record, rendered_with
-from datagen.dataset.ray_launcher import RayOptions, check_launcher
-from datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
-from datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
+from hupbench.datagen.dataset.grasps_file import GraspSet, read_grasps, read_grasps_probe_record, rendered_with
+from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
+from hupbench.datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
+from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
                                   split_of_views, view_directions_arm)
-from datagen.dataset.sphere import viewpoints
-from datagen.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
+from hupbench.datagen.dataset.sphere import viewpoints
+from hupbench.datagen.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
-from datagen.processes import check_workers, workers_ignore_ctrl_c
-from datagen.render.renderer import SEG_LABELS
-from datagen.render.scene import ARM_RGB, GLOVE_RGB
-from datagen.render import gl
-from datagen import keypoints as kp
-from datagen.input_checks import check_int
-from datagen.dataset.chunks import (
+from hupbench.datagen.processes import check_workers, workers_ignore_ctrl_c
+from hupbench.datagen.render.renderer import SEG_LABELS
+from hupbench.datagen.render.scene import ARM_RGB, GLOVE_RGB
+from hupbench.datagen.render import gl
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.dataset.chunks import (
     ChunkOutput,
     _WorkerDiskFull,
     _chunk_path,
@@ -65,7 +65,7 @@ from datagen.dataset.chunks import (
     _worker_init,
     write_chunk,
 )
-from datagen.errors import BadValueError
+from hupbench.datagen.errors import BadValueError
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
 RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
@@ -85,12 +85,12 @@ class RenderJob:
     """Where a dataset's frames are rendered and from which background photographs.
 
     Attributes:
-        workers: local worker processes (at most :data:`datagen.processes.MAX_WORKERS_PER_CORE` x the
+        workers: local worker processes (at most :data:`hupbench.datagen.processes.MAX_WORKERS_PER_CORE` x the
             cores), or Ray actors on a private runtime.
-        launcher: "local" or "ray" (:mod:`datagen.dataset.ray_launcher`, settings in ``ray``); both write
+        launcher: "local" or "ray" (:mod:`hupbench.datagen.dataset.ray_launcher`, settings in ``ray``); both write
             the same files.
         shard: "k/n" renders only the chunks ``c`` with ``c % n == k``; None renders all.
-        platform: "egl", "osmesa" or None (automatic), see :mod:`datagen.render.gl`.
+        platform: "egl", "osmesa" or None (automatic), see :mod:`hupbench.datagen.render.gl`.
         backgrounds_dir: a folder of background photographs, None for the built-in ones.
         k, n: the parsed shard.
     """
@@ -117,7 +117,7 @@ class RenderJob:
 
 
 def check_platform(platform, what: str) -> str | None:
-    """``platform`` when it names an offscreen GL platform (:data:`datagen.render.gl.PLATFORMS`) or is None
+    """``platform`` when it names an offscreen GL platform (:data:`hupbench.datagen.render.gl.PLATFORMS`) or is None
     (automatic); ``what`` is the config key, e.g. ``"sheet.platform"``."""
     if platform is not None and platform not in gl.PLATFORMS:
         raise BadValueError(f"{what} must be one of {', '.join(gl.PLATFORMS)} or null (automatic), got {platform!r}")
@@ -176,9 +176,18 @@ def check_grasps_probe(grasps_path: Path, source: ProbeSource) -> None:
 
 
 def config_hash(resolved: dict) -> str:
-    """sha256 of the resolved config with the keys that do not change frames removed."""
-    keep = {k: v for k, v in resolved.items() if k not in RUN_ONLY_KEYS}
+    """sha256 of the resolved config with the keys that do not change frames removed. A nested ``_target_`` is
+    hashed by its name before the packages moved under hupbench (``hupbench.datagen.x`` as ``datagen.x``): a
+    dataset made before the move keeps its hash, and ``generate`` into its folder still recognises it."""
+    keep = {k: _pre_move_targets(v) for k, v in resolved.items() if k not in RUN_ONLY_KEYS}
     return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _pre_move_targets(value):
+    if isinstance(value, dict):
+        return {k: (v.removeprefix("hupbench.") if k == "_target_" and isinstance(v, str) else _pre_move_targets(v))
+                for k, v in value.items()}
+    return value
 
 
 def parse_shard(shard: str | None) -> tuple[int, int]:
@@ -204,7 +213,7 @@ def shard_lock_folder(out_dir: Path, k: int, n: int) -> Path:
 
 @contextlib.contextmanager
 def run_lock(out_dir: Path, shard: str | None = None) -> Iterator[OutputLock]:
-    """Hold the output folder for one generate run (see :class:`datagen.io.OutputLock`).
+    """Hold the output folder for one generate run (see :class:`hupbench.datagen.io.OutputLock`).
 
     An unsharded run holds ``out_dir`` itself and refuses to start while a shard run is live there.
     Shard ``k/n`` holds its own lock, so that several machines can render the shards of one dataset
@@ -242,7 +251,7 @@ def _remove_lock_folders(out_dir: Path) -> None:
 
 
 def _remove_all_tmp(out_dir: Path) -> list[Path]:
-    """Remove every temporary file (:data:`datagen.io.TMP_PATTERN`) under ``out_dir``.
+    """Remove every temporary file (:data:`hupbench.datagen.io.TMP_PATTERN`) under ``out_dir``.
 
     Only called while this run holds the folder and no worker of it is running: every such file
     is then the remains of a killed writer, whatever its pid (a pid can be reused, or belong to
@@ -415,7 +424,7 @@ def _render(run: _Run, todo: list[int]) -> int:
     writers = {os.getpid()}
     try:
         if job.launcher == "ray":
-            from datagen.dataset.ray_launcher import render_chunks
+            from hupbench.datagen.dataset.ray_launcher import render_chunks
 
             def on_chunk(output: ChunkOutput) -> None:
                 nonlocal rendered
@@ -423,7 +432,7 @@ def _render(run: _Run, todo: list[int]) -> int:
                 rendered += count
                 bar.update(count)
 
-            render_chunks("datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout, run.spec,
+            render_chunks("hupbench.datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout, run.spec,
                           (out_dir / "grasps.npz").read_bytes(), job, on_chunk, run.log)
         elif job.workers == 1:
             _worker_init(*init)
@@ -562,7 +571,7 @@ def _finalise(run: _Run) -> dict:
                         "fingerprint": backgrounds.fingerprint()},
         "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
         "arm_rgb": list(ARM_RGB),
-        # the probe the frames show (datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
+        # the probe the frames show (hupbench.datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
         "probe": grasps.probe.record,
     }
     write_json(out_dir / "manifest.json", manifest)

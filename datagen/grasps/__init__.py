@@ -6,7 +6,7 @@ shipped weights), the approach direction and the generator's frame (``approach``
 energy-based refinement (``refine``), the grasp scores (``scores``), the parameters (``params``),
 the selection of a diverse set (``synthesis``) and the contact sheet (``sheet``).
 
-May import: ``datagen.assets`` (the hand and the probe), ``datagen.render`` (the contact sheet), the
-shared modules at the top of ``datagen``, numpy, scipy, torch. Never ``datagen.dataset`` (a dataset
+May import: ``hupbench.datagen.assets`` (the hand and the probe), ``hupbench.datagen.render`` (the contact sheet), the
+shared modules at the top of ``datagen``, numpy, scipy, torch. Never ``hupbench.datagen.dataset`` (a dataset
 reads the grasps file this package writes), ``models`` or ``hupbench``.
 """

@@ -2,20 +2,20 @@
 
 For each probe orientation Theta_Vol the hand approaches from the same side of the generator
 frame (the operator's side, -y), so the orientation decides which face of the handle it meets.
-Both the generator (:mod:`datagen.grasps.synthesis`) and the CVAE sampler
-(:mod:`datagen.grasps.cvae_sampling`) follow this rule.
+Both the generator (:mod:`hupbench.datagen.grasps.synthesis`) and the CVAE sampler
+(:mod:`hupbench.datagen.grasps.cvae_sampling`) follow this rule.
 
 Convention:
     Probe frame (lens apex at the origin) and the generator frame of a Theta_Vol
-    (:mod:`datagen.grasps.frames`); metres and radians.
+    (:mod:`hupbench.datagen.grasps.frames`); metres and radians.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from datagen.grasps import frames
-from datagen.grasps.refine import GraspBatch
+from hupbench.datagen.grasps import frames
+from hupbench.datagen.grasps.refine import GraspBatch
 
 #: the operator stands on the generator frame's -y side
 APPROACH_GEN = np.array([0.0, -1.0, 0.0])

@@ -10,7 +10,7 @@ either project).
 Convention:
     Basis points live in the generator frame (metres): the probe rotated by
     its Euler angles Theta_Vol (degrees, intrinsic x-y-z) and centred at its
-    volume centroid, see :mod:`datagen.grasps.frames`. Features are unsigned
+    volume centroid, see :mod:`hupbench.datagen.grasps.frames`. Features are unsigned
     distances in metres.
 """
 
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from datagen.grasps.frames import T_gen_probe
-from datagen.assets.probe import Probe
+from hupbench.datagen.grasps.frames import T_gen_probe
+from hupbench.datagen.assets.probe import Probe
 
 #: GrabNet's ball radius: large enough to hold a hand grasping a 165 mm probe at its centroid
 DEFAULT_RADIUS_M = 0.15
@@ -57,7 +57,7 @@ def encode_probe(probe: Probe, theta_vol_deg, basis: np.ndarray, exact: bool = F
 
     For each basis point ``b_gen`` the feature is the distance to the nearest
     point of the probe surface: ``|sdf(T_probe_gen @ b_gen)|`` with
-    ``T_probe_gen`` the inverse of :func:`~datagen.grasps.frames.T_gen_probe`.
+    ``T_probe_gen`` the inverse of :func:`~hupbench.datagen.grasps.frames.T_gen_probe`.
     Points inside the probe also get their (positive) distance to the surface,
     as in BPS.
 
@@ -69,7 +69,7 @@ def encode_probe(probe: Probe, theta_vol_deg, basis: np.ndarray, exact: bool = F
     it was trained with. ``exact=True`` costs about 40 us a point.
 
     Args:
-        probe: the :class:`datagen.assets.probe.Probe` (see ``build_probe``).
+        probe: the :class:`hupbench.datagen.assets.probe.Probe` (see ``build_probe``).
         theta_vol_deg: (3,) Euler angles Theta_Vol, degrees, intrinsic x-y-z.
         basis: (n, 3) float, metres, generator frame (see :func:`basis_points`).
         exact: use the exact mesh distance instead of the grid.

@@ -3,9 +3,9 @@
 Like GrabNet's CoarseNet (Taheri et al., ECCV 2020; our own design and code,
 no weights of theirs), a conditional VAE proposes grasps for the probe in a
 given orientation. The condition is the probe's Basis Point Set encoding
-(:mod:`datagen.grasps.bps`) plus an *initial wrist* pose (the pose the
+(:mod:`hupbench.datagen.grasps.bps`) plus an *initial wrist* pose (the pose the
 refinement stage would start from); the output is the 54-vector of
-:mod:`datagen.grasps.params`.
+:mod:`hupbench.datagen.grasps.params`.
 
 Design:
     Residual outputs. The decoder predicts the grasp relative to the
@@ -32,7 +32,7 @@ Loss:
 
 Convention:
     Generator frame (probe at Theta_Vol, centred at its volume centroid),
-    metres and radians; see :mod:`datagen.grasps.frames`.
+    metres and radians; see :mod:`hupbench.datagen.grasps.frames`.
 """
 
 from __future__ import annotations
@@ -51,11 +51,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
-from datagen.input_checks import check_int
-from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
-from datagen.errors import BadTypeError, BadValueError, MissingFileError
-from datagen.io import save_npz
+from hupbench.datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
+from hupbench.datagen.errors import BadTypeError, BadValueError, MissingFileError
+from hupbench.datagen.io import save_npz
 
 #: network input unit of the BPS distances (centimetres: features of 0..15 instead of 0..0.15)
 BPS_UNIT_M = 0.01
@@ -164,7 +164,7 @@ def grasp_to_residual(x: torch.Tensor, init_rot6d: torch.Tensor, init_trans: tor
     """Express grasps relative to their initial wrist pose (the decoder's output space).
 
     Args:
-        x: (..., 54) grasps, generator frame (see :mod:`datagen.grasps.params`);
+        x: (..., 54) grasps, generator frame (see :mod:`hupbench.datagen.grasps.params`);
             the rot6d part need not be orthonormal (Gram-Schmidt is applied).
         init_rot6d: (..., 6) initial hand rotation (hand -> generator frame), 6D.
         init_trans: (..., 3) initial wrist position, metres, generator frame.
@@ -335,7 +335,7 @@ def cvae_loss(model_out: CVAEOutput, x: torch.Tensor, hand_model=None, *,
     Args:
         model_out: :class:`CVAEOutput` of :meth:`GraspCVAE.forward`.
         x: (B, 54) target grasps, generator frame.
-        hand_model: a :class:`datagen.assets.hand.HandModel` for the keypoint term;
+        hand_model: a :class:`hupbench.datagen.assets.hand.HandModel` for the keypoint term;
             None (or ``keypoint_weight == 0``) leaves it out. Joint units are
             clamped to [0, 1] before they become angles.
         kl_weight, keypoint_weight, rot_weight, trans_weight, joint_weight:

@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from datagen.grasps import bps
-from datagen.grasps.cvae import CVAEConfig, GraspCVAE, load_shipped_cvae
-from datagen.grasps.approach import approach_azimuth, to_generator_frame
-from datagen.grasps.frames import T_gen_probe
-from datagen.grasps.params import unit_to_angles, unpack
-from datagen.grasps.refine import GraspBatch, random_starts
-from datagen.rotations_torch import matrix_to_rot6d
+from hupbench.datagen.grasps import bps
+from hupbench.datagen.grasps.cvae import CVAEConfig, GraspCVAE, load_shipped_cvae
+from hupbench.datagen.grasps.approach import approach_azimuth, to_generator_frame
+from hupbench.datagen.grasps.frames import T_gen_probe
+from hupbench.datagen.grasps.params import unit_to_angles, unpack
+from hupbench.datagen.grasps.refine import GraspBatch, random_starts
+from hupbench.datagen.rotations_torch import matrix_to_rot6d
 
 
 def condition(starts: GraspBatch, theta, probe, basis: np.ndarray, bps_exact: bool) -> dict[str, np.ndarray]:

@@ -1,13 +1,13 @@
-"""Training the grasp CVAE of :mod:`datagen.grasps.cvae`: its corpus of refined grasps and the loop.
+"""Training the grasp CVAE of :mod:`hupbench.datagen.grasps.cvae`: its corpus of refined grasps and the loop.
 
 :func:`train_sampler` is what ``hupbench train-grasp-sampler`` runs: :func:`build_corpus` refines
 randomised starts at random probe orientations and keeps the plausible grasps, :func:`train_cvae`
-fits the CVAE to them (the loss is :func:`datagen.grasps.cvae.cvae_loss`), and the weights are
+fits the CVAE to them (the loss is :func:`hupbench.datagen.grasps.cvae.cvae_loss`), and the weights are
 saved with their provenance.
 
 Convention:
     Generator frame (probe at Theta_Vol, centred at its volume centroid),
-    metres and radians; see :mod:`datagen.grasps.frames`.
+    metres and radians; see :mod:`hupbench.datagen.grasps.frames`.
 """
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
-from datagen.grasps import bps
-from datagen.grasps.approach import approach_azimuth, to_generator_frame
-from datagen.grasps.cvae import CORPUS_KEYS, CVAEConfig, GraspCVAE, cvae_loss, save_cvae
-from datagen.grasps.cvae_sampling import condition
-from datagen.grasps.frames import T_gen_probe
-from datagen.grasps.params import PARAM_DIM, pack
-from datagen.grasps.refine import GraspEnergy, RefineConfig, random_starts, refine
-from datagen.input_checks import check_int, check_number
-from datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen.grasps import bps
+from hupbench.datagen.grasps.approach import approach_azimuth, to_generator_frame
+from hupbench.datagen.grasps.cvae import CORPUS_KEYS, CVAEConfig, GraspCVAE, cvae_loss, save_cvae
+from hupbench.datagen.grasps.cvae_sampling import condition
+from hupbench.datagen.grasps.frames import T_gen_probe
+from hupbench.datagen.grasps.params import PARAM_DIM, pack
+from hupbench.datagen.grasps.refine import GraspEnergy, RefineConfig, random_starts, refine
+from hupbench.datagen.input_checks import check_int, check_number
+from hupbench.datagen.errors import BadValueError, RunFailedError
 
 
 def _float32_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:
@@ -100,7 +100,7 @@ def train_cvae(corpus: Mapping[str, np.ndarray], config: CVAEConfig = CVAEConfig
         model = GraspCVAE(config).to(dev)
     hand_model = None
     if config.keypoint_weight > 0:
-        from datagen.assets.hand import build_hand
+        from hupbench.datagen.assets.hand import build_hand
 
         hand_model = build_hand()
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -185,7 +185,7 @@ def build_corpus(config: CorpusConfig, hand, probe, log=print) -> dict[str, np.n
     """
     from scipy.spatial.transform import Rotation
 
-    from datagen.grasps.scores import score_grasps
+    from hupbench.datagen.grasps.scores import score_grasps
 
     rng = np.random.default_rng(config.seed)
     energy = GraspEnergy(hand, probe, RefineConfig(iterations=config.iterations))

@@ -19,8 +19,8 @@ import functools
 
 import numpy as np
 
-from datagen.geometry import euler_to_matrix, make_transform
-from datagen.errors import BadValueError
+from hupbench.datagen.geometry import euler_to_matrix, make_transform
+from hupbench.datagen.errors import BadValueError
 
 
 def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -75,7 +75,7 @@ def T_gen_probe(theta_vol_deg, probe) -> np.ndarray:
     Args:
         theta_vol_deg: (3,) Euler angles Theta_Vol, degrees (from a checked ``GraspGenConfig`` or drawn
             for the corpus).
-        probe: a :class:`datagen.assets.probe.Probe`.
+        probe: a :class:`hupbench.datagen.assets.probe.Probe`.
 
     Returns:
         (4, 4) float64 ``T_gen_probe``.

@@ -12,14 +12,14 @@ A grasp in the generator frame is 54 numbers:
 Convention:
     Generator frame: the probe rotated by its Euler angles Theta_Vol and
     centred at its volume centroid (GrabNet's object-centric frame); see
-    :mod:`datagen.grasps.frames`. Radians and metres.
+    :mod:`hupbench.datagen.grasps.frames`. Radians and metres.
 """
 
 from __future__ import annotations
 
 import torch
 
-from datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
+from hupbench.datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
 
 PARAM_DIM = 54
 ROT, TRANS, JOINTS = slice(0, 6), slice(6, 9), slice(9, 54)

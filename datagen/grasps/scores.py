@@ -31,9 +31,9 @@ import torch
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
-from datagen.geometry import matrix_to_axis_angle
-from datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
-from datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
+from hupbench.datagen.geometry import matrix_to_axis_angle
+from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
+from hupbench.datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
 
 CONTACT_MM = 5.0
 LENS_CLEARANCE_MM = 10.0

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from datagen.camera import Intrinsics, look_at
-from datagen.geometry import axis_angle_to_matrix
-from datagen.render.draw import grid, stack, text_block, titled
-from datagen.render.renderer import PointLight, Renderer, RenderSettings
-from datagen.render.scene import Grasp, scene_parts
+from hupbench.datagen.camera import Intrinsics, look_at
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.render.draw import grid, stack, text_block, titled
+from hupbench.datagen.render.renderer import PointLight, Renderer, RenderSettings
+from hupbench.datagen.render.scene import Grasp, scene_parts
 
 VIEW_DISTANCE_M = 0.42
 
@@ -60,8 +60,8 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
         (H, W, 3) uint8: a header saying what the views and scores are, then one row per grasp,
         three views each, every tile titled.
     """
-    from datagen.grasps.refine import PADS
-    from datagen.grasps.scores import CONTACT_MM
+    from hupbench.datagen.grasps.refine import PADS
+    from hupbench.datagen.grasps.scores import CONTACT_MM
 
     intrinsics = Intrinsics.from_lens(60.0, 32.0, size, size)
     tiles = []

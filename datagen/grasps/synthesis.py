@@ -11,7 +11,7 @@ farthest-point sampling on their joint positions, unless ids are pinned.
 Convention:
     Candidates and outputs are in the probe frame (the renderer's world:
     lens apex at the origin); the generator frame of each Theta_Vol is kept
-    beside them (see :mod:`datagen.grasps.frames`). Metres and radians.
+    beside them (see :mod:`hupbench.datagen.grasps.frames`). Metres and radians.
 """
 
 from __future__ import annotations
@@ -22,16 +22,16 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
-from datagen.assets.probe import Probe, ProbeSpec, build_probe
-from datagen.assets.probe_mesh import PROBE_MESH_FIELDS, probe_arrays
-from datagen.errors import BadValueError
-from datagen.geometry import matrix_to_axis_angle
-from datagen.grasps.approach import approach_azimuth, to_generator_frame
-from datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
-from datagen.grasps.refine import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
+from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
+from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS, probe_arrays
+from hupbench.datagen.errors import BadValueError
+from hupbench.datagen.geometry import matrix_to_axis_angle
+from hupbench.datagen.grasps.approach import approach_azimuth, to_generator_frame
+from hupbench.datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
+from hupbench.datagen.grasps.refine import (
     MAX_ITERATIONS,
     GraspBatch,
     GraspEnergy,
@@ -39,13 +39,13 @@ from datagen.grasps.refine import (
     random_starts,
     refine,
 )
-from datagen.grasps.scores import (
+from hupbench.datagen.grasps.scores import (
     PLAUSIBLE,
     SCORE_NAMES,
     farthest_point_selection,
     score_grasps,
 )
-from datagen.input_checks import check_int, is_whole
+from hupbench.datagen.input_checks import check_int, is_whole
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch, whose arrays grow with it
@@ -128,7 +128,7 @@ def check_selection(config: GraspGenConfig) -> None:
 
 
 def _cvae_starts(n: int, theta, probe, hand, rng: np.random.Generator) -> GraspBatch:
-    from datagen.grasps.cvae_sampling import sample_grasps
+    from hupbench.datagen.grasps.cvae_sampling import sample_grasps
 
     return sample_grasps(n, theta, probe, hand, rng)
 

@@ -6,7 +6,7 @@ hand, forearm and probe as mesh parts), 2D drawing (``draw``: keypoints, skeleto
 colours, contact sheets; numpy and OpenCV only, used by the torch-free inference path) and the
 preview sheet of a hand-set grasp (``preview``).
 
-May import: ``datagen.assets``, the shared modules at the top of ``datagen``, the dataset contract's
-constants (``datagen.dataset.contract``: modalities, label values), pyrender, OpenCV. Never
-``datagen.grasps``, ``models`` or ``hupbench``.
+May import: ``hupbench.datagen.assets``, the shared modules at the top of ``datagen``, the dataset contract's
+constants (``hupbench.datagen.dataset.contract``: modalities, label values), pyrender, OpenCV. Never
+``hupbench.datagen.grasps``, ``models`` or ``hupbench``.
 """

@@ -10,8 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.errors import BadValueError, RunFailedError
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -325,7 +325,7 @@ def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
 
 def write_png(path, image_rgb: np.ndarray):
     """Write an RGB image as PNG atomically (temporary name, then rename)."""
-    from datagen.io import write_bytes
+    from hupbench.datagen.io import write_bytes
 
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image_rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9])
     if not ok:

@@ -19,7 +19,7 @@ import types
 import warnings
 
 import numpy as np
-from datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen.errors import BadValueError, RunFailedError
 
 PLATFORMS = ("egl", "osmesa")
 #: what EGL rendering needs on Debian/Ubuntu (install.sh installs it): the GLVND EGL loader, Mesa's EGL
@@ -125,7 +125,7 @@ def configure(platform: str | None = None) -> str:
             )
         return _chosen
     if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") not in PLATFORMS:
-        raise RunFailedError("OpenGL was imported before datagen.render.gl.configure(); import hupbench renderers first")
+        raise RunFailedError("OpenGL was imported before hupbench.datagen.render.gl.configure(); import hupbench renderers first")
     if requested == "egl" and not _egl_works():
         raise RunFailedError(
             f"EGL was requested but does not work here (no EGL display initialises, or no libOpenGL/libGL): "

@@ -13,17 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.assets.hand_anatomy import anatomical_to_pose
-from datagen.assets.probe_shape import ProbeSpec
-from datagen.camera import Intrinsics, look_at, project_points
-from datagen.errors import BadValueError
-from datagen.geometry import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
+from hupbench.datagen.assets.probe_shape import ProbeSpec
+from hupbench.datagen.camera import Intrinsics, look_at, project_points
+from hupbench.datagen.errors import BadValueError
+from hupbench.datagen.geometry import (
     axis_angle_to_matrix,
     matrix_to_axis_angle,
     transform_points,
 )
-from datagen.render.draw import (
+from hupbench.datagen.render.draw import (
     colorize_depth,
     colorize_labels,
     draw_keypoints,
@@ -31,14 +31,14 @@ from datagen.render.draw import (
     titled,
     write_png,
 )
-from datagen.render.renderer import (
+from hupbench.datagen.render.renderer import (
     MODALITIES,
     PointLight,
     Renderer,
     RenderSettings,
     check_modalities,
 )
-from datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
+from hupbench.datagen.render.scene import Grasp, SceneModels, keypoints_world, scene_parts
 
 
 @dataclass(frozen=True)
@@ -92,8 +92,8 @@ def render_preview(grasp: Grasp, intrinsics: Intrinsics, view: PreviewView = Pre
         view: camera placement around the grasp.
         models: model specs.
         modalities: which of "rgb", "depth", "seg" to render (and show).
-        platform: GL platform, see :mod:`datagen.render.gl`.
-        probe: a mesh probe (:func:`datagen.assets.probe.probe_of`), drawn with its frame's axes
+        platform: GL platform, see :mod:`hupbench.datagen.render.gl`.
+        probe: a mesh probe (:func:`hupbench.datagen.assets.probe.probe_of`), drawn with its frame's axes
             (x red, y green, z blue, 5 cm); None for ``models.probe``.
 
     Returns:
@@ -167,7 +167,7 @@ def preview(path: str | Path, grasp: Grasp | None = None, intrinsics: Intrinsics
         intrinsics: camera; default HUP-3D's 256 x 256, fx = fy = 480.
         view: camera placement around the grasp.
         modalities: which of "rgb", "depth", "seg" to render.
-        platform: GL platform, see :mod:`datagen.render.gl`.
+        platform: GL platform, see :mod:`hupbench.datagen.render.gl`.
         probe: a mesh probe to show instead of the procedural one (with its frame's axes).
 
     Returns:

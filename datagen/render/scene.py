@@ -3,7 +3,7 @@
 Convention:
     World = probe frame (the probe at the origin, as in HUP-3D) unless a
     ``T_world_probe`` is given. Hand pose and translation are in the world
-    frame (see :mod:`datagen.assets.hand`). Metres.
+    frame (see :mod:`hupbench.datagen.assets.hand`). Metres.
 """
 
 from __future__ import annotations
@@ -12,20 +12,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.assets.arm import ArmSpec, forearm_mesh
-from datagen.geometry import axis_angle_to_matrix, transform_points
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import HandSpec, clamp_pose
-from datagen.assets.probe import Probe, ProbeSpec, build_probe
-from datagen.render.renderer import SEG_LABELS, MeshPart
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.arm import ArmSpec, forearm_mesh
+from hupbench.datagen.geometry import axis_angle_to_matrix, transform_points
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import HandSpec, clamp_pose
+from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
+from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart
 
 #: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
 ARM_RGB = (1.0, 0.6784, 0.3765)
 PROBE_BODY_RGB = (0.86, 0.86, 0.84)
 PROBE_LENS_RGB = (0.18, 0.19, 0.21)
-#: the probe's orientation marker (datagen.assets.probe.ProbeSpec): the saturated green of a marker light, far
+#: the probe's orientation marker (hupbench.datagen.assets.probe.ProbeSpec): the saturated green of a marker light, far
 #: from the grey housing, the dark lens, both glove colours, the arm and the skin tones of the backgrounds;
 #: it also glows (PROBE_MARKER_EMISSIVE) like the light it stands for, so it stays green in the shadow of
 #: the hand or away from the lamp
@@ -38,7 +38,7 @@ class Grasp:
     """A hand holding the probe.
 
     Attributes:
-        hand_pose: (48,) float axis-angle, radians (``datagen.assets.hand`` Convention).
+        hand_pose: (48,) float axis-angle, radians (``hupbench.datagen.assets.hand`` Convention).
         hand_trans: (3,) float, metres, wrist position in the world frame.
         wrist_flexion, wrist_deviation: forearm -> hand angles, radians.
         T_world_probe: (4, 4) float probe pose; identity puts the probe at the origin.
@@ -75,10 +75,10 @@ def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels(), probe: Pr
     Args:
         grasp: the hand and probe placement.
         models: model specs.
-        probe: the probe (e.g. a mesh probe, :func:`datagen.assets.probe.probe_of`); None builds ``models.probe``.
+        probe: the probe (e.g. a mesh probe, :func:`hupbench.datagen.assets.probe.probe_of`); None builds ``models.probe``.
 
     Returns:
-        (29, 3) float64, metres, world frame, in ``datagen.keypoints`` order.
+        (29, 3) float64, metres, world frame, in ``hupbench.datagen.keypoints`` order.
     """
     hand = build_hand(models.hand)
     probe = probe or build_probe(models.probe)
@@ -90,7 +90,7 @@ def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels(), probe: Pr
 
 def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLOVE_RGB[0],
                 arm_rgb=ARM_RGB, probe: Probe | None = None) -> list[MeshPart]:
-    """Posed, coloured meshes of a grasp, ready for :class:`datagen.render.renderer.Renderer`.
+    """Posed, coloured meshes of a grasp, ready for :class:`hupbench.datagen.render.renderer.Renderer`.
 
     Args:
         grasp: the hand and probe placement.

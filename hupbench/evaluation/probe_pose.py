@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen import keypoints as kp
-from datagen.errors import BadValueError
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.errors import BadValueError
 from hupbench import metrics
 
 __all__ = ["PROBE_BOX_FIT_TOL_M", "dataset_probe", "floor_probe_pose", "logged_probe_pose", "probe_pose_rows",
@@ -21,10 +21,10 @@ PROBE_BOX_FIT_TOL_M = 1e-5
 
 
 def dataset_probe(dataset: Path):
-    """The probe a dataset was rendered with (a ``datagen.assets.probe.Probe``, the procedural one or the
+    """The probe a dataset was rendered with (a ``hupbench.datagen.assets.probe.Probe``, the procedural one or the
     user's mesh its manifest records): its ``corners_probe`` are the known box fitted onto the corners and
     its ``mesh.vertices`` the model points of the BOP metrics."""
-    from datagen.dataset.grasps_file import probe_of_dataset
+    from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 
     return probe_of_dataset(dataset)
 
@@ -40,7 +40,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
 
     Args:
         pred_corners_m, true_corners_m: (N, 8, 3) float, metres, OpenCV camera frame, corner order of
-            ``datagen.keypoints``. K: (N, 3, 3) intrinsics of the stored images, ``image_width_px`` wide.
+            ``hupbench.datagen.keypoints``. K: (N, 3, 3) intrinsics of the stored images, ``image_width_px`` wide.
         probe: what :func:`dataset_probe` returns.
 
     Returns:
@@ -88,8 +88,8 @@ def floor_probe_pose(dataset: Path, manifest: dict, floor: dict | None, fields: 
     frame's prediction is the probe corners of its grasp's nearest training grasp (the floor's
     ``nearest_train_grasp_id``) in the same view and distance, from the train annotations; None (logged)
     for the nearest-training-view floor, whose chosen frames the manifest does not record."""
-    from datagen.dataset.contract import read_annotations
-    from datagen.dataset.floors import NEAREST_TRAIN_GRASP
+    from hupbench.datagen.dataset.contract import read_annotations
+    from hupbench.datagen.dataset.floors import NEAREST_TRAIN_GRASP
 
     if floor is None:
         return None

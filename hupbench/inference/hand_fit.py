@@ -8,7 +8,7 @@ best rigid motion. The depth input sees the hand's near surface; a hand of capsu
 moved and bent until that surface lies on it, places the hand the image shows.
 
 How, per frame, in the camera of the model input (``K_input``):
-    1. The hand: a capsule along each finger bone (the generator's radii, :mod:`datagen.assets.hand_anatomy`; a
+    1. The hand: a capsule along each finger bone (the generator's radii, :mod:`hupbench.datagen.assets.hand_anatomy`; a
        fingertip keypoint sits on the surface, so the last capsule stops one radius short of it) and the palm as
        capsules from the wrist to each finger's base and across the knuckles (``PALM_RADIUS_M``,
        ``KNUCKLE_RADIUS_M``: the generator's palm slab is 24 mm thick).
@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
+from hupbench.datagen import keypoints as kp
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
@@ -88,7 +88,7 @@ class _Capsules:
 
 @functools.lru_cache(maxsize=1)
 def _capsules() -> _Capsules:
-    from datagen.assets.hand_anatomy import FINGER_RADII_MM, MM, THUMB_RADII_MM
+    from hupbench.datagen.assets.hand_anatomy import FINGER_RADII_MM, MM, THUMB_RADII_MM
 
     rows = []
     for finger in kp.FINGERS:

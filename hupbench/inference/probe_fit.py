@@ -4,11 +4,11 @@ surface to the depth input, and its half turn read from the orientation marker.
 Why: on unseen grasps a network's probe is turned as recalling the training grasps would turn it. Measured on the paper
 protocol's test split (paper_hupnet_depth_sym_cpu, scripts/diagnose_errors.py): its box is turned 103 degrees
 (median) about the probe's long axis on grasp 41, while its centroid is within 7.1 mm. The
-depth input sees the probe's surface; the probe's shape is known (:mod:`datagen.assets.probe`, its signed
+depth input sees the probe's surface; the probe's shape is known (:mod:`hupbench.datagen.assets.probe`, its signed
 distance); a fit of that shape to the measured points recovers the turn the image shows.
 
 How, per frame, in the camera of the model input (``K_input``):
-    1. The network's pose: the probe's box (:attr:`datagen.assets.probe.Probe.corners_probe`) fitted to its
+    1. The network's pose: the probe's box (:attr:`hupbench.datagen.assets.probe.Probe.corners_probe`) fitted to its
        8 corners (Kabsch), R0, t0.
     2. The measured points: every pixel with a surface, unprojected with its depth, within the probe's half
        diagonal + ``REACH_M`` of the network's box centre; ``MAX_POINTS`` of them in a fixed pseudo-random
@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from datagen import keypoints as kp
-from datagen.rotations_torch import axis_angle_to_matrix
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.rotations_torch import axis_angle_to_matrix
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
@@ -85,7 +85,7 @@ class ProbeFit:
 
 @dataclass(frozen=True)
 class _ProbeModel:
-    probe: Any                    # datagen.assets.probe.Probe: its signed distance and gradient
+    probe: Any                    # hupbench.datagen.assets.probe.Probe: its signed distance and gradient
     corners: torch.Tensor         # (8, 3) box corners, probe frame, metres
     marker: torch.Tensor          # (3,) the marker's centre, probe frame
     marker_normal: torch.Tensor   # (3,) its outward normal
@@ -94,8 +94,8 @@ class _ProbeModel:
 
 @functools.lru_cache(maxsize=1)
 def _probe_model() -> _ProbeModel:
-    from datagen.assets.probe import build_probe
-    from datagen.render.scene import PROBE_MARKER_RGB
+    from hupbench.datagen.assets.probe import build_probe
+    from hupbench.datagen.render.scene import PROBE_MARKER_RGB
 
     probe = build_probe()
     mesh = probe.mesh

@@ -27,10 +27,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from datagen import keypoints as kp
-from datagen.camera import resize_intrinsics
-from datagen.errors import BadValueError, MissingFileError, RunFailedError
-from datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.camera import resize_intrinsics
+from hupbench.datagen.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
 from hupbench.checkpoint import Checkpoint
 from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
@@ -41,7 +41,7 @@ from hupbench.training.run_config import TrainRun, train_config
 from hupbench.training.run_log import MetricsLog, RunConsole, bar_postfix, loss_window
 from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
-from models.build import build_model, load_checkpoint_state
+from hupbench.models.build import build_model, load_checkpoint_state
 
 #: config differences a refused resume lists (a checkpoint of another project differs everywhere)
 MAX_DIFFS_SHOWN = 8
@@ -462,7 +462,7 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
     else:
         # the prior: the training split's mean camera-frame layout, (29, 3) metres
         mean = data.train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
-        extents = None  # the box of a model that poses the probe rigidly (models.heatmap, probe_head)
+        extents = None  # the box of a model that poses the probe rigidly (hupbench.models.heatmap, probe_head)
         if getattr(config, "probe_head", None) == "rigid":
             extents = probe_half_extents(data.train_set.ann["keypoints_3d_cam"][:, kp.CORNER_SLICE]).tolist()
     camera = {"K_input": K_input.tolist(), "input_size": run.data.reader.input_size, "probe_half_extents": extents}
@@ -484,7 +484,7 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
 
 def probe_half_extents(corners: np.ndarray) -> np.ndarray:
     """(3,) float64 half the probe box's sides along its own x, y, z (metres): the mean over frames of its 4
-    edges along each axis, from (N, 8, 3) corners in the order of ``datagen.keypoints.CORNER_BITS``."""
+    edges along each axis, from (N, 8, 3) corners in the order of ``hupbench.datagen.keypoints.CORNER_BITS``."""
     corners = np.asarray(corners, dtype=np.float64)
     halves = []
     for axis in range(3):

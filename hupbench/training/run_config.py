@@ -1,7 +1,7 @@
 """A training run's config, typed: frozen dataclasses whose ``__post_init__`` is the only check of their fields.
 
 Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``, the model's by
-:mod:`models.model_config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
+:mod:`hupbench.models.model_config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
 is refused naming the field as the user writes it (``train.max_steps must be a whole number >= 1 or null, got 0``).
 """
 
@@ -15,14 +15,14 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from datagen import keypoints as kp
-from datagen.errors import BadValueError
-from datagen.input_checks import check_int, check_number
-from datagen.processes import usable_cores
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.errors import BadValueError
+from hupbench.datagen.input_checks import check_int, check_number
+from hupbench.datagen.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import ReaderConfig
 from hupbench.metrics import PROBE_SYMMETRIES
-from models.model_config import ModelConfig
+from hupbench.models.model_config import ModelConfig
 
 #: the most steps, epochs or frames per batch a run may ask for: 10^9 steps take years at any speed
 #: measured here, so a larger number is a typo (train.max_steps=1e12 would train until killed)

@@ -8,8 +8,8 @@ import json
 import time
 from pathlib import Path
 
-from datagen.errors import BadValueError
-from datagen.io import DiskFullError, write_bytes
+from hupbench.datagen.errors import BadValueError
+from hupbench.datagen.io import DiskFullError, write_bytes
 
 
 class MetricsLog:

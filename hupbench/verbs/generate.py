@@ -6,9 +6,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
-from datagen.dataset.writer import GenerateRun
-from datagen.errors import BadValueError
+from hupbench.datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
+from hupbench.datagen.dataset.writer import GenerateRun
+from hupbench.datagen.errors import BadValueError
 from hupbench.config import build
 from hupbench.provenance import run_info
 
@@ -35,10 +35,10 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
 
 def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     """Make the default grasps if needed, and render (or resume) the dataset of the built ``run``;
-    ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`datagen.dataset.writer.generate`'s
+    ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`hupbench.datagen.dataset.writer.generate`'s
     dict."""
-    from datagen.assets.backgrounds import BackgroundSet
-    from datagen.dataset.writer import check_grasps_probe, generate, run_lock
+    from hupbench.datagen.assets.backgrounds import BackgroundSet
+    from hupbench.datagen.dataset.writer import check_grasps_probe, generate, run_lock
 
     # a bad photographs' folder fails before the default grasps take minutes
     if run.job.backgrounds_dir is not None:

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from datagen.errors import BadValueError
-from datagen.grasps.refine import RefineConfig
-from datagen.grasps.synthesis import MAX_TILE_PX, MIN_TILE_PX, GraspGenConfig, check_selection
-from datagen.input_checks import check_int
-from datagen.io import OutputLock, check_writable, save_npz, write_json
-from datagen.processes import check_threads
-from datagen.dataset.writer import check_platform
-from datagen.assets.probe_mesh import ProbeSource
+from hupbench.datagen.errors import BadValueError
+from hupbench.datagen.grasps.refine import RefineConfig
+from hupbench.datagen.grasps.synthesis import MAX_TILE_PX, MIN_TILE_PX, GraspGenConfig, check_selection
+from hupbench.datagen.input_checks import check_int
+from hupbench.datagen.io import OutputLock, check_writable, save_npz, write_json
+from hupbench.datagen.processes import check_threads
+from hupbench.datagen.dataset.writer import check_platform
+from hupbench.datagen.assets.probe_mesh import ProbeSource
 from hupbench.config import build, build_group
 from hupbench.provenance import run_info
 
@@ -68,11 +68,11 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
 def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     """Run the grasp generator of the built ``run`` (``cfg``, the composed config, goes into run.json); the
     output folder is this run's until it returns. Returns the output paths, counts and timings."""
-    from datagen.render.draw import write_png
-    from datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
-    from datagen.grasps.sheet import contact_sheet
-    from datagen.assets.hand import build_hand
-    from datagen.assets.probe import probe_of
+    from hupbench.datagen.render.draw import write_png
+    from hupbench.datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
+    from hupbench.datagen.grasps.sheet import contact_sheet
+    from hupbench.datagen.assets.hand import build_hand
+    from hupbench.datagen.assets.probe import probe_of
 
     import torch
 
@@ -114,10 +114,10 @@ def run_train_grasp_sampler(cfg: DictConfig, log=print) -> dict:
     returns the weights path, corpus size and timing."""
     import torch
 
-    from datagen.grasps.cvae import SHIPPED_WEIGHTS
-    from datagen.grasps.cvae_training import train_sampler
-    from datagen.assets.hand import build_hand
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.grasps.cvae import SHIPPED_WEIGHTS
+    from hupbench.datagen.grasps.cvae_training import train_sampler
+    from hupbench.datagen.assets.hand import build_hand
+    from hupbench.datagen.assets.probe import build_probe
 
     corpus, cvae = build(cfg.corpus), build(cfg.cvae)
     # CPU results are bit-reproducible only at a fixed thread count

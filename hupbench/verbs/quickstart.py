@@ -20,14 +20,14 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from datagen.camera import Intrinsics
-from datagen.dataset.contract import MODALITIES
-from datagen.dataset.spec import check_principal_point
-from datagen.errors import BadValueError, RunFailedError
-from datagen.input_checks import check_int, check_number
-from datagen.io import OutputLock, check_writable, write_json
-from datagen.dataset.writer import GenerateRun, check_platform
-from datagen.render.preview import PreviewView
+from hupbench.datagen.camera import Intrinsics
+from hupbench.datagen.dataset.contract import MODALITIES
+from hupbench.datagen.dataset.spec import check_principal_point
+from hupbench.datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen.input_checks import check_int, check_number
+from hupbench.datagen.io import OutputLock, check_writable, write_json
+from hupbench.datagen.dataset.writer import GenerateRun, check_platform
+from hupbench.datagen.render.preview import PreviewView
 from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
 from hupbench.training.run_config import TrainRun, train_config
@@ -114,7 +114,7 @@ class QuickstartRun:
         modalities = render.get("modalities", list(MODALITIES))
         if not (isinstance(modalities, (list, tuple)) and all(isinstance(m, str) for m in modalities)):
             raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
-        from datagen.render.renderer import check_modalities
+        from hupbench.datagen.render.renderer import check_modalities
 
         try:
             check_modalities(modalities)
@@ -201,9 +201,9 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
         None), "val_mpjpe_mm" (first and last validation),
         "parity" (ONNX vs PyTorch), "render_platform", "keypoints_in_view", "run_info" and "seconds".
     """
-    from datagen.render import gl
-    from datagen.assets.probe import probe_of
-    from datagen.render.preview import handset_grasp, preview
+    from hupbench.datagen.render import gl
+    from hupbench.datagen.assets.probe import probe_of
+    from hupbench.datagen.render.preview import handset_grasp, preview
 
     start = time.perf_counter()
     # build (and so check) every stage's config before anything runs or is written
@@ -322,7 +322,7 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
 
 
 def _first_test_image(dataset: Path) -> Path:
-    from datagen.dataset.contract import frame_path, read_annotations, read_manifest
+    from hupbench.datagen.dataset.contract import frame_path, read_annotations, read_manifest
 
     manifest = read_manifest(dataset, "test")
     frame_id = int(read_annotations(dataset, "test", (), manifest)["frame_id"][0])

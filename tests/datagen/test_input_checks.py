@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from datagen.errors import BadTypeError
-from datagen.input_checks import check_int, check_number, check_shape, is_whole
+from hupbench.datagen.errors import BadTypeError
+from hupbench.datagen.input_checks import check_int, check_number, check_shape, is_whole
 
 
 @pytest.mark.parametrize("value,whole", [(3, True), (np.int64(3), True), (True, False), (np.bool_(True), False),

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
-from datagen.io import save_npz
-from datagen.render.preview import handset_grasp
-from datagen.dataset.sphere import SphereSpec
+from hupbench.datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+from hupbench.datagen.io import save_npz
+from hupbench.datagen.render.preview import handset_grasp
+from hupbench.datagen.dataset.sphere import SphereSpec
 
 
 # a tiny dataset: r_circ = 0.4 on r_sph = 0.8 gives two rings of 5 views (poles excluded: no view of so

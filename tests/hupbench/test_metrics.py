@@ -311,7 +311,7 @@ def test_half_turn_permutation_is_read_from_the_corners():
 
 
 def test_the_probe_box_is_symmetric_under_the_half_turn():
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.assets.probe import build_probe
 
     corners = build_probe().corners_probe
     assert M.symmetry_permutation(corners, M.HALF_TURN_Z) == HALF_TURN_PERM
@@ -408,7 +408,7 @@ def test_spread_ratio_hand_computed_and_undefined():
 
 
 def test_rotation_onto_recovers_a_turn_and_stays_proper():
-    from datagen.geometry import axis_angle_to_matrix
+    from hupbench.datagen.geometry import axis_angle_to_matrix
     from hupbench.metrics import rotation_onto
 
     rng = np.random.default_rng(3)
@@ -565,7 +565,7 @@ def test_bop_scores_known_answers():
 
 def test_the_probe_mesh_half_turned_costs_add_only():
     """The probe as built: its mesh maps onto itself under the half turn except for the marker."""
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.assets.probe import build_probe
 
     probe = build_probe()
     pts = np.asarray(probe.mesh.vertices)

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from models.build import build_model
-from models.coords import normalized_to_pixels
-from models.heatmap import HUPNet, HUPNetConfig, soft_argmax
-from models.model_config import check_camera
-from models.hopenet import GraphLifter, HOPENet, HOPENetConfig, normalized_intrinsics, unproject_normalized
+from hupbench.models.build import build_model
+from hupbench.models.coords import normalized_to_pixels
+from hupbench.models.heatmap import HUPNet, HUPNetConfig, soft_argmax
+from hupbench.models.model_config import check_camera
+from hupbench.models.hopenet import GraphLifter, HOPENet, HOPENetConfig, normalized_intrinsics, unproject_normalized
 
 K_64 = [[120.0, 0.0, 31.5], [0.0, 110.0, 30.0], [0.0, 0.0, 1.0]]  # input camera of a 64 px model
 MEAN = [[0.01 * (k % 5), -0.01 * (k % 3), 0.5 + 0.005 * k] for k in range(29)]

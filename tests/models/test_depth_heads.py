@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from datagen import keypoints as kp
+from hupbench.datagen import keypoints as kp
 from hupbench.training.loop import probe_half_extents
-from models.build import build_model
-from models.heatmap import CORNER_SIGNS, HUPNet, HUPNetConfig, rotation_from_6d
+from hupbench.models.build import build_model
+from hupbench.models.heatmap import CORNER_SIGNS, HUPNet, HUPNetConfig, rotation_from_6d
 
 K_64 = [[120.0, 0.0, 31.5], [0.0, 110.0, 30.0], [0.0, 0.0, 1.0]]
 MEAN = [[0.01 * (k % 5), -0.01 * (k % 3), 0.5 + 0.005 * k] for k in range(29)]

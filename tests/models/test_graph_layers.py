@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from models.graph import (
+from hupbench.models.graph import (
     ACTIVATION_SLOPE,
     HOPENET_NODE_COUNTS,
     GraphConv,
@@ -14,7 +14,7 @@ from models.graph import (
     default_node_counts,
     normalized_adjacency,
 )
-from models.model_tolerances import ADJACENCY_DEGREE_EPS
+from hupbench.models.model_tolerances import ADJACENCY_DEGREE_EPS
 
 
 def textbook(adjacency: torch.Tensor) -> torch.Tensor:

@@ -1,8 +1,8 @@
 import pytest
 import torch
 
-from models.hopenet import HOPENet, HOPENetConfig, HOPENetOutput
-from models.model_tolerances import (
+from hupbench.models.hopenet import HOPENet, HOPENetConfig, HOPENetOutput
+from hupbench.models.model_tolerances import (
     BF16_AUTOCAST_REL_2D,
     BF16_AUTOCAST_REL_2D_INIT,
     BF16_AUTOCAST_REL_3D,
@@ -51,7 +51,7 @@ def test_gradients_reach_every_parameter(backbone):
         assert p.grad is not None, name
         assert torch.isfinite(p.grad).all(), name
         # graph layers use a leaky activation, so no unit is cut off at init (with a ReLU the
-        # U-Net's 4-channel entry layer was dead in ~1/16 of inits, see models.graph)
+        # U-Net's 4-channel entry layer was dead in ~1/16 of inits, see hupbench.models.graph)
         assert p.grad.abs().sum() > 0, name
 
 

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from models.coords import normalized_to_pixels, pixels_to_normalized
+from hupbench.models.coords import normalized_to_pixels, pixels_to_normalized
 
 
 def test_known_values_edges_and_centre():
@@ -23,7 +23,7 @@ def test_round_trip_and_resize_invariance():
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("width,height", [(256, 256), (64, 48), (1, 2048)])
 def test_the_torch_twin_equals_input_geometry(width, height, dtype):
-    """models.coords is hupbench.input_geometry's formula in torch, value for value."""
+    """hupbench.models.coords is hupbench.input_geometry's formula in torch, value for value."""
     import numpy as np
 
     from hupbench import input_geometry

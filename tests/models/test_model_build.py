@@ -1,10 +1,10 @@
 import pytest
 import torch
 
-from models.baseline import ResNetRegressor, ResNetRegressorConfig
-from models.build import MODELS, build_model, load_checkpoint_state
-from models.heatmap import HUPNet, HUPNetConfig
-from models.hopenet import HOPENet, HOPENetConfig
+from hupbench.models.baseline import ResNetRegressor, ResNetRegressorConfig
+from hupbench.models.build import MODELS, build_model, load_checkpoint_state
+from hupbench.models.heatmap import HUPNet, HUPNetConfig
+from hupbench.models.hopenet import HOPENet, HOPENetConfig
 
 
 def test_every_model_has_its_config():

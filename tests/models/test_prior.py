@@ -1,8 +1,8 @@
 import pytest
 import torch
 
-from models.build import build_model, load_checkpoint_state
-from models.hopenet import HOPENetConfig
+from hupbench.models.build import build_model, load_checkpoint_state
+from hupbench.models.hopenet import HOPENetConfig
 
 
 @pytest.mark.parametrize("name,backbone", [("hopenet", "resnet10"), ("resnet_regressor", "resnet10")])

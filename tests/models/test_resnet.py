@@ -1,8 +1,8 @@
 import pytest
 import torch
 
-from models.resnet import RESNET_SPECS, ResNetOutput, resnet, strip_classifier
-from models.model_tolerances import CHANNELS_LAST_REL
+from hupbench.models.resnet import RESNET_SPECS, ResNetOutput, resnet, strip_classifier
+from hupbench.models.model_tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:
@@ -14,7 +14,7 @@ def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:
 def torchvision_style_state(kind: str, layers: tuple[int, ...], num_classes: int = 1000) -> dict:
     """A state dict with torchvision's ResNet key names and shapes, written from its layout.
 
-    Built independently of models.resnet: stem conv1 7x7/bn1, four stages of BasicBlocks
+    Built independently of hupbench.models.resnet: stem conv1 7x7/bn1, four stages of BasicBlocks
     (conv1/bn1/conv2/bn2) or v1.5 Bottlenecks (conv1/bn1/conv2/bn2/conv3/bn3), a
     ``downsample.0`` (1x1 conv) / ``downsample.1`` (BN) in the first block of a stage whose
     shape changes, and ``fc``. Every BN has weight, bias, running_mean, running_var and an

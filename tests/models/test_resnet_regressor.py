@@ -1,9 +1,9 @@
 import pytest
 import torch
 
-from models.baseline import RegressorOutput, ResNetRegressor, ResNetRegressorConfig
-from models.hopenet import HOPENetOutput
-from models.model_tolerances import CHANNELS_LAST_REL
+from hupbench.models.baseline import RegressorOutput, ResNetRegressor, ResNetRegressorConfig
+from hupbench.models.hopenet import HOPENetOutput
+from hupbench.models.model_tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from datagen.assets.arm import ArmSpec, forearm_mesh, wrist_rotation
-from datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.assets.arm import ArmSpec, forearm_mesh, wrist_rotation
+from hupbench.datagen.geometry import axis_angle_to_matrix
 
 
 def _axis(mesh, wrist):

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.assets.background_scenes import BASE_PX
-from datagen.assets.backgrounds import BUILTIN_NAMES, BackgroundSet, composite
+from hupbench.datagen.assets.background_scenes import BASE_PX
+from hupbench.datagen.assets.backgrounds import BUILTIN_NAMES, BackgroundSet, composite
 
 LUMA_REC709 = np.array([0.2126, 0.7152, 0.0722])
 #: (index, width, height) -> one of the 8 built-in backgrounds
@@ -58,7 +58,7 @@ def test_builtins_are_cached_read_only_and_repeatable():
     assert builtin_background(3, 128, 96) is first
     with pytest.raises(ValueError):
         first[0, 0, 0] = 7  # read-only: a caller cannot corrupt the cache
-    from datagen.assets import background_scenes, backgrounds
+    from hupbench.datagen.assets import background_scenes, backgrounds
 
     # repaint from scratch: the painting itself, not only the cache, must be deterministic
     repainted = np.clip(np.rint(background_scenes.SCENES[3]() * 255.0), 0, 255).astype(np.uint8)
@@ -72,7 +72,7 @@ def test_builtins_identical_in_a_second_process():
     script = textwrap.dedent(f"""
         import hashlib
         import numpy as np
-        from datagen.assets.backgrounds import BUILTIN_NAMES, BackgroundSet
+        from hupbench.datagen.assets.backgrounds import BUILTIN_NAMES, BackgroundSet
         digest = hashlib.sha256()
         for i in range(len(BUILTIN_NAMES)):
             digest.update(np.ascontiguousarray(BackgroundSet.builtin().image(i, {size[0]}, {size[1]})).tobytes())

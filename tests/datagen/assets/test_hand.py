@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen import keypoints as kp
-from datagen.geometry import axis_angle_to_matrix
-from datagen.assets.hand import build_hand, forward_kinematics
-from datagen.assets.hand_anatomy import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.assets.hand import build_hand, forward_kinematics
+from hupbench.datagen.assets.hand_anatomy import (
     POSE_DIM,
     HandSpec,
     anatomical_frames,

@@ -14,9 +14,9 @@ import pytest
 import torch
 import trimesh
 
-from datagen.keypoints import CORNER_BITS
-from datagen.assets.probe import Probe, ProbeSpec, build_probe
-from datagen.mesh_distance import FEATURE_EAB, FEATURE_FACE, FEATURE_VA, closest_points_on_triangles
+from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
+from hupbench.datagen.mesh_distance import FEATURE_EAB, FEATURE_FACE, FEATURE_VA, closest_points_on_triangles
 
 MM = 1e-3
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen.assets.probe import probe_of
-from datagen.assets.probe_mesh import (
+from hupbench.datagen.assets.probe import probe_of
+from hupbench.datagen.assets.probe_mesh import (
     REGION_FRACTIONS,
     ProbeMeshSpec,
     ProbeSource,
@@ -13,8 +13,8 @@ from datagen.assets.probe_mesh import (
     linear_probe_mesh,
     load_probe_mesh,
 )
-from datagen.errors import BadValueError, MissingFileError
-from datagen.keypoints import CORNER_BITS
+from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.datagen.keypoints import CORNER_BITS
 
 
 @pytest.fixture(scope="module")

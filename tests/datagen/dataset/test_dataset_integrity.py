@@ -6,9 +6,9 @@ import shutil
 import numpy as np
 import pytest
 
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import generate
-from datagen.io import save_npz
+from hupbench.datagen.dataset.spec import DatasetSpec
+from hupbench.datagen.dataset.writer import generate
+from hupbench.datagen.io import save_npz
 
 from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 

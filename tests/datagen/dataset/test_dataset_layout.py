@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from datagen.dataset.spec import DatasetSpec, Layout, lamp, protocol, split_of_grasps, view_directions_arm
-from datagen.dataset.writer import parse_shard
-from datagen.dataset.sphere import SphereSpec, viewpoints
+from hupbench.datagen.dataset.spec import DatasetSpec, Layout, lamp, protocol, split_of_grasps, view_directions_arm
+from hupbench.datagen.dataset.writer import parse_shard
+from hupbench.datagen.dataset.sphere import SphereSpec, viewpoints
 
 
 def test_bijection_covers_every_frame_once():

@@ -13,11 +13,11 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import RenderJob, generate
-from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
-from datagen.io import save_npz
-from datagen.dataset.verify import verify
+from hupbench.datagen.dataset.spec import DatasetSpec
+from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
+from hupbench.datagen.io import save_npz
+from hupbench.datagen.dataset.verify import verify
 
 from helpers import REPO
 from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
@@ -220,8 +220,8 @@ def test_paper_protocol_puts_the_middle_mcp_at_the_principal_point(tiny):
 
 def test_earlier_protocol_is_an_option_and_verifies(tiny, tmp_path):
     """axis=forearm + look_at=box_centre: the cameras hupbench made before issue 13."""
-    from datagen.camera import look_at
-    from datagen.dataset.sphere import SphereSpec
+    from hupbench.datagen.camera import look_at
+    from hupbench.datagen.dataset.sphere import SphereSpec
 
     _, grasps, _ = tiny
     out = tmp_path / "earlier"
@@ -256,3 +256,19 @@ def test_verify_checks_the_protocols_look_at(tiny, tmp_path):
     ann = annotations(broken)
     assert flagged == {int(f) for a in ann.values() for f in a["frame_id"]}
     assert "wrist at" in next(p["detail"] for p in problems if p["kind"] == "look_at")
+
+
+def test_a_dataset_made_before_the_packages_moved_keeps_its_config_hash():
+    """The config hash reads a nested ``_target_`` by its name before hupbench 0.2 moved the packages under
+    hupbench: the hash of a config naming ``hupbench.datagen.dataset.spec.DatasetSpec`` is the sha256 of the
+    JSON that hupbench 0.1 hashed, naming ``datagen.dataset.spec.DatasetSpec``."""
+    import hashlib
+
+    from hupbench.datagen.dataset.writer import config_hash
+
+    now = {"seed": 3, "workers": 2, "spec": {"_target_": "hupbench.datagen.dataset.spec.DatasetSpec", "size": 64,
+                                             "sphere": {"_target_": "hupbench.datagen.dataset.sphere.SphereSpec"}}}
+    before = {"seed": 3, "spec": {"_target_": "datagen.dataset.spec.DatasetSpec", "size": 64,
+                                  "sphere": {"_target_": "datagen.dataset.sphere.SphereSpec"}}}
+    assert config_hash(now) == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
+    assert config_hash(now) != config_hash({**now, "seed": 4})

@@ -9,14 +9,14 @@ differs between processes. Parts are now drawn in the order given to ``Renderer.
 import numpy as np
 import pytest
 
-from datagen.render import gl
-from datagen.dataset.chunks import frame_camera
-from datagen.dataset.grasps_file import GraspSet
-from datagen.dataset.spec import DatasetSpec, Layout
-from datagen.dataset.writer import RenderJob, generate
-from datagen.render.renderer import Renderer
-from datagen.render.scene import Grasp, scene_parts
-from datagen.dataset.sphere import viewpoints
+from hupbench.datagen.render import gl
+from hupbench.datagen.dataset.chunks import frame_camera
+from hupbench.datagen.dataset.grasps_file import GraspSet
+from hupbench.datagen.dataset.spec import DatasetSpec, Layout
+from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.render.renderer import Renderer
+from hupbench.datagen.render.scene import Grasp, scene_parts
+from hupbench.datagen.dataset.sphere import viewpoints
 
 from helpers.datasets import TINY_SPEC as TINY, write_grasps  # noqa: E402  (tests/ is on sys.path)
 

@@ -119,7 +119,7 @@ def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
     """A process that called die_with_parent(ppid) is gone soon after its parent is SIGKILLed, by the
     kernel's parent-death signal on Linux and by the watchdog thread elsewhere."""
     child_code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); import os; "
-                  "from datagen.dataset.chunks import die_with_parent; "
+                  "from hupbench.datagen.dataset.chunks import die_with_parent; "
                   f"sys.platform = {'linux' if platform == 'linux' else 'darwin'!r}; die_with_parent(os.getppid()); "
                   f"open({str(tmp_path / 'ready')!r}, 'w').close(); time.sleep(60)")
     parent_code = f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {child_code!r}]); time.sleep(60)"
@@ -137,7 +137,7 @@ def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
 
 def hold_lock(folder, what="generate"):
     """A process holding an OutputLock on ``folder`` until killed (what a generate run holds)."""
-    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from datagen.io import OutputLock; "
+    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from hupbench.datagen.io import OutputLock; "
             f"OutputLock({str(folder)!r}, {what!r}).acquire(); print('held', flush=True); time.sleep(120)")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "held"

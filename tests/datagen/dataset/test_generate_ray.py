@@ -11,10 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.writer import RenderJob, generate
-from datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
-from datagen.dataset.verify import verify
+from hupbench.datagen.dataset.spec import DatasetSpec
+from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
+from hupbench.datagen.dataset.verify import verify
 from hupbench.cli import main
 from hupbench.config import compose
 from hupbench.verbs.generate import run_generate

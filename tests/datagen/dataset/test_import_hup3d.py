@@ -14,15 +14,15 @@ import trimesh
 from helpers.cli import assert_clean_error, run_cli
 from scipy.spatial.transform import Rotation
 
-from datagen import keypoints as kp
-from datagen.dataset import import_hup3d as H
-from datagen.dataset.contract import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.dataset import import_hup3d as H
+from hupbench.datagen.dataset.contract import (
     DEPTH_SCALE_M,
     frame_path,
     read_annotations,
     read_manifest,
 )
-from datagen.dataset.verify import IMPORTED_SKIPS, verify
+from hupbench.datagen.dataset.verify import IMPORTED_SKIPS, verify
 
 SIZE = 64
 #: the published renderer's K for a SIZE x SIZE image (Blender: principal point at SIZE / 2)

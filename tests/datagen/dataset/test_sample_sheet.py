@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers.datasets import TINY_SPEC, write_grasps
 
-from datagen.dataset.sample_sheet import (
+from hupbench.datagen.dataset.sample_sheet import (
     legends,
     overview,
     overview_plan,
@@ -16,7 +16,7 @@ from datagen.dataset.sample_sheet import (
     sphere_map,
     spread_views,
 )
-from datagen.render.draw import (
+from hupbench.datagen.render.draw import (
     FINGER_RGB,
     PROBE_RGB,
     SEG_RGB,
@@ -31,8 +31,8 @@ WHITE = 255
 @pytest.fixture(scope="module")
 def two_distances(tmp_path_factory):
     """One grasp at two camera distances (0.5 and 0.8 m), one background, one glove, 48 px frames, train only."""
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import generate
 
     folder = tmp_path_factory.mktemp("two_distances")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"

@@ -3,10 +3,10 @@ import math
 import numpy as np
 import pytest
 
-from datagen import keypoints as kp
-from datagen.camera import Intrinsics, project_points
-from datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
-from datagen.dataset.sphere import (
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.camera import Intrinsics, project_points
+from hupbench.datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
+from hupbench.datagen.dataset.sphere import (
     SphereSpec,
     all_viewpoints,
     arm_frame,
@@ -167,7 +167,7 @@ def test_body_sphere_image_up_is_the_back_of_the_hand():
 
 
 def test_arm_frame_third_axis_is_the_thumb_side_of_our_right_hand():
-    from datagen.assets.hand import build_hand
+    from hupbench.datagen.assets.hand import build_hand
 
     hand = build_hand()
     pose = np.zeros(48)

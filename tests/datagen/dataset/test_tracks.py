@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
-import datagen.render.renderer as renderer_module
-from datagen.dataset.spec import DatasetSpec, Layout, chunk_plan, split_of_grasps, split_of_views
-from datagen.dataset.sphere import viewpoints
-from datagen.dataset.verify import verify
-from datagen.dataset.writer import generate
+import hupbench.datagen.render.renderer as renderer_module
+from hupbench.datagen.dataset.spec import DatasetSpec, Layout, chunk_plan, split_of_grasps, split_of_views
+from hupbench.datagen.dataset.sphere import viewpoints
+from hupbench.datagen.dataset.verify import verify
+from hupbench.datagen.dataset.writer import generate
 
 from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
@@ -115,8 +115,8 @@ def test_verify_finds_images_half_a_pixel_off_their_labels(tmp_path, monkeypatch
 
 
 def test_visibility_is_decided_on_the_keypoints_as_stored():
-    from datagen import keypoints as kp
-    from datagen.dataset.chunks import stored_visibility, visibility
+    from hupbench.datagen import keypoints as kp
+    from hupbench.datagen.dataset.chunks import stored_visibility, visibility
 
     # a hand keypoint whose row is 139.49999391 in float64 and 139.5 in float32: verify, reading the
     # float32 annotations, rounds it to row 140, where the hand is; row 139 shows a finger 5 cm nearer

@@ -1,4 +1,4 @@
-"""datagen.dataset.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
+"""hupbench.datagen.dataset.verify: the image statistics on known inputs, the RGB checks on rendered frames, and
 verify's own options (workers, progress, the pool path, checks that cannot run)."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 from helpers.datasets import TINY_SPEC, write_grasps
-from datagen import tolerances as tol
-from datagen.dataset import verify as V
-from datagen.dataset import verify_images as VI
-from datagen.dataset.contract import read_annotations, read_manifest
-from datagen.dataset.verify import verify
-from datagen.dataset.verify_images import background_mismatch_px, image_format_problem, mask_depth_mismatch_px, read_image
+from hupbench.datagen import tolerances as tol
+from hupbench.datagen.dataset import verify as V
+from hupbench.datagen.dataset import verify_images as VI
+from hupbench.datagen.dataset.contract import read_annotations, read_manifest
+from hupbench.datagen.dataset.verify import verify
+from hupbench.datagen.dataset.verify_images import background_mismatch_px, image_format_problem, mask_depth_mismatch_px, read_image
 
-GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # datagen.render.scene.GLOVE_RGB
+GLOVES = np.array([[0.5647, 0.5922, 0.7686], [0.3804, 0.6196, 0.8667]])  # hupbench.datagen.render.scene.GLOVE_RGB
 
 
 def quiet(*_):
@@ -122,7 +122,7 @@ def test_background_mismatch_counts_changed_background_pixels():
 
 
 def test_jpeg_reference_is_the_background_as_stored():
-    from datagen.assets.backgrounds import BackgroundSet
+    from hupbench.datagen.assets.backgrounds import BackgroundSet
 
     background = BackgroundSet.builtin().image(2, 64, 64)
     np.testing.assert_array_equal(VI.jpeg_reference(background, None), background)
@@ -132,7 +132,7 @@ def test_jpeg_reference_is_the_background_as_stored():
 
 
 def _shade(albedo, light, k_diffuse, k_specular):
-    """Stored uint8 RGB of pyrender's shading model (module docstring of datagen.dataset.verify)."""
+    """Stored uint8 RGB of pyrender's shading model (module docstring of hupbench.datagen.dataset.verify)."""
     linear = VI.RENDER_AMBIENT * albedo + k_diffuse[:, None] * (albedo * light) + k_specular[:, None] * light
     return np.round(255 * np.clip(linear, 0, 1) ** (1 / VI.RENDER_GAMMA)).astype(np.uint8)
 
@@ -186,8 +186,8 @@ def test_glove_pair_ratio_needs_enough_blocks():
 @pytest.fixture(scope="module")
 def two_gloves(tmp_path_factory):
     """20 frames at 128 px: one grasp, one background, both gloves, 10 views (frame = glove * 10 + view)."""
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import generate
 
     folder = tmp_path_factory.mktemp("two_gloves")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
@@ -319,7 +319,7 @@ def test_checks_that_cannot_run_are_named(tiny_dataset, tmp_path):
 
 
 def test_sample_sheet_reads_through_the_contract(tiny_dataset, tmp_path):
-    from datagen.dataset.sample_sheet import sample_sheet
+    from hupbench.datagen.dataset.sample_sheet import sample_sheet
 
     sheet = sample_sheet(tiny_dataset, view=3, tile_px=32)
     assert sheet.dtype == np.uint8 and sheet.ndim == 3

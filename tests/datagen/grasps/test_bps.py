@@ -7,10 +7,10 @@ import pytest
 import trimesh
 from scipy import stats
 
-from datagen.geometry import euler_to_matrix, transform_points
-from datagen.grasps.bps import basis_points, encode_probe
-from datagen.grasps.frames import T_gen_probe, probe_z_offset
-from datagen.assets.probe import Probe, build_probe
+from hupbench.datagen.geometry import euler_to_matrix, transform_points
+from hupbench.datagen.grasps.bps import basis_points, encode_probe
+from hupbench.datagen.grasps.frames import T_gen_probe, probe_z_offset
+from hupbench.datagen.assets.probe import Probe, build_probe
 
 MM = 1e-3
 #: the probe's gridded signed distance is within a few tenths of a millimetre of the mesh

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from datagen.grasps.cvae import SHIPPED_WEIGHTS, load_shipped_cvae
-from datagen.grasps.cvae_sampling import sample_grasps
-from datagen.grasps.cvae_training import CorpusConfig
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import joint_limits_rad
-from datagen.assets.probe import build_probe
+from hupbench.datagen.grasps.cvae import SHIPPED_WEIGHTS, load_shipped_cvae
+from hupbench.datagen.grasps.cvae_sampling import sample_grasps
+from hupbench.datagen.grasps.cvae_training import CorpusConfig
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import joint_limits_rad
+from hupbench.datagen.assets.probe import build_probe
 
 
 @pytest.fixture(scope="module")

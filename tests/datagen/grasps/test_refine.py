@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 import torch
 
-from datagen.grasps.synthesis import GraspGenConfig, generate_candidates, select_grasps
-from datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
-from datagen.grasps.scores import SCORE_NAMES, score_grasps
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import joint_limits_rad
-from datagen.assets.probe import build_probe
+from hupbench.datagen.grasps.synthesis import GraspGenConfig, generate_candidates, select_grasps
+from hupbench.datagen.grasps.refine import GraspBatch, GraspEnergy, RefineConfig, random_starts, refine
+from hupbench.datagen.grasps.scores import SCORE_NAMES, score_grasps
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import joint_limits_rad
+from hupbench.datagen.assets.probe import build_probe
 
 
 @pytest.fixture(scope="module")

@@ -1,13 +1,13 @@
 import numpy as np
 import pytest
 
-from datagen.grasps.refine import GraspBatch, GraspEnergy
-from datagen.grasps.scores import farthest_point_selection, force_closure_residual, score_grasps
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import pose_to_anatomical
-from datagen.geometry import axis_angle_to_matrix
-from datagen.render.preview import handset_grasp
-from datagen.assets.probe import build_probe
+from hupbench.datagen.grasps.refine import GraspBatch, GraspEnergy
+from hupbench.datagen.grasps.scores import farthest_point_selection, force_closure_residual, score_grasps
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import pose_to_anatomical
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.render.preview import handset_grasp
+from hupbench.datagen.assets.probe import build_probe
 
 
 def test_force_closure_known_values():

@@ -3,8 +3,8 @@
 import numpy as np
 from helpers.datasets import write_grasps
 
-from datagen.geometry import axis_angle_to_matrix
-from datagen.grasps.sheet import VIEW_DISTANCE_M, contact_sheet, grasp_views
+from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.datagen.grasps.sheet import VIEW_DISTANCE_M, contact_sheet, grasp_views
 
 WHITE = 255
 

@@ -8,9 +8,9 @@ import pytest
 import trimesh
 from helpers import needs_osmesa
 
-from datagen.camera import Intrinsics, look_at, project_points
-from datagen.geometry import transform_points
-from datagen.render.renderer import SEG_LABELS, MeshPart, Renderer, check_modalities
+from hupbench.datagen.camera import Intrinsics, look_at, project_points
+from hupbench.datagen.geometry import transform_points
+from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, Renderer, check_modalities
 
 K256 = Intrinsics(480.0, 480.0, 128.0, 128.0, 256, 256)
 
@@ -71,8 +71,8 @@ def test_only_requested_modalities_and_label_values(renderer):
 
 
 def test_full_scene_labels_are_exactly_the_parts_present(renderer):
-    from datagen.render.preview import handset_grasp
-    from datagen.render.scene import keypoints_world, scene_parts
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.render.scene import keypoints_world, scene_parts
 
     grasp = handset_grasp()
     parts = scene_parts(grasp)
@@ -91,8 +91,8 @@ def test_full_scene_labels_are_exactly_the_parts_present(renderer):
 
 def test_orientation_marker_renders_green_as_probe_on_the_plus_x_end(renderer):
     """The marker is its own part, drawn in PROBE_MARKER_RGB, labelled probe; seen from +x only."""
-    from datagen.render.preview import handset_grasp
-    from datagen.render.scene import PROBE_MARKER_RGB, scene_parts
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.render.scene import PROBE_MARKER_RGB, scene_parts
 
     parts = [p for p in scene_parts(handset_grasp()) if p.name.startswith("probe")]
     assert [p.name for p in parts] == ["probe_body", "probe_lens", "probe_marker"]
@@ -114,8 +114,8 @@ def test_orientation_marker_renders_green_as_probe_on_the_plus_x_end(renderer):
 
 
 def test_camera_at_the_pole_renders_without_nan(renderer):
-    from datagen.render.preview import handset_grasp
-    from datagen.render.scene import keypoints_world, scene_parts
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.render.scene import keypoints_world, scene_parts
 
     grasp = handset_grasp()
     points = keypoints_world(grasp)
@@ -133,9 +133,9 @@ def test_camera_at_the_pole_renders_without_nan(renderer):
 
 def test_visible_fingertip_depth_agrees_with_keypoint(renderer):
     """A fingertip keypoint sits on the hand surface: where it is seen, depth there is its z."""
-    from datagen import keypoints as kp
-    from datagen.render.preview import handset_grasp
-    from datagen.render.scene import keypoints_world, scene_parts
+    from hupbench.datagen import keypoints as kp
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.render.scene import keypoints_world, scene_parts
 
     grasp = handset_grasp()
     renderer.set_parts(scene_parts(grasp))
@@ -170,8 +170,8 @@ def test_osmesa_fallback_renders_the_same_depth():
     code = textwrap.dedent(
         """
         import json, numpy as np, trimesh
-        from datagen.camera import Intrinsics, look_at
-        from datagen.render.renderer import MeshPart, Renderer
+        from hupbench.datagen.camera import Intrinsics, look_at
+        from hupbench.datagen.render.renderer import MeshPart, Renderer
         box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))  # 80 px wide at 0.6 m in a 128 px image
         with Renderer(Intrinsics(480.0, 480.0, 64.0, 64.0, 128, 128), platform="osmesa") as r:
             r.set_parts([MeshPart("box", box, 3)])

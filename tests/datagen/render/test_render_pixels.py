@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen.camera import Intrinsics, project_points
-from datagen.render.renderer import SEG_LABELS, MeshPart, Renderer
+from hupbench.datagen.camera import Intrinsics, project_points
+from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, Renderer
 
 #: the largest centroid disagreement allowed, pixels (a half-pixel convention error is ten times this)
 CENTROID_TOL_PX = 0.05

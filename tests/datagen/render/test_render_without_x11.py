@@ -5,7 +5,7 @@ in by accident. Each case runs in a fresh interpreter in which every lookup of a
 name fails (``ctypes.CDLL`` / ``ctypes.cdll.LoadLibrary`` raise OSError, ``ctypes.util.find_library``
 returns None) and ``_tkinter`` (which links libtk and so libX11) cannot be imported, all before
 anything else is imported; it then renders one frame with RGB, depth and labels through
-:class:`datagen.render.renderer.Renderer` on the platform under test and reports what it saw.
+:class:`hupbench.datagen.render.renderer.Renderer` on the platform under test and reports what it saw.
 
 The slow test goes further where it can (root on Debian/Ubuntu): it really removes, in a private mount
 namespace, the library files of every X11/GL/EGL package that install.sh's package list does not pull in,
@@ -69,9 +69,9 @@ RENDER_WITHOUT_X11 = textwrap.dedent(
     import numpy as np
     import trimesh
 
-    from datagen.camera import Intrinsics, look_at
-    from datagen.render.renderer import SEG_LABELS, MeshPart, RenderSettings, Renderer
-    from datagen.dataset.verify_images import mask_depth_mismatch_px
+    from hupbench.datagen.camera import Intrinsics, look_at
+    from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, RenderSettings, Renderer
+    from hupbench.datagen.dataset.verify_images import mask_depth_mismatch_px
 
     # a red 10 cm cube (probe) right of the optical axis, a 4 cm green ball (hand) left of it, 0.6 m away
     cube = trimesh.creation.box(extents=(0.1, 0.1, 0.1))

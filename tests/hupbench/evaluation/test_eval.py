@@ -11,7 +11,7 @@ import torch
 from hupbench.evaluation import evaluate as EV
 from hupbench.evaluation.probe_pose import probe_pose_scores
 from hupbench import metrics as M
-from datagen.io import file_sha256
+from hupbench.datagen.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results
@@ -144,7 +144,7 @@ def test_a_probe_mesh_that_is_not_the_datasets_gets_no_pose_metrics(exported, ti
     """A mesh whose box does not meet the dataset's corners (here 10 % larger) would score another object."""
     from types import SimpleNamespace
 
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.assets.probe import build_probe
 
     ckpt, _ = exported
     probe = build_probe()
@@ -162,7 +162,7 @@ def test_a_probe_mesh_that_is_not_the_datasets_gets_no_pose_metrics(exported, ti
 def _floor_probe_pose(dataset, width):
     """The probe pose scores of the test split's floor, its frames matched here: each frame's prediction is the
     probe of its grasp's nearest training grasp (as the manifest records it) in the same view and distance."""
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.assets.probe import build_probe
 
     floor = json.loads((dataset / "manifest.json").read_text())["split_floors"]["splits"]["test"]
     with np.load(dataset / "train" / "annotations.npz") as tr, np.load(dataset / "test" / "annotations.npz") as te:
@@ -184,7 +184,7 @@ def _mspd_of_a_shift(dataset, shift_m):
     pose, under the half turn, computed with OpenCV's projection."""
     import cv2
 
-    from datagen.assets.probe import build_probe
+    from hupbench.datagen.assets.probe import build_probe
 
     with np.load(dataset / "test" / "annotations.npz") as ann:
         T, K = ann["T_cam_world"].astype(np.float64), ann["K"].astype(np.float64)

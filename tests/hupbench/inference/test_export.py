@@ -12,15 +12,15 @@ import torch
 from helpers import REPO
 from helpers.models import INPUT_SIZE, make_checkpoint
 
-from datagen import keypoints as kp
+from hupbench.datagen import keypoints as kp
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.inference import export as E
 from hupbench.inference.model_file import META
 from hupbench.inference.runtime import load_onnx_model
-from models.baseline import RegressorOutput
-from models.coords import pixels_to_normalized
+from hupbench.models.baseline import RegressorOutput
+from hupbench.models.coords import pixels_to_normalized
 
 
 def _images(dataset, n):
@@ -175,7 +175,7 @@ def test_export_prints_no_exporter_noise(tmp_path):
     loggers write to the stderr they found at import."""
     script = (
         "from hupbench.inference import export as E\n"
-        "from models.build import build_model\n"
+        "from hupbench.models.build import build_model\n"
         "net = build_model({'name': 'resnet_regressor', 'backbone': 'resnet10', 'n_keypoints': 29})\n"
         "K = [[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]]\n"
         f"E.export_onnx(E.ContractModule(net, K, 32), {str(tmp_path / 'm.onnx')!r}, {{}})\n")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen import keypoints as kp
-from datagen.assets.hand import build_hand
-from datagen.assets.hand_anatomy import anatomical_to_pose
-from datagen.assets.probe import build_probe
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.hand import build_hand
+from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
+from hupbench.datagen.assets.probe import build_probe
 from hupbench.inference import hand_fit as F
 
 S = 128

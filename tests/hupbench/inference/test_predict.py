@@ -28,8 +28,8 @@ from helpers.dot_model import (
     photo_like,
 )
 
-from datagen import keypoints as kp
-from datagen.render.draw import FINGER_RGB, PROBE_RGB
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.render.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.inference.images import decode_image, expand_inputs
 from hupbench.inference.model_file import read_metadata
@@ -463,7 +463,7 @@ def test_exported_model_matches_pytorch_on_dataset_images(tiny_dataset, tmp_path
 
     from hupbench.checkpoint import Checkpoint, load_model
     from hupbench.data import HUPDataset, ReaderConfig
-    from models.build import build_model
+    from hupbench.models.build import build_model
 
     manifest = json.loads((tiny_dataset / "manifest.json").read_text())
     size = manifest["image_size"][0]  # square frames, and the model input the same size: no resize

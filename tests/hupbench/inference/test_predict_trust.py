@@ -15,7 +15,7 @@ import torch
 from helpers.dot_model import contract_metadata
 from helpers.models import make_checkpoint
 
-from datagen.errors import BadValueError
+from hupbench.datagen.errors import BadValueError
 from hupbench.checkpoint import load_model
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.inference import export as E
@@ -23,7 +23,7 @@ from hupbench.inference import image_statistics as stats
 from hupbench.inference.images import read_image
 from hupbench.inference.model_file import NO_CONFIDENCE, read_metadata
 from hupbench.inference.predict import PredictOptions, preprocess, run_predict
-from models.heatmap import heatmap_confidence
+from hupbench.models.heatmap import heatmap_confidence
 
 #: real hand photographs of Debian's opencv-doc package (Debian 12: /usr/share/doc/opencv-doc/opencv4/html)
 HAND_PHOTOS = sorted(Path("/usr/share/doc/opencv-doc").glob("**/hand[SD]*.jpg"))

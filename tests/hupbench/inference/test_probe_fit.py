@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen import keypoints as kp
-from datagen.assets.probe import build_probe
-from datagen.render.scene import PROBE_BODY_RGB, PROBE_MARKER_RGB
+from hupbench.datagen import keypoints as kp
+from hupbench.datagen.assets.probe import build_probe
+from hupbench.datagen.render.scene import PROBE_BODY_RGB, PROBE_MARKER_RGB
 from hupbench.inference import probe_fit as F
 
 S = 128

@@ -96,7 +96,7 @@ def test_short_training_follows_the_image(model, tiny_dataset, trained):
 def test_the_guard_fails_a_model_that_ignores_its_image(tiny_dataset, trained, monkeypatch):
     """The same check on the trained HOPE-Net of the test above made blind: its backbone sees one constant image
     whatever it is given, so every frame gets the same prediction, and the guard names all three axes."""
-    from models.resnet import ResNet
+    from hupbench.models.resnet import ResNet
 
     net = trained("hopenet_r10_128")
     assert not low_spread(net, tiny_dataset)

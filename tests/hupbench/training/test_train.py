@@ -15,7 +15,7 @@ from hupbench.training.loop import resolve_precision, run_train
 from hupbench.training.losses import loss_terms
 from hupbench.data.loaders import EpochSampler
 from hupbench.training.schedule import warmup_cosine
-from models.hopenet import HOPENetOutput
+from hupbench.models.hopenet import HOPENetOutput
 from helpers import REPO
 
 
@@ -41,7 +41,7 @@ def test_short_run_writes_everything(tiny_dataset, tmp_path):
         assert (run_dir / name).is_file(), name
     assert any(p.name.startswith("events.out.tfevents") for p in (run_dir / "tb").iterdir())
     info = json.loads((run_dir / "run.json").read_text())
-    assert info["config"]["model"]["_target_"] == "models.hopenet.HOPENetConfig" and info["precision"] == "fp32"
+    assert info["config"]["model"]["_target_"] == "hupbench.models.hopenet.HOPENetConfig" and info["precision"] == "fp32"
     assert len(info["git_commit"]) >= 40 and info["packages"]["torch"].startswith("2.13")
     log = read_log(run_dir)
     vals = [r for r in log if r["event"] == "val"]
@@ -273,7 +273,7 @@ def test_every_model_config_composes_and_builds(model, batch):
     from dataclasses import fields, replace
 
     from hupbench.input_geometry import INPUT_MODALITIES
-    from models.build import build_model
+    from hupbench.models.build import build_model
 
     run = train_config(compose("train", [f"model={model}"]))
     size = run.data.reader.input_size
@@ -350,12 +350,12 @@ def small_dataset(tmp_path_factory):
     training grasps, which a few minutes of training can learn."""
     import numpy as np
 
-    from datagen.dataset.spec import DatasetSpec
-    from datagen.dataset.writer import generate
-    from datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
-    from datagen.io import save_npz
-    from datagen.render.preview import handset_grasp
-    from datagen.dataset.sphere import SphereSpec
+    from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.writer import generate
+    from hupbench.datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+    from hupbench.datagen.io import save_npz
+    from hupbench.datagen.render.preview import handset_grasp
+    from hupbench.datagen.dataset.sphere import SphereSpec
 
     from helpers.datasets import TINY_SPEC
 

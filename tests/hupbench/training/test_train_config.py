@@ -8,13 +8,13 @@ import functools
 import pytest
 import torch
 
-from datagen.processes import usable_cores
+from hupbench.datagen.processes import usable_cores
 from helpers.answers import assert_refusal
 from hupbench.config import compose
 from hupbench.data import ReaderConfig
 from hupbench.training.run_config import DataConfig, LossConfig, OptimConfig, Schedule, TrainRun, train_config
 from hupbench.training.schedule import warmup_cosine
-from models.hopenet import HOPENetConfig
+from hupbench.models.hopenet import HOPENetConfig
 
 
 def optim(reference_batch=None, scheduler=None, **optimizer) -> OptimConfig:

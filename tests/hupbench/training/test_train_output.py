@@ -108,6 +108,27 @@ def test_a_finished_run_again_is_already_complete(finished, capsys):
     assert (run_dir / "train.log").read_text().rstrip().endswith(lines[0])
 
 
+def test_a_run_trained_before_the_packages_moved_is_still_complete(finished, tmp_path):
+    """A checkpoint whose config names its model by the top-level package of hupbench 0.1 (``_target_:
+    models.hopenet.HOPENetConfig``, before ``hupbench.models``) is the same config: the run is complete, not
+    refused as trained with another config."""
+    import shutil
+
+    import torch
+
+    overrides, _ = finished
+    run_dir = tmp_path / "tiny"
+    shutil.copytree(overrides[1], run_dir)
+    last = run_dir / "checkpoints" / "last.pt"
+    payload = torch.load(last, map_location="cpu", weights_only=True)
+    assert payload["config"]["model"]["_target_"] == "hupbench.models.hopenet.HOPENetConfig"
+    payload["config"]["model"]["_target_"] = "models.hopenet.HOPENetConfig"
+    torch.save(payload, last)
+    lines = []
+    loop.main(tiny_cfg(overrides[0], run_dir, *overrides[2:]), log=lines.append)
+    assert lines[0].startswith("already complete: nothing to do"), lines
+
+
 @pytest.mark.parametrize("extra, needles", [
     (["optim.optimizer.lr=0.002"], ["trained with another config", "optim.optimizer.lr: checkpoint 0.001, now 0.002",
                                     "start a new run, run_name=tiny_2", "give it the values it was trained with"]),

@@ -8,10 +8,10 @@ import pytest
 from helpers.datasets import annotations
 from helpers.training import tiny_cfg
 
-from datagen.dataset.grasps_file import probe_of_dataset
-from datagen.assets.probe_mesh import linear_probe_mesh
-from datagen.dataset.verify import verify
-from datagen.errors import BadValueError
+from hupbench.datagen.dataset.grasps_file import probe_of_dataset
+from hupbench.datagen.assets.probe_mesh import linear_probe_mesh
+from hupbench.datagen.dataset.verify import verify
+from hupbench.datagen.errors import BadValueError
 from hupbench.config import compose
 from hupbench.training.loop import run_train
 from hupbench.verbs.generate import run_generate

@@ -4,10 +4,10 @@ prints (tests/hupbench/verbs/test_matrix_generate.py keeps one case per field gr
 
 import pytest
 
-from datagen.dataset.spec import DatasetSpec
-from datagen.dataset.sphere import SphereSpec
+from hupbench.datagen.dataset.spec import DatasetSpec
+from hupbench.datagen.dataset.sphere import SphereSpec
 from helpers.answers import assert_refusal
-from datagen.dataset.writer import GenerateRun
+from hupbench.datagen.dataset.writer import GenerateRun
 
 from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 

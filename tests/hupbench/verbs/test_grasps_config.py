@@ -8,10 +8,10 @@ from helpers.answers import assert_refusal
 from hupbench.verbs.grasps import GraspsRun
 
 #: tests/hupbench/verbs/test_matrix_grasps.py's SMALL config as the fields of the run
-GENERATE = {"_target_": "datagen.grasps.synthesis.GraspGenConfig", "theta_vol_deg": [[0, 0, 0], [0, 0, 180]],
+GENERATE = {"_target_": "hupbench.datagen.grasps.synthesis.GraspGenConfig", "theta_vol_deg": [[0, 0, 0], [0, 0, 180]],
             "starts_per_theta": 8, "sampler": "cvae", "short_refine_iterations": 5, "n_select": 1,
             "pinned_ids": None, "seed": 0}
-REFINE = {"_target_": "datagen.grasps.refine.RefineConfig", "iterations": 50}
+REFINE = {"_target_": "hupbench.datagen.grasps.refine.RefineConfig", "iterations": 50}
 SHEET = {"tile_px": 96, "platform": None}
 
 

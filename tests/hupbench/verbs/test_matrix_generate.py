@@ -113,7 +113,7 @@ def _partial_with_other_grasps(tmp, grasps):
 
 def _same_config_hash(tmp, grasps):
     """The config hash the tiny config gives (what a partial run of it wrote)."""
-    from datagen.dataset.writer import config_hash
+    from hupbench.datagen.dataset.writer import config_hash
     from hupbench.config import compose
     from omegaconf import OmegaConf
 

@@ -30,7 +30,7 @@ def _write(path: Path, data: bytes) -> Path:
 
 def _weights(tmp: Path, kind: str) -> Path:
     """A damaged copy of the shipped grasp-sampler weights."""
-    from datagen.grasps.cvae import SHIPPED_WEIGHTS
+    from hupbench.datagen.grasps.cvae import SHIPPED_WEIGHTS
 
     data = SHIPPED_WEIGHTS.read_bytes()
     path = tmp / "grasp_cvae.npz"
@@ -95,7 +95,7 @@ def _files(folder: Path) -> dict:
 @pytest.mark.parametrize("case", [*CASES, *WEIGHTS])
 def test_matrix_grasps(case, tmp_path, capsys, monkeypatch):
     if case in WEIGHTS:
-        import datagen.grasps.cvae as cvae
+        import hupbench.datagen.grasps.cvae as cvae
 
         monkeypatch.setattr(cvae, "SHIPPED_WEIGHTS", _weights(tmp_path, case.removeprefix("sampler-weights-")))
         overrides, needles = [], WEIGHTS[case]
@@ -127,7 +127,7 @@ def test_matrix_grasps_read_only_out_dir(tmp_path):
 @pytest.mark.matrix
 def test_matrix_grasps_second_run(tmp_path, capsys):
     """A second grasps run on a folder another live run writes is refused (the lock beside the folder)."""
-    from datagen.io import OutputLock
+    from hupbench.datagen.io import OutputLock
 
     out = tmp_path / "g"
     with OutputLock.for_file(out, "grasps"):  # the first run

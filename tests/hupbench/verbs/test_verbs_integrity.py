@@ -32,7 +32,7 @@ def _cli(capsys, *argv):
 
 
 def test_train_grasp_sampler_bounds_its_threads_by_the_cores(tmp_path, capsys, monkeypatch):
-    import datagen.grasps.cvae_training as cvae_training
+    import hupbench.datagen.grasps.cvae_training as cvae_training
 
     def trained(*_, **__):
         raise AssertionError("the training started")
