@@ -7,7 +7,9 @@ For the probe's 8 corners and the hand's 21 joints of each frame:
     rigid        MPJPE after the best rotation and translation (no scale): what no rigid pose could fix (shape)
     z / xy       mean |error| along the optical axis and in the image plane, per keypoint, mm
 and the same for the probe under its half turn (the closer labelling per frame, as eval's symmetric score);
-the wrist's own error and the hand MPJPE relative to the wrist and to the middle MCP (keypoint 9).
+the wrist's own error and the hand MPJPE relative to the wrist and to the middle MCP (keypoint 9), and the
+split's nearest-training-grasp floor (hand, probe) from its manifest. It measures the network alone: the fits
+after it (probe_fit, hand_fit) are measured by scripts/probe_fit_ablation.py and scripts/hand_fit_ablation.py.
 Per test grasp, the probe's turn: the rotation between the box fitted to the predicted corners and the true
 box (median angle, the share of frames turned 60-150 degrees, and how much of the turn is about the probe's
 long axis: the mean |cosine| between the rotation's axis and it), beside the centroid's error.
@@ -76,6 +78,16 @@ def split_outputs(description: str, batch: int, modalities: str | None = None):
     return args, module, payload, reader, rows, outputs
 
 
+def floor_line(reader, split: str, part: str) -> str | None:
+    """The split's nearest-training-grasp floor of ``part`` (hand, probe or all) from its manifest, overall and per
+    grasp, as one line; None for a dataset without floors."""
+    floors = reader.manifest.get("split_floors", {}).get("splits", {}).get(split)
+    if not floors:
+        return None
+    per_grasp = ", ".join(f"{g} {v['floor_mm'][part]:.2f}" for g, v in sorted(floors["per_grasp"].items()))
+    return f"floor (nearest training grasp): {part} {floors['floor_mm'][part]:.2f}; per grasp {per_grasp}"
+
+
 def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(keypoints (F, 29, 3) metres, the probe corners half-turned (F, 8, 3), grasp ids (F,)) of the frames."""
     from hupbench.datagen import keypoints as kp
@@ -108,6 +120,10 @@ def main() -> None:
                          "probe, half turn": (pred[:, probe], gt_sym)}.items():
         print(f"{name:18s}" + "".join(f"{v:15.2f}" for v in decompose(p, g).values()))
     print(f"probe half-turned labels closer on {closer.mean():.0%} of frames")
+    for part in ("hand", "probe"):
+        floor = floor_line(reader, args.split, part)
+        if floor:
+            print(floor)
     from hupbench import metrics
 
     wrist = float(metrics.keypoint_errors_mm(pred, gt)[:, metrics.ROOT_INDEX].mean())

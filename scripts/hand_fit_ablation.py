@@ -25,7 +25,7 @@ VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free s
 
 def main() -> None:
     from hupbench.datagen import keypoints as kp
-    from diagnose_errors import decompose, split_labels, split_outputs
+    from diagnose_errors import decompose, floor_line, split_labels, split_outputs
     from hupbench.inference import hand_fit
     from hupbench.inference.probe_fit import fit_probe
 
@@ -50,11 +50,9 @@ def main() -> None:
     labels, _, grasp = split_labels(args, reader, rows)
     gt = labels[:, kp.HAND_SLICE]
     print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {len(reader)} frames; hand, mm")
-    floors = reader.manifest.get("split_floors", {}).get("splits", {}).get(args.split)
-    if floors:
-        print("floor (nearest training grasp): hand {:.2f}; per grasp {}".format(
-            floors["floor_mm"]["hand"],
-            ", ".join(f"{g} {v['floor_mm']['hand']:.2f}" for g, v in sorted(floors["per_grasp"].items()))))
+    floor = floor_line(reader, args.split, "hand")
+    if floor:
+        print(floor)
     grasps = sorted(np.unique(grasp).tolist())
     print(f"{'':20s}{'hand':>8s}{'median':>8s}{'centroid':>10s}{'about c.':>10s}{'rigid':>8s}"
           + "".join(f"{'grasp ' + str(g):>10s}" for g in grasps))

@@ -20,7 +20,7 @@ import torch
 
 def main() -> None:
     from hupbench.datagen import keypoints as kp
-    from diagnose_errors import split_labels, split_outputs
+    from diagnose_errors import floor_line, split_labels, split_outputs
     from hupbench.inference.probe_fit import DECISIONS, fit_probe
 
     args, _, payload, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth")
@@ -46,11 +46,9 @@ def main() -> None:
         plain, half = error(pred, gt), np.minimum(error(pred, gt), error(pred, turned))
         rows_out[name] = (plain, half)
     print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {n} frames; probe corner MPJPE, mm")
-    floors = reader.manifest.get("split_floors", {}).get("splits", {}).get(args.split)
-    if floors:
-        print("floor (nearest training grasp): probe {:.2f}; per grasp {}".format(
-            floors["floor_mm"]["probe"],
-            ", ".join(f"{g} {v['floor_mm']['probe']:.2f}" for g, v in sorted(floors["per_grasp"].items()))))
+    floor = floor_line(reader, args.split, "probe")
+    if floor:
+        print(floor)
     grasps = sorted(np.unique(grasp).tolist())
     print(f"{'':10s}{'probe':>9s}{'median':>9s}{'half turn':>11s}" + "".join(f"{'grasp ' + str(g):>12s}" for g in grasps))
     for name, (plain, half) in rows_out.items():
