@@ -1,7 +1,8 @@
 """What the hand's fit to the depth input (hupbench.inference.hand_fit) does to a checkpoint's hand, on a split: the
-hand MPJPE of the network alone and after the fit, and after the fit without each of its parts (the bones' turns,
-i.e. a rigid hand; the free-space term), per grasp, with where the error is (scripts/diagnose_errors.py's
-centroid / about centroid / rigid), and the fit's time per frame. The probe's fit runs first, as in eval.
+hand MPJPE of the network alone and after the fit, after the fit without each of its parts (the bones' turns, i.e.
+a rigid hand; the free-space term), and after the fit started from the true joints (what its capsule hand gets
+wrong), per grasp, with where the error is (scripts/diagnose_errors.py's centroid / about centroid / rigid), and
+the fit's time per frame. The probe's fit runs first, as in eval.
 
 The checkpoint must read depth (data.reader.input_modalities=rgb+depth); whether its config asks for the fits does
 not matter here: both are measured. The fit's weights were chosen with ``--split val``; quote the test split once,
@@ -19,8 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-#: the fit's parts taken out, each as the module constants it runs with instead
-VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free space": {"FREE_WEIGHT": 0.0}}
+#: the fit's parts taken out, each as the module constants it runs with instead; and the fit started from the
+#: true joints instead of the network's (what its capsule hand gets wrong: 0 for a perfect hand model)
+VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free space": {"FREE_WEIGHT": 0.0},
+            "fit from the truth": {}}
 
 
 def main() -> None:
@@ -33,6 +36,8 @@ def main() -> None:
     K = np.asarray(payload["K_input"], dtype=np.float64)
     probe_fitted = [fit_probe(points2d, points3d, images, K)[:2] for images, points2d, points3d in outputs]
     hands = {"network": np.concatenate([points3d[:, kp.HAND_SLICE] for _, points3d in probe_fitted])}
+    labels, _, grasp = split_labels(args, reader, rows)
+    starts = np.cumsum([0] + [len(images) for images, _, _ in outputs])
     seconds = {}
     for name, constants in VARIANTS.items():
         saved = {key: getattr(hand_fit, key) for key in constants}
@@ -40,14 +45,16 @@ def main() -> None:
             setattr(hand_fit, key, value)
         try:
             began, out = time.perf_counter(), []
-            for (images, _, _), (points2d, points3d) in zip(outputs, probe_fitted):
+            for start, (images, _, _), (points2d, points3d) in zip(starts, outputs, probe_fitted):
+                if name == "fit from the truth":
+                    points3d = points3d.copy()
+                    points3d[:, kp.HAND_SLICE] = labels[start:start + len(images), kp.HAND_SLICE]
                 out.append(hand_fit.fit_hand(points2d, points3d, images, K)[1][:, kp.HAND_SLICE])
             seconds[name] = time.perf_counter() - began
             hands[name] = np.concatenate(out)
         finally:
             for key, value in saved.items():
                 setattr(hand_fit, key, value)
-    labels, _, grasp = split_labels(args, reader, rows)
     gt = labels[:, kp.HAND_SLICE]
     print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {len(reader)} frames; hand, mm")
     floor = floor_line(reader, args.split, "hand")
