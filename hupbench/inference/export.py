@@ -323,7 +323,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
                                      f"{diff['confidence']:.2e} (> {PARITY_MAX_CONFIDENCE:g}) between onnxruntime and "
                                      f"PyTorch; nothing written to {out}")
     log(f"out-of-distribution check calibrated on {calibration.frames['train']} training frames; threshold "
-        f"{calibration.threshold:.2f} = percentile 99 of {calibration.frames['threshold']} "
+        f"{calibration.threshold:.2f} = percentile {calibration.percentile:g} of {calibration.frames['threshold']} "
         f"{calibration.frames['threshold_split']} frames")
     return {"onnx": str(out), "parity": diff, "dataset": str(dataset), "opset": options.opset, "run_name": run_name,
             "metadata": metadata, "image_statistics": calibration.describe()}

@@ -48,6 +48,7 @@ import numpy as np
 import torch
 
 from hupbench.datagen import keypoints as kp
+from hupbench.inference.probe_fit import probe_model
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
@@ -178,14 +179,12 @@ def _measured_points(depth: torch.Tensor, K: torch.Tensor, hand: torch.Tensor, p
                      probe_translation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes,
     and their (B, P) weights (1 real, 0 padding), P = ``MAX_POINTS`` (module docstring, step 2)."""
-    from hupbench.inference.probe_fit import _probe_model
-
     B, S, _ = depth.shape
     v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
     z = depth.reshape(B, -1)
     points = torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
     near = (z > 0) & (_nearest(points, hand, _capsules())[0] < REACH_M)
-    on_probe, _ = _probe_model().probe.signed_distance_and_gradient_torch((points - probe_translation[:, None])
+    on_probe, _ = probe_model().probe.signed_distance_and_gradient_torch((points - probe_translation[:, None])
                                                                             @ probe_rotation)
     near &= on_probe > PROBE_GAP_M
     order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
@@ -209,12 +208,10 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
     """
     from torch.func import jacfwd, vmap
 
-    from hupbench.inference.probe_fit import _probe_model
-
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
     caps = _capsules()
-    probe = fit_rigid_pose(_probe_model().corners.double().numpy(), points3d[:, kp.CORNER_SLICE])   # (B, 4, 4)
+    probe = fit_rigid_pose(probe_model().corners.double().numpy(), points3d[:, kp.CORNER_SLICE])   # (B, 4, 4)
     with torch.inference_mode(False), torch.no_grad():
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         depth = torch.as_tensor(images[:, 3], dtype=torch.float32)

@@ -84,12 +84,15 @@ class ImageStatistics:
         threshold: distances above it are flagged.
         frames: {"train": frames of the mean and covariance, "threshold": frames of the threshold,
             "threshold_split": the split they came from}.
+        percentile: the percentile of those frames' distances that ``threshold`` is (:data:`PERCENTILE` when
+            calibrated; a file says which it used).
     """
 
     mean: np.ndarray
     precision: np.ndarray
     threshold: float
     frames: dict
+    percentile: float = PERCENTILE
 
     def distance(self, statistics: np.ndarray) -> np.ndarray:
         """(B,) float64 Mahalanobis distances of (B, 10) statistics."""
@@ -99,7 +102,7 @@ class ImageStatistics:
     def to_json(self) -> str:
         return json.dumps({"statistic": STATISTIC, "names": list(STATISTIC_NAMES), "mean": self.mean.tolist(),
                            "precision": self.precision.tolist(), "threshold": self.threshold,
-                           "percentile": PERCENTILE, "shrinkage": SHRINKAGE, "frames": self.frames}, sort_keys=True)
+                           "percentile": self.percentile, "shrinkage": SHRINKAGE, "frames": self.frames}, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str, source: str) -> ImageStatistics:
@@ -110,7 +113,7 @@ class ImageStatistics:
             names, frames = data["names"], data["frames"]
             mean = np.asarray(data["mean"], dtype=np.float64)
             precision = np.asarray(data["precision"], dtype=np.float64)
-            threshold = float(data["threshold"])
+            threshold, percentile = float(data["threshold"]), float(data["percentile"])
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise BadValueError(f"{name} is not a calibration of {len(STATISTIC_NAMES)} image statistics "
                                 f"({type(exc).__name__}: {exc}): {text[:80]!r}") from None
@@ -122,12 +125,12 @@ class ImageStatistics:
                 or not np.all(np.isfinite(precision)) or not np.isfinite(threshold) or threshold <= 0):
             raise BadValueError(f"{name} must hold a finite mean ({n},), precision ({n}, {n}) and threshold > 0, got "
                                 f"shapes {mean.shape}, {precision.shape} and threshold {threshold!r}")
-        return cls(mean, precision, threshold, dict(frames))
+        return cls(mean, precision, threshold, dict(frames), percentile)
 
     def describe(self) -> dict[str, Any]:
         """What ``predictions.json`` says about the check."""
         return {"statistic": STATISTIC, "threshold": round(self.threshold, 4),
-                "threshold_rule": f"percentile {PERCENTILE:g} of the calibration frames' distances",
+                "threshold_rule": f"percentile {self.percentile:g} of the calibration frames' distances",
                 "frames": self.frames}
 
 

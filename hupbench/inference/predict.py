@@ -399,7 +399,8 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
                        "threshold": round(model.image_statistics.threshold, _DECIMALS_SCORE)}
                 if ood["flagged"]:
                     log(f"hupbench predict: warning: {record['path']} looks unlike the training images (image-statistics "
-                        f"distance {distance:.2f} > {model.image_statistics.threshold:.2f}, the 99th percentile of "
+                        f"distance {distance:.2f} > {model.image_statistics.threshold:.2f}, percentile "
+                        f"{model.image_statistics.percentile:g} of "
                         "the calibration frames): its keypoints are likely wrong")
             record.update(
                 ok=True, image_size={"width": geometry.width, "height": geometry.height},

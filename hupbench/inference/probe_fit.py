@@ -51,7 +51,7 @@ from hupbench.datagen.rotations_torch import axis_angle_to_matrix
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
-__all__ = ["DECISIONS", "ProbeFit", "fit_probe"]
+__all__ = ["DECISIONS", "ProbeFit", "ProbeModel", "fit_probe", "probe_model"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
 DECISIONS = ("kept", "marker", "no marker", "network")
@@ -84,7 +84,7 @@ class ProbeFit:
 
 
 @dataclass(frozen=True)
-class _ProbeModel:
+class ProbeModel:
     probe: Any                    # hupbench.datagen.assets.probe.Probe: its signed distance and gradient
     corners: torch.Tensor         # (8, 3) box corners, probe frame, metres
     marker: torch.Tensor          # (3,) the marker's centre, probe frame
@@ -93,7 +93,9 @@ class _ProbeModel:
 
 
 @functools.lru_cache(maxsize=1)
-def _probe_model() -> _ProbeModel:
+def probe_model() -> ProbeModel:
+    """The procedural probe as the fits use it (its signed distance, box, marker), built once per process; the
+    probe's fit poses it and the hand's fit leaves its surface out."""
     from hupbench.datagen.assets.probe import build_probe
     from hupbench.datagen.render.scene import PROBE_MARKER_RGB
 
@@ -104,7 +106,7 @@ def _probe_model() -> _ProbeModel:
     centre = (mesh.triangles_center[marked] * area[:, None]).sum(0) / area.sum()
     normal = (mesh.face_normals[marked] * area[:, None]).sum(0)
     as_t = lambda a: torch.tensor(np.array(a, dtype=np.float64), dtype=torch.float32)  # noqa: E731
-    return _ProbeModel(probe, as_t(probe.corners_probe), as_t(centre), as_t(normal / np.linalg.norm(normal)),
+    return ProbeModel(probe, as_t(probe.corners_probe), as_t(centre), as_t(normal / np.linalg.norm(normal)),
                        int(np.argmax(PROBE_MARKER_RGB)))
 
 
@@ -132,7 +134,7 @@ def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor,
     return chosen, torch.gather(near, 1, top).float()
 
 
-def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor
+def _refine(model: ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor
             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Poses (N, 3, 3), (N, 3) refined by Gauss-Newton on the signed distance of points (N, P, 3) with weights
     (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
@@ -151,7 +153,7 @@ def _refine(model: _ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.
     return R, t, inliers - INSIDE_PENALTY * (w_real * (d < -INSIDE_M)).sum(1), inliers
 
 
-def _marker_site(model: _ProbeModel, rotation: torch.Tensor, translation: torch.Tensor, rgb: torch.Tensor,
+def _marker_site(model: ProbeModel, rotation: torch.Tensor, translation: torch.Tensor, rgb: torch.Tensor,
                  depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """For poses (B, 3, 3), (B, 3): (facing, seen, chroma), each (B,): the site's normal towards the camera
     (cosine), the share of its pixel window whose depth shows it, the marker colour's lead there."""
@@ -193,7 +195,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     """
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
-    model = _probe_model()
+    model = probe_model()
     with torch.inference_mode():
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         rgb = torch.as_tensor(images[:, :3], dtype=torch.float32)

@@ -85,6 +85,10 @@ def test_calibration_known_answer_and_round_trip():
     back = stats.ImageStatistics.from_json(cal.to_json(), "m.onnx")
     np.testing.assert_array_equal(back.precision, cal.precision)
     assert back.threshold == cal.threshold and back.frames == cal.frames
+    # the percentile a file names is the one its messages quote, read back rather than assumed
+    other = stats.ImageStatistics.from_json(json.dumps(json.loads(cal.to_json()) | {"percentile": 95.0}), "m.onnx")
+    assert back.percentile == 99.0 and other.percentile == 95.0
+    assert other.describe()["threshold_rule"].startswith("percentile 95 of")
     # a frame 10 standard deviations off along every axis is far beyond it
     assert cal.distance((train.mean(0) + 10 * train.std(0))[None])[0] > 5 * cal.threshold
 
