@@ -29,7 +29,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError, NotWritableError, UserError
+from hupbench.datagen.errors import BadValueError, NotWritableError, RunFailedError, UserError
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
@@ -170,6 +170,17 @@ def _disk_full(folder: Path) -> bool:
     except OSError:
         return False
     return stats.f_bavail * stats.f_frsize < 64 * 1024
+
+
+def encode_image(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
+    """An image encoded by OpenCV (``ext`` ".png", ".jpg", ...; ``image`` in OpenCV's channel order), or a
+    :class:`~hupbench.datagen.errors.RunFailedError` naming what could not be encoded."""
+    import cv2
+
+    ok, buf = cv2.imencode(ext, image, params or [])
+    if not ok:
+        raise RunFailedError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
+    return buf.tobytes()
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -32,7 +32,7 @@ from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
 from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
 from hupbench.datagen.geometry import invert_transform, transform_points
-from hupbench.datagen.io import DiskFullError, save_npz, write_bytes
+from hupbench.datagen.io import DiskFullError, encode_image, save_npz, write_bytes
 from hupbench.datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
 from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
 from hupbench.datagen import keypoints as kp
@@ -174,7 +174,7 @@ class ChunkRenderer:
                 rgb = composite(rgba, background)
                 ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
                 params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
-                files.append(("rgb", index, _encode(ext, rgb[..., ::-1], params)))
+                files.append(("rgb", index, encode_image(ext, rgb[..., ::-1], params)))
             files.extend((modality, index, data) for modality, data in view["files"])
             rows.append({
                 "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
@@ -198,18 +198,11 @@ class ChunkRenderer:
             labels = self.renderer.render(cam["T_cam_world"], ("depth", "seg"))
             files = []
             if "depth" in self.spec.modalities:
-                files.append(("depth", _encode(".png", np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16))))
+                files.append(("depth", encode_image(".png", np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16))))
             if "seg" in self.spec.modalities:
-                files.append(("seg", _encode(".png", labels["seg"])))
+                files.append(("seg", encode_image(".png", labels["seg"])))
             self._views[key] = {"files": files, "visible": stored_visibility(cam, labels["depth"], labels["seg"])}
         return self._views[key]
-
-
-def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
-    ok, buf = cv2.imencode(ext, image, params or [])
-    if not ok:
-        raise RunFailedError(f"OpenCV could not encode a {image.shape} {image.dtype} image as {ext}")
-    return buf.tobytes()
 
 
 def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:

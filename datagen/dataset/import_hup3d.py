@@ -69,7 +69,7 @@ from hupbench.datagen.geometry import (
     invert_transform,
     transform_points,
 )
-from hupbench.datagen.io import file_sha256, save_npz, write_bytes, write_json
+from hupbench.datagen.io import encode_image, file_sha256, save_npz, write_bytes, write_json
 
 FORMAT = "HUP-3D"
 #: the published mask's material pass indices -> hupbench's labels
@@ -446,8 +446,8 @@ def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray
            "hand_trans": meta["hand_trans"], "light_position_cam": np.zeros(3), "light_color": np.zeros(3),
            "light_energy_w": 0.0}
     write_bytes(frame_path(out, f.split, "rgb", frame_id), rgb_bytes)
-    write_bytes(frame_path(out, f.split, "depth", frame_id), _png(stored))
-    write_bytes(frame_path(out, f.split, "seg", frame_id), _png(labels))
+    write_bytes(frame_path(out, f.split, "depth", frame_id), encode_image(".png", stored))
+    write_bytes(frame_path(out, f.split, "seg", frame_id), encode_image(".png", labels))
     return row, size, slack, depth_kind
 
 
@@ -557,9 +557,3 @@ def _manifest(source: Path, probe_mesh: Path, corners_probe: np.ndarray, frames,
             "unknown": UNKNOWN,
         },
     }
-
-
-def _png(image: np.ndarray) -> bytes:
-    ok, data = cv2.imencode(".png", image)
-    assert ok, image.dtype
-    return data.tobytes()

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError, RunFailedError
+from hupbench.datagen.errors import BadValueError
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -325,9 +325,7 @@ def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
 
 def write_png(path, image_rgb: np.ndarray):
     """Write an RGB image as PNG atomically (temporary name, then rename)."""
-    from hupbench.datagen.io import write_bytes
+    from hupbench.datagen.io import encode_image, write_bytes
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image_rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9])
-    if not ok:
-        raise RunFailedError(f"PNG encoding failed for {path}")
-    return write_bytes(path, buf.tobytes())
+    return write_bytes(path, encode_image(".png", np.ascontiguousarray(image_rgb[..., ::-1]),
+                                          [cv2.IMWRITE_PNG_COMPRESSION, 9]))

@@ -64,7 +64,7 @@ from hupbench.datagen.dataset.contract import (
     read_manifest,
 )
 from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.io import DiskFullError, check_writable, tmp_path, write_json
+from hupbench.datagen.io import DiskFullError, check_writable, encode_image, tmp_path, write_bytes, write_json
 
 FORMATS = ("bop", "coco")
 #: how the dataset's image files reach OUT: hard links (a copy where the file system refuses one) or copies
@@ -216,10 +216,7 @@ def _read_png(path: Path, dtype) -> np.ndarray:
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
-    ok, encoded = cv2.imencode(".png", image)
-    assert ok, path
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(encoded.tobytes())
+    write_bytes(path, encode_image(".png", image))
 
 
 def _write_json(path: Path, data: dict) -> None:
