@@ -29,7 +29,7 @@ def main() -> None:
 
     from hupbench.datagen.dataset.spec import DatasetSpec
     from hupbench.datagen.dataset.writer import RenderJob, generate
-    from hupbench.datagen.io import save_npz
+    from hupbench.core.io import save_npz
 
     with np.load(args.grasps) as data:
         one = {k: (data[k][:1] if data[k].ndim and len(data[k]) > 1 else data[k]) for k in data.files}

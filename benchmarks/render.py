@@ -27,7 +27,7 @@ def main() -> None:
     if args.frames < 1 or args.repeats < 1 or args.size < 1:
         parser.error("--frames, --repeats and --size must be positive")
 
-    from hupbench.datagen.camera import Intrinsics, look_at
+    from hupbench.core.camera import Intrinsics, look_at
     from hupbench.datagen.render.preview import handset_grasp
     from hupbench.datagen.render.renderer import Renderer
     from hupbench.datagen.render.scene import keypoints_world, scene_parts

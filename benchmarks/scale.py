@@ -33,7 +33,7 @@ import numpy as np
 
 def _one_grasp(path: Path, grasps: str | None) -> Path:
     """The first grasp of a grasps file, or the hand-set preview grasp, as a one-grasp grasps.npz."""
-    from hupbench.datagen.io import save_npz
+    from hupbench.core.io import save_npz
     from hupbench.datagen.render.preview import handset_grasp
 
     if grasps is None:

@@ -5,13 +5,10 @@ Subpackages, in the order data flows:
     ``grasps``   grasp synthesis: sampler, refinement, scores, selection;
     ``render``   scenes drawn by pyrender offscreen, and 2D drawing;
     ``dataset``  the on-disk contract, the viewpoint sphere, the writer, launchers and verify.
-Shared modules at the top: ``keypoints`` (the one owner of keypoint names and order), ``geometry``
-(rotations and transforms), ``rotations_torch``, ``mesh_distance`` (exact point-to-triangle-mesh
-distances, free functions on ``(n, 3)`` arrays), ``camera`` (intrinsics and projection),
-``tolerances`` (every tolerance of datagen), ``io`` (atomic writes, locks), ``processes``
-(worker counts) and ``input_checks`` (whole numbers, finite numbers and shapes, one wording for
-datagen and hupbench).
+At the top: ``mesh_distance`` (exact point-to-triangle-mesh distances, free functions on ``(n, 3)``
+arrays). What the generator shares with the rest of hupbench (keypoints, cameras, rotations, tolerances,
+atomic io, input checks, the dataset contract, 2D drawing) is the core, ``hupbench.core``.
 
-May import: numpy, scipy, torch, trimesh, pyrender, OpenCV and itself. Never ``models`` or
-``hupbench`` (data flows one way: datagen -> dataset on disk -> hupbench).
+May import: numpy, scipy, torch, trimesh, pyrender, OpenCV, ``hupbench.core`` and itself. Never ``models`` or
+the rest of ``hupbench`` (data flows one way: datagen -> dataset on disk -> hupbench).
 """

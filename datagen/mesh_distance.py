@@ -18,8 +18,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.core import tolerances as tol
+from hupbench.core.keypoints import CORNER_BITS
 
 
 # --------------------------------------------------------------------------- distance to triangles

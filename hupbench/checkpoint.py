@@ -16,10 +16,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.io import write_with
-from hupbench.inference.model_file import INPUT_SIZE_RANGE
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.input_checks import check_int
+from hupbench.core.io import write_with
+from hupbench.input_geometry import INPUT_SIZE_RANGE
 from hupbench.models.build import build_model, load_checkpoint_state
 
 FORMAT = "hupbench-checkpoint"

@@ -162,7 +162,7 @@ def _verify(args: list[str]) -> int:
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
         from hupbench.datagen.dataset.sample_sheet import sample_sheet
-        from hupbench.datagen.render.draw import write_png
+        from hupbench.core.draw import write_png
 
         print(f"sample sheet: {write_png(ns.sample_sheet, sample_sheet(ns.dataset))}")
     return 0 if result["ok"] else 1

@@ -12,15 +12,15 @@ from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from hupbench.datagen.errors import BadValueError, MissingFileError, UserError
+from hupbench.core.errors import BadValueError, MissingFileError, UserError
 
 HYDRA_VERSION_BASE = "1.3"
 
 
 def _focal_px(focal_mm: float, sensor_mm: float, width: int, height: int) -> float:
     """``${focal_px:FOCAL_MM,SENSOR_MM,WIDTH,HEIGHT}``: the focal length in pixels of a lens on a sensor
-    fitted to the larger image side (:meth:`hupbench.datagen.camera.Intrinsics.from_lens`)."""
-    from hupbench.datagen.camera import Intrinsics
+    fitted to the larger image side (:meth:`hupbench.core.camera.Intrinsics.from_lens`)."""
+    from hupbench.core.camera import Intrinsics
 
     if not all(_is_positive_whole(v) for v in (width, height)):
         return float("nan")  # the config's own check names the bad width or height, which it checks first

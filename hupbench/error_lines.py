@@ -2,7 +2,7 @@
 
 Every verb (``hupbench VERB``) and ``python train.py`` answers a bad input or a failed run with one
 line, ``PROGRAM: error: TEXT``, and exit code 1; ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py)
-lets the traceback through instead. A deliberate refusal raises a :class:`hupbench.datagen.errors.UserError`;
+lets the traceback through instead. A deliberate refusal raises a :class:`hupbench.core.errors.UserError`;
 anything else is a bug and keeps its traceback.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 
-from hupbench.datagen.errors import UserError
+from hupbench.core.errors import UserError
 
 #: what a bad input or a fault raises (Hydra's and OmegaConf's errors are added where Hydra is imported)
 USER_ERRORS = (UserError,)

@@ -2,7 +2,7 @@
 the in-plane rotation, each written once for the reader, the augmentation, export, metrics and predict.
 
 Convention:
-    Pixels follow OpenCV (:mod:`hupbench.datagen.camera`): pixel centres at integers, so an S-pixel side spans
+    Pixels follow OpenCV (:mod:`hupbench.core.camera`): pixel centres at integers, so an S-pixel side spans
     [-0.5, S - 0.5]. Normalised coordinates map that span to [-1, 1]: x_n = (2 u + 1) / S - 1, as
     ``grid_sample(..., align_corners=False)``; a point keeps them when the image is resized, which is
     why the models predict them. A 3 x 3 "pixel map" A sends homogeneous pixels (u, v, 1) to A (u, v, 1)
@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from hupbench.datagen.camera import resize_intrinsics
+from hupbench.core.camera import resize_intrinsics
 
 __all__ = ["DEPTH_CLIP_M", "INPUT_MODALITIES", "INPUT_SIZE_RANGE", "InputGeometry", "apply_affine", "camera_rotation",
            "depth_channel", "inside_input",
@@ -102,7 +102,7 @@ class InputGeometry:
     """How an H x W image becomes the S x S model input: centred padding to a square, then a resize.
 
     With L = max(H, W), s = S / L and pad = (pad_left, pad_top):
-    ``u_in = (u + pad_left + 0.5) s - 0.5`` (:func:`hupbench.datagen.camera.resize_intrinsics`). Padding keeps
+    ``u_in = (u + pad_left + 0.5) s - 0.5`` (:func:`hupbench.core.camera.resize_intrinsics`). Padding keeps
     every pixel, so a hand near the border of a wide photo stays in view.
 
     Attributes:

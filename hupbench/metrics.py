@@ -3,7 +3,7 @@
 Convention:
     Inputs are metres (3D, OpenCV camera frame of the model-input camera) or pixels (2D); every
     reported number is millimetres (``_mm``), pixels (``_px``) or a fraction in [0, 1]. Keypoint
-    order is :mod:`hupbench.datagen.keypoints`: 0..20 the hand (0 = wrist, the root), 21..28 the probe box
+    order is :mod:`hupbench.core.keypoints`: 0..20 the hand (0 = wrist, the root), 21..28 the probe box
     corners. MPJPE is the absolute camera-frame error (no alignment); docs/metrics.md defines each metric.
 
 Callers pass well-formed arrays (eval, validation and the losses build them): shapes are asserted, not
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_HAND, NUM_KEYPOINTS
+from hupbench.core.errors import BadValueError
+from hupbench.core.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_HAND, NUM_KEYPOINTS
 
 __all__ = ["ADD_THRESHOLD_DIAMETER", "ALL_AVERAGING", "BOP_REFERENCE_WIDTH_PX", "HALF_TURN_Z", "MIDDLE_MCP_INDEX",
            "MSPD_THRESHOLDS_PX", "MSSD_THRESHOLDS_DIAMETER", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES",
@@ -280,7 +280,7 @@ def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) 
 
 
 def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
-    # a box with three different sides, corners in hupbench.datagen.keypoints.CORNER_BITS order: the
+    # a box with three different sides, corners in hupbench.core.keypoints.CORNER_BITS order: the
     # permutation is read off the coordinates, not written by hand
     box = (2.0 * np.array(CORNER_BITS, np.float64) - 1.0) * np.array([0.036, 0.015, 0.0825]) + [0.0, 0.0, 0.0825]
     return {name: tuple(symmetry_permutation(box, r) for r in rotations)

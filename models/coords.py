@@ -1,7 +1,7 @@
 """Normalised image coordinates: the 2D unit of every model in this package.
 
 Convention:
-    Pixel coordinates follow OpenCV (and :class:`hupbench.datagen.camera.Intrinsics`):
+    Pixel coordinates follow OpenCV (and :class:`hupbench.core.camera.Intrinsics`):
     pixel centres at integers, so a W-pixel-wide image spans
     [-0.5, W - 0.5]. Normalised coordinates map that span to [-1, 1]:
     x_norm = (2 u + 1) / W - 1, y_norm = (2 v + 1) / H - 1, so -1 is the

@@ -383,7 +383,7 @@ class HUPNet(nn.Module):
         return expected
 
 
-#: the last N_CORNERS keypoints are the probe box's corners, in the order of hupbench.datagen.keypoints.CORNER_BITS
+#: the last N_CORNERS keypoints are the probe box's corners, in the order of hupbench.core.keypoints.CORNER_BITS
 #: (index 4 ix + 2 iy + iz, each bit 0 = the min side): their signs along the box's x, y, z
 N_CORNERS = 8
 CORNER_SIGNS = tuple(tuple(2.0 * ((k >> shift) & 1) - 1.0 for shift in (2, 1, 0)) for k in range(N_CORNERS))

@@ -1,7 +1,7 @@
 """Every numerical tolerance of the ``models`` package and its tests, in one place.
 
 ``models`` may not import :mod:`datagen`, so it keeps its own list beside
-:mod:`hupbench.datagen.tolerances`.
+:mod:`hupbench.core.tolerances`.
 """
 
 #: degrees of a learned adjacency below this fraction of its largest |entry| are raised to it,

@@ -23,8 +23,8 @@ def main() -> None:
 
     from hupbench.datagen.assets.probe import probe_of
     from hupbench.datagen.assets.probe_mesh import ProbeSource, linear_probe_mesh
-    from hupbench.datagen.camera import Intrinsics
-    from hupbench.datagen.render.draw import grid, titled, write_png
+    from hupbench.core.camera import Intrinsics
+    from hupbench.core.draw import grid, titled, write_png
     from hupbench.datagen.render.preview import PreviewView, handset_grasp, render_preview
     from hupbench.config import compose
     from hupbench.verbs.generate import run_generate

@@ -90,8 +90,8 @@ def floor_line(reader, split: str, part: str) -> str | None:
 
 def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(keypoints (F, 29, 3) metres, the probe corners half-turned (F, 8, 3), grasp ids (F,)) of the frames."""
-    from hupbench.datagen import keypoints as kp
-    from hupbench.datagen.dataset.contract import read_annotations
+    from hupbench.core import keypoints as kp
+    from hupbench.core.contract import read_annotations
     from hupbench.evaluation.evaluate import probe_symmetry_group
 
     ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world", "grasp_id"), reader.manifest)
@@ -101,7 +101,7 @@ def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def main() -> None:
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from hupbench.metrics import rotation_onto
 
     args, module, _, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=64)

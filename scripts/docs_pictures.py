@@ -15,10 +15,10 @@ import numpy as np
 
 
 def main() -> None:
-    from hupbench.datagen.dataset.contract import read_manifest
+    from hupbench.core.contract import read_manifest
     from hupbench.datagen.dataset.sample_sheet import overview
     from hupbench.datagen.grasps.sheet import contact_sheet
-    from hupbench.datagen.render.draw import write_png
+    from hupbench.core.draw import write_png
     from hupbench.datagen.render.preview import preview
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -27,7 +27,7 @@ VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free s
 
 
 def main() -> None:
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from diagnose_errors import decompose, floor_line, split_labels, split_outputs
     from hupbench.inference import hand_fit
     from hupbench.inference.probe_fit import fit_probe

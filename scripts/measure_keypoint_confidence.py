@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.checkpoint import load_model
 from hupbench.data import HUPDataset, ReaderConfig
 

@@ -19,7 +19,7 @@ import torch
 
 
 def main() -> None:
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from diagnose_errors import floor_line, split_labels, split_outputs
     from hupbench.inference.probe_fit import DECISIONS, fit_probe
 

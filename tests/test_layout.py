@@ -21,7 +21,7 @@ FORBIDDEN = {"datagen": ("models", "hupbench"), "models": ("datagen", "hupbench"
 
 
 def folder_of(name: str) -> str:
-    """The package folder a module's installed name lives in: hupbench.datagen.io -> datagen."""
+    """The package folder a module's installed name lives in: hupbench.core.io -> datagen."""
     parts = name.split(".")
     return parts[1] if parts[0] == "hupbench" and len(parts) > 1 and parts[1] in ("datagen", "models") else parts[0]
 MAX_FILE_LINES = 700
@@ -57,7 +57,7 @@ def imports_of(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
         else:
             continue
         for target in targets:
-            # "from hupbench.datagen import keypoints" imports the module hupbench.datagen.keypoints, not the package
+            # "from hupbench.datagen import keypoints" imports the module hupbench.core.keypoints, not the package
             if target in modules and target != name:
                 found.add(target)
     return found
@@ -113,6 +113,23 @@ def test_no_import_cycle():
     assert not found, f"import cycles among project modules: {found}"
 
 
+def package_of(name: str) -> str:
+    """The package a module counts under in the package graph: its subpackage (hupbench.datagen.render.gl ->
+    hupbench.datagen.render); a module at the top of hupbench is its own node (hupbench.cli)."""
+    parts = name.split(".")
+    depth = 3 if len(parts) > 3 and parts[1] in INSTALLED else 2
+    return ".".join(parts[:depth])
+
+
+def test_no_import_cycle_between_packages():
+    """No two packages import each other, through any chain (datagen.render and datagen.dataset did)."""
+    graph = defaultdict(set)
+    for name, targets in import_graph().items():
+        graph[package_of(name)] |= {package_of(t) for t in targets} - {package_of(name)}
+    found = cycles(dict(graph))
+    assert not found, f"import cycles among packages: {found}"
+
+
 def test_no_upward_import():
     bad = [f"{name} imports {target}" for name, targets in import_graph().items() for target in targets
            if folder_of(target) in FORBIDDEN.get(folder_of(name), ())]
@@ -122,9 +139,7 @@ def test_no_upward_import():
 #: subpackage -> modules (prefixes) it must never import, as its __init__ docstring says
 NEVER = {
     "hupbench.datagen.assets": ("hupbench.datagen.render", "hupbench.datagen.dataset", "hupbench.datagen.grasps"),
-    "hupbench.datagen.render": ("hupbench.datagen.grasps", "hupbench.datagen.dataset.writer",
-                                "hupbench.datagen.dataset.verify", "hupbench.datagen.dataset.ray_launcher",
-                                "hupbench.datagen.dataset.sphere"),
+    "hupbench.datagen.render": ("hupbench.datagen.grasps", "hupbench.datagen.dataset"),
     "hupbench.datagen.dataset": ("hupbench.datagen.grasps",),
     "hupbench.datagen.grasps": ("hupbench.datagen.dataset",),
     "hupbench.training": ("hupbench.evaluation", "hupbench.inference", "hupbench.verbs", "hupbench.cli"),
@@ -138,9 +153,7 @@ TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupben
               "hupbench.inference.model_file", "hupbench.inference.runtime",
               "hupbench.error_lines", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
-SHARED_TOP = tuple(f"hupbench.datagen.{name}" for name in (
-    "keypoints", "geometry", "rotations_torch", "mesh_distance", "camera", "tolerances", "io", "processes",
-    "input_checks"))
+SHARED_TOP = ("hupbench.datagen.mesh_distance",)
 
 
 def test_subpackages_import_only_what_their_docstring_allows():
@@ -169,13 +182,13 @@ def test_nothing_imports_a_top_level_models_or_datagen():
             names = ([alias.name for alias in node.names] if isinstance(node, ast.Import) else
                      [node.module] if isinstance(node, ast.ImportFrom) and not node.level and node.module else [])
             bad += [f"{path.relative_to(REPO)}:{node.lineno} imports {n}" for n in names
-                    if n.split(".")[0] in ("models", "datagen")]
+                    if n.split(".")[0] in ("models", "datagen", "core")]
     assert not bad, bad
     setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
     outside = [p for p in setuptools["packages"] if p.split(".")[0] != "hupbench"]
     assert not outside, f"pyproject.toml installs top-level packages {outside}"
-    assert setuptools["package-dir"] == {"hupbench.conf": "conf", "hupbench.datagen": "datagen",
-                                         "hupbench.models": "models"}
+    assert setuptools["package-dir"] == {"hupbench.conf": "conf", "hupbench.core": "core",
+                                         "hupbench.datagen": "datagen", "hupbench.models": "models"}
 
 
 def test_a_user_s_own_models_and_datagen_folders_do_not_shadow_ours(tmp_path):
@@ -188,7 +201,7 @@ def test_a_user_s_own_models_and_datagen_folders_do_not_shadow_ours(tmp_path):
         (tmp_path / name).mkdir()
         (tmp_path / name / "__init__.py").write_text(f"MINE = {name!r}\n")
     code = ("import models, datagen; from hupbench.models.build import build_model; "
-            "from hupbench.datagen import keypoints; "
+            "from hupbench.core import keypoints; "
             "m = build_model({'name': 'hopenet', 'backbone': 'resnet10'}); "
             "print(models.MINE, datagen.MINE, keypoints.NUM_KEYPOINTS, type(m).__module__)")
     proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -234,6 +247,19 @@ def test_the_inference_path_imports_no_torch():
             "sys.exit(3 if 'torch' in sys.modules else 0)" % (TORCH_FREE,))
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, f"importing {TORCH_FREE} loaded torch (exit {proc.returncode}): {proc.stderr[-2000:]}"
+
+
+def test_predict_imports_no_generator_module_and_no_torch():
+    """``hupbench predict`` runs from the core and the inference package alone: importing it loads no module of
+    the generator (``hupbench.datagen``) and no torch."""
+    import subprocess
+    import sys
+
+    code = ("import sys, hupbench.inference.predict; "
+            "print([m for m in sys.modules if m.startswith('hupbench.datagen') or m == 'torch'])")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"
 
 
 

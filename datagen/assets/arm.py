@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
 from hupbench.datagen.assets.hand_mesh import orient_outward
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 MM = 1e-3
 

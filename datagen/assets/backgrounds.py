@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from hupbench.datagen.assets.background_scenes import SCENES
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 #: the built-in backgrounds; the position in this tuple is the background_id
 BUILTIN_NAMES: tuple[str, ...] = (

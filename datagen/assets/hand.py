@@ -30,8 +30,8 @@ import functools
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core import keypoints as kp
+from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.assets.hand_anatomy import (
     NUM_JOINTS,
     POSE_DIM,
@@ -229,7 +229,7 @@ class HandModel:
         Returns:
             keypoints: (..., 21, 3) OpenPose order; vertices: (..., V', 3); both metres, world.
         """
-        from hupbench.datagen.rotations_torch import euler_xyz_to_matrix
+        from hupbench.core.rotations_torch import euler_xyz_to_matrix
 
         b = self.buffers(angles.dtype, angles.device)
         frames = b["frames"]

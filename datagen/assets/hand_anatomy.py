@@ -26,14 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.geometry import (
+from hupbench.core import keypoints as kp
+from hupbench.core.geometry import (
     axis_angle_to_matrix,
     euler_to_matrix,
     matrix_to_axis_angle,
     matrix_to_euler_xyz,
 )
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 MM = 1e-3
 NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
@@ -197,7 +197,7 @@ def as_pose(pose: np.ndarray) -> np.ndarray:
     """A hand pose as float64: (48,) or (B, 48) axis-angle, radians.
 
     Poses come from this package or from a file whose reader checked their shape and finiteness
-    (``hupbench.datagen.dataset.grasps_file``, ``hupbench.datagen.dataset.contract.read_annotations``).
+    (``hupbench.datagen.dataset.grasps_file``, ``hupbench.core.contract.read_annotations``).
     """
     pose = np.asarray(pose, dtype=np.float64)
     assert pose.ndim in (1, 2) and pose.shape[-1] == POSE_DIM, pose.shape

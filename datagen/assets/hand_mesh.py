@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.hand_anatomy import (
     FINGER_RADII_MM,
     MM,

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 import trimesh
 
-from hupbench.datagen import tolerances as tol
+from hupbench.core import tolerances as tol
 from hupbench.datagen.assets.probe_marker import add_marker
 from hupbench.datagen.assets.probe_mesh import (
     ProbeMeshSpec,
@@ -48,7 +48,7 @@ from hupbench.datagen.assets.probe_shape import (
     lens_sag,
     ring_faces,
 )
-from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.core.keypoints import CORNER_BITS
 from hupbench.datagen.mesh_distance import MeshDistance
 
 __all__ = ["Probe", "ProbeSpec", "RegionZ", "build_mesh_probe", "build_probe", "probe_of"]
@@ -121,7 +121,7 @@ class Probe:
             minimum-volume oriented box), corner k at
             ``(x, y, z)[(min, max)[bit]]`` with bits ``CORNER_BITS[k]``, the
             ``itertools.product((min, max), repeat=3)`` order of
-            :mod:`hupbench.datagen.keypoints`.
+            :mod:`hupbench.core.keypoints`.
         region_z: :class:`RegionZ`, z ranges of lens, head, neck, handle and
             strain relief, metres, probe frame.
         sdf_grid: (nx, ny, nz) float64 exact signed distances (metres,

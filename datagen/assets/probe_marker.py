@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 
 from hupbench.datagen.assets.probe_shape import ProbeSpec, smoothstep
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- orientation marker

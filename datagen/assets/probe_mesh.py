@@ -37,8 +37,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from hupbench.datagen.assets.probe_shape import RegionZ
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.io import file_sha256
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.io import file_sha256
 from hupbench.datagen.mesh_distance import (
     FEATURE_EAB,
     FEATURE_EBC,

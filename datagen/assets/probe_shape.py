@@ -35,9 +35,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import tolerances as tol
+from hupbench.core.input_checks import check_int
+from hupbench.core.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- spec

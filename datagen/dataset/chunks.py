@@ -26,18 +26,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hupbench.datagen.camera import project_points
-from hupbench.datagen.dataset.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
+from hupbench.core.camera import project_points
+from hupbench.core.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
 from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
 from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
-from hupbench.datagen.geometry import invert_transform, transform_points
-from hupbench.datagen.io import DiskFullError, encode_image, save_npz, write_bytes
+from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.core.io import DiskFullError, encode_image, save_npz, write_bytes
 from hupbench.datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
 from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.errors import RunFailedError
+from hupbench.core import keypoints as kp
+from hupbench.core import tolerances as tol
+from hupbench.core.errors import RunFailedError
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -56,7 +56,7 @@ def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int
 
 def visibility(keypoints_cam: np.ndarray, keypoints_2d: np.ndarray, depth: np.ndarray, seg: np.ndarray,
                slack_m: float = 0.0) -> np.ndarray:
-    """(29,) bool: inside the image and not occluded (definitions in :mod:`hupbench.datagen.tolerances`).
+    """(29,) bool: inside the image and not occluded (definitions in :mod:`hupbench.core.tolerances`).
 
     Args:
         keypoints_cam: (29, 3) metres, camera frame. keypoints_2d: (29, 2) pixels.
@@ -233,7 +233,7 @@ def die_with_parent(parent_pid: int) -> None:
     (and racing) the next run there. On Linux the kernel sends the signal (``PR_SET_PDEATHSIG``);
     a watchdog thread that polls ``os.getppid()`` covers the other systems and a parent that died
     before this was called. Anything a killed worker was writing is a temporary file, removed by the
-    next run (:func:`hupbench.datagen.io.clean_stale_tmp`).
+    next run (:func:`hupbench.core.io.clean_stale_tmp`).
 
     Args:
         parent_pid: the pid of the process that started this one.

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError
 
 M_TO_MM = 1000.0
 DEFINITION = ("what a model that only recalls training labels scores, mean distance per keypoint in mm: each "

@@ -11,10 +11,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hupbench.datagen.dataset.spec import BOX_CENTRE
-from hupbench.datagen.geometry import axis_angle_to_matrix
-from hupbench.datagen import keypoints as kp
+from hupbench.core.geometry import axis_angle_to_matrix
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS
-from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.core.errors import BadValueError, MissingFileError
 
 if TYPE_CHECKING:
     from hupbench.datagen.assets.probe import Probe
@@ -232,7 +232,7 @@ def probe_of_dataset(root_or_manifest) -> "Probe":
 
     from hupbench.datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
     from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec
-    from hupbench.datagen.io import file_sha256
+    from hupbench.core.io import file_sha256
 
     if isinstance(root_or_manifest, dict):
         manifest, root = root_or_manifest, None

@@ -1,4 +1,4 @@
-"""The published HUP-3D dataset converted into a hupbench dataset (:mod:`hupbench.datagen.dataset.contract`).
+"""The published HUP-3D dataset converted into a hupbench dataset (:mod:`hupbench.core.contract`).
 
 The published layout, as ``manuelbirlo/HUP-3D_renderer`` (``grasp_renderer.py``) writes it into one
 folder per split (``<split>/``) or, merged, into one folder::
@@ -28,7 +28,7 @@ the lamp zeros, and the manifest's ``imported.unknown`` says so.
 
 Convention:
     Pixel centres: Blender's K puts the principal point at (128, 128) for pixels covering [i, i + 1);
-    hupbench's pixel centres are at integers (:mod:`hupbench.datagen.dataset.contract`), so K's cx and cy and
+    hupbench's pixel centres are at integers (:mod:`hupbench.core.contract`), so K's cx and cy and
     the published coords_2d shift by -0.5 px. Depth precision from the 8-bit PNG: a step of
     (far - near) / 254 per level, rounded to the nearest level, so up to (far - near) / 508 off (plus
     half a uint16 step); such depth is marked approximate in the manifest.
@@ -48,10 +48,10 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.camera import project_points, swap_gl_cv_axes
-from hupbench.datagen.dataset.contract import (
+from hupbench.core import keypoints as kp
+from hupbench.core import tolerances as tol
+from hupbench.core.camera import project_points, swap_gl_cv_axes
+from hupbench.core.contract import (
     ANNOTATION_FIELDS,
     ANNOTATIONS,
     DEPTH_SCALE_M,
@@ -62,14 +62,14 @@ from hupbench.datagen.dataset.contract import (
     frame_path,
 )
 from hupbench.datagen.dataset.sphere import SphereSpec, all_viewpoints, latitude_count
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.geometry import (
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.geometry import (
     axis_angle_to_matrix,
     euler_to_matrix,
     invert_transform,
     transform_points,
 )
-from hupbench.datagen.io import encode_image, file_sha256, save_npz, write_bytes, write_json
+from hupbench.core.io import encode_image, file_sha256, save_npz, write_bytes, write_json
 
 FORMAT = "HUP-3D"
 #: the published mask's material pass indices -> hupbench's labels
@@ -216,7 +216,7 @@ def read_meta(path: Path) -> dict:
 
 
 def probe_box_ply(path: Path) -> np.ndarray:
-    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`hupbench.datagen.keypoints.CORNER_BITS`
+    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`hupbench.core.keypoints.CORNER_BITS`
     order (the published ``get_obj_corners3d`` order: the same).
 
     Args:

@@ -29,8 +29,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.errors import BadValueError, RunFailedError
+from hupbench.core.input_checks import check_int
+from hupbench.core.errors import BadValueError, RunFailedError
 
 RAY_MISSING = "launcher=ray needs Ray: pip install 'hupbench[ray]'"
 LAUNCHERS = ("local", "ray")

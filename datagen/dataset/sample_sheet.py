@@ -17,10 +17,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hupbench.datagen.dataset.contract import SEG_LABELS, SPLITS, frame_path, read_annotations, read_manifest
+from hupbench.core.contract import SEG_LABELS, SPLITS, frame_path, read_annotations, read_manifest
 from hupbench.datagen.dataset.verify_images import read_image
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.render.draw import (
+from hupbench.core.errors import BadValueError
+from hupbench.core.draw import (
     SEG_RGB,
     beside,
     colorize_depth,

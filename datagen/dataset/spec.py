@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hupbench.datagen.camera import Intrinsics
-from hupbench.datagen.dataset.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
+from hupbench.core.camera import Intrinsics
+from hupbench.core.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
 from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
 from hupbench.datagen.render.renderer import MODALITIES, check_modalities
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.input_checks import check_int, is_whole
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import check_int, is_whole
+from hupbench.core.errors import BadValueError
 
 
 GENERATOR_VERSION = "0.3.0"

@@ -52,10 +52,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.datagen.camera import look_at
-from hupbench.datagen.geometry import invert_transform, make_transform
-from hupbench.datagen.input_checks import check_shape, is_whole
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.camera import look_at
+from hupbench.core.geometry import invert_transform, make_transform
+from hupbench.core.input_checks import check_shape, is_whole
+from hupbench.core.errors import BadValueError
 
 VARIANTS = ("ceil", "floor")
 AXES = ("body", "forearm")

@@ -1,11 +1,11 @@
 """Re-check a dataset against its manifest, against geometry and against its own images.
 
-verify reads through :mod:`hupbench.datagen.dataset.contract`. Two kinds of answer:
+verify reads through :mod:`hupbench.core.contract`. Two kinds of answer:
 
 * **fatal** (``ValueError`` / ``FileNotFoundError``, one error line from the CLI): nothing to check
   against: the dataset folder or its ``manifest.json`` is missing or unreadable, or a manifest
-  field is missing or malformed (:func:`hupbench.datagen.dataset.contract.read_manifest`: keypoint names other than
-  the 29 of :mod:`hupbench.datagen.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
+  field is missing or malformed (:func:`hupbench.core.contract.read_manifest`: keypoint names other than
+  the 29 of :mod:`hupbench.core.keypoints`, a K that is not 3 x 3, image_size not [w, h], ...; here also
   an unknown ``protocol.look_at``, a malformed ``gloves_rgb`` and ``seg_labels`` other than the contract's).
 * **problems**, reported with a kind, the split, the frame and the file; the other splits and
   frames are still checked and the verdict is FAILED. Kinds:
@@ -62,11 +62,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.camera import project_points
-from hupbench.datagen.input_checks import is_whole
-from hupbench.datagen.dataset.contract import (
+from hupbench.core import keypoints as kp
+from hupbench.core import tolerances as tol
+from hupbench.core.camera import project_points
+from hupbench.core.input_checks import is_whole
+from hupbench.core.contract import (
     ANNOTATIONS,
     MANIFEST,
     SEG_LABELS,
@@ -78,10 +78,10 @@ from hupbench.datagen.dataset.contract import (
     read_manifest,
 )
 from hupbench.datagen.dataset.floors import split_floors
-from hupbench.datagen.geometry import invert_transform, transform_points
-from hupbench.datagen.processes import check_workers, workers_ignore_ctrl_c
+from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
 from hupbench.datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",

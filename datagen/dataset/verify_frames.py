@@ -2,7 +2,7 @@
 against its mask, its labels against its keypoints and the probe, and its RGB image against its mask,
 background, glove and the forearm's colour (the pixel statistics: :mod:`hupbench.datagen.dataset.verify_images`).
 
-How the RGB checks work (thresholds and their measurements in :mod:`hupbench.datagen.tolerances`):
+How the RGB checks work (thresholds and their measurements in :mod:`hupbench.core.tolerances`):
 
 * background: the renderer composites the foreground over the background image bit for bit where
   the mask is background, and OpenCV encodes the JPEG in independent 8 x 8 blocks (16 x 16 for the
@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.dataset.contract import SEG_LABELS, frame_path
+from hupbench.core import keypoints as kp
+from hupbench.core import tolerances as tol
+from hupbench.core.contract import SEG_LABELS, frame_path
 from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
     glove_pair_ratio,
@@ -44,7 +44,7 @@ from hupbench.datagen.dataset.verify_images import (
     read_image,
     shrink_mask,
 )
-from hupbench.datagen.geometry import invert_transform, transform_points
+from hupbench.core.geometry import invert_transform, transform_points
 
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05

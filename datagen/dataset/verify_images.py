@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.dataset.contract import SEG_LABELS
-from hupbench.datagen.errors import RunFailedError
+from hupbench.core import tolerances as tol
+from hupbench.core.contract import SEG_LABELS
+from hupbench.core.errors import RunFailedError
 
 
 #: the renderer's white ambient light (hupbench.datagen.dataset.chunks.ChunkRenderer: RenderSettings(ambient=0.3))

@@ -40,7 +40,7 @@ import numpy as np
 
 from hupbench.datagen.assets.backgrounds import BackgroundSet
 from hupbench.datagen.assets.probe_mesh import ProbeSource
-from hupbench.datagen.dataset.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
+from hupbench.core.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
                                       read_annotations, read_manifest)
 from hupbench.datagen.dataset.grasps_file import GraspSet, read_grasps, read_grasps_probe_record, rendered_with
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
@@ -48,14 +48,14 @@ from hupbench.datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, spl
 from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
                                   split_of_views, view_directions_arm)
 from hupbench.datagen.dataset.sphere import viewpoints
-from hupbench.datagen.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
+from hupbench.core.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
-from hupbench.datagen.processes import check_workers, workers_ignore_ctrl_c
+from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
 from hupbench.datagen.render.renderer import SEG_LABELS
 from hupbench.datagen.render.scene import ARM_RGB, GLOVE_RGB
 from hupbench.datagen.render import gl
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.input_checks import check_int
+from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import check_int
 from hupbench.datagen.dataset.chunks import (
     ChunkOutput,
     _WorkerDiskFull,
@@ -65,7 +65,7 @@ from hupbench.datagen.dataset.chunks import (
     _worker_init,
     write_chunk,
 )
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
 RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
@@ -85,7 +85,7 @@ class RenderJob:
     """Where a dataset's frames are rendered and from which background photographs.
 
     Attributes:
-        workers: local worker processes (at most :data:`hupbench.datagen.processes.MAX_WORKERS_PER_CORE` x the
+        workers: local worker processes (at most :data:`hupbench.core.processes.MAX_WORKERS_PER_CORE` x the
             cores), or Ray actors on a private runtime.
         launcher: "local" or "ray" (:mod:`hupbench.datagen.dataset.ray_launcher`, settings in ``ray``); both write
             the same files.
@@ -213,7 +213,7 @@ def shard_lock_folder(out_dir: Path, k: int, n: int) -> Path:
 
 @contextlib.contextmanager
 def run_lock(out_dir: Path, shard: str | None = None) -> Iterator[OutputLock]:
-    """Hold the output folder for one generate run (see :class:`hupbench.datagen.io.OutputLock`).
+    """Hold the output folder for one generate run (see :class:`hupbench.core.io.OutputLock`).
 
     An unsharded run holds ``out_dir`` itself and refuses to start while a shard run is live there.
     Shard ``k/n`` holds its own lock, so that several machines can render the shards of one dataset
@@ -251,7 +251,7 @@ def _remove_lock_folders(out_dir: Path) -> None:
 
 
 def _remove_all_tmp(out_dir: Path) -> list[Path]:
-    """Remove every temporary file (:data:`hupbench.datagen.io.TMP_PATTERN`) under ``out_dir``.
+    """Remove every temporary file (:data:`hupbench.core.io.TMP_PATTERN`) under ``out_dir``.
 
     Only called while this run holds the folder and no worker of it is running: every such file
     is then the remains of a killed writer, whatever its pid (a pid can be reused, or belong to

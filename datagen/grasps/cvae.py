@@ -52,10 +52,10 @@ import torch
 from torch import nn
 
 from hupbench.datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
-from hupbench.datagen.errors import BadTypeError, BadValueError, MissingFileError
-from hupbench.datagen.io import save_npz
+from hupbench.core.input_checks import check_int
+from hupbench.core.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
+from hupbench.core.errors import BadTypeError, BadValueError, MissingFileError
+from hupbench.core.io import save_npz
 
 #: network input unit of the BPS distances (centimetres: features of 0..15 instead of 0..0.15)
 BPS_UNIT_M = 0.01

@@ -16,7 +16,7 @@ from hupbench.datagen.grasps.approach import approach_azimuth, to_generator_fram
 from hupbench.datagen.grasps.frames import T_gen_probe
 from hupbench.datagen.grasps.params import unit_to_angles, unpack
 from hupbench.datagen.grasps.refine import GraspBatch, random_starts
-from hupbench.datagen.rotations_torch import matrix_to_rot6d
+from hupbench.core.rotations_torch import matrix_to_rot6d
 
 
 def condition(starts: GraspBatch, theta, probe, basis: np.ndarray, bps_exact: bool) -> dict[str, np.ndarray]:

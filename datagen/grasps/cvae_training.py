@@ -27,8 +27,8 @@ from hupbench.datagen.grasps.cvae_sampling import condition
 from hupbench.datagen.grasps.frames import T_gen_probe
 from hupbench.datagen.grasps.params import PARAM_DIM, pack
 from hupbench.datagen.grasps.refine import GraspEnergy, RefineConfig, random_starts, refine
-from hupbench.datagen.input_checks import check_int, check_number
-from hupbench.datagen.errors import BadValueError, RunFailedError
+from hupbench.core.input_checks import check_int, check_number
+from hupbench.core.errors import BadValueError, RunFailedError
 
 
 def _float32_corpus(corpus: Mapping[str, np.ndarray], n_bps: int) -> dict[str, np.ndarray]:

@@ -19,8 +19,8 @@ import functools
 
 import numpy as np
 
-from hupbench.datagen.geometry import euler_to_matrix, make_transform
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.geometry import euler_to_matrix, make_transform
+from hupbench.core.errors import BadValueError
 
 
 def volume_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

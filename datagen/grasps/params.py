@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import torch
 
-from hupbench.datagen.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
+from hupbench.core.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
 
 PARAM_DIM = 54
 ROT, TRANS, JOINTS = slice(0, 6), slice(6, 9), slice(9, 54)

@@ -33,15 +33,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.arm import ArmSpec, forearm_rest
-from hupbench.datagen.geometry import axis_angle_to_matrix as aa_to_matrix_np
+from hupbench.core.geometry import axis_angle_to_matrix as aa_to_matrix_np
 from hupbench.datagen.assets.hand import HandModel
 from hupbench.datagen.assets.hand_mesh import bone_radii
 from hupbench.datagen.assets.probe import Probe
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.rotations_torch import axis_angle_to_matrix
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.input_checks import check_int
+from hupbench.core.rotations_torch import axis_angle_to_matrix
+from hupbench.core.errors import BadValueError
 
 #: refinement steps at most: the energy settles within a few hundred (default 300); 10^5 steps take hours
 #: per orientation on a CPU

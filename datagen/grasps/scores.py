@@ -31,7 +31,7 @@ import torch
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
-from hupbench.datagen.geometry import matrix_to_axis_angle
+from hupbench.core.geometry import matrix_to_axis_angle
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from hupbench.datagen.grasps.refine import PADS, GraspBatch, GraspEnergy
 

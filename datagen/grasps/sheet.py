@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hupbench.datagen.camera import Intrinsics, look_at
-from hupbench.datagen.geometry import axis_angle_to_matrix
-from hupbench.datagen.render.draw import grid, stack, text_block, titled
+from hupbench.core.camera import Intrinsics, look_at
+from hupbench.core.geometry import axis_angle_to_matrix
+from hupbench.core.draw import grid, stack, text_block, titled
 from hupbench.datagen.render.renderer import PointLight, Renderer, RenderSettings
 from hupbench.datagen.render.scene import Grasp, scene_parts
 

@@ -22,13 +22,13 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import HandSpec, anatomical_to_pose
 from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
 from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS, probe_arrays
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.geometry import matrix_to_axis_angle
+from hupbench.core.errors import BadValueError
+from hupbench.core.geometry import matrix_to_axis_angle
 from hupbench.datagen.grasps.approach import approach_azimuth, to_generator_frame
 from hupbench.datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset
 from hupbench.datagen.grasps.refine import (
@@ -45,7 +45,7 @@ from hupbench.datagen.grasps.scores import (
     farthest_point_selection,
     score_grasps,
 )
-from hupbench.datagen.input_checks import check_int, is_whole
+from hupbench.core.input_checks import check_int, is_whole
 
 SAMPLERS = ("random", "cvae")
 #: starts per orientation at most: they are refined as one batch, whose arrays grow with it

@@ -19,7 +19,7 @@ import types
 import warnings
 
 import numpy as np
-from hupbench.datagen.errors import BadValueError, RunFailedError
+from hupbench.core.errors import BadValueError, RunFailedError
 
 PLATFORMS = ("egl", "osmesa")
 #: what EGL rendering needs on Debian/Ubuntu (install.sh installs it): the GLVND EGL loader, Mesa's EGL

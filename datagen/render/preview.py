@@ -13,17 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
 from hupbench.datagen.assets.probe_shape import ProbeSpec
-from hupbench.datagen.camera import Intrinsics, look_at, project_points
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.geometry import (
+from hupbench.core.camera import Intrinsics, look_at, project_points
+from hupbench.core.errors import BadValueError
+from hupbench.core.geometry import (
     axis_angle_to_matrix,
     matrix_to_axis_angle,
     transform_points,
 )
-from hupbench.datagen.render.draw import (
+from hupbench.core.draw import (
     colorize_depth,
     colorize_labels,
     draw_keypoints,

@@ -6,8 +6,8 @@ flat-shaded label pass.
 
 Convention:
     Camera poses are given as ``T_cam_world`` in OpenCV axes and converted
-    to pyrender's OpenGL axes by :func:`hupbench.datagen.camera.swap_gl_cv_axes`.
-    Pixels follow the dataset contract (:mod:`hupbench.datagen.dataset.contract`, "Convention"):
+    to pyrender's OpenGL axes by :func:`hupbench.core.camera.swap_gl_cv_axes`.
+    Pixels follow the dataset contract (:mod:`hupbench.core.contract`, "Convention"):
     a point projected by ``K`` to (u, v) lands in the pixel whose centre is (u, v).
     The colour pass shades with ``shaders/blinn_phong.frag`` (Lambert + Blinn-Phong
     under point lamps, ambient, emissive) by default; ``shading="pbr"`` keeps pyrender's
@@ -25,10 +25,10 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from hupbench.datagen.render import gl
-from hupbench.datagen.camera import Intrinsics, swap_gl_cv_axes
-from hupbench.datagen.dataset.contract import MODALITIES, SEG_LABELS
-from hupbench.datagen.geometry import invert_transform
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.camera import Intrinsics, swap_gl_cv_axes
+from hupbench.core.contract import MODALITIES, SEG_LABELS
+from hupbench.core.geometry import invert_transform
+from hupbench.core.errors import BadValueError
 
 ZNEAR_M, ZFAR_M = 0.01, 20.0
 #: the colour pass's fragment shader, in place of pyrender's mesh.frag (fed by pyrender's mesh.vert)

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.arm import ArmSpec, forearm_mesh
-from hupbench.datagen.geometry import axis_angle_to_matrix, transform_points
+from hupbench.core.geometry import axis_angle_to_matrix, transform_points
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import HandSpec, clamp_pose
 from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
@@ -78,7 +78,7 @@ def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels(), probe: Pr
         probe: the probe (e.g. a mesh probe, :func:`hupbench.datagen.assets.probe.probe_of`); None builds ``models.probe``.
 
     Returns:
-        (29, 3) float64, metres, world frame, in ``hupbench.datagen.keypoints`` order.
+        (29, 3) float64, metres, world frame, in ``hupbench.core.keypoints`` order.
     """
     hand = build_hand(models.hand)
     probe = probe or build_probe(models.probe)

@@ -6,7 +6,7 @@ input image), ``cache`` (a split's frames decoded once into a memory map, keyed 
 ``augment`` (rotation and colour jitter of a batch; frames to model images), ``loaders`` (a training
 run's loaders; ``data.pipeline`` picks only the source of uint8 frames).
 
-May import: the dataset contract (``hupbench.datagen.dataset.contract``), ``datagen`` shared modules (camera, io,
+May import: the dataset contract (``hupbench.core.contract``), ``datagen`` shared modules (camera, io,
 input checks, errors), ``hupbench.input_geometry``, ``hupbench.config``, torch, kornia, OpenCV, numpy.
 Never ``hupbench.evaluation``, ``hupbench.inference``, the verbs or the CLI.
 """

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hupbench.datagen.errors import NotWritableError
-from hupbench.datagen.io import atomic_output, clean_stale_tmp, write_json
+from hupbench.core.errors import NotWritableError
+from hupbench.core.io import atomic_output, clean_stale_tmp, write_json
 
 
 #: bump when the cache file layout or the resize changes: every older cache is then rebuilt

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.config import build
 from hupbench.data.augment import BatchAugment
 from hupbench.data.cache import open_frame_cache

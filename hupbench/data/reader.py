@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 import torch
 
-from hupbench.datagen.camera import resize_intrinsics, resize_points
-from hupbench.datagen.dataset.contract import frame_path, read_annotations, read_manifest
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.input_checks import check_int, check_number
+from hupbench.core.camera import resize_intrinsics, resize_points
+from hupbench.core.contract import frame_path, read_annotations, read_manifest
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.input_checks import check_int, check_number
 from hupbench.data.augment import model_images
 from hupbench.input_geometry import (INPUT_MODALITIES, INPUT_SIZE_RANGE, depth_channel, inside_input, pad_and_resize,
                                      pixels_to_normalized)

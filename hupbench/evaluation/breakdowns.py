@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 #: views with sphere polar angle theta below this are "egocentric" (see :func:`latitude_labels`)
 EGOCENTRIC_MAX_THETA_RAD = np.pi / 2

@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.dataset.contract import TRACKS
-from hupbench.datagen.errors import BadValueError, MissingFileError, RunFailedError
-from hupbench.datagen.input_checks import check_int
+from hupbench.core import keypoints as kp
+from hupbench.core.contract import TRACKS
+from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.core.input_checks import check_int
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
@@ -445,8 +445,8 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
         {"results": the validated results dict, "out": str path, "table": str, and with ``figures``
         "figures": {"samples", "worst", "pck"} str paths}
     """
-    from hupbench.datagen.dataset.contract import read_manifest
-    from hupbench.datagen.io import OutputLock, check_writable, clean_stale_tmp
+    from hupbench.core.contract import read_manifest
+    from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp
     from hupbench.evaluation.results import write_results
 
     previous_threads = torch.get_num_threads()
@@ -503,7 +503,7 @@ def _predict_split(net, reader, batch_size: int, split: str, progress: bool, log
 
 def _measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progress: bool) -> dict:
     """Latency per image of PyTorch and onnxruntime at batch 1 and 32 (an ONNX model: onnxruntime only)."""
-    from hupbench.datagen.io import DiskFullError, tmp_path
+    from hupbench.core.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
     after = net.after_network if net.fits else None  # the fits are part of the model's run time
@@ -549,8 +549,8 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
              log) -> tuple[dict, dict]:
     """(the results dict of the model on the split: metrics, breakdowns, floors, latency and provenance; the
     outputs behind it: "pred2d", "gt2d" (N, 29, 2) normalised, "errors" (N, 29) mm, "reader", "image_size")."""
-    from hupbench.datagen.dataset.contract import read_annotations
-    from hupbench.datagen.io import file_sha256
+    from hupbench.core.contract import read_annotations
+    from hupbench.core.io import file_sha256
     from hupbench.data import HUPDataset, ReaderConfig
     from hupbench.evaluation.results import blank_results
     from hupbench.input_geometry import normalized_to_pixels

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.io import atomic_output
-from hupbench.datagen.render.draw import FINGER_RGB, PROBE_RGB
+from hupbench.core import keypoints as kp
+from hupbench.core.io import atomic_output
+from hupbench.core.draw import FINGER_RGB, PROBE_RGB
 
 __all__ = ["FIGURES", "N_SAMPLE", "N_WORST", "frame_choice", "write_eval_figures"]
 

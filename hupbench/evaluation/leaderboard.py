@@ -22,12 +22,12 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from hupbench.datagen.io import atomic_output, check_writable, clean_stale_tmp
-from hupbench.datagen.dataset.contract import TRACKS, UNSEEN_GRASPS
+from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp
+from hupbench.core.contract import TRACKS, UNSEEN_GRASPS
 from hupbench.datagen.dataset.floors import FLOOR_KINDS
-from hupbench.datagen.keypoints import NUM_CORNERS, NUM_HAND
+from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.evaluation.results import FLOOR_NAMES, SCHEMA_VERSION, load_results
-from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.core.errors import BadValueError, MissingFileError
 
 README = "README.md"
 LATENCY_PLOT = "mpjpe_vs_latency.png"

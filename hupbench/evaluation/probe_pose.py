@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError
 from hupbench import metrics
 
 __all__ = ["PROBE_BOX_FIT_TOL_M", "dataset_probe", "floor_probe_pose", "logged_probe_pose", "probe_pose_rows",
@@ -40,7 +40,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
 
     Args:
         pred_corners_m, true_corners_m: (N, 8, 3) float, metres, OpenCV camera frame, corner order of
-            ``hupbench.datagen.keypoints``. K: (N, 3, 3) intrinsics of the stored images, ``image_width_px`` wide.
+            ``hupbench.core.keypoints``. K: (N, 3, 3) intrinsics of the stored images, ``image_width_px`` wide.
         probe: what :func:`dataset_probe` returns.
 
     Returns:
@@ -88,7 +88,7 @@ def floor_probe_pose(dataset: Path, manifest: dict, floor: dict | None, fields: 
     frame's prediction is the probe corners of its grasp's nearest training grasp (the floor's
     ``nearest_train_grasp_id``) in the same view and distance, from the train annotations; None (logged)
     for the nearest-training-view floor, whose chosen frames the manifest does not record."""
-    from hupbench.datagen.dataset.contract import read_annotations
+    from hupbench.core.contract import read_annotations
     from hupbench.datagen.dataset.floors import NEAREST_TRAIN_GRASP
 
     if floor is None:

@@ -22,10 +22,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hupbench.datagen.dataset.contract import TRACKS
+from hupbench.core.contract import TRACKS
 from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
-from hupbench.datagen.io import write_json
-from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.core.io import write_json
+from hupbench.core.errors import BadValueError, MissingFileError
 
 SCHEMA_VERSION = 3
 #: versions :func:`load_results` reads (older ones are upgraded on load)

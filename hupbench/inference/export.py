@@ -24,9 +24,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError, MissingFileError, RunFailedError
-from hupbench.datagen.input_checks import check_int
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.core.input_checks import check_int
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, write_metadata
 from hupbench.inference.runtime import (
@@ -277,7 +277,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     """
     from tqdm import tqdm
 
-    from hupbench.datagen.io import OutputLock, atomic_output, check_writable, clean_stale_tmp
+    from hupbench.core.io import OutputLock, atomic_output, check_writable, clean_stale_tmp
     from hupbench.checkpoint import load_model
     from hupbench.provenance import git_commit
 

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.inference.probe_fit import probe_model
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose

@@ -30,7 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 __all__ = ["PERCENTILE", "SHRINKAGE", "STATISTIC_NAMES", "ImageStatistics", "calibrate", "image_statistics"]
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.core.errors import BadValueError, MissingFileError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels

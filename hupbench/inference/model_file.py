@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.input_checks import check_int, is_whole
+from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_int, is_whole
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 

@@ -6,7 +6,7 @@ Convention:
     ``hupbench.keypoint_names`` of the ONNX metadata): one colour per finger
     (``thumb_*``, ``index_*``, ...), grey for the wrist, orange for the probe
     box corners (``probe_corner_*``); an edge takes the colour of its second
-    keypoint, as in :func:`hupbench.datagen.render.draw.draw_keypoints`. Lines scale with the
+    keypoint, as in :func:`hupbench.core.draw.draw_keypoints`. Lines scale with the
     image so that an overlay on a phone photo is as readable as on a 64 px frame.
     With a per-keypoint confidence in [0, 1], a marker's disc is filled in proportion
     to it (a full disc at 1, a bare ring at 0), and a warning (the
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from hupbench.datagen.render.draw import FINGER_RGB, PROBE_RGB
+from hupbench.core.draw import FINGER_RGB, PROBE_RGB
 
 OTHER_RGB = (200, 200, 200)
 HALO_RGB = (0, 0, 0)  # a dark rim under every line keeps it visible on bright and dark photos alike

@@ -43,10 +43,10 @@ from typing import Any
 
 import numpy as np
 
-from hupbench.datagen.errors import BadTypeError, BadValueError, UserError
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
-from hupbench.datagen.render.draw import write_png
+from hupbench.core.errors import BadTypeError, BadValueError, UserError
+from hupbench.core.input_checks import check_int
+from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
+from hupbench.core.draw import write_png
 from hupbench.inference.image_statistics import image_statistics
 from hupbench.inference.images import (
     IMAGE_SUFFIXES,

@@ -46,8 +46,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.rotations_torch import axis_angle_to_matrix
+from hupbench.core import keypoints as kp
+from hupbench.core.rotations_torch import axis_angle_to_matrix
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 

@@ -13,8 +13,8 @@ import numpy as np
 import onnxruntime as ort
 from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
-from hupbench.datagen.errors import BadValueError, MissingFileError, RunFailedError
-from hupbench.datagen.io import file_sha256
+from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.core.io import file_sha256
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, check_io_shapes, read_metadata
 

@@ -7,7 +7,7 @@ and batch-norm re-estimation (``validation``), the run's log (``run_log``: metri
 train.log and the progress bar). The run's inputs come from
 :mod:`hupbench.data`.
 
-May import: ``models``, the dataset contract (``hupbench.datagen.dataset.contract``), ``datagen`` shared
+May import: ``models``, the dataset contract (``hupbench.core.contract``), ``datagen`` shared
 modules (keypoints, io), ``hupbench`` top-level modules (config, errors, provenance, checkpoint,
 data, metrics), torch, numpy, Hydra/OmegaConf. Never ``hupbench.inference`` or the CLI.
 """

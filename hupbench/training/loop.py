@@ -27,10 +27,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.camera import resize_intrinsics
-from hupbench.datagen.errors import BadValueError, MissingFileError, RunFailedError
-from hupbench.datagen.io import OutputLock, clean_stale_tmp, file_sha256, write_json
+from hupbench.core import keypoints as kp
+from hupbench.core.camera import resize_intrinsics
+from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
+from hupbench.core.io import OutputLock, clean_stale_tmp, file_sha256, write_json
 from hupbench.checkpoint import Checkpoint
 from hupbench.data import TrainData, model_images, setup_data
 from hupbench.error_lines import USER_ERRORS, error_line
@@ -484,7 +484,7 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
 
 def probe_half_extents(corners: np.ndarray) -> np.ndarray:
     """(3,) float64 half the probe box's sides along its own x, y, z (metres): the mean over frames of its 4
-    edges along each axis, from (N, 8, 3) corners in the order of ``hupbench.datagen.keypoints.CORNER_BITS``."""
+    edges along each axis, from (N, 8, 3) corners in the order of ``hupbench.core.keypoints.CORNER_BITS``."""
     corners = np.asarray(corners, dtype=np.float64)
     halves = []
     for axis in range(3):

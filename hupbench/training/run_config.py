@@ -15,10 +15,10 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.input_checks import check_int, check_number
-from hupbench.datagen.processes import usable_cores
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_int, check_number
+from hupbench.core.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import ReaderConfig
 from hupbench.metrics import PROBE_SYMMETRIES

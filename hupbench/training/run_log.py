@@ -8,8 +8,8 @@ import json
 import time
 from pathlib import Path
 
-from hupbench.datagen.errors import BadValueError
-from hupbench.datagen.io import DiskFullError, write_bytes
+from hupbench.core.errors import BadValueError
+from hupbench.core.io import DiskFullError, write_bytes
 
 
 class MetricsLog:

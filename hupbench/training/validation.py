@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.data import model_images
 
 

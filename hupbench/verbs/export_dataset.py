@@ -31,7 +31,7 @@ COCO keypoints (``--format coco``)::
     OUT/images/<split>/<frame_id:06d>.jpg|png   the dataset's image (hard link or copy)
 
 Two categories, because COCO tools hold one keypoint list per category: ``hand`` (id 1, the 21 joints of
-:mod:`hupbench.datagen.keypoints`) and ``probe`` (id 2, its 8 box corners), two annotations per image. A keypoint is
+:mod:`hupbench.core.keypoints`) and ``probe`` (id 2, its 8 box corners), two annotations per image. A keypoint is
 ``[x, y, v]``: pixel coordinates of the stored image (centres at integers, COCO's keypoint convention), v = 2
 visible, 1 inside the image but hidden, 0 outside the image (then x = y = 0). ``bbox``, ``area`` and the
 (uncompressed RLE) ``segmentation`` come from the dataset's seg labels (hand 1, probe 3); without seg, from the
@@ -55,16 +55,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.dataset.contract import (
+from hupbench.core import keypoints as kp
+from hupbench.core.contract import (
     SEG_LABELS,
     SPLITS,
     frame_path,
     read_annotations,
     read_manifest,
 )
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.io import DiskFullError, check_writable, encode_image, tmp_path, write_bytes, write_json
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.io import DiskFullError, check_writable, encode_image, tmp_path, write_bytes, write_json
 
 FORMATS = ("bop", "coco")
 #: how the dataset's image files reach OUT: hard links (a copy where the file system refuses one) or copies
@@ -280,7 +280,7 @@ def _probe_symmetric(ann_by_split: dict) -> bool:
 def _check_probe_frame(mesh_m, ann: dict, where: Path) -> None:
     """The mesh's box corners, moved by ``T_cam_world``, are the annotated corner keypoints: the mesh is the
     dataset's probe and world = probe frame, so ``T_cam_world`` is the model -> camera pose."""
-    from hupbench.datagen.geometry import transform_points
+    from hupbench.core.geometry import transform_points
     from hupbench.evaluation.evaluate import CORNER_FRAME_TOL_M
 
     bounds = np.asarray(mesh_m.bounds, np.float64)
@@ -313,7 +313,7 @@ class _SilhouetteRenderer:
         """(3H, 3W) bool, the image at rows H..2H, columns W..2W."""
         key = tuple(np.asarray(K, np.float64).ravel().tolist())
         if key not in self._renderers:
-            from hupbench.datagen.camera import Intrinsics
+            from hupbench.core.camera import Intrinsics
             from hupbench.datagen.render.renderer import MeshPart, Renderer
 
             pad_x, pad_y = (BOP_CANVAS_SCALE - 1) // 2 * self.width, (BOP_CANVAS_SCALE - 1) // 2 * self.height
@@ -396,7 +396,7 @@ def _write_bop(root: Path, manifest: dict, splits: list[str], stage: Path, files
 
 
 def coco_categories() -> list[dict]:
-    """The two COCO categories with their keypoint names and 1-based skeletons (:mod:`hupbench.datagen.keypoints`)."""
+    """The two COCO categories with their keypoint names and 1-based skeletons (:mod:`hupbench.core.keypoints`)."""
     def skeleton(edges, first):
         return [[a - first + 1, b - first + 1] for a, b in edges]
 

@@ -8,7 +8,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from hupbench.datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
 from hupbench.datagen.dataset.writer import GenerateRun
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.config import build
 from hupbench.provenance import run_info
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.datagen.grasps.refine import RefineConfig
 from hupbench.datagen.grasps.synthesis import MAX_TILE_PX, MIN_TILE_PX, GraspGenConfig, check_selection
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.io import OutputLock, check_writable, save_npz, write_json
-from hupbench.datagen.processes import check_threads
+from hupbench.core.input_checks import check_int
+from hupbench.core.io import OutputLock, check_writable, save_npz, write_json
+from hupbench.core.processes import check_threads
 from hupbench.datagen.dataset.writer import check_platform
 from hupbench.datagen.assets.probe_mesh import ProbeSource
 from hupbench.config import build, build_group
@@ -68,7 +68,7 @@ def run_grasps(cfg: DictConfig, log=print) -> dict:
 def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     """Run the grasp generator of the built ``run`` (``cfg``, the composed config, goes into run.json); the
     output folder is this run's until it returns. Returns the output paths, counts and timings."""
-    from hupbench.datagen.render.draw import write_png
+    from hupbench.core.draw import write_png
     from hupbench.datagen.grasps.synthesis import generate_candidates, grasp_arrays, scores_json, select_grasps, take_rows
     from hupbench.datagen.grasps.sheet import contact_sheet
     from hupbench.datagen.assets.hand import build_hand

@@ -20,12 +20,12 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from hupbench.datagen.camera import Intrinsics
-from hupbench.datagen.dataset.contract import MODALITIES
+from hupbench.core.camera import Intrinsics
+from hupbench.core.contract import MODALITIES
 from hupbench.datagen.dataset.spec import check_principal_point
-from hupbench.datagen.errors import BadValueError, RunFailedError
-from hupbench.datagen.input_checks import check_int, check_number
-from hupbench.datagen.io import OutputLock, check_writable, write_json
+from hupbench.core.errors import BadValueError, RunFailedError
+from hupbench.core.input_checks import check_int, check_number
+from hupbench.core.io import OutputLock, check_writable, write_json
 from hupbench.datagen.dataset.writer import GenerateRun, check_platform
 from hupbench.datagen.render.preview import PreviewView
 from hupbench.config import build, build_group, compose
@@ -322,7 +322,7 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
 
 
 def _first_test_image(dataset: Path) -> Path:
-    from hupbench.datagen.dataset.contract import frame_path, read_annotations, read_manifest
+    from hupbench.core.contract import frame_path, read_annotations, read_manifest
 
     manifest = read_manifest(dataset, "test")
     frame_id = int(read_annotations(dataset, "test", (), manifest)["frame_id"][0])

@@ -32,7 +32,7 @@ def record_input(command: str) -> None:
 
 
 def assert_refusal(call, *needles: str, prog: str, given: str | None = None) -> str:
-    """``call()`` refuses with a :class:`hupbench.datagen.errors.UserError` whose line names every needle.
+    """``call()`` refuses with a :class:`hupbench.core.errors.UserError` whose line names every needle.
 
     The unit-test form of a matrix case: the line is the one the CLI prints for that error
     (``PROG: error: TEXT`` through :func:`hupbench.error_lines.error_line`), without running the verb.
@@ -46,7 +46,7 @@ def assert_refusal(call, *needles: str, prog: str, given: str | None = None) -> 
     Returns:
         The error line.
     """
-    from hupbench.datagen.errors import UserError
+    from hupbench.core.errors import UserError
     from hupbench.error_lines import error_line
 
     with pytest.raises(UserError) as info:

@@ -16,7 +16,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 
 S = 32
 K_TRAIN = np.array([[60.0, 0.0, 16.0], [0.0, 60.0, 16.0], [0.0, 0.0, 1.0]])

@@ -2,12 +2,12 @@
 
 import numpy as np
 import torch
-from hupbench.datagen.io import file_sha256
+from hupbench.core.io import file_sha256
 from hupbench.checkpoint import Checkpoint
 from hupbench.inference import export as E
 from hupbench.models.build import build_model
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.data import HUPDataset, ReaderConfig
 
 INPUT_SIZE = 64

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hupbench.datagen.camera import project_points, resize_intrinsics, resize_points
+from hupbench.core.camera import project_points, resize_intrinsics, resize_points
 from hupbench.input_geometry import (
     InputGeometry,
     apply_affine,

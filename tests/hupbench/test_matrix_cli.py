@@ -68,7 +68,7 @@ def test_debug_shows_the_traceback(tmp_path, where):
     assert plain.stderr.strip().startswith("hupbench grasps: error: threads must be a whole number"), plain.stderr
     assert debug.returncode == 1, debug
     assert "Traceback (most recent call last)" in debug.stderr, debug.stderr
-    assert debug.stderr.strip().splitlines()[-1].startswith("hupbench.datagen.errors.BadValueError: threads must be a whole number"), debug.stderr
+    assert debug.stderr.strip().splitlines()[-1].startswith("hupbench.core.errors.BadValueError: threads must be a whole number"), debug.stderr
     assert not (tmp_path / "g").exists()
 
 

@@ -408,7 +408,7 @@ def test_spread_ratio_hand_computed_and_undefined():
 
 
 def test_rotation_onto_recovers_a_turn_and_stays_proper():
-    from hupbench.datagen.geometry import axis_angle_to_matrix
+    from hupbench.core.geometry import axis_angle_to_matrix
     from hupbench.metrics import rotation_onto
 
     rng = np.random.default_rng(3)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.training.loop import probe_half_extents
 from hupbench.models.build import build_model
 from hupbench.models.heatmap import CORNER_SIGNS, HUPNet, HUPNetConfig, rotation_from_6d

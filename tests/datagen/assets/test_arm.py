@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hupbench.datagen.assets.arm import ArmSpec, forearm_mesh, wrist_rotation
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core.geometry import axis_angle_to_matrix
 
 
 def _axis(mesh, wrist):

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core import keypoints as kp
+from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.assets.hand import build_hand, forward_kinematics
 from hupbench.datagen.assets.hand_anatomy import (
     POSE_DIM,

@@ -14,7 +14,7 @@ import pytest
 import torch
 import trimesh
 
-from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.core.keypoints import CORNER_BITS
 from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
 from hupbench.datagen.mesh_distance import FEATURE_EAB, FEATURE_FACE, FEATURE_VA, closest_points_on_triangles
 

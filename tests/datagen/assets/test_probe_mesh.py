@@ -13,8 +13,8 @@ from hupbench.datagen.assets.probe_mesh import (
     linear_probe_mesh,
     load_probe_mesh,
 )
-from hupbench.datagen.errors import BadValueError, MissingFileError
-from hupbench.datagen.keypoints import CORNER_BITS
+from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.keypoints import CORNER_BITS
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 
 from hupbench.datagen.dataset.spec import DatasetSpec
 from hupbench.datagen.dataset.writer import generate
-from hupbench.datagen.io import save_npz
+from hupbench.core.io import save_npz
 
 from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
 

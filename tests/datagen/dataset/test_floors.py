@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.dataset.floors import split_floors
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core.geometry import axis_angle_to_matrix
 
 
 def _annotations(frames):

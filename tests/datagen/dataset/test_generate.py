@@ -15,8 +15,8 @@ import pytest
 
 from hupbench.datagen.dataset.spec import DatasetSpec
 from hupbench.datagen.dataset.writer import RenderJob, generate
-from hupbench.datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
-from hupbench.datagen.io import save_npz
+from hupbench.core.geometry import axis_angle_to_matrix, invert_transform, transform_points
+from hupbench.core.io import save_npz
 from hupbench.datagen.dataset.verify import verify
 
 from helpers import REPO
@@ -220,7 +220,7 @@ def test_paper_protocol_puts_the_middle_mcp_at_the_principal_point(tiny):
 
 def test_earlier_protocol_is_an_option_and_verifies(tiny, tmp_path):
     """axis=forearm + look_at=box_centre: the cameras hupbench made before issue 13."""
-    from hupbench.datagen.camera import look_at
+    from hupbench.core.camera import look_at
     from hupbench.datagen.dataset.sphere import SphereSpec
 
     _, grasps, _ = tiny

@@ -137,7 +137,7 @@ def test_die_with_parent_prctl_and_watchdog(tmp_path, platform):
 
 def hold_lock(folder, what="generate"):
     """A process holding an OutputLock on ``folder`` until killed (what a generate run holds)."""
-    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from hupbench.datagen.io import OutputLock; "
+    code = (f"import sys, time; sys.path.insert(0, {str(REPO)!r}); from hupbench.core.io import OutputLock; "
             f"OutputLock({str(folder)!r}, {what!r}).acquire(); print('held', flush=True); time.sleep(120)")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "held"

@@ -14,9 +14,9 @@ import trimesh
 from helpers.cli import assert_clean_error, run_cli
 from scipy.spatial.transform import Rotation
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.dataset import import_hup3d as H
-from hupbench.datagen.dataset.contract import (
+from hupbench.core.contract import (
     DEPTH_SCALE_M,
     frame_path,
     read_annotations,

@@ -16,7 +16,7 @@ from hupbench.datagen.dataset.sample_sheet import (
     sphere_map,
     spread_views,
 )
-from hupbench.datagen.render.draw import (
+from hupbench.core.draw import (
     FINGER_RGB,
     PROBE_RGB,
     SEG_RGB,

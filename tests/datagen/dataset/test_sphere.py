@@ -3,9 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.camera import Intrinsics, project_points
-from hupbench.datagen.geometry import axis_angle_to_matrix, invert_transform, transform_points
+from hupbench.core import keypoints as kp
+from hupbench.core.camera import Intrinsics, project_points
+from hupbench.core.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from hupbench.datagen.dataset.sphere import (
     SphereSpec,
     all_viewpoints,

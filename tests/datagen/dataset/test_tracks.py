@@ -115,7 +115,7 @@ def test_verify_finds_images_half_a_pixel_off_their_labels(tmp_path, monkeypatch
 
 
 def test_visibility_is_decided_on_the_keypoints_as_stored():
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from hupbench.datagen.dataset.chunks import stored_visibility, visibility
 
     # a hand keypoint whose row is 139.49999391 in float64 and 139.5 in float32: verify, reading the

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from helpers.datasets import TINY_SPEC, write_grasps
-from hupbench.datagen import tolerances as tol
+from hupbench.core import tolerances as tol
 from hupbench.datagen.dataset import verify as V
 from hupbench.datagen.dataset import verify_images as VI
-from hupbench.datagen.dataset.contract import read_annotations, read_manifest
+from hupbench.core.contract import read_annotations, read_manifest
 from hupbench.datagen.dataset.verify import verify
 from hupbench.datagen.dataset.verify_images import background_mismatch_px, image_format_problem, mask_depth_mismatch_px, read_image
 

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from scipy import stats
 
-from hupbench.datagen.geometry import euler_to_matrix, transform_points
+from hupbench.core.geometry import euler_to_matrix, transform_points
 from hupbench.datagen.grasps.bps import basis_points, encode_probe
 from hupbench.datagen.grasps.frames import T_gen_probe, probe_z_offset
 from hupbench.datagen.assets.probe import Probe, build_probe

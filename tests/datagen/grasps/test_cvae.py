@@ -24,7 +24,7 @@ from hupbench.datagen.grasps.cvae import (
 from hupbench.datagen.grasps.cvae_training import train_cvae
 from hupbench.datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS
 from hupbench.datagen.assets.hand import build_hand
-from hupbench.datagen.rotations_torch import axis_angle_to_matrix, matrix_to_rot6d, rot6d_to_matrix
+from hupbench.core.rotations_torch import axis_angle_to_matrix, matrix_to_rot6d, rot6d_to_matrix
 
 #: small enough to train in about a second, with the default latent size
 TINY = CVAEConfig(n_bps=32, hidden=64, bps_embed=16, epochs=30, batch_size=32, lr=5e-3, keypoint_weight=0.0)

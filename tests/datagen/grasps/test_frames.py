@@ -2,13 +2,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from hupbench.datagen.geometry import invert_transform, transform_points
+from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.datagen.grasps.frames import T_gen_probe, check_euler_deg, probe_z_offset, volume_centroid
 from hupbench.datagen.grasps.approach import to_generator_frame
 from hupbench.datagen.grasps.refine import GraspBatch
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
-from hupbench.datagen.geometry import matrix_to_axis_angle
+from hupbench.core.geometry import matrix_to_axis_angle
 from hupbench.datagen.assets.probe import build_probe
 
 
@@ -58,7 +58,7 @@ def test_frame_change_moves_the_hand_rigidly(probe):
     hand = build_hand()
     rng = np.random.default_rng(1)
     angles = rng.uniform(0.0, 0.5, size=(1, 15, 3)) * [1, 0.1, 0.1]
-    from hupbench.datagen.geometry import axis_angle_to_matrix
+    from hupbench.core.geometry import axis_angle_to_matrix
 
     grasp = GraspBatch(axis_angle_to_matrix(rng.normal(size=(1, 3))), rng.normal(size=(1, 3)) * 0.05, angles)
     T = T_gen_probe([10.0, 80.0, -30.0], probe)

@@ -5,7 +5,7 @@ from hupbench.datagen.grasps.refine import GraspBatch, GraspEnergy
 from hupbench.datagen.grasps.scores import farthest_point_selection, force_closure_residual, score_grasps
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import pose_to_anatomical
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.render.preview import handset_grasp
 from hupbench.datagen.assets.probe import build_probe
 

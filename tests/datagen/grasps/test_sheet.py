@@ -3,7 +3,7 @@
 import numpy as np
 from helpers.datasets import write_grasps
 
-from hupbench.datagen.geometry import axis_angle_to_matrix
+from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.grasps.sheet import VIEW_DISTANCE_M, contact_sheet, grasp_views
 
 WHITE = 255

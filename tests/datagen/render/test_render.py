@@ -8,8 +8,8 @@ import pytest
 import trimesh
 from helpers import needs_osmesa
 
-from hupbench.datagen.camera import Intrinsics, look_at, project_points
-from hupbench.datagen.geometry import transform_points
+from hupbench.core.camera import Intrinsics, look_at, project_points
+from hupbench.core.geometry import transform_points
 from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, Renderer, check_modalities
 
 K256 = Intrinsics(480.0, 480.0, 128.0, 128.0, 256, 256)
@@ -133,7 +133,7 @@ def test_camera_at_the_pole_renders_without_nan(renderer):
 
 def test_visible_fingertip_depth_agrees_with_keypoint(renderer):
     """A fingertip keypoint sits on the hand surface: where it is seen, depth there is its z."""
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from hupbench.datagen.render.preview import handset_grasp
     from hupbench.datagen.render.scene import keypoints_world, scene_parts
 
@@ -170,7 +170,7 @@ def test_osmesa_fallback_renders_the_same_depth():
     code = textwrap.dedent(
         """
         import json, numpy as np, trimesh
-        from hupbench.datagen.camera import Intrinsics, look_at
+        from hupbench.core.camera import Intrinsics, look_at
         from hupbench.datagen.render.renderer import MeshPart, Renderer
         box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))  # 80 px wide at 0.6 m in a 128 px image
         with Renderer(Intrinsics(480.0, 480.0, 64.0, 64.0, 128, 128), platform="osmesa") as r:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hupbench.datagen.camera import Intrinsics, project_points
+from hupbench.core.camera import Intrinsics, project_points
 from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, Renderer
 
 #: the largest centroid disagreement allowed, pixels (a half-pixel convention error is ten times this)

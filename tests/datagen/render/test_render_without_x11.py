@@ -69,7 +69,7 @@ RENDER_WITHOUT_X11 = textwrap.dedent(
     import numpy as np
     import trimesh
 
-    from hupbench.datagen.camera import Intrinsics, look_at
+    from hupbench.core.camera import Intrinsics, look_at
     from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart, RenderSettings, Renderer
     from hupbench.datagen.dataset.verify_images import mask_depth_mismatch_px
 

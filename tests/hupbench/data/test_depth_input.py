@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.data import FrameBatches, HUPDataset, ReaderConfig, open_frame_cache
 from hupbench.data.augment import BatchAugment, model_images
 from hupbench.data.reader import read_depth

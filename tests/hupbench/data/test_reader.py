@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from hupbench.datagen.camera import project_points, resize_intrinsics, resize_points
+from hupbench.core.camera import project_points, resize_intrinsics, resize_points
 from hupbench.data import HUPDataset, ReaderConfig, model_images
 from hupbench.input_geometry import pixels_to_normalized
 

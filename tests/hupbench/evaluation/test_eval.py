@@ -11,7 +11,7 @@ import torch
 from hupbench.evaluation import evaluate as EV
 from hupbench.evaluation.probe_pose import probe_pose_scores
 from hupbench import metrics as M
-from hupbench.datagen.io import file_sha256
+from hupbench.core.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.evaluation.results import load_results

@@ -120,7 +120,7 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     predict run hupbench.inference.probe_fit and hand_fit after the network, the probe's first, on its output and
     its RGB-D input (the fits themselves: test_probe_fit.py, test_hand_fit.py); here stand-in fits move the corners
     by 1 cm and the hand by 2 cm so that their use and order are seen."""
-    from hupbench.datagen import keypoints as kp
+    from hupbench.core import keypoints as kp
     from hupbench.evaluation import evaluate
     from hupbench.inference import hand_fit, probe_fit
 

@@ -12,7 +12,7 @@ import torch
 from helpers import REPO
 from helpers.models import INPUT_SIZE, make_checkpoint
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.checkpoint import Checkpoint, load_model
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
 from hupbench.datagen.assets.probe import build_probe

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.inference.model_file import check_io_shapes, read_metadata, write_metadata
 from hupbench.input_geometry import INPUT_SIZE_RANGE
 

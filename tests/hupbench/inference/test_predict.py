@@ -28,8 +28,8 @@ from helpers.dot_model import (
     photo_like,
 )
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.render.draw import FINGER_RGB, PROBE_RGB
+from hupbench.core import keypoints as kp
+from hupbench.core.draw import FINGER_RGB, PROBE_RGB
 from hupbench.cli import main
 from hupbench.inference.images import decode_image, expand_inputs
 from hupbench.inference.model_file import read_metadata

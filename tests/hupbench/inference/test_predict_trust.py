@@ -15,7 +15,7 @@ import torch
 from helpers.dot_model import contract_metadata
 from helpers.models import make_checkpoint
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.checkpoint import load_model
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.inference import export as E

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.probe import build_probe
 from hupbench.datagen.render.scene import PROBE_BODY_RGB, PROBE_MARKER_RGB
 from hupbench.inference import probe_fit as F

@@ -352,8 +352,8 @@ def small_dataset(tmp_path_factory):
 
     from hupbench.datagen.dataset.spec import DatasetSpec
     from hupbench.datagen.dataset.writer import generate
-    from hupbench.datagen.geometry import axis_angle_to_matrix, matrix_to_axis_angle
-    from hupbench.datagen.io import save_npz
+    from hupbench.core.geometry import axis_angle_to_matrix, matrix_to_axis_angle
+    from hupbench.core.io import save_npz
     from hupbench.datagen.render.preview import handset_grasp
     from hupbench.datagen.dataset.sphere import SphereSpec
 

@@ -8,7 +8,7 @@ import functools
 import pytest
 import torch
 
-from hupbench.datagen.processes import usable_cores
+from hupbench.core.processes import usable_cores
 from helpers.answers import assert_refusal
 from hupbench.config import compose
 from hupbench.data import ReaderConfig

@@ -83,7 +83,7 @@ def reference(tiny_dataset, tmp_path_factory) -> Reference:
 def _hold_lock(run_dir: Path) -> subprocess.Popen:
     """Another live process holding the run folder's lock, as a running train.py does."""
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom hupbench.datagen.io import OutputLock\n"
+        [sys.executable, "-c", "import sys, time\nfrom hupbench.core.io import OutputLock\n"
          "OutputLock(sys.argv[1], 'training').acquire()\nprint('held', flush=True)\ntime.sleep(600)\n", str(run_dir)],
         stdout=subprocess.PIPE, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert holder.stdout.readline().strip() == "held"

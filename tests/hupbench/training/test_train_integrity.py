@@ -17,7 +17,7 @@ import time
 import pytest
 
 from helpers.cli import assert_clean_error, assert_nothing_complete
-from hupbench.datagen.processes import usable_cores
+from hupbench.core.processes import usable_cores
 from helpers.answers import record_answer
 from helpers.faults import like_a_terminal, sigint_state
 from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer

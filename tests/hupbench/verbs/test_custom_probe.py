@@ -11,7 +11,7 @@ from helpers.training import tiny_cfg
 from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 from hupbench.datagen.assets.probe_mesh import linear_probe_mesh
 from hupbench.datagen.dataset.verify import verify
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.config import compose
 from hupbench.training.loop import run_train
 from hupbench.verbs.generate import run_generate

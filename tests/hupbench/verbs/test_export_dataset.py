@@ -18,9 +18,9 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 from scipy.spatial.distance import cdist
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.probe import build_probe
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 from hupbench.verbs import export_dataset
 from hupbench.verbs.export_dataset import ExportOptions, run_export_dataset
 
@@ -146,7 +146,7 @@ def test_bop_poses_put_the_box_on_the_corner_keypoints(bop, truth):
     info = json.loads((out / "models" / "models_info.json").read_text())["1"]
     lo = np.array([info["min_x"], info["min_y"], info["min_z"]])
     hi = lo + np.array([info["size_x"], info["size_y"], info["size_z"]])
-    # the corner order of hupbench.datagen.keypoints: itertools.product((min, max), repeat=3) over x, y, z
+    # the corner order of hupbench.core.keypoints: itertools.product((min, max), repeat=3) over x, y, z
     corners_mm = np.array([[(lo, hi)[b][a] for a, b in enumerate(bits)] for bits in kp.CORNER_BITS])
     for split in SPLITS:
         row = {f: i for i, f in enumerate(ann[split]["frame_id"].tolist())}

@@ -127,7 +127,7 @@ def test_matrix_grasps_read_only_out_dir(tmp_path):
 @pytest.mark.matrix
 def test_matrix_grasps_second_run(tmp_path, capsys):
     """A second grasps run on a folder another live run writes is refused (the lock beside the folder)."""
-    from hupbench.datagen.io import OutputLock
+    from hupbench.core.io import OutputLock
 
     out = tmp_path / "g"
     with OutputLock.for_file(out, "grasps"):  # the first run

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from helpers.cli import assert_clean_error, run_cli
-from hupbench.datagen.io import save_npz
+from hupbench.core.io import save_npz
 
 FIRST_TRAIN = 0  # frame ids of the tiny dataset: train 0-19 (2 backgrounds x 10 views), val 20-39, test 40-59
 

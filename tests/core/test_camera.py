@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hupbench.datagen.camera import Intrinsics, look_at, project_points, swap_gl_cv_axes
-from hupbench.datagen.geometry import make_transform, transform_points
+from hupbench.core.camera import Intrinsics, look_at, project_points, swap_gl_cv_axes
+from hupbench.core.geometry import make_transform, transform_points
 
 
 def test_hup3d_lens_gives_paper_intrinsics():
@@ -95,7 +95,7 @@ def test_gl_cv_swap_is_an_involution_with_known_axes():
 
 
 def test_resize_with_padding_keeps_projections_consistent():
-    from hupbench.datagen.camera import resize_intrinsics, resize_points
+    from hupbench.core.camera import resize_intrinsics, resize_points
 
     K = np.array([[480.0, 0.0, 128.0], [0.0, 470.0, 100.0], [0.0, 0.0, 1.0]])
     points = np.array([[0.01, -0.02, 0.5], [0.1, 0.05, 0.8], [-0.07, 0.0, 0.6]])

@@ -1,4 +1,4 @@
-"""hupbench.datagen.io: atomic writes, the full-disk message, stale temporary files and the output lock."""
+"""hupbench.core.io: atomic writes, the full-disk message, stale temporary files and the output lock."""
 
 import errno
 import json
@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from hupbench.datagen import io
+from hupbench.core import io
 
 
 def test_atomic_write_leaves_old_file_on_failure(tmp_path):
@@ -52,7 +52,7 @@ def test_full_tmpfs_gives_the_message(tmp_path):
         pytest.skip("needs root and unshare to mount a small tmpfs")
     mnt = tmp_path / "mnt"
     mnt.mkdir()
-    code = ("import sys; from hupbench.datagen import io\n"
+    code = ("import sys; from hupbench.core import io\n"
             "try:\n    io.write_bytes(sys.argv[1] + '/x.bin', b'0' * 1_000_000)\n"
             "except OSError as e:\n    print(e)\n")
     proc = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
@@ -106,7 +106,7 @@ def test_output_lock_refuses_a_second_holder_and_names_it(tmp_path):
 
 
 def test_killed_holder_lock_is_taken_over(tmp_path):
-    code = ("import sys, time; from hupbench.datagen import io\n"
+    code = ("import sys, time; from hupbench.core import io\n"
             "io.OutputLock(sys.argv[1], 'training').acquire(); print('locked', flush=True); time.sleep(60)\n")
     proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": os.getcwd()})
@@ -153,7 +153,7 @@ def test_check_writable_refuses_a_read_only_mount(tmp_path):
         pytest.skip("needs root and unshare for a private read-only mount")
     (tmp_path / "ro").mkdir()
     script = (f"mount --bind {tmp_path / 'ro'} {tmp_path / 'ro'} && mount -o remount,bind,ro {tmp_path / 'ro'} && "
-              f"{sys.executable} -c \"from hupbench.datagen import io; io.check_writable('{tmp_path / 'ro' / 'g'}', 'out_dir')\"")
+              f"{sys.executable} -c \"from hupbench.core import io; io.check_writable('{tmp_path / 'ro' / 'g'}', 'out_dir')\"")
     proc = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": os.getcwd()})
     assert proc.returncode != 0

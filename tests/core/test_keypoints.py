@@ -1,7 +1,7 @@
 import itertools
 
 
-from hupbench.datagen import keypoints as kp
+from hupbench.core import keypoints as kp
 
 
 def test_counts_and_names():

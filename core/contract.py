@@ -34,9 +34,9 @@ from typing import Iterable
 
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.input_checks import is_whole
-from hupbench.datagen.errors import BadValueError, MissingFileError
+from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import is_whole
+from hupbench.core.errors import BadValueError, MissingFileError
 
 SCHEMA_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -104,7 +104,7 @@ def read_manifest(root: str | Path, split: str | None = None, needs: str = "this
     """Read a finished dataset's ``manifest.json`` and check every field a reader relies on.
 
     Checks: valid JSON object; schema_version; counts per split (ints >= 0) adding up to the
-    layout's frames; keypoint_names equal to :mod:`hupbench.datagen.keypoints`' 29 names in order;
+    layout's frames; keypoint_names equal to :mod:`hupbench.core.keypoints`' 29 names in order;
     image_size; K (3, 3) finite with positive focal lengths; modalities; rgb_format; depth_scale_m.
 
     Args:
@@ -163,7 +163,7 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
     if names != list(kp.KEYPOINT_NAMES):
         i = next(i for i, (a, b) in enumerate(zip(names, kp.KEYPOINT_NAMES)) if a != b)
         raise _fail(path, f"keypoint_names[{i}] is {names[i]!r}, expected {kp.KEYPOINT_NAMES[i]!r} "
-                          "(hupbench.datagen.keypoints' order)")
+                          "(hupbench.core.keypoints' order)")
     counts = manifest["counts"]
     if not isinstance(counts, dict) or set(counts) - set(SPLITS) or \
             any(not is_whole(v) or v < 0 for v in counts.values()):

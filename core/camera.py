@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.geometry import check_last_axes, invert_transform, make_transform
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import tolerances as tol
+from hupbench.core.geometry import check_last_axes, invert_transform, make_transform
+from hupbench.core.input_checks import check_int
+from hupbench.core.errors import BadValueError
 
 #: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -1,7 +1,7 @@
-"""Differentiable rotations in torch (the counterparts of :mod:`hupbench.datagen.geometry`).
+"""Differentiable rotations in torch (the counterparts of :mod:`hupbench.core.geometry`).
 
 Convention:
-    As in :mod:`hupbench.datagen.geometry`: matrices act on column vectors, axis-angle
+    As in :mod:`hupbench.core.geometry`: matrices act on column vectors, axis-angle
     rotates right-handed by its norm in radians, intrinsic Euler "xyz" means
     R = Rx(a) Ry(b) Rz(c). The 6D representation is the first two columns of
     R (Zhou et al.), turned back into R by Gram-Schmidt.

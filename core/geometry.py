@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hupbench.datagen import tolerances as tol
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import tolerances as tol
+from hupbench.core.errors import BadValueError
 
 
 def check_last_axes(x: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:

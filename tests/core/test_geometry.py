@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hupbench.datagen.geometry import (
+from hupbench.core.geometry import (
     axis_angle_to_matrix,
     euler_to_matrix,
     invert_transform,

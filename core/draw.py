@@ -10,8 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from hupbench.datagen import keypoints as kp
-from hupbench.datagen.errors import BadValueError
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -325,7 +325,7 @@ def grid(tiles: list[np.ndarray], columns: int, gap: int = 6) -> np.ndarray:
 
 def write_png(path, image_rgb: np.ndarray):
     """Write an RGB image as PNG atomically (temporary name, then rename)."""
-    from hupbench.datagen.io import encode_image, write_bytes
+    from hupbench.core.io import encode_image, write_bytes
 
     return write_bytes(path, encode_image(".png", np.ascontiguousarray(image_rgb[..., ::-1]),
                                           [cv2.IMWRITE_PNG_COMPRESSION, 9]))

@@ -1,10 +1,10 @@
-"""datagen/input_checks.py: the one wording of whole-number, finite-number and shape errors."""
+"""core/input_checks.py: the one wording of whole-number, finite-number and shape errors."""
 
 import numpy as np
 import pytest
 
-from hupbench.datagen.errors import BadTypeError
-from hupbench.datagen.input_checks import check_int, check_number, check_shape, is_whole
+from hupbench.core.errors import BadTypeError
+from hupbench.core.input_checks import check_int, check_number, check_shape, is_whole
 
 
 @pytest.mark.parametrize("value,whole", [(3, True), (np.int64(3), True), (True, False), (np.bool_(True), False),

@@ -9,8 +9,8 @@ import signal
 import threading
 from typing import Iterator
 
-from hupbench.datagen.input_checks import check_int
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.input_checks import check_int
+from hupbench.core.errors import BadValueError
 
 #: processes (or torch threads) per usable CPU core a verb may start; far more only thrashes
 MAX_WORKERS_PER_CORE = 4

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError
+from hupbench.core.errors import BadValueError
 
 __all__ = ["check_int", "check_number", "check_shape", "is_whole"]
 

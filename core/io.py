@@ -29,7 +29,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from hupbench.datagen.errors import BadValueError, NotWritableError, RunFailedError, UserError
+from hupbench.core.errors import BadValueError, NotWritableError, RunFailedError, UserError
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
@@ -174,7 +174,7 @@ def _disk_full(folder: Path) -> bool:
 
 def encode_image(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
     """An image encoded by OpenCV (``ext`` ".png", ".jpg", ...; ``image`` in OpenCV's channel order), or a
-    :class:`~hupbench.datagen.errors.RunFailedError` naming what could not be encoded."""
+    :class:`~hupbench.core.errors.RunFailedError` naming what could not be encoded."""
     import cv2
 
     ok, buf = cv2.imencode(ext, image, params or [])

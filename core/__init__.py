@@ -1,0 +1,12 @@
+"""The shared core: what the generator, the models, training, evaluation and the torch-free predict all use.
+
+Modules: ``errors`` (the one user-error class and its kinds), ``io`` (atomic writes, locks, the image
+encoder), ``input_checks`` (the one vocabulary of input checks), ``keypoints`` (the names, order and skeleton of
+the 29 keypoints), ``camera`` (intrinsics and projection), ``geometry`` (rotations and transforms, numpy),
+``rotations_torch`` (the same in torch), ``tolerances`` (every tolerance in one place), ``processes``
+(worker counts and Ctrl-C in workers), ``contract`` (the dataset on disk, numpy only) and ``draw`` (2D
+drawing of keypoints and masks, OpenCV).
+
+May import: numpy, OpenCV and the standard library (``rotations_torch`` alone: torch). Never ``datagen``,
+``models`` or the rest of ``hupbench``: they import the core.
+"""
