@@ -93,3 +93,11 @@ IMPORT_META_MATCH = 1e-4
 IMPORT_VIEW_RAD = 1e-3
 #: import-hup3d: the published coords_2d equal coords_3d projected (float32 keypoints: ~1e-4 px)
 IMPORT_COORDS_2D_PX = 0.01
+#: a point set maps onto itself under a symmetry when every mapped point lies within this of a point
+#: of the set, relative to the set's size (largest distance from its centroid)
+SYMMETRY_REL_TOL = 1e-6
+#: a dataset's corners are stored in float32 camera coordinates: taken back to the probe frame they
+#: agree to about a micrometre, so the half-turn check of its corners allows this fraction of the box's size (~9 um)
+CORNER_SYMMETRY_REL_TOL = 1e-4
+#: a dataset's corners of different frames, taken back to the probe frame, must agree within this (metres)
+CORNER_FRAME_TOL_M = 1e-5

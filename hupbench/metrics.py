@@ -15,17 +15,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from hupbench.core.errors import BadValueError
 from hupbench.core.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_HAND, NUM_KEYPOINTS
+from hupbench.core.probe_symmetry import HALF_TURN_Z, symmetry_permutation
 
-__all__ = ["ADD_THRESHOLD_DIAMETER", "ALL_AVERAGING", "BOP_REFERENCE_WIDTH_PX", "HALF_TURN_Z", "MIDDLE_MCP_INDEX",
+__all__ = ["ADD_THRESHOLD_DIAMETER", "ALL_AVERAGING", "BOP_REFERENCE_WIDTH_PX", "MIDDLE_MCP_INDEX",
            "MSPD_THRESHOLDS_PX", "MSSD_THRESHOLDS_DIAMETER", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES",
            "PROBE_SYMMETRY_ROTATIONS", "ROOT_INDEX", "SPREAD_AXES", "SPREAD_RATIO_WARN", "add_mm", "add_s_mm",
            "average_recall", "bop_scores", "breakdown_mpjpe_mm", "collapsed_axes", "fit_rigid_pose", "keypoint_errors_mm",
-           "mpjpe_mm", "mpjpe_split_mm", "mspd_px", "mspd_thresholds_px", "mssd_mm", "object_diameter_m", "pa_mpjpe_mm",
+           "mpjpe_mm", "mpjpe_split_mm", "mspd_px", "mspd_thresholds_px", "mssd_mm", "pa_mpjpe_mm",
            "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px", "pixel_errors_px",
            "probe_symmetric_errors_mm", "procrustes_align", "recall", "root_relative_mpjpe_mm", "rotation_onto",
-           "split_from_errors_mm", "spread_ratios", "symmetry_costs", "symmetry_permutation"]
+           "split_from_errors_mm", "spread_ratios", "symmetry_costs"]
 
 #: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
 ALL_AVERAGING = "mean over all 29 keypoints and all frames (keypoint-weighted: (21 hand + 8 probe) / 29)"
@@ -41,11 +41,9 @@ PCK_THRESHOLDS_MM = np.linspace(0.0, 50.0, 101)
 PROCRUSTES_MIN_VARIANCE_M2 = 1e-24
 HAND = tuple(range(NUM_HAND))
 PROBE = tuple(range(NUM_HAND, NUM_KEYPOINTS))
-#: the half turn about the probe frame's long axis z: (x, y, z) -> (-x, -y, z)
-HALF_TURN_Z = np.diag([-1.0, -1.0, 1.0])
 #: the probe's symmetry groups as rotations of its own frame about its origin (BOP's symmetries, with t = 0):
-#: "none" the identity only, "half_turn" adds :data:`HALF_TURN_Z`; :data:`PROBE_SYMMETRIES` are these
-#: groups acting on the 8 box corners
+#: "none" the identity only, "half_turn" adds :data:`hupbench.core.probe_symmetry.HALF_TURN_Z`;
+#: :data:`PROBE_SYMMETRIES` are these groups acting on the 8 box corners
 PROBE_SYMMETRY_ROTATIONS = {"none": (np.eye(3),), "half_turn": (np.eye(3), HALF_TURN_Z)}
 #: ADD(-S) accuracy: a pose is correct when its ADD (ADD-S) is below this fraction of the object's
 #: diameter (Hinterstoisser et al. 2012; the BOP toolkit's ``correct_th`` of "add" and "adi")
@@ -59,9 +57,6 @@ MSPD_THRESHOLDS_PX = 5.0 * np.arange(1, 11)
 BOP_REFERENCE_WIDTH_PX = 640
 #: frames per chunk of the dense point-to-point errors (a chunk holds (F, G, V, 3) float64)
 _POSE_ERROR_CHUNK = 64
-#: a point set maps onto itself under a symmetry when every mapped point lies within this of a point
-#: of the set, relative to the set's size (largest distance from its centroid)
-SYMMETRY_REL_TOL = 1e-6
 #: the camera axes of :func:`spread_ratios`, in order
 SPREAD_AXES = ("x", "y", "z")
 #: ``hupbench eval`` warns when a spread ratio is below this: the model barely follows the image on that axis
@@ -257,26 +252,6 @@ def breakdown_mpjpe_mm(errors_mm, labels) -> dict[str, dict]:
 
 
 # ----------------------------------------------------------------------------- symmetric probe error
-
-
-def symmetry_permutation(points_m, rotation, rel_tol: float = SYMMETRY_REL_TOL) -> tuple[int, ...]:
-    """``perm`` (python ints) with ``rotation @ points[k] == points[perm[k]]`` within ``rel_tol`` of the
-    set's size, for (K, 3) points in metres in the object's own frame and a (3, 3) proper rotation about
-    its origin (e.g. :data:`HALF_TURN_Z`); a set the rotation does not map onto itself is an error."""
-    p = np.asarray(points_m, np.float64)
-    r = np.asarray(rotation, np.float64)
-    assert p.ndim == 2 and p.shape[-1] == 3 and len(p) >= 1, p.shape
-    assert np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0, r
-    moved = p @ r.T
-    dist = np.linalg.norm(moved[:, None] - p[None], axis=-1)  # (K, K): rotated point k to point j
-    perm = dist.argmin(axis=1)
-    size = max(float(np.linalg.norm(p - p.mean(axis=0), axis=-1).max()), 1e-12)
-    worst = float(dist[np.arange(len(p)), perm].max())
-    if worst > rel_tol * size or len(set(perm.tolist())) != len(p):
-        raise BadValueError(f"the points are not symmetric under the rotation: a rotated point lies "
-                            f"{worst * _MM_PER_M:.3g} mm from the nearest point "
-                            f"(allowed {rel_tol * size * _MM_PER_M:.3g} mm)")
-    return tuple(int(k) for k in perm)
 
 
 def _box_symmetries() -> dict[str, tuple[tuple[int, ...], ...]]:
@@ -486,18 +461,6 @@ def mspd_px(T_cam_pred, T_cam_true, K, points_obj_m, symmetries=PROBE_SYMMETRY_R
             e = np.linalg.norm(uv_pred[:, None] - uv_true, axis=-1).max(axis=2).min(axis=1)
         out[rows] = np.where(behind, np.inf, e)
     return out
-
-
-def object_diameter_m(points_obj_m: np.ndarray) -> float:
-    """The largest distance between two of the (V, 3) points, metres (BOP's ``models_info`` diameter)."""
-    from scipy.spatial import ConvexHull
-    from scipy.spatial.distance import pdist
-
-    pts = np.asarray(points_obj_m, np.float64)
-    assert pts.ndim == 2 and pts.shape[-1] == 3 and len(pts) >= 2, pts.shape
-    if len(pts) > 4096:  # the farthest pair lies on the convex hull: a few hundred points instead of thousands
-        pts = pts[ConvexHull(pts).vertices]
-    return float(pdist(pts).max())
 
 
 def recall(errors, thresholds) -> np.ndarray:

@@ -92,7 +92,7 @@ def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """(keypoints (F, 29, 3) metres, the probe corners half-turned (F, 8, 3), grasp ids (F,)) of the frames."""
     from hupbench.core import keypoints as kp
     from hupbench.core.contract import read_annotations
-    from hupbench.evaluation.evaluate import probe_symmetry_group
+    from hupbench.core.probe_symmetry import probe_symmetry_group
 
     ann = read_annotations(args.dataset, args.split, ("keypoints_3d_cam", "T_cam_world", "grasp_id"), reader.manifest)
     gt = ann["keypoints_3d_cam"][rows].astype(np.float64)

@@ -25,6 +25,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.contract import TRACKS
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.input_checks import check_int
+from hupbench.core.probe_symmetry import probe_symmetry_group
 from hupbench import metrics
 from hupbench.evaluation import breakdowns
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
@@ -45,11 +46,6 @@ WARMUP_MIN_S = 0.5
 WARMUP_MAX_RUNS = 50
 #: relative difference between the eval images' intrinsics and the model's K_input above which a warning is logged
 K_MISMATCH_REL = 1e-3
-#: the dataset's corners are stored in float32 camera coordinates: taken back to the probe frame they
-#: agree to about a micrometre, so the half-turn check allows this fraction of the box's size (~9 um)
-CORNER_SYMMETRY_REL_TOL = 1e-4
-#: corners of different frames, taken back to the probe frame, must agree within this (metres)
-CORNER_FRAME_TOL_M = 1e-5
 MODEL_LABELS = {"hopenet": "HOPE-Net", "hupnet": "HUPNet", "resnet_regressor": "ResNet regressor"}
 MODEL_SUFFIXES = (".pt", ".pth", ".onnx")
 
@@ -220,23 +216,6 @@ def _latencies(torch_module, onnx_path, input_size: int, channels: int, threads:
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
     return out
-
-
-def probe_symmetry_group(keypoints_3d_cam: np.ndarray, T_cam_world: np.ndarray) -> tuple[tuple[int, ...], ...]:
-    """((0, ..., 7), the half turn's permutation of the 8 corners), as ``metrics.PROBE_SYMMETRIES``, read from
-    the annotations ``keypoints_3d_cam`` ((N, 29, 3) metres, camera frame) and ``T_cam_world`` ((N, 4, 4)):
-    the true corners, taken back to the world frame (the probe frame in every hupbench dataset), must agree
-    between frames and map onto each other under the half turn about z."""
-    corners_cam = np.asarray(keypoints_3d_cam, np.float64)[:, kp.CORNER_SLICE]       # (N, 8, 3)
-    T = np.asarray(T_cam_world, np.float64)
-    # world = R^T (cam - t)
-    corners_world = np.einsum("nji,nkj->nki", T[:, :3, :3], corners_cam - T[:, None, :3, 3])
-    drift = float(np.abs(corners_world - corners_world[:1]).max())
-    if drift > CORNER_FRAME_TOL_M:
-        raise BadValueError(f"the probe's box corners differ between frames by {drift * 1e3:.3f} mm in the world "
-                            f"(probe) frame: the dataset does not place the probe at the world origin")
-    half_turn = metrics.symmetry_permutation(corners_world.mean(axis=0), metrics.HALF_TURN_Z, rel_tol=CORNER_SYMMETRY_REL_TOL)
-    return (tuple(range(kp.NUM_CORNERS)), half_turn)
 
 
 def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dict[str, list[float] | None] | None:

@@ -10,6 +10,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
+from hupbench.core.probe_symmetry import HALF_TURN_Z, object_diameter_m, symmetry_permutation
 from hupbench import metrics
 
 __all__ = ["PROBE_BOX_FIT_TOL_M", "dataset_probe", "floor_probe_pose", "logged_probe_pose", "probe_pose_rows",
@@ -54,7 +55,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
         return None, (f"the probe mesh's box meets the true corners only within {misfit * 1e3:.3f} mm (allowed "
                       f"{PROBE_BOX_FIT_TOL_M * 1e3:g} mm): the mesh is not the dataset's probe")
     try:
-        metrics.symmetry_permutation(box, metrics.HALF_TURN_Z)
+        symmetry_permutation(box, HALF_TURN_Z)
         symmetry = "half_turn"
     except BadValueError:
         symmetry = "none"
@@ -65,7 +66,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
         metrics.add_mm(T_cam_pred, T_cam_true, points), metrics.add_s_mm(T_cam_pred, T_cam_true, points),
         metrics.mssd_mm(T_cam_pred, T_cam_true, points, rotations),
         metrics.mspd_px(T_cam_pred, T_cam_true, K, points, rotations),
-        metrics.object_diameter_m(points) * 1000.0, image_width_px)
+        object_diameter_m(points) * 1000.0, image_width_px)
     scores |= {"symmetry": symmetry, "model_points": len(points)}
     mspd = "-" if scores["mspd_px"] is None else f"{scores['mspd_px']:.1f}"
     return scores, (f"ADD {scores['add_mm']:.2f} / ADD-S {scores['add_s_mm']:.2f} / MSSD {scores['mssd_mm']:.2f} mm, "

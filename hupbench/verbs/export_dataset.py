@@ -248,14 +248,14 @@ def models_info(mesh_m, symmetric: bool) -> dict:
     """BOP's ``models_info`` entry of the probe: the box and the diameter (largest distance between two vertices)
     in mm, and, when ``symmetric``, the half turn about the model's z axis as ``symmetries_discrete`` (a
     row-major 4 x 4, mm)."""
-    from hupbench.metrics import object_diameter_m
+    from hupbench.core.probe_symmetry import object_diameter_m
 
     vertices = np.asarray(mesh_m.vertices, np.float64) * MM_PER_M
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     info = {"diameter": object_diameter_m(mesh_m.vertices) * MM_PER_M,
             **{f"min_{a}": float(v) for a, v in zip("xyz", lo)}, **{f"size_{a}": float(v) for a, v in zip("xyz", hi - lo)}}
     if symmetric:
-        from hupbench.metrics import HALF_TURN_Z
+        from hupbench.core.probe_symmetry import HALF_TURN_Z
 
         half_turn = np.eye(4)
         half_turn[:3, :3] = HALF_TURN_Z
@@ -266,7 +266,7 @@ def models_info(mesh_m, symmetric: bool) -> dict:
 def _probe_symmetric(ann_by_split: dict) -> bool:
     """Whether the dataset's box corners are symmetric under the half turn about the probe's long axis, as
     ``hupbench eval`` decides for its symmetric probe error."""
-    from hupbench.evaluation.evaluate import probe_symmetry_group
+    from hupbench.core.probe_symmetry import probe_symmetry_group
 
     corners = np.concatenate([a["keypoints_3d_cam"] for a in ann_by_split.values()])
     T = np.concatenate([a["T_cam_world"] for a in ann_by_split.values()])
@@ -281,7 +281,7 @@ def _check_probe_frame(mesh_m, ann: dict, where: Path) -> None:
     """The mesh's box corners, moved by ``T_cam_world``, are the annotated corner keypoints: the mesh is the
     dataset's probe and world = probe frame, so ``T_cam_world`` is the model -> camera pose."""
     from hupbench.core.geometry import transform_points
-    from hupbench.evaluation.evaluate import CORNER_FRAME_TOL_M
+    from hupbench.core.tolerances import CORNER_FRAME_TOL_M
 
     bounds = np.asarray(mesh_m.bounds, np.float64)
     corners_probe = np.array([[bounds[b, axis] for axis, b in enumerate(bits)] for bits in kp.CORNER_BITS])

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from hupbench import metrics as M
+from hupbench.core import probe_symmetry as PS
 from hupbench.evaluation import breakdowns as B
 
 
@@ -306,21 +307,21 @@ def test_half_turn_permutation_is_read_from_the_corners():
     for k, (ix, iy, iz) in enumerate(itertools.product((0, 1), repeat=3)):
         assert HALF_TURN_PERM[k] == 4 * (1 - ix) + 2 * (1 - iy) + iz
     _, box = _probe_frames()
-    assert M.symmetry_permutation(box, M.HALF_TURN_Z) == HALF_TURN_PERM
-    assert M.symmetry_permutation(box, np.eye(3)) == tuple(range(8))
+    assert PS.symmetry_permutation(box, PS.HALF_TURN_Z) == HALF_TURN_PERM
+    assert PS.symmetry_permutation(box, np.eye(3)) == tuple(range(8))
 
 
 def test_the_probe_box_is_symmetric_under_the_half_turn():
     from hupbench.datagen.assets.probe import build_probe
 
     corners = build_probe().corners_probe
-    assert M.symmetry_permutation(corners, M.HALF_TURN_Z) == HALF_TURN_PERM
+    assert PS.symmetry_permutation(corners, PS.HALF_TURN_Z) == HALF_TURN_PERM
 
 
 def test_symmetry_permutation_refuses_an_asymmetric_set():
     _, box = _probe_frames()
     with pytest.raises(ValueError, match="not symmetric under the rotation: .* mm from the nearest point"):
-        M.symmetry_permutation(box + [0.002, 0.0, 0.0], M.HALF_TURN_Z)   # box off the axis by 2 mm
+        PS.symmetry_permutation(box + [0.002, 0.0, 0.0], PS.HALF_TURN_Z)   # box off the axis by 2 mm
 
 
 def test_symmetric_probe_error_known_answers():
@@ -436,7 +437,7 @@ def _poses(n, seed=0):
 def _half_turn_symmetric_points(v=50, seed=0):
     """(2v, 3) object points, metres, mapped onto themselves by the half turn about z."""
     q = np.random.default_rng(seed).normal(0.0, 0.04, (v, 3))
-    return np.concatenate([q, q @ M.HALF_TURN_Z.T])
+    return np.concatenate([q, q @ PS.HALF_TURN_Z.T])
 
 
 K_256 = np.array([[480.0, 0.0, 128.0], [0.0, 480.0, 128.0], [0.0, 0.0, 1.0]])
@@ -483,7 +484,7 @@ def test_translation_known_answers():
 def test_half_turn_is_free_for_add_s_and_mssd_not_for_add():
     T_true, pts = _poses(3), _half_turn_symmetric_points()
     T_pred = T_true.copy()
-    T_pred[:, :3, :3] = T_true[:, :3, :3] @ M.HALF_TURN_Z                        # the object half-turned in place
+    T_pred[:, :3, :3] = T_true[:, :3, :3] @ PS.HALF_TURN_Z                        # the object half-turned in place
     K = np.broadcast_to(K_256, (3, 3, 3))
     np.testing.assert_allclose(M.add_s_mm(T_pred, T_true, pts), 0.0, atol=1e-9)
     np.testing.assert_allclose(M.mssd_mm(T_pred, T_true, pts), 0.0, atol=1e-9)
@@ -534,10 +535,10 @@ def test_mspd_is_inf_behind_the_camera():
 
 def test_diameter_and_thresholds():
     _, box = _probe_frames()
-    assert M.object_diameter_m(box) == pytest.approx(math.sqrt(0.072 ** 2 + 0.030 ** 2 + 0.165 ** 2))
+    assert PS.object_diameter_m(box) == pytest.approx(math.sqrt(0.072 ** 2 + 0.030 ** 2 + 0.165 ** 2))
     cloud = np.random.default_rng(0).normal(size=(5000, 3))                    # the convex-hull path
     from scipy.spatial.distance import pdist
-    assert M.object_diameter_m(cloud) == pytest.approx(pdist(cloud).max())
+    assert PS.object_diameter_m(cloud) == pytest.approx(pdist(cloud).max())
     np.testing.assert_allclose(M.MSSD_THRESHOLDS_DIAMETER, [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5])
     np.testing.assert_allclose(M.mspd_thresholds_px(640), [5, 10, 15, 20, 25, 30, 35, 40, 45, 50])
     np.testing.assert_allclose(M.mspd_thresholds_px(256), [2, 4, 6, 8, 10, 12, 14, 16, 18, 20])
@@ -571,9 +572,9 @@ def test_the_probe_mesh_half_turned_costs_add_only():
     pts = np.asarray(probe.mesh.vertices)
     T_true = _poses(2)
     T_pred = T_true.copy()
-    T_pred[:, :3, :3] = T_true[:, :3, :3] @ M.HALF_TURN_Z
+    T_pred[:, :3, :3] = T_true[:, :3, :3] @ PS.HALF_TURN_Z
     assert M.mssd_mm(T_pred, T_true, pts) == pytest.approx([0.0, 0.0], abs=1e-9)
     assert np.all(M.add_s_mm(T_pred, T_true, pts) < 0.2)                    # the marker and tessellation only
     assert np.all(M.add_mm(T_pred, T_true, pts) > 20.0)
     # the mesh's diameter is about its 165 mm length: the tapered probe does not reach its box's corners
-    assert 0.165 <= M.object_diameter_m(pts) < 0.166 < M.object_diameter_m(probe.corners_probe)
+    assert 0.165 <= PS.object_diameter_m(pts) < 0.166 < PS.object_diameter_m(probe.corners_probe)

@@ -11,6 +11,7 @@ import torch
 from hupbench.evaluation import evaluate as EV
 from hupbench.evaluation.probe_pose import probe_pose_scores
 from hupbench import metrics as M
+from hupbench.core import probe_symmetry as PS
 from hupbench.core.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
@@ -250,17 +251,17 @@ def test_half_turned_corners_and_a_collapsed_axis(exported, tiny_dataset, tmp_pa
 def test_probe_symmetry_group_is_read_from_the_dataset(tiny_dataset):
     with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
         points, T = ann["keypoints_3d_cam"], ann["T_cam_world"]
-    assert EV.probe_symmetry_group(points, T) == M.PROBE_SYMMETRIES["half_turn"]
+    assert PS.probe_symmetry_group(points, T) == M.PROBE_SYMMETRIES["half_turn"]
     # a box moved off the probe axis by 3 mm (in the probe frame) is not half-turn symmetric
     moved = points.astype(np.float64).copy()
     moved[:, 21:] += (T[:, :3, :3] @ np.array([0.003, 0.0, 0.0]))[:, None]   # R_cam_world (3 mm along x)
     with pytest.raises(ValueError, match="not symmetric under the rotation"):
-        EV.probe_symmetry_group(moved, T)
+        PS.probe_symmetry_group(moved, T)
     # corners that move between frames: not a probe at the world origin
     drifting = points.astype(np.float64).copy()
     drifting[1, 21:] += T[1, :3, :3] @ np.array([0.0, 0.0, 0.001])   # 1 mm along the probe axis in frame 1
     with pytest.raises(ValueError, match="differ between frames by 1.000 mm"):
-        EV.probe_symmetry_group(drifting, T)
+        PS.probe_symmetry_group(drifting, T)
 
 
 def test_eval_cli_prints_table(exported, tiny_dataset, tmp_path, capsys):
