@@ -7,6 +7,7 @@ the 29 keypoints), ``camera`` (intrinsics and projection), ``geometry`` (rotatio
 (worker counts and Ctrl-C in workers), ``contract`` (the dataset on disk, numpy only), ``probe_symmetry``
 (the probe's half turn, symmetry group and diameter) and ``draw`` (2D drawing of keypoints and masks, OpenCV).
 
-May import: numpy, OpenCV and the standard library (``rotations_torch`` alone: torch; ``probe_symmetry.object_diameter_m``: scipy). Never ``datagen``,
-``models`` or the rest of ``hupbench``: they import the core.
+May import: numpy, OpenCV and the standard library (``rotations_torch`` alone: torch;
+``probe_symmetry.object_diameter_m``: scipy). Never ``datagen``, ``models`` or the rest of ``hupbench``: they
+import the core.
 """
