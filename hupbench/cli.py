@@ -139,8 +139,7 @@ def _count(minimum: int):
 
 
 def _verify(args: list[str]) -> int:
-    from hupbench.datagen.dataset.verify import report_lines
-    from hupbench.verbs.generate import run_verify
+    from hupbench.datagen.dataset.verify import report_lines, verify
 
     parser = argparse.ArgumentParser(
         prog="hupbench verify", formatter_class=_DefaultsHelp,
@@ -157,7 +156,7 @@ def _verify(args: list[str]) -> int:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="progress bar with ETA on stderr (default: when stderr is a terminal)")
     ns = parser.parse_args(args)
-    result = run_verify(ns.dataset, workers=ns.workers, progress=ns.progress)
+    result = verify(ns.dataset, workers=ns.workers, progress=ns.progress)
     print("\n".join(report_lines(result, ns.max_report)))
     if ns.sample_sheet:
         # after the report: a sheet that cannot be drawn from a damaged dataset must not hide it
@@ -194,12 +193,13 @@ def _import_hup3d(args: list[str]) -> int:
 
 
 def _export_dataset(args: list[str]) -> int:
-    from hupbench.verbs.export_dataset import (
+    from hupbench.datagen.dataset.export_bop_coco import (
         FORMATS,
         IMAGE_MODES,
         ExportOptions,
         run_export_dataset,
     )
+    from hupbench.provenance import run_info
 
     parser = argparse.ArgumentParser(
         prog="hupbench export-dataset", formatter_class=_DefaultsHelp,
@@ -219,8 +219,9 @@ def _export_dataset(args: list[str]) -> int:
     parser.add_argument("--no-symmetry", action="store_true",
                         help="BOP: leave the probe's half turn about its long axis out of models_info.json")
     ns = parser.parse_intermixed_args(args)
-    result = run_export_dataset(ExportOptions(ns.dataset, ns.out, ns.format, images=ns.images, force=ns.force,
-                                              symmetry=not ns.no_symmetry), log=lambda *_: None)
+    opts = ExportOptions(ns.dataset, ns.out, ns.format, images=ns.images, force=ns.force, symmetry=not ns.no_symmetry)
+    provenance = {k: v for k, v in run_info({}).items() if k != "config"}
+    result = run_export_dataset(opts, provenance, log=lambda *_: None)
     print(f"hupbench export-dataset: {result['format'].upper()} export of "
           + ", ".join(f"{n} {split}" for split, n in result["frames"].items())
           + f" frames in {result['seconds']:.0f} s -> {result['out']} ({result['linked']} image files linked, "

@@ -1,9 +1,11 @@
-"""The dataset: the viewpoint sphere, the writer, its launchers and verify.
+"""The dataset: the viewpoint sphere, the writer, its launchers, and a finished dataset's verify, import and export.
 
 Owns: the camera viewpoint sphere (``sphere``), the run that renders
 and resumes a dataset (``writer``: the dataset spec, frame layout and protocol, the grasps file, chunks
 of frames rendered in worker processes, locks and resume), the Ray launcher (``ray_launcher``, handed a chunk-renderer
-factory) and the re-check of a finished dataset (``verify``).
+factory), and what is done with a dataset on disk: its re-check (``verify``, ``verify_frames``, ``verify_images``,
+``sample_sheet``), the import of the published HUP-3D layout (``import_hup3d``) and the export to BOP and COCO
+(``export_bop_coco``).
 
 The contract between the generator and every reader (paths, dtypes, the manifest and annotation readers) is
 the core's (``hupbench.core.contract``).

@@ -1,4 +1,4 @@
-"""``hupbench generate``: render the dataset; ``hupbench verify``: re-check one."""
+"""``hupbench generate``: render the dataset."""
 
 from __future__ import annotations
 
@@ -6,7 +6,6 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from hupbench.datagen.dataset.verify import verify as run_verify  # noqa: F401 - hupbench verify's run function
 from hupbench.datagen.dataset.writer import GenerateRun
 from hupbench.core.errors import BadValueError
 from hupbench.config import build

@@ -246,7 +246,8 @@ def run_quickstart(cfg: DictConfig, log=print) -> dict:
 def _pipeline(stages: _Stages, stage, done, log) -> dict:
     from hupbench.evaluation.evaluate import EvalOptions, run_eval
     from hupbench.inference.export import ExportOptions, run_export
-    from hupbench.verbs.generate import generate_dataset, resolved_config, run_verify
+    from hupbench.datagen.dataset.verify import verify
+    from hupbench.verbs.generate import generate_dataset, resolved_config
     from hupbench.verbs.grasps import make_grasps
     from hupbench.inference.predict import PredictOptions, run_predict
     from hupbench.training.loop import train
@@ -273,7 +274,7 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
         return out
 
     t0 = stage(3, "verify", "re-check files, projections, depth and masks")
-    verified = run_verify(out["dataset"], log=quiet)
+    verified = verify(out["dataset"], log=quiet)
     if not verified["ok"]:
         raise RunFailedError(f"the quickstart dataset failed verification: {verified['by_kind']}")
     log(f"      OK, {verified['frames']} frames")

@@ -117,8 +117,14 @@ def dataset_probe_mesh(root: Path, manifest: dict):
     return probe_of_dataset(root).mesh
 
 
-def run_export_dataset(opts: ExportOptions, log=print) -> dict:
+def run_export_dataset(opts: ExportOptions, provenance: dict | None = None, log=print) -> dict:
     """Export a dataset (see the module docstring for the layouts).
+
+    Args:
+        opts: the checked options.
+        provenance: what made the export (git commit, package versions, ...), written into ``EXPORT_RECORD``
+            beside the options (``{"config": options and counts, **provenance}``).
+        log: where the per-split lines go.
 
     Returns:
         {"out", "format", "frames": {split: n}, "scenes" (BOP: scene folders; COCO: 0), "linked", "copied"
@@ -148,9 +154,7 @@ def run_export_dataset(opts: ExportOptions, log=print) -> dict:
         record = {"format": opts.format, "dataset": str(root.resolve()), "images": opts.images,
                   "symmetry": opts.symmetry if opts.format == "bop" else None, "frames": frames, "scenes": scenes,
                   "linked": files.linked, "copied": files.copied}
-        from hupbench.provenance import run_info
-
-        write_json(stage / EXPORT_RECORD, run_info(record))
+        write_json(stage / EXPORT_RECORD, {"config": record, **(provenance or {})})
         if out.exists():
             # empty, or an earlier export that --force replaces (checked above): the new one is complete by now
             shutil.rmtree(out)

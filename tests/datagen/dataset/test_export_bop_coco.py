@@ -21,8 +21,8 @@ from scipy.spatial.distance import cdist
 from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.probe import build_probe
 from hupbench.core.errors import BadValueError
-from hupbench.verbs import export_dataset
-from hupbench.verbs.export_dataset import ExportOptions, run_export_dataset
+from hupbench.datagen.dataset import export_bop_coco
+from hupbench.datagen.dataset.export_bop_coco import ExportOptions, run_export_dataset
 
 # pycocotools' mask decoding under numpy 2 (its own code, harmless here)
 pytestmark = pytest.mark.filterwarnings("ignore:__array__ implementation doesn't accept a copy keyword:DeprecationWarning")
@@ -32,6 +32,10 @@ SPLITS = ("train", "val", "test")
 SURFACE_DEPTH_MM = 2.0
 
 
+#: what the caller says made the export (the CLI passes hupbench.provenance.run_info's)
+PROVENANCE = {"git_commit": "0123abc", "packages": {"numpy": "2.0"}}
+
+
 def _quiet(*_):
     pass
 
@@ -39,7 +43,7 @@ def _quiet(*_):
 @pytest.fixture(scope="module")
 def bop(tmp_path_factory, tiny_dataset):
     out = tmp_path_factory.mktemp("export") / "bop"
-    return out, run_export_dataset(ExportOptions(tiny_dataset, out, "bop"), log=_quiet)
+    return out, run_export_dataset(ExportOptions(tiny_dataset, out, "bop"), PROVENANCE, log=_quiet)
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +114,8 @@ def test_bop_layout_counts_and_links(bop, truth, tiny_dataset):
             assert os.stat(out / split / scene / "rgb" / f"{ids[0]:06d}.jpg").st_ino == \
                 os.stat(tiny_dataset / split / "rgb" / f"{ids[0]:06d}.jpg").st_ino
     record = json.loads((out / "hupbench_export.json").read_text())
-    assert record["config"]["format"] == "bop" and record["git_commit"] and record["packages"]
+    assert record["config"]["format"] == "bop" and record["config"]["frames"] == {s: 20 for s in SPLITS}
+    assert {k: record[k] for k in PROVENANCE} == PROVENANCE
 
 
 def test_bop_model_is_the_probe_in_mm_with_its_box_and_diameter(bop):
@@ -294,7 +299,7 @@ def test_export_refuses_a_mesh_that_is_not_the_dataset_probe(tmp_path, tiny_data
         mesh.apply_scale(1.1)
         return mesh
 
-    monkeypatch.setattr(export_dataset, "dataset_probe_mesh", wrong_probe)
+    monkeypatch.setattr(export_bop_coco, "dataset_probe_mesh", wrong_probe)
     with pytest.raises(BadValueError, match=r"annotated probe corners: the mesh is not the probe"):
         run_export_dataset(ExportOptions(tiny_dataset, tmp_path / "bop", "bop"), log=_quiet)
     assert list(tmp_path.iterdir()) == [], "a failed export left files"
@@ -310,6 +315,8 @@ def test_force_replaces_only_an_earlier_export(tmp_path, capsys, tiny_dataset):
     answer = run_cli(capsys, "export-dataset", tiny_dataset, "--format", "coco", out, "--force")
     assert answer.rc == 0 and "60 image files linked" in answer.out, answer
     assert sorted(p.name for p in out.iterdir()) == ["annotations", "hupbench_export.json", "images"]
+    record = json.loads((out / "hupbench_export.json").read_text())
+    assert record["config"]["format"] == "coco" and record["git_commit"] and record["packages"]["numpy"]
     other = tmp_path / "mine"
     other.mkdir()
     (other / "thesis.tex").write_text("x")
