@@ -1,15 +1,21 @@
-"""The results JSON: one file per evaluated model, schema version 3; ``hupbench eval`` writes it,
+"""The results JSON: one file per evaluated model, schema version 4; ``hupbench eval`` writes it,
 ``hupbench leaderboard`` reads it.
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
-finite numbers. A ``"reported"`` row (quoted from a paper) needs only ``metrics.mpjpe_mm.all`` and a
-``source``. Versions 1 and 2 load upgraded to 3 (docs/metrics.md); only 3 is written. Metrics that joined
-version 3 later (``_OPTIONAL_METRIC_KEYS``: the middle-MCP-relative hand MPJPE, the probe's BOP pose
-scores and the split floor's): eval writes them, files written before lack them (readers take them as
-unknown).
+finite numbers within what their unit allows (:data:`LIMITS`). A ``"reported"`` row (quoted from a paper)
+needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's ``all`` is the keypoint-weighted mean
+of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported row's lies between them, as
+every mean over the 29 keypoints does. The dataset is named by ``name``, ``manifest_sha256`` and
+``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of the machine
+that evaluated it. Versions 1 to 3 load upgraded to 4 (docs/metrics.md); only 4 is written. Metrics of
+``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative hand MPJPE, the probe's BOP pose scores and the split
+floor's) may be absent: readers take them as unknown.
+
+The file is read strictly (:func:`parse_json`): an object naming a key twice is refused, where other JSON
+readers keep one of the two values without a word.
 
 Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
-counted as 2 x multiply-adds.
+counted as 2 x multiply-adds, times of day in UTC as ``YYYY-MM-DDTHH:MM:SSZ``.
 """
 
 from __future__ import annotations
@@ -18,18 +24,24 @@ import copy
 import json
 import math
 import re
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hupbench.core.contract import TRACKS
-from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
-from hupbench.core.io import write_json
 from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.provenance import RUN_NAME_PATTERN
+from hupbench.core.input_checks import is_whole
+from hupbench.core.io import write_json
+from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
+from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: versions :func:`load_results` reads (older ones are upgraded on load)
-READABLE_VERSIONS = (1, 2, 3)
+READABLE_VERSIONS = (1, 2, 3, 4)
+#: the version that added the track, the split's floor and the per-grasp breakdown
+GRASP_FIELDS_VERSION = 3
 KINDS = ("measured", "reported")
 FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
@@ -43,15 +55,14 @@ FLOOR_NAMES = {
     NEAREST_TRAIN_VIEW: ("nearest training view of the same grasp and distance under the true camera: a model "
                            "that only recalls training views cannot do better than this"),
 }
-# A run name is also a file stem: no separators, no leading dot, nothing a shell would need quoted.
-RUN_NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 _TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metrics", "breakdowns",
                 "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
 _TOP_KEYS = _TOP_KEYS_V2 + ("track", "split_floor")
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
 _DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
-_DATASET_KEYS = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
+_DATASET_KEYS_V3 = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
+_DATASET_KEYS = ("name", "manifest_sha256", "grasps_sha256", "split", "frames", "grasp_theta_vol_deg")
 _METRIC_KEYS_V1 = ("mpjpe_mm", "root_relative_hand_mpjpe_mm", "pa_mpjpe_hand_mm", "pck_auc_0_50mm", "pixel_error_px")
 _METRIC_KEYS = _METRIC_KEYS_V1 + ("probe_symmetric_mpjpe_mm", "spread_ratio")
 #: metrics added within version 3: eval writes them, files written before lack them (readers: ``.get``)
@@ -76,6 +87,15 @@ _GRASP_FLOOR_KEYS = ("floor_mm", "nearest_train_grasp_id", "nearest_train_grasp_
                      "train_mean_mm", "frames")
 #: a grasp id as a key (JSON keys are strings): the decimal form of an integer
 GRASP_ID_PATTERN = re.compile(r"^-?(0|[1-9][0-9]*)$")
+SHA256_PATTERN = re.compile(r"^[0-9a-f]{64}$")
+#: how ``created_utc`` is written (``time.strftime``)
+UTC_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
+#: the largest value of a number in each unit: beyond it a number is a unit slip or a damaged file, not a
+#: measurement (10 m of error in scenes within 2 m of the camera, 1000 s per image, a 100,000 px error)
+LIMITS = {"mm": 1e4, "ms": 1e6, "px": 1e5}
+#: how far a measured row's ``all`` may lie from the keypoint-weighted mean of its ``hand`` and ``probe``: the
+#: two-decimal rounding of hand-typed numbers
+WEIGHTED_MEAN_TOLERANCE_MM = 0.01
 
 
 class _Root(str):
@@ -99,11 +119,14 @@ def _fail(parts: tuple, expected: str, value) -> None:
 
 
 def _keys(d, parts: tuple, keys: tuple, optional: tuple = ()) -> None:
-    """``d`` is a dict with exactly ``keys``, and any of ``optional``."""
+    """``d`` is a dict with exactly ``keys``, and any of ``optional`` (with no ``keys``: a subset of ``optional``)."""
     if not isinstance(d, dict):
         _fail(parts, "a dict", d)
     missing = [k for k in keys if k not in d]
-    expected = f"expected keys {list(keys)}" + (f" (and optionally {list(optional)})" if optional else "")
+    if not keys:
+        expected = f"expected a subset of {list(optional)}"
+    else:
+        expected = f"expected keys {list(keys)}" + (f" (and optionally {list(optional)})" if optional else "")
     if missing:
         raise BadValueError(f"{_path(parts)} is missing key(s) {missing}; {expected}")
     unknown = sorted(str(k) for k in d if k not in keys and k not in optional)
@@ -122,22 +145,35 @@ def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, null
         _fail(parts, expected + (" or null" if nullable else ""), value)
 
 
-def _is_integer(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf) -> None:
+def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf, unit: str | None = None) -> None:
+    """A finite number in [0, high], and at most ``LIMITS[unit]``."""
     bounds = " >= 0" if high == math.inf else f" in [0, {high:g}]"
     _check(d, parts, lambda v: _is_number(v) and math.isfinite(v) and 0.0 <= v <= high, f"a finite number{bounds}",
            nullable)
+    value = d[parts[-1]]
+    if unit is not None and value is not None and value > LIMITS[unit]:
+        _fail(parts, f"at most {LIMITS[unit]:g} {unit} (a larger value is a unit slip or a damaged file)", value)
 
 
 def _integer(d: dict, parts: tuple, *, nullable: bool, low: int = 0) -> None:
-    _check(d, parts, lambda v: _is_integer(v) and v >= low, f"an integer >= {low}", nullable)
+    _check(d, parts, lambda v: is_whole(v) and v >= low, f"an integer >= {low}", nullable)
 
 
 def _string(d: dict, parts: tuple, *, nullable: bool) -> None:
     _check(d, parts, lambda v: isinstance(v, str) and bool(v.strip()), "a non-empty string", nullable)
+
+
+def _sha256(d: dict, parts: tuple) -> None:
+    _check(d, parts, lambda v: isinstance(v, str) and bool(SHA256_PATTERN.match(v)),
+           "a sha256: 64 lowercase hexadecimal digits", True)
+
+
+def _is_utc_time(v) -> bool:
+    try:
+        time.strptime(v, UTC_FORMAT)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _choice(d: dict, parts: tuple, choices: tuple, *, nullable: bool) -> None:
@@ -147,31 +183,56 @@ def _choice(d: dict, parts: tuple, choices: tuple, *, nullable: bool) -> None:
 
 def _validate_mpjpe_triplet(m: dict, parts: tuple, keys: tuple, *, all_nullable: bool) -> None:
     _keys(m, parts, keys)
-    _number(m, parts + ("all",), nullable=all_nullable)
-    _number(m, parts + ("hand",), nullable=True)
-    _number(m, parts + ("probe",), nullable=True)
+    _number(m, parts + ("all",), nullable=all_nullable, unit="mm")
+    _number(m, parts + ("hand",), nullable=True, unit="mm")
+    _number(m, parts + ("probe",), nullable=True, unit="mm")
+
+
+def keypoint_weighted_all_mm(mpjpe: dict) -> float | None:
+    """(21 x hand + 8 x probe) / 29 of an ``mpjpe_mm`` block: the mean over all 29 keypoints that its hand and
+    probe MPJPE imply (mm), or None where either is unknown."""
+    if mpjpe["hand"] is None or mpjpe["probe"] is None:
+        return None
+    return (NUM_HAND * mpjpe["hand"] + NUM_CORNERS * mpjpe["probe"]) / (NUM_HAND + NUM_CORNERS)
+
+
+def _validate_all_mpjpe(d: dict) -> None:
+    """A measured row's ``all`` is the keypoint-weighted mean of its hand and probe; any row's lies between them."""
+    mpjpe = d["metrics"]["mpjpe_mm"]
+    weighted = keypoint_weighted_all_mm(mpjpe)
+    if weighted is None:
+        return
+    parts = ("metrics", "mpjpe_mm", "all")
+    low, high = sorted((mpjpe["hand"], mpjpe["probe"]))
+    if d["kind"] == "measured" and abs(mpjpe["all"] - weighted) > WEIGHTED_MEAN_TOLERANCE_MM:
+        _fail(parts, f"the keypoint-weighted mean of hand and probe, ({NUM_HAND} x {mpjpe['hand']:g} + {NUM_CORNERS} x "
+                     f"{mpjpe['probe']:g}) / {NUM_HAND + NUM_CORNERS} = {weighted:.2f} mm (within "
+                     f"{WEIGHTED_MEAN_TOLERANCE_MM:g} mm), in a measured row", mpjpe["all"])
+    if not low - WEIGHTED_MEAN_TOLERANCE_MM <= mpjpe["all"] <= high + WEIGHTED_MEAN_TOLERANCE_MM:
+        _fail(parts, f"between the hand and probe MPJPE ({low:g} and {high:g} mm), as every mean over the 29 "
+                     "keypoints is", mpjpe["all"])
 
 
 def _validate_metrics(metrics, version: int) -> None:
     """``results['metrics']``: MPJPE by part, the other errors, and (version 2) the probe-symmetric MPJPE
     and the spread ratios."""
-    if version >= 3:
+    if version >= GRASP_FIELDS_VERSION:
         _keys(metrics, ("metrics",), _METRIC_KEYS, _OPTIONAL_METRIC_KEYS)
     else:
         _keys(metrics, ("metrics",), _METRIC_KEYS if version >= 2 else _METRIC_KEYS_V1)
     _validate_mpjpe_triplet(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm"), _MPJPE_KEYS, all_nullable=False)
     _string(metrics["mpjpe_mm"], ("metrics", "mpjpe_mm", "all_averaging"), nullable=False)
-    _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True)
+    _number(metrics, ("metrics", "root_relative_hand_mpjpe_mm"), nullable=True, unit="mm")
     if "middle_mcp_relative_hand_mpjpe_mm" in metrics:
-        _number(metrics, ("metrics", "middle_mcp_relative_hand_mpjpe_mm"), nullable=True)
+        _number(metrics, ("metrics", "middle_mcp_relative_hand_mpjpe_mm"), nullable=True, unit="mm")
     for key in ("probe_pose", "split_floor_probe_pose"):
         if metrics.get(key) is not None:
             _validate_probe_pose(metrics[key], ("metrics", key))
-    _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True)
+    _number(metrics, ("metrics", "pa_mpjpe_hand_mm"), nullable=True, unit="mm")
     _number(metrics, ("metrics", "pck_auc_0_50mm"), nullable=True, high=1.0)
-    _number(metrics, ("metrics", "pixel_error_px"), nullable=True)
+    _number(metrics, ("metrics", "pixel_error_px"), nullable=True, unit="px")
     if version >= 2:
-        _number(metrics, ("metrics", "probe_symmetric_mpjpe_mm"), nullable=True)
+        _number(metrics, ("metrics", "probe_symmetric_mpjpe_mm"), nullable=True, unit="mm")
         symmetric, probe = metrics["probe_symmetric_mpjpe_mm"], metrics["mpjpe_mm"]["probe"]
         if symmetric is not None and probe is not None and symmetric > probe + _SYMMETRIC_SLACK_MM:
             _fail(("metrics", "probe_symmetric_mpjpe_mm"),
@@ -188,8 +249,8 @@ def _validate_probe_pose(pose, parts: tuple) -> None:
     group's name."""
     _keys(pose, parts, _POSE_KEYS)
     for key in _POSE_MM_KEYS:
-        _number(pose, parts + (key,), nullable=False)
-    _number(pose, parts + ("mspd_px",), nullable=True)
+        _number(pose, parts + (key,), nullable=False, unit="mm")
+    _number(pose, parts + ("mspd_px",), nullable=True, unit="px")
     for key in _POSE_FRACTION_KEYS:
         _number(pose, parts + (key,), nullable=False, high=1.0)
     _check(pose, parts + ("diameter_mm",), lambda v: _is_number(v) and math.isfinite(v) and v > 0.0,
@@ -205,10 +266,7 @@ def _validate_breakdowns(breakdowns, version: int) -> None:
     """``results['breakdowns']``: axis -> bucket label -> {"frames", "mpjpe_mm"}; "grasp" buckets are grasp ids."""
     if not isinstance(breakdowns, dict):
         _fail(("breakdowns",), "a dict (empty when none were computed)", breakdowns)
-    axes = BREAKDOWNS if version >= 3 else _BREAKDOWNS_V2
-    unknown = sorted(str(k) for k in breakdowns if k not in axes)
-    if unknown:
-        raise BadValueError(f"results['breakdowns'] has unknown key(s) {unknown}; expected a subset of {list(axes)}")
+    _keys(breakdowns, ("breakdowns",), (), BREAKDOWNS if version >= GRASP_FIELDS_VERSION else _BREAKDOWNS_V2)
     for label in breakdowns.get("grasp", {}) if isinstance(breakdowns.get("grasp"), dict) else ():
         if not isinstance(label, str) or not GRASP_ID_PATTERN.match(label):
             _fail(("breakdowns", "grasp"), "keyed by grasp ids written as decimal integers", label)
@@ -231,7 +289,7 @@ def _floor_mm(d: dict, parts: tuple, *, nullable: bool) -> None:
         return
     _keys(d[parts[-1]], parts, _BUCKET_MPJPE_KEYS)
     for part in _BUCKET_MPJPE_KEYS:
-        _number(d[parts[-1]], parts + (part,), nullable=False)
+        _number(d[parts[-1]], parts + (part,), nullable=False, unit="mm")
 
 
 def validate_split_floor(floor, where: str | None = None) -> dict:
@@ -270,7 +328,7 @@ def validate_split_floor(floor, where: str | None = None) -> dict:
         for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
             _floor_mm(entry, entry_parts + (key,), nullable=False)
         _floor_mm(entry, entry_parts + ("nearest_train_view_mm",), nullable=True)
-        _check(entry, entry_parts + ("nearest_train_grasp_id",), _is_integer, "an integer grasp id", True)
+        _check(entry, entry_parts + ("nearest_train_grasp_id",), is_whole, "an integer grasp id", True)
         _integer(entry, entry_parts + ("frames",), nullable=True)
     return floor
 
@@ -325,10 +383,10 @@ def validate_results(d: dict) -> dict:
     if not isinstance(d, dict) or "schema_version" not in d:
         _keys(d, (), _TOP_KEYS)
     version = d["schema_version"]
-    if not _is_integer(version) or version not in READABLE_VERSIONS:
-        raise BadValueError(f"results['schema_version'] must be {SCHEMA_VERSION} (the version this hupbench writes) or "
-                            f"one of {list(READABLE_VERSIONS[:-1])} (read and upgraded), got {_show(version)}")
-    _keys(d, (), _TOP_KEYS if version >= 3 else _TOP_KEYS_V2)
+    if not is_whole(version) or version not in READABLE_VERSIONS:
+        _fail(("schema_version",), f"{SCHEMA_VERSION} (the version this hupbench writes) or one of "
+                                   f"{list(READABLE_VERSIONS[:-1])} (read and upgraded)", version)
+    _keys(d, (), _TOP_KEYS if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
@@ -346,14 +404,18 @@ def validate_results(d: dict) -> dict:
     _choice(model, ("model", "format"), FORMATS, nullable=True)
 
     dataset = d["dataset"]
-    _keys(dataset, ("dataset",), _DATASET_KEYS if version >= 3 else _DATASET_KEYS_V2)
-    _string(dataset, ("dataset", "path"), nullable=True)
-    _string(dataset, ("dataset", "manifest_sha256"), nullable=True)
+    _keys(dataset, ("dataset",), {SCHEMA_VERSION: _DATASET_KEYS, 3: _DATASET_KEYS_V3}.get(version, _DATASET_KEYS_V2))
+    if version < SCHEMA_VERSION:
+        _string(dataset, ("dataset", "path"), nullable=True)
+    else:
+        _sha256(dataset, ("dataset", "grasps_sha256"))
+    _sha256(dataset, ("dataset", "manifest_sha256"))
     _choice(dataset, ("dataset", "split"), SPLITS, nullable=False)
     _integer(dataset, ("dataset", "frames"), nullable=True)
     _string(dataset, ("dataset", "name"), nullable=False)
 
     _validate_metrics(d["metrics"], version)
+    _validate_all_mpjpe(d)
     _validate_breakdowns(d["breakdowns"], version)
 
     latency = d["latency_ms_per_image"]
@@ -362,7 +424,7 @@ def validate_results(d: dict) -> dict:
         parts = ("latency_ms_per_image", runtime)
         _keys(latency[runtime], parts, _LATENCY_BATCHES)
         for batch in _LATENCY_BATCHES:
-            _number(latency[runtime], parts + (batch,), nullable=True)
+            _number(latency[runtime], parts + (batch,), nullable=True, unit="ms")
 
     _string(d, ("device",), nullable=True)
 
@@ -379,9 +441,9 @@ def validate_results(d: dict) -> dict:
         _fail(("training", "log"), "a path relative to leaderboard/ inside it (e.g. 'logs/<run_name>.jsonl')", log)
 
     _string(d, ("git_commit",), nullable=True)
-    _string(d, ("created_utc",), nullable=True)
+    _check(d, ("created_utc",), _is_utc_time, f"a UTC time {UTC_FORMAT!r}", True)
     _string(d, ("source",), nullable=d["kind"] != "reported")
-    if version >= 3:
+    if version >= GRASP_FIELDS_VERSION:
         _validate_grasp_fields(d)
     return d
 
@@ -407,40 +469,61 @@ def blank_results(kind: str, run_name: str) -> dict:
 
 
 def upgrade_results(d: dict) -> dict:
-    """``d`` validated, as is in version 3, else as an upgraded deep copy: version 1 gains
-    ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, version 2 (and an upgraded 1)
-    ``track``, ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured). A metric
-    added within version 3 (``_OPTIONAL_METRIC_KEYS``) stays absent where a file lacks it."""
+    """``d`` validated, as is in version 4, else upgraded into a new dict (``d`` is left as it was): version 1
+    gains ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, versions 1 and 2 ``track``,
+    ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured); every older version's
+    dataset record loses its ``path`` and gains ``grasps_sha256`` = ``None``. A metric of
+    ``_OPTIONAL_METRIC_KEYS`` stays absent where a file lacks it."""
     validate_results(d)
-    if d["schema_version"] == SCHEMA_VERSION:
+    version = d["schema_version"]
+    if version == SCHEMA_VERSION:
         return d
-    out = copy.deepcopy(d)
-    if out["schema_version"] == 1:
-        out["metrics"]["probe_symmetric_mpjpe_mm"] = None
-        out["metrics"]["spread_ratio"] = dict.fromkeys(_SPREAD_KEYS)
-    out["track"] = None
-    out["split_floor"] = None
-    out["dataset"]["grasp_theta_vol_deg"] = None
-    out["schema_version"] = SCHEMA_VERSION
+    # new dicts where keys change, the rest shared: a copy of the whole would recurse as deep as a file nests
+    out = d | {"schema_version": SCHEMA_VERSION, "metrics": dict(d["metrics"])}
+    if version == 1:
+        out["metrics"] |= {"probe_symmetric_mpjpe_mm": None, "spread_ratio": dict.fromkeys(_SPREAD_KEYS)}
+    if version < GRASP_FIELDS_VERSION:
+        out |= {"track": None, "split_floor": None}
+    out["dataset"] = {key: d["dataset"].get(key) for key in _DATASET_KEYS}
     return validate_results(out)
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
+    """A JSON object's key/value pairs as a dict, refusing a key named twice."""
+    keys = [key for key, _ in pairs]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    if twice:
+        raise ValueError(f"an object names the key(s) {twice} twice (which value is meant?)")
+    return dict(pairs)
+
+
+def parse_json(data: bytes, where: str) -> Any:
+    """UTF-8 JSON bytes as Python values, read strictly: a syntax error, an object that names a key twice and
+    nesting deeper than the parser follows are one error starting with ``where`` (the file, or file:line)."""
+    try:
+        return json.loads(data.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise BadValueError(f"{where}: not valid JSON: {exc}") from None
+
+
+def read_bytes(path: Path, what: str) -> bytes:
+    """The bytes of the file ``path``; ``what`` names the kind of file in errors (``"results file"``)."""
+    if path.exists() and not path.is_file():
+        raise BadValueError(f"{path}: not a file (a {what} is one file)")
+    if not path.is_file():
+        raise MissingFileError(f"{what} not found: {path}")
+    return path.read_bytes()
 
 
 def load_results(path: str | Path) -> dict:
     """A results JSON file, validated and upgraded (:func:`upgrade_results`); errors start with its path."""
     path = Path(path)
-    if path.exists() and not path.is_file():
-        raise BadValueError(f"{path}: not a file (a results file is one JSON file)")
-    if not path.is_file():
-        raise MissingFileError(f"results file not found: {path}")
-    data = path.read_bytes()
+    data = read_bytes(path, "results file")
     if not data.strip():
         raise BadValueError(f"{path}: empty file, not valid JSON (a results file is one JSON object)")
+    value = parse_json(data, str(path))
     try:
-        data = json.loads(data.decode("utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise BadValueError(f"{path}: not valid JSON: {exc}") from None
-    try:
-        return upgrade_results(data)
+        return upgrade_results(value)
     except ValueError as exc:
         raise BadValueError(f"{path}: {exc}") from exc
 

@@ -28,9 +28,9 @@ def measured_row(run_name="hopenet_r18_128"):
     d = blank_results("measured", run_name)
     d["model"] |= {"name": "hopenet", "label": "HOPE-Net (ResNet-18, 128 px)", "config": {"backbone": "resnet18"},
                    "parameters": 11_700_000, "flops": 1_200_000_000, "input_size": 128, "format": "onnx"}
-    d["dataset"] |= {"path": "/data/hup", "manifest_sha256": "ab" * 32, "frames": 5760,
+    d["dataset"] |= {"manifest_sha256": "ab" * 32, "grasps_sha256": "cd" * 32, "frames": 5760,
                      "name": "hupbench default (31,680 frames)"}
-    d["metrics"] = {"mpjpe_mm": {"all": 12.5, "hand": 10.0, "probe": 19.0, "all_averaging": "keypoint-weighted"},
+    d["metrics"] = {"mpjpe_mm": triplet(10.0, 19.0) | {"all_averaging": "keypoint-weighted"},
                     "root_relative_hand_mpjpe_mm": 8.0, "pa_mpjpe_hand_mm": 5.5, "pck_auc_0_50mm": 0.75,
                     "pixel_error_px": 3.2, "probe_symmetric_mpjpe_mm": 15.5,
                     "spread_ratio": {"x": 0.9, "y": 1.1, "z": 0.4}}
@@ -70,7 +70,8 @@ def test_blank_is_fresh_and_incomplete():
     a, b = blank_results("measured", "r"), blank_results("measured", "r")
     a["model"]["name"] = "x"
     assert b["model"]["name"] is None
-    assert a["schema_version"] == SCHEMA_VERSION == 3
+    assert a["schema_version"] == SCHEMA_VERSION == 4
+    assert "path" not in a["dataset"] and a["dataset"]["grasps_sha256"] is None
     assert a["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert a["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
     assert (a["track"], a["split_floor"], a["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
@@ -119,8 +120,8 @@ def _delete(d, path):
     (("breakdowns", "colour"), {}, r"results\['breakdowns'\] has unknown key\(s\) \['colour'\]"),
     (("model",), "hopenet", r"results\['model'\] must be a dict, got 'hopenet'"),
     (("extra",), 1, r"results has unknown key\(s\) \['extra'\]"),
-    (("schema_version",), 4, r"results\['schema_version'\] must be 3 .* or one of \[1, 2\] .* got 4"),
-    (("schema_version",), "3", r"results\['schema_version'\] must be 3 .* got '3'"),
+    (("schema_version",), 5, r"results\['schema_version'\] must be 4 .* or one of \[1, 2, 3\] .* got 5"),
+    (("schema_version",), "4", r"results\['schema_version'\] must be 4 .* got '4'"),
     (("metrics", "probe_symmetric_mpjpe_mm"), -0.5,
      r"results\['metrics'\]\['probe_symmetric_mpjpe_mm'\] must be a finite number >= 0 or null, got -0.5"),
     (("metrics", "probe_symmetric_mpjpe_mm"), 19.5,
@@ -206,9 +207,18 @@ def test_write_refuses_bad_row_and_writes_nothing(tmp_path):
     assert not (tmp_path / "r.json").exists()
 
 
+def version_3_row():
+    """A row as hupbench wrote it before schema version 4: the dataset by its path, no grasps' sha256."""
+    row = measured_row()
+    row["schema_version"] = 3
+    del row["dataset"]["grasps_sha256"]
+    row["dataset"]["path"] = "/home/someone/hupbench_out/dataset"
+    return row
+
+
 def version_2_row():
     """A row as hupbench wrote it before schema version 3: no track, floor, grasp or Theta_Vol fields."""
-    row = measured_row()
+    row = version_3_row()
     row["schema_version"] = 2
     del row["track"], row["split_floor"], row["dataset"]["grasp_theta_vol_deg"]
     del row["breakdowns"]["grasp"], row["breakdowns"]["theta_vol"]
@@ -229,8 +239,9 @@ def test_version_2_rows_load_upgraded_with_track_floor_and_orientations_unknown(
     kept = copy.deepcopy(old)
     new = upgrade_results(old)
     assert old == kept
-    assert new["schema_version"] == 3
+    assert new["schema_version"] == 4
     assert (new["track"], new["split_floor"], new["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
+    assert "path" not in new["dataset"] and new["dataset"]["grasps_sha256"] is None
     assert new["breakdowns"] == old["breakdowns"] and new["metrics"] == old["metrics"]
     path = tmp_path / "v2.json"
     path.write_text(json.dumps(old))
@@ -294,7 +305,7 @@ def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
     kept = copy.deepcopy(old)
     new = upgrade_results(old)
     assert old == kept  # the input is not changed
-    assert new["schema_version"] == 3
+    assert new["schema_version"] == 4
     assert new["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert new["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
     assert {k: v for k, v in new["metrics"].items() if k in old["metrics"]} == old["metrics"]
@@ -321,14 +332,15 @@ def test_committed_results_load():
             assert row["metrics"]["probe_symmetric_mpjpe_mm"] is None
         if written < 3:
             assert (row["track"], row["split_floor"], row["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
+        assert "path" not in row["dataset"]
 
 
 def test_load_names_the_file(tmp_path):
     row = measured_row()
-    row["schema_version"] = 4
+    row["schema_version"] = 5
     bad = tmp_path / "future.json"
     bad.write_text(json.dumps(row))
-    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 3"):
+    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 4"):
         load_results(bad)
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")
@@ -398,3 +410,87 @@ def test_bad_probe_pose_fields_are_named(change, message):
     row["metrics"]["split_floor_probe_pose"] = _probe_pose_block(**change)
     with pytest.raises(ValueError, match=message.replace("probe_pose", "split_floor_probe_pose", 1)):
         validate_results(row)
+
+
+def test_version_3_rows_load_without_their_path(tmp_path):
+    """A file written before the dataset record named the grasps: its machine's path is dropped on load, the
+    grasps' sha256 unknown; version 4 has no room for a path."""
+    old = version_3_row()
+    kept = copy.deepcopy(old)
+    new = upgrade_results(old)
+    assert old == kept
+    assert new["dataset"] == {k: v for k, v in measured_row()["dataset"].items()} | {"grasps_sha256": None}
+    assert {k: v for k, v in new.items() if k not in ("dataset", "schema_version")} == \
+        {k: v for k, v in old.items() if k not in ("dataset", "schema_version")}
+    path = tmp_path / "v3.json"
+    path.write_text(json.dumps(old))
+    assert load_results(path) == new
+    with_path = measured_row()
+    with_path["dataset"]["path"] = "/data/hup"
+    with pytest.raises(ValueError, match=r"results\['dataset'\] has unknown key\(s\) \['path'\]"):
+        validate_results(with_path)
+
+
+@pytest.mark.parametrize("key", ["manifest_sha256", "grasps_sha256"])
+def test_dataset_hashes_are_sha256(key):
+    row = measured_row()
+    row["dataset"][key] = "AB" * 32
+    with pytest.raises(ValueError, match=rf"results\['dataset'\]\['{key}'\] must be a sha256: 64 lowercase "
+                                         r"hexadecimal digits or null, got 'ABAB"):
+        validate_results(row)
+
+
+def test_all_must_agree_with_hand_and_probe():
+    """A measured row's all is the keypoint-weighted mean of its hand and probe (1.0 against 500 and 900 mm is
+    refused, not ranked first); a reported row's may be averaged otherwise but lies between them."""
+    row = measured_row()
+    row["metrics"]["mpjpe_mm"] |= {"all": 1.0, "hand": 500.0, "probe": 900.0}
+    with pytest.raises(ValueError, match=r"results\['metrics'\]\['mpjpe_mm'\]\['all'\] must be the keypoint-weighted "
+                                         r"mean of hand and probe, \(21 x 500 \+ 8 x 900\) / 29 = 610.34 mm "
+                                         r"\(within 0.01 mm\), in a measured row, got 1.0"):
+        validate_results(row)
+    row["metrics"]["mpjpe_mm"]["all"] = 610.345
+    assert validate_results(row) is row
+    paper = reported_row()
+    paper["metrics"]["mpjpe_mm"] |= {"all": 8.65, "hand": 5.33, "probe": 17.05}  # the paper's, not 8.56
+    assert validate_results(paper) is paper
+    paper["metrics"]["mpjpe_mm"]["all"] = 1.0
+    with pytest.raises(ValueError, match=r"\['all'\] must be between the hand and probe MPJPE \(5.33 and 17.05 mm\)"):
+        validate_results(paper)
+
+
+@pytest.mark.parametrize("path, value, message", [
+    (("metrics", "mpjpe_mm", "all"), 1e308, r"\['all'\] must be at most 10000 mm \(a larger value is a unit slip"),
+    (("split_floor", "floor_mm", "hand"), 2e4, r"\['floor_mm'\]\['hand'\] must be at most 10000 mm"),
+    (("latency_ms_per_image", "onnxruntime", "batch1"), 1e308, r"\['batch1'\] must be at most 1e\+06 ms"),
+    (("metrics", "pixel_error_px"), 1e6, r"\['pixel_error_px'\] must be at most 100000 px"),
+])
+def test_values_beyond_their_unit_are_refused(path, value, message):
+    row = measured_row()
+    _set(row, path, value)
+    if path[:2] == ("metrics", "mpjpe_mm"):
+        row["metrics"]["mpjpe_mm"] |= {"hand": None, "probe": None}
+    with pytest.raises(ValueError, match=message):
+        validate_results(row)
+
+
+@pytest.mark.parametrize("value", ["yesterday", "2025-13-01T00:00:00Z", "2025-01-01 00:00:00", 20250101])
+def test_created_utc_is_a_utc_time(value):
+    row = measured_row()
+    row["created_utc"] = value
+    with pytest.raises(ValueError, match=r"results\['created_utc'\] must be a UTC time '%Y-%m-%dT%H:%M:%SZ' or null"):
+        validate_results(row)
+
+
+def test_duplicate_keys_and_deep_nesting_are_named(tmp_path):
+    """JSON that names a key twice (readers keep one value, silently) and JSON nested deeper than the parser
+    follows (a RecursionError before) are refused as invalid, naming the file."""
+    text = json.dumps(measured_row())
+    twice = tmp_path / "twice.json"
+    twice.write_text(text.replace('"hand": 10.0', '"hand": 10.0, "hand": 1.0', 1))
+    with pytest.raises(ValueError, match=rf"^{twice}: not valid JSON: an object names the key\(s\) \['hand'\] twice"):
+        load_results(twice)
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ValueError, match=rf"^{deep}: not valid JSON: maximum recursion depth exceeded"):
+        load_results(deep)
