@@ -3,7 +3,8 @@
 import json
 from pathlib import Path
 
-from hupbench.evaluation.leaderboard import LATENCY_PLOT, README, TRAINING_PLOT
+from hupbench.evaluation.leaderboard import README
+from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT
 from hupbench.evaluation.results import blank_results
 
 from helpers import REPO
@@ -36,7 +37,8 @@ OUTPUTS = (README, LATENCY_PLOT, TRAINING_PLOT)
 def measured(name, label, all_mm, hand, probe, onnx_ms, torch_ms, wall_s, hardware="1x H100", log=True):
     d = blank_results("measured", name)
     d["model"] |= {"name": "hopenet", "label": label, "parameters": 12_345_678, "input_size": 128, "format": "onnx"}
-    d["dataset"] |= {"name": "hupbench default", "frames": 5760, "manifest_sha256": "ab" * 32, "path": "/data"}
+    d["dataset"] |= {"name": "hupbench default", "frames": 5760, "manifest_sha256": "ab" * 32,
+                     "grasps_sha256": "cd" * 32}
     d["metrics"] = {"mpjpe_mm": {"all": all_mm, "hand": hand, "probe": probe, "all_averaging": "mean over 29 keypoints"},
                     "root_relative_hand_mpjpe_mm": 7.0, "pa_mpjpe_hand_mm": 4.5678, "pck_auc_0_50mm": 0.81234,
                     "pixel_error_px": 2.0, "probe_symmetric_mpjpe_mm": probe - 1.0,

@@ -12,23 +12,11 @@ import PIL
 import pytest
 
 from hupbench.cli import main
-from hupbench.evaluation.leaderboard import (
-    DPI,
-    FIGSIZE_IN,
-    LATENCY_PLOT,
-    README,
-    TRAINING_PLOT,
-    format_duration,
-    grasp_rows,
-    inference_latency_ms,
-    keypoint_weighted_all_mm,
-    load_rows,
-    pareto_front,
-    read_validation_curve,
-    run_leaderboard,
-    table_row,
-)
-from hupbench.evaluation.results import load_results, write_results
+from hupbench.evaluation.leaderboard import README, load_rows, read_validation_curve, run_leaderboard
+from hupbench.evaluation.leaderboard_plots import DPI, FIGSIZE_IN, pareto_front
+from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT
+from hupbench.evaluation.leaderboard_table import format_duration, grasp_rows, inference_latency_ms, table_row
+from hupbench.evaluation.results import keypoint_weighted_all_mm, load_results, write_results
 from helpers.leaderboard import COMMITTED, OUTPUTS, measured, split_floor_block, triplet, write_log
 from helpers import REPO
 
@@ -108,7 +96,7 @@ def test_committed_paper_rows():
     assert hope["kind"] == "reported" and hope["dataset"]["name"] == "HUP-3D (paper)"
     assert (hope["metrics"]["mpjpe_mm"]["all"], hope["metrics"]["mpjpe_mm"]["hand"],
             hope["metrics"]["mpjpe_mm"]["probe"]) == (8.65, 5.33, 17.05)
-    assert keypoint_weighted_all_mm(hope) == pytest.approx(8.5631, abs=1e-4)  # not 8.65: stated in the README
+    assert keypoint_weighted_all_mm(hope["metrics"]["mpjpe_mm"]) == pytest.approx(8.5631, abs=1e-4)  # not 8.65: stated in the README
     resnet = load_results(COMMITTED / "results" / "paper_resnet50.json")
     assert resnet["metrics"]["mpjpe_mm"]["all"] == 9.69 and resnet["metrics"]["mpjpe_mm"]["hand"] is None
     for row in (hope, resnet):
@@ -133,7 +121,7 @@ def test_rebuild_reproduces_committed_files_byte_for_byte(tmp_path):
 
 
 def test_plots_have_fixed_size_and_no_date(synthetic_board):
-    from hupbench.evaluation.leaderboard import LIST_ROW_IN, inference_latency_ms
+    from hupbench.evaluation.leaderboard_plots import LIST_ROW_IN
 
     run_leaderboard(synthetic_board)
     rows = load_rows(synthetic_board / "results")
@@ -171,13 +159,16 @@ def test_synthetic_measured_rows_in_table(synthetic_board):
         "ResNet-50 baseline, HUP-3D paper (input size not stated)",
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
     assert text.count("## Track: ") == 1 and "## Track: Unseen grasps (`unseen_grasps`)" in text
-    assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | 128 | 12.35 | 10.46 | 8.00 | "
-                        "16.90 | — | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | 150.00 | "
-                        "`python train.py run_name=slow_big` |")
+    assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | `cdcdcdcdcdcd` | 128 | 12.35 | "
+                        "10.46 | 8.00 | 16.90 | — | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | "
+                        "150.00 | `python train.py run_name=slow_big` |")
     assert table[3].endswith("| 5.0 h | — | 40.00 | `python train.py run_name=torch_only` |")
-    assert table[4].split(" | ")[13] == "25 min, 1x H100"
+    assert table[4].split(" | ")[14] == "25 min, 1x H100"
     assert table[0] == ("| HOPE-Net, HUP-3D paper (backbone and input size not stated) | reported in paper | "
-                        "HUP-3D (paper) | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 9) + " |")
+                        "HUP-3D (paper) | — | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 9) + " |")
+    # each row names the grasps its test data were rendered from
+    assert ("- test data: hupbench default, split `test`, 5760 frames, manifest sha256 `abababababab`, grasps sha256 "
+            "`cdcdcdcdcdcd`") in text
     # no results file here has a floor or a grasp breakdown: the README says so instead of a number
     assert "Split floor: — for every row here" in text
     assert text.count("Per grasp: — (the results file records no grasp breakdown") == 3
@@ -197,7 +188,7 @@ def test_floor_and_per_grasp_table(synthetic_board):
     text = (synthetic_board / README).read_text()
     # the floor beside the row, and named plainly above the table
     row = next(line for line in table_lines(text) if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
-    assert row.split(" | ")[5:10] == ["10.46", "8.00", "16.90", "20.00 / 40.00 / 25.52", "15.90"]
+    assert row.split(" | ")[6:11] == ["10.46", "8.00", "16.90", "20.00 / 40.00 / 25.52", "15.90"]
     assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training grasp under the true camera: "
             "a model that only recognises training grasps cannot do better than this.") in text
     assert "- hupbench default (manifest sha256 `abababababab`), test split: 20.00 / 40.00 / 25.52\n" in text
@@ -229,7 +220,8 @@ def test_grasp_rows_show_what_a_row_has():
 
 
 def test_two_tracks_make_two_tables(synthetic_board):
-    views = with_grasps(measured("views_net", "HUPNet (ResNet-18, 128 px)", 5.0, 4.0, 7.75, 3.0, 6.0, 600.0, log=False),
+    views = with_grasps(measured("views_net", "HUPNet (ResNet-18, 128 px)", 146 / 29, 4.0, 7.75, 3.0, 6.0, 600.0,
+                                 log=False),
                         track="unseen_views", floor_kind="nearest_train_view")
     views["split_floor"]["floor_mm"] = triplet(2.0, 4.0)
     views["split_floor"]["nearest_train_view_mm"] = triplet(2.0, 4.0)
@@ -253,7 +245,7 @@ def test_two_tracks_make_two_tables(synthetic_board):
         "ResNet-50 baseline, HUP-3D paper (input size not stated)",
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
     assert [line.split(" | ")[0][2:] for line in unseen_views] == ["HUPNet (ResNet-18, 128 px)"]
-    assert unseen_views[0].split(" | ")[5:9] == ["5.00", "4.00", "7.75", "2.00 / 4.00 / 2.55"]
+    assert unseen_views[0].split(" | ")[6:10] == ["5.03", "4.00", "7.75", "2.00 / 4.00 / 2.55"]
     views_section = text.split("## Track: Unseen views")[1].split("\n## ")[0]
     assert "1 row (1 measured, 0 reported)" in views_section
     assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training view of the same grasp and "
@@ -268,8 +260,9 @@ def test_table_cells_escape_pipes_and_newlines():
     row = measured("r", "a | b\nc", 1.0, 1.0, 1.0, None, None, None, hardware=None, log=False)
     cells = table_row(row)
     assert cells[0] == "a \\| b c"
-    assert cells[13] == "—" and cells[14] == "—"  # no training time, no ONNX latency
-    assert cells[8] == "—"  # no split floor
+    assert cells[14] == "—" and cells[15] == "—"  # no training time, no ONNX latency
+    assert cells[9] == "—"  # no split floor
+    assert cells[3] == "`cdcdcdcdcdcd`"  # the grasps' sha256
 
 
 @pytest.mark.parametrize("seconds, text", [(None, "—"), (42.4, "42 s"), (59.9, "60 s"), (60.0, "1 min"),
@@ -306,12 +299,23 @@ def test_read_validation_curve(tmp_path):
 
 
 @pytest.mark.parametrize("content, message", [
-    ('{"event": "val", "train_wall_s": 1.0}\n', r"m.jsonl:1: validation line needs val_mpjpe_mm\['all'\]"),
-    ('{"event": "train"}\n{"event": "val", "train_wall_s": -1, "val_mpjpe_mm": {"all": 1}}\n',
-     r"m.jsonl:2: validation line needs train_wall_s as a finite number >= 0, got -1"),
-    ('{"event": "train"}\nnot json\n', r"m.jsonl:2: not a JSON line"),
+    ('{"event": "val", "step": 0, "train_wall_s": 1.0}\n', r"m.jsonl:1: validation line needs val_mpjpe_mm\['all'\]"),
+    ('{"event": "train", "step": 0}\n{"event": "val", "step": 0, "train_wall_s": -1, "val_mpjpe_mm": {"all": 1}}\n',
+     r"m.jsonl:2: validation line needs train_wall_s as a finite number from 0 to 1e\+08, got -1"),
+    ('{"event": "val", "step": 0, "train_wall_s": 1, "val_mpjpe_mm": {"all": 1e308}}\n',
+     r"m.jsonl:1: validation line needs val_mpjpe_mm\['all'\] as a finite number from 0 to 10000, got 1e\+308"),
+    ('{"event": "train", "step": 0}\nnot json\n', r"m.jsonl:2: not valid JSON: Expecting value"),
+    ('{"event": "train", "step": 0, "step": 1}\n', r"m.jsonl:1: not valid JSON: an object names the key\(s\) "
+                                                   r"\['step'\] twice"),
     ('[1, 2]\n', r"m.jsonl:1: expected a JSON object, got list"),
-    ('{"event": "train"}\n', r"m.jsonl: no validation lines"),
+    ('{"event": "train", "step": 0}\n', r"m.jsonl: no validation lines"),
+    ('{"event": "train"}\n', r"m.jsonl:1: 'step' must be a whole number >= 0, got None"),
+    ('{"event": "train", "step": "10"}\n', r"m.jsonl:1: 'step' must be a whole number >= 0, got '10'"),
+    ('{"event": "train", "step": 20}\n{"event": "train", "step": 30}\n{"event": "train", "step": 10}\n',
+     r"m.jsonl:3: 'train' step 10 comes after step 30 \(lines 2 and 3\): two trainings wrote to this log, or it "
+     r"was edited; keep one run's lines in order"),
+    ('{"event": "train", "step": 20}\n{"event": "train", "step": 20}\n',
+     r"m.jsonl:2: 'train' step 20 is logged twice \(lines 1 and 2\)"),
 ])
 def test_bad_log_is_named(tmp_path, content, message):
     log = tmp_path / "m.jsonl"
@@ -327,19 +331,21 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
     data = json.loads(path.read_text())
     data["schema_version"] = 1
     del data["metrics"]["probe_symmetric_mpjpe_mm"], data["metrics"]["spread_ratio"]
-    del data["track"], data["split_floor"], data["dataset"]["grasp_theta_vol_deg"]
+    del data["track"], data["split_floor"], data["dataset"]["grasp_theta_vol_deg"], data["dataset"]["grasps_sha256"]
+    data["dataset"]["path"] = "/data/hupbench_out/dataset"
     path.write_text(json.dumps(data))
     run_leaderboard(synthetic_board)
     text = (synthetic_board / README).read_text()
     row = next(line for line in text.splitlines() if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
     cells = row.split(" | ")
-    assert cells[8:13] == ["—", "—", "4.57", "0.812", "—"]
+    assert cells[3] == "—"  # the grasps' sha256: not recorded then
+    assert cells[9:14] == ["—", "—", "4.57", "0.812", "—"]
     assert "15.90 mm (plain" not in text and "spread ratio of predicted to true 3D keypoints across the test" not in \
         text.split("(`slow_big`)")[1].split("###")[0]
 
 
 def test_spread_constants_match_the_metrics():
-    from hupbench.evaluation import leaderboard
+    from hupbench.evaluation import leaderboard_table as leaderboard
     from hupbench import metrics
 
     assert leaderboard.SPREAD_AXES == metrics.SPREAD_AXES
@@ -349,9 +355,9 @@ def test_spread_constants_match_the_metrics():
 def test_wrong_schema_version_is_rejected_with_its_name(synthetic_board):
     path = synthetic_board / "results" / "slow_big.json"
     data = json.loads(path.read_text())
-    data["schema_version"] = 4
+    data["schema_version"] = 5
     path.write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 3"):
+    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 4"):
         run_leaderboard(synthetic_board)
     assert not (synthetic_board / README).exists()  # nothing written
 
@@ -394,15 +400,13 @@ def test_rows_the_leaderboard_refuses(synthetic_board, edit, message):
 
 def test_missing_log_is_named(synthetic_board):
     (synthetic_board / "logs" / "fast_small.jsonl").unlink()
-    with pytest.raises(FileNotFoundError, match=r"results/fast_small\.json: training log: .*fast_small\.jsonl"):
+    with pytest.raises(FileNotFoundError, match=r"results/fast_small\.json: training log not found: .*fast_small\.jsonl"):
         run_leaderboard(synthetic_board)
 
 
 def test_empty_or_missing_folder(tmp_path):
     with pytest.raises(FileNotFoundError, match="has no results/ folder"):
         run_leaderboard(tmp_path)
-    with pytest.raises(FileNotFoundError, match="results folder not found"):
-        load_rows(tmp_path / "results")
     (tmp_path / "results").mkdir()
     with pytest.raises(ValueError, match=r"no results files \(\*\.json\)"):
         run_leaderboard(tmp_path)
@@ -417,21 +421,21 @@ def test_write_together_raises_rather_than_loops(tmp_path):
             "from hupbench.evaluation.leaderboard import _write_together\n"
             "try:\n"
             f"    _write_together(Path({str(tmp_path)!r}), {{'a.md': b'new', 'b.png': b'new', 'c.png': b'new'}})\n"
-            "except IsADirectoryError as exc:\n"
-            "    print('RAISED', exc.filename)\n")
+            "except OSError as exc:\n"
+            "    print('RAISED', exc)\n")
     try:
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                               cwd=REPO)
     except subprocess.TimeoutExpired:
         pytest.fail("_write_together did not return within 60 s")
-    assert done.returncode == 0 and "RAISED" in done.stdout, done.stderr
+    assert done.returncode == 0 and "RAISED" in done.stdout and "b.png" in done.stdout, done.stderr
     assert not (tmp_path / "a.md").exists() and not list(tmp_path.glob(".*.tmp*"))
 
 
 def test_latency_axis_is_honest():
     """From 0 on a linear axis: 0.07 ms between two rows is drawn as the small difference it is, not zoomed
     onto; a log axis only where the latencies span more than LATENCY_LOG_RATIO times."""
-    from hupbench.evaluation.leaderboard import LATENCY_LOG_RATIO, latency_axis
+    from hupbench.evaluation.leaderboard_plots import LATENCY_LOG_RATIO, latency_axis
 
     assert latency_axis([3.60, 3.67]) == ("linear", 0.0, pytest.approx(3.67 * 1.15))
     assert latency_axis([3.7]) == ("linear", 0.0, pytest.approx(3.7 * 1.15))
@@ -443,7 +447,7 @@ def test_one_measured_row_draws_no_pareto_frontier(synthetic_board, monkeypatch)
     """A frontier of one row is no line: its legend entry is left out (it named an invisible line)."""
     from matplotlib.axes import Axes
 
-    from hupbench.evaluation.leaderboard import plot_latency
+    from hupbench.evaluation.leaderboard_plots import plot_latency
 
     rows = load_rows(synthetic_board / "results")
     labels = []

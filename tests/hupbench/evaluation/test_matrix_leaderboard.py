@@ -82,6 +82,10 @@ def _write(relative: str, data: bytes):
     return lambda root: (root / relative).write_bytes(data)
 
 
+def _text(relative: str, change):
+    return lambda root: (root / relative).write_text(change((root / relative).read_text()))
+
+
 def _log_lines(change):
     def damage(root: Path) -> None:
         path = root / "logs" / "slow_big.jsonl"
@@ -138,12 +142,31 @@ ERRORS = {
                     ("results/slow_big.json", "logs/slow_big.jsonl", "not found")),
     "log-empty": (_write("logs/slow_big.jsonl", b""), None, ("slow_big.jsonl", "no validation lines")),
     "log-truncated": (lambda root: (root / "logs" / "slow_big.jsonl").write_bytes(
-        (root / "logs" / "slow_big.jsonl").read_bytes()[:-40]), None, ("slow_big.jsonl:6", "not a JSON line")),
+        (root / "logs" / "slow_big.jsonl").read_bytes()[:-40]), None, ("slow_big.jsonl:6", "not valid JSON")),
     "log-random-bytes": (_write("logs/slow_big.jsonl", random.Random(4).randbytes(3000)), None,
                          ("slow_big.jsonl", "UTF-8")),
     "log-duplicated-steps": (_log_lines(_twice), None, ("slow_big.jsonl:2", "step 0", "twice")),
     "log-nan-validation-error": (_log_lines(lambda lines: lines[:3] + [lines[3].replace(
         '"all": ', '"all": NaN, "was": ', 1)] + lines[4:]), None, ("slow_big.jsonl:4", "finite")),
+    # the reader believes nothing a row says that its other fields contradict, or that no measurement can be
+    "results-all-contradicts-hand-and-probe": (
+        _edit("slow_big", lambda d: d["metrics"]["mpjpe_mm"].update(all=1.0, hand=500.0, probe=900.0)), None,
+        ("slow_big.json", "['mpjpe_mm']['all']", "keypoint-weighted mean", "610.34", "got 1.0")),
+    "results-mpjpe-1e308": (_edit("slow_big", _set(("metrics", "mpjpe_mm", "probe"), 1e308)), None,
+                            ("slow_big.json", "['mpjpe_mm']['probe']", "at most 10000 mm", "1e+308")),
+    "results-latency-1e308": (_edit("slow_big", _set(("latency_ms_per_image", "onnxruntime", "batch1"), 1e308)), None,
+                              ("slow_big.json", "['batch1']", "at most 1e+06 ms")),
+    "results-duplicate-key": (_text("results/slow_big.json", lambda text: text.replace(
+        '"kind": "measured"', '"kind": "reported", "kind": "measured"', 1)), None,
+        ("slow_big.json", "not valid JSON", "['kind']", "twice")),
+    "results-garbage-created-utc": (_edit("slow_big", _set(("created_utc",), "last tuesday, probably")), None,
+                                    ("slow_big.json", "['created_utc']", "UTC time", "last tuesday")),
+    "results-deeply-nested": (_write("results/slow_big.json", b"[" * 100_000 + b"]" * 100_000), None,
+                              ("slow_big.json", "not valid JSON", "recursion depth")),
+    "log-step-a-string": (_log_lines(lambda lines: [lines[0].replace('"step": 0', '"step": "0"', 1)] + lines[1:]), None,
+                          ("slow_big.jsonl:1", "'step'", "whole number", "'0'")),
+    "log-steps-backwards": (_log_lines(lambda lines: lines[:1] + lines[1:][::-1]), None,
+                            ("slow_big.jsonl:3", "'val' step 40 comes after step 50")),
 }
 
 
