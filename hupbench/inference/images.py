@@ -108,6 +108,30 @@ def _c_library_messages():
                     lines.append(line)
 
 
+def _decode(data: bytes, flags: int, kind: str, source: str) -> tuple[np.ndarray, str]:
+    """``cv2.imdecode`` of PNG or JPEG (``kind``) bytes, and what the C libraries said meanwhile ("" when
+    nothing); data that do not decode are an error naming ``source``."""
+    with _c_library_messages() as said:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    detail = "; ".join(said)
+    if image is None or image.size == 0:
+        raise BadValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
+                            + (f": {detail})" if detail else ")"))
+    return image, detail
+
+
+def _file_bytes(path: Path, missing: str) -> bytes:
+    """The bytes of an input file; ``missing`` says what a missing file should have been."""
+    if not path.exists():
+        raise MissingFileError(f"{path}: {missing}")
+    if not path.is_file():  # a FIFO would block the read, a device never end it
+        raise BadValueError(f"{path}: not a regular file")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
+
+
 def decode_image(data: bytes, source: str = "image", notes: list[str] | None = None) -> np.ndarray:
     """PNG or JPEG bytes -> (H, W, 3) float32 RGB in [0, 1] (module docstring).
 
@@ -127,12 +151,7 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
     declared = image_size_from_header(data)
     if declared is not None:
         check_image_size(*declared, source)  # before decoding: a 20000 x 20000 file would take gigabytes
-    with _c_library_messages() as said:
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
-    detail = "; ".join(said)
-    if image is None or image.size == 0:
-        raise BadValueError(f"{source}: {kind} data could not be decoded (truncated or corrupt file"
-                            + (f": {detail})" if detail else ")"))
+    image, detail = _decode(data, flags, kind, source)
     if "premature end" in detail:  # libjpeg fills the missing lower part with grey and carries on
         raise BadValueError(f"{source}: {kind} data end early, part of the image is missing ({detail})")
     if detail and notes is not None:
@@ -162,27 +181,15 @@ def decode_image(data: bytes, source: str = "image", notes: list[str] | None = N
 def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     """A PNG or JPEG file (recognised by content) as :func:`decode_image` gives it."""
     path = Path(path)
-    if not path.exists():
-        raise MissingFileError(f"{path}: no such file")
-    if not path.is_file():
-        raise BadValueError(f"{path}: not a regular file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
-    return decode_image(data, str(path), notes)
+    return decode_image(_file_bytes(path, "no such file"), str(path), notes)
 
 
 def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
     """The depth map of an image for a model that reads depth: a single-channel 16-bit PNG of the image's
-    ``image_size`` (width, height), as (H, W) uint16 in the file's unit (``--depth-scale-m`` metres)."""
+    ``image_size`` (width, height), as (H, W) uint16 in the file's unit (``--depth-scale-m`` metres), with at
+    least one valid (non-zero) value."""
     path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such depth map (--depth holds one <image stem>.png per image)")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise BadValueError(f"{path}: cannot be read: {exc.strerror or exc}") from exc
+    data = _file_bytes(path, "no such depth map (--depth holds one <image stem>.png per image)")
     if not data.startswith(_PNG_MAGIC):
         raise BadValueError(f"{path}: a depth map must be a 16-bit PNG; the file starts with {data[:8]!r}")
 
@@ -194,16 +201,14 @@ def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
     declared = image_size_from_header(data)
     if declared is not None:  # before decoding: a huge file of the wrong size is refused from its header
         check_size(*declared)
-    with _c_library_messages() as said:
-        depth = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if depth is None or depth.size == 0:
-        detail = "; ".join(said)
-        raise BadValueError(f"{path}: PNG data could not be decoded (truncated or corrupt file"
-                            + (f": {detail})" if detail else ")"))
+    depth, _ = _decode(data, cv2.IMREAD_UNCHANGED, "PNG", str(path))
     if depth.dtype != np.uint16 or depth.ndim != 2:
         raise BadValueError(f"{path}: a depth map must be single-channel 16-bit, got {depth.dtype} with "
                             f"{1 if depth.ndim == 2 else depth.shape[2]} channel(s)")
     check_size(depth.shape[1], depth.shape[0])
+    if not depth.any():
+        raise BadValueError(f"{path}: the depth map is 0 everywhere (nothing measured): a model that reads depth "
+                            "needs the distance of the hand and probe")
     return depth
 
 

@@ -106,6 +106,71 @@ def test_metadata_without_the_new_keys_still_reads_and_bad_ones_are_named():
         read_metadata(contract_metadata(**{"hupbench.image_statistics": json.dumps(bad)}), "m.onnx")
 
 
+# ---------------------------------------------------------------- the depth's range
+
+
+def test_depth_range_known_answers(tmp_path):
+    """The calibration keeps the training frames' lowest and highest median depth; a map's median within them
+    widened by DEPTH_MARGIN passes, one a factor 10 off (a unit slip) is refused naming the file."""
+    rng = np.random.default_rng(4)
+    cal = stats.calibrate(rng.normal(size=(20, 10)), np.zeros((3, 10)), "val", np.array([0.4, np.nan, 0.8]))
+    assert cal.depth_median_m == (0.4, 0.8) and stats.DEPTH_MARGIN == 1.5
+    back = stats.ImageStatistics.from_json(cal.to_json(), "m.onnx")
+    assert back.depth_median_m == (0.4, 0.8) and back.describe()["depth_median_m"] == [0.4, 0.8]
+    assert stats.calibrate(rng.normal(size=(20, 10)), np.zeros((3, 10)), "val").depth_median_m is None
+    depth = np.zeros((10, 10), np.uint16)
+    depth[:3], depth[3:6] = 6000, 9000  # 0.6 m and 0.9 m: the median of the valid values is 0.75 m
+    assert stats.depth_median_m(depth * 1e-4) == pytest.approx(0.75)
+    cal.check_depth(depth, 1e-4, "d.png")
+    cal.check_depth(depth, 1.2 / 0.75 * 1e-4, "d.png")  # 1.2 m = 0.8 x 1.5: the edge, inside
+    with pytest.raises(BadValueError, match=r"^d.png: its median depth is 7.5 m at --depth-scale-m 0.001, outside the "
+                                            r"0.27-1.20 m the model accepts \(its training frames' medians 0.40-0.80 m, "
+                                            r"widened by a factor 1.5\): is the map in another unit\? The dataset's PNGs "
+                                            r"hold 0.1 mm \(--depth-scale-m 1e-4\)$"):
+        cal.check_depth(depth, 1e-3, "d.png")
+    with pytest.raises(BadValueError, match=r"median depth is 0.075 m at --depth-scale-m 1e-05"):
+        cal.check_depth(depth, 1e-5, "d.png")
+    with pytest.raises(BadValueError, match=r"median depth is nan m"):
+        cal.check_depth(np.zeros((4, 4), np.uint16), 1e-4, "d.png")
+    bad = json.loads(cal.to_json()) | {"depth_median_m": [0.8, 0.4]}
+    with pytest.raises(BadValueError, match=r"depth_median_m \[low, high\] with 0 < low <= high"):
+        stats.ImageStatistics.from_json(json.dumps(bad), "m.onnx")
+
+
+def test_depth_rule_keeps_every_validation_frame_and_refuses_a_unit_off(tiny_dataset):
+    """The rule on a dataset's own splits: calibrated on the training frames, every validation frame passes; the
+    same frames read with a scale ten times too large or too small (a map in another unit) all fail."""
+    import cv2
+
+    from hupbench.core.contract import read_manifest
+
+    scale = read_manifest(tiny_dataset)["depth_scale_m"]
+
+    def maps(split):
+        return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((tiny_dataset / split / "depth").iterdir())]
+
+    medians = np.array([stats.depth_median_m(m * scale) for m in maps("train")])
+    cal = stats.calibrate(np.random.default_rng(0).normal(size=(20, 10)), np.zeros((1, 10)), "val", medians)
+    for depth in maps("val"):
+        cal.check_depth(depth, scale, "val")
+        for wrong in (scale * 10, scale / 10):
+            with pytest.raises(BadValueError, match="is the map in another unit"):
+                cal.check_depth(depth, wrong, "val")
+
+
+def test_a_depth_map_of_zeros_is_refused(tmp_path):
+    import cv2
+
+    from hupbench.inference.images import read_depth_png
+
+    path = tmp_path / "zero.png"
+    cv2.imwrite(str(path), np.zeros((24, 32), np.uint16))
+    with pytest.raises(BadValueError, match=rf"^{path}: the depth map is 0 everywhere \(nothing measured\)"):
+        read_depth_png(path, (32, 24))
+    cv2.imwrite(str(path), np.full((24, 32), 5000, np.uint16))
+    assert read_depth_png(path, (32, 24)).max() == 5000
+
+
 # ---------------------------------------------------------------- exported models
 
 
