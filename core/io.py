@@ -21,6 +21,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import socket
 import sys
 import time
@@ -142,6 +143,36 @@ def atomic_output(path: str | Path, suffix: str = "") -> Iterator[Path]:
         raise _explain(exc, path) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path`` to build a folder's content in; on success it replaces
+    ``path``, on any error it is removed.
+
+    ``path`` must be absent, an empty folder, or a folder the caller has decided to replace (removed
+    only once the new content is complete). A failed or interrupted build leaves ``path`` as it was
+    and nothing beside it but, after a kill, a ``.NAME.tmpPID`` folder; an OSError is re-raised naming
+    ``path`` (:class:`DiskFullError` for a full disk).
+    """
+    path = Path(path)
+    stage = tmp_path(path)
+    shutil.rmtree(stage, ignore_errors=True)
+    try:
+        stage.mkdir(parents=True)
+        yield stage
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(stage, path)
+    except OSError as exc:
+        shutil.rmtree(stage, ignore_errors=True)
+        explained = _explain(exc, path)
+        if explained is exc:  # a reader's error (a missing input file): as it came
+            raise
+        raise explained from exc
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
         raise
 
 

@@ -156,6 +156,11 @@ def _verify(args: list[str]) -> int:
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="progress bar with ETA on stderr (default: when stderr is a terminal)")
     ns = parser.parse_args(args)
+    if ns.sample_sheet is not None:
+        from hupbench.core.io import check_writable
+
+        # before the checks, which can take minutes: a folder or a read-only place fails now, in one line
+        check_writable(ns.sample_sheet, "--sample-sheet", file=True)
     result = verify(ns.dataset, workers=ns.workers, progress=ns.progress)
     print("\n".join(report_lines(result, ns.max_report)))
     if ns.sample_sheet:

@@ -64,7 +64,7 @@ from hupbench.core.contract import (
     read_manifest,
 )
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.io import DiskFullError, check_writable, encode_image, tmp_path, write_bytes, write_json
+from hupbench.core.io import atomic_folder, check_writable, encode_image, write_bytes, write_json
 
 FORMATS = ("bop", "coco")
 #: how the dataset's image files reach OUT: hard links (a copy where the file system refuses one) or copies
@@ -103,10 +103,9 @@ class ExportOptions:
     symmetry: bool = True
 
     def __post_init__(self) -> None:
-        if self.format not in FORMATS:
-            raise BadValueError(f"unknown format {self.format!r}: choose one of {', '.join(FORMATS)}")
-        if self.images not in IMAGE_MODES:
-            raise BadValueError(f"unknown image mode {self.images!r}: choose one of {', '.join(IMAGE_MODES)}")
+        for what, value, allowed in (("format", self.format, FORMATS), ("image mode", self.images, IMAGE_MODES)):
+            if value not in allowed:
+                raise BadValueError(f"unknown {what} {value!r}: choose one of {', '.join(allowed)}")
 
 
 def dataset_probe_mesh(root: Path, manifest: dict):
@@ -131,49 +130,42 @@ def run_export_dataset(opts: ExportOptions, provenance: dict | None = None, log=
         (image files), "seconds"}.
 
     Raises:
-        UserError: no dataset or a damaged one, OUT not empty (and not an earlier export with ``force``),
-            OUT not writable, a dataset without the modality the format needs, a probe mesh whose box is not
-            the dataset's corner keypoints.
+        UserError: no dataset or a damaged one (a frame's mask all background), OUT not empty (and not an
+            earlier export with ``force``), OUT overlapping the dataset, OUT not writable, a dataset without
+            the modality the format needs, a probe mesh whose box is not the dataset's corner keypoints.
     """
     start = time.perf_counter()
     root = Path(opts.dataset)
     manifest = read_manifest(root)
-    out = _check_out(Path(opts.out), opts.force)
+    out = _check_out(Path(opts.out), root, opts.force)
     needed = {"bop": "seg", "coco": "rgb"}[opts.format]
     if needed not in manifest["modalities"]:
         raise BadValueError(f"a {opts.format.upper()} export needs the dataset's {needed} images; {root} has only "
                             f"{', '.join(manifest['modalities'])}")
     splits = [s for s in SPLITS if manifest["counts"].get(s, 0) > 0]
-    stage = tmp_path(out)
-    shutil.rmtree(stage, ignore_errors=True)
     files = _Files(opts.images)
-    try:
-        stage.mkdir(parents=True)
+    # an earlier export that --force replaces (checked above) goes only once the new one is complete
+    with atomic_folder(out) as stage:
         writer = _write_bop if opts.format == "bop" else _write_coco
         frames, scenes = writer(root, manifest, splits, stage, files, opts, log)
         record = {"format": opts.format, "dataset": str(root.resolve()), "images": opts.images,
                   "symmetry": opts.symmetry if opts.format == "bop" else None, "frames": frames, "scenes": scenes,
                   "linked": files.linked, "copied": files.copied}
         write_json(stage / EXPORT_RECORD, {"config": record, **(provenance or {})})
-        if out.exists():
-            # empty, or an earlier export that --force replaces (checked above): the new one is complete by now
-            shutil.rmtree(out)
-        os.replace(stage, out)
-    except OSError as exc:
-        shutil.rmtree(stage, ignore_errors=True)
-        if exc.errno == errno.ENOSPC:
-            raise DiskFullError(out) from exc
-        raise
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
     return {"out": str(out), "format": opts.format, "frames": frames, "scenes": scenes, "linked": files.linked,
             "copied": files.copied, "seconds": time.perf_counter() - start}
 
 
-def _check_out(out: Path, force: bool) -> Path:
-    """``out`` may be written: new or empty, or an earlier export when ``force`` (then it is replaced)."""
+def _check_out(out: Path, dataset: Path, force: bool) -> Path:
+    """``out`` may be written: new or empty, or an earlier export when ``force`` (then it is replaced);
+    never the dataset, a folder holding it or one inside it (replacing OUT would delete the dataset, an
+    export inside it would add to it)."""
     check_writable(out, "OUT")
+    a, b = out.resolve(), dataset.resolve()
+    if a == b or a in b.parents or b in a.parents:
+        how = "is" if a == b else ("holds" if a in b.parents else "lies inside")
+        raise BadValueError(f"OUT {out} {how} the dataset {dataset} being exported: choose a folder outside the "
+                            "dataset (replacing OUT would delete it)")
     if out.is_dir() and any(out.iterdir()):
         n = sum(1 for _ in out.iterdir())
         if not force:
@@ -192,8 +184,7 @@ class _Files:
         self.mode, self.linked, self.copied = mode, 0, 0
 
     def put(self, src: Path, dst: Path) -> None:
-        if not src.is_file():
-            raise MissingFileError(f"{src} does not exist (a frame the annotations list)")
+        _check_frame_file(src)
         dst.parent.mkdir(parents=True, exist_ok=True)
         if self.mode == "hardlink":
             try:
@@ -208,15 +199,30 @@ class _Files:
         self.copied += 1
 
 
+def _check_frame_file(path: Path) -> None:
+    if not path.is_file():
+        raise MissingFileError(f"{path} does not exist (a frame the annotations list)")
+
+
 def _read_png(path: Path, dtype) -> np.ndarray:
     """A single-channel PNG of a frame (seg uint8, depth uint16), as stored."""
-    data = np.fromfile(path, dtype=np.uint8) if path.is_file() else None
-    if data is None:
-        raise MissingFileError(f"{path} does not exist (a frame the annotations list)")
+    _check_frame_file(path)
+    data = np.fromfile(path, dtype=np.uint8)
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if image is None or image.ndim != 2 or image.dtype != dtype:
         raise BadValueError(f"{path} is not a single-channel {np.dtype(dtype)} PNG (damaged?)")
     return image
+
+
+def _read_seg(root: Path, split: str, frame: int) -> np.ndarray:
+    """(H, W) uint8 labels of a frame; a mask that is background everywhere (the frame shows neither hand
+    nor probe, so the dataset is damaged) is refused."""
+    path = frame_path(root, split, "seg", frame)
+    seg = _read_png(path, np.uint8)
+    if not (seg != SEG_LABELS["background"]).any():
+        raise BadValueError(f"{path}: the mask is background everywhere, the frame shows neither hand nor probe "
+                            "(`hupbench verify` reports it as empty_frame): nothing to export")
+    return seg
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
@@ -365,7 +371,7 @@ def _write_bop(root: Path, manifest: dict, splits: list[str], stage: Path, files
                     scene_camera[str(frame)] = {"cam_K": ann["K"][i].ravel().tolist(), "cam_R_w2c": R, "cam_t_w2c": t_mm,
                                                 **({"depth_scale": depth_scale_mm} if has_depth else {})}
                     scene_gt[str(frame)] = [{"obj_id": PROBE_OBJ_ID, "cam_R_m2c": R, "cam_t_m2c": t_mm}]
-                    seg = _read_png(frame_path(root, split, "seg", frame), np.uint8)
+                    seg = _read_seg(root, split, frame)
                     visib = seg == SEG_LABELS["probe"]
                     whole_canvas = silhouette(ann["K"][i], T)
                     whole = whole_canvas[pad[1]:pad[1] + height, pad[0]:pad[0] + width]
@@ -453,7 +459,7 @@ def _write_coco(root: Path, manifest: dict, splits: list[str], stage: Path, file
             images.append({"id": frame, "file_name": f"{split}/{rgb_file.name}", "width": width, "height": height,
                            "frame_id": frame, "grasp_id": int(ann["grasp_id"][i]), "view_id": int(ann["view_id"][i]),
                            "cam_K": ann["K"][i].tolist()})
-            seg = _read_png(frame_path(root, split, "seg", frame), np.uint8) if has_seg else None
+            seg = _read_seg(root, split, frame) if has_seg else None
             for category, sl, label in parts:
                 keypoints, n = coco_keypoints(ann["keypoints_2d"][i, sl], ann["visible"][i, sl], width, height)
                 entry = {"id": len(annotations) + 1, "image_id": frame, "category_id": category, "iscrowd": 0,

@@ -26,6 +26,12 @@ the full-scene labels mapped to hupbench's; the view (from ``pose[:3]``), distan
 grasp (distinct hand poses) recovered. The glove and the lamp are not in the meta: glove_id is -1,
 the lamp zeros, and the manifest's ``imported.unknown`` says so.
 
+The dataset records its probe as ``hupbench generate`` records a mesh probe: the manifest's ``probe``
+(:attr:`hupbench.datagen.assets.probe.Probe.record` of the PLY given) and its ``grasps.npz``, which holds the
+distinct grasps and the mesh's geometry (:func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset` reads
+it back, for eval's probe-pose metrics and the BOP export); the manifest's ``grasps_sha256`` is that
+file's sha256. The dataset is built beside OUT and renamed into place once complete.
+
 Convention:
     Pixel centres: Blender's K puts the principal point at (128, 128) for pixels covering [i, i + 1);
     hupbench's pixel centres are at integers (:mod:`hupbench.core.contract`), so K's cx and cy and
@@ -69,7 +75,7 @@ from hupbench.core.geometry import (
     invert_transform,
     transform_points,
 )
-from hupbench.core.io import encode_image, file_sha256, save_npz, write_bytes, write_json
+from hupbench.core.io import atomic_folder, check_writable, encode_image, file_sha256, save_npz, write_bytes, write_json
 
 FORMAT = "HUP-3D"
 #: the published mask's material pass indices -> hupbench's labels
@@ -80,6 +86,8 @@ EXR_BACKGROUND_M = 1e9
 #: the published 8-bit depth: levels 1..255 span [near, far]
 DEPTH_LEVELS = 254
 DEPTH_SOURCES = ("auto", "png")
+#: the imported dataset's grasps file: the distinct grasps and the probe's geometry
+GRASPS = "grasps.npz"
 #: what a published frame's number looks like in its file names
 _META_NAME = re.compile(r"^img_meta_(\d+)\.pkl$")
 #: the meta fields the conversion reads (coords_2d is checked when present)
@@ -130,8 +138,8 @@ def find_frames(root: Path, split: str | None) -> tuple[list[SourceFrame], str]:
     ``meta/`` itself puts every frame in ``split`` (default "test").
 
     Raises:
-        MissingFileError: no root, no meta folder, or no meta files. BadValueError: ``split`` given
-        for a root that has split folders.
+        MissingFileError: no root, or no meta files in ``root/meta`` nor in its split folders. BadValueError:
+        ``split`` given for a root that has split folders.
     """
     if not root.is_dir():
         raise MissingFileError(f"HUP-3D folder {root} does not exist" if not root.exists()
@@ -140,32 +148,34 @@ def find_frames(root: Path, split: str | None) -> tuple[list[SourceFrame], str]:
     if folders and split is not None:
         raise BadValueError(f"{root} has its own split folders ({', '.join(folders)}): --split is for a folder "
                             "holding meta/ itself")
+    split_from = "the published split folders"
     if not folders:
-        if not (root / "meta").is_dir():
-            raise MissingFileError(f"{root} holds no meta/ folder (nor train/, val/ or test/ with one): not the "
-                                   "published HUP-3D layout")
         folders = {split or "test": root}
         split_from = f"--split {split or 'test'} (a folder without split folders)"
-    else:
-        split_from = "the published split folders"
     frames = []
     for name, folder in folders.items():
-        numbers = sorted(int(m.group(1)) for p in (folder / "meta").iterdir() if (m := _META_NAME.match(p.name)))
+        metas = (folder / "meta").iterdir() if (folder / "meta").is_dir() else ()
+        numbers = sorted(int(m.group(1)) for p in metas if (m := _META_NAME.match(p.name)))
         frames += [SourceFrame(name, n, folder) for n in numbers]
     if not frames:
         where = ", ".join(str(f / "meta") for f in folders.values())
-        raise MissingFileError(f"no img_meta_N.pkl files in {where}: nothing to import")
+        raise MissingFileError(f"no img_meta_N.pkl files in {where} (nor in train/, val/ or test/ of {root}): not the "
+                               "published HUP-3D layout, nothing to import")
     return sorted(frames, key=lambda f: (SPLITS.index(f.split), f.number)), split_from
 
 
-def _array(meta: dict, key: str, shape: tuple[int, ...], path: Path) -> np.ndarray:
+def _array(meta: dict, key: str, shape: tuple[int, ...], path: Path, leading: bool = False) -> np.ndarray:
+    """``meta[key]`` as float64 of ``shape``, all finite; with ``leading``, the first ``shape[0]`` numbers of
+    a longer sequence."""
     try:
         value = np.asarray(meta[key], dtype=np.float64)
     except (TypeError, ValueError):
         value = np.zeros(0)
+    if leading:
+        value = value.reshape(-1)[:shape[0]]
     if value.shape != shape or not np.isfinite(value).all():
-        raise BadValueError(f"{path}: {key} must be finite numbers of shape {shape}, got "
-                            f"{getattr(value, 'shape', type(meta[key]).__name__)}")
+        what = f"its first {shape[0]}" if leading else f"of shape {shape}"
+        raise BadValueError(f"{path}: {key} must be finite numbers, {what}, got {value.shape}")
     return value
 
 
@@ -184,22 +194,20 @@ def read_meta(path: Path) -> dict:
     try:
         with open(path, "rb") as f:
             meta = pickle.load(f)  # the user's own dataset files
+        why = f"a pickled {type(meta).__name__}"
     except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError, ValueError) as exc:
-        raise BadValueError(f"{path}: not a readable meta pickle ({type(exc).__name__}: {exc})") from exc
+        meta, why = None, f"{type(exc).__name__}: {exc}"
     if not isinstance(meta, dict):
-        raise BadValueError(f"{path}: expected a pickled dict, got {type(meta).__name__}")
+        raise BadValueError(f"{path}: not a readable meta pickle of a dict ({why})")
     missing = [k for k in REQUIRED_META if k not in meta]
     if missing:
         raise BadValueError(f"{path} lacks {', '.join(missing)}: not a published HUP-3D meta file")
-    pose = np.asarray(meta["pose"], dtype=np.float64).reshape(-1)
-    if len(pose) < 3 or not np.isfinite(pose[:3]).all():
-        raise BadValueError(f"{path}: pose must hold at least 3 finite numbers (the view's rotation)")
     out = {"coords_3d": _array(meta, "coords_3d", (kp.NUM_HAND, 3), path),
            "coords_2d": None if meta.get("coords_2d") is None else _array(meta, "coords_2d", (kp.NUM_HAND, 2), path),
            "cam_calib": _array(meta, "cam_calib", (3, 3), path),
            "cam_extr": _array(meta, "cam_extr", (3, 4), path),
            "affine_transform": _array(meta, "affine_transform", (4, 4), path),
-           "pose3": pose[:3], "z": float(_array(meta, "z", (), path)),
+           "pose3": _array(meta, "pose", (3,), path, leading=True), "z": float(_array(meta, "z", (), path)),
            "hand_pose": _array(meta, "hand_pose", (48,), path),
            "hand_trans": _array(meta, "hand_trans", (3,), path).reshape(3),
            "bg_name": Path(str(meta["bg_path"])).name}
@@ -215,33 +223,43 @@ def read_meta(path: Path) -> dict:
     return out
 
 
-def probe_box_ply(path: Path) -> np.ndarray:
-    """The 8 corners of a probe mesh's axis-aligned box in its own frame, in :data:`hupbench.core.keypoints.CORNER_BITS`
-    order (the published ``get_obj_corners3d`` order: the same).
+def read_probe_mesh(path: Path):
+    """The probe the published frames were rendered with, from its PLY, in the mesh's own frame.
+
+    The mesh is taken as stored (metres, no repair): ``affine_transform`` places exactly these vertices, and
+    the box corners (keypoints 21-28, :data:`hupbench.core.keypoints.CORNER_BITS` order, the published
+    ``get_obj_corners3d`` order) are their axis-aligned box, :attr:`Probe.corners_probe`.
 
     Args:
         path: the probe PLY the dataset was rendered with (not in the public repositories).
 
     Returns:
-        (8, 3) float64 metres, the mesh's frame.
+        :class:`hupbench.datagen.assets.probe.Probe` of a ``ProbeMeshSpec`` (unit "m", no align) whose
+        ``record`` the manifest keeps and whose geometry the dataset's grasps.npz carries.
 
     Raises:
-        MissingFileError: no file. BadValueError: not a mesh with faces.
+        MissingFileError: no file. BadValueError: not a triangle mesh of a hand-held size in metres.
     """
     import trimesh
+
+    from hupbench.datagen.assets.probe import probe_from_geometry
+    from hupbench.datagen.assets.probe_mesh import MAX_LENGTH_M, MIN_LENGTH_M, ProbeMeshSpec
 
     if not path.is_file():
         raise MissingFileError(f"probe mesh {path} does not exist (the PLY the dataset was rendered with, e.g. "
                                "voluson_painted_downscaled.ply)")
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
+        faces = getattr(mesh, "faces", None)
+        length = float(np.ptp(mesh.vertices, axis=0).max()) if isinstance(mesh, trimesh.Trimesh) and len(faces) else 0.0
+        why = f"{len(faces)} faces, {length:g} m long" if length else "no faces"
     except Exception as exc:  # trimesh raises many kinds on a malformed file; all mean the same to the user
-        raise BadValueError(f"probe mesh {path}: not a readable mesh ({type(exc).__name__}: {exc})") from exc
-    faces = getattr(mesh, "faces", None)
-    if not isinstance(mesh, trimesh.Trimesh) or faces is None or len(faces) == 0 or len(mesh.vertices) < 4:
-        raise BadValueError(f"probe mesh {path}: not a triangle mesh (no faces); expected the probe's PLY")
-    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    return np.array([[(low, high)[b][axis] for axis, b in enumerate(bits)] for bits in kp.CORNER_BITS])
+        length, why = 0.0, f"unreadable: {type(exc).__name__}: {exc}"
+    if not MIN_LENGTH_M <= length <= MAX_LENGTH_M:
+        raise BadValueError(f"probe mesh {path}: not a triangle mesh of the probe in metres ({why}); expected the "
+                            f"probe's PLY, {MIN_LENGTH_M:g} to {MAX_LENGTH_M:g} m long")
+    spec = ProbeMeshSpec(str(path.resolve()), "m", False, file_sha256(path))
+    return probe_from_geometry(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64), spec)
 
 
 # --- the conversion of one frame -------------------------------------------------------------
@@ -311,11 +329,12 @@ def read_exr_depth(path: Path) -> np.ndarray:
     try:
         with OpenEXR.File(str(path)) as exr:
             channels = exr.channels()
+        why = f"no depth channel among {sorted(channels)}"
     except Exception as exc:  # OpenEXR raises plain exceptions for damaged files
-        raise BadValueError(f"{path}: not a readable EXR ({exc})") from exc
-    name = next((c for c in ("V", "Z", "R", "Y") if c in channels), None) if len(channels) > 1 else next(iter(channels))
+        channels, why = {}, f"unreadable: {exc}"
+    name = next((c for c in ("V", "Z", "R", "Y") if c in channels), None) if len(channels) != 1 else next(iter(channels))
     if name is None:
-        raise BadValueError(f"{path}: no depth channel among {sorted(channels)}")
+        raise BadValueError(f"{path}: not a depth EXR ({why})")
     pixels = np.asarray(channels[name].pixels, dtype=np.float64)
     if pixels.ndim == 3:
         pixels = pixels[..., 0]
@@ -387,7 +406,8 @@ def view_of(pose3: np.ndarray, rotations: np.ndarray) -> int:
 
 
 def _check_out(out: Path) -> None:
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    check_writable(out, "OUT")
+    if out.is_dir() and any(out.iterdir()):
         raise BadValueError(f"output {out} is not empty: import-hup3d writes a new dataset into an empty or new "
                             "folder")
 
@@ -399,23 +419,28 @@ class ViewLookup(NamedTuple):
 
 
 def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray, corners_probe: np.ndarray,
-                   views: ViewLookup, backgrounds: list[str], grasp_keys: dict[bytes, int], out: Path):
+                   views: ViewLookup, backgrounds: list[str], grasps: dict[bytes, tuple], out: Path):
     """One published frame written into ``out`` in hupbench's layout; returns (its annotation row, its image
-    size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from)."""
+    size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from).
+
+    ``grasps`` maps each distinct grasp (its hand pose and translation as float32 bytes) to (hand_pose (48,),
+    hand_trans (3,)) as first seen, in grasp-index order; a new grasp is added, and the row stores its grasp's
+    values."""
     # chunks imports the renderer: only when converting
     from hupbench.datagen.dataset.chunks import visibility
 
     rgb = _read_image(f.file("rgb"), cv2.IMREAD_COLOR)
     rgb_bytes = f.file("rgb").read_bytes()
-    if not rgb_bytes.startswith(b"\xff\xd8"):
-        raise BadValueError(f"{f.file('rgb')}: not a JPEG")
     size = size or (rgb.shape[1], rgb.shape[0])
     labels = read_labels(f.file("segm"))
     levels = _read_image(f.file("depth"), cv2.IMREAD_UNCHANGED)
-    for name, image, want in (("rgb", rgb, 3), ("segm", labels, 2), ("depth", levels, 2)):
-        if image.shape[:2] != size[::-1] or (name == "depth" and (image.ndim != 2 or image.dtype != np.uint8)):
-            raise BadValueError(f"{f.file(name)}: {image.dtype} {image.shape}, expected {size[0]} x {size[1]}"
-                                + (" 8-bit single-channel" if name == "depth" else ""))
+    # what each image must be beyond the frame's size: the rgb a JPEG, the depth 8-bit single-channel
+    for name, image, kind, right in (("rgb", rgb, "JPEG", rgb_bytes.startswith(b"\xff\xd8")),
+                                     ("segm", labels, "", True),
+                                     ("depth", levels, "8-bit single-channel", levels.ndim == 2 and levels.dtype == np.uint8)):
+        if image.shape[:2] != size[::-1] or not right:
+            raise BadValueError(f"{f.file(name)}: {image.dtype} {image.shape}, expected a {size[0]} x {size[1]} "
+                                f"{kind or 'image'}")
     if depth == "auto" and f.file("exr").is_file():
         radial, approx, depth_kind = read_exr_depth(f.file("exr")), 0.0, "exr"
     else:
@@ -437,13 +462,14 @@ def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray
                          stored.astype(np.float64) * DEPTH_SCALE_M, labels, slack_m=slack)
     view = view_of(meta["pose3"], views.rotations)
     key = np.concatenate([meta["hand_pose"], meta["hand_trans"]]).astype(np.float32).tobytes()
-    grasp = grasp_keys.setdefault(key, len(grasp_keys))
+    hand_pose, hand_trans = grasps.setdefault(key, (meta["hand_pose"], meta["hand_trans"]))
+    grasp = list(grasps).index(key)
     row = {"frame_id": frame_id, "keypoints_3d_cam": kp3d, "keypoints_2d": kp2d, "visible": visible, "K": K,
            "T_cam_world": T_cam_probe, "grasp_id": grasp, "grasp_index": grasp, "view_id": view,
            "theta": views.angles[view, 0] if view >= 0 else -1.0,
            "phi": views.angles[view, 1] if view >= 0 else -1.0, "z_ego": meta["z"],
-           "background_id": backgrounds.index(meta["bg_name"]), "glove_id": -1, "hand_pose": meta["hand_pose"],
-           "hand_trans": meta["hand_trans"], "light_position_cam": np.zeros(3), "light_color": np.zeros(3),
+           "background_id": backgrounds.index(meta["bg_name"]), "glove_id": -1, "hand_pose": hand_pose,
+           "hand_trans": hand_trans, "light_position_cam": np.zeros(3), "light_color": np.zeros(3),
            "light_energy_w": 0.0}
     write_bytes(frame_path(out, f.split, "rgb", frame_id), rgb_bytes)
     write_bytes(frame_path(out, f.split, "depth", frame_id), encode_image(".png", stored))
@@ -469,13 +495,12 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
         MissingFileError, BadValueError: bad input (each message names the file or option).
     """
     source, out, probe_mesh = Path(source), Path(out), Path(probe_mesh)
-    if split is not None and split not in SPLITS:
-        raise BadValueError(f"--split must be one of {list(SPLITS)}, got {split!r}")
-    if depth not in DEPTH_SOURCES:
-        raise BadValueError(f"--depth must be one of {list(DEPTH_SOURCES)}, got {depth!r}")
+    for option, value, allowed in (("--split", split, (None, *SPLITS)), ("--depth", depth, DEPTH_SOURCES)):
+        if value not in allowed:
+            raise BadValueError(f"{option} must be one of {[v for v in allowed if v]}, got {value!r}")
     _check_out(out)
     frames, split_from = find_frames(source, split)
-    corners_probe = probe_box_ply(probe_mesh)
+    probe = read_probe_mesh(probe_mesh)
     metas = [read_meta(f.file("meta")) for f in frames]
     K = hupbench_K(metas[0]["cam_calib"])
     for f, meta in zip(frames, metas):
@@ -483,20 +508,42 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
             raise BadValueError(f"{f.file('meta')}: cam_calib differs from the first frame's; one K per dataset")
     views = ViewLookup(view_rotations(), all_viewpoints(SphereSpec()))
     backgrounds = sorted({m["bg_name"] for m in metas})
-    grasp_keys: dict[bytes, int] = {}
+    grasps: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
     rows = {s: {name: [] for name in ANNOTATION_FIELDS} for s in SPLITS}
     depth_from = {"exr": 0, "png": 0}
     error_max, size, listing = 0.0, None, []
-    for frame_id, (f, meta) in enumerate(zip(frames, metas)):
-        row, frame_size, slack, depth_kind = _convert_frame(f, meta, frame_id, size, depth, K, corners_probe,
-                                                            views, backgrounds, grasp_keys, out)
-        size = size or frame_size
-        depth_from[depth_kind] += 1
-        error_max = max(error_max, slack)
-        for name, value in row.items():
-            rows[f.split][name].append(value)
-        listing.append((frame_id, f.split, f.file("meta").relative_to(source).as_posix(),
-                        "exr" if depth_kind == "exr" else "png8"))
+    # built beside OUT and renamed into place: a frame that fails leaves OUT as it was
+    with atomic_folder(out) as stage:
+        for frame_id, (f, meta) in enumerate(zip(frames, metas)):
+            row, frame_size, slack, depth_kind = _convert_frame(f, meta, frame_id, size, depth, K, probe.corners_probe,
+                                                                views, backgrounds, grasps, stage)
+            size = size or frame_size
+            depth_from[depth_kind] += 1
+            error_max = max(error_max, slack)
+            for name, value in row.items():
+                rows[f.split][name].append(value)
+            listing.append((frame_id, f.split, f.file("meta").relative_to(source).as_posix(),
+                            "exr" if depth_kind == "exr" else "png8"))
+        counts = _write_tables(stage, rows, listing, grasps, probe)
+        views_unknown = int(sum(np.count_nonzero(np.asarray(rows[s]["view_id"]) < 0) for s in counts))
+        summary = {"split_from": split_from, "depth_from": depth_from, "error_max_m": error_max,
+                   "views_unknown": views_unknown, "image_size": size, "K": K, "backgrounds": backgrounds,
+                   "grasps_sha256": file_sha256(stage / GRASPS)}
+        write_json(stage / MANIFEST, _manifest(source, probe, metas, rows, counts, summary))
+    log(f"hupbench import-hup3d: {len(frames)} frames ({', '.join(f'{s} {n}' for s, n in counts.items())}) -> {out}; "
+        f"depth from EXR {depth_from['exr']}, from 8-bit PNG {depth_from['png']}"
+        + (f" (approximate: up to {1000 * error_max:.2f} mm off)" if depth_from["png"] else "")
+        + (f"; {views_unknown} frame(s) of no published view (view_id -1)" if views_unknown else ""))
+    return {"out": out, "counts": counts, "frames": len(frames), "depth_from": depth_from,
+            "depth_error_max_m": error_max, "views_unknown": views_unknown}
+
+
+def _write_tables(out: Path, rows: dict, listing: list[tuple], grasps: dict, probe) -> dict[str, int]:
+    """Each split's annotations.npz, imported_frames.csv (frame id -> published meta file) and grasps.npz (the
+    distinct grasps in grasp-index order, and the probe's geometry as ``hupbench grasps`` stores a mesh
+    probe's). Returns the frame count of each split that has frames."""
+    from hupbench.datagen.assets.probe_mesh import probe_arrays
+
     counts = {}
     for s in SPLITS:
         n = len(rows[s]["frame_id"])
@@ -509,51 +556,48 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
     writer.writerow(["frame_id", "split", "published_meta", "depth_from"])
     writer.writerows(listing)
     write_bytes(out / "imported_frames.csv", text.getvalue().encode())
-    views_unknown = int(sum(np.count_nonzero(np.asarray(rows[s]["view_id"]) < 0) for s in counts))
-    manifest = _manifest(source, probe_mesh, corners_probe, frames, metas, rows, counts, size, K, backgrounds,
-                         split_from, depth_from, error_max, views_unknown)
-    write_json(out / MANIFEST, manifest)
-    log(f"hupbench import-hup3d: {len(frames)} frames ({', '.join(f'{s} {n}' for s, n in counts.items())}) -> {out}; "
-        f"depth from EXR {depth_from['exr']}, from 8-bit PNG {depth_from['png']}"
-        + (f" (approximate: up to {1000 * error_max:.2f} mm off)" if depth_from["png"] else "")
-        + (f"; {views_unknown} frame(s) of no published view (view_id -1)" if views_unknown else ""))
-    return {"out": out, "counts": counts, "frames": len(frames), "depth_from": depth_from,
-            "depth_error_max_m": error_max, "views_unknown": views_unknown}
+    save_npz(out / GRASPS, {"hand_pose": np.array([pose for pose, _ in grasps.values()], np.float64),
+                            "hand_trans": np.array([trans for _, trans in grasps.values()], np.float64),
+                            "grasp_id": np.arange(len(grasps), dtype=np.int64), **probe_arrays(probe)})
+    return counts
 
 
-def _manifest(source: Path, probe_mesh: Path, corners_probe: np.ndarray, frames, metas, rows, counts, size, K,
-              backgrounds, split_from, depth_from, error_max, views_unknown) -> dict:
-    """The imported dataset's manifest: the contract's fields and an "imported" block saying what came from where
-    and what is unknown."""
+def _manifest(source: Path, probe, metas: list[dict], rows: dict, counts: dict, summary: dict) -> dict:
+    """The imported dataset's manifest: the contract's fields, the probe's record (as ``hupbench generate``
+    records a mesh probe) and an "imported" block saying what came from where and what is unknown."""
+    corners = probe.corners_probe
     return {
         "schema_version": SCHEMA_VERSION,
         "generator": {"name": "hupbench.import_hup3d", "format": FORMAT},
         "counts": counts, "keypoint_names": list(kp.KEYPOINT_NAMES),
-        "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES], "image_size": list(size), "K": K.tolist(),
+        "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES], "image_size": list(summary["image_size"]),
+        "K": summary["K"].tolist(),
         "modalities": ["rgb", "depth", "seg"], "rgb_format": "jpg", "depth_scale_m": DEPTH_SCALE_M,
         "seg_labels": dict(SEG_LABELS),
-        "layout": {"shape": [len(frames), 1, 1, 1, 1], "order": ["grasp", "z_ego", "background", "glove", "view"],
+        "layout": {"shape": [sum(counts.values()), 1, 1, 1, 1], "order": ["grasp", "z_ego", "background", "glove", "view"],
                    "index": "imported: frame_id numbers the published frames in (split, published number) order; "
                             "imported_frames.csv maps each to its published meta file"},
         "grasp_ids": {s: sorted(set(rows[s]["grasp_id"])) for s in counts},
         "grasp_indices": {s: sorted(set(rows[s]["grasp_index"])) for s in counts},
-        "backgrounds": {"names": backgrounds},
+        "grasps_sha256": summary["grasps_sha256"],
+        "probe": probe.record,
+        "backgrounds": {"names": summary["backgrounds"]},
         "z_ego_m": sorted({m["z"] for m in metas}),
         "imported": {
             "format": FORMAT, "source": str(source.resolve()),
-            "split_from": split_from,
-            "probe_mesh": {"path": str(probe_mesh.resolve()), "sha256": file_sha256(probe_mesh),
+            "split_from": summary["split_from"],
+            "probe_mesh": {"path": probe.spec.path, "sha256": probe.spec.sha256,
                            "frame": "the mesh's own frame: T_cam_world maps it into the camera, the corners are "
                                     "its vertices' axis-aligned box",
-                           "box_min_m": corners_probe[0].tolist(), "box_max_m": corners_probe[-1].tolist()},
-            "depth": {"approximate": depth_from["png"] > 0, "frames_from_exr": depth_from["exr"],
-                      "frames_from_png8": depth_from["png"], "error_max_m": error_max,
+                           "box_min_m": corners[0].tolist(), "box_max_m": corners[-1].tolist()},
+            "depth": {"approximate": summary["depth_from"]["png"] > 0, "frames_from_exr": summary["depth_from"]["exr"],
+                      "frames_from_png8": summary["depth_from"]["png"], "error_max_m": summary["error_max_m"],
                       "note": "planar z from Cycles' radial depth; from the 8-bit PNG each level is "
                               "(far - near) / 254, so a depth is off by up to (far - near) / 508"},
             "seg_map": {str(k): v for k, v in PUBLISHED_SEG.items()},
             "hand": "coords_3d in OpenPose order (the renderer's reordering); hand_pose and hand_trans are the "
                     "published MANO parameters, not hupbench's hand model",
-            "views_unknown": views_unknown,
+            "views_unknown": summary["views_unknown"],
             "unknown": UNKNOWN,
         },
     }

@@ -16,10 +16,12 @@ verify reads through :mod:`hupbench.core.contract`. Two kinds of answer:
   ``damaged_file``      annotations.npz cannot be read whole: empty, truncated, not a zip, bad CRC
   ``bad_annotations``   annotations.npz reads but breaks the contract: an array missing or of
                         another dtype or row shape (e.g. 21 keypoints), NaN or inf, a glove,
-                        background or view id the manifest does not have, a K that is no camera
+                        background or view id the manifest does not have, a K that is no camera,
+                        a lamp colour outside [0, 1] or a negative lamp power
   ``frame_ids``         frame ids repeated or out of order, or not the layout's ids
   ``manifest_mismatch`` the manifest disagrees with the files: its K with the annotations' K, its
-                        image_size with every image
+                        image_size with every image, its modalities with the image folders (a
+                        modality's images present but not listed)
   ``undecodable_file``  an image file that is empty, truncated (no end marker) or not a PNG/JPEG
   ``image_format``      an image that decodes but has another size, bit depth or channel count
                         than the contract, or seg labels outside ``SEG_LABELS``
@@ -46,9 +48,11 @@ verify reads through :mod:`hupbench.core.contract`. Two kinds of answer:
   ``rgb_channels``      the forearm's pixels have red and blue the other way round from its colour
                         (``arm_rgb``): the image was stored as RGB, or its channels swapped
   ``grasps_file``       grasps.npz is missing, unreadable, or not the grasps the frames were rendered
-                        with (their hand poses, translations and ids in the annotations)
+                        with (their hand poses, translations and ids in the annotations), or its
+                        sha256 is not the manifest's ``grasps_sha256``
 
-How the per-frame checks work: :mod:`hupbench.datagen.dataset.verify_frames`.
+The checks that need no image: :mod:`hupbench.datagen.dataset.verify_annotations`; how the per-frame checks
+work: :mod:`hupbench.datagen.dataset.verify_frames`.
 """
 
 from __future__ import annotations
@@ -62,14 +66,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hupbench.core import keypoints as kp
-from hupbench.core import tolerances as tol
-from hupbench.core.camera import project_points
-from hupbench.core.input_checks import is_whole
 from hupbench.core.contract import (
     ANNOTATIONS,
     MANIFEST,
-    SEG_LABELS,
     SPLITS,
     DamagedFileError,
     annotations_path,
@@ -77,11 +76,19 @@ from hupbench.core.contract import (
     read_annotations,
     read_manifest,
 )
-from hupbench.datagen.dataset.floors import split_floors
-from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.core.input_checks import is_whole
 from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
+from hupbench.datagen.dataset.verify_annotations import (
+    check_geometry,
+    check_grasps_file,
+    check_look_at,
+    check_manifest_extras,
+    check_modalities,
+    check_rows,
+    check_split_floors,
+    problem_detail,
+)
 from hupbench.datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
-from hupbench.core.errors import BadValueError
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
@@ -92,8 +99,8 @@ KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "f
 IMPORTED_SKIPS = (
     ("pose_mismatch: the stored hand pose is the source's MANO parameters and the probe its own mesh; hupbench's "
      "hand and probe cannot rebuild the keypoints"),
-    "probe_depth, image_shift: they measure against hupbench's probe surface, not the source's mesh",
-    "grasps_file: an imported dataset has no grasps.npz",
+    ("probe_depth, image_shift: they measure against a closed probe surface; the source's mesh is taken as "
+     "published, unrepaired"),
     "look_at, rgb_channels: the source records no protocol and no forearm colour",
 )
 #: fewer frames than this are checked in this process (starting workers would take longer)
@@ -101,14 +108,6 @@ POOL_MIN_FRAMES = 64
 #: annotation fields the per-frame checks use
 FRAME_KEYS = ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K", "T_cam_world", "background_id",
               "glove_id", "light_color")
-#: per-row fields the contract does not require finite but the checks compute with
-ROW_FINITE = ("hand_pose", "hand_trans", "light_position_cam", "light_color", "light_energy_w")
-
-
-def _message(exc: Exception, path: Path) -> str:
-    """The contract's message without the absolute path it starts with (the problem names the file)."""
-    text = str(exc)
-    return text[len(str(path)) + 2:] if text.startswith(f"{path}: ") else text
 
 
 # --- reading the manifest and the annotations -----------------------------------------------
@@ -144,35 +143,7 @@ def _read_manifest(root: Path) -> tuple[dict, list[dict]]:
             raise
         # counts that disagree with the layout are what verify reports: each split is then checked
         # against its own count
-        return manifest, [_problem(None, None, "count_mismatch", _message(exc, root / MANIFEST), MANIFEST)]
-
-
-def _check_manifest_extras(manifest: dict, root: Path) -> None:
-    """Manifest fields verify relies on beyond the contract's: protocol.look_at, gloves_rgb and seg_labels."""
-    path = root / MANIFEST
-    labels = manifest.get("seg_labels", SEG_LABELS)
-    if labels != SEG_LABELS:
-        raise BadValueError(f"{path}: seg_labels must be the contract's {SEG_LABELS}, got {labels!r}")
-    protocol = manifest.get("protocol")
-    if protocol is not None:
-        look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
-        if look_at != "box_centre" and look_at not in kp.KEYPOINT_NAMES:
-            raise BadValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
-    imported = manifest.get("imported")
-    error = imported.get("depth", {}).get("error_max_m") if isinstance(imported, dict) and \
-        isinstance(imported.get("depth"), dict) else None
-    if imported is not None and (isinstance(error, bool) or not isinstance(error, (int, float))
-                                 or not math.isfinite(error) or error < 0):
-        raise BadValueError(f"{path}: imported.depth.error_max_m must be a number >= 0 (metres), got {error!r}")
-    gloves = manifest.get("gloves_rgb")
-    if gloves is not None:
-        try:
-            array = np.asarray(gloves, dtype=np.float64)
-        except (TypeError, ValueError):
-            array = np.zeros((0, 0))
-        if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] != 3 or not np.isfinite(array).all() \
-                or array.min() < 0 or array.max() > 1:
-            raise BadValueError(f"{path}: gloves_rgb must be a list of [r, g, b] colours in [0, 1], got {gloves!r}")
+        return manifest, [_problem(None, None, "count_mismatch", problem_detail(exc, root / MANIFEST), MANIFEST)]
 
 
 def _frame_ids(path: Path) -> np.ndarray | None:
@@ -195,7 +166,7 @@ def _read_split(root: Path, split: str, manifest: dict) -> tuple[dict | None, li
     except FileNotFoundError:
         return None, [_problem(split, None, "missing_file", f"missing (the manifest counts {expected} {split} frames)", rel)]
     except DamagedFileError as exc:
-        return None, [_problem(split, None, "damaged_file", _message(exc, path), rel)]
+        return None, [_problem(split, None, "damaged_file", problem_detail(exc, path), rel)]
     except ValueError as exc:
         rejected = exc
     problems = []
@@ -213,57 +184,8 @@ def _read_split(root: Path, split: str, manifest: dict) -> tuple[dict | None, li
         problems.append(_problem(split, None, "frame_ids", f"frame_id is not strictly ascending ({repeated} repeated, "
                                                            f"{len(ids)} rows)", rel))
     else:
-        problems.append(_problem(split, None, "bad_annotations", _message(rejected, path), rel))
+        problems.append(_problem(split, None, "bad_annotations", problem_detail(rejected, path), rel))
     return None, problems
-
-
-def _check_rows(ann: dict, split: str, manifest: dict) -> tuple[list[dict], np.ndarray]:
-    """Row values the contract does not check: finiteness of the pose and lamp, glove and background
-    ids within the manifest's, K equal to the manifest's.
-
-    Returns:
-        problems, and (N,) bool: the rows the geometry and image checks can use.
-    """
-    rel = f"{split}/{ANNOTATIONS}"
-    problems = []
-    usable = np.ones(len(ann["frame_id"]), dtype=bool)
-    for key in ROW_FINITE:
-        bad = ~np.isfinite(ann[key].reshape(len(usable), -1)).all(axis=1)
-        for i in np.flatnonzero(bad):
-            problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
-                                     f"{key} of frame {int(ann['frame_id'][i]):06d} holds NaN or inf", rel))
-        usable &= ~bad
-    limits = {"glove_id": ("gloves_rgb", manifest.get("gloves_rgb")),
-              "background_id": ("backgrounds.names", (manifest.get("backgrounds") or {}).get("names")
-                                if isinstance(manifest.get("backgrounds"), dict) else None)}
-    viewpoints = manifest.get("viewpoints")
-    limits["view_id"] = ("viewpoints.ids", viewpoints.get("ids") if isinstance(viewpoints, dict) else None)
-    for key, (field, values) in limits.items():
-        if not isinstance(values, list):
-            continue  # an older manifest without the record: nothing to compare with
-        allowed = np.arange(len(values)) if key != "view_id" else np.asarray(values, dtype=np.int64)
-        bad = ~np.isin(ann[key], allowed)
-        for i in np.flatnonzero(bad):
-            problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
-                                     f"{key} {int(ann[key][i])} of frame {int(ann['frame_id'][i]):06d} is not one of "
-                                     f"the manifest's {len(values)} ({field})", rel))
-        usable &= ~bad
-    # a K without positive focal lengths would divide the per-frame checks by zero
-    bad = ~((ann["K"][:, 0, 0] > 0) & (ann["K"][:, 1, 1] > 0) & (ann["K"][:, 2] == [0, 0, 1]).all(axis=1))
-    for i in np.flatnonzero(bad):
-        problems.append(_problem(split, ann["frame_id"][i], "bad_annotations",
-                                 f"K of frame {int(ann['frame_id'][i]):06d} is not a camera matrix (fx, fy > 0, last row "
-                                 f"0 0 1): {ann['K'][i].tolist()}", rel))
-    usable &= ~bad
-    K = np.asarray(manifest["K"], dtype=np.float64)
-    off = np.abs(ann["K"] - K).max(axis=(1, 2))
-    differ = np.flatnonzero(off > tol.VERIFY_K_PX)
-    if len(differ):
-        i = differ[0]
-        problems.append(_problem(split, None, "manifest_mismatch",
-                                 f"K of {len(differ)} frames (first {int(ann['frame_id'][i]):06d}) differs from the "
-                                 f"manifest's K by up to {off[differ].max():.4g} px", rel))
-    return problems, usable
 
 
 def _load_backgrounds(manifest: dict):
@@ -289,106 +211,6 @@ def _load_backgrounds(manifest: dict):
             return backgrounds, None
     tried = " or ".join(what for what, _ in candidates)
     return None, f"the backgrounds it was rendered with are not here (fingerprint differs from {tried})"
-
-
-def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[dict | None, list[dict]]:
-    """The splits' floors (:mod:`hupbench.datagen.dataset.floors`) recomputed from the annotations, and a problem
-    when the manifest records others (beyond ``tol.VERIFY_FLOOR_MM``).
-
-    Returns:
-        (floors or None when there is no training split, problems).
-    """
-    if "train" not in annotations or not len(annotations["train"]["frame_id"]):
-        return None, []
-    try:
-        floors = split_floors(annotations)
-    except ValueError as exc:
-        return None, [_problem(None, None, "split_floors", str(exc), ANNOTATIONS)]
-    recorded = (manifest.get("split_floors") or {}).get("splits") if isinstance(manifest.get("split_floors"), dict) \
-        else None
-    if recorded is None:
-        return floors, []  # a dataset made before the manifest recorded its floors
-    problems = []
-    for split, entry in floors.items():
-        mine = entry["floor_mm"]
-        theirs = (recorded.get(split) or {}).get("floor_mm") if isinstance(recorded.get(split), dict) else None
-        if not isinstance(theirs, dict) or any(not isinstance(theirs.get(k), (int, float))
-                                               or abs(theirs[k] - mine[k]) > tol.VERIFY_FLOOR_MM for k in mine):
-            problems.append(_problem(split, None, "split_floors",
-                                     f"the manifest's floor of {split} is {theirs}, the annotations give "
-                                     + ", ".join(f"{k} {v:.3f}" for k, v in mine.items()) + " mm", MANIFEST))
-    return floors, problems
-
-
-def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None) -> list[dict]:
-    """Checks that need no image: reprojection and (``stored_pose``) the stored pose, against ``probe``
-    (the dataset's, :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)."""
-    from hupbench.datagen.assets.hand import build_hand
-    from hupbench.datagen.assets.probe import build_probe
-
-    rel = f"{split}/{ANNOTATIONS}"
-    problems = []
-    if not len(ann["frame_id"]):
-        return problems
-    uv = project_points(ann["keypoints_3d_cam"].astype(np.float64), ann["K"], behind="nan")
-    err = np.abs(uv - ann["keypoints_2d"]).max(axis=(1, 2))
-    for i in np.flatnonzero(~(err <= tol.VERIFY_REPROJECTION_PX)):
-        problems.append(_problem(split, ann["frame_id"][i], "reprojection", f"2D off the projection by {err[i]:.4f} px",
-                                 rel))
-    if not stored_pose:
-        return problems
-    hand, probe = build_hand(), probe or build_probe()
-    world = np.concatenate([hand.keypoints(ann["hand_pose"], ann["hand_trans"], clamp=False),
-                            np.broadcast_to(probe.corners_probe, (len(ann["frame_id"]), 8, 3))], axis=1)
-    cam = transform_points(ann["T_cam_world"], world)
-    err3 = np.linalg.norm(cam - ann["keypoints_3d_cam"], axis=-1).max(axis=1)
-    for i in np.flatnonzero(~(err3 <= tol.VERIFY_KEYPOINT_M)):
-        problems.append(_problem(split, ann["frame_id"][i], "pose_mismatch",
-                                 f"3D keypoints {1000 * err3[i]:.2f} mm from the stored pose", rel))
-    return problems
-
-
-def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
-    """The camera's aim: ``look_at`` (a keypoint name or "box_centre", the centre of the 29
-    keypoints' box in the world frame) must sit at (0, 0, z_ego) in every frame's camera frame."""
-    cam = ann["keypoints_3d_cam"].astype(np.float64)
-    if look_at == "box_centre":
-        world = transform_points(invert_transform(ann["T_cam_world"]), cam)
-        centre = 0.5 * (world.min(axis=1) + world.max(axis=1))
-        point = transform_points(ann["T_cam_world"], centre[:, None])[:, 0]
-    else:
-        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]  # _check_manifest_extras checked the name
-    expected = np.zeros_like(point)
-    expected[:, 2] = ann["z_ego"]
-    err = np.linalg.norm(point - expected, axis=1)
-    return [_problem(split, ann["frame_id"][i], "look_at",
-                     f"{look_at} at {np.round(1000 * point[i], 3).tolist()} mm, expected (0, 0, z_ego) "
-                     f"({1000 * err[i]:.4f} mm off)", f"{split}/{ANNOTATIONS}")
-            for i in np.flatnonzero(~(err <= tol.VERIFY_LOOK_AT_M))]
-
-
-def check_grasps_file(root: Path, annotations: dict[str, dict]) -> list[dict]:
-    """grasps.npz against the frames: each row's hand pose, translation and grasp id must be those of its
-    grasp (``grasp_index``) in the file, as the writer copied them."""
-    from hupbench.datagen.dataset.grasps_file import read_grasps, rendered_with
-
-    path = root / "grasps.npz"
-    if not path.is_file():
-        return [_problem(None, None, "grasps_file", "missing: the grasps the frames were rendered with", path.name)]
-    try:
-        grasps = read_grasps(path)
-    except ValueError as exc:
-        return [_problem(None, None, "grasps_file", _message(exc, path), path.name)]
-    problems = []
-    for split, ann in annotations.items():
-        same = rendered_with(grasps, ann)
-        if not same.all():
-            first = int(ann["frame_id"][np.flatnonzero(~same)[0]])
-            problems.append(_problem(split, first, "grasps_file",
-                                     f"not the grasps the frames were rendered with: {int((~same).sum())} {split} frames' "
-                                     f"grasp (id, hand pose, translation) differ from it (first {first:06d})",
-                                     path.name))
-    return problems
 
 
 def _glove_partners(ann: dict) -> dict[int, int]:
@@ -479,8 +301,9 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         dict with "frames" (frames whose images were checked), "problems" (dicts with split,
         frame_id, kind, file, detail), "by_kind" counts, "skipped" (checks that could not run, and
         why), "ok", "split_floors" (:func:`hupbench.datagen.dataset.floors.split_floors` of the annotations, None
-        without a training split) and "image_shift" ({"median_px": [du, dv], "frames"}: the frames'
-        median :func:`image_shift_px`, None when no frame allowed the measurement).
+        without a training split), "image_shift" ({"median_px": [du, dv], "frames"}: the frames'
+        median :func:`image_shift_px`, None when no frame allowed the measurement) and "grasps_sha256" (the
+        manifest's, None where it records none).
 
     Raises:
         FileNotFoundError, ValueError: nothing to verify against (module docstring).
@@ -488,7 +311,8 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     check_workers(workers)
     root = Path(root)
     manifest, problems = _read_manifest(root)
-    _check_manifest_extras(manifest, root)
+    check_manifest_extras(manifest, root)
+    problems += check_modalities(root, manifest)
     skipped = []
     imported = manifest.get("imported")
     # the probe the frames show (a mesh probe's geometry is in the dataset's grasps.npz)
@@ -515,7 +339,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
             complete = False
             continue
         all_ids.append(ann["frame_id"])
-        found, usable = _check_rows(ann, split, manifest)
+        found, usable = check_rows(ann, split, manifest)
         problems += found
         ann = {k: v[usable] for k, v in ann.items()}
         annotations[split] = ann
@@ -537,8 +361,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
                                                               f"the layout holds ids 0 to {total - 1}"))
     floors, found = check_split_floors(annotations, manifest) if complete else (None, [])
     problems += found
-    if imported is None:
-        problems += check_grasps_file(root, annotations)
+    problems += check_grasps_file(root, annotations, manifest)
     for note in skipped:
         log(f"not checked: {note}")
     if imported is not None:
@@ -555,12 +378,12 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     by_kind = {kind: sum(p["kind"] == kind for p in problems) for kind in KINDS}
     image_shift = {"median_px": np.median(shifts, axis=0).tolist(), "frames": len(shifts)} if shifts else None
     return {"frames": len(jobs), "problems": problems, "by_kind": by_kind, "skipped": skipped, "ok": not problems,
-            "split_floors": floors, "image_shift": image_shift}
+            "split_floors": floors, "image_shift": image_shift, "grasps_sha256": manifest.get("grasps_sha256")}
 
 
 def report_lines(result: dict, max_report: int) -> list[str]:
     """What ``hupbench verify`` prints of :func:`verify`'s ``result``: the first ``max_report`` problems, the
-    images' shift against the labels, each split's floor and the verdict."""
+    images' shift against the labels, the grasps file's sha256, each split's floor and the verdict."""
     lines = []
     for p in result["problems"][:max_report]:
         where = p["file"] or (f"split {p['split']}" if p["split"] else "dataset")
@@ -574,6 +397,9 @@ def report_lines(result: dict, max_report: int) -> list[str]:
         lines.append(f"  images against labels: median shift ({du:+.3f}, {dv:+.3f}) px over "
                      f"{result['image_shift']['frames']} frames (probe pixels unprojected with their depth, fitted to "
                      "the probe)")
+    sha = result["grasps_sha256"]
+    lines.append(f"  grasps.npz sha256: {sha}" if sha is not None else
+                 "  grasps.npz sha256: not recorded (a manifest written before datasets recorded it)")
     for split, floor in (result["split_floors"] or {}).items():
         lines.append(f"  floor of {split}: " + _floor_line(floor))
     if not result["ok"]:

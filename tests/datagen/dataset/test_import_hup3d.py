@@ -1,4 +1,4 @@
-"""hupbench import-hup3d on a fixture written here in the published HUP-3D layout: known camera-frame
+"""hupbench import-hup3d on a fixture in the published HUP-3D layout (tests/helpers/hup3d.py): known camera-frame
 geometry in, the same geometry out of the hupbench dataset, and verify passing with its skips named."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 from helpers.cli import assert_clean_error, run_cli
+from helpers.hup3d import FRAMES, SIZE, write_published
 from scipy.spatial.transform import Rotation
 
 from hupbench.core import keypoints as kp
@@ -24,85 +25,12 @@ from hupbench.core.contract import (
 )
 from hupbench.datagen.dataset.verify import IMPORTED_SKIPS, verify
 
-SIZE = 64
-#: the published renderer's K for a SIZE x SIZE image (Blender: principal point at SIZE / 2)
-K_BLENDER = np.array([[120.0, 0.0, SIZE / 2], [0.0, 120.0, SIZE / 2], [0.0, 0.0, 1.0]])
-FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
-#: (rows, cols, published label, planar depth z in metres) of each flat patch of a frame
-PATCHES = ((slice(10, 30), slice(8, 40), 100, 0.48), (slice(30, 44), slice(20, 44), 16, 0.52),
-           (slice(44, 50), slice(20, 44), 17, 0.53), (slice(50, 60), slice(24, 40), 15, 0.56))
-#: (split, number, view's Euler XYZ degrees as the published renderer stores them, expected view id or -1, grasp, z)
-FRAMES = (("train", 1, (70.0, 360.0), 1, 0, 0.5), ("train", 2, (10.0, 270.0), 34, 0, 0.5),
-          ("test", 1, (70.0, 360.0), 1, 1, 0.5), ("test", 2, (10.0, 270.0), 34, 1, 0.5),
-          ("test", 3, (33.0, 12.0), -1, 1, 0.8))
-
-
-def _known_frame(rng, number: int) -> dict:
-    """A frame's hupbench-side truth: hand joints and the probe pose in the OpenCV camera frame."""
-    hand_cv = np.column_stack([rng.uniform(-0.02, 0.02, 21), rng.uniform(0.0, 0.03, 21), rng.uniform(0.52, 0.56, 21)])
-    R = Rotation.from_rotvec(rng.normal(size=3) * 0.5).as_matrix()
-    T_cam_probe = np.eye(4)
-    T_cam_probe[:3, :3], T_cam_probe[:3, 3] = R, [0.01 * number, -0.02, 0.5]
-    return {"hand_cv": hand_cv, "T_cam_probe": T_cam_probe}
-
-
-def _write_frame(folder, number: int, truth: dict, euler_deg, grasp: int, z: float, background: str) -> dict:
-    """One frame in the published layout; returns the planar depth it encodes and its labels (published)."""
-    for sub in ("meta", "rgb", "depth", "segm"):
-        (folder / sub).mkdir(parents=True, exist_ok=True)
-    planar = np.zeros((SIZE, SIZE))
-    scene = np.zeros((SIZE, SIZE), np.uint8)
-    for rows, cols, label, depth_z in PATCHES:
-        planar[rows, cols], scene[rows, cols] = depth_z + 0.001 * number, label
-    u, v = np.meshgrid(np.arange(SIZE) + 0.5, np.arange(SIZE) + 0.5)  # Blender's pixel centres
-    radial = planar * np.sqrt(1 + ((u - K_BLENDER[0, 2]) / K_BLENDER[0, 0]) ** 2
-                              + ((v - K_BLENDER[1, 2]) / K_BLENDER[1, 1]) ** 2)
-    fg = scene > 0
-    far, near = radial[fg].max(), radial[fg].min()
-    # depthutils.convert_depth_and_swap_pixed_intensity, stored through cv2.imwrite of a float image
-    levels = np.where(fg, 254 * np.abs(radial - far) / (far - near) + 1, 0)
-    cv2.imwrite(str(folder / f"depth/img_depth_{number}.png"), np.rint(levels).astype(np.uint8))
-    hand_only = np.where(np.isin(scene, (15, 16, 17)), scene, 0)
-    probe_only = np.where(scene == 100, scene, 0)
-    cv2.imwrite(str(folder / f"segm/img_segm_{number}.png"), np.stack([scene, hand_only, probe_only], axis=2))
-    rgb = np.full((SIZE, SIZE, 3), 200, np.uint8)
-    rgb[fg] = (90, 140, 210)
-    cv2.imwrite(str(folder / f"rgb/img_rgb_{number}.jpg"), rgb)
-    coords_3d = truth["hand_cv"] @ FLIP[:3, :3]  # OpenCV -> Blender axes (the flip is its own inverse)
-    cam_extr = np.hstack([FLIP[:3, :3], np.zeros((3, 1))])
-    projected = (K_BLENDER @ cam_extr @ np.vstack([coords_3d.T, np.ones(21)])).T
-    hand_pose = np.full(48, 0.1 * (grasp + 1))
-    meta = {"coords_3d": coords_3d.astype(np.float32), "coords_2d": (projected[:, :2] / projected[:, 2:]).astype(
-                np.float32), "cam_calib": K_BLENDER, "cam_extr": cam_extr,
-            "affine_transform": (FLIP @ truth["T_cam_probe"]).astype(np.float32),
-            "pose": np.concatenate([Rotation.from_euler("XYZ", np.radians([*euler_deg, 0.0])).as_rotvec(),
-                                    np.zeros(153)]).astype(np.float32),
-            "z": z, "hand_pose": list(hand_pose), "hand_trans": [0.0, 0.01 * grasp, 0.0],
-            "bg_path": f"assets/backgrounds/{background}.jpg", "depth_min": far, "depth_max": near,
-            "side": "right", "obj_visibility_ratio": 1.0}
-    with open(folder / f"meta/img_meta_{number}.pkl", "wb") as f:
-        pickle.dump(meta, f)
-    return {"planar": planar, "scene": scene, "far": far, "near": near}
-
-
-def _probe_ply(path):
-    mesh = trimesh.creation.box(extents=(0.03, 0.02, 0.16))
-    mesh.apply_translation([0.004, -0.002, 0.07])
-    mesh.export(path)
-    return mesh.bounds
-
 
 @pytest.fixture(scope="module")
 def published(tmp_path_factory):
     """A published-layout folder (split folders train/, test/), its probe PLY and the truth of every frame."""
     root = tmp_path_factory.mktemp("hup3d")
-    rng = np.random.default_rng(3)
-    bounds = _probe_ply(root / "probe.ply")
-    truths = []
-    for i, (split, number, euler, view, grasp, z) in enumerate(FRAMES):
-        truth = _known_frame(rng, number)
-        truth |= _write_frame(root / "HUP-3D" / split, number, truth, euler, grasp, z, ("phantom_1", "room")[i % 2])
-        truths.append(truth | {"view": view, "grasp": grasp, "z": z})
+    bounds, truths = write_published(root)
     return root, bounds, truths
 
 
@@ -269,3 +197,61 @@ def test_out_not_empty(capsys, published, tmp_path):
     assert_clean_error(_cli(capsys, root / "HUP-3D", "--probe-mesh", root / "probe.ply", tmp_path / "o"),
                        "is not empty")
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["keep.txt"]
+
+
+# --- the imported dataset describes its probe as a generated one does ---------------------------
+
+
+def test_imported_dataset_records_its_probe_and_grasps(published, imported):
+    """The manifest's probe record and grasps.npz are those of a mesh probe made by ``hupbench generate``:
+    probe_of_dataset rebuilds the PLY's probe, whose box is the corners the keypoints hold."""
+    from hupbench.core.io import file_sha256
+    from hupbench.datagen.dataset.grasps_file import probe_of_dataset, read_grasps
+
+    root, bounds, truths = published
+    out, _ = imported
+    manifest = read_manifest(out)
+    record = manifest["probe"]
+    assert record["kind"] == "mesh" and record["path"] == str((root / "probe.ply").resolve())
+    assert record["sha256"] == file_sha256(root / "probe.ply") and record["unit"] == "m" and record["align"] is False
+    assert manifest["grasps_sha256"] == file_sha256(out / "grasps.npz")
+    probe = probe_of_dataset(out)
+    assert probe.record == record
+    np.testing.assert_allclose(probe.corners_probe[[0, -1]], bounds)
+    grasps = read_grasps(out / "grasps.npz")
+    np.testing.assert_array_equal(grasps["grasp_id"], [0, 1])
+    np.testing.assert_allclose(grasps["hand_pose"], [np.full(48, 0.1 * (g + 1)) for g in (0, 1)])
+
+
+def test_bop_export_and_probe_pose_metrics_work_on_imported_data(imported, tmp_path):
+    """Before the probe was recorded, the BOP export refused an imported dataset and eval dropped its
+    probe-pose metrics, both blaming the mesh: the procedural probe stood in for the PLY."""
+    from hupbench.datagen.dataset.export_bop_coco import ExportOptions, run_export_dataset
+    from hupbench.evaluation.probe_pose import dataset_probe, probe_pose_scores
+
+    out, _ = imported
+    result = run_export_dataset(ExportOptions(out, tmp_path / "bop", "bop"), log=lambda *_: None)
+    assert result["frames"] == {"train": 2, "test": 3}
+    info = json.loads((tmp_path / "bop" / "models" / "models_info.json").read_text())["1"]
+    assert info["size_z"] == pytest.approx(160.0)  # the PLY's box, in mm
+    ann = read_annotations(out, "test")
+    corners = ann["keypoints_3d_cam"][:, kp.CORNER_SLICE].astype(np.float64)
+    scores, line = probe_pose_scores(corners, corners, ann["K"], SIZE, dataset_probe(out))
+    assert scores is not None, line
+    assert scores["add_mm"] == pytest.approx(0.0, abs=1e-3) and scores["model_points"] == 8
+
+
+def test_verify_checks_the_imported_grasps_file(imported, tmp_path):
+    import shutil
+
+    out, _ = imported
+    copy = tmp_path / "ds"
+    shutil.copytree(out, copy)
+    with np.load(copy / "grasps.npz") as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["hand_pose"] = arrays["hand_pose"][::-1].copy()
+    np.savez(copy / "grasps.npz", **arrays)
+    result = verify(copy, workers=1, log=lambda line: None, progress=False)
+    details = [p["detail"] for p in result["problems"] if p["kind"] == "grasps_file"]
+    assert any("not the manifest's grasps_sha256" in d for d in details), details
+    assert any("not the grasps the frames were rendered with" in d for d in details), details

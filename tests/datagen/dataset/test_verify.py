@@ -337,7 +337,8 @@ def test_datasets_with_some_modalities(tiny_dataset, tmp_path, modalities):
     manifest["modalities"] = modalities
     (broken / "manifest.json").write_text(json.dumps(manifest))
     for modality in {"rgb", "depth", "seg"} - set(modalities):
-        shutil.rmtree(broken / "train" / modality)
+        for split in ("train", "val", "test"):
+            shutil.rmtree(broken / split / modality)
     result = verify(broken, workers=1, log=quiet)
     assert result["ok"] and result["frames"] == 60, result["problems"]
     (broken / "train" / modalities[0] / ("000004.jpg" if modalities[0] == "rgb" else "000004.png")).write_bytes(b"")

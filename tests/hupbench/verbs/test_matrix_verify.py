@@ -14,6 +14,7 @@ Every case damages a copy of the ``tiny_dataset`` fixture (64 px, 1 glove, 2 bac
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from dataclasses import dataclass
@@ -246,6 +247,20 @@ def _K_zero(rows):
     return edit
 
 
+def _negative_lamp_power(a):
+    a["light_energy_w"][4] = -120.0
+
+
+def _lamp_colour_above_one(a):
+    a["light_color"][4] = [1.0, 2.5, 1.0]
+
+
+def _sheet_folder(root: Path) -> list[str]:
+    folder = root.parent / "sheet.png"
+    folder.mkdir()
+    return [str(root), "--sample-sheet", str(folder)]
+
+
 def _labels_swapped(m):
     m["seg_labels"].update(hand=3, probe=1)
 
@@ -331,6 +346,14 @@ CASES: dict[str, tuple[Callable[[Path], list[str]], Error | Problem]] = {
                                                frames_checked=40)),
     "manifest-hand-and-probe-labels-swapped": (_edit_manifest(_labels_swapped),
                                                error("manifest.json", "seg_labels", "'hand': 3")),
+    "manifest-modalities-drop-seg": (_edit_manifest(_set("modalities", ["rgb", "depth"])),
+                                     problem("manifest_mismatch", "manifest.json", "do not list seg", "train/seg/ 20")),
+    "annotations-negative-lamp-power": (_edit_annotations("train", _negative_lamp_power),
+                                        problem("bad_annotations", ANN, "light_energy_w", "000004", "-120")),
+    "annotations-lamp-colour-above-one": (_edit_annotations("train", _lamp_colour_above_one),
+                                          problem("bad_annotations", ANN, "light_color", "000004", "[0, 1]")),
+    "grasps-sha256-not-the-manifest's": (_edit_manifest(_set("grasps_sha256", "0" * 64)),
+                                         problem("grasps_file", "grasps.npz", "not the manifest's grasps_sha256")),
     "grasps-missing": (_remove("grasps.npz"), problem("grasps_file", "grasps.npz", "missing")),
     "grasps-replaced": (_other_grasps, problem("grasps_file", "grasps.npz", "not the grasps the frames were rendered with")),
 }
@@ -360,6 +383,8 @@ CASES |= {
     "workers-zero": (_argv("--workers", "0"), error("--workers", "0")),
     "workers-not-a-number": (_argv("--workers", "abc"), error("--workers", "abc")),
     "max-report-negative": (_argv("--max-report", "-1"), error("--max-report", "-1")),
+    "sample-sheet-a-folder": (_sheet_folder, error("--sample-sheet", "sheet.png", "is a folder")),
+    "sample-sheet-empty": (_argv("--sample-sheet", ""), error("--sample-sheet", "file path")),
 }
 
 
@@ -429,6 +454,34 @@ def test_verify_cli_progress_bar_on_request(tiny_dataset, capfd):
     answer = run_cli(capfd, "verify", tiny_dataset, "--workers", "1", "--progress")
     assert answer.rc == 0 and "verify: 100%" in answer.err and "60/60" in answer.err
     assert answer.out.splitlines()[-1] == "hupbench verify: OK, 60 frames checked"
+
+
+@pytest.mark.matrix
+def test_matrix_verify_sample_sheet_on_a_read_only_mount(tiny_dataset, tmp_path):
+    """One line naming the sheet before the checks run, not a traceback after them."""
+    from helpers.faults import run_in_namespace
+
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    answer = run_in_namespace(["verify", tiny_dataset, "--workers", "1", "--sample-sheet", mount / "sheet.png"],
+                              read_only=(mount,))
+    assert_clean_error(answer, f"cannot write --sample-sheet {mount / 'sheet.png'}", "read-only file system")
+    assert "hupbench verify: OK" not in answer.out, "the checks ran before the sheet's path was refused"
+
+
+def test_verify_prints_the_manifest_grasps_sha256(tiny_dataset, tmp_path, capfd):
+    root = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset, root)
+    manifest = _manifest(root)
+    manifest.pop("grasps_sha256", None)
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    answer = run_cli(capfd, "verify", root, "--workers", "1")
+    assert answer.rc == 0 and "  grasps.npz sha256: not recorded (a manifest written before datasets recorded it)" \
+        in answer.out.splitlines(), answer
+    manifest["grasps_sha256"] = hashlib.sha256((root / "grasps.npz").read_bytes()).hexdigest()
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    answer = run_cli(capfd, "verify", root, "--workers", "1")
+    assert answer.rc == 0 and f"  grasps.npz sha256: {manifest['grasps_sha256']}" in answer.out.splitlines(), answer
 
 
 def test_verify_cli_sample_sheet_after_the_report(tiny_dataset, tmp_path, capfd):
