@@ -24,24 +24,8 @@ from hupbench.models.build import build_model, load_checkpoint_state
 
 FORMAT = "hupbench-checkpoint"
 VERSION = 1
-
-#: ``_target_`` prefixes of checkpoints written before the packages moved under hupbench (0.1: top-level
-#: ``models`` and ``datagen``), and what they are now
-LEGACY_TARGETS = {"models.": "hupbench.models.", "datagen.": "hupbench.datagen."}
-
-
-def installed_targets(config):
-    """A saved training config with every ``_target_`` under its installed name (:data:`LEGACY_TARGETS`), so that
-    a run trained before the move resumes and compares equal."""
-    if isinstance(config, Mapping):
-        out = {key: installed_targets(value) for key, value in config.items()}
-        target = out.get("_target_")
-        if isinstance(target, str):
-            old = next((p for p in LEGACY_TARGETS if target.startswith(p)), None)
-            out["_target_"] = LEGACY_TARGETS[old] + target[len(old):] if old else target
-        return out
-    return config
-
+#: relative agreement of a model's intrinsics buffer with its checkpoint's K_input (float32 rounding)
+INTRINSICS_REL_TOL = 1e-5
 
 @dataclass(frozen=True)
 class Checkpoint:
@@ -119,7 +103,6 @@ class Checkpoint:
         if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal "
                                 f"lengths, got {payload['K_input']!r:.80}")
-        payload["config"] = installed_targets(payload["config"])
         return cls(**{f.name: payload[f.name] for f in fields(cls) if f.name in payload}, path=path)
 
     def build_model(self) -> nn.Module:
@@ -130,10 +113,28 @@ class Checkpoint:
         except (ValueError, TypeError) as exc:
             raise BadValueError(f"checkpoint {self.path}: its model_config builds no model: {exc}") from exc
         try:
-            return load_checkpoint_state(model, self.model)
+            model = load_checkpoint_state(model, self.model)
         except (ValueError, TypeError) as exc:
             raise BadValueError(f"checkpoint {self.path}: its weights do not fit its model_config (a "
                                 f"{self.model_config['name']!r} model): {exc}") from exc
+        self._check_camera(model)
+        return model
+
+    def _check_camera(self, model: nn.Module) -> None:
+        """A model that unprojects through its input camera holds it as an ``intrinsics`` buffer (normalised
+        (fx, fy, cx, cy), :func:`hupbench.models.hopenet.normalized_intrinsics`): it must be the camera of
+        ``K_input``, which eval, export and the fits use for the same 3D points."""
+        from hupbench.models.hopenet import normalized_intrinsics
+
+        buffer = getattr(model, "intrinsics", None)
+        if buffer is None:
+            return
+        expected = normalized_intrinsics(self.K_input, self.input_size)
+        if not torch.allclose(buffer.detach().float().cpu(), expected, rtol=INTRINSICS_REL_TOL, atol=0.0):
+            raise BadValueError(f"checkpoint {self.path}: the model's intrinsics buffer (normalised fx, fy, cx, cy) "
+                                f"{[round(float(v), 6) for v in buffer]} is not the camera of its K_input "
+                                f"{[round(float(v), 6) for v in expected]} at input_size {self.input_size}: the "
+                                f"checkpoint was edited or mixes two runs")
 
 
 def load_model(path: str | Path) -> tuple[nn.Module, dict[str, Any]]:

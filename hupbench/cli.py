@@ -1,4 +1,5 @@
-"""The ``hupbench`` command: one subcommand per user verb, each a thin main over ``run_<verb>``."""
+"""The ``hupbench`` command: one subcommand per user verb, each a thin main over ``run_<verb>``; how a verb's
+end reaches the user (a refusal, Ctrl-C, a closed or full stdout) is :func:`hupbench.error_lines.answered`'s."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import argparse
 import sys
 
 from hupbench import __version__
-from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
+from hupbench.error_lines import answered
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
@@ -286,8 +287,6 @@ def _predict(args: list[str]) -> int:
 
 
 def _eval(args: list[str]) -> int:
-    from pathlib import Path
-
     from hupbench.evaluation.evaluate import EvalOptions, run_eval
 
     parser = argparse.ArgumentParser(
@@ -330,7 +329,7 @@ def _eval(args: list[str]) -> int:
     print(f"hupbench eval: results written to {result['out']}")
     for name, path in result.get("figures", {}).items():
         print(f"  figure, {name}: {path}")
-    if Path(result["out"]).resolve().parent != Path("leaderboard/results").resolve():
+    if not result["leaderboard_row"]:
         print("  (not a leaderboard row: --out leaderboard/results/NAME.json --training-command '...' adds one, "
               "then hupbench leaderboard)")
     return 0
@@ -388,34 +387,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     verb_args = argv[at + 1:]
     if args.verb == "train":
-        from hupbench.verbs.train import main as train_main
+        from hupbench.verbs.train import command as train_command
 
-        return train_main(verb_args, prog="hupbench train", debug=True if debug else None)
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    try:
-        handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
-                    "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
-                    "predict": _predict, "eval": _eval, "export": _export,
-                    "export-dataset": _export_dataset, "import-hup3d": _import_hup3d}
-        if args.verb in HYDRA_VERBS:
-            return _hydra_verb(args.verb, verb_args, handlers[args.verb])
-        return handlers[args.verb](verb_args)
-    except KeyboardInterrupt:
-        if args.debug:
-            raise
-        # Ctrl-C: one line and the shell's code for SIGINT; the workers ignore it and are stopped
-        print(f"hupbench {args.verb}: interrupted", file=sys.stderr)
-        return 130
-    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
-        if args.debug:
-            raise
-        hydra_error = isinstance(exc, (HydraException, OmegaConfBaseException))
-        line = hydra_error_line(exc, f"conf/{args.verb}.yaml", "out_dir=PATH") if hydra_error else error_line(exc)
-        print(f"hupbench {args.verb}: error: {line}", file=sys.stderr)
-        return 1
-
+        return train_command(verb_args, prog="hupbench train", debug=debug)
+    handlers = {"quickstart": _quickstart, "grasps": _grasps, "train-grasp-sampler": _train_grasp_sampler,
+                "generate": _generate, "verify": _verify, "leaderboard": _leaderboard,
+                "predict": _predict, "eval": _eval, "export": _export,
+                "export-dataset": _export_dataset, "import-hup3d": _import_hup3d}
+    if args.verb in HYDRA_VERBS:
+        work = lambda: _hydra_verb(args.verb, verb_args, handlers[args.verb])  # noqa: E731
+    else:
+        work = lambda: handlers[args.verb](verb_args)  # noqa: E731
+    return answered(f"hupbench {args.verb}", work, debug, config=f"conf/{args.verb}.yaml", example="out_dir=PATH")
 
 if __name__ == "__main__":
     sys.exit(main())

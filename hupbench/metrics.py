@@ -355,16 +355,18 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
 
 
 def fit_rigid_pose(points_obj_m: np.ndarray, points_cam_m: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) float64 T_cam_obj: the rotation and translation (Kabsch, :func:`rotation_onto`, no scale)
-    that best map the known (K, 3) object-frame points onto each frame's (N, K, 3) observed camera-frame
-    points (metres, K >= 3 not collinear), in the least-squares sense."""
-    obj = np.asarray(points_obj_m, np.float64)
+    """(N, 4, 4) float64 T_cam_obj: the rotation and translation (Kabsch, :func:`rotation_onto`, no scale) that
+    best map object-frame points onto each frame's (N, K, 3) observed camera-frame points (metres, K >= 3 not
+    collinear) in the least-squares sense. ``points_obj_m``: (K, 3), the same known points for every frame, or
+    (N, K, 3), one set per frame (e.g. a prediction aligned onto the truth)."""
     cam = np.asarray(points_cam_m, np.float64)
-    assert obj.ndim == 2 and cam.ndim == 3 and cam.shape[1:] == obj.shape and obj.shape[-1] == 3, (obj.shape, cam.shape)
-    rot = rotation_onto(np.broadcast_to(obj, cam.shape), cam)                    # (N, 3, 3)
+    obj = np.broadcast_to(np.asarray(points_obj_m, np.float64), cam.shape)
+    assert cam.ndim == 3 and cam.shape[-1] == 3, (np.shape(points_obj_m), cam.shape)
+    rot = rotation_onto(obj, cam)                                                # (N, 3, 3)
     T = np.tile(np.eye(4), (len(cam), 1, 1))
     T[:, :3, :3] = rot
-    T[:, :3, 3] = cam.mean(axis=1) - obj.mean(axis=0) @ rot.transpose(0, 2, 1)   # t = mean(cam) - R mean(obj)
+    # t = mean(cam) - R mean(obj)
+    T[:, :3, 3] = cam.mean(axis=1) - np.einsum("nij,nj->ni", rot, obj.mean(axis=1))
     return T
 
 

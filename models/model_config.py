@@ -59,10 +59,10 @@ class ModelConfig:
         input_channels: C, channels of the input image: 3 (RGB) or 4 (RGB and the depth channel of
             :func:`hupbench.input_geometry.depth_channel`); training sets it from ``data.reader.input_modalities``.
         probe_fit: what runs after the network on its output: "none", or "depth" (the probe's corners refined by
-            fitting the probe's surface to the depth input, :mod:`hupbench.inference.probe_fit`; needs
+            fitting the probe's surface to the depth input, :mod:`hupbench.fits.probe_fit`; needs
             ``input_channels`` 4). Eval and predict run it; training and its validation curve do not.
         hand_fit: the same for the hand: "none", or "depth" (the 21 joints refined by fitting a capsule hand to
-            the depth input, :mod:`hupbench.inference.hand_fit`, after the probe's fit where both are asked).
+            the depth input, :mod:`hupbench.fits.hand_fit`, after the probe's fit where both are asked).
     """
 
     #: the model's name in a saved config (:data:`hupbench.models.build.MODELS`)

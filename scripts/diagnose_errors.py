@@ -1,5 +1,5 @@
 """Where a checkpoint's 3D error comes from, on a split: position against orientation, depth against the image
-plane, hand against probe. The figures issue 23's models are judged by, beside the split's floor.
+plane, hand against probe, beside the split's floor.
 
 For the probe's 8 corners and the hand's 21 joints of each frame:
     centroid     error of the predicted centroid (where the set is): mm, and its z share (along the optical axis)
@@ -9,7 +9,7 @@ For the probe's 8 corners and the hand's 21 joints of each frame:
 and the same for the probe under its half turn (the closer labelling per frame, as eval's symmetric score);
 the wrist's own error and the hand MPJPE relative to the wrist and to the middle MCP (keypoint 9), and the
 split's nearest-training-grasp floor (hand, probe) from its manifest. It measures the network alone: the fits
-after it (probe_fit, hand_fit) are measured by scripts/probe_fit_ablation.py and scripts/hand_fit_ablation.py.
+after it (hupbench.fits) are measured by scripts/probe_fit_ablation.py and scripts/hand_fit_ablation.py.
 Per test grasp, the probe's turn: the rotation between the box fitted to the predicted corners and the true
 box (median angle, the share of frames turned 60-150 degrees, and how much of the turn is about the probe's
 long axis: the mean |cosine| between the rotation's axis and it), beside the centroid's error.
@@ -20,17 +20,17 @@ Usage: python scripts/diagnose_errors.py CHECKPOINT DATASET [--split test] [--fr
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
-import torch
 
 
 def rigid_align(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(N, K, 3) predictions moved by the best rotation and translation onto gt (Kabsch, no scale)."""
-    from hupbench.metrics import rotation_onto
+    from hupbench.metrics import fit_rigid_pose
 
-    mu_p, mu_g = pred.mean(axis=1, keepdims=True), gt.mean(axis=1, keepdims=True)
-    return np.einsum("nij,nkj->nki", rotation_onto(pred, gt), pred - mu_p) + mu_g
+    T = fit_rigid_pose(pred, gt)                                                   # (N, 4, 4) pred -> gt
+    return np.einsum("nij,nkj->nki", T[:, :3, :3], pred) + T[:, None, :3, 3]
 
 
 def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
@@ -45,14 +45,13 @@ def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
             "xy": float(np.linalg.norm(pred[..., :2] - gt[..., :2], axis=-1).mean() * 1000.0)}
 
 
-def split_outputs(description: str, batch: int, modalities: str | None = None):
+def split_outputs(description: str, batch: int, modalities: str | None = None, keep_images: bool = False):
     """The command line CHECKPOINT DATASET [--split] [--frames] [--batch] of these scripts, parsed, and the
-    checkpoint run on its frames: (args, module, payload, reader, rows, outputs), outputs a list of (images,
-    points2d, points3d) per batch (numpy float64 outputs). ``modalities``: the input the script needs (an
-    error naming it when the checkpoint reads another); None: what the checkpoint reads."""
-    from hupbench.checkpoint import load_model
-    from hupbench.data import HUPDataset, ReaderConfig
-    from hupbench.inference.export import contract_model
+    checkpoint's network (no fits) run on evenly spaced frames of the split by eval's
+    :func:`hupbench.evaluation.prediction.predict_split`: (args, net, reader, prediction). ``modalities``: the input
+    the script needs (an error naming it when the checkpoint reads another); None: what the checkpoint reads;
+    ``keep_images``: keep the model images (for fits run afterwards)."""
+    from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
 
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("checkpoint")
@@ -61,21 +60,19 @@ def split_outputs(description: str, batch: int, modalities: str | None = None):
     parser.add_argument("--frames", type=int, default=960, help="evenly spaced frames of the split (0: all)")
     parser.add_argument("--batch", type=int, default=batch)
     args = parser.parse_args()
-    model, payload = load_model(args.checkpoint)
-    module = contract_model(model, payload, args.checkpoint)
-    if modalities is not None and module.input_modalities != modalities:
-        raise SystemExit(f"{args.checkpoint} reads {module.input_modalities}; this script needs {modalities}")
-    reader = HUPDataset(args.dataset, args.split, ReaderConfig(input_size=module.input_size,
-                                                                input_modalities=module.input_modalities))
-    n = len(reader)
-    rows = np.arange(n) if not args.frames or args.frames >= n else np.linspace(0, n - 1, args.frames).round().astype(int)
-    outputs = []
-    with torch.inference_mode():
-        for start in range(0, len(rows), args.batch):
-            images = torch.stack([reader[int(i)]["image"] for i in rows[start:start + args.batch]])
-            points2d, points3d = module(images)
-            outputs.append((images.numpy(), points2d.double().numpy(), points3d.double().numpy()))
-    return args, module, payload, reader, rows, outputs
+    net = EvalModel(Path(args.checkpoint))
+    if modalities is not None and net.input_modalities != modalities:
+        raise SystemExit(f"{args.checkpoint} reads {net.input_modalities}; this script needs {modalities}")
+    reader = split_reader(Path(args.dataset), args.split, net)
+    rows = evenly_spaced(len(reader), args.frames)
+    return args, net, reader, predict_split(net, reader, args.batch, rows, with_fits=False, keep_images=keep_images)
+
+
+def batches(prediction) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(images (B, C, S, S), points2d (B, 29, 2), points3d (B, 29, 3)) of each batch of a split's prediction."""
+    starts = np.cumsum([0] + [len(images) for images in prediction.images])
+    return [(images, prediction.points2d[a:b], prediction.points3d[a:b])
+            for images, a, b in zip(prediction.images, starts[:-1], starts[1:])]
 
 
 def floor_line(reader, split: str, part: str) -> str | None:
@@ -101,18 +98,18 @@ def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def main() -> None:
+    from hupbench import metrics
     from hupbench.core import keypoints as kp
-    from hupbench.metrics import rotation_onto
 
-    args, module, _, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=64)
-    n, modalities = len(reader), module.input_modalities
-    pred = np.concatenate([points3d for _, _, points3d in outputs])
+    args, net, reader, prediction = split_outputs(__doc__.splitlines()[0], batch=64)
+    n, modalities, rows = len(reader), net.input_modalities, prediction.rows
+    pred = prediction.points3d
     gt, turned, grasp = split_labels(args, reader, rows)
     hand, probe = slice(0, kp.NUM_HAND), slice(kp.NUM_HAND, kp.NUM_KEYPOINTS)
     closer = (np.linalg.norm(pred[:, probe] - turned, axis=-1).mean(1)
               < np.linalg.norm(pred[:, probe] - gt[:, probe], axis=-1).mean(1))
     gt_sym = np.where(closer[:, None, None], turned, gt[:, probe])
-    print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {n} frames, input {module.input_size} px "
+    print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {n} frames, input {net.input_size} px "
           f"{modalities}; mm")
     print(f"{'':18s}" + "".join(f"{k:>15s}" for k in ("mpjpe", "centroid", "centroid_z", "about_centroid", "rigid",
                                                         "z", "xy")))
@@ -124,13 +121,11 @@ def main() -> None:
         floor = floor_line(reader, args.split, part)
         if floor:
             print(floor)
-    from hupbench import metrics
-
     wrist = float(metrics.keypoint_errors_mm(pred, gt)[:, metrics.ROOT_INDEX].mean())
     print(f"hand: wrist (keypoint 0) {wrist:.2f} mm absolute; hand MPJPE relative to the wrist "
           f"{metrics.root_relative_mpjpe_mm(pred, gt):.2f}, to the middle MCP (keypoint 9) "
           f"{metrics.root_relative_mpjpe_mm(pred, gt, root=metrics.MIDDLE_MCP_INDEX):.2f}")
-    R = rotation_onto(gt[:, probe], pred[:, probe])
+    R = metrics.fit_rigid_pose(gt[:, probe], pred[:, probe])[:, :3, :3]
     angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     axis = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
     axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)

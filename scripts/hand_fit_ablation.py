@@ -1,4 +1,4 @@
-"""What the hand's fit to the depth input (hupbench.inference.hand_fit) does to a checkpoint's hand, on a split: the
+"""What the hand's fit to the depth input (hupbench.fits.hand_fit) does to a checkpoint's hand, on a split: the
 hand MPJPE of the network alone and after the fit, after the fit without each of its parts (the bones' turns, i.e.
 a rigid hand; the free-space term), and after the fit started from the true joints (what its capsule hand gets
 wrong), per grasp, with where the error is (scripts/diagnose_errors.py's centroid / about centroid / rigid), and
@@ -20,41 +20,40 @@ from pathlib import Path
 import numpy as np
 import torch
 
-#: the fit's parts taken out, each as the module constants it runs with instead; and the fit started from the
-#: true joints instead of the network's (what its capsule hand gets wrong: 0 for a perfect hand model)
-VARIANTS = {"fit": {}, "fit, rigid hand": {"BONE_PRIOR_M": 1e3}, "fit, no free space": {"FREE_WEIGHT": 0.0},
+#: the fit's parts taken out, each as the settings it runs with instead (hupbench.fits.HandFitSettings); and the fit
+#: started from the true joints instead of the network's (what its capsule hand gets wrong: 0 for a perfect hand)
+VARIANTS = {"fit": {}, "fit, rigid hand": {"bone_prior_m": 1e3}, "fit, no free space": {"free_weight": 0.0},
             "fit from the truth": {}}
 
 
 def main() -> None:
-    from hupbench.core import keypoints as kp
-    from diagnose_errors import decompose, floor_line, split_labels, split_outputs
-    from hupbench.inference import hand_fit
-    from hupbench.inference.probe_fit import fit_probe
+    from dataclasses import replace
 
-    args, _, payload, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth")
-    K = np.asarray(payload["K_input"], dtype=np.float64)
+    from diagnose_errors import batches, decompose, floor_line, split_labels, split_outputs
+    from hupbench.core import keypoints as kp
+    from hupbench.fits import HandFitSettings
+    from hupbench.fits.hand_fit import fit_hand
+    from hupbench.fits.probe_fit import fit_probe
+
+    args, net, reader, prediction = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth",
+                                                  keep_images=True)
+    rows, K = prediction.rows, net.K_input
+    outputs = batches(prediction)
     probe_fitted = [fit_probe(points2d, points3d, images, K)[:2] for images, points2d, points3d in outputs]
     hands = {"network": np.concatenate([points3d[:, kp.HAND_SLICE] for _, points3d in probe_fitted])}
     labels, _, grasp = split_labels(args, reader, rows)
     starts = np.cumsum([0] + [len(images) for images, _, _ in outputs])
     seconds = {}
-    for name, constants in VARIANTS.items():
-        saved = {key: getattr(hand_fit, key) for key in constants}
-        for key, value in constants.items():
-            setattr(hand_fit, key, value)
-        try:
-            began, out = time.perf_counter(), []
-            for start, (images, _, _), (points2d, points3d) in zip(starts, outputs, probe_fitted):
-                if name == "fit from the truth":
-                    points3d = points3d.copy()
-                    points3d[:, kp.HAND_SLICE] = labels[start:start + len(images), kp.HAND_SLICE]
-                out.append(hand_fit.fit_hand(points2d, points3d, images, K)[1][:, kp.HAND_SLICE])
-            seconds[name] = time.perf_counter() - began
-            hands[name] = np.concatenate(out)
-        finally:
-            for key, value in saved.items():
-                setattr(hand_fit, key, value)
+    for name, changes in VARIANTS.items():
+        settings = replace(HandFitSettings(), **changes)
+        began, out = time.perf_counter(), []
+        for start, (images, _, _), (points2d, points3d) in zip(starts, outputs, probe_fitted):
+            if name == "fit from the truth":
+                points3d = points3d.copy()
+                points3d[:, kp.HAND_SLICE] = labels[start:start + len(images), kp.HAND_SLICE]
+            out.append(fit_hand(points2d, points3d, images, K, settings)[1][:, kp.HAND_SLICE])
+        seconds[name] = time.perf_counter() - began
+        hands[name] = np.concatenate(out)
     gt = labels[:, kp.HAND_SLICE]
     print(f"{args.checkpoint} on {args.dataset} {args.split}: {len(rows)} of {len(reader)} frames; hand, mm")
     floor = floor_line(reader, args.split, "hand")

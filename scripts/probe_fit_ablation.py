@@ -1,4 +1,4 @@
-"""What the probe's fit to the depth input (hupbench.inference.probe_fit) does to a checkpoint's probe, on a split:
+"""What the probe's fit to the depth input (hupbench.fits.probe_fit) does to a checkpoint's probe, on a split:
 the probe corner MPJPE (and under the half turn, eval's symmetric score) of the network alone and after the fit,
 per grasp, how each frame's half turn was decided and the error of each kind, and the fit's time per frame.
 
@@ -19,15 +19,15 @@ import torch
 
 
 def main() -> None:
+    from diagnose_errors import batches, floor_line, split_labels, split_outputs
     from hupbench.core import keypoints as kp
-    from diagnose_errors import floor_line, split_labels, split_outputs
-    from hupbench.inference.probe_fit import DECISIONS, fit_probe
+    from hupbench.fits.probe_fit import DECISIONS, fit_probe
 
-    args, _, payload, reader, rows, outputs = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth")
-    n = len(reader)
-    K = np.asarray(payload["K_input"], dtype=np.float64)
+    args, model, reader, prediction = split_outputs(__doc__.splitlines()[0], batch=32, modalities="rgb+depth",
+                                                    keep_images=True)
+    n, rows, K = len(reader), prediction.rows, model.K_input
     net, fitted, decisions, fit_s = [], [], [], 0.0
-    for images, points2d, points3d in outputs:
+    for images, points2d, points3d in batches(prediction):
         began = time.perf_counter()
         _, refined, report = fit_probe(points2d, points3d, images, K)
         fit_s += time.perf_counter() - began

@@ -1,11 +1,14 @@
 """Evaluation: scoring a model on a dataset split, the results schema and the leaderboard.
 
-Owns: ``hupbench eval`` (``evaluate``: a checkpoint or an ONNX export over a split, MPJPE by part and
-the breakdowns, whose per-frame buckets ``breakdowns`` labels; latency), the results file (``results``:
+Owns: ``hupbench eval`` (``evaluate``: a checkpoint or an ONNX export over a split, with ``prediction``: the one
+loop that predicts a split, also used by scripts/; ``split_metrics``: MPJPE by part and the breakdowns, whose
+per-frame buckets ``breakdowns`` labels; ``probe_pose``: the BOP scores; ``latency``: parameters, FLOPs and
+latency), the results file (``results``:
 schema, validation, atomic writes) and the leaderboard (``leaderboard``: the table and the
 error-against-time plots, rebuilt from results/).
 
 May import: ``hupbench.inference`` (the ONNX contract and onnxruntime sessions, to time an export),
+``hupbench.fits`` (what runs after the network),
 ``hupbench`` top-level modules (data, checkpoint, metrics, provenance, config, errors), ``models``,
 the dataset contract, torch, numpy, matplotlib. Never ``hupbench.training`` or ``hupbench.verbs``.
 """

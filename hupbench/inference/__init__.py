@@ -7,7 +7,7 @@ parity check (``export``: needs torch), and the torch-free path from an image fi
 (``predict``, ``images``: reading and checking user images, ``overlay``: drawing the prediction).
 
 May import: ``models`` and ``hupbench`` top-level modules (``export`` only: it traces a checkpoint),
-``hupbench.input_geometry``, ``datagen`` shared modules and ``hupbench.core.draw``, numpy, OpenCV, onnx,
+``hupbench.input_geometry``, ``hupbench.fits`` (what runs after the network), ``datagen`` shared modules and ``hupbench.core.draw``, numpy, OpenCV, onnx,
 onnxruntime. Never ``hupbench.training``, ``hupbench.evaluation`` or ``hupbench.verbs``; ``predict``,
 ``runtime``, ``images``, ``overlay`` and ``model_file`` never import torch.
 """

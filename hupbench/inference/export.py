@@ -35,9 +35,10 @@ from hupbench.inference.runtime import (
     split_model_images,
 )
 from hupbench.input_geometry import INPUT_MODALITIES, pixels_to_normalized
+from hupbench.provenance import check_run_name, default_run_name, git_commit
 
 __all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "calibrate_image_statistics",
-           "contract_model", "default_run_name", "export_onnx", "onnx_metadata", "run_export"]
+           "contract_model", "export_onnx", "onnx_metadata", "run_export"]
 
 #: the ONNX opset of every exported file (fixed: the contract with ``hupbench predict``)
 OPSET = 18
@@ -63,7 +64,8 @@ class ExportOptions:
         checkpoint: a hupbench checkpoint (``.pt``). out: destination ``.onnx`` (default: the checkpoint path
             with suffix ``.onnx``). dataset: of the parity images (default: the checkpoint's training dataset).
         opset: ONNX opset, from :data:`OPSET_MIN` to the newest this torch writes.
-        run_name: "hupbench.run_name" metadata (default: :func:`default_run_name`).
+        run_name: "hupbench.run_name" metadata, a results file stem (default:
+            :func:`hupbench.provenance.default_run_name` of the training run's name).
         parity_frames: images compared (from the test split, else val, else train).
         progress: a progress bar over the stages (export, parity) on a terminal.
     """
@@ -88,6 +90,8 @@ class ExportOptions:
         if out.suffix.lower() != ".onnx":
             raise BadValueError(f"--out must end in .onnx, got {out.name!r}")
         assert self.parity_frames >= 1, self.parity_frames
+        if self.run_name is not None:
+            check_run_name(self.run_name, "--run-name")
         object.__setattr__(self, "checkpoint", checkpoint)
         object.__setattr__(self, "out", out)
         object.__setattr__(self, "dataset", None if self.dataset is None else Path(self.dataset))
@@ -148,18 +152,6 @@ def contract_model(model: nn.Module, payload: dict[str, Any], source: str, confi
         raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
                             f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
     return ContractModule(model, payload["K_input"], int(payload["input_size"]), confidence).eval()
-
-
-def default_run_name(checkpoint: str | Path, payload: dict[str, Any]) -> str:
-    """The training config's ``run_name``, else the file stem, with characters outside ``[A-Za-z0-9._-]``
-    as "_" so that it is a valid results file stem."""
-    name = None
-    config = payload.get("config")
-    if isinstance(config, dict) and isinstance(config.get("run_name"), str) and config["run_name"].strip():
-        name = config["run_name"]
-    name = name or Path(checkpoint).stem
-    clean = "".join(c if c.isalnum() or c in "._-" else "_" for c in name).lstrip("._-")
-    return clean[:128] or "model"
 
 
 def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outputs: tuple[str, ...] = BASE_OUTPUTS,
@@ -279,7 +271,6 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
 
     from hupbench.core.io import OutputLock, atomic_output, check_writable, clean_stale_tmp
     from hupbench.checkpoint import load_model
-    from hupbench.provenance import git_commit
 
     out = check_writable(options.out, "--out", file=True)
     model, payload = load_model(options.checkpoint)
@@ -294,7 +285,8 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     if not dataset.exists():
         raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
     images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
-    run_name = options.run_name or default_run_name(options.checkpoint, payload)
+    recorded = (payload.get("config") or {}).get("run_name")
+    run_name = options.run_name if options.run_name is not None else default_run_name(recorded, options.checkpoint)
     calibration = calibrate_image_statistics(dataset, module.input_size)
     metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration)
 

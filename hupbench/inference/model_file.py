@@ -32,8 +32,8 @@ from hupbench.core.input_checks import check_int, is_whole
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
-__all__ = ["CONFIDENCE", "META", "ONNX_SCHEMA", "OUTPUTS", "after_network", "check_intrinsics", "check_io_shapes",
-           "fits", "read_metadata", "write_metadata"]
+__all__ = ["CONFIDENCE", "META", "ONNX_SCHEMA", "OUTPUTS", "check_intrinsics", "check_io_shapes", "read_metadata",
+           "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
 ONNX_SCHEMA = "1"
@@ -54,30 +54,6 @@ _REQUIRED = ("input_size", "K_input", "keypoint_names", "skeleton_edges")
 #: ``hupbench.depth_input`` of every model that reads depth: the input ``depth`` is the model's depth channel
 #: (:func:`hupbench.input_geometry.depth_channel`)
 DEPTH_INPUT = {"units": "metres", "no_surface": 0.0, "clip_m": DEPTH_CLIP_M, "resize": "nearest"}
-
-
-def fits(model_config: dict) -> tuple[str, ...]:
-    """What a model's saved config (a checkpoint's, or an ONNX file's ``hupbench.model_config``) asks to run after
-    the network, in the order it runs: "probe" (``probe_fit: depth``, :mod:`hupbench.inference.probe_fit`) and
-    "hand" (``hand_fit: depth``, :mod:`hupbench.inference.hand_fit`); a config from before the fields fits nothing."""
-    return tuple(part for part in ("probe", "hand") if model_config.get(f"{part}_fit", "none") == "depth")
-
-
-def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
-                  K_input: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The fits a model asks for (:func:`fits`) run on its output (points2d (B, N, 2), points3d (B, N, 3)) and its
-    (B, 4, S, S) model images: the probe's first, the hand's on the probe it left. Eval and predict both call this.
-    Returns float64 (points2d, points3d); the output itself where the model fits nothing."""
-    asked = fits(model_config)
-    if "probe" in asked:  # torch is imported only for a model that fits
-        from hupbench.inference.probe_fit import fit_probe
-
-        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input)
-    if "hand" in asked:
-        from hupbench.inference.hand_fit import fit_hand
-
-        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input)
-    return points2d, points3d
 
 
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,

@@ -56,12 +56,11 @@ from hupbench.inference.images import (
     read_image,
     to_uint8,
 )
+from hupbench.fits import after_network, check_fitted_probe, fits
 from hupbench.inference.model_file import (
     CONFIDENCE,
     NO_CONFIDENCE,
-    after_network,
     check_intrinsics,
-    fits,
 )
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.runtime import (
@@ -281,6 +280,12 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
     if options.depth_dir is not None and not model.reads_depth:
         raise BadValueError(f"{model.path} reads RGB only; --depth is for a model trained with "
                             "data.reader.input_modalities=rgb+depth")
+    if fits(model.model_config):  # such a model reads depth: --depth is given
+        dataset = options.depth_dir.resolve().parent.parent  # the dataset, for a dataset's <split>/depth folder
+        if (dataset / "manifest.json").is_file():
+            from hupbench.core.contract import read_manifest
+
+            check_fitted_probe(model.model_config, read_manifest(dataset).get("probe"), str(dataset / "manifest.json"))
     files, skipped = expand_inputs(options.inputs)
     if not files:
         raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "

@@ -36,8 +36,11 @@ def _flatten(d, prefix=""):
 
 def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
     ckpt, onnx_path = exported
-    r_pt = evaluate(ckpt, tiny_dataset, out=tmp_path / "tiny_pt.json", latency=False, batch_size=8,
-                    training_command="bash scripts/paper_protocol.sh tiny", training_log="logs/tiny_pt.jsonl")
+    (tmp_path / "board" / "logs").mkdir(parents=True)
+    (tmp_path / "board" / "logs" / "tiny_pt.jsonl").write_text("")
+    r_pt = evaluate(ckpt, tiny_dataset, out=tmp_path / "board" / "results" / "tiny_pt.json", latency=False,
+                    batch_size=8, training_command="bash scripts/paper_protocol.sh tiny",
+                    training_log="logs/tiny_pt.jsonl")
     r_onnx = evaluate(onnx_path, tiny_dataset, out=tmp_path / "tiny_onnx.json", latency=True,
                       label="HOPE-Net (ResNet-10, 64 px, exported)")
     a, b = load_results(r_pt["out"]), load_results(r_onnx["out"])
@@ -467,7 +470,9 @@ def test_bad_floors_in_the_manifest_are_named(exported, tiny_dataset, tmp_path, 
 
 def test_latency_helper_median():
     calls = []
-    ms = EV.measure_latency_ms(lambda images: calls.append(images.shape), input_size=16, batch=4, warmup=2, repeats=5)
+    from hupbench.evaluation.latency import measure_latency_ms
+
+    ms = measure_latency_ms(lambda images: calls.append(images.shape), input_size=16, batch=4, warmup=2, repeats=5)
     assert ms >= 0 and math.isfinite(ms)
     assert len(calls) >= 7 and calls[0] == (4, 3, 16, 16)
 

@@ -117,12 +117,12 @@ def test_depth_errors_name_the_file(rgbd_model, exported, tiny_dataset, tmp_path
 @pytest.mark.parametrize("asked", [("probe",), ("hand",), ("probe", "hand")])
 def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp_path, monkeypatch, asked):
     """probe_fit / hand_fit: depth travel in the checkpoint and the ONNX metadata, and eval (either format) and
-    predict run hupbench.inference.probe_fit and hand_fit after the network, the probe's first, on its output and
+    predict run hupbench.fits.probe_fit and hand after the network, the probe's first, on its output and
     its RGB-D input (the fits themselves: test_probe_fit.py, test_hand_fit.py); here stand-in fits move the corners
     by 1 cm and the hand by 2 cm so that their use and order are seen."""
     from hupbench.core import keypoints as kp
     from hupbench.evaluation import evaluate
-    from hupbench.inference import hand_fit, probe_fit
+    from hupbench.fits import hand_fit, probe_fit
 
     fits = {f"{part}_fit": "depth" for part in asked}
     ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, **fits)
@@ -135,7 +135,7 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     calls = []
 
     def stand_in(part, where, by):
-        def fit(points2d, points3d, images, K_input):
+        def fit(points2d, points3d, images, K_input, settings):
             calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
             moved = np.array(points3d, dtype=np.float64)
             moved[:, where] += by

@@ -1,4 +1,4 @@
-"""The hand's fit to the depth input (hupbench.inference.hand_fit) on scenes ray-cast by trimesh: the generator's
+"""The hand's fit to the depth input (hupbench.fits.hand_fit) on scenes ray-cast by trimesh: the generator's
 skinned hand mesh (not the fit's capsules) in a known pose. From the true joints the fit must stay near them (what
 its capsule hand gets wrong); from a network's hand moved, turned and with a finger bent it must come back most of
 the way; without a measured surface, or with the probe covering the hand's points, it must leave the network's
@@ -12,7 +12,7 @@ from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
 from hupbench.datagen.assets.probe import build_probe
-from hupbench.inference import hand_fit as F
+from hupbench.fits import hand_fit as F
 
 S = 128
 K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
@@ -74,7 +74,7 @@ def error_mm(points3d, joints):
 def test_from_the_true_joints_the_fit_stays_near_them():
     image, joints = scene()
     out2d, out3d, report = F.fit_hand(*network_output(joints), image[None], K)
-    assert report.points[0] == F.MAX_POINTS and report.fitted[0]
+    assert report.points[0] == F.HandFitSettings().max_points and report.fitted[0]
     assert error_mm(out3d[0], joints) < 3.0
     z = out3d[0, kp.HAND_SLICE, 2]
     pixels = np.stack([K[0, 0] * out3d[0, kp.HAND_SLICE, 0] / z + K[0, 2], K[1, 1] * out3d[0, kp.HAND_SLICE, 1] / z
@@ -110,11 +110,11 @@ def test_too_few_measured_points_leave_the_network_s_hand():
     image, joints = scene()
     seen = np.flatnonzero(image[3].reshape(-1) > 0)
     keep = np.zeros(image[3].size, bool)
-    keep[seen[:: max(1, len(seen) // (F.MIN_POINTS - 5))][: F.MIN_POINTS - 5]] = True
+    keep[seen[:: max(1, len(seen) // (F.HandFitSettings().min_points - 5))][: F.HandFitSettings().min_points - 5]] = True
     image[3].reshape(-1)[~keep] = 0.0
     points2d, points3d = network_output(joints + 0.004)
     out2d, out3d, report = F.fit_hand(points2d, points3d, image[None], K)
-    assert 0 < report.points[0] < F.MIN_POINTS and not report.fitted[0]
+    assert 0 < report.points[0] < F.HandFitSettings().min_points and not report.fitted[0]
     np.testing.assert_array_equal(out3d, points3d)
 
 
@@ -149,11 +149,13 @@ def test_the_probe_s_points_are_left_out():
     points2d, points3d = network_output(joints)
     points3d[0, kp.CORNER_SLICE] = build_probe().corners_probe @ R.T + t
     f32 = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64)[None], dtype=torch.float32)  # noqa: E731
+    settings = F.HandFitSettings()
     points, real = F._measured_points(f32(image[3])[0][None], torch.as_tensor(K, dtype=torch.float32),
-                                      f32(joints), f32(R), f32(t))
+                                      f32(joints), f32(R), f32(t), settings,
+                                      F._capsules(settings.palm_radius_m, settings.knuckle_radius_m))
     used = points[0][real[0] > 0].double().numpy()
     to_probe = build_probe().mesh.nearest.signed_distance((used - t) @ R)       # trimesh: positive inside
-    assert len(used) == F.MAX_POINTS and (-to_probe).min() > F.PROBE_GAP_M - 5e-4
+    assert len(used) == settings.max_points and (-to_probe).min() > settings.probe_gap_m - 5e-4
     _, with_probe, _ = F.fit_hand(points2d, points3d, image[None], K)
     _, without, _ = F.fit_hand(*network_output(joints), image[None], K)      # the box far away: its points stay in
     assert error_mm(with_probe[0], joints) < 4.0 and error_mm(with_probe[0], joints) < error_mm(without[0], joints)

@@ -1,40 +1,37 @@
 """The probe posed from the measured depth: a model's 8 box corners refined by a rigid fit of the probe's
 surface to the depth input, and its half turn read from the orientation marker.
 
-Why: on unseen grasps a network's probe is turned as recalling the training grasps would turn it. Measured on the paper
-protocol's test split (paper_hupnet_depth_sym_cpu, scripts/diagnose_errors.py): its box is turned 103 degrees
-(median) about the probe's long axis on grasp 41, while its centroid is within 7.1 mm. The
-depth input sees the probe's surface; the probe's shape is known (:mod:`hupbench.datagen.assets.probe`, its signed
-distance); a fit of that shape to the measured points recovers the turn the image shows.
+The depth input sees the probe's surface and the probe's shape is known (:mod:`hupbench.datagen.assets.probe`, its
+signed distance), so a rigid fit of that shape to the measured points recovers the turn the image shows where a
+network recalls the turns of its training grasps. The fit is a point-to-surface ICP (Besl and McKay, "A method
+for registration of 3-D shapes", IEEE TPAMI 14(2), 1992; Chen and Medioni, "Object modelling by registration of
+multiple range images", Image and Vision Computing 10(3), 1992) on the probe's signed distance, solved by
+Gauss-Newton (Nocedal and Wright, "Numerical Optimization", 2nd ed., 2006, sec. 10.3), with trimmed residuals and
+several starting turns because the probe is nearly symmetric about its long axis.
 
-How, per frame, in the camera of the model input (``K_input``):
+How, per frame, in the camera of the model input (``K_input``), with :class:`ProbeFitSettings` ``s``:
     1. The network's pose: the probe's box (:attr:`hupbench.datagen.assets.probe.Probe.corners_probe`) fitted to its
-       8 corners (Kabsch), R0, t0.
+       8 corners (Kabsch, :func:`hupbench.metrics.fit_rigid_pose`), R0, t0.
     2. The measured points: every pixel with a surface, unprojected with its depth, within the probe's half
-       diagonal + ``REACH_M`` of the network's box centre; ``MAX_POINTS`` of them in a fixed pseudo-random
-       order (fingers, palm and arm are among them: the fit is robust to them).
-    3. ``HYPOTHESES`` turns of that pose about the probe's long axis (+z), each refined by ``ITERATIONS``
-       Gauss-Newton steps of the points' signed distance to the probe (points farther than ``TRIM_M`` from
-       the surface are left out: the hand) on ``COARSE_POINTS`` of the points, the best ``FINALISTS`` again
-       on all of them, and scored by the points on the surface (within ``INLIER_M``) less
-       ``INSIDE_PENALTY`` times the points inside the probe (deeper than ``INSIDE_M``), which no real
+       diagonal + ``s.reach_m`` of the network's box centre; ``s.max_points`` of them in a fixed pseudo-random
+       order (fingers, palm and arm are among them: the trimmed fit is robust to them).
+    3. ``s.hypotheses`` turns of that pose about the probe's long axis (+z), each refined by ``s.iterations``
+       Gauss-Newton steps of the points' signed distance to the probe (points farther than ``s.trim_m`` from
+       the surface are left out: the hand) on ``s.coarse_points`` of the points, the best ``s.finalists`` again
+       on all of them, and scored by the points on the surface (within ``s.inlier_m``) less
+       ``s.inside_penalty`` times the points inside the probe (deeper than ``s.inside_m``), which no real
        surface can be. The best is the pose up to the probe's half turn: its shape is mirror-symmetric but
        for the marker.
     4. The half turn: at the marker's site of each of the two poses (the pose and its half turn), the pixel
-       window where the measured depth agrees with the site's (``MARKER_DEPTH_M``) is looked at. A site
+       window where the measured depth agrees with the site's (``s.marker_depth_m``) is looked at. A site
        whose pixels have the marker's colour (its strongest channel ahead of the others by
-       ``MARKER_CHROMA``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
+       ``s.marker_chroma``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
        loses ("no marker"); else the network's own turn decides ("network").
-    5. When fewer than ``MIN_INLIERS`` points lie on the surface of the best pose (no depth, or the probe
+    5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept").
 
 The corners out are the probe's box in the chosen pose: an exact rigid box. Their 2D points are its
 projection with ``K_input``. The hand's keypoints are not touched.
-
-The fit runs after the network, on its output and input, in :class:`hupbench.evaluation.evaluate.EvalModel`
-and ``hupbench predict`` alike, for a model whose config asks for it (``probe_fit: depth``, models/model_config.py);
-an ONNX file carries that in its ``hupbench.model_config`` metadata. Its cost is quoted by
-scripts/probe_fit_ablation.py.
 """
 
 from __future__ import annotations
@@ -48,30 +45,14 @@ import torch
 
 from hupbench.core import keypoints as kp
 from hupbench.core.rotations_torch import axis_angle_to_matrix
+from hupbench.fits.settings import ProbeFitSettings
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
-__all__ = ["DECISIONS", "ProbeFit", "ProbeModel", "fit_probe", "probe_model"]
+__all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "ProbeModel", "fit_probe", "probe_model"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
 DECISIONS = ("kept", "marker", "no marker", "network")
-
-HYPOTHESES = 24            # turns about the long axis, every 15 degrees
-ITERATIONS = 6             # Gauss-Newton steps per turn
-MAX_POINTS = 768           # measured points per frame
-COARSE_POINTS = 384        # of them, for the first round over every turn
-FINALISTS = 3              # turns refined again on all the points
-REACH_M = 0.03             # points this far beyond the probe's half diagonal from the network's box centre
-TRIM_M = (0.015, 0.006)    # points farther from the surface are left out: first half, second half of the steps
-INLIER_M = 0.0025          # on the surface
-INSIDE_M = 0.004           # inside the probe
-INSIDE_PENALTY = 3.0
-MIN_INLIERS = 30
-MARKER_WINDOW = 2          # the marker's pixel window reaches this many pixels each side of its site
-MARKER_DEPTH_M = 0.008     # a window pixel shows the site when its depth is this close to the site's
-MARKER_CHROMA = 0.25       # the marker's colour: its strongest channel ahead of the others by this much
-MARKER_FACING = 0.3        # a site faces the camera: cosine between its normal and the way to the camera
-MARKER_SEEN = 0.5          # a site is unoccluded: this share of its window shows it
 
 
 @dataclass(frozen=True)
@@ -85,6 +66,8 @@ class ProbeFit:
 
 @dataclass(frozen=True)
 class ProbeModel:
+    """The probe as the fits use it (:func:`probe_model`)."""
+
     probe: Any                    # hupbench.datagen.assets.probe.Probe: its signed distance and gradient
     corners: torch.Tensor         # (8, 3) box corners, probe frame, metres
     marker: torch.Tensor          # (3,) the marker's centre, probe frame
@@ -117,10 +100,10 @@ def _turn_z(angles: torch.Tensor) -> torch.Tensor:
     return torch.stack([c, -s, zero, s, c, zero, zero, zero, one], dim=-1).reshape(*angles.shape, 3, 3)
 
 
-def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor, reach: float
+def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor, reach: float, max_points: int
                      ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B, P, 3) camera-frame points of the depth map (B, S, S) near ``centre`` (B, 3) and their (B, P) weights
-    (1 real, 0 padding), P = ``MAX_POINTS``."""
+    """(B, P, 3) camera-frame points of the depth map (B, S, S) within ``reach`` metres of ``centre`` (B, 3) and
+    their (B, P) weights (1 real, 0 padding), P = ``max_points`` (fewer for a smaller map)."""
     B, S, _ = depth.shape
     v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
     z = depth.reshape(B, -1)
@@ -128,20 +111,20 @@ def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor,
     near = (z > 0) & ((points - centre[:, None]).norm(dim=-1) < reach)
     order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
     keys = torch.where(near, order + 1.0, torch.zeros_like(z))
-    count = min(MAX_POINTS, S * S)
+    count = min(max_points, S * S)
     top = keys.topk(count, dim=1).indices
     chosen = torch.gather(points, 1, top[..., None].expand(-1, -1, 3))
     return chosen, torch.gather(near, 1, top).float()
 
 
-def _refine(model: ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def _refine(model: ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
+            s: ProbeFitSettings) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Poses (N, 3, 3), (N, 3) refined by Gauss-Newton on the signed distance of points (N, P, 3) with weights
     (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
-    for step in range(ITERATIONS):
+    for step in range(s.iterations):
         q = (p - t[:, None]) @ R                                                 # R^T (p - t), probe frame
         d, g = model.probe.signed_distance_and_gradient_torch(q)
-        trim = TRIM_M[0] if step < ITERATIONS // 2 else TRIM_M[1]
+        trim = s.trim_m[0] if step < s.iterations // 2 else s.trim_m[1]
         w = w_real * (d.abs() < trim).float()
         J = torch.cat([torch.cross(q, g, dim=-1), g], dim=-1)                   # (N, P, 6)
         A = (J * w[..., None]).transpose(1, 2) @ J + 1e-6 * w.sum(1).clamp_min(1.0)[:, None, None] * torch.eye(6)
@@ -149,12 +132,13 @@ def _refine(model: ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.T
         R = R @ axis_angle_to_matrix(delta[:, :3]).transpose(1, 2)
         t = t - (R @ delta[:, 3:, None]).squeeze(-1)
     d, _ = model.probe.signed_distance_and_gradient_torch((p - t[:, None]) @ R)
-    inliers = (w_real * (d.abs() < INLIER_M)).sum(1)
-    return R, t, inliers - INSIDE_PENALTY * (w_real * (d < -INSIDE_M)).sum(1), inliers
+    inliers = (w_real * (d.abs() < s.inlier_m)).sum(1)
+    return R, t, inliers - s.inside_penalty * (w_real * (d < -s.inside_m)).sum(1), inliers
 
 
 def _marker_site(model: ProbeModel, rotation: torch.Tensor, translation: torch.Tensor, rgb: torch.Tensor,
-                 depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                 depth: torch.Tensor, K: torch.Tensor, s: ProbeFitSettings
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """For poses (B, 3, 3), (B, 3): (facing, seen, chroma), each (B,): the site's normal towards the camera
     (cosine), the share of its pixel window whose depth shows it, the marker colour's lead there."""
     B, _, S, _ = rgb.shape
@@ -164,7 +148,7 @@ def _marker_site(model: ProbeModel, rotation: torch.Tensor, translation: torch.T
     z = site[:, 2].clamp_min(1e-3)
     u = torch.round(K[0, 0] * site[:, 0] / z + K[0, 2]).long()
     v = torch.round(K[1, 1] * site[:, 1] / z + K[1, 2]).long()
-    r = MARKER_WINDOW
+    r = s.marker_window
     offsets = torch.arange(-r, r + 1)
     cols = (u[:, None] + offsets).clamp(0, S - 1)                                 # (B, W)
     rows = (v[:, None] + offsets).clamp(0, S - 1)
@@ -172,15 +156,15 @@ def _marker_site(model: ProbeModel, rotation: torch.Tensor, translation: torch.T
     index = torch.arange(B)[:, None, None]
     window_depth = depth[index, rows[:, :, None], cols[:, None, :]]               # (B, W, W)
     window_rgb = rgb.permute(0, 2, 3, 1)[index, rows[:, :, None], cols[:, None, :]]  # (B, W, W, 3)
-    shows = (window_depth - site[:, 2, None, None]).abs() < MARKER_DEPTH_M
+    shows = (window_depth - site[:, 2, None, None]).abs() < s.marker_depth_m
     c = model.marker_channel
     others = torch.cat([window_rgb[..., :c], window_rgb[..., c + 1:]], dim=-1).amax(-1)
     lead = torch.where(shows, window_rgb[..., c] - others, torch.full_like(others, -1.0))
     return facing, shows.float().mean(dim=(1, 2)) * inside, lead.amax(dim=(1, 2)) * inside
 
 
-def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
+def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
+              settings: ProbeFitSettings = ProbeFitSettings()) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
     """The probe's corners of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -188,6 +172,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
             frame of ``K_input``: the model's output.
         images: (B, 4, S, S) float32 model images: RGB in [0, 1], then the depth channel (metres, 0 = none).
         K_input: (3, 3) intrinsics of the model input, pixels.
+        settings: the fit's tuning values (:class:`ProbeFitSettings`).
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 8 corners replaced where the fit holds,
@@ -195,7 +180,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     """
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
-    model = probe_model()
+    model, s = probe_model(), settings
     with torch.inference_mode():
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         rgb = torch.as_tensor(images[:, :3], dtype=torch.float32)
@@ -205,36 +190,36 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         network = torch.as_tensor(fit_rigid_pose(model.corners.double().numpy(), corners), dtype=torch.float32)
         R0, t0 = network[:, :3, :3], network[:, :3, 3]                            # the network's pose
         box_centre = model.corners.mean(0)
-        reach = float((model.corners - box_centre).norm(dim=-1).max()) + REACH_M
-        points, weight = _measured_points(depth, K, box_centre @ R0.transpose(1, 2) + t0, reach)
+        reach = float((model.corners - box_centre).norm(dim=-1).max()) + s.reach_m
+        points, weight = _measured_points(depth, K, box_centre @ R0.transpose(1, 2) + t0, reach, s.max_points)
 
-        # every turn refined on a few points, the best two again on all of them
-        H = HYPOTHESES
+        # every turn refined on a few points, the best again on all of them
+        H, F = s.hypotheses, s.finalists
         angles = torch.arange(H, dtype=torch.float32) * (2 * np.pi / H)
         R = (R0[:, None] @ _turn_z(angles)).reshape(B * H, 3, 3)
         t = t0.repeat_interleave(H, dim=0)
-        few = COARSE_POINTS
+        few = s.coarse_points
         R, t, score, _ = _refine(model, points[:, :few].repeat_interleave(H, dim=0),
-                                 weight[:, :few].repeat_interleave(H, dim=0), R, t)
-        top = score.reshape(B, H).topk(FINALISTS, dim=1).indices + torch.arange(B)[:, None] * H    # (B, F)
+                                 weight[:, :few].repeat_interleave(H, dim=0), R, t, s)
+        top = score.reshape(B, H).topk(F, dim=1).indices + torch.arange(B)[:, None] * H    # (B, F)
         R, t = R[top.reshape(-1)], t[top.reshape(-1)]
-        R, t, score, inliers = _refine(model, points.repeat_interleave(FINALISTS, dim=0),
-                                       weight.repeat_interleave(FINALISTS, dim=0), R, t)
-        pick = torch.arange(B) * FINALISTS + score.reshape(B, FINALISTS).argmax(dim=1)
+        R, t, score, inliers = _refine(model, points.repeat_interleave(F, dim=0), weight.repeat_interleave(F, dim=0),
+                                       R, t, s)
+        pick = torch.arange(B) * F + score.reshape(B, F).argmax(dim=1)
         RA, tA, inliers = R[pick], t[pick], inliers[pick].long()
         RB = RA @ _turn_z(torch.tensor(np.pi, dtype=torch.float32))
 
-        facing_a, seen_a, lead_a = _marker_site(model, RA, tA, rgb, depth, K)
-        facing_b, seen_b, lead_b = _marker_site(model, RB, tA, rgb, depth, K)
+        facing_a, seen_a, lead_a = _marker_site(model, RA, tA, rgb, depth, K, s)
+        facing_b, seen_b, lead_b = _marker_site(model, RB, tA, rgb, depth, K, s)
         turn = R0.transpose(1, 2) @ RA                                             # the fit relative to the network
         network_a = torch.atan2(turn[:, 1, 0], turn[:, 0, 0]).abs() <= np.pi / 2
-        marker = torch.maximum(lead_a, lead_b) > MARKER_CHROMA
-        absent_a = (facing_a > MARKER_FACING) & (seen_a > MARKER_SEEN)
-        absent_b = (facing_b > MARKER_FACING) & (seen_b > MARKER_SEEN)
+        marker = torch.maximum(lead_a, lead_b) > s.marker_chroma
+        absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen)
+        absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen)
         choose_a = torch.where(marker, lead_a >= lead_b,
                                torch.where(absent_a, False, torch.where(absent_b, True, network_a)))
         decision = torch.where(marker, 1, torch.where(absent_a | absent_b, 2, 3))
-        kept = inliers < MIN_INLIERS
+        kept = inliers < s.min_inliers
         decision = torch.where(kept, 0, decision)
         rotation = torch.where(choose_a[:, None, None], RA, RB)
         fitted = model.corners @ rotation.transpose(1, 2) + tA[:, None]

@@ -1,41 +1,35 @@
 """The hand posed from the measured depth: a model's 21 hand joints refined by fitting a capsule hand, built on
 those joints, to the depth input.
 
-Why: on unseen grasps a network places the hand as recalling the training hands would. Measured on the paper
-protocol (paper_hupnet_fit_cpu, scripts/diagnose_errors.py): 1.2 mm on the training grasps, 8.7 mm on the
-validation grasps (their nearest-training-grasp floor 6.8 mm), its centroid 4.9 mm off and 6.7 mm left after the
-best rigid motion. The depth input sees the hand's near surface; a hand of capsules around the predicted bones,
-moved and bent until that surface lies on it, places the hand the image shows.
+The depth input sees the hand's near surface; a hand of capsules around the predicted bones, moved and bent until
+that surface lies on it, places the hand the image shows. The model and its terms follow articulated ICP for hand
+tracking (Tagliasacchi et al., "Robust Articulated-ICP for Real-Time Hand Tracking", Computer Graphics Forum 34(5),
+2015: a hand of cylinders, the measured points' distances to it, a term against model parts the sensor would have
+seen where it saw something else, a pose prior), solved by Gauss-Newton (Nocedal and Wright, "Numerical Optimization", 2nd ed., 2006, sec. 10.3) with
+Jacobians by forward-mode automatic differentiation (``torch.func.jacfwd``).
 
-How, per frame, in the camera of the model input (``K_input``):
+How, per frame, in the camera of the model input (``K_input``), with :class:`HandFitSettings` ``s``:
     1. The hand: a capsule along each finger bone (the generator's radii, :mod:`hupbench.datagen.assets.hand_anatomy`; a
        fingertip keypoint sits on the surface, so the last capsule stops one radius short of it) and the palm as
-       capsules from the wrist to each finger's base and across the knuckles (``PALM_RADIUS_M``,
-       ``KNUCKLE_RADIUS_M``: the generator's palm slab is 24 mm thick).
-    2. The measured points: pixels with a surface, unprojected with their depth, within ``REACH_M`` of the
-       network's capsules and more than ``PROBE_GAP_M`` outside the probe posed by the output's 8 corners (their
-       box, Kabsch); ``MAX_POINTS`` of them in a fixed pseudo-random order.
-    3. ``ITERATIONS`` Gauss-Newton steps on 51 parameters: a rotation about the hand's centroid and a translation
-       (6), and a rotation of each of the 15 finger bones about its proximal joint (45; the bone lengths stay the
-       network's). The residuals: each point's distance to the surface of its nearest capsule (points farther
-       than ``TRIM_M`` left out: the arm, the other objects; first half, second half of the steps); where a
-       capsule's axis (``FREE_SAMPLES`` points on each) is seen in front of the measured surface's depth by
-       more than ``FREE_MARGIN_M`` the capsule would be visible there, and it is pushed back (``FREE_WEIGHT``);
-       and each bone's rotation times ``BONE_PRIOR_M`` (metres per radian): a finger without measured points,
-       hidden by the probe or the palm, keeps the network's pose.
-    The weights were chosen on the validation split (480 frames of paper_hupnet_fit_cpu's checkpoint; hand
-    8.68 -> 6.03 mm), never the test split. Measured once on the test split (paper_hupnet_handfit_cpu, all
-    5,760 frames): hand 9.29 -> 6.55 mm against the floor's 8.17 (scripts/hand_fit_ablation.py, docs/results.md).
-    4. With fewer than ``MIN_POINTS`` measured points (no depth, the hand hidden, too few to fix a rigid motion),
-       or a step whose equations could not be solved, or a fit that is not finite, the hand stays where the
-       network put it.
+       capsules from the wrist to each finger's base (``s.palm_radius_m``) and across the knuckles
+       (``s.knuckle_radius_m``).
+    2. The measured points: pixels with a surface, unprojected with their depth, within ``s.reach_m`` of the
+       network's capsules and more than ``s.probe_gap_m`` outside the probe posed by the output's 8 corners (their
+       box, Kabsch); ``s.max_points`` of them in a fixed pseudo-random order.
+    3. ``s.iterations`` Gauss-Newton steps on 51 parameters: a rotation about the hand's centroid and a
+       translation (6), and a rotation of each of the 15 finger bones about its proximal joint (45; the bone
+       lengths stay the network's). The residuals: each point's distance to the surface of its nearest capsule
+       (points farther than ``s.trim_m`` left out: the arm, the other objects; first half, second half of the
+       steps); where a capsule's axis (``s.free_samples`` points on each) is seen in front of the measured
+       surface's depth by more than ``s.free_margin_m`` the capsule would be visible there, and it is pushed back
+       (``s.free_weight``); and each bone's rotation times ``s.bone_prior_m`` (metres per radian): a finger
+       without measured points, hidden by the probe or the palm, keeps the network's pose.
+    4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
+       motion), or a step whose equations could not be solved, or a fit that is not finite, the hand stays where
+       the network put it.
 
 The keypoints out are the fitted hand's joints; their 2D points are their projection with ``K_input``. The probe's
-corners are not touched (:mod:`hupbench.inference.probe_fit` runs first where a model asks for both).
-
-The fit runs after the network, on its output and input, in :class:`hupbench.evaluation.evaluate.EvalModel` and
-``hupbench predict`` alike, for a model whose config asks for it (``hand_fit: depth``, models/model_config.py);
-an ONNX file carries that in its ``hupbench.model_config`` metadata.
+corners are not touched (:mod:`hupbench.fits.probe_fit` runs first where a model asks for both).
 """
 
 from __future__ import annotations
@@ -48,25 +42,14 @@ import numpy as np
 import torch
 
 from hupbench.core import keypoints as kp
-from hupbench.inference.probe_fit import probe_model
+from hupbench.fits.probe_fit import probe_model
+from hupbench.fits.settings import HandFitSettings
 from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
-__all__ = ["HandFit", "fit_hand"]
+__all__ = ["HandFit", "HandFitSettings", "fit_hand"]
 
-PALM_RADIUS_M = 0.011      # wrist to each finger's base
-KNUCKLE_RADIUS_M = 0.010   # across the knuckles, index to little
-REACH_M = 0.015            # measured points this close to the network's capsules
-PROBE_GAP_M = 0.004        # and this far outside the probe
-MAX_POINTS = 512
-MIN_POINTS = 30
-ITERATIONS = 10
-TRIM_M = (0.008, 0.004)
-FREE_SAMPLES = 4
-FREE_MARGIN_M = 0.004
-FREE_WEIGHT = 0.3
-BONE_PRIOR_M = 0.05
-DAMPING = 1e-6             # added to the normal equations' diagonal: a frame with too few points stays solvable
+#: rigid motion (6) and the 15 finger bones' turns (3 each)
 N_PARAMS = 6 + 15 * 3
 
 
@@ -87,8 +70,9 @@ class _Capsules:
     tip: torch.Tensor       # (C,) bool: the end is a fingertip keypoint on the surface
 
 
-@functools.lru_cache(maxsize=1)
-def _capsules() -> _Capsules:
+@functools.lru_cache(maxsize=4)
+def _capsules(palm_radius_m: float, knuckle_radius_m: float) -> _Capsules:
+    """The capsule hand's capsules (module docstring, step 1), by keypoint index."""
     from hupbench.datagen.assets.hand_anatomy import FINGER_RADII_MM, MM, THUMB_RADII_MM
 
     rows = []
@@ -96,9 +80,9 @@ def _capsules() -> _Capsules:
         base = kp.FINGER_START[finger]
         radii = THUMB_RADII_MM if finger == "thumb" else FINGER_RADII_MM[finger]
         rows += [(base + k, base + k + 1, radii[k] * MM, k == 2) for k in range(3)]
-        rows.append((0, base, PALM_RADIUS_M, False))
+        rows.append((0, base, palm_radius_m, False))
     knuckles = [kp.FINGER_START[f] for f in ("index", "middle", "ring", "little")]
-    rows += [(a, b, KNUCKLE_RADIUS_M, False) for a, b in itertools.pairwise(knuckles)]
+    rows += [(a, b, knuckle_radius_m, False) for a, b in itertools.pairwise(knuckles)]
     start, end, radius, tip = zip(*rows)
     return _Capsules(torch.tensor(start), torch.tensor(end), torch.tensor(radius, dtype=torch.float32),
                      torch.tensor(tip))
@@ -151,13 +135,12 @@ def _pose(theta: torch.Tensor, hand: torch.Tensor) -> torch.Tensor:
     return torch.stack(out)
 
 
-def _residuals(theta, hand, points, weight, nearest, depth, K):
+def _residuals(theta, hand, points, weight, nearest, depth, K, s: HandFitSettings, caps: _Capsules):
     """One frame's residuals (module docstring, step 3) for parameters (51,): hand (21, 3), points (P, 3) with
     weights (P,) and nearest capsules (P,), depth (S, S), K (3, 3)."""
-    caps = _capsules()
     a, b = _ends(_pose(theta, hand), caps)
     surface = (_segment_distance(points, a[nearest], b[nearest]) - caps.radius[nearest]) * weight
-    samples = a[:, None] + torch.linspace(0.0, 1.0, FREE_SAMPLES)[None, :, None] * (b - a)[:, None]   # (C, F, 3)
+    samples = a[:, None] + torch.linspace(0.0, 1.0, s.free_samples)[None, :, None] * (b - a)[:, None]   # (C, F, 3)
     z = samples[..., 2].clamp_min(1e-3)
     u = K[0, 0] * samples[..., 0] / z + K[0, 2]
     v = K[1, 1] * samples[..., 1] / z + K[1, 2]
@@ -171,30 +154,31 @@ def _residuals(theta, hand, points, weight, nearest, depth, K):
                 + at(1, 1) * fu * fv)
     inside = (u > 0) & (u < size - 1) & (v > 0) & (v < size - 1) & (measured > 0)
     front = z - caps.radius[:, None]
-    free = torch.relu(measured - front - FREE_MARGIN_M) * inside.float() * FREE_WEIGHT
-    return torch.cat([surface, free.reshape(-1), theta[6:] * BONE_PRIOR_M])
+    free = torch.relu(measured - front - s.free_margin_m) * inside.float() * s.free_weight
+    return torch.cat([surface, free.reshape(-1), theta[6:] * s.bone_prior_m])
 
 
 def _measured_points(depth: torch.Tensor, K: torch.Tensor, hand: torch.Tensor, probe_rotation: torch.Tensor,
-                     probe_translation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                     probe_translation: torch.Tensor, s: HandFitSettings, caps: _Capsules
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes,
-    and their (B, P) weights (1 real, 0 padding), P = ``MAX_POINTS`` (module docstring, step 2)."""
+    and their (B, P) weights (1 real, 0 padding), P = ``s.max_points`` (module docstring, step 2)."""
     B, S, _ = depth.shape
     v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
     z = depth.reshape(B, -1)
     points = torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
-    near = (z > 0) & (_nearest(points, hand, _capsules())[0] < REACH_M)
+    near = (z > 0) & (_nearest(points, hand, caps)[0] < s.reach_m)
     on_probe, _ = probe_model().probe.signed_distance_and_gradient_torch((points - probe_translation[:, None])
                                                                             @ probe_rotation)
-    near &= on_probe > PROBE_GAP_M
+    near &= on_probe > s.probe_gap_m
     order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
     keys = torch.where(near, order + 1.0, torch.zeros_like(z))
-    top = keys.topk(min(MAX_POINTS, S * S), dim=1).indices
+    top = keys.topk(min(s.max_points, S * S), dim=1).indices
     return torch.gather(points, 1, top[..., None].expand(-1, -1, 3)), torch.gather(near, 1, top).float()
 
 
-def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, HandFit]:
+def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
+             settings: HandFitSettings = HandFitSettings()) -> tuple[np.ndarray, np.ndarray, HandFit]:
     """The hand joints of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -202,6 +186,7 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
             frame of ``K_input``: the model's output (the probe's corners as the probe's fit left them).
         images: (B, 4, S, S) float32 model images: RGB in [0, 1], then the depth channel (metres, 0 = none).
         K_input: (3, 3) intrinsics of the model input, pixels.
+        settings: the fit's tuning values (:class:`HandFitSettings`).
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 21 hand joints replaced, and :class:`HandFit`.
@@ -210,30 +195,32 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
 
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
-    caps = _capsules()
+    s = settings
+    caps = _capsules(s.palm_radius_m, s.knuckle_radius_m)
     probe = fit_rigid_pose(probe_model().corners.double().numpy(), points3d[:, kp.CORNER_SLICE])   # (B, 4, 4)
     with torch.inference_mode(False), torch.no_grad():
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         depth = torch.as_tensor(images[:, 3], dtype=torch.float32)
         hand = torch.as_tensor(np.asarray(points3d[:, kp.HAND_SLICE]), dtype=torch.float32)
         probe = torch.as_tensor(probe, dtype=torch.float32)
-        points, real = _measured_points(depth, K, hand, probe[:, :3, :3], probe[:, :3, 3])
+        points, real = _measured_points(depth, K, hand, probe[:, :3, :3], probe[:, :3, 3], s, caps)
         B = len(images)
         theta, solved = torch.zeros(B, N_PARAMS), torch.ones(B, dtype=torch.bool)
         frames = (0, 0, 0, 0, 0, 0, None)
-        residuals, jacobian = vmap(_residuals, in_dims=frames), vmap(jacfwd(_residuals), in_dims=frames)
-        for step in range(ITERATIONS):
+        one_frame = functools.partial(_residuals, s=s, caps=caps)
+        residuals, jacobian = vmap(one_frame, in_dims=frames), vmap(jacfwd(one_frame), in_dims=frames)
+        for step in range(s.iterations):
             distance, nearest = _nearest(points, vmap(_pose)(theta, hand), caps)
-            weight = real * (distance.abs() < TRIM_M[0 if step < ITERATIONS // 2 else 1]).float()
+            weight = real * (distance.abs() < s.trim_m[0 if step < s.iterations // 2 else 1]).float()
             args = (hand, points, weight, nearest, depth, K)
             r, J = residuals(theta, *args), jacobian(theta, *args)
             JT = J.transpose(1, 2)
-            delta, info = torch.linalg.solve_ex(JT @ J + DAMPING * torch.eye(N_PARAMS), -(JT @ r[..., None])[..., 0])
+            delta, info = torch.linalg.solve_ex(JT @ J + s.damping * torch.eye(N_PARAMS), -(JT @ r[..., None])[..., 0])
             solved &= info == 0
             theta = theta + torch.where(solved[:, None], delta, torch.zeros_like(delta))
         fitted = vmap(_pose)(theta, hand).double().numpy()
         count = real.sum(1).numpy().astype(np.int64)
-    use = (count >= MIN_POINTS) & solved.numpy() & np.isfinite(fitted).all(axis=(1, 2))
+    use = (count >= s.min_points) & solved.numpy() & np.isfinite(fitted).all(axis=(1, 2))
     fitted = np.where(use[:, None, None], fitted, np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64))
     K64 = np.asarray(K_input, dtype=np.float64)
     z = np.maximum(fitted[..., 2], 1e-3)

@@ -1,4 +1,4 @@
-"""The probe's fit to the depth input (hupbench.inference.probe_fit) on scenes ray-cast by trimesh, an independent
+"""The probe's fit to the depth input (hupbench.fits.probe_fit) on scenes ray-cast by trimesh, an independent
 renderer: the probe mesh in a known pose, its marker in the marker's colour, a finger-sized cylinder against its
 handle. The fit must find the pose the depth shows from a network's pose turned away from it, read the half turn
 from the marker's colour (or its absence), fall back to the network's turn where neither site is in view, and
@@ -11,7 +11,7 @@ import trimesh
 from hupbench.core import keypoints as kp
 from hupbench.datagen.assets.probe import build_probe
 from hupbench.datagen.render.scene import PROBE_BODY_RGB, PROBE_MARKER_RGB
-from hupbench.inference import probe_fit as F
+from hupbench.fits import probe_fit as F
 
 S = 128
 K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
@@ -150,4 +150,4 @@ def test_a_batch_is_fitted_frame_by_frame():
     out2d, out3d, report = F.fit_probe(np.concatenate([a[0], b[0]]), np.concatenate([a[1], b[1]]), images, K)
     assert [F.DECISIONS[d] for d in report.decision] == ["marker", "network"]
     assert error_mm(out3d[0], R1, t1) < 2.0 and error_mm(out3d[1], R2, t2) < 2.0
-    assert (report.inliers > F.MIN_INLIERS).all()
+    assert (report.inliers > F.ProbeFitSettings().min_inliers).all()

@@ -1,0 +1,177 @@
+"""A model's predictions over a dataset split: the one loop that eval and the diagnosis scripts share.
+
+:class:`EvalModel` opens a checkpoint or an exported ONNX model behind one interface (a checkpoint runs through
+:class:`hupbench.inference.export.ContractModule`, the wrapper the ONNX export uses, so both formats predict the
+same quantities); :func:`predict_split` runs it over a split's frames as :class:`hupbench.data.HUPDataset` reads
+them at the model's input, with the fits after the network (:mod:`hupbench.fits`) where the model asks for them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError, RunFailedError
+from hupbench.fits import after_network, fits
+from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.input_geometry import INPUT_MODALITIES
+
+__all__ = ["EvalModel", "SplitPrediction", "evenly_spaced", "predict_split", "split_reader"]
+
+
+class EvalModel:
+    """The model under evaluation, in either format: its name, sizes, camera, a batch predictor.
+
+    Attributes:
+        path: the model file. format: "pytorch" (a checkpoint) or "onnx".
+        payload: the checkpoint's record (:meth:`hupbench.checkpoint.Checkpoint.record`), None for ONNX.
+        module: the checkpoint's :class:`hupbench.inference.export.ContractModule`, None for ONNX.
+        onnx: the :class:`hupbench.inference.runtime.OnnxModel`, None for a checkpoint.
+        model_config: the architecture's saved config. input_size: S, pixels. input_modalities: "rgb" or
+            "rgb+depth". K_input: (3, 3) float64 intrinsics of the model input, pixels (the camera of the 3D
+            output). run_name: the training run's name as a run name (:func:`hupbench.provenance.default_run_name`).
+    """
+
+    def __init__(self, path: Path) -> None:
+        from hupbench.checkpoint import load_model
+        from hupbench.inference.export import contract_model
+        from hupbench.provenance import default_run_name
+
+        self.path = Path(path)
+        if self.path.suffix.lower() == ".onnx":
+            self.format, self.payload, self.module = "onnx", None, None
+            self.onnx = load_onnx_model(self.path, torch.get_num_threads())
+            if len(self.onnx.keypoint_names) != kp.NUM_KEYPOINTS:
+                raise BadValueError(f"{path} predicts {len(self.onnx.keypoint_names)} keypoints; the benchmark has "
+                                    f"{kp.NUM_KEYPOINTS}")
+            if not self.onnx.model_config:  # eval rebuilds the architecture to count its parameters and FLOPs
+                raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's "
+                                    "cost")
+            self.model_config, self.input_size = self.onnx.model_config, self.onnx.input_size
+            self.input_modalities = self.onnx.input_modalities
+            self.K_input = self.onnx.K_input
+            self.run_name = default_run_name(self.onnx.run_name, self.path)
+            return
+        model, payload = load_model(self.path)
+        self.format, self.payload, self.onnx = "pytorch", payload, None
+        self.module = contract_model(model, payload, str(path))
+        self.model_config = dict(payload["model_config"])
+        self.input_size = self.module.input_size
+        self.input_modalities = self.module.input_modalities
+        self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
+        self.run_name = default_run_name((payload.get("config") or {}).get("run_name"), self.path)
+
+    @property
+    def fits(self) -> bool:
+        """Whether the model's config asks for a fit after the network (:func:`hupbench.fits.fits`)."""
+        return bool(fits(self.model_config))
+
+    @property
+    def channels(self) -> int:
+        """C, channels of the model images (3 RGB, 4 with depth)."""
+        return INPUT_MODALITIES[self.input_modalities]
+
+    def after_network(self, images: np.ndarray, outputs: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """What runs on the network's (points2d, points3d) outputs for (B, C, S, S) model images: the fits to the
+        depth input the model asks for (:func:`hupbench.fits.after_network`), else nothing; float64."""
+        return after_network(self.model_config, *outputs, images, self.K_input)
+
+    def network(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """(B, C, S, S) float32 model images -> the network's points2d (B, 29, 2) normalised and points3d
+        (B, 29, 3) metres (camera of ``K_input``), float64 numpy, without the fits."""
+        if self.module is not None:
+            with torch.inference_mode():
+                points2d, points3d = self.module(images)
+            return points2d.double().numpy(), points3d.double().numpy()
+        points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
+        return points2d.astype(np.float64), points3d.astype(np.float64)
+
+    def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`network`'s output, and the fits to the depth input after it where the model asks for them."""
+        return self.after_network(images.numpy(), self.network(images))
+
+
+@dataclass(frozen=True)
+class SplitPrediction:
+    """Predictions and labels of frames of one split, in the order of ``rows``.
+
+    Attributes:
+        rows: (F,) int64 indices of the frames in the split's reader.
+        points2d: (F, 29, 2) float64, normalised input coordinates; points3d: (F, 29, 3) float64, metres,
+            OpenCV camera frame of the model's ``K_input``: the predictions.
+        labels2d, labels3d: the same of the labels, as the reader gives them at the model input.
+        images: the (B, C, S, S) float32 model images of each batch, in order, when asked for; else None.
+        seconds: wall time of the pass.
+    """
+
+    rows: np.ndarray
+    points2d: np.ndarray
+    points3d: np.ndarray
+    labels2d: np.ndarray
+    labels3d: np.ndarray
+    images: list[np.ndarray] | None
+    seconds: float
+
+
+def split_reader(dataset: Path, split: str, net: EvalModel):
+    """The :class:`hupbench.data.HUPDataset` of a split at the model's input size and modalities."""
+    from hupbench.data import HUPDataset, ReaderConfig
+
+    return HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size, input_modalities=net.input_modalities))
+
+
+def evenly_spaced(total: int, frames: int) -> np.ndarray:
+    """(F,) int64 indices of ``frames`` frames spread evenly over ``total`` (all of them for 0 or >= total)."""
+    if not frames or frames >= total:
+        return np.arange(total)
+    return np.linspace(0, total - 1, frames).round().astype(np.int64)
+
+
+def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] | None = None, with_fits: bool = True,
+                  keep_images: bool = False, progress: bool = False,
+                  log: Callable[[str], None] | None = None) -> SplitPrediction:
+    """Run a model over frames of a split, batched, in order.
+
+    Args:
+        net: the model. reader: the split's reader (:func:`split_reader`). batch_size: frames per forward pass.
+        rows: indices of the frames to run (default: all, in order).
+        with_fits: run the fits after the network where the model asks for them (eval); False: the network alone.
+        keep_images: keep each batch's model images in the result (for fits run afterwards).
+        progress: a progress bar on a terminal. log: receives one line with the pass's time, when given.
+
+    Returns:
+        :class:`SplitPrediction`.
+
+    Raises:
+        RunFailedError: the model's output is NaN or inf on some frame.
+    """
+    from tqdm import tqdm
+
+    rows = np.arange(len(reader)) if rows is None else np.asarray(rows, dtype=np.int64)
+    frames = torch.utils.data.Subset(reader, rows.tolist())
+    loader = torch.utils.data.DataLoader(frames, batch_size=batch_size, shuffle=False, num_workers=0)
+    pred2d, pred3d, gt2d, gt3d, images = [], [], [], [], []
+    start = time.perf_counter()
+    for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
+                      disable=None if progress else True):  # None: only on a terminal
+        p2, p3 = net.predict(batch["image"]) if with_fits else net.network(batch["image"])
+        pred2d.append(p2)
+        pred3d.append(p3)
+        gt2d.append(batch["keypoints_2d"].double().numpy())
+        gt3d.append(batch["keypoints_3d"].double().numpy())
+        if keep_images:
+            images.append(batch["image"].numpy())
+    pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
+    seconds = time.perf_counter() - start
+    if log is not None:
+        log(f"ran {net.format} model on {len(rows)} {reader.split} frames in {seconds:.1f} s")
+    bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
+    if bad.any():
+        raise RunFailedError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+    return SplitPrediction(rows, pred2d, pred3d, gt2d, gt3d, images if keep_images else None, seconds)

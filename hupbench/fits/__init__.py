@@ -1,0 +1,80 @@
+"""What runs after the network: a model's keypoints refined by fitting known shapes to its depth input.
+
+A model's saved config asks for the fits (``probe_fit: depth``, ``hand_fit: depth``); :func:`after_network` runs
+them on its output, in eval (:mod:`hupbench.evaluation.prediction`) and ``hupbench predict`` alike. The probe's fit
+(:mod:`hupbench.fits.probe_fit`) poses the procedural probe's surface; the hand's (:mod:`hupbench.fits.hand_fit`) fits a
+capsule hand and leaves that probe's surface out. Both know only the procedural probe: data made with another
+probe is refused by :func:`check_fitted_probe`.
+
+May import: ``hupbench.core``, ``hupbench.metrics``, ``hupbench.input_geometry``, torch and numpy, and the
+generator's probe and hand (``datagen.assets``, the shapes the fits fit); this module itself imports neither torch
+nor the generator (the predict path imports it): a fit imports them when it runs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hupbench.core.errors import BadValueError
+from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
+
+__all__ = ["FITTED_PROBE", "HandFitSettings", "ProbeFitSettings", "after_network", "check_fitted_probe", "fits"]
+
+#: the probe record (a dataset manifest's ``probe``, :attr:`hupbench.datagen.assets.probe.Probe.record`) of the one
+#: probe the fits know: the procedural probe of the default spec
+FITTED_PROBE = {"kind": "procedural"}
+
+
+def fits(model_config: dict) -> tuple[str, ...]:
+    """What a model's saved config (a checkpoint's, or an ONNX file's ``hupbench.model_config``) asks to run after
+    the network, in the order it runs: "probe" (``probe_fit: depth``) and "hand" (``hand_fit: depth``); a config
+    without the fields fits nothing."""
+    return tuple(part for part in ("probe", "hand") if model_config.get(f"{part}_fit", "none") == "depth")
+
+
+def check_fitted_probe(model_config: dict, probe_record: dict | None, source: str) -> None:
+    """Refuse data of another probe for a model that fits: the fits pose and leave out :data:`FITTED_PROBE` only.
+
+    Args:
+        model_config: the model's saved config (:func:`fits`).
+        probe_record: the data's probe record (a manifest's ``probe``; None or absent: the procedural probe).
+        source: the data's manifest, named in the error.
+
+    Raises:
+        BadValueError: the model fits and the data's probe is another one.
+    """
+    record = FITTED_PROBE if probe_record is None else probe_record
+    asked = fits(model_config)
+    if asked and record != FITTED_PROBE:
+        shown = record.get("path") or record.get("spec") or record.get("kind")
+        raise BadValueError(f"{source}: the data shows the probe {shown!r} ({record.get('kind')}), but the model's "
+                            f"{' and '.join(asked)} fit{'s' if len(asked) > 1 else ''} (probe_fit/hand_fit: depth) "
+                            f"know only the default procedural probe; use a model without the fits on this data")
+
+
+def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
+                  K_input: np.ndarray, probe: ProbeFitSettings = ProbeFitSettings(),
+                  hand: HandFitSettings = HandFitSettings()) -> tuple[np.ndarray, np.ndarray]:
+    """The fits a model asks for (:func:`fits`) on its output: the probe's first, the hand's on the probe it left.
+
+    Args:
+        model_config: the model's saved config.
+        points2d: (B, N, 2) float, normalised input coordinates; points3d: (B, N, 3) float, metres, OpenCV camera
+            frame of ``K_input``: the network's output.
+        images: (B, C, S, S) float32 model images (C = 4 for a model that fits: RGB in [0, 1], depth in metres).
+        K_input: (3, 3) intrinsics of the model input, pixels.
+        probe, hand: the fits' settings (the defaults are what every model runs with).
+
+    Returns:
+        float64 (points2d (B, N, 2), points3d (B, N, 3)); the output itself where the model fits nothing.
+    """
+    asked = fits(model_config)
+    if "probe" in asked:  # torch is imported only for a model that fits
+        from hupbench.fits.probe_fit import fit_probe
+
+        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe)
+    if "hand" in asked:
+        from hupbench.fits.hand_fit import fit_hand
+
+        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand)
+    return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64)

@@ -1,0 +1,90 @@
+"""The tuning values of the fits after the network, as frozen settings passed to each fit.
+
+Plain dataclasses (no torch): :func:`hupbench.fits.after_network` takes them on the torch-free predict path. A
+variant is ``dataclasses.replace(HandFitSettings(), free_weight=0.0)``; the defaults are the values every model
+runs with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["HandFitSettings", "ProbeFitSettings"]
+
+
+@dataclass(frozen=True)
+class ProbeFitSettings:
+    """How :func:`hupbench.fits.probe_fit.fit_probe` poses the probe (its module docstring names the steps).
+
+    Attributes:
+        hypotheses: turns of the network's pose about the probe's long axis, evenly spaced (24: every 15 degrees).
+        iterations: Gauss-Newton steps per turn.
+        max_points: measured points per frame; coarse_points: of them, for the first round over every turn.
+        finalists: turns refined again on all the points.
+        reach_m: points this far beyond the probe's half diagonal from the network's box centre, metres.
+        trim_m: points farther from the surface are left out, metres: (first half, second half) of the steps.
+        inlier_m: a point within this of the surface is on it, metres.
+        inside_m: a point deeper than this inside the probe is inside it, metres; inside_penalty: the score's
+            weight of such a point against one on the surface.
+        min_inliers: fewer points on the best pose's surface keep the network's corners.
+        marker_window: the marker's pixel window reaches this many pixels each side of its site.
+        marker_depth_m: a window pixel shows the site when its depth is this close to the site's, metres.
+        marker_chroma: the marker's colour: its strongest channel ahead of the others by this much (RGB in [0, 1]).
+        marker_facing: a site faces the camera: cosine between its normal and the way to the camera above this.
+        marker_seen: a site is unoccluded: this share of its window shows it.
+    """
+
+    hypotheses: int = 24
+    iterations: int = 6
+    max_points: int = 768
+    coarse_points: int = 384
+    finalists: int = 3
+    reach_m: float = 0.03
+    trim_m: tuple[float, float] = (0.015, 0.006)
+    inlier_m: float = 0.0025
+    inside_m: float = 0.004
+    inside_penalty: float = 3.0
+    min_inliers: int = 30
+    marker_window: int = 2
+    marker_depth_m: float = 0.008
+    marker_chroma: float = 0.25
+    marker_facing: float = 0.3
+    marker_seen: float = 0.5
+
+    def __post_init__(self) -> None:
+        assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)
+        assert 1 <= self.coarse_points <= self.max_points, (self.coarse_points, self.max_points)
+
+
+@dataclass(frozen=True)
+class HandFitSettings:
+    """How :func:`hupbench.fits.hand_fit.fit_hand` fits its capsule hand (its module docstring names the steps).
+
+    Attributes:
+        palm_radius_m: radius of the capsules from the wrist to each finger's base, metres.
+        knuckle_radius_m: radius of the capsules across the knuckles, index to little, metres.
+        reach_m: measured points this close to the network's capsules are the hand's, metres;
+        probe_gap_m: and this far outside the probe, metres.
+        max_points: measured points per frame; min_points: fewer keep the network's hand.
+        iterations: Gauss-Newton steps.
+        trim_m: points farther from the capsules are left out, metres: (first half, second half) of the steps.
+        free_samples: points on each capsule's axis checked against the measured depth;
+        free_margin_m: a sample this far in front of the measured surface would be seen there, metres;
+        free_weight: the weight of that free-space residual.
+        bone_prior_m: each bone's turn costs this many metres per radian (a finger without points stays put).
+        damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
+    """
+
+    palm_radius_m: float = 0.011
+    knuckle_radius_m: float = 0.010
+    reach_m: float = 0.015
+    probe_gap_m: float = 0.004
+    max_points: int = 512
+    min_points: int = 30
+    iterations: int = 10
+    trim_m: tuple[float, float] = (0.008, 0.004)
+    free_samples: int = 4
+    free_margin_m: float = 0.004
+    free_weight: float = 0.3
+    bone_prior_m: float = 0.05
+    damping: float = 1e-6
