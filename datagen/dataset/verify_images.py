@@ -13,7 +13,7 @@ import numpy as np
 
 from hupbench.core import tolerances as tol
 from hupbench.core.contract import SEG_LABELS
-from hupbench.core.errors import RunFailedError
+from hupbench.core.io import encode_image
 
 
 #: the renderer's white ambient light (hupbench.datagen.dataset.chunks.ChunkRenderer: RenderSettings(ambient=0.3))
@@ -139,10 +139,8 @@ def jpeg_reference(background: np.ndarray, quality: int | None) -> np.ndarray:
     """
     if quality is None:
         return background
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(background[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise RunFailedError(f"OpenCV could not encode a {background.shape} background as JPEG")
-    return np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])
+    buf = encode_image(".jpg", np.ascontiguousarray(background[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    return np.ascontiguousarray(cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)[..., ::-1])
 
 
 def _near_blocks(foreground: np.ndarray) -> np.ndarray:
