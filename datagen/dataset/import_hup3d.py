@@ -174,8 +174,8 @@ def _array(meta: dict, key: str, shape: tuple[int, ...], path: Path, leading: bo
     if leading:
         value = value.reshape(-1)[:shape[0]]
     if value.shape != shape or not np.isfinite(value).all():
-        what = f"its first {shape[0]}" if leading else f"of shape {shape}"
-        raise BadValueError(f"{path}: {key} must be finite numbers, {what}, got {value.shape}")
+        what = f"(at least {shape[0]}; its first {shape[0]} are used)" if leading else f"of shape {shape}"
+        raise BadValueError(f"{path}: {key} must be finite numbers {what}, got {value.shape}")
     return value
 
 

@@ -8,6 +8,7 @@ input is mended.
 
 from __future__ import annotations
 
+import pickle
 import shutil
 from pathlib import Path
 from typing import Callable
@@ -83,3 +84,47 @@ def test_matrix_import_hup3d(published, tmp_path, capsys, case, out_exists):
     shutil.copytree(published, src)
     answer = run_cli(capsys, *argv)
     assert answer.rc == 0 and (out / "manifest.json").is_file(), answer
+
+
+def _meta(number: int, edit):
+    def damage(src: Path) -> None:
+        path = src / "HUP-3D" / "test" / "meta" / f"img_meta_{number}.pkl"
+        meta = pickle.loads(path.read_bytes())
+        path.write_bytes(pickle.dumps(edit(meta)))
+    return damage
+
+
+def _short_pose(meta: dict) -> dict:
+    return meta | {"pose": [0.1, 0.2]}
+
+
+#: merged checks: one line for what two checks said before (meta pickles of the last frame)
+MERGED = {
+    "meta-not-a-dict": (_meta(3, lambda meta: [meta]), ("img_meta_3.pkl", "not a readable meta pickle of a dict",
+                                                       "a pickled list")),
+    "meta-not-a-pickle": (_bytes("test/meta/img_meta_3.pkl", b"not a pickle"),
+                          ("img_meta_3.pkl", "not a readable meta pickle of a dict", "UnpicklingError")),
+    "meta-pose-too-short": (_meta(3, _short_pose), ("img_meta_3.pkl", "pose must be finite numbers (at least 3", "(2,)")),
+}
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("case", list(MERGED))
+def test_matrix_import_hup3d_meta(published, tmp_path, capsys, case):
+    src = tmp_path / "src"
+    shutil.copytree(published, src)
+    MERGED[case][0](src)
+    out = tmp_path / "ds"
+    assert_clean_error(run_cli(capsys, "import-hup3d", src / "HUP-3D", "--probe-mesh", src / "probe.ply", out),
+                       *MERGED[case][1])
+    assert not out.exists()
+
+
+@pytest.mark.matrix
+def test_matrix_import_hup3d_folder_without_meta(published, tmp_path, capsys):
+    """A folder that holds neither meta/ nor split folders with one: the line of an empty meta/ folder."""
+    out = tmp_path / "ds"
+    assert_clean_error(run_cli(capsys, "import-hup3d", published / "HUP-3D" / "test" / "rgb", "--probe-mesh",
+                               published / "probe.ply", out),
+                       "no img_meta_N.pkl files", "rgb/meta", "not the published HUP-3D layout")
+    assert not out.exists()
