@@ -7,7 +7,7 @@ code 130; HYDRA_FULL_ERROR=1 shows the traceback of a refusal.
 
 import sys
 
-from hupbench.verbs.train import main
+from hupbench.verbs.train import command
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:], prog="train.py"))
+    sys.exit(command(sys.argv[1:], prog="train.py"))

@@ -32,7 +32,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     import torch
 
     from hupbench.config import compose
-    from hupbench.data import setup_data
+    from hupbench.data import Placement, setup_data
     from hupbench.training.run_config import train_config
     from hupbench.training.loop import autocast_args, build_run_model, resolve_precision, train_step
     from hupbench.training.schedule import learning_rate
@@ -45,7 +45,7 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     device = torch.device(args.device)
     autocast = autocast_args(resolve_precision(run.precision, device), device)
     t0 = time.perf_counter()
-    data = setup_data(cfg, 1, 0, device, log=print)
+    data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, Placement(1, 0, device), run.train.progress)
     setup_s = time.perf_counter() - t0
     K = data.train_set.ann["K"][0]
     model = build_run_model(run, data, K).to(device)

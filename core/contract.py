@@ -1,6 +1,6 @@
 """The dataset on disk: the one contract between the generator and every reader (numpy only).
 
-DESIGN.md's layout::
+The layout::
 
     DATASET/manifest.json                  written last: a dataset without it is not finished
     DATASET/grasps.npz
@@ -12,7 +12,8 @@ DESIGN.md's layout::
 The generator writes through these names; training, verify, eval, export and the quickstart read
 through :func:`read_manifest` and :func:`read_annotations`, which check what they return (the
 manifest's fields, the npz's integrity, every array's dtype and shape, the row count against the
-manifest) and raise ``ValueError`` naming the file and what was wrong. This module imports numpy
+manifest, the camera's focal lengths) and raise a :class:`hupbench.core.errors.BadValueError` naming the
+file, the field and what was wrong. This module imports numpy
 and the keypoint order only: a reader never pulls in the renderer.
 
 Convention:
@@ -35,7 +36,7 @@ from typing import Iterable
 import numpy as np
 
 from hupbench.core import keypoints as kp
-from hupbench.core.input_checks import is_whole
+from hupbench.core.input_checks import is_number, is_whole
 from hupbench.core.errors import BadValueError, MissingFileError
 
 SCHEMA_VERSION = 1
@@ -94,10 +95,6 @@ def annotations_path(root: str | Path, split: str) -> Path:
 
 def _fail(path: Path, what: str) -> BadValueError:
     return BadValueError(f"{path}: {what}")
-
-
-def _positive_int(value) -> bool:
-    return is_whole(value) and value > 0
 
 
 def read_manifest(root: str | Path, split: str | None = None, needs: str = "this reader expects") -> dict:
@@ -169,7 +166,7 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
             any(not is_whole(v) or v < 0 for v in counts.values()):
         raise _fail(path, f"counts must map {list(SPLITS)} to frame counts >= 0, got {counts!r}")
     size = manifest["image_size"]
-    if not (isinstance(size, list) and len(size) == 2 and all(_positive_int(v) for v in size)):
+    if not (isinstance(size, list) and len(size) == 2 and all(is_whole(v) and v > 0 for v in size)):
         raise _fail(path, f"image_size must be [width, height] in pixels, got {size!r}")
     try:
         K = np.asarray(manifest["K"], dtype=np.float64)
@@ -183,10 +180,10 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
     if manifest["rgb_format"] not in RGB_FORMATS:
         raise _fail(path, f"rgb_format must be one of {list(RGB_FORMATS)}, got {manifest['rgb_format']!r}")
     scale = manifest["depth_scale_m"]
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+    if not (is_number(scale) and scale > 0):
         raise _fail(path, f"depth_scale_m must be a positive number, got {scale!r}")
     shape = (manifest["layout"] or {}).get("shape") if isinstance(manifest["layout"], dict) else None
-    if not (isinstance(shape, list) and len(shape) == 5 and all(_positive_int(v) for v in shape)):
+    if not (isinstance(shape, list) and len(shape) == 5 and all(is_whole(v) and v > 0 for v in shape)):
         raise _fail(path, f"layout.shape must be 5 positive ints (grasp, z_ego, background, glove, view), "
                           f"got {shape!r}")
     if sum(counts.values()) != math.prod(shape):
@@ -248,19 +245,31 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         if isinstance(exc, FileNotFoundError):
             raise
         raise DamagedFileError(f"{path}: damaged ({type(exc).__name__}: {exc}); regenerate the dataset") from exc
-    expected_rows = manifest["counts"].get(split, 0)
     for key in keys:
-        dtype, row_shape = ANNOTATION_FIELDS[key]
-        array = arrays[key]
-        if array.dtype != np.dtype(dtype):
-            raise _fail(path, f"{key} is {array.dtype}, expected {np.dtype(dtype)}")
-        if array.shape != (expected_rows, *row_shape):
-            raise _fail(path, f"{key} has shape {array.shape}, expected {(expected_rows, *row_shape)} "
-                              f"({expected_rows} rows as the manifest counts for {split!r})")
-        if key in FINITE_FIELDS and not np.isfinite(array).all():
-            bad = int((~np.isfinite(array.reshape(len(array), -1))).any(axis=1).sum())
-            raise _fail(path, f"{key} holds NaN or inf in {bad} rows")
+        problem = _array_problem(key, arrays[key], manifest["counts"].get(split, 0), split)
+        if problem is not None:
+            raise _fail(path, problem)
     ids = arrays["frame_id"]
     if len(ids) > 1 and not (np.diff(ids) > 0).all():
         raise _fail(path, "frame_id is not strictly ascending (repeated or shuffled rows)")
     return arrays
+
+
+def _array_problem(key: str, array: np.ndarray, rows: int, split: str) -> str | None:
+    """What annotation array ``key`` breaks of the contract, in words (None: nothing): its dtype and row shape
+    (:data:`ANNOTATION_FIELDS`), its ``rows`` (the manifest's count for ``split``), finite values
+    (:data:`FINITE_FIELDS`), and for K, positive focal lengths (a K of zeros projects every point to the
+    origin)."""
+    dtype, row_shape = ANNOTATION_FIELDS[key]
+    if array.dtype != np.dtype(dtype):
+        return f"{key} is {array.dtype}, expected {np.dtype(dtype)}"
+    if array.shape != (rows, *row_shape):
+        return (f"{key} has shape {array.shape}, expected {(rows, *row_shape)} ({rows} rows as the manifest counts "
+                f"for {split!r})")
+    if key in FINITE_FIELDS and not np.isfinite(array).all():
+        return f"{key} holds NaN or inf in {int((~np.isfinite(array.reshape(rows, -1))).any(axis=1).sum())} rows"
+    bad = np.flatnonzero((array[:, 0, 0] <= 0) | (array[:, 1, 1] <= 0)) if key == "K" else []
+    if len(bad):
+        return (f"K has fx or fy <= 0 in {len(bad)} rows (the first: row {bad[0]}); each frame's K must be a camera "
+                "matrix with focal lengths > 0 (pixels)")
+    return None

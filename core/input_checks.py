@@ -1,27 +1,35 @@
-"""Input checks shared by datagen and hupbench: whole numbers, finite numbers and array shapes.
+"""The input-check vocabulary: whole numbers, finite numbers, booleans, choices and array shapes.
 
 Numpy only (the torch-free predict path uses it). One wording for every such error, so that a user
 reads the same sentence whichever verb refused the value: ``NAME must be a whole number >= 1, got 0``,
-``NAME must be a finite number in (0, 1], got nan``, ``NAME must be (N, 3), got (5, 2)``.
-``models/`` keeps its own few checks: it imports nothing of datagen (DESIGN.md).
+``NAME must be a finite number in (0, 1], got nan``, ``NAME must be true or false, got 'maybe'``,
+``NAME must be 'cpu' or 'cuda', got 'tpu'``, ``NAME must be (N, 3), got (5, 2)``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from hupbench.core.errors import BadValueError
 
-__all__ = ["check_int", "check_number", "check_shape", "is_whole"]
+__all__ = ["check_bool", "check_bool_fields", "check_choice", "check_int", "check_number", "check_shape", "is_number",
+           "is_whole"]
 
 
 def is_whole(value: Any) -> bool:
     """True for a Python or numpy integer (not a bool, not an integral float such as 2.0)."""
     return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def is_number(value: Any) -> bool:
+    """True for a finite Python or numpy real number (not a bool, not NaN or inf)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
 
 
 def _bounds(low, high, low_open: bool = False, fmt: str = "") -> str:
@@ -61,12 +69,34 @@ def check_number(value: Any, name: str, low: float | None = None, high: float | 
     """``value`` when it is a finite real number within its interval ((low, high] with ``low_open``)."""
     if value is None and optional:
         return None
-    ok = (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
-          and (low is None or (value > low if low_open else value >= low)) and (high is None or value <= high))
-    if ok:
+    above = is_number(value) and (low is None or (value > low if low_open else value >= low))
+    if above and (high is None or value <= high):
         return float(value)
     raise BadValueError(f"{name} must be a finite number{_bounds(low, high, low_open, 'g')}"
                      f"{' or null' if optional else ''}, got {value!r}")
+
+
+def check_bool(value: Any, name: str) -> bool:
+    """``value`` when it is a boolean (Python or numpy); anything else, the string "maybe" from a command line
+    or the number 1 included, is refused naming ``name``."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise BadValueError(f"{name} must be true or false, got {value!r}")
+
+
+def check_bool_fields(node: Any, prefix: str = "") -> None:
+    """Every field of the dataclass ``node`` annotated ``bool`` is a boolean (:func:`check_bool`), named
+    ``prefix`` + its name (a config node's ``__post_init__`` calls it with its dotted path, e.g. ``"train."``)."""
+    for field in dataclasses.fields(node):
+        if field.type in (bool, "bool"):
+            check_bool(getattr(node, field.name), prefix + field.name)
+
+
+def check_choice(value: Any, name: str, choices: Sequence) -> Any:
+    """``value`` when it is one of ``choices`` (a bool matches only a bool: ``True`` is not ``1``)."""
+    if any(value == choice and isinstance(value, bool) == isinstance(choice, bool) for choice in choices):
+        return value
+    raise BadValueError(f"{name} must be {' or '.join(repr(c) for c in choices)}, got {value!r}")
 
 
 def check_shape(array: Any, shape: tuple, name: str) -> np.ndarray:

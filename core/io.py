@@ -30,7 +30,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from hupbench.core.errors import BadValueError, NotWritableError, RunFailedError, UserError
+from hupbench.core.errors import BadPathError, BadValueError, NotWritableError, RunFailedError, UserError
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
@@ -71,17 +71,18 @@ def check_writable(path: str | Path, what: str, *, file: bool = False) -> Path:
 
     Raises:
         BadValueError: ``path`` is empty (it would name the current folder) or not a path, a folder where a
-            file belongs, or it (or a parent) is a file where a folder belongs. NotWritableError: the nearest
-            existing folder is read-only or not writable.
+            file belongs, or it (or a parent) is a file where a folder belongs. BadPathError: a name in it is
+            longer than the file system allows. NotWritableError: the nearest existing folder is read-only or
+            not writable.
     """
     if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
         raise BadValueError(f"{what} must be a {'file' if file else 'folder'} path, got {path!r}")
-    path = Path(path)
-    if file and path.is_dir():
-        raise BadValueError(f"{what} {path} is a folder; expected a file path")
-    existing = path.parent if file else path
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
+    with writing(path, what) as path:  # Path.exists itself fails on a name longer than the file system allows
+        if file and path.is_dir():
+            raise BadValueError(f"{what} {path} is a folder; expected a file path")
+        existing = path.parent if file else path
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
     if not existing.is_dir():
         where = f": {existing} is a file" if existing != path else " (a file of that name exists)"
         raise BadValueError(f"{what} {path} is not a folder{where}")
@@ -112,12 +113,42 @@ def tmp_path(path: str | Path, suffix: str = "") -> Path:
     return path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
 
 
-def _explain(exc: OSError, path: Path) -> OSError:
+def _explain(exc: OSError, path: Path, what: str = "", fix: str = "") -> OSError:
+    """The user error of an OSError met writing ``path``, naming ``path`` (as ``what`` when given, e.g.
+    "out_dir") and ``fix`` (words on what to do): a full disk, a folder that may not be written, a file where a
+    folder belongs or the reverse, a name too long. Any other OSError (a reader's, a missing input) is returned
+    as it came."""
+    name, fix = f"{what} {path}" if what else str(path), f"; {fix}" if fix else ""
     if exc.errno == errno.ENOSPC:
         return DiskFullError(path)
     if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        return NotWritableError(exc.errno, f"cannot write {path}: {exc.strerror}")
+        return NotWritableError(exc.errno, f"cannot write {name}: {exc.strerror}{fix}")
+    if exc.errno in (errno.ENOTDIR, errno.EEXIST):
+        blocker = next((p for p in (path, *path.parents) if os.path.exists(p) and not os.path.isdir(p)), None)
+        if blocker is not None:
+            where = "it is a file; expected a folder" if blocker == path else f"{blocker} is a file, not a folder"
+            return BadPathError(exc.errno, f"cannot write {name}: {where}{fix}")
+    if exc.errno == errno.EISDIR:
+        return BadPathError(exc.errno, f"cannot write {name}: it is a folder; expected a file{fix}")
+    if exc.errno == errno.ENAMETOOLONG:
+        return BadPathError(exc.errno, f"cannot write {name}: the path, or a name in it, is longer than the file "
+                                       f"system allows{fix}")
     return exc
+
+
+@contextlib.contextmanager
+def writing(path: str | Path, what: str = "", fix: str = "") -> Iterator[Path]:
+    """Run a block that writes ``path`` (a file, or a folder and what it holds) and yield ``Path(path)``; an
+    OSError in it of the kinds :func:`atomic_output` names (a full disk, no permission, a file where a folder
+    belongs, a name too long) is raised as the user error that names ``path`` (as ``what``) and ``fix``."""
+    path = Path(path)
+    try:
+        yield path
+    except OSError as exc:
+        explained = _explain(exc, path, what, fix) if not isinstance(exc, UserError) else exc
+        if explained is exc:
+            raise
+        raise explained from exc
 
 
 @contextlib.contextmanager
@@ -138,11 +169,11 @@ def atomic_output(path: str | Path, suffix: str = "") -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         yield tmp
         os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise _explain(exc, path) from exc
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):  # never made (no folder for it, a name too long): the first error counts
+            tmp.unlink()
+        if isinstance(exc, OSError):
+            raise _explain(exc, path) from exc
         raise
 
 
@@ -350,8 +381,8 @@ class OutputLock:
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise _explain(exc, self.path) from exc
+        except OSError as exc:  # the user knows the output, not its lock file
+            raise _explain(exc, self.target) from exc
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

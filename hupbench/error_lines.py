@@ -1,19 +1,109 @@
-"""How an error reaches the user: one line, no traceback (imports no torch).
+"""How a verb's end reaches the user: one catch for every entry point (imports no torch).
 
-Every verb (``hupbench VERB``) and ``python train.py`` answers a bad input or a failed run with one
-line, ``PROGRAM: error: TEXT``, and exit code 1; ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py)
-lets the traceback through instead. A deliberate refusal raises a :class:`hupbench.core.errors.UserError`;
-anything else is a bug and keeps its traceback.
+:func:`answered` runs a verb (``hupbench VERB``, ``python train.py``) and answers how it ended:
+
+- a deliberate refusal (a :class:`hupbench.core.errors.UserError`, or Hydra's and OmegaConf's errors of a
+  malformed override, an unknown key or config option): one line ``PROGRAM: error: TEXT`` on stderr, exit 1;
+- Ctrl-C: one line ``PROGRAM: interrupted ...``, exit 130;
+- standard output that cannot be written: a reader that closed the pipe (``hupbench verify DATASET | head -1``)
+  took what it wanted, so the rest of the output is dropped, the verb finishes its work and exits with its own
+  code; a full stdout (``> /dev/full``, a full disk behind the redirection) is one line on stderr and exit 1,
+  since the report the user asked for is lost (files the verb wrote before stay);
+- anything else is a bug and keeps its traceback.
+
+``debug`` (``--debug``, ``HYDRA_FULL_ERROR=1`` for train.py) lets the traceback of a refusal through instead.
 """
 
 from __future__ import annotations
 
+import os
 import re
+import sys
+from collections.abc import Callable
 
 from hupbench.core.errors import UserError
 
 #: what a bad input or a fault raises (Hydra's and OmegaConf's errors are added where Hydra is imported)
 USER_ERRORS = (UserError,)
+
+
+class StdoutError(UserError, OSError):
+    """Standard output could not be written (a full disk or device behind a redirection)."""
+
+
+def answered(prog: str, work: Callable[[], int], debug: bool = False, interrupted: str = "interrupted",
+             config: str = "conf/train.yaml", example: str = "model=hopenet") -> int:
+    """``work()``'s exit code, or the answer to how it failed (the module's list), printed on stderr.
+
+    Args:
+        prog: the program as the user typed it, e.g. ``"hupbench eval"`` or ``"train.py"``.
+        work: runs the verb and returns its exit code.
+        debug: re-raise a refusal and Ctrl-C (their tracebacks) instead of answering them.
+        interrupted: the words after ``PROG: `` on Ctrl-C.
+        config, example: :func:`hydra_error_line`'s, for a malformed override or an unknown key.
+    """
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    stdout = sys.stdout
+    sys.stdout = guard = _GuardedStdout(stdout)
+    try:
+        code = work()
+        guard.flush()  # what print() kept in a buffer meets a full device here, inside the catch
+        return code
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        # the loader and generator workers, in the same process group, got the same SIGINT and end quietly
+        print(f"{prog}: {interrupted}", file=sys.stderr)
+        return 130
+    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
+        if debug:
+            raise
+        hydra = isinstance(exc, (HydraException, OmegaConfBaseException))
+        print(f"{prog}: error: {hydra_error_line(exc, config, example) if hydra else error_line(exc)}",
+              file=sys.stderr)
+        return 1
+    finally:
+        sys.stdout = stdout
+
+
+class _GuardedStdout:
+    """``sys.stdout`` while a verb runs: writes pass through to ``stream`` until it fails. A closed pipe then
+    silences the rest (nothing raised: the verb's work goes on); any other failure (ENOSPC, EIO) raises
+    :class:`StdoutError`. Either way the file descriptor is pointed at /dev/null, so that the interpreter's
+    own flush at exit does not fail again with a traceback of its own."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self._silent = False
+
+    def write(self, text: str) -> int:
+        if not self._silent:
+            self._guarded(self._stream.write, text)
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._silent:
+            self._guarded(self._stream.flush)
+
+    def _guarded(self, call, *args) -> None:
+        try:
+            call(*args)
+        except OSError as exc:
+            self._silent = True
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, self._stream.fileno())
+                os.close(devnull)
+            except (OSError, AttributeError, ValueError):  # a stream without a file descriptor
+                pass
+            if not isinstance(exc, BrokenPipeError):
+                raise StdoutError(exc.errno, f"cannot write to standard output ({exc.strerror}): the report "
+                                             "goes there; redirect it to a writable file") from exc
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
 
 
 def error_line(exc: BaseException) -> str:

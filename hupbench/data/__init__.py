@@ -13,8 +13,8 @@ Never ``hupbench.evaluation``, ``hupbench.inference``, the verbs or the CLI.
 
 from hupbench.data.augment import BatchAugment, model_images
 from hupbench.data.cache import open_frame_cache
-from hupbench.data.loaders import FrameBatches, TrainData, setup_data
+from hupbench.data.loaders import DataConfig, FrameBatches, Placement, TrainData, setup_data
 from hupbench.data.reader import HUPDataset, ReaderConfig, input_labels, read_manifest, read_rgb
 
-__all__ = ["BatchAugment", "FrameBatches", "HUPDataset", "ReaderConfig", "TrainData", "input_labels",
-           "model_images", "open_frame_cache", "read_manifest", "read_rgb", "setup_data"]
+__all__ = ["BatchAugment", "DataConfig", "FrameBatches", "HUPDataset", "Placement", "ReaderConfig", "TrainData",
+           "input_labels", "model_images", "open_frame_cache", "read_manifest", "read_rgb", "setup_data"]

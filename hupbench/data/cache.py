@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hupbench.core.errors import NotWritableError
-from hupbench.core.io import atomic_output, clean_stale_tmp, write_json
+from hupbench.core.io import atomic_output, clean_stale_tmp, write_json, writing
 
 
 #: bump when the cache file layout or the resize changes: every older cache is then rebuilt
@@ -39,7 +38,7 @@ _MODALITIES = {"rgb": ("frame", np.uint8, (3,)), "depth": ("depth_frame", np.uin
 
 def cache_paths(cache_dir, split: str, input_size: int, modality: str = "rgb") -> tuple[Path, Path]:
     """(frames .npy, key .json) of one split at one input size, for its RGB frames or its "depth" maps."""
-    stem = f"{split}_{int(input_size)}px" + ("" if modality == "rgb" else f"_{modality}")
+    stem = f"{split}_{input_size}px" + ("" if modality == "rgb" else f"_{modality}")
     return Path(cache_dir) / f"{stem}.npy", Path(cache_dir) / f"{stem}.json"
 
 
@@ -59,8 +58,7 @@ def cache_key(dataset, modality: str = "rgb") -> dict:
         except FileNotFoundError:
             stamps.update(f"{path.name} missing\n".encode())
     return {"format": CACHE_FORMAT, "split": dataset.split, "modality": modality,
-            "input_size": int(dataset.config.input_size),
-            "image_size": [int(v) for v in dataset.manifest["image_size"]],
+            "input_size": dataset.config.input_size, "image_size": dataset.manifest["image_size"],
             "resize": RESIZE if modality == "rgb" else "cv2.INTER_NEAREST",
             "frames": len(dataset), "frame_files_sha256": stamps.hexdigest()}
 
@@ -81,7 +79,7 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print, 
     (N, S, S) uint16 rows of ``dataset.depth_frame(i)``), built (or rebuilt when stale, said to ``log``) first in
     ``cache_dir`` (default ``<dataset root>/cache``)."""
     cache_dir = dataset.root / "cache" if cache_dir is None else Path(cache_dir)
-    size, split = int(dataset.config.input_size), dataset.split
+    size, split = dataset.config.input_size, dataset.split
     reader_name, dtype, tail = _MODALITIES[modality]
     read_row, shape = getattr(dataset, reader_name), (len(dataset), size, size, *tail)
     npy_path, key_path = cache_paths(cache_dir, split, size, modality)
@@ -96,15 +94,10 @@ def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print, 
             if frames.shape == shape and frames.dtype == dtype:
                 return frames
         log(f"frame cache {npy_path} is stale (the dataset or the reader changed); rebuilding it")
-    try:
-        # the key file goes first so that no reader trusts a half-replaced cache
-        key_path.unlink(missing_ok=True)
+    # e.g. the default <dataset>/cache of a shared dataset on a read-only mount, or a data.cache_dir that is a file
+    with writing(cache_dir, "the frame cache", fix="set data.cache_dir to a writable folder"):
+        key_path.unlink(missing_ok=True)  # the key file goes first so that no reader trusts a half-replaced cache
         cache_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):  # e.g. the default <dataset>/cache of a shared dataset
-            raise NotWritableError(exc.errno, f"cannot write the frame cache in {cache_dir} ({exc.strerror}); set "
-                                             "data.cache_dir to a writable folder") from exc
-        raise
     clean_stale_tmp(cache_dir, recursive=False)  # builds of killed runs
     n = len(dataset)
     # written under a temporary name, renamed when whole; a failure removes it (a full disk says so)

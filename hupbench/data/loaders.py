@@ -9,18 +9,56 @@ to the same :class:`hupbench.data.augment.BatchAugment`.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
 
 from hupbench.core.errors import BadValueError
-from hupbench.config import build
+from hupbench.core.input_checks import check_choice, check_int
 from hupbench.data.augment import BatchAugment
 from hupbench.data.cache import open_frame_cache
-from hupbench.data.reader import HUPDataset
+from hupbench.data.reader import HUPDataset, ReaderConfig
+
+#: where a training batch's uint8 frames come from: the frame cache, or each JPEG decoded when needed
+PIPELINES = ("cache", "jpeg")
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """The ``data`` node of conf/train.yaml (conf/data/default.yaml documents its fields): the dataset a run
+    reads and how its frames reach the model (:func:`setup_data`), checked here and nowhere else."""
+
+    reader: ReaderConfig
+    root: str = "hupbench_out/dataset"
+    train_split: str = "train"
+    val_split: str = "val"
+    batch_size: int = 32
+    num_workers: int = 0
+    val_frames: int | None = 1440
+    pipeline: str = "cache"
+    cache_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        check_int(self.batch_size, "data.batch_size", 1)
+        check_int(self.num_workers, "data.num_workers", 0, 1024)
+        check_int(self.val_frames, "data.val_frames", 1, optional=True)
+        check_choice(self.pipeline, "data.pipeline", PIPELINES)
+
+
+class Placement(NamedTuple):
+    """Where this process trains: one of ``world`` processes (torchrun's), number ``rank``, on ``device``."""
+
+    world: int
+    rank: int
+    device: torch.device
+
+    @property
+    def is_main(self) -> bool:
+        """Rank 0: the process that writes the run folder and talks to the user."""
+        return self.rank == 0
 
 
 class EpochSampler(torch.utils.data.Sampler):
@@ -118,41 +156,45 @@ def _bounded_threads(_worker_id: int) -> None:
     torch.set_num_threads(1)
 
 
-def setup_data(cfg: DictConfig, world: int, rank: int, device: torch.device, log=print) -> TrainData:
-    """The training and validation data of a run (``data.pipeline``: cache or jpeg, checked with the config).
+def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, progress: bool = True,
+               log=print) -> TrainData:
+    """The training and validation data of a run, this process's share of them.
+
+    Args:
+        data: the run's data node. seed: the run's seed (the epochs' frame order, the batch-norm frames).
+        bn_frames: training frames of the batch-norm re-estimation (``train.bn_recompute_frames``; 0: none).
+        place: this process among the run's. progress: a bar while a frame cache is built (rank 0 only).
 
     Validation and batch-norm batches are un-augmented; ``TrainData.augment`` turns training batches on
-    ``device``.
+    ``place.device``.
     """
-    reader = build(cfg.data.reader)
-    pipeline = cfg.data.get("pipeline", "cache")
-    assert pipeline in ("cache", "jpeg"), pipeline
-    splits = [HUPDataset(Path(cfg.data.root), split, reader) for split in (cfg.data.train_split, cfg.data.val_split)]
+    reader = data.reader
+    splits = [HUPDataset(Path(data.root), split, reader) for split in (data.train_split, data.val_split)]
     K = splits[0].ann["K"]
     if reader.rotate_deg > 0 and not np.allclose(K[:, 0, 0], K[:, 1, 1]):
         raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0, 0]}, fy={K[0, 1, 1]}")
-    cache_dir, show = cfg.data.get("cache_dir"), bool(cfg.train.progress) and rank == 0
+    show = progress and place.is_main
+
     def cached(split: HUPDataset, modality: str) -> np.ndarray | None:
-        wanted = pipeline == "cache" and (modality == "rgb" or reader.depth)
-        return open_frame_cache(split, cache_dir, show, log, modality) if wanted else None
+        wanted = data.pipeline == "cache" and (modality == "rgb" or reader.depth)
+        return open_frame_cache(split, data.cache_dir, show, log, modality) if wanted else None
 
     train_set, val_set = (FrameBatches(split, cached(split, "rgb"), cached(split, "depth")) for split in splits)
-    workers = int(cfg.data.num_workers)
-    loader_args = {"batch_size": int(cfg.data.batch_size), "num_workers": workers, "collate_fn": _stacked,
-                   "pin_memory": device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
+    workers = data.num_workers
+    loader_args = {"batch_size": data.batch_size, "num_workers": workers, "collate_fn": _stacked,
+                   "pin_memory": place.device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
                    "persistent_workers": workers > 0}
-    sampler = EpochSampler(len(train_set), int(cfg.data.batch_size), int(cfg.seed), world, rank)
+    sampler = EpochSampler(len(train_set), data.batch_size, seed, place.world, place.rank)
     train_loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
     val_indices = np.arange(len(val_set))
-    if cfg.data.val_frames is not None and cfg.data.val_frames < len(val_set):
-        val_indices = np.linspace(0, len(val_set) - 1, int(cfg.data.val_frames)).round().astype(int)
-    val_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(val_set, val_indices[rank::world].tolist()),
-                                             shuffle=False, **loader_args)
+    if data.val_frames is not None and data.val_frames < len(val_set):
+        val_indices = np.linspace(0, len(val_set) - 1, data.val_frames).round().astype(int)
+    mine = val_indices[place.rank::place.world].tolist()
+    val_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(val_set, mine), shuffle=False, **loader_args)
     bn_loader = None
-    if cfg.train.bn_recompute_frames:
+    if bn_frames:
         # un-augmented training frames, a fixed draw: the statistics the model meets at test time
-        n_bn = min(int(cfg.train.bn_recompute_frames), len(train_set))
-        bn_indices = np.random.default_rng(int(cfg.seed)).choice(len(train_set), n_bn, replace=False)
+        bn_indices = np.random.default_rng(seed).choice(len(train_set), min(bn_frames, len(train_set)), replace=False)
         bn_loader = torch.utils.data.DataLoader(torch.utils.data.Subset(train_set, sorted(bn_indices.tolist())),
                                                 shuffle=False, **loader_args)
     return TrainData(train_set, val_set, sampler, train_loader, val_loader, bn_loader, BatchAugment(reader))

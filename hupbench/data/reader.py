@@ -21,7 +21,7 @@ import torch
 from hupbench.core.camera import resize_intrinsics, resize_points
 from hupbench.core.contract import frame_path, read_annotations, read_manifest
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.input_checks import check_int, check_number
+from hupbench.core.input_checks import check_choice, check_int, check_number
 from hupbench.data.augment import model_images
 from hupbench.input_geometry import (INPUT_MODALITIES, INPUT_SIZE_RANGE, depth_channel, inside_input, pad_and_resize,
                                      pixels_to_normalized)
@@ -44,7 +44,7 @@ def _decode_stored(path: str | Path, flags: int, what: str, image_size) -> np.nd
         raise BadValueError(f"cannot decode {path} as {kind} ({data.size} bytes): damaged or not "
                             + ("a JPG/PNG" if flags == cv2.IMREAD_COLOR else "a PNG"))
     if image_size is not None:
-        width, height = (int(v) for v in image_size)
+        width, height = image_size
         if image.shape[:2] != (height, width):
             raise BadValueError(f"{path} is {image.shape[1]} x {image.shape[0]} px; the manifest says {width} x {height}")
     return image
@@ -85,16 +85,11 @@ class ReaderConfig:
     input_modalities: str = "rgb"
 
     def __post_init__(self) -> None:
-        low, high = INPUT_SIZE_RANGE
-        check_int(self.input_size, "data.reader.input_size", low)
-        if self.input_size > high:
-            raise BadValueError(f"data.reader.input_size must be at most {high:,}, got {self.input_size:,}")
+        check_int(self.input_size, "data.reader.input_size", *INPUT_SIZE_RANGE)
         check_number(self.rotate_deg, "data.reader.rotate_deg", 0.0, 180.0)
         check_number(self.photometric, "data.reader.photometric", 0.0, 1.0)
         check_int(self.seed, "data.reader.seed", 0)
-        if not isinstance(self.input_modalities, str) or self.input_modalities not in INPUT_MODALITIES:
-            raise BadValueError(f"data.reader.input_modalities must be {' or '.join(map(repr, INPUT_MODALITIES))}, "
-                                f"got {self.input_modalities!r}")
+        check_choice(self.input_modalities, "data.reader.input_modalities", tuple(INPUT_MODALITIES))
 
     @property
     def depth(self) -> bool:
@@ -144,15 +139,15 @@ class HUPDataset(torch.utils.data.Dataset):
     def __init__(self, root, split: str, config: ReaderConfig = ReaderConfig()) -> None:
         self.root = Path(root)
         self.manifest = read_manifest(self.root, split)
-        if "rgb" not in self.manifest["modalities"]:
-            raise BadValueError(f"{self.root} has no rgb images (modalities {self.manifest['modalities']})")
-        if config.depth and "depth" not in self.manifest["modalities"]:
-            raise BadValueError(f"{self.root} has no depth maps (modalities {self.manifest['modalities']}); "
-                                "input_modalities=rgb+depth needs them")
+        needed = {"rgb": "rgb images", **({"depth": "depth maps"} if config.depth else {})}
+        lacking = [words for modality, words in needed.items() if modality not in self.manifest["modalities"]]
+        if lacking:
+            raise BadValueError(f"{self.root} has no {' and no '.join(lacking)} (modalities "
+                                f"{self.manifest['modalities']}); input_modalities={config.input_modalities} needs them")
         self.split, self.config = split, config
         self.ann = read_annotations(self.root, split, ("keypoints_3d_cam", "keypoints_2d", "visible", "K"),
                                     self.manifest)
-        width, height = (int(v) for v in self.manifest["image_size"])
+        width, height = self.manifest["image_size"]
         if width != height:  # the labels follow a resize, not a pad (pad_and_resize would need their offset)
             raise BadValueError(f"{self.path(0)}: the reader expects square images, got {width} x {height}")
         size = config.input_size
@@ -180,7 +175,7 @@ class HUPDataset(torch.utils.data.Dataset):
 
     def depth_metres(self, depth: np.ndarray) -> torch.Tensor:
         """Stored depth (uint16, any shape) as the model's depth channel (float32 metres, clipped)."""
-        return torch.from_numpy(depth_channel(depth, float(self.manifest["depth_scale_m"])))
+        return torch.from_numpy(depth_channel(depth, self.manifest["depth_scale_m"]))
 
     def __getitem__(self, index: int) -> dict:
         depth = self.depth_metres(self.depth_frame(index))[None] if self.config.depth else None

@@ -1,6 +1,6 @@
 """Training: :func:`train` runs one typed run (:class:`hupbench.training.run_config.TrainRun`) in its run folder,
 one loop for every model (bf16 autocast, channels_last and DDP under ``torchrun`` optional); ``python train.py``
-calls :func:`main`.
+and ``hupbench train`` run it through :func:`run_train`.
 
 Run folder:
     run.json             resolved config, git commit, package versions, hardware
@@ -13,11 +13,8 @@ Run folder:
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import shlex
-import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -25,66 +22,33 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from hupbench.checkpoint import Checkpoint
 from hupbench.core import keypoints as kp
 from hupbench.core.camera import resize_intrinsics
-from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
-from hupbench.core.io import OutputLock, clean_stale_tmp, file_sha256, write_json
-from hupbench.checkpoint import Checkpoint
-from hupbench.data import TrainData, model_images, setup_data
-from hupbench.error_lines import USER_ERRORS, error_line
+from hupbench.core.contract import MANIFEST
+from hupbench.core.errors import BadValueError, RunFailedError
+from hupbench.core.io import OutputLock, clean_stale_tmp, file_sha256, write_json, writing
+from hupbench.data import Placement, TrainData, model_images, read_manifest, setup_data
 from hupbench.input_geometry import INPUT_MODALITIES
+from hupbench.models.build import build_model, load_checkpoint_state
 from hupbench.provenance import hardware_description, run_info
 from hupbench.training.losses import loss_terms
+from hupbench.training.resume import finished_run, new_run_override, resume_checkpoint
 from hupbench.training.run_config import TrainRun, train_config
-from hupbench.training.run_log import MetricsLog, RunConsole, bar_postfix, loss_window
+from hupbench.training.run_log import LossWindow, MetricsLog, RunConsole, bar_postfix
 from hupbench.training.schedule import learning_rate
 from hupbench.training.validation import recompute_bn_statistics, validate
-from hupbench.models.build import build_model, load_checkpoint_state
-
-#: config differences a refused resume lists (a checkpoint of another project differs everywhere)
-MAX_DIFFS_SHOWN = 8
-#: config keys that may differ between a run and the run it resumes
-RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers",
-                    "data.cache_dir", "label")
-
-
-def main(cfg: DictConfig, log=print, debug: bool = False) -> float:
-    """The body of ``python train.py``: :func:`run_train`, a deliberate refusal answered as one line on stderr,
-    ``train.py: error: ...``, and exit code 1 (``debug``, HYDRA_FULL_ERROR=1: its traceback). Returns the last
-    validation MPJPE (all keypoints, mm): what a Hydra sweeper minimises."""
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    try:
-        result = run_train(cfg, log)
-    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
-        if debug:
-            raise
-        print(f"train.py: error: {error_line(exc)}", file=sys.stderr)
-        raise SystemExit(1) from None
-    if result["complete"] and int(os.environ.get("RANK", "0")) == 0:
-        for line in next_commands(result["checkpoint"], cfg.data.root):
-            log(line)
-    return result["val_mpjpe_mm"]["all"]
-
-
-def next_commands(checkpoint: str, dataset: str) -> list[str]:
-    """The lines that end a finished run: what to run on its checkpoint next."""
-    ckpt, data = shlex.quote(str(checkpoint)), shlex.quote(str(dataset))
-    return [f"next: hupbench eval {ckpt} {data}    # MPJPE and the other metrics on the test split",
-            f"      hupbench export {ckpt}    # ONNX model, checked against PyTorch"]
 
 
 def run_train(cfg: DictConfig, log=print) -> dict:
     """:func:`train` on the typed run of a composed conf/train.yaml, in its run folder."""
-    run = train_config(cfg)
-    return train(run, run.folder, log)
+    return train(train_config(cfg), log)
 
 
-def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long because the run reads in one sitting
-    """Train ``run`` in ``folder`` (held by this run alone, :func:`_run_folder`): set up, loop (log, validate,
+def train(run: TrainRun, log=print) -> dict:
+    """Train ``run`` in its run folder (``run.folder``, held by this run alone): set up, loop (log, validate,
     save), summarise. Weights or metrics that are not finite fail the run before a checkpoint or summary.json
     is written: a run is complete only when what it wrote is whole.
 
@@ -92,50 +56,124 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
         summary.json's dict: the checkpoints, counters, timings and validations (mm), and "complete" (False
         when train.stop_after stopped the run early).
     """
-    from hupbench.data import read_manifest
-
-    folder = Path(folder)
-    world, rank, local_rank = (int(os.environ.get(k, d)) for k, d in
-                               (("WORLD_SIZE", "1"), ("RANK", "0"), ("LOCAL_RANK", "0")))  # set by torchrun
-    is_main = rank == 0
-    device = torch.device("cuda", local_rank) if run.device == "cuda" else torch.device("cpu")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise RunFailedError(f"device=cuda was asked for but CUDA is not available here (torch {torch.__version__}); "
-                             "use device=cpu")
+    place = placement(run.device)
     if run.threads is not None:
         torch.set_num_threads(run.threads)
-    root = Path(run.data.root)
-    manifest = read_manifest(root, needs="the models are built for")
-    if folder.exists() and not folder.is_dir():
-        raise BadValueError(f"run_dir {folder} is a file; expected a folder for the run (or a path to make one)")
-
-    console = RunConsole(log, is_main)
-    with _run_folder(folder, is_main, console.line):
-        # -- setup: everything that can be wrong is checked before the first step
-        resumed = _resume_checkpoint(run, folder, root)
-        finished = _finished_run(folder, resumed)
+    folder, console = run.folder, RunConsole(log, place.is_main)
+    manifest = read_manifest(Path(run.data.root), needs="the models are built for")
+    with _run_folder(folder, place.is_main, console.line):
+        resumed = resume_checkpoint(run, folder)
+        finished = finished_run(folder, resumed)
         if finished is not None:
             console.open_file(folder)
             console.line(f"already complete: nothing to do (checkpoint {finished['checkpoint']}: step "
                          f"{finished['steps']}, val MPJPE {finished['val_mpjpe_mm']['all']:.1f} mm; use "
                          f"{new_run_override(run)} for a new run)")
             return finished
-        data = setup_data(OmegaConf.create(run.config), world, rank, device, log)
-        input_size = run.data.reader.input_size
-        K_input = resize_intrinsics(data.train_set.ann["K"][0], input_size / int(manifest["image_size"][0]))
+        s = Session.start(run, manifest, resumed, place, console)  # everything that can be wrong is checked here
+        state, schedule, steps_per_epoch, total = s.state, run.train, s.data.sampler.batches_per_epoch, s.total_steps
+        stop = min(total, schedule.stop_after or total)
+        epochs = -(-total // steps_per_epoch)
+        if schedule.progress:
+            console.start_bar(run.run_name, total, state.step)
+        # the device is waited for only when a number is read (log, validation and checkpoint steps; on a CPU
+        # every step: no queue to wait for); train_seconds counts the time between them, validation excluded
+        window = LossWindow(state.step, place.device)
+        s.model.train()
+        segment = time.perf_counter()
+        while state.step < stop:
+            epoch, start_batch = divmod(state.step, steps_per_epoch)
+            s.data.sampler.set_position(epoch, start_batch)
+            for batch in s.data.train_loader:
+                loss, terms = train_step(s.train_model, s.optimizer, batch, epoch, s.data, run, place.device,
+                                         s.autocast)
+                s.scheduler.step()
+                state.step += 1
+                state.samples_seen += s.batch_size
+                window.add(loss)
+                validating = state.step % schedule.val_every == 0 or state.step == total
+                saving = state.step % schedule.ckpt_every == 0 or state.step == stop
+                logging = state.step % schedule.log_every == 0 or state.step in (1, stop)
+                reading = logging or validating or saving
+                if reading:
+                    _check_finite(state.step, "loss", {"loss": loss, **terms})
+                    state.train_seconds += time.perf_counter() - segment  # float(loss) waited for the device
+                if reading or place.device.type == "cpu":
+                    window.read(state.step)
+                lr = s.scheduler.get_last_lr()[0]
+                console.step(bar_postfix(epoch + 1, epochs, lr, window.shown, s.last_val_mm))
+                if logging:
+                    s.log_train(loss, terms, lr, f"step {state.step}/{total} (epoch {epoch + 1}/{epochs}): "
+                                                 f"{window.shown}")
+                    window.restart(state.step)
+                if validating:
+                    s.validation()
+                if saving:
+                    s.save_last(validated=validating)
+                if validating or saving:
+                    console.phase(None)
+                if validating:  # the bar ends on the figure the summary reports
+                    console.show(bar_postfix(epoch + 1, epochs, lr, window.shown, s.last_val_mm))
+                if reading:
+                    segment = time.perf_counter()
+                if state.step >= stop:
+                    break
+        return s.finish()
+
+
+@dataclass
+class RunState:
+    """Counters of a run that a checkpoint carries across a resume."""
+
+    step: int = 0
+    samples_seen: int = 0
+    train_seconds: float = 0.0
+    wall_offset: float = 0.0
+    best: float = math.inf
+    first_val: dict | None = None
+    last_val: dict | None = None
+
+
+@dataclass
+class Session:
+    """What a run trains with, built by :meth:`start`: its data, model (and the module the steps run, DDP or
+    compiled), optimiser and scheduler, counters, logs; the validation, checkpoints and summary of the loop."""
+
+    run: TrainRun
+    place: Placement
+    console: RunConsole
+    logger: MetricsLog
+    data: TrainData
+    model: torch.nn.Module
+    train_model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: object
+    state: RunState
+    autocast: dict
+    K_input: np.ndarray
+    dataset: dict
+    total_steps: int
+    batch_size: int
+    started: float
+
+    @classmethod
+    def start(cls, run: TrainRun, manifest: dict, resumed: Checkpoint | None, place: Placement,
+              console: RunConsole) -> Session:
+        """Build the run's pieces (or restore them from ``resumed``), write run.json, open the logs, say what
+        is trained, and validate the model as it starts (a resumed run keeps its first validation)."""
+        folder, device, root = run.folder, place.device, Path(run.data.root)
+        data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, place, run.train.progress, console.line)
+        # the stored images' K at the model's input size: the camera the 3D output is trained for
+        K_input = resize_intrinsics(data.train_set.ann["K"][0], run.data.reader.input_size / manifest["image_size"][0])
         model = build_run_model(run, data, K_input, resumed)
-        steps_per_epoch = data.sampler.batches_per_epoch
-        total_steps = run.train.max_steps or run.train.epochs * steps_per_epoch
-        batch_size = run.data.batch_size * world
+        total_steps = run.train.max_steps or run.train.epochs * data.sampler.batches_per_epoch
+        batch_size = run.data.batch_size * place.world
         optimizer = run.optim.optimizer(model.parameters(), lr=learning_rate(run.optim, batch_size))
         scheduler = run.optim.scheduler(optimizer, total_steps=total_steps)
-        model.to(device)
-        if run.channels_last:
-            model.to(memory_format=torch.channels_last)
+        model.to(device, memory_format=torch.channels_last if run.channels_last else torch.preserve_format)
         precision = resolve_precision(run.precision, device)
-        autocast = autocast_args(precision, device)
         train_model = model
-        if world > 1:
+        if place.world > 1:
             if not torch.distributed.is_initialized():
                 torch.distributed.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
             train_model = torch.nn.parallel.DistributedDataParallel(
@@ -149,143 +187,119 @@ def train(run: TrainRun, folder: Path, log=print) -> dict:  # layout: long becau
             state = RunState(resumed.step, resumed.samples_seen, resumed.train_seconds, resumed.wall_seconds,
                              resumed.best_val_mpjpe_mm, resumed.first_val_mpjpe_mm, resumed.val_mpjpe_mm)
             torch.set_rng_state(resumed.rng["torch"])
-        if is_main:
-            folder.mkdir(parents=True, exist_ok=True)
-            write_json(folder / "run.json", run_info(run.config, verb="train", world_size=world,
+        if place.is_main:
+            with writing(folder / "checkpoints") as checkpoints:  # a file of that name fails here, not after a step
+                checkpoints.mkdir(parents=True, exist_ok=True)
+            write_json(folder / "run.json", run_info(run.config, verb="train", world_size=place.world,
                                                      hardware=hardware_description(device), precision=precision,
                                                      resumed_from=str(resumed.path) if resumed else None))
             console.open_file(folder)
-        logger = MetricsLog(folder, is_main, run.train.tensorboard, state.step if resumed else None)
-        dataset = {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / "manifest.json")}
-        start = time.perf_counter()
-
-        def wall() -> float:
-            return state.wall_offset + time.perf_counter() - start
-
-        def save(name: str) -> None:
-            _check_finite(state.step, "weights", model.state_dict())
-            Checkpoint(model_config=model.config.saved(), model=model.state_dict(), step=state.step,
-                       input_size=input_size, K_input=K_input.tolist(), config=run.config,
-                       optimizer=optimizer.state_dict(), scheduler=scheduler.state_dict(),
-                       epoch=state.step / steps_per_epoch, samples_seen=state.samples_seen,
-                       train_seconds=state.train_seconds, wall_seconds=wall(), best_val_mpjpe_mm=state.best,
-                       val_mpjpe_mm=state.last_val, first_val_mpjpe_mm=state.first_val, dataset=dataset,
-                       rng={"torch": torch.get_rng_state()}, world_size=world).save(folder / "checkpoints" / name)
-
-        def validation() -> dict:
-            if data.bn_loader is not None and state.step > 0:
-                console.phase("recomputing batch-norm statistics")
-                recompute_bn_statistics(model, data.bn_loader, device, autocast)
-            console.phase("validating")
-            val = validate(model, data.val_loader, device, autocast, world)
-            _check_finite(state.step, "weights", model.state_dict())
-            _check_finite(state.step, "validation MPJPE", val)
-            logger({"event": "val", "step": state.step, "epoch": state.step / steps_per_epoch,
-                    "samples_seen": state.samples_seen, "wall_s": wall(), "train_wall_s": state.train_seconds,
-                    "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]})
-            state.last_val = val
-            best = val["all"] < state.best
-            console.progress_line(f"step {state.step}: val MPJPE {val['all']:.1f} mm (hand {val['hand']:.1f}, probe "
-                                  f"{val['probe']:.1f}) on {val['frames']} frames"
-                                  f"{', the best so far' if best and state.step > 0 else ''}")
-            if is_main and best:
-                state.best = val["all"]
-                console.phase("saving checkpoint best.pt")
-                save("best.pt")
-            return val
-
-        console.line(f"training {model.config.name} ({model.config.backbone}, {input_size} px "
-                     f"{run.data.reader.input_modalities}) on {root}: "
-                     f"{len(data.train_set)} train frames, {len(data.val_loader.dataset)} val frames, {total_steps} "
-                     f"steps of {batch_size} on {device}{f' x {world} processes' if world > 1 else ''} in {precision}"
+        logger = MetricsLog(folder, place.is_main, run.train.tensorboard, state.step if resumed else None)
+        session = cls(run, place, console, logger, data, model, train_model, optimizer, scheduler, state,
+                      autocast_args(precision, device), K_input,
+                      {"path": str(root.resolve()), "manifest_sha256": file_sha256(root / MANIFEST)}, total_steps,
+                      batch_size, time.perf_counter())
+        console.line(f"training {model.config.name} ({model.config.backbone}, {run.data.reader.input_size} px "
+                     f"{run.data.reader.input_modalities}) on {root}: {len(data.train_set)} train frames, "
+                     f"{len(data.val_loader.dataset)} val frames, {total_steps} steps of {batch_size} on {device}"
+                     f"{f' x {place.world} processes' if place.world > 1 else ''} in {precision}"
                      f"{' (precision=auto)' if run.precision == 'auto' else ''}; run folder {folder}")
         console.line(config_summary(run, type(optimizer).__name__, learning_rate(run.optim, batch_size),
-                                    steps_per_epoch, total_steps), console=False)
+                                    data.sampler.batches_per_epoch, total_steps), console=False)
         if resumed is not None:
             console.line(f"resuming from {resumed.path} at step {resumed.step} of {total_steps}")
-        state.first_val = validation() if resumed is None else resumed.first_val_mpjpe_mm
+        state.first_val = session.validation() if resumed is None else resumed.first_val_mpjpe_mm
+        return session
 
-        # -- the loop: the device is waited for only when a number is read (log, validation and checkpoint
-        # steps); train_seconds counts the time between them, data loading included, validation excluded
-        schedule = run.train
-        stop = min(total_steps, schedule.stop_after or total_steps)
-        epochs = -(-total_steps // steps_per_epoch)
-        if schedule.progress:
-            console.start_bar(run.run_name, total_steps, state.step)
-        # the loss summed on the device over the steps since the last log step: its mean is read where the
-        # loop reads numbers anyway, and on a CPU every step (no queue to wait for: float() costs 0.15 us)
-        window, window_first, shown = torch.zeros((), device=device), state.step + 1, None
-        model.train()
-        segment = time.perf_counter()
-        while state.step < stop:
-            epoch, start_batch = divmod(state.step, steps_per_epoch)
-            data.sampler.set_position(epoch, start_batch)
-            for batch in data.train_loader:
-                loss, terms = train_step(train_model, optimizer, batch, epoch, data, run, device, autocast)
-                scheduler.step()
-                state.step += 1
-                state.samples_seen += batch_size
-                window += loss
-                validating = state.step % schedule.val_every == 0 or state.step == total_steps
-                saving = state.step % schedule.ckpt_every == 0 or state.step == stop
-                logging = state.step % schedule.log_every == 0 or state.step in (1, stop)
-                if logging or validating or saving:
-                    _check_finite(state.step, "loss", {"loss": loss, **terms})
-                    state.train_seconds += time.perf_counter() - segment  # float(loss) waited for the device
-                if logging or validating or saving or device.type == "cpu":
-                    shown = loss_window(float(window) / (state.step + 1 - window_first), window_first, state.step)
-                lr = scheduler.get_last_lr()[0]
-                console.step(bar_postfix(epoch + 1, epochs, lr, shown,
-                                         state.last_val["all"] if state.last_val else None))
-                if logging:
-                    logger({"event": "train", "step": state.step, "samples_seen": state.samples_seen, "wall_s": wall(),
-                            "train_wall_s": state.train_seconds, "loss": float(loss),
-                            **{k: float(v) for k, v in terms.items()}, "lr": lr})
-                    console.progress_line(f"step {state.step}/{total_steps} (epoch {epoch + 1}/{epochs}): {shown}, "
-                                          f"lr {lr:.2e}")
-                    window.zero_()
-                    window_first = state.step + 1
-                if validating:
-                    validation()
-                if saving:
-                    if data.bn_loader is not None and not validating:
-                        console.phase("recomputing batch-norm statistics")
-                        recompute_bn_statistics(model, data.bn_loader, device, autocast)
-                    if is_main:
-                        console.phase("saving checkpoint last.pt")
-                        save("last.pt")
-                if validating or saving:
-                    console.phase(None)
-                if validating:  # the bar ends on the figure the summary reports
-                    console.show(bar_postfix(epoch + 1, epochs, lr, shown, state.last_val["all"]))
-                if logging or validating or saving:
-                    segment = time.perf_counter()
-                if state.step >= stop:
-                    break
-        console.close_bar()
-        logger.close()
+    @property
+    def last_val_mm(self) -> float | None:
+        """The last validation's MPJPE over all keypoints (mm), None before the first."""
+        return self.state.last_val["all"] if self.state.last_val else None
 
-        # -- summary
+    def wall(self) -> float:
+        """Seconds of the run so far, its runs before a resume included."""
+        return self.state.wall_offset + time.perf_counter() - self.started
+
+    def save(self, name: str) -> None:
+        """checkpoints/``name``: the model, optimiser, scheduler, counters and RNG of this step."""
+        state, run = self.state, self.run
+        _check_finite(state.step, "weights", self.model.state_dict())
+        Checkpoint(model_config=self.model.config.saved(), model=self.model.state_dict(), step=state.step,
+                   input_size=run.data.reader.input_size, K_input=self.K_input.tolist(), config=run.config,
+                   optimizer=self.optimizer.state_dict(), scheduler=self.scheduler.state_dict(),
+                   epoch=state.step / self.data.sampler.batches_per_epoch, samples_seen=state.samples_seen,
+                   train_seconds=state.train_seconds, wall_seconds=self.wall(), best_val_mpjpe_mm=state.best,
+                   val_mpjpe_mm=state.last_val, first_val_mpjpe_mm=state.first_val, dataset=self.dataset,
+                   rng={"torch": torch.get_rng_state()}, world_size=self.place.world,
+                   ).save(run.folder / "checkpoints" / name)
+
+    def validation(self) -> dict:
+        """Validate (batch-norm statistics re-estimated first, after step 0), log it, and save best.pt when it
+        is the lowest MPJPE so far. Returns the validation's MPJPE (mm: "all", "hand", "probe") and "frames"."""
+        state, console, device = self.state, self.console, self.place.device
+        if self.data.bn_loader is not None and state.step > 0:
+            console.phase("recomputing batch-norm statistics")
+            recompute_bn_statistics(self.model, self.data.bn_loader, device, self.autocast)
+        console.phase("validating")
+        val = validate(self.model, self.data.val_loader, device, self.autocast, self.place.world)
+        _check_finite(state.step, "weights", self.model.state_dict())
+        _check_finite(state.step, "validation MPJPE", val)
+        self.logger({"event": "val", "step": state.step, "epoch": state.step / self.data.sampler.batches_per_epoch,
+                     "samples_seen": state.samples_seen, "wall_s": self.wall(), "train_wall_s": state.train_seconds,
+                     "val_mpjpe_mm": {k: val[k] for k in ("all", "hand", "probe")}, "val_frames": val["frames"]})
+        state.last_val = val
+        best = val["all"] < state.best
+        console.progress_line(f"step {state.step}: val MPJPE {val['all']:.1f} mm (hand {val['hand']:.1f}, probe "
+                              f"{val['probe']:.1f}) on {val['frames']} frames"
+                              f"{', the best so far' if best and state.step > 0 else ''}")
+        if self.place.is_main and best:
+            state.best = val["all"]
+            console.phase("saving checkpoint best.pt")
+            self.save("best.pt")
+        return val
+
+    def save_last(self, validated: bool) -> None:
+        """checkpoints/last.pt, with batch-norm statistics re-estimated unless a validation just did."""
+        if self.data.bn_loader is not None and not validated:
+            self.console.phase("recomputing batch-norm statistics")
+            recompute_bn_statistics(self.model, self.data.bn_loader, self.place.device, self.autocast)
+        if self.place.is_main:
+            self.console.phase("saving checkpoint last.pt")
+            self.save("last.pt")
+
+    def log_train(self, loss: torch.Tensor, terms: dict[str, torch.Tensor], lr: float, line: str) -> None:
+        """A log step: the loss and its terms in metrics.jsonl, ``line`` and the learning rate in train.log."""
+        state = self.state
+        self.logger({"event": "train", "step": state.step, "samples_seen": state.samples_seen, "wall_s": self.wall(),
+                     "train_wall_s": state.train_seconds, "loss": float(loss),
+                     **{k: float(v) for k, v in terms.items()}, "lr": lr})
+        self.console.progress_line(f"{line}, lr {lr:.2e}")
+
+    def finish(self) -> dict:
+        """Close the bar and the logs; summary.json when the run reached its last step. Returns the summary."""
+        self.console.close_bar()
+        self.logger.close()
+        state, folder, console = self.state, self.run.folder, self.console
         first, last = state.first_val, state.last_val
         result = {"run_dir": str(folder), "checkpoint": str(folder / "checkpoints" / "last.pt"),
                   "best_checkpoint": str(folder / "checkpoints" / "best.pt"), "steps": state.step,
-                  "samples_seen": state.samples_seen, "epochs": state.step / steps_per_epoch,
-                  "train_seconds": state.train_seconds, "wall_seconds": wall(), "val_mpjpe_mm": last,
-                  "first_val_mpjpe_mm": first, "best_val_mpjpe_mm": state.best, "world_size": world,
-                  "complete": state.step >= total_steps}
+                  "samples_seen": state.samples_seen, "epochs": state.step / self.data.sampler.batches_per_epoch,
+                  "train_seconds": state.train_seconds, "wall_seconds": self.wall(), "val_mpjpe_mm": last,
+                  "first_val_mpjpe_mm": first, "best_val_mpjpe_mm": state.best, "world_size": self.place.world,
+                  "complete": state.step >= self.total_steps}
         if not result["complete"]:
-            console.line(f"stopped at step {state.step} of {total_steps} (train.stop_after), checkpoint "
+            console.line(f"stopped at step {state.step} of {self.total_steps} (train.stop_after), checkpoint "
                          f"{result['checkpoint']}; the same command with train.stop_after=null"
-                         f"{'' if schedule.resume == 'auto' else ' train.resume=auto'} continues it")
-        else:
-            if is_main:
-                write_json(folder / "summary.json", result)
-            speed = state.samples_seen / max(state.train_seconds, 1e-9)
-            console.line(f"finished {state.step} steps in {wall() / 60:.1f} min ({speed:.1f} img/s training); val "
-                         f"MPJPE {first['all']:.1f} -> {last['all']:.1f} mm (hand {last['hand']:.1f}, probe "
-                         f"{last['probe']:.1f})")
-            console.line(f"checkpoint {result['checkpoint']} (lowest validation MPJPE, {state.best:.1f} mm: "
-                         f"{result['best_checkpoint']})")
+                         f"{'' if self.run.train.resume == 'auto' else ' train.resume=auto'} continues it")
+            return result
+        if self.place.is_main:
+            write_json(folder / "summary.json", result)
+        speed = state.samples_seen / max(state.train_seconds, 1e-9)
+        console.line(f"finished {state.step} steps in {self.wall() / 60:.1f} min ({speed:.1f} img/s training); val "
+                     f"MPJPE {first['all']:.1f} -> {last['all']:.1f} mm (hand {last['hand']:.1f}, probe "
+                     f"{last['probe']:.1f})")
+        console.line(f"checkpoint {result['checkpoint']} (lowest validation MPJPE, {state.best:.1f} mm: "
+                     f"{result['best_checkpoint']})")
         return result
 
 
@@ -303,6 +317,17 @@ def train_step(model, optimizer, batch: dict, epoch: int, data: TrainData, run: 
     loss.backward()
     optimizer.step()
     return loss.detach(), terms
+
+
+def placement(device: str) -> Placement:
+    """This process among the run's: torchrun's WORLD_SIZE, RANK and LOCAL_RANK (one process without torchrun),
+    on ``device`` ("cpu", or "cuda": the GPU of its local rank, refused where CUDA is not there)."""
+    world, rank, local_rank = (int(os.environ.get(k, d)) for k, d in
+                               (("WORLD_SIZE", "1"), ("RANK", "0"), ("LOCAL_RANK", "0")))
+    if device == "cuda" and not torch.cuda.is_available():
+        raise RunFailedError(f"device=cuda was asked for but CUDA is not available here (torch {torch.__version__}); "
+                             "use device=cpu")
+    return Placement(world, rank, torch.device("cuda", local_rank) if device == "cuda" else torch.device("cpu"))
 
 
 def native_bf16(device: torch.device) -> bool:
@@ -323,19 +348,6 @@ def resolve_precision(precision: str, device: torch.device) -> str:
 def autocast_args(precision: str, device: torch.device) -> dict:
     """torch.autocast's arguments for a resolved precision."""
     return {"device_type": device.type, "dtype": torch.bfloat16, "enabled": precision == "bf16"}
-
-
-@dataclass
-class RunState:
-    """Counters of a run that a checkpoint carries across a resume."""
-
-    step: int = 0
-    samples_seen: int = 0
-    train_seconds: float = 0.0
-    wall_offset: float = 0.0
-    best: float = math.inf
-    first_val: dict | None = None
-    last_val: dict | None = None
 
 
 @contextmanager
@@ -360,65 +372,6 @@ def _run_folder(folder: Path, is_main: bool, log):
                 folder.rmdir()
 
 
-def _resume_checkpoint(run: TrainRun, folder: Path, root: Path) -> Checkpoint | None:
-    """The checkpoint this run continues (``train.resume``), checked to be of this run's config and dataset."""
-    mode, last = run.train.resume, folder / "checkpoints" / "last.pt"
-    if mode in (None, "never") and last.exists():
-        raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it, "
-                            f"or {new_run_override(run)} for a new run")
-    if mode in (None, "never") or (mode == "auto" and not last.exists()):
-        return None
-    path = last if mode == "auto" else Path(mode)
-    if not path.is_file():
-        raise MissingFileError(f"train.resume={mode}: checkpoint {path} does not exist")
-    checkpoint = Checkpoint.read(path)
-    diff = _config_diff(checkpoint.config, run.config)
-    if diff:
-        shown = "; ".join(diff[:MAX_DIFFS_SHOWN]) + (f"; and {len(diff) - MAX_DIFFS_SHOWN} more"
-                                                     if len(diff) > MAX_DIFFS_SHOWN else "")
-        fix = (f"to train with the new values start a new run, {new_run_override(run)}; to continue this run, "
-               "give it the values it was trained with" if mode == "auto" else
-               "resume it with the values it was trained with, or leave train.resume out to start afresh")
-        raise BadValueError(f"checkpoint {path} was trained with another config; differences: {shown}; {fix}")
-    trained_on = (checkpoint.dataset or {}).get("manifest_sha256")
-    now = file_sha256(root / "manifest.json")
-    if trained_on != now:
-        raise BadValueError(f"checkpoint {path} was trained on another dataset: manifest sha256 {trained_on} "
-                            f"({(checkpoint.dataset or {}).get('path')}), but {root / 'manifest.json'} has {now}; "
-                            f"resume on the dataset it was trained on, or start a new run: {new_run_override(run)}")
-    return checkpoint
-
-
-def _finished_run(folder: Path, resumed: Checkpoint | None) -> dict | None:
-    """The summary of the run in ``folder`` when it already finished at ``resumed``, its last checkpoint (whose
-    config and dataset are this run's), with the paths of where it is now and "already_complete"; else None."""
-    path = folder / "summary.json"
-    if resumed is None or resumed.path != folder / "checkpoints" / "last.pt" or not path.is_file():
-        return None
-    try:
-        summary = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise BadValueError(f"{path} is not JSON ({exc.msg}, line {exc.lineno}): the run's summary was damaged; "
-                            "move it away and the same command writes it again") from exc
-    if not summary.get("complete") or summary.get("steps") != resumed.step:
-        return None
-    return {**summary, "run_dir": str(folder), "checkpoint": str(folder / "checkpoints" / "last.pt"),
-            "best_checkpoint": str(folder / "checkpoints" / "best.pt"), "already_complete": True}
-
-
-def new_run_override(run: TrainRun) -> str:
-    """The override that starts a new run beside this one: ``run_name=NAME_K`` with the first K >= 2 whose folder
-    does not exist, or ``run_dir=FOLDER_K`` when run_dir names a folder outside the run name's."""
-    if run.run_dir is None or run.run_name in Path(run.run_dir).parts:
-        key, base = "run_name", Path(run.out_root) / run.run_name
-    else:
-        key, base = "run_dir", Path(run.run_dir)
-    k = 2
-    while Path(f"{base}_{k}").exists():
-        k += 1
-    return f"{key}={shlex.quote((run.run_name if key == 'run_name' else str(base)) + f'_{k}')}"
-
-
 def config_summary(run: TrainRun, optimizer: str, lr: float, steps_per_epoch: int, total_steps: int) -> str:
     """train.log's line of the run's main settings (run.json holds the whole resolved config); ``lr``: the
     optimiser's base learning rate (:func:`learning_rate`)."""
@@ -431,20 +384,6 @@ def config_summary(run: TrainRun, optimizer: str, lr: float, steps_per_epoch: in
             f"train.log_every={schedule.log_every} train.val_every={schedule.val_every} "
             f"train.ckpt_every={schedule.ckpt_every} precision={run.precision} device={run.device}; "
             "the whole config: run.json")
-
-
-def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
-    out = []
-    for key in sorted(set(a) | set(b)):
-        path = f"{prefix}{key}"
-        if path in RESUME_FREE_KEYS:
-            continue
-        va, vb = a.get(key, "<absent>"), b.get(key, "<absent>")
-        if isinstance(va, dict) and isinstance(vb, dict):
-            out += _config_diff(va, vb, path + ".")
-        elif va != vb:
-            out.append(f"{path}: checkpoint {va!r}, now {vb!r}")
-    return out
 
 
 def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,

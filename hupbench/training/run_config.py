@@ -1,8 +1,10 @@
 """A training run's config, typed: frozen dataclasses whose ``__post_init__`` is the only check of their fields.
 
-Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``, the model's by
-:mod:`hupbench.models.model_config`; :func:`train_config` builds the tree once, before anything is read or written. A bad value
-is refused naming the field as the user writes it (``train.max_steps must be a whole number >= 1 or null, got 0``).
+Each node of conf/train.yaml (which documents the fields) is built through its ``_target_``: the model's by
+:mod:`hupbench.models.model_config`, the data node's by :class:`hupbench.data.DataConfig`; :func:`train_config`
+builds the tree once, before anything is read or written. A bad value is refused naming the field as the user
+writes it (``train.max_steps must be a whole number from 1 to 1000000000 or null, got 0``). Inside, the training
+reads the typed values as they are.
 """
 
 from __future__ import annotations
@@ -11,36 +13,23 @@ import functools
 import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
-from hupbench.core.input_checks import check_int, check_number
+from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number, is_number
 from hupbench.core.processes import usable_cores
 from hupbench.config import build
-from hupbench.data import ReaderConfig
+from hupbench.data import DataConfig
 from hupbench.metrics import PROBE_SYMMETRIES
 from hupbench.models.model_config import ModelConfig
 
-#: the most steps, epochs or frames per batch a run may ask for: 10^9 steps take years at any speed
-#: measured here, so a larger number is a typo (train.max_steps=1e12 would train until killed)
+#: the most steps or epochs a run may ask for: 10^9 steps take years at any speed measured here, so a larger
+#: number is a typo (train.max_steps=1e12 would train until killed)
 MAX_COUNT = 1_000_000_000
 #: learning rates above this make every model here diverge within a few steps
 MAX_LR = 1.0
-
-
-def whole(value: Any, name: str, low: int, optional: bool = False, high: int = MAX_COUNT) -> None:
-    """``value`` a whole number from ``low`` to ``high`` (None too when ``optional``), refused naming ``name``."""
-    check_int(value, name, low, optional=optional)
-    if value is not None and value > high:
-        raise BadValueError(f"{name} must be at most {high:,}, got {value:,}")
-
-
-def choice(value: Any, name: str, choices) -> None:
-    if value not in choices:
-        raise BadValueError(f"{name} must be {' or '.join(repr(c) for c in choices)}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -60,8 +49,9 @@ class Schedule:
 
     def __post_init__(self) -> None:
         for name in ("epochs", "max_steps", "stop_after", "log_every", "val_every", "ckpt_every"):
-            whole(getattr(self, name), f"train.{name}", 1, optional=name in ("max_steps", "stop_after"))
-        whole(self.bn_recompute_frames, "train.bn_recompute_frames", 0)
+            check_int(getattr(self, name), f"train.{name}", 1, MAX_COUNT, optional=name in ("max_steps", "stop_after"))
+        check_int(self.bn_recompute_frames, "train.bn_recompute_frames", 0)
+        check_bool_fields(self, "train.")
 
 
 @dataclass(frozen=True)
@@ -78,28 +68,7 @@ class LossConfig:
         for weight in ("w2d_init", "w2d", "w3d"):
             check_number(getattr(self, weight), f"loss.{weight}", 0.0)
         check_number(self.unit_3d_m, "loss.unit_3d_m", 0.0, low_open=True)
-        choice(self.probe_symmetry, "loss.probe_symmetry", sorted(PROBE_SYMMETRIES))
-
-
-@dataclass(frozen=True)
-class DataConfig:
-    """The ``data`` node: the dataset a run reads and how its frames reach the model (``setup_data``)."""
-
-    reader: ReaderConfig
-    root: str = "hupbench_out/dataset"
-    train_split: str = "train"
-    val_split: str = "val"
-    batch_size: int = 32
-    num_workers: int = 0
-    val_frames: int | None = 1440
-    pipeline: str = "cache"
-    cache_dir: str | None = None
-
-    def __post_init__(self) -> None:
-        whole(self.batch_size, "data.batch_size", 1)
-        whole(self.num_workers, "data.num_workers", 0, high=1024)
-        whole(self.val_frames, "data.val_frames", 1, optional=True)
-        choice(self.pipeline, "data.pipeline", ("cache", "jpeg"))
+        check_choice(self.probe_symmetry, "loss.probe_symmetry", sorted(PROBE_SYMMETRIES))
 
 
 @dataclass(frozen=True)
@@ -121,11 +90,11 @@ class OptimConfig:
         for name in ("weight_decay", "eps"):
             check_number(options.get(name, 0.0), f"optim.optimizer.{name}", 0.0)
         betas = options.get("betas", (0.9, 0.999))
-        if not (isinstance(betas, (list, tuple)) and len(betas) == 2 and all(
-                isinstance(beta, (int, float)) and not isinstance(beta, bool) and 0.0 <= beta < 1.0 for beta in betas)):
+        if not (isinstance(betas, (list, tuple)) and len(betas) == 2
+                and all(is_number(beta) and 0 <= beta < 1 for beta in betas)):
             raise BadValueError(f"optim.optimizer.betas must be two numbers in [0, 1), got {betas!r}")
-        whole(self.reference_batch, "optim.reference_batch", 1, optional=True)
-        whole(self.scheduler.keywords.get("warmup_steps", 0), "optim.scheduler.warmup_steps", 0)
+        check_int(self.reference_batch, "optim.reference_batch", 1, optional=True)
+        check_int(self.scheduler.keywords.get("warmup_steps", 0), "optim.scheduler.warmup_steps", 0)
         check_number(self.scheduler.keywords.get("final_lr_fraction", 0.0), "optim.scheduler.final_lr_fraction",
                      0.0, 1.0)
 
@@ -154,15 +123,13 @@ class TrainRun:
     config: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        whole(self.threads, "threads", 1, optional=True)
-        cores = usable_cores()
-        if self.threads is not None and self.threads > cores:
-            # more threads than cores only contend for them: a run slows to a crawl
-            raise BadValueError(f"threads={self.threads} is more than the {cores} CPU core(s) this process may "
-                                f"use; set threads to at most {cores}, or null for torch's default")
-        whole(self.seed, "seed", 0, high=2**31 - 1)
-        choice(self.device, "device", ("cpu", "cuda"))
-        choice(self.precision, "precision", ("auto", "fp32", "bf16"))
+        # more threads than cores only contend for them: a run slows to a crawl
+        check_int(self.threads, "threads", 1, usable_cores(), optional=True,
+                  hint=" (the CPU cores this process may use)")
+        check_int(self.seed, "seed", 0, 2**31 - 1)
+        check_choice(self.device, "device", ("cpu", "cuda"))
+        check_choice(self.precision, "precision", ("auto", "fp32", "bf16"))
+        check_bool_fields(self)
         if self.model.n_keypoints != kp.NUM_KEYPOINTS:
             raise BadValueError(f"model.n_keypoints must be {kp.NUM_KEYPOINTS} (21 hand joints + 8 probe corners, "
                                 f"as every dataset has), got {self.model.n_keypoints}")

@@ -3,13 +3,14 @@ scalars, and what the user sees: lines (also kept in the run folder's ``train.lo
 
 from __future__ import annotations
 
-import errno
 import json
 import time
 from pathlib import Path
 
+import torch
+
 from hupbench.core.errors import BadValueError
-from hupbench.core.io import DiskFullError, write_bytes
+from hupbench.core.io import write_bytes, writing
 
 
 class MetricsLog:
@@ -21,16 +22,18 @@ class MetricsLog:
         self.writer = None
         if not enabled:
             return
-        if resume_step is None:
-            write_bytes(self.path, b"")
-        elif self.path.exists():
-            # drop lines a killed run wrote after its last checkpoint: they are about to be redone
-            kept = [line for line in self._records() if json.loads(line)["step"] <= resume_step]
-            write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
+        with writing(self.path):
+            if resume_step is None:
+                write_bytes(self.path, b"")
+            elif self.path.exists():
+                # drop lines a killed run wrote after its last checkpoint: they are about to be redone
+                kept = [line for line in self._records() if json.loads(line)["step"] <= resume_step]
+                write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=resume_step)
+            with writing(run_dir / "tb") as tb:
+                self.writer = SummaryWriter(str(tb), purge_step=resume_step)
 
     def _records(self) -> list[str]:
         """The file's JSON lines; a last line cut short (a run killed while writing it, a full disk) is dropped."""
@@ -50,11 +53,8 @@ class MetricsLog:
     def __call__(self, record: dict) -> None:
         if not self.enabled:
             return
-        try:
-            with open(self.path, "a") as f:
-                f.write(json.dumps(record, sort_keys=True, allow_nan=False) + "\n")  # NaN is not JSON
-        except OSError as exc:
-            raise (DiskFullError(self.path) if exc.errno == errno.ENOSPC else exc) from exc
+        with writing(self.path), open(self.path, "a") as f:
+            f.write(json.dumps(record, sort_keys=True, allow_nan=False) + "\n")  # NaN is not JSON
         if self.writer is not None:
             step = record["step"]
             for key, value in record.items():
@@ -77,6 +77,30 @@ TEXT_LOG = "train.log"
 def loss_window(mean: float, first: int, last: int) -> str:
     """The bar's and train.log's loss: the mean over steps ``first`` to ``last``, labelled with them."""
     return f"loss {mean:.4g} ({f'step {last}' if first == last else f'avg of steps {first}-{last}'})"
+
+
+class LossWindow:
+    """The training loss summed on the device over the steps since the last log step (adding waits for
+    nothing); :meth:`read` takes its mean where the loop reads numbers anyway.
+
+    Attributes:
+        shown: the last mean read, as :func:`loss_window` words it (None before the first read).
+    """
+
+    def __init__(self, step: int, device: torch.device) -> None:
+        self.total, self.first, self.shown = torch.zeros((), device=device), step + 1, None
+
+    def add(self, loss: torch.Tensor) -> None:
+        self.total += loss
+
+    def read(self, step: int) -> None:
+        """The mean over the steps from the window's first to ``step`` into :attr:`shown` (waits for the device)."""
+        self.shown = loss_window(float(self.total) / (step + 1 - self.first), self.first, step)
+
+    def restart(self, step: int) -> None:
+        """An empty window starting after ``step``."""
+        self.total.zero_()
+        self.first = step + 1
 
 
 def bar_postfix(epoch: int, epochs: int, lr: float, loss: str | None, val_mm: float | None) -> str:
@@ -112,11 +136,8 @@ class RunConsole:
     def _append(self, lines: list[str]) -> None:
         if not lines:
             return
-        try:
-            with open(self.path, "a") as f:
-                f.write("".join(line + "\n" for line in lines))
-        except OSError as exc:
-            raise (DiskFullError(self.path) if exc.errno == errno.ENOSPC else exc) from exc
+        with writing(self.path), open(self.path, "a") as f:
+            f.write("".join(line + "\n" for line in lines))
 
     def line(self, text: str, console: bool = True) -> None:
         """``text`` in train.log and, with ``console``, to the user (above the bar while one is drawn)."""

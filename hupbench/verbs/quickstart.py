@@ -282,7 +282,7 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
         return out
 
     t0 = stage(4, "train", f"{run.model_id}, {run.train.max_steps} steps of {run.data.batch_size}")
-    trained = train(run, run.folder, log=lambda line: log("      " + line))
+    trained = train(run, log=lambda line: log("      " + line))
     out["checkpoint"] = trained["checkpoint"]
     out["run_dir"] = trained["run_dir"]
     out["val_mpjpe_mm"] = {"first": trained["first_val_mpjpe_mm"]["all"], "last": trained["val_mpjpe_mm"]["all"],

@@ -1,23 +1,24 @@
 """``hupbench train`` and ``python train.py``: training as a Hydra app over conf/train.yaml.
 
-Both run :func:`main`, which hands the command line to Hydra (``key=value`` overrides, ``-m`` for a sweep,
-``--cfg job``) with the packaged configs (:func:`hupbench.config.config_dir`) and runs
-:func:`hupbench.training.loop.main` in Hydra's output folder; ``--help`` lists the config's keys instead of
-Hydra's generic page. Every deliberate refusal is one line, ``PROG: error: ...``, exit code 1: Hydra's own (a
-malformed override, an unknown key or config option) as well as the run's; Ctrl-C is one line and exit code
-130. Anything else is a bug and keeps its traceback; ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py) shows
-the traceback of a refusal too.
+Both run :func:`command`: :func:`main` hands the command line to Hydra (``key=value`` overrides, ``-m`` for a
+sweep, ``--cfg job``) with the packaged configs (:func:`hupbench.config.config_dir`) and runs :func:`task` in
+Hydra's output folder; ``--help`` lists the config's keys instead of Hydra's generic page. How the run ends
+reaches the user through :func:`hupbench.error_lines.answered`: every deliberate refusal is one line, ``PROG:
+error: ...``, exit code 1, Hydra's own (a malformed override, an unknown key or config option) as well as the
+run's; Ctrl-C is one line and exit code 130. ``--debug`` (``HYDRA_FULL_ERROR=1`` for train.py) shows the
+traceback of a refusal.
 """
 
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 from collections.abc import Sequence
 
 from omegaconf import DictConfig, open_dict
 
-from hupbench.error_lines import USER_ERRORS, error_line, hydra_error_line
+from hupbench.error_lines import answered
 
 #: the best measured row of leaderboard/README.md: its model (conf/model/) and its recipe (conf/experiment/)
 RECOMMENDED_MODEL = "hupnet_handfit"
@@ -32,21 +33,17 @@ DESCRIPTION = ("Train a 3D hand + probe pose model on a dataset made by `hupbenc
                "default). The quickstart trains model=hopenet_r10_128, the smallest.")
 
 
-def run_train(cfg: DictConfig) -> dict:
+def run_train(cfg: DictConfig, log=print) -> dict:
     """Train the run of a composed conf/train.yaml (:func:`hupbench.config.compose`) in its run folder (run_dir,
     else out_root/run_name); returns the run's summary (:func:`hupbench.training.loop.run_train`)."""
     from hupbench.training import loop
 
-    return loop.run_train(cfg)
-
-
-def _command(prog: str) -> str:
-    return "python train.py" if prog == "train.py" else prog
+    return loop.run_train(cfg, log)
 
 
 def examples(prog: str) -> list[str]:
     """The examples of ``PROG --help``, each a command line to run."""
-    command = _command(prog)
+    command = "python train.py" if prog == "train.py" else prog
     return [f"{command} +experiment={RECOMMENDED_EXPERIMENT}    # the recommended model's recipe (conf/experiment/)",
             (f"{command} model=hopenet_r10_128 train.max_steps=400 data.batch_size=32 precision=fp32"
              "    # a short run of the quickstart's model"),
@@ -67,68 +64,54 @@ def help_text(prog: str, overrides: Sequence[str] = ()) -> str:
     return parser.format_help()
 
 
-def main(argv: Sequence[str], prog: str = "hupbench train", debug: bool | None = None) -> int:
-    """Training from the command line ``argv``: ``--help`` here, everything else by Hydra. Returns the exit code.
+def task(cfg: DictConfig, log=print) -> float:
+    """One Hydra job: the run of ``cfg`` (its run folder Hydra's output folder unless run_dir is set), then,
+    when it finished, the commands to run on its checkpoint next. Returns the last validation MPJPE (all
+    keypoints, mm): what a Hydra sweeper minimises."""
+    if cfg.run_dir is None:
+        from hydra.core.hydra_config import HydraConfig
 
-    ``debug`` (default: ``HYDRA_FULL_ERROR=1``) lets the traceback of a refusal through.
-    """
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
+        with open_dict(cfg):
+            cfg.run_dir = HydraConfig.get().runtime.output_dir
+    result = run_train(cfg, log)
+    if result["complete"] and int(os.environ.get("RANK", "0")) == 0:  # torchrun's rank: one process says it
+        for line in next_commands(result["checkpoint"], cfg.data.root):
+            log(line)
+    return result["val_mpjpe_mm"]["all"]
 
-    argv = list(argv)
+
+def next_commands(checkpoint: str, dataset: str) -> list[str]:
+    """The lines that end a finished run: what to run on its checkpoint next."""
+    ckpt, data = shlex.quote(str(checkpoint)), shlex.quote(str(dataset))
+    return [f"next: hupbench eval {ckpt} {data}    # MPJPE and the other metrics on the test split",
+            f"      hupbench export {ckpt}    # ONNX model, checked against PyTorch"]
+
+
+def command(argv: Sequence[str], prog: str = "hupbench train", debug: bool | None = None) -> int:
+    """Training from the command line ``argv`` (:func:`main`), its end answered by
+    :func:`hupbench.error_lines.answered`; returns the exit code. ``debug`` (default: ``HYDRA_FULL_ERROR=1``)
+    lets the traceback of a refusal through."""
     if debug is None:
         debug = os.environ.get("HYDRA_FULL_ERROR") == "1"
-    try:
-        if "-h" in argv or "--help" in argv:
-            overrides = [a for a in argv if "=" in a and not a.startswith("-")]
-            print(help_text(prog, overrides), end="")  # composed with them: a bad one is an error
-            return 0
-        _run_hydra(argv, prog, debug)
-    except SystemExit as exc:  # Hydra's usage errors (exit 2) and a refused run (exit 1, its line printed)
-        return exc.code if isinstance(exc.code, int) else 1
-    except KeyboardInterrupt:
-        if debug:
-            raise
-        # the loader workers, in the same process group, got the same SIGINT and end quietly
-        print(f"{prog}: interrupted (Ctrl-C); the same command continues from the run's last checkpoint",
-              file=sys.stderr)
-        return 130
-    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:  # composing the config
-        if debug:
-            raise
-        print(f"{prog}: error: {hydra_error_line(exc)}", file=sys.stderr)
-        return 1
-    return 0
+    return answered(prog, lambda: main(argv, prog), bool(debug),
+                    interrupted="interrupted (Ctrl-C); the same command continues from the run's last checkpoint")
 
 
-def _run_hydra(argv: list[str], prog: str, debug: bool) -> None:
-    """Hydra's main over conf/train.yaml with the command line ``argv``; a refused run prints its line and
-    exits 1."""
+def main(argv: Sequence[str], prog: str = "hupbench train") -> int:
+    """``--help`` here, everything else by Hydra: one run, or with ``-m`` a sweep, of :func:`task`; exit code 0
+    (Hydra's own usage errors exit 2)."""
     import hydra
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
 
     from hupbench.config import HYDRA_VERSION_BASE, config_dir
 
-    def task(cfg: DictConfig) -> float:
-        from hydra.core.hydra_config import HydraConfig
-
-        from hupbench.training import loop
-
-        if cfg.run_dir is None:
-            with open_dict(cfg):
-                cfg.run_dir = HydraConfig.get().runtime.output_dir
-        try:
-            return loop.main(cfg, debug=True)  # its refusal is answered here, in the name of this program
-        except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
-            if debug:
-                raise
-            print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
-            raise SystemExit(1) from None
-
+    argv = list(argv)
+    if "-h" in argv or "--help" in argv:
+        overrides = [a for a in argv if "=" in a and not a.startswith("-")]
+        print(help_text(prog, overrides), end="")  # composed with them: a bad one is an error
+        return 0
     saved_argv, saved_full_error = sys.argv, os.environ.get("HYDRA_FULL_ERROR")
     # Hydra prints its own errors over several lines (and a hint about this variable); with it set they
-    # reach main's handler, which answers them in one line like every other error
+    # propagate to the one catch, which answers them in one line like every other error
     os.environ["HYDRA_FULL_ERROR"] = "1"
     sys.argv = [prog, *argv]  # Hydra reads its command line there
     try:
@@ -140,3 +123,4 @@ def _run_hydra(argv: list[str], prog: str, debug: bool) -> None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
             os.environ["HYDRA_FULL_ERROR"] = saved_full_error
+    return 0

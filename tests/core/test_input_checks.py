@@ -1,10 +1,13 @@
-"""core/input_checks.py: the one wording of whole-number, finite-number and shape errors."""
+"""core/input_checks.py: the one wording of whole-number, finite-number, boolean, choice and shape errors."""
+
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
 from hupbench.core.errors import BadTypeError
-from hupbench.core.input_checks import check_int, check_number, check_shape, is_whole
+from hupbench.core.input_checks import (check_bool, check_bool_fields, check_choice, check_int, check_number,
+                                        check_shape, is_number, is_whole)
 
 
 @pytest.mark.parametrize("value,whole", [(3, True), (np.int64(3), True), (True, False), (np.bool_(True), False),
@@ -63,3 +66,47 @@ def test_check_shape_named_axes_take_one_size():
         with pytest.raises(ValueError) as info:
             check_shape(array, shape, "points")
         assert str(info.value) == message
+
+
+@pytest.mark.parametrize("value,number", [(3, True), (2.5, True), (np.float32(1.5), True), (True, False),
+                                          (float("nan"), False), (float("inf"), False), ("3", False), (None, False)])
+def test_is_number(value, number):
+    assert is_number(value) is number
+
+
+@pytest.mark.parametrize("value", ["maybe", "true", 1, 0, None, 2.0])
+def test_check_bool_refuses_what_is_not_a_boolean(value):
+    with pytest.raises(ValueError) as info:
+        check_bool(value, "train.progress")
+    assert str(info.value) == f"train.progress must be true or false, got {value!r}"
+
+
+def test_check_bool_accepts_python_and_numpy_booleans():
+    assert check_bool(True, "x") is True and check_bool(np.bool_(False), "x") is False
+
+
+def test_check_bool_fields_checks_every_field_annotated_bool():
+    @dataclass
+    class Node:
+        count: int = 1
+        progress: bool = True
+        tensorboard: bool = False
+
+    check_bool_fields(Node(count="not checked here"), "train.")
+    with pytest.raises(ValueError, match=r"^train.tensorboard must be true or false, got 'maybe'$"):
+        check_bool_fields(Node(tensorboard="maybe"), "train.")
+
+
+@pytest.mark.parametrize("value,choices,message", [
+    ("tpu", ("cpu", "cuda"), "device must be 'cpu' or 'cuda', got 'tpu'"),
+    (True, (1, 2), "device must be 1 or 2, got True"),
+    ("4", (4, 8), "device must be 4 or 8, got '4'"),
+])
+def test_check_choice_refuses_naming_the_choices(value, choices, message):
+    with pytest.raises(ValueError) as info:
+        check_choice(value, "device", choices)
+    assert str(info.value) == message
+
+
+def test_check_choice_returns_the_value():
+    assert check_choice("cuda", "device", ("cpu", "cuda")) == "cuda" and check_choice(8, "stride", (4, 8)) == 8

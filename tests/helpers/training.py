@@ -65,10 +65,16 @@ def answer_of(capsys, call, limit_s: int = 300) -> CliAnswer:
 
 
 def train_answer(capsys, cfg, limit_s: int = 120) -> CliAnswer:
-    """train.py's answer to a composed config (its body, :func:`hupbench.training.loop.main`, in this process)."""
-    from hupbench.training import loop
+    """train.py's answer to a composed config: its Hydra job (:func:`hupbench.verbs.train.task`) in this
+    process, its end answered as train.py answers it (:func:`hupbench.error_lines.answered`)."""
+    from hupbench.error_lines import answered
+    from hupbench.verbs.train import task
 
-    return answer_of(capsys, lambda: loop.main(cfg), limit_s=limit_s)
+    def job() -> int:
+        task(cfg)
+        return 0
+
+    return answer_of(capsys, lambda: sys.exit(answered("train.py", job)), limit_s=limit_s)
 
 
 def train_py(*argv: str, cwd: Path, timeout: float = 600) -> CliAnswer:

@@ -8,15 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from hupbench.config import compose
-from hupbench.data import setup_data
+from hupbench.data import DataConfig, Placement, ReaderConfig, setup_data
 
 
 def _train_data(dataset, cache_dir, logs):
-    cfg = compose("train", ["model=hopenet_r10_128", f"data.root={dataset}", f"data.cache_dir={cache_dir}",
-                            "data.reader.input_size=32", "data.batch_size=4", "data.num_workers=0",
-                            "train.progress=false", "train.bn_recompute_frames=0"])
-    return setup_data(cfg, 1, 0, torch.device("cpu"), log=logs.append)
+    data = DataConfig(ReaderConfig(input_size=32), root=str(dataset), cache_dir=str(cache_dir), batch_size=4)
+    return setup_data(data, 0, 0, Placement(1, 0, torch.device("cpu")), progress=False, log=logs.append)
 
 
 @pytest.fixture

@@ -62,9 +62,9 @@ def test_reader_rejects_bad_input(tiny_dataset, tmp_path):
 
 
 @pytest.mark.parametrize("field,value,message", [
-    ("input_size", 8, "data.reader.input_size must be a whole number >= 16, got 8"),
-    ("input_size", 100_000, "data.reader.input_size must be at most 2,048, got 100,000"),
-    ("input_size", 64.0, "data.reader.input_size must be a whole number >= 16, got 64.0"),
+    ("input_size", 8, "data.reader.input_size must be a whole number from 16 to 2048, got 8"),
+    ("input_size", 100_000, "data.reader.input_size must be a whole number from 16 to 2048, got 100000"),
+    ("input_size", 64.0, "data.reader.input_size must be a whole number from 16 to 2048, got 64.0"),
     ("rotate_deg", -5, r"data.reader.rotate_deg must be a finite number in \[0, 180\], got -5"),
     ("rotate_deg", float("nan"), r"data.reader.rotate_deg must be a finite number in \[0, 180\], got nan"),
     ("photometric", 1.5, r"data.reader.photometric must be a finite number in \[0, 1\], got 1.5"),

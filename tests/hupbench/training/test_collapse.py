@@ -51,10 +51,10 @@ def short_run(model: str, dataset, folder: Path, steps: int):
         "data.reader.photometric=0", "threads=2", "precision=fp32"]))
 
 
-def trained_model(run, folder: Path) -> torch.nn.Module:
+def trained_model(run) -> torch.nn.Module:
     """The run's model after training, from its last checkpoint, in eval mode (batch-norm statistics
     re-estimated at the end, as every checkpoint has them)."""
-    result = train(run, folder, log=lambda *_: None)
+    result = train(run, log=lambda *_: None)
     return Checkpoint.read(result["checkpoint"]).build_model().eval()
 
 
@@ -80,7 +80,7 @@ def trained(tiny_dataset, tmp_path_factory):
         run = short_run(name, tiny_dataset, folder / name, STEPS_BY_MODEL.get(name, STEPS))
         key = json.dumps([run.config["model"], run.config["loss"], run.train.max_steps], sort_keys=True)
         if key not in models:
-            models[key] = trained_model(run, folder / name)
+            models[key] = trained_model(run)
         return models[key]
 
     return model_of

@@ -351,7 +351,7 @@ def small_dataset(tmp_path_factory):
     import numpy as np
 
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
     from hupbench.core.geometry import axis_angle_to_matrix, matrix_to_axis_angle
     from hupbench.core.io import save_npz
     from hupbench.datagen.render.preview import handset_grasp
@@ -372,7 +372,7 @@ def small_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("small") / "dataset"
     spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 2, "val": 1, "test": 1}, "z_ego_m": (0.5, 0.8),
                                        "sphere": SphereSpec(r_circ_m=0.25)}))
-    generate(spec, root, grasps, {"test": "small_dataset"}, progress=False, log=lambda *_: None)
+    generate(GenerateRun(spec, root, grasps, progress=False), {"test": "small_dataset"}, log=lambda *_: None)
     return root
 
 

@@ -11,8 +11,8 @@ import torch
 from hupbench.core.processes import usable_cores
 from helpers.answers import assert_refusal
 from hupbench.config import compose
-from hupbench.data import ReaderConfig
-from hupbench.training.run_config import DataConfig, LossConfig, OptimConfig, Schedule, TrainRun, train_config
+from hupbench.data import DataConfig, ReaderConfig
+from hupbench.training.run_config import LossConfig, OptimConfig, Schedule, TrainRun, train_config
 from hupbench.training.schedule import warmup_cosine
 from hupbench.models.hopenet import HOPENetConfig
 
@@ -35,9 +35,9 @@ def run(**fields) -> TrainRun:
 CASES = {
     "batch-size-abc": (lambda: data(batch_size="abc"), ("data.batch_size", "whole number")),
     "max-steps-float": (lambda: Schedule(max_steps=1e12), ("train.max_steps", "whole number")),
-    "max-steps-huge": (lambda: Schedule(max_steps=10**12), ("train.max_steps", "1,000,000,000")),
-    "stop-after-zero": (lambda: Schedule(stop_after=0), ("train.stop_after", ">= 1 or null")),
-    "val-every-zero": (lambda: Schedule(val_every=0), ("train.val_every", ">= 1")),
+    "max-steps-huge": (lambda: Schedule(max_steps=10**12), ("train.max_steps", "from 1 to 1000000000")),
+    "stop-after-zero": (lambda: Schedule(stop_after=0), ("train.stop_after", "from 1 to 1000000000 or null")),
+    "val-every-zero": (lambda: Schedule(val_every=0), ("train.val_every", "from 1 to 1000000000")),
     "ckpt-every-float": (lambda: Schedule(ckpt_every=2.5), ("train.ckpt_every", "whole number", "2.5")),
     "bn-frames-negative": (lambda: Schedule(bn_recompute_frames=-1), ("train.bn_recompute_frames", ">= 0")),
     "lr-negative": (lambda: optim(lr=-1), ("optim.optimizer.lr", "(0, 1]")),
@@ -53,19 +53,25 @@ CASES = {
     "warmup-negative": (lambda: optim(scheduler={"warmup_steps": -1}), ("optim.scheduler.warmup_steps", ">= 0")),
     "final-lr-fraction-over-one": (lambda: optim(scheduler={"final_lr_fraction": 2}),
                                    ("optim.scheduler.final_lr_fraction", "[0, 1]")),
-    "input-size-huge": (lambda: ReaderConfig(input_size=100000), ("data.reader.input_size", "at most 2,048")),
+    "input-size-huge": (lambda: ReaderConfig(input_size=100000), ("data.reader.input_size", "from 16 to 2048")),
     "rotate-negative": (lambda: ReaderConfig(rotate_deg=-5), ("data.reader.rotate_deg", "[0, 180]")),
-    "num-workers-negative": (lambda: data(num_workers=-1), ("data.num_workers", ">= 0")),
+    "num-workers-negative": (lambda: data(num_workers=-1), ("data.num_workers", "from 0 to 1024")),
     "val-frames-zero": (lambda: data(val_frames=0), ("data.val_frames", ">= 1")),
     "pipeline-unknown": (lambda: data(pipeline="lmdb"), ("data.pipeline", "'cache' or 'jpeg'")),
     "loss-unit-zero": (lambda: LossConfig(unit_3d_m=0), ("loss.unit_3d_m", "> 0")),
     "loss-symmetry-unknown": (lambda: LossConfig(probe_symmetry="mirror"), ("loss.probe_symmetry", "'half_turn'")),
-    "threads-zero": (lambda: run(threads=0), ("threads", ">= 1")),
+    "threads-zero": (lambda: run(threads=0), ("threads", "from 1 to")),
     # more threads than cores only contend (threads=4096: a 1-step run took more than 300 s)
-    "threads-over-cores": (lambda: run(threads=usable_cores() + 1), ("threads", "CPU core", "at most")),
-    "seed-negative": (lambda: run(seed=-1), ("seed", ">= 0")),
+    "threads-over-cores": (lambda: run(threads=usable_cores() + 1), ("threads", f"from 1 to {usable_cores()}",
+                                                                      "the CPU cores this process may use")),
+    "seed-negative": (lambda: run(seed=-1), ("seed", "from 0 to 2147483647")),
     "precision-fp16": (lambda: run(precision="fp16"), ("precision", "'auto' or 'fp32' or 'bf16'")),
     "n-keypoints-21": (lambda: run(model=HOPENetConfig(n_keypoints=21)), ("model.n_keypoints", "29")),
+    # booleans: a string from the command line was taken as true
+    "channels-last-maybe": (lambda: run(channels_last="maybe"), ("channels_last must be true or false", "'maybe'")),
+    "compile-number": (lambda: run(compile=1), ("compile must be true or false", "got 1")),
+    "tensorboard-maybe": (lambda: Schedule(tensorboard="maybe"), ("train.tensorboard must be true or false",)),
+    "progress-maybe": (lambda: Schedule(progress="maybe"), ("train.progress must be true or false", "'maybe'")),
 }
 
 

@@ -11,7 +11,9 @@ from helpers.training import TRAIN_PREFIX, tiny_cfg, train_answer
 from hupbench.config import compose
 from hupbench.training import loop
 from hupbench.training.run_config import train_config
+from hupbench.training.resume import new_run_override
 from hupbench.training.run_log import RunConsole
+from hupbench.verbs.train import task
 
 LOSS = re.compile(r"loss (\S+) \((?:step (\d+)|avg of steps (\d+)-(\d+))\)")
 
@@ -64,7 +66,7 @@ def finished(tiny_dataset, tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
     overrides = (tiny_dataset, root / "tiny", root / "cache", "run_name=tiny", f"out_root={root}")
     lines = []
-    loop.main(tiny_cfg(*overrides), log=lines.append)
+    task(tiny_cfg(*overrides), log=lines.append)
     return overrides, lines
 
 
@@ -99,34 +101,13 @@ def test_a_finished_run_again_is_already_complete(finished, capsys):
     before = {name: (run_dir / name).read_bytes() for name in ("run.json", "metrics.jsonl", "summary.json",
                                                                "checkpoints/last.pt")}
     lines = []
-    loop.main(tiny_cfg(*overrides), log=lines.append)
+    task(tiny_cfg(*overrides), log=lines.append)
     assert lines[0].startswith(f"already complete: nothing to do (checkpoint {run_dir / 'checkpoints' / 'last.pt'}: "
                                "step 2, val MPJPE ")
     assert lines[0].endswith("; use run_name=tiny_2 for a new run)")
     assert lines[1].startswith("next: hupbench eval ") and len(lines) == 3
     assert {name: (run_dir / name).read_bytes() for name in before} == before  # nothing trained or rewritten
     assert (run_dir / "train.log").read_text().rstrip().endswith(lines[0])
-
-
-def test_a_run_trained_before_the_packages_moved_is_still_complete(finished, tmp_path):
-    """A checkpoint whose config names its model by the top-level package of hupbench 0.1 (``_target_:
-    models.hopenet.HOPENetConfig``, before ``hupbench.models``) is the same config: the run is complete, not
-    refused as trained with another config."""
-    import shutil
-
-    import torch
-
-    overrides, _ = finished
-    run_dir = tmp_path / "tiny"
-    shutil.copytree(overrides[1], run_dir)
-    last = run_dir / "checkpoints" / "last.pt"
-    payload = torch.load(last, map_location="cpu", weights_only=True)
-    assert payload["config"]["model"]["_target_"] == "hupbench.models.hopenet.HOPENetConfig"
-    payload["config"]["model"]["_target_"] = "models.hopenet.HOPENetConfig"
-    torch.save(payload, last)
-    lines = []
-    loop.main(tiny_cfg(overrides[0], run_dir, *overrides[2:]), log=lines.append)
-    assert lines[0].startswith("already complete: nothing to do"), lines
 
 
 @pytest.mark.parametrize("extra, needles", [
@@ -144,7 +125,7 @@ def test_a_changed_config_is_refused_naming_the_fix(finished, capsys, extra, nee
 
 def test_a_new_run_is_offered_in_the_first_free_folder(tmp_path):
     def offer(*overrides):
-        return loop.new_run_override(train_config(compose("train", ["model=hopenet_r10_128", *overrides])))
+        return new_run_override(train_config(compose("train", ["model=hopenet_r10_128", *overrides])))
 
     assert offer(f"out_root={tmp_path}", "run_name=a") == "run_name=a_2"
     (tmp_path / "a_2").mkdir()
