@@ -12,13 +12,13 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_int
 from hupbench.core.io import write_with
+from hupbench.inference.model_file import check_intrinsics
 from hupbench.input_geometry import INPUT_SIZE_RANGE
 from hupbench.models.build import build_model, load_checkpoint_state
 
@@ -71,21 +71,19 @@ class Checkpoint:
         path = Path(path)
         if not path.is_file():
             raise MissingFileError(f"checkpoint {path} does not exist")
-        if path.stat().st_size == 0:
-            raise BadValueError(f"{path} is empty (0 bytes): not a readable torch checkpoint")
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # torch raises several unrelated types for a corrupt or foreign file
             # the first sentence only: torch's unpickling errors go on for lines about weights_only=False,
             # which is not the cure for a damaged file
             first = next((line for line in str(exc).splitlines() if line.strip()), "").split(". ")[0][:200]
+            reason = first or ("an empty file (0 bytes)" if path.stat().st_size == 0 else "no message")
             raise BadValueError(f"{path} is not a readable torch checkpoint (damaged, truncated or not written by "
-                                f"torch.save): {type(exc).__name__}: {first}") from exc
-        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-            raise BadValueError(f"{path} is not a hupbench checkpoint (no format={FORMAT!r} field)")
-        if payload.get("version") != VERSION:
-            raise BadValueError(f"{path} has checkpoint version {payload.get('version')!r}; this hupbench reads "
-                                f"{VERSION}")
+                                f"torch.save): {type(exc).__name__}: {reason}") from exc
+        header = (payload.get("format"), payload.get("version")) if isinstance(payload, dict) else (None, None)
+        if header != (FORMAT, VERSION):
+            raise BadValueError(f"{path} is not a hupbench checkpoint of version {VERSION} (format={FORMAT!r}); its "
+                                f"format and version are {header[0]!r:.40} and {header[1]!r:.40}")
         missing = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING
                    and f.name not in payload]
         if missing:
@@ -96,27 +94,18 @@ class Checkpoint:
                                 f"state dict (name -> tensor), got {type(config).__name__} and {type(state).__name__}")
         check_int(payload["input_size"], f"checkpoint {path}: input_size", *INPUT_SIZE_RANGE)
         check_int(payload["step"], f"checkpoint {path}: step", low=0)
-        try:
-            K = np.asarray(payload["K_input"], dtype=np.float64)
-        except (TypeError, ValueError):  # ragged, or not numbers
-            K = np.zeros(0)
-        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal "
-                                f"lengths, got {payload['K_input']!r:.80}")
+        check_intrinsics(payload["K_input"], f"checkpoint {path}: K_input")
         return cls(**{f.name: payload[f.name] for f in fields(cls) if f.name in payload}, path=path)
 
     def build_model(self) -> nn.Module:
         """The model of this checkpoint, built from its model_config with its weights loaded strictly; a config
-        that builds no model, or weights that do not fit it, are refused naming the file."""
+        that builds no model, weights that do not fit it, or an input camera that is not ``K_input``, are refused
+        naming the file."""
         try:
-            model = build_model(self.model_config)
+            model = load_checkpoint_state(build_model(self.model_config), self.model)
         except (ValueError, TypeError) as exc:
-            raise BadValueError(f"checkpoint {self.path}: its model_config builds no model: {exc}") from exc
-        try:
-            model = load_checkpoint_state(model, self.model)
-        except (ValueError, TypeError) as exc:
-            raise BadValueError(f"checkpoint {self.path}: its weights do not fit its model_config (a "
-                                f"{self.model_config['name']!r} model): {exc}") from exc
+            raise BadValueError(f"checkpoint {self.path}: its model_config (a {self.model_config['name']!r} model) "
+                                f"and its weights build no model: {exc}") from exc
         self._check_camera(model)
         return model
 

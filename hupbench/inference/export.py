@@ -28,7 +28,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.input_checks import check_int
 from hupbench.inference.image_statistics import ImageStatistics
-from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, write_metadata
+from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, GRAPH_SHA256, graph_sha256, write_metadata
 from hupbench.inference.runtime import (
     load_onnx_model,
     run_onnx_with_confidence,
@@ -166,8 +166,9 @@ def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outpu
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
     """Export a :class:`ContractModule` (eval mode, CPU) with a dynamic batch axis and ``metadata`` as its
-    metadata_props to ``path``, written directly (callers that need atomicity pass a temporary name). The
-    metadata's ``hupbench.outputs`` must be the module's :attr:`ContractModule.outputs`."""
+    metadata_props to ``path``, written directly (callers that need atomicity pass a temporary name), and the
+    graph's sha256 that ties them to it (``hupbench.graph_sha256``). The metadata's ``hupbench.outputs`` must be
+    the module's :attr:`ContractModule.outputs`."""
     import json
 
     import onnx
@@ -200,6 +201,7 @@ def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, st
     for key, value in metadata.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
+    proto.metadata_props.add(key=GRAPH_SHA256, value=graph_sha256(proto.SerializeToString()))
     onnx.checker.check_model(proto)
     path = Path(path)
     onnx.save_model(proto, str(path))
@@ -211,9 +213,8 @@ def _parity_images(dataset: Path, input_size: int, frames: int, modalities: str 
     from hupbench.data import HUPDataset, ReaderConfig, read_manifest
 
     counts = read_manifest(dataset)["counts"]
-    split = next((s for s in ("test", "val", "train") if counts.get(s, 0) > 0), None)
-    if split is None:
-        raise BadValueError(f"{dataset} has no frames in any split")
+    # the calibration came first: the training split has frames
+    split = next(s for s in ("test", "val", "train") if counts.get(s, 0) > 0)
     reader = HUPDataset(dataset, split, ReaderConfig(input_size=input_size, input_modalities=modalities))
     idx = np.linspace(0, len(reader) - 1, min(frames, len(reader))).round().astype(int)
     return torch.stack([reader[int(i)]["image"] for i in idx])
@@ -237,26 +238,36 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
             "frames": int(images.shape[0])}
 
 
-def calibrate_image_statistics(dataset: Path, input_size: int) -> ImageStatistics:
+def calibrate_image_statistics(dataset: Path, input_size: int, reads_depth: bool = False) -> ImageStatistics:
     """Predict's out-of-distribution calibration (:func:`hupbench.inference.image_statistics.calibrate`) on the
     dataset's frames, read and resized exactly as predict reads an image: up to ``TRAIN_FRAMES`` training frames,
-    the threshold from up to ``THRESHOLD_FRAMES`` validation frames (else test, else training frames)."""
+    the threshold from up to ``THRESHOLD_FRAMES`` validation frames (else test, else training frames); for a model
+    that ``reads_depth``, the median depths of the same training frames' depth maps."""
     from hupbench.data import read_manifest
     from hupbench.inference import image_statistics as stats
-    from hupbench.inference.images import read_image
+    from hupbench.inference.images import read_depth_png, read_image
 
-    counts = read_manifest(dataset)["counts"]
+    manifest = read_manifest(dataset)
+    counts = manifest["counts"]
+
+    def chosen(split: str, frames: int) -> list[Path]:
+        files = sorted(p for p in (dataset / split / "rgb").iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
+        return [files[i] for i in np.unique(np.linspace(0, len(files) - 1, min(frames, len(files))).round().astype(int))]
 
     def statistics(split: str, frames: int) -> np.ndarray:
-        files = sorted(p for p in (dataset / split / "rgb").iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
-        idx = np.unique(np.linspace(0, len(files) - 1, min(frames, len(files))).round().astype(int))
-        return np.stack([stats.image_statistics(read_image(files[i]), input_size) for i in idx])
+        return np.stack([stats.image_statistics(read_image(path), input_size) for path in chosen(split, frames)])
 
     if counts.get("train", 0) < 2:
         raise BadValueError(f"{dataset} has {counts.get('train', 0)} training frames; the out-of-distribution "
                             "calibration needs at least 2")
     split = next(s for s in ("val", "test", "train") if counts.get(s, 0) > 0)
-    return stats.calibrate(statistics("train", stats.TRAIN_FRAMES), statistics(split, stats.THRESHOLD_FRAMES), split)
+    depth = None
+    if reads_depth:
+        depth = np.array([stats.depth_median_m(read_depth_png(dataset / "train" / "depth" / f"{path.stem}.png")
+                                               * manifest["depth_scale_m"])
+                          for path in chosen("train", stats.TRAIN_FRAMES)])
+    return stats.calibrate(statistics("train", stats.TRAIN_FRAMES), statistics(split, stats.THRESHOLD_FRAMES), split,
+                           depth)
 
 
 def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
@@ -275,19 +286,16 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     out = check_writable(options.out, "--out", file=True)
     model, payload = load_model(options.checkpoint)
     module = contract_model(model, payload, f"checkpoint {options.checkpoint}", confidence=True)
-    dataset = options.dataset
-    if dataset is None:
-        recorded = (payload.get("dataset") or {}).get("path")
-        if not recorded:
-            raise BadValueError(f"checkpoint {options.checkpoint} records no dataset for the parity check; "
-                                "pass --dataset")
-        dataset = Path(recorded)
-    if not dataset.exists():
-        raise MissingFileError(f"dataset {dataset} for the parity check does not exist; pass --dataset")
-    images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
+    recorded = (payload.get("dataset") or {}).get("path")
+    dataset = options.dataset or (Path(recorded) if recorded else None)
+    if dataset is None or not dataset.exists():  # the parity check runs on real images
+        missing = (f"checkpoint {options.checkpoint} records no dataset for the parity check" if dataset is None
+                   else f"dataset {dataset} for the parity check does not exist")
+        raise MissingFileError(f"{missing}; pass --dataset")
     recorded = (payload.get("config") or {}).get("run_name")
     run_name = options.run_name if options.run_name is not None else default_run_name(recorded, options.checkpoint)
-    calibration = calibrate_image_statistics(dataset, module.input_size)
+    calibration = calibrate_image_statistics(dataset, module.input_size, module.reads_depth)
+    images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
     metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration)
 
     with OutputLock.for_file(out, "export"):
@@ -306,13 +314,13 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
             log(f"parity on {diff['frames']} real images of {dataset}: max |ORT - PyTorch| points3d "
                 f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
                 f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
-            if diff["points3d_mm"] > PARITY_MAX_3D_MM:
-                raise RunFailedError(f"ONNX parity check failed: points3d differ by up to {diff['points3d_mm']:.4f} "
-                                     f"mm (> {PARITY_MAX_3D_MM} mm) between onnxruntime and PyTorch; nothing written "
-                                     f"to {out}")
-            if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE:
-                raise RunFailedError(f"ONNX parity check failed: the keypoint confidence differs by up to "
-                                     f"{diff['confidence']:.2e} (> {PARITY_MAX_CONFIDENCE:g}) between onnxruntime and "
+            failed = ([f"points3d differ by up to {diff['points3d_mm']:.4f} mm (> {PARITY_MAX_3D_MM} mm)"]
+                      if diff["points3d_mm"] > PARITY_MAX_3D_MM else []) + \
+                     ([f"the keypoint confidence differs by up to {diff['confidence']:.2e} (> "
+                       f"{PARITY_MAX_CONFIDENCE:g})"]
+                      if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE else [])
+            if failed:
+                raise RunFailedError(f"ONNX parity check failed: {' and '.join(failed)} between onnxruntime and "
                                      f"PyTorch; nothing written to {out}")
     log(f"out-of-distribution check calibrated on {calibration.frames['train']} training frames; threshold "
         f"{calibration.threshold:.2f} = percentile {calibration.percentile:g} of {calibration.frames['threshold']} "

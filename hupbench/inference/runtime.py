@@ -16,7 +16,7 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.io import file_sha256
 from hupbench.inference.image_statistics import ImageStatistics
-from hupbench.inference.model_file import BASE_OUTPUTS, check_io_shapes, read_metadata
+from hupbench.inference.model_file import BASE_OUTPUTS, check_graph, check_io_shapes, read_metadata
 
 __all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "run_onnx_with_confidence", "split_model_images"]
 
@@ -92,11 +92,13 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
         session = ort.InferenceSession(data, sess_options=options, providers=["CPUExecutionProvider"])
     except _LOAD_ERRORS as exc:
         raise BadValueError(f"{path} is not a readable ONNX model: {type(exc).__name__}: {_reason(exc, 200)}") from None
-    meta = read_metadata(dict(session.get_modelmeta().custom_metadata_map), str(path))
+    props = dict(session.get_modelmeta().custom_metadata_map)
+    meta = read_metadata(props, str(path))
     check_io_shapes({i.name: list(i.shape or []) for i in session.get_inputs()},
                     {o.name: list(o.shape or []) for o in session.get_outputs()},
                     meta["input_size"], len(meta["keypoint_names"]), str(path), meta["input_modalities"],
                     meta["outputs"])
+    check_graph(props, data, str(path))
     model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
     # one blank image: a graph made for another input size under edited metadata fails here, before any work
     S = model.input_size
@@ -127,10 +129,6 @@ def run_onnx_with_confidence(model: OnnxModel, images: np.ndarray,
     if not model.has_confidence:
         return (*run_onnx(model, images, depth), None)
     points2d, points3d, confidence = _run(model, images, depth, (*BASE_OUTPUTS, "confidence"))
-    b, n = images.shape[0], len(model.keypoint_names)
-    if confidence.shape != (b, n):
-        raise RunFailedError(f"{model.path}: output confidence must be ({b}, {n}) for {n} keypoint names, got "
-                             f"{confidence.shape}")
     return points2d, points3d, confidence
 
 
@@ -153,8 +151,10 @@ def _run(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None, names: 
                              f"the input size its metadata declare ({S} px): {type(exc).__name__}: "
                              f"{_reason(exc, 240)}") from None
     n, b = len(model.keypoint_names), images.shape[0]
-    points2d, points3d = outputs[:2]
-    if points2d.shape != (b, n, 2) or points3d.shape != (b, n, 3):
-        raise RunFailedError(f"{model.path}: outputs must be ({b}, {n}, 2) and ({b}, {n}, 3) for {n} keypoint "
-                             f"names, got {points2d.shape} and {points3d.shape}")
+    expected = {"points2d": (b, n, 2), "points3d": (b, n, 3), "confidence": (b, n)}
+    shapes = [tuple(output.shape) for output in outputs]
+    if shapes != [expected[name] for name in names]:
+        raise RunFailedError(f"{model.path}: outputs {', '.join(names)} must be "
+                             f"{' and '.join(str(expected[name]) for name in names)} for {n} keypoint names, got "
+                             f"{' and '.join(map(str, shapes))}")
     return outputs

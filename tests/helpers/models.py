@@ -29,6 +29,17 @@ def make_checkpoint(path, dataset, **model_cfg):
         dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
 
 
+def checkpoint_with_other_K(path, dataset):
+    """A camera-lift HOPE-Net (its model holds the input camera as an ``intrinsics`` buffer) whose stored K_input
+    has twice the focal lengths of that buffer's camera: a checkpoint edited, or mixing two runs."""
+    K = HUPDataset(dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    make_checkpoint(path, dataset, lift="camera", K_input=K.tolist(), input_size=INPUT_SIZE)
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    payload["K_input"] = (K * np.array([[2.0], [2.0], [1.0]])).tolist()
+    torch.save(payload, path)
+    return path
+
+
 def exported_model(tmp_path_factory, dataset):
     """(checkpoint, onnx) of an untrained HOPE-Net, exported once per session (shared with test_eval)."""
     folder = tmp_path_factory.getbasetemp() / "exported_hopenet_r10_64"

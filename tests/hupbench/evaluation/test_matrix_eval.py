@@ -23,7 +23,7 @@ from helpers.two_writers import finish, start_writing
 from hupbench.evaluation.evaluate import EvalOptions
 from helpers.damage import CHECKPOINT_CASES, DATASET_CASES, damage_checkpoint, damage_dataset
 from helpers.faults import dead_pid, full_disk_script, parse_full_disk, private_mount, run_killed_then_again
-from helpers.models import make_checkpoint
+from helpers.models import checkpoint_with_other_K, make_checkpoint
 
 
 def edited_onnx(src: Path, dst: Path, **props: str) -> Path:
@@ -95,6 +95,19 @@ def onnx_case(case: str, src: Path, tmp_path: Path) -> tuple[Path, tuple[str, ..
     raise KeyError(case)
 
 
+def other_probe_dataset(src: Path, tmp_path: Path) -> Path:
+    """A copy of a dataset whose manifest records a probe mesh of the user's (as ``hupbench generate
+    probe.mesh=linear.stl`` writes it): the fits, which know only the procedural probe, must refuse it."""
+    from helpers.damage import copy_dataset
+
+    root = copy_dataset(src, tmp_path / "other_probe")
+    manifest = json.loads((root / "manifest.json").read_text())
+    manifest["probe"] = {"kind": "mesh", "path": "/data/probes/linear.stl", "unit": "m", "align": False,
+                         "sha256": "0" * 64, "geometry_sha256": "0" * 64}
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    return root
+
+
 ONNX_CASES = ["onnx-missing", "onnx-empty", "onnx-truncated", "onnx-random-bytes", "onnx-foreign",
               "onnx-input-size-disagrees", "onnx-metadata-bad-json", "onnx-graph-21-keypoints"]
 
@@ -108,6 +121,11 @@ OPTION_CASES = {
     "out-not-json": (["--out", "OUTDIR/results.txt"], ("--out", ".json")),
     "out-is-a-folder": (["--out", "OUTDIR/folder.json"], ("folder.json", "is a folder")),
     "run-name-disagrees": (["--run-name", "other"], ("other", "results file stem")),
+    "run-name-empty": (["--run-name", ""], ("--run-name", "must be a run name", "got ''")),
+    "out-stem-not-a-run-name": (["--out", "OUTDIR/-x.json"], ("--out", "-x.json", "must be a run name")),
+    "threads-far-above-cores": (["--threads", "100000"], ("--threads", "100000", "CPU core")),
+    "training-log-missing": (["--training-log", "logs/none.jsonl"], ("--training-log", "logs/none.jsonl",
+                                                                     "is not a file")),
 }
 
 #: cases :class:`EvalOptions` refuses: case -> options(checkpoint, dataset, out folder), checked without the verb
@@ -115,10 +133,14 @@ OPTION_CASES = {
 UNIT_CASES = {
     "model-not-pt-or-onnx": lambda ckpt, dataset, out_dir: EvalOptions(out_dir / "notes.txt", dataset),
     "out-not-json": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, out=out_dir / "results.txt"),
+    "run-name-empty": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, run_name=""),
+    "training-log-missing": lambda ckpt, dataset, out_dir: EvalOptions(ckpt, dataset, out=out_dir / "r.json",
+                                                                       training_log="logs/none.jsonl"),
 }
 
-CASES = ([f"model:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "model-not-pt-or-onnx"] + ONNX_CASES]
-         + [f"dataset:{c}" for c in DATASET_CASES]
+CASES = ([f"model:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "ckpt-K-not-its-cameras",
+                                                      "model-not-pt-or-onnx"] + ONNX_CASES]
+         + [f"dataset:{c}" for c in DATASET_CASES + ["other-probe-for-a-fitting-model"]]
          + [f"option:{c}" for c in OPTION_CASES]
          + ["output:out-read-only"])
 
@@ -139,10 +161,17 @@ def test_matrix_eval(case, exported, tiny_dataset, tmp_path, capsys):
     if kind == "model":
         if name == "ckpt-21-keypoints":
             model, needles = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21), ("hand21.pt", "21 keypoints")
+        elif name == "ckpt-K-not-its-cameras":  # the intrinsics buffer and the stored K_input disagree (x2)
+            model = checkpoint_with_other_K(tmp_path / "other_K.pt", tiny_dataset)
+            needles = ("other_K.pt", "intrinsics buffer", "is not the camera of its K_input")
         elif name.startswith("onnx"):
             model, needles = onnx_case(name, onnx_path, tmp_path)
         else:
             model, needles = damage_checkpoint(name, ckpt, tmp_path)
+    elif kind == "dataset" and name == "other-probe-for-a-fitting-model":
+        model, dataset = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth"), \
+            other_probe_dataset(tiny_dataset, tmp_path)
+        needles = ("manifest.json", "linear.stl", "probe fit", "know only the default procedural probe")
     elif kind == "dataset":
         dataset, needles = damage_dataset(name, tiny_dataset, tmp_path, "test")
     elif kind == "option":

@@ -22,7 +22,7 @@ from helpers.two_writers import finish, start_writing
 from hupbench.inference.export import ExportOptions
 from helpers.damage import CHECKPOINT_CASES, damage_checkpoint, damage_dataset
 from helpers.faults import dead_pid, full_disk_script, parse_full_disk, private_mount, run_killed_then_again
-from helpers.models import make_checkpoint
+from helpers.models import checkpoint_with_other_K, make_checkpoint
 
 
 # argv after CKPT (OUT is the output folder), what the error must name
@@ -33,6 +33,9 @@ OPTION_CASES = {
     "out-not-onnx": (["--out", "OUT/model.bin"], ("model.bin", ".onnx")),
     "out-is-a-folder": (["--out", "OUT/folder.onnx"], ("folder.onnx", "is a folder")),
     "dataset-missing": (["--dataset", "OUT/no_dataset"], ("no_dataset", "does not exist")),
+    "run-name-up-two-folders": (["--run-name", "../../x"], ("--run-name", "must be a run name", "'../../x'")),
+    "run-name-with-newline": (["--run-name", "a\nb"], ("--run-name", "must be a run name", "'a\\nb'")),
+    "run-name-empty": (["--run-name", ""], ("--run-name", "must be a run name", "got ''")),
 }
 DATASET_CASES = ["dataset-empty-folder", "dataset-is-a-file", "manifest-bad-json", "annotations-truncated",
                  "annotations-flipped-byte", "annotations-21-keypoints", "rgb-undecodable", "rgb-tiny"]
@@ -43,10 +46,12 @@ UNIT_CASES = {
     "ckpt-is-onnx": lambda ckpt, onnx_path, out: ExportOptions(onnx_path),
     "opset-5": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.onnx", opset=5),
     "out-not-onnx": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.bin"),
+    "run-name-with-newline": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.onnx", run_name="a\nb"),
+    "run-name-empty": lambda ckpt, onnx_path, out: ExportOptions(ckpt, out / "model.onnx", run_name=""),
 }
 
-CASES = ([f"checkpoint:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "ckpt-is-onnx",
-                                                         "ckpt-without-dataset", "ckpt-dataset-gone"]]
+CASES = ([f"checkpoint:{c}" for c in CHECKPOINT_CASES + ["ckpt-21-keypoints", "ckpt-K-not-its-cameras",
+                                                         "ckpt-is-onnx", "ckpt-without-dataset", "ckpt-dataset-gone"]]
          + [f"option:{c}" for c in OPTION_CASES]
          + [f"dataset:{c}" for c in DATASET_CASES]
          + ["output:out-read-only", "output:out-missing-folder"])
@@ -69,6 +74,9 @@ def test_matrix_export(case, exported, tiny_dataset, tmp_path, capsys):
     if kind == "checkpoint":
         if name == "ckpt-21-keypoints":
             model, needles = make_checkpoint(tmp_path / "hand21.pt", tiny_dataset, n_keypoints=21), ("hand21.pt", "21 keypoints")
+        elif name == "ckpt-K-not-its-cameras":  # the intrinsics buffer and the stored K_input disagree (x2)
+            model = checkpoint_with_other_K(tmp_path / "other_K.pt", tiny_dataset)
+            needles = ("other_K.pt", "intrinsics buffer", "is not the camera of its K_input")
         elif name in ("ckpt-without-dataset", "ckpt-dataset-gone"):
             payload = torch.load(ckpt, map_location="cpu", weights_only=True)
             gone = tmp_path / "gone_dataset"
