@@ -210,7 +210,7 @@ class GraspSet:
         return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]
 
 
-def probe_of_dataset(root_or_manifest) -> "Probe":
+def probe_of_dataset(root_or_manifest, manifest: dict | None = None) -> "Probe":
     """The probe a dataset was rendered with, from its manifest's ``probe`` record.
 
     Given the dataset folder, a mesh probe is rebuilt from the geometry its ``grasps.npz`` carries (the
@@ -220,6 +220,8 @@ def probe_of_dataset(root_or_manifest) -> "Probe":
 
     Args:
         root_or_manifest: the dataset folder (str or Path) or its parsed ``manifest.json``.
+        manifest: with a dataset folder, its manifest as the caller read it (verify reads one whose counts
+            disagree with its layout, to report that); default: the folder's, read and checked.
 
     Returns:
         :class:`Probe` (shared and cached: do not modify it).
@@ -239,9 +241,9 @@ def probe_of_dataset(root_or_manifest) -> "Probe":
     else:
         root = Path(root_or_manifest)
         path = root / "manifest.json"
-        if not path.is_file():
+        if manifest is None and not path.is_file():
             raise MissingFileError(f"{root} has no manifest.json: not a finished hupbench dataset")
-        manifest = json.loads(path.read_text())
+        manifest = json.loads(path.read_text()) if manifest is None else manifest
     record = manifest.get("probe", {"kind": "procedural"})
     if record.get("kind") == "procedural":
         return build_probe(ProbeSpec(**record["spec"]) if "spec" in record else ProbeSpec())

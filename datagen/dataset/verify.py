@@ -318,7 +318,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     # the probe the frames show (a mesh probe's geometry is in the dataset's grasps.npz)
     from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 
-    probe = probe_of_dataset(root) if imported is None else None
+    probe = probe_of_dataset(root, manifest) if imported is None else None
     if imported is not None:
         skipped += IMPORTED_SKIPS
     backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
