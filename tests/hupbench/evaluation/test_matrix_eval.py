@@ -284,3 +284,31 @@ def test_fault_eval_two_runs_at_once(exported, tiny_dataset, tmp_path, capsys):
     assert_clean_error(answer, str(out), "in use by another eval run", f"pid {first.pid}")
     assert load_results(out)["latency_ms_per_image"]["onnxruntime"]["batch1"] is not None  # the first run's
     assert sorted(p.name for p in out.parent.iterdir()) == ["r.json"]
+
+
+@pytest.mark.matrix
+def test_matrix_eval_leaderboard_row_from_uncommitted_code(exported, tiny_dataset, tmp_path, capsys, monkeypatch):
+    """--out leaderboard/results/NAME.json from a source tree whose package code has uncommitted changes (measured
+    before: written, its git_commit "+dirty", a row nobody can reproduce): refused before the model runs, naming the
+    changed files; the same eval from the committed tree writes the row."""
+    import subprocess
+
+    from hupbench import provenance
+
+    ckpt, _ = exported
+    tree = tmp_path / "tree"
+    (tree / "hupbench").mkdir(parents=True)
+    (tree / "hupbench" / "metrics.py").write_text("x = 1\n")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@example.org"]
+    for argv in (["init", "-q"], ["add", "."], ["commit", "-q", "-m", "first"]):
+        subprocess.run([*git, *argv], cwd=tree, check=True, capture_output=True)
+    monkeypatch.setattr(provenance, "SOURCE_TREE", tree)
+    (tree / "hupbench" / "metrics.py").write_text("x = 2\n")
+    row = tmp_path / "leaderboard" / "results" / "tiny.json"
+    answer = run_cli(capsys, "eval", ckpt, tiny_dataset, "--no-latency", "--out", row)
+    assert_clean_error(answer, "leaderboard/results/tiny.json", "must be reproducible from its commit",
+                       "hupbench/metrics.py", "commit them first")
+    assert not row.parent.exists() or not any(row.parent.iterdir())
+    subprocess.run([*git, "commit", "-q", "-am", "second"], cwd=tree, check=True, capture_output=True)
+    assert run_cli(capsys, "eval", ckpt, tiny_dataset, "--no-latency", "--out", row).rc == 0
+    assert row.is_file()
