@@ -184,17 +184,17 @@ def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     return decode_image(_file_bytes(path, "no such file"), str(path), notes)
 
 
-def read_depth_png(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
+def read_depth_png(path: str | Path, image_size: tuple[int, int] | None = None) -> np.ndarray:
     """The depth map of an image for a model that reads depth: a single-channel 16-bit PNG of the image's
-    ``image_size`` (width, height), as (H, W) uint16 in the file's unit (``--depth-scale-m`` metres), with at
-    least one valid (non-zero) value."""
+    ``image_size`` (width, height; None: any size), as (H, W) uint16 in the file's unit (``--depth-scale-m``
+    metres), with at least one valid (non-zero) value."""
     path = Path(path)
     data = _file_bytes(path, "no such depth map (--depth holds one <image stem>.png per image)")
     if not data.startswith(_PNG_MAGIC):
         raise BadValueError(f"{path}: a depth map must be a 16-bit PNG; the file starts with {data[:8]!r}")
 
     def check_size(width: int, height: int) -> None:
-        if (width, height) != tuple(image_size):
+        if image_size is not None and (width, height) != tuple(image_size):
             raise BadValueError(f"{path}: the depth map is {width} x {height} px, its image "
                                 f"{image_size[0]} x {image_size[1]} px")
 

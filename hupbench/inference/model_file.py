@@ -13,15 +13,20 @@ depth input holds, :data:`DEPTH_INPUT`). Graph: input ``image`` (B, 3, S, S) flo
 the nearest pixel like the image); outputs ``points2d`` (B, N, 2) normalised [-1, 1] input coordinates and
 ``points3d`` (B, N, 3) metres, OpenCV camera frame of K_input, for the N keypoint names.
 
-Optional, and absent from files exported before they existed (which still load): ``hupbench.outputs`` (JSON
-list of the graph outputs, :data:`OUTPUTS`; ``["points2d", "points3d"]`` when absent), where ``confidence``
-is (B, N) float32 in [0, 1] for a model with a per-keypoint confidence (:data:`CONFIDENCE`); and
-``hupbench.image_statistics``, the calibration of predict's out-of-distribution check
-(:class:`hupbench.inference.image_statistics.ImageStatistics`).
+Optional (a file without them still reads): ``hupbench.outputs`` (JSON list of the graph outputs,
+:data:`OUTPUTS`; ``["points2d", "points3d"]`` when absent), where ``confidence`` is (B, N) float32 in [0, 1]
+for a model with a per-keypoint confidence (:data:`CONFIDENCE`); and ``hupbench.image_statistics``, the
+calibration of predict's out-of-distribution check (:class:`hupbench.inference.image_statistics.ImageStatistics`).
+
+The metadata are tied to the graph they were written for: ``hupbench.graph_sha256`` (:data:`GRAPH_SHA256`) is
+the sha256 of the serialized graph (:func:`graph_sha256`), added by the exporter once the graph exists and
+checked on load (:func:`check_graph`), so that metadata copied onto another graph, or a graph edited after
+export, is refused.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from typing import Any
 
@@ -32,13 +37,17 @@ from hupbench.core.input_checks import check_int, is_whole
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
-__all__ = ["CONFIDENCE", "META", "ONNX_SCHEMA", "OUTPUTS", "check_intrinsics", "check_io_shapes", "read_metadata",
-           "write_metadata"]
+__all__ = ["CONFIDENCE", "GRAPH_SHA256", "META", "ONNX_SCHEMA", "OUTPUTS", "check_graph", "check_intrinsics",
+           "check_io_shapes", "graph_sha256", "read_metadata", "write_metadata"]
 
 #: the version written into ``metadata_props["hupbench.onnx_schema"]`` and the one readers accept
 ONNX_SCHEMA = "1"
 #: prefix of every hupbench metadata key
 META = "hupbench."
+#: the metadata key of :func:`graph_sha256`, which ties the metadata to their graph
+GRAPH_SHA256 = META + "graph_sha256"
+#: ``ModelProto.graph``'s field number (https://github.com/onnx/onnx/blob/main/onnx/onnx.proto)
+_GRAPH_FIELD = 7
 #: graph outputs and the width of their last axis, in the order they are checked
 OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
 #: the outputs a file may declare in ``hupbench.outputs`` (the first two always), and the default
@@ -197,3 +206,49 @@ def check_intrinsics(K: Any, name: str) -> np.ndarray:
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
         raise BadValueError(f"{name} must have fx, fy > 0 and last row (0, 0, 1), got {K.tolist()}")
     return K
+
+
+def _varint(data: bytes, pos: int) -> tuple[int, int]:
+    """The base-128 varint at ``data[pos]`` and the position after it (protobuf encoding)."""
+    value = shift = 0
+    while True:
+        byte = data[pos]
+        value |= (byte & 0x7F) << shift
+        shift, pos = shift + 7, pos + 1
+        if byte < 0x80:
+            return value, pos
+
+
+def graph_sha256(model: bytes) -> str:
+    """The hex sha256 of the graph inside the bytes of a serialized ONNX model: the payload of ``ModelProto``'s
+    field 7 (``GraphProto``) as stored, found by walking the top-level fields of the protobuf wire format
+    (https://protobuf.dev/programming-guides/encoding/) without parsing the graph. The metadata (field 14) and the
+    other top-level fields are left out, so the digest of a model before its metadata are added is the digest of
+    the file written with them. ``model`` must be a well-formed ModelProto (onnxruntime opened it)."""
+    digest = hashlib.sha256()
+    pos = 0
+    while pos < len(model):
+        key, pos = _varint(model, pos)
+        wire = key & 7
+        if wire == 0:
+            _, pos = _varint(model, pos)
+        elif wire in (1, 5):  # 64-bit and 32-bit fixed
+            pos += 8 if wire == 1 else 4
+        elif wire == 2:  # length-delimited: bytes, strings and messages
+            length, pos = _varint(model, pos)
+            if key >> 3 == _GRAPH_FIELD:
+                digest.update(model[pos:pos + length])
+            pos += length
+        # wire types 3 and 4 (group start and end) carry no payload of their own
+    return digest.hexdigest()
+
+
+def check_graph(props: dict[str, str], model: bytes, source: str = "model") -> None:
+    """The metadata ``props`` were written for the graph in ``model`` (the file's bytes): their
+    ``hupbench.graph_sha256`` is the graph's :func:`graph_sha256`; ``source`` names the file in the error."""
+    recorded, actual = props.get(GRAPH_SHA256), graph_sha256(model)
+    if recorded != actual:
+        found = (f"its hupbench.graph_sha256 is {recorded[:12]!r}..." if recorded else "it has no hupbench.graph_sha256")
+        raise BadValueError(f"{source}: its hupbench metadata were not written for this graph ({found}, the graph's "
+                            f"sha256 is {actual[:12]}...): metadata copied onto another model, or a graph changed "
+                            "after export; export the checkpoint again with `hupbench export CKPT`")

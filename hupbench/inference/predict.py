@@ -14,22 +14,26 @@ each image, ``--depth DIR``: ``DIR/<image stem>.png``, single-channel 16-bit, of
 value x ``--depth-scale-m`` (default the dataset's 0.1 mm), 0 where nothing was seen, padded with 0 and
 resized to the nearest pixel (a dataset's ``<split>/rgb`` and ``<split>/depth`` folders pair up as they are).
 A model that reads depth is refused without ``--depth``, an RGB model with it; an image whose depth map is
-missing or of another size fails alone, naming the file.
+missing, of another size, 0 everywhere, or whose median depth lies outside what the model was trained on
+(:meth:`hupbench.inference.image_statistics.ImageStatistics.check_depth`: a map in another unit) fails alone,
+naming the file.
 
 Trust: ``keypoint_confidence`` (N,) in [0, 1] per image for a model with a per-keypoint confidence (HUPNet:
 its heatmap's peak mass, :data:`hupbench.inference.model_file.CONFIDENCE`), null for a regression model (HOPE-Net,
 ResNet), which has no such score; the document's ``keypoint_confidence`` says which and why. ``ood`` per image:
 the out-of-distribution check of :mod:`hupbench.inference.image_statistics` (distance, threshold, flagged),
 calibrated at export on the training frames; a flagged image gets one warning line, and its overlay a red
-banner. A file exported before the check existed has ``ood`` null and the document says so.
+banner. A model file without the calibration has ``ood`` null and the document says so.
 
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
 (N, 3) metres in the camera frame of that K, ``keypoint_confidence`` and ``ood``; and ``<stem>_overlay.png`` per
-image (``<stem>_<k>_overlay.png`` when two inputs share a stem). A file that is no readable image gets an error in its record and on
-stderr; the others are still processed. Everything checkable is checked before any image is read; the
-output folder is locked meanwhile, and a run that fails while writing removes the overlays it wrote, so
-a folder with a ``predictions.json`` holds one finished run.
+image (``<stem>_<k>_overlay.png`` when two inputs share a stem). A file that is no readable image gets an error in
+its record and on stderr; the others are still processed. ``OUT`` may not be an input folder (the next run would
+read the overlays back as images). Everything checkable is checked before any image is read. The output
+folder is locked from the start of the run (before the model is loaded), so that a second run into it is
+refused while the first one lasts; a run that fails while writing removes the overlays it wrote, so a folder
+with a ``predictions.json`` holds one finished run, and a refused run leaves no folder it made.
 """
 from __future__ import annotations
 
@@ -44,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from hupbench.core.errors import BadTypeError, BadValueError, UserError
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_int, check_number
 from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
 from hupbench.core.draw import write_png
 from hupbench.inference.image_statistics import image_statistics
@@ -124,9 +128,7 @@ class PredictOptions:
         if isinstance(self.inputs, (str, Path)):
             raise BadTypeError("inputs must be a list of paths, got a single path")
         check_int(self.batch_size, "batch_size (--batch-size)", low=1)
-        scale = self.depth_scale_m
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0.0 < scale <= 1.0:
-            raise BadValueError(f"--depth-scale-m must be metres per PNG unit in (0, 1], got {scale!r}")
+        check_number(self.depth_scale_m, "--depth-scale-m (metres per PNG unit)", 0.0, 1.0, low_open=True)
         if self.depth_dir is not None:
             if not Path(self.depth_dir).is_dir():
                 raise BadValueError(f"--depth {self.depth_dir} is not a folder (it holds one <image stem>.png per image)")
@@ -134,9 +136,15 @@ class PredictOptions:
         K = self.K
         if K is not None:
             K = parse_intrinsics(K) if isinstance(K, str) else check_user_K(K, "K")
+        out_dir = check_writable(self.out_dir, "output folder (--out)")  # '' would name the current folder
+        inputs = tuple(Path(i) for i in self.inputs)
+        folder = next((i for i in inputs if i.is_dir() and i.resolve() == out_dir.resolve()), None)
+        if folder is not None:
+            raise BadValueError(f"--out {out_dir} is the input folder {folder}: the next run would read this run's "
+                                "overlays back as images; choose another output folder")
         object.__setattr__(self, "model", Path(self.model))
-        object.__setattr__(self, "inputs", tuple(Path(i) for i in self.inputs))
-        object.__setattr__(self, "out_dir", Path(self.out_dir))
+        object.__setattr__(self, "inputs", inputs)
+        object.__setattr__(self, "out_dir", out_dir)
         object.__setattr__(self, "K", K)
 
 
@@ -156,11 +164,9 @@ def check_user_K(K: Any, name: str = "K") -> np.ndarray:
     """A user's (3, 3) intrinsics, pixels of the original image: finite, 0 < fx, fy <= MAX_FOCAL_PX,
     |cx|, |cy| <= MAX_FOCAL_PX (beyond that a value is a typo; see the constant)."""
     K = check_intrinsics(K, name)
-    if K[0, 0] > MAX_FOCAL_PX or K[1, 1] > MAX_FOCAL_PX:
-        raise BadValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, "
-                            f"fy={K[1, 1]:g}")
-    if abs(K[0, 2]) > MAX_FOCAL_PX or abs(K[1, 2]) > MAX_FOCAL_PX:
-        raise BadValueError(f"{name}: cx and cy must be in [-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got "
+    if max(K[0, 0], K[1, 1], abs(K[0, 2]), abs(K[1, 2])) > MAX_FOCAL_PX:
+        raise BadValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] and cx and cy in "
+                            f"[-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, fy={K[1, 1]:g}, "
                             f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
     return K
 
@@ -270,15 +276,23 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
         "flagged": [paths of images the out-of-distribution check flagged], "records": [per-image dicts as in
         the JSON]}``.
     """
-    from tqdm import tqdm
+    made = not options.out_dir.exists()
+    try:
+        with OutputLock(options.out_dir, "predict"):
+            return _run_locked(options, log)
+    finally:
+        if made:  # a refused or failed run leaves no folder it made; rmdir removes only an empty one
+            with contextlib.suppress(OSError):
+                options.out_dir.rmdir()
 
-    out_dir = check_writable(options.out_dir, "output folder (--out)")
+
+def _open_checked(options: PredictOptions) -> tuple[OnnxModel, list[Path], list[dict[str, str]]]:
+    """The model and the image files of a run, and the folder entries left out, checked against each other."""
     model = load_onnx_model(options.model)
-    if model.reads_depth and options.depth_dir is None:
+    if model.reads_depth != (options.depth_dir is not None):
         raise BadValueError(f"{model.path} reads RGB and depth (hupbench.input_modalities rgb+depth): pass --depth "
-                            "DIR with a 16-bit depth PNG per image, named by the image's stem")
-    if options.depth_dir is not None and not model.reads_depth:
-        raise BadValueError(f"{model.path} reads RGB only; --depth is for a model trained with "
+                            "DIR with a 16-bit depth PNG per image, named by the image's stem" if model.reads_depth
+                            else f"{model.path} reads RGB only; --depth is for a model trained with "
                             "data.reader.input_modalities=rgb+depth")
     if fits(model.model_config):  # such a model reads depth: --depth is given
         dataset = options.depth_dir.resolve().parent.parent  # the dataset, for a dataset's <split>/depth folder
@@ -291,7 +305,15 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
         raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "
                             f"{', '.join(str(i) for i in options.inputs)}"
                             + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
+    return model, files, skipped
 
+
+def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str, Any]:
+    """:func:`run_predict` once the output folder is locked."""
+    from tqdm import tqdm
+
+    model, files, skipped = _open_checked(options)
+    out_dir = options.out_dir
     names = list(model.keypoint_names)
     records: list[dict[str, Any]] = []
     overlays: list[Path] = []
@@ -309,26 +331,25 @@ def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -
                 _stderr(line)
     for item in skipped:
         log(f"hupbench predict: note: {item['path']}: {item['reason']}")
-    with OutputLock(out_dir, "predict"):
-        try:
-            clean_stale_tmp(out_dir, recursive=False)
-            # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
-            # now, and this run's is written last
-            (out_dir / "predictions.json").unlink(missing_ok=True)
-            for start in range(0, len(files), options.batch_size):
-                chunk = [_empty_record(path, names, model.run_name) for path in files[start:start + options.batch_size]]
-                _predict_batch(model, chunk, options, out_dir if options.overlay else None, used_stems, overlays, log)
-                records.extend(chunk)
-                bar.update(len(chunk))
-            json_path = write_bytes(out_dir / "predictions.json",
-                                    (_compact_json(_document(model, records, skipped)) + "\n").encode())
-            finished = True
-        finally:
-            bar.close()
-            if not finished:  # a full disk, a model that fails on a later batch, an interrupt
-                for path in overlays:
-                    with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
-                        path.unlink(missing_ok=True)
+    try:
+        clean_stale_tmp(out_dir, recursive=False)
+        # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
+        # now, and this run's is written last
+        (out_dir / "predictions.json").unlink(missing_ok=True)
+        for start in range(0, len(files), options.batch_size):
+            chunk = [_empty_record(path, names, model.run_name) for path in files[start:start + options.batch_size]]
+            _predict_batch(model, chunk, options, out_dir if options.overlay else None, used_stems, overlays, log)
+            records.extend(chunk)
+            bar.update(len(chunk))
+        json_path = write_bytes(out_dir / "predictions.json",
+                                (_compact_json(_document(model, records, skipped)) + "\n").encode())
+        finished = True
+    finally:
+        bar.close()
+        if not finished:  # a full disk, a model that fails on a later batch, an interrupt
+            for path in overlays:
+                with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
+                    path.unlink(missing_ok=True)
     failed = sum(not r["ok"] for r in records)
     flagged = [r["path"] for r in records if r["ood"] is not None and r["ood"]["flagged"]]
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
@@ -374,6 +395,8 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
             if model.reads_depth:
                 record["depth"] = str(options.depth_dir / f"{Path(record['path']).stem}.png")
                 depth = read_depth_png(record["depth"], (image.shape[1], image.shape[0]))
+                if model.image_statistics is not None:
+                    model.image_statistics.check_depth(depth, options.depth_scale_m, record["depth"])
         except UserError as exc:  # a bad image fails alone: its record and the log say why
             record["error"] = str(exc)
             log(f"hupbench predict: error: {exc}")

@@ -31,8 +31,19 @@ def _const(name, array, dtype=np.float32):
     return helper.make_node("Constant", [], [name], value=numpy_helper.from_array(np.asarray(array, dtype), name))
 
 
-def make_dot_model(path: Path, metadata: dict[str, str] | None = None) -> Path:
-    """Write the known-answer ONNX graph described in this module's docstring."""
+def seal(model: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` with hupbench.graph_sha256, as the exporter ties its metadata to its graph."""
+    from hupbench.inference.model_file import GRAPH_SHA256, graph_sha256
+
+    model.metadata_props.add(key=GRAPH_SHA256, value=graph_sha256(model.SerializeToString()))
+    return model
+
+
+def make_dot_model(path: Path, metadata: dict[str, str] | None = None, sealed: bool = True,
+                   reads_depth: bool = False) -> Path:
+    """Write the known-answer ONNX graph described in this module's docstring, with ``metadata`` (default
+    :func:`contract_metadata`) and, where they are hupbench's and ``sealed``, the graph's sha256 (:func:`seal`);
+    ``reads_depth``: a second input ``depth`` (B, 1, S, S) that the graph reads and multiplies by 0."""
     nodes = [
         _const("starts0", [0], np.int64), _const("ends1", [1], np.int64), _const("ends2", [2], np.int64),
         _const("axis1", [1], np.int64), _const("axis2", [2], np.int64),
@@ -61,11 +72,21 @@ def make_dot_model(path: Path, metadata: dict[str, str] | None = None) -> Path:
         helper.make_node("Slice", ["xy3", "starts0", "ends1", "axis2"], ["x3"]),
         helper.make_node("Mul", ["x3", "zero"], ["zeros"]),
         helper.make_node("Add", ["zeros", "depths"], ["z3"]),  # (B, N, 1)
-        helper.make_node("Concat", ["xy3", "z3"], ["points3d"], axis=2),
+        helper.make_node("Concat", ["xy3", "z3"], ["points3d" if not reads_depth else "points3d_rgb"], axis=2),
     ]
+    inputs = [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, S, S])]
+    if reads_depth:
+        inputs.append(helper.make_tensor_value_info("depth", TensorProto.FLOAT, ["batch", 1, S, S]))
+        nodes += [_const("depth_axes", [1, 2, 3], np.int64),
+                  helper.make_node("ReduceMean", ["depth", "depth_axes"], ["depth_mean"], keepdims=1),  # (B, 1, 1, 1)
+                  helper.make_node("Squeeze", ["depth_mean", "depth_axes"], ["depth_b"]),  # (B,)
+                  _const("depth_shape", [-1, 1, 1], np.int64),
+                  helper.make_node("Reshape", ["depth_b", "depth_shape"], ["depth_b11"]),  # (B, 1, 1)
+                  helper.make_node("Mul", ["depth_b11", "zero"], ["depth_zero"]),
+                  helper.make_node("Add", ["points3d_rgb", "depth_zero"], ["points3d"])]
     graph = helper.make_graph(
         nodes, "dot",
-        [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, S, S])],
+        inputs,
         [helper.make_tensor_value_info("points2d", TensorProto.FLOAT, ["batch", N, 2]),
          helper.make_tensor_value_info("points3d", TensorProto.FLOAT, ["batch", N, 3])],
     )
@@ -74,6 +95,8 @@ def make_dot_model(path: Path, metadata: dict[str, str] | None = None) -> Path:
     if metadata is None:
         metadata = contract_metadata()
     helper.set_model_props(model, metadata)
+    if sealed and "hupbench.onnx_schema" in metadata:
+        seal(model)
     onnx.checker.check_model(model)
     onnx.save(model, path)
     return path
@@ -89,6 +112,21 @@ def contract_metadata(**changes) -> dict[str, str]:
     }
     meta.update(changes)
     return {k: v for k, v in meta.items() if v is not None}
+
+
+def depth_metadata(depth_median_m: tuple[float, float] = (0.4, 0.8)) -> dict[str, str]:
+    """:func:`contract_metadata` of a model that reads depth (``make_dot_model(..., reads_depth=True)``), with a
+    calibration whose training frames' median depths span ``depth_median_m`` metres and whose image-statistics
+    threshold flags no image."""
+    from hupbench.inference.image_statistics import calibrate
+    from hupbench.inference.model_file import DEPTH_INPUT
+
+    calibration = calibrate(np.random.default_rng(0).normal(size=(20, 10)), np.full((2, 10), 1e3), "val",
+                            np.array(depth_median_m))
+    return contract_metadata(**{"hupbench.input_modalities": "rgb+depth",
+                                "hupbench.depth_input": json.dumps(DEPTH_INPUT, sort_keys=True),
+                                "hupbench.model_config": json.dumps({"name": "dot", "input_channels": 4}),
+                                "hupbench.image_statistics": calibration.to_json()})
 
 
 def dot_image(width: int, height: int, dot_uv: tuple[int, int], gray: bool = False) -> np.ndarray:

@@ -1,5 +1,6 @@
 """hupbench export: the ONNX contract (names, shapes, dynamic batch, opset, metadata), parity, atomicity, bad input."""
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -40,7 +41,8 @@ def test_onnx_contract(exported, tiny_dataset):
     props = {p.key: p.value for p in proto.metadata_props}
     assert sorted(props) == sorted(META + k for k in (
         "onnx_schema", "input_size", "K_input", "keypoint_names", "skeleton_edges", "model_config", "run_name",
-        "git_commit", "input_modalities", "image_statistics"))  # no hupbench.outputs: the two base outputs
+        "git_commit", "input_modalities", "image_statistics", "graph_sha256"))  # no hupbench.outputs: the two base outputs
+    assert props["hupbench.graph_sha256"] == hashlib.sha256(proto.graph.SerializeToString()).hexdigest()
     assert props["hupbench.onnx_schema"] == "1"
     assert props["hupbench.input_size"] == str(INPUT_SIZE)
     np.testing.assert_allclose(json.loads(props["hupbench.K_input"]), payload["K_input"])

@@ -31,7 +31,7 @@ from onnx import TensorProto, helper
 from hupbench.inference.images import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
 from hupbench.inference.predict import PredictOptions
 from hupbench.input_geometry import InputGeometry
-from helpers.dot_model import S, contract_metadata, dot_image, make_dot_model, photo_like
+from helpers.dot_model import S, contract_metadata, depth_metadata, dot_image, make_dot_model, photo_like, seal
 from helpers.faults import run_in_namespace
 
 pytestmark = pytest.mark.matrix
@@ -50,7 +50,7 @@ def _graph_model(path: Path, nodes, inputs, outputs, metadata: dict[str, str]) -
                               opset_imports=[helper.make_opsetid("", 18)])
     model.ir_version = 9
     helper.set_model_props(model, metadata)
-    onnx.save(model, path)
+    onnx.save(seal(model), path)
     return path
 
 
@@ -74,6 +74,34 @@ def needs_other_size_model(path: Path) -> Path:
                         [helper.make_tensor_value_info("points2d", TensorProto.FLOAT, ["batch", n, 2]),
                          helper.make_tensor_value_info("points3d", TensorProto.FLOAT, ["batch", n, 3])],
                         contract_metadata())
+
+
+def foreign_graph_model(path: Path, donor: Path) -> Path:
+    """Another graph with the dot model's inputs and outputs (constant points), carrying a copy of ``donor``'s
+    hupbench metadata, its graph sha256 included: the metadata describe a graph that is not this one."""
+    n = 29
+    nodes = [
+        helper.make_node("Constant", [], ["axes"], value=helper.make_tensor("a", TensorProto.INT64, [3], [1, 2, 3])),
+        helper.make_node("ReduceMean", ["image", "axes"], ["m"], keepdims=1),  # (B, 1, 1, 1)
+        helper.make_node("Constant", [], ["shape"], value=helper.make_tensor("s", TensorProto.INT64, [3], [-1, 1, 1])),
+        helper.make_node("Reshape", ["m", "shape"], ["m3"]),
+        helper.make_node("Constant", [], ["c2"], value=helper.make_tensor("c2v", TensorProto.FLOAT, [1, n, 2],
+                                                                          [0.1] * (2 * n))),
+        helper.make_node("Constant", [], ["c3"], value=helper.make_tensor("c3v", TensorProto.FLOAT, [1, n, 3],
+                                                                          [0.5] * (3 * n))),
+        helper.make_node("Add", ["m3", "c2"], ["points2d"]),
+        helper.make_node("Add", ["m3", "c3"], ["points3d"]),
+    ]
+    model = helper.make_model(helper.make_graph(
+        nodes, "foreign", [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["batch", 3, S, S])],
+        [helper.make_tensor_value_info("points2d", TensorProto.FLOAT, ["batch", n, 2]),
+         helper.make_tensor_value_info("points3d", TensorProto.FLOAT, ["batch", n, 3])]),
+        opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    for entry in onnx.load(str(donor)).metadata_props:
+        model.metadata_props.add(key=entry.key, value=entry.value)
+    onnx.save(model, path)
+    return path
 
 
 def torch_checkpoint(path: Path) -> Path:
@@ -182,6 +210,12 @@ REFUSED = {
             "hupbench.keypoint_names": json.dumps([f"k{i}" for i in range(21)]),
             "hupbench.skeleton_edges": "[[0, 1]]"})), [g], []),
         ("kp.onnx", "21 keypoint names", "29")),
+    "model-foreign-graph-with-copied-metadata": (lambda t, m, g: (foreign_graph_model(t / "foreign.onnx", m), [g], []),
+                                                 ("foreign.onnx", "metadata were not written for this graph",
+                                                  "hupbench export")),
+    "model-metadata-without-graph-sha256": (
+        lambda t, m, g: (make_dot_model(t / "unsealed.onnx", sealed=False), [g], []),
+        ("unsealed.onnx", "no hupbench.graph_sha256", "hupbench export")),
     "model-torch-checkpoint": (lambda t, m, g: (torch_checkpoint(t / "last.pt"), [g], []),
                                ("last.pt", "PyTorch checkpoint", "hupbench export")),
     "folder-without-images": (lambda t, m, g: (m, [write(t / "docs" / "notes.txt", b"x").parent], []),
@@ -218,10 +252,25 @@ def test_matrix_predict(case, dot_model, good_image, tmp_path, capsys):
     assert not out.exists(), f"a refused run created {out}: {sorted(out.rglob('*'))}"
 
 
-@pytest.mark.parametrize("case", ["out-is-a-file", "out-read-only"])
-def test_matrix_predict_out(case, dot_model, good_image, tmp_path, capsys):
-    """An --out that cannot take the files: refused before any inference, nothing written."""
-    if case == "out-is-a-file":
+@pytest.mark.parametrize("case", ["out-is-a-file", "out-read-only", "out-empty", "out-is-the-input-folder"])
+def test_matrix_predict_out(case, dot_model, good_image, tmp_path, capsys, monkeypatch):
+    """An --out that cannot take the files, or that would feed this run's overlays to the next: refused before any
+    inference, nothing written (``--out ''`` wrote into the current folder; ``--out`` the input folder made the
+    next run read the overlays back as images)."""
+    if case == "out-empty":
+        monkeypatch.chdir(tmp_path)
+        answer = run_cli(capsys, *predict_argv(dot_model, [good_image], ""))
+        assert_clean_error(answer, "output folder (--out)", "must be a folder path", "''")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+    elif case == "out-is-the-input-folder":
+        folder = good_image.parent
+        answer = run_cli(capsys, *predict_argv(dot_model, [folder], folder))
+        assert_clean_error(answer, "--out", str(folder), "is the input folder", "read this run's overlays back")
+        assert sorted(p.name for p in folder.iterdir()) == [good_image.name]
+        # a folder inside the inputs' is not read back (folders are not searched recursively)
+        answer = run_cli(capsys, *predict_argv(dot_model, [folder], folder / "predictions"))
+        assert answer.rc == 0 and sorted(p.name for p in folder.iterdir()) == [good_image.name, "predictions"]
+    elif case == "out-is-a-file":
         out = write(tmp_path / "results.txt", b"keep me\n")
         answer = run_cli(capsys, *predict_argv(dot_model, [good_image], out))
         assert_clean_error(answer, "--out", "results.txt", "not a folder")
@@ -351,6 +400,40 @@ def test_matrix_predict_folder(case, dot_model, tmp_path, capsys):
     assert "2 image(s) predicted, 3 of 5 failed" in answer.out
 
 
+# ------------------------------------------------------------------ depth maps of another unit, or none
+
+DEPTH_CASES = {
+    # the map's median depth against the training frames' 0.4-0.8 m (accepted: 0.27-1.2 m)
+    "depth-all-zero": (lambda d: d * 0, [], ("a.png", "0 everywhere")),
+    "depth-ten-times-the-scale": (lambda d: d, ["--depth-scale-m", "1e-3"],
+                                  ("a.png", "median depth is 6 m at --depth-scale-m 0.001", "another unit")),
+    "depth-in-millimetres": (lambda d: d // 10, [], ("a.png", "median depth is 0.06 m at --depth-scale-m 0.0001",
+                                                     "another unit")),
+    "depth-in-range": (lambda d: d, [], None),
+}
+
+
+@pytest.mark.parametrize("case", list(DEPTH_CASES))
+def test_matrix_predict_depth(case, tmp_path, capsys):
+    """A depth map that is 0 everywhere, or whose median lies outside the training frames' by the factor of a unit
+    slip (predicted with exit 0 before): that image fails alone, one line naming its depth file."""
+    change, extra, needles = DEPTH_CASES[case]
+    model = make_dot_model(tmp_path / "rgbd.onnx", depth_metadata((0.4, 0.8)), reads_depth=True)
+    image = write(tmp_path / "in" / "a.png", png_bytes(dot_image(40, 30, (30, 7))))
+    depth = np.zeros((30, 40), np.uint16)
+    depth[5:20, 10:30] = 6000  # 0.6 m in the dataset's 0.1 mm
+    (tmp_path / "depth").mkdir()
+    cv2.imwrite(str(tmp_path / "depth" / "a.png"), change(depth))
+    out = tmp_path / "out"
+    answer = run_cli(capsys, *predict_argv(model, [image], out, "--depth", tmp_path / "depth", *extra))
+    record = json.loads((out / "predictions.json").read_text())["images"][0]
+    if needles is None:
+        assert answer.rc == 0 and record["ok"], answer
+        return
+    line = assert_clean_error(answer, str(tmp_path / "depth" / "a.png"), *needles)
+    assert not record["ok"] and record["keypoints_3d_m"] is None and record["error"] in line
+
+
 # ------------------------------------------------------------------ faults
 
 
@@ -369,6 +452,27 @@ def test_fault_predict_two_runs_at_once(dot_model, tmp_path, capsys):
     document = json.loads((out / "predictions.json").read_text())
     assert document["counts"] == {"images": 200, "ok": 200, "failed": 0}
     assert len(list(out.glob("*_overlay.png"))) == 200 and not list(out.glob(".*"))
+
+
+def test_fault_predict_second_run_while_the_first_loads_its_model(dot_model, good_image, tmp_path, capsys,
+                                                                 monkeypatch):
+    """The folder is locked before the model is loaded: a second predict started while the first one is still
+    loading is refused (measured before: both exited 0 and the first one's predictions.json was gone)."""
+    from hupbench.inference import predict
+
+    out, answers = tmp_path / "out", []
+    load = predict.load_onnx_model
+
+    def load_while_another_starts(path, *args, **kwargs):
+        if not answers:  # the first run: a second one starts now, into the same folder
+            answers.append(run_cli(capsys, *predict_argv(dot_model, [good_image], out)))
+        return load(path, *args, **kwargs)
+
+    monkeypatch.setattr(predict, "load_onnx_model", load_while_another_starts)
+    first = run_cli(capsys, *predict_argv(dot_model, [good_image], out))
+    assert_clean_error(answers[0], str(out), "in use by another predict run")
+    assert first.rc == 0, first
+    assert json.loads((out / "predictions.json").read_text())["counts"] == {"images": 1, "ok": 1, "failed": 0}
 
 
 def test_fault_predict_disk_full(dot_model, tmp_path):

@@ -100,3 +100,32 @@ def test_graph_shapes_against_the_metadata(inputs, outputs, needles, modalities=
 def test_a_depth_model_has_a_depth_input(inputs, needles):
     test_graph_shapes_against_the_metadata(inputs, {"points3d": [1, 29, 3], "points2d": [1, 29, 2]}, needles,
                                            "rgb+depth")
+
+
+def test_graph_sha256_is_the_graphs_alone(tmp_path):
+    """The digest is the sha256 of the serialized graph as stored (known answer), unchanged by the metadata and the
+    other top-level fields, changed by any edit to the graph; check_graph names a file whose metadata came from
+    another graph, or that has no digest."""
+    import hashlib
+
+    import onnx
+    from helpers.dot_model import make_dot_model
+
+    from hupbench.core.errors import BadValueError
+    from hupbench.inference.model_file import GRAPH_SHA256, check_graph, graph_sha256
+
+    proto = onnx.load(str(make_dot_model(tmp_path / "dot.onnx")))
+    data = proto.SerializeToString()
+    assert graph_sha256(data) == hashlib.sha256(proto.graph.SerializeToString()).hexdigest()
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert props[GRAPH_SHA256] == graph_sha256(data)
+    check_graph(props, data, "dot.onnx")
+    proto.metadata_props.add(key="note", value="x" * 1000)
+    proto.doc_string, proto.producer_name = "edited", "someone"
+    assert graph_sha256(proto.SerializeToString()) == props[GRAPH_SHA256]
+    proto.graph.node[0].name = "renamed"
+    with pytest.raises(BadValueError, match=r"^m.onnx: its hupbench metadata were not written for this graph \(its "
+                                            r"hupbench.graph_sha256 is '[0-9a-f]{12}'..., the graph's sha256 is "):
+        check_graph(props, proto.SerializeToString(), "m.onnx")
+    with pytest.raises(BadValueError, match=r"\(it has no hupbench.graph_sha256, "):
+        check_graph({k: v for k, v in props.items() if k != GRAPH_SHA256}, data, "m.onnx")
