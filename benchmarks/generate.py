@@ -28,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import RenderJob, generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
     from hupbench.core.io import save_npz
 
     with np.load(args.grasps) as data:
@@ -39,7 +39,7 @@ def main() -> None:
         for workers in args.workers:
             out = Path(tmp) / f"w{workers}"
             start = time.perf_counter()
-            result = generate(spec, out, grasps, {"benchmark": workers}, RenderJob(workers=workers), progress=False,
+            result = generate(GenerateRun(spec, out, grasps, progress=False, workers=workers), {"benchmark": workers},
                               log=lambda *_: None)
             wall = time.perf_counter() - start
             rate = result["frames_rendered"] / wall

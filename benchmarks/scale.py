@@ -67,7 +67,7 @@ def generation(args: argparse.Namespace) -> None:
     import ray
 
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import RenderJob, generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
     from hupbench.datagen.dataset.ray_launcher import RayOptions
     from hupbench.datagen.dataset.sphere import SphereSpec
 
@@ -88,8 +88,9 @@ def generation(args: argparse.Namespace) -> None:
             for launcher, workers in runs:
                 out = Path(tmp) / f"{launcher}{workers}"
                 start = time.perf_counter()
-                job = RenderJob(workers, launcher, ray=RayOptions(num_workers=workers))
-                result = generate(spec, out, grasps, {"benchmark": "scale"}, job, progress=False, log=lambda *_: None)
+                run = GenerateRun(spec, out, grasps, progress=False, workers=workers, launcher=launcher,
+                                  ray=RayOptions(num_workers=workers))
+                result = generate(run, {"benchmark": "scale"}, log=lambda *_: None)
                 wall = time.perf_counter() - start
                 chunk_size = result["frames_total"] // args.backgrounds
                 steady = _rate_after_start_up(out, chunk_size, workers)

@@ -11,7 +11,8 @@ from hupbench.error_lines import answered
 
 VERBS = {
     "quickstart": "the main job end to end: grasps, a small dataset, verify, training, eval, ONNX, predict (--fast: smoke)",
-    "grasps": "synthesise, score and select grasps; writes grasps.npz/json and a contact sheet",
+    "grasps": "synthesise, score and select grasps (which ones depends on the CPU's floating point: generate renders "
+              "the default grasps shipped with hupbench); writes grasps.npz/json and a contact sheet",
     "train-grasp-sampler": "make the refinement corpus and retrain the grasp CVAE shipped in the package",
     "generate": "render the dataset (Algorithm 1 of HUP-3D); resumable, workers=N, shard=k/n, launcher=ray",
     "verify": "re-check a dataset: files, counts, projections, depth and mask consistency",

@@ -14,12 +14,12 @@ def tiny_grasps(tmp_path_factory):
 def tiny_dataset(tmp_path_factory):
     """A finished 64 x 64 dataset with 20 frames in each of train, val and test (one grasp each). Read only."""
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
 
     grasps = write_grasps(tmp_path_factory.mktemp("grasps3") / "grasps.npz", n=3)
     root = tmp_path_factory.mktemp("tiny") / "dataset"
     spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 1, "val": 1, "test": 1}}))
-    generate(spec, root, grasps, {"test": "tiny_dataset"}, progress=False, log=lambda *_: None)
+    generate(GenerateRun(spec, root, grasps, progress=False), {"test": "tiny_dataset"}, log=lambda *_: None)
     return root
 
 

@@ -19,7 +19,6 @@ import numpy as np
 from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.assets.hand_anatomy import WRIST_LIMITS_RAD
 from hupbench.datagen.assets.hand_mesh import orient_outward
-from hupbench.core.errors import BadValueError
 
 MM = 1e-3
 
@@ -47,15 +46,11 @@ class ArmSpec:
     segments_along: int = 24
 
     def __post_init__(self) -> None:
-        for name in ("scale", "length_m", "wrist_width_m", "wrist_thickness_m", "elbow_width_m", "elbow_thickness_m"):
-            v = getattr(self, name)
-            if not np.isfinite(v) or v <= 0:
-                raise BadValueError(f"arm {name} must be positive and finite, got {v!r}")
-        if self.segments_around < 8 or self.segments_along < 2:
-            raise BadValueError(
-                f"arm tessellation too coarse: segments_around={self.segments_around} (>= 8), "
-                f"segments_along={self.segments_along} (>= 2)"
-            )
+        # built in code (no config node makes one): invariants, not input checks
+        sizes = [getattr(self, name) for name in ("scale", "length_m", "wrist_width_m", "wrist_thickness_m",
+                                                  "elbow_width_m", "elbow_thickness_m")]
+        assert all(np.isfinite(v) and v > 0 for v in sizes), self
+        assert self.segments_around >= 8 and self.segments_along >= 2, self
 
 
 def wrist_rotation(flexion: float, deviation: float) -> np.ndarray:

@@ -133,10 +133,7 @@ class BackgroundSet:
             (height, width, 3) uint8 RGB, read-only (cached per index and size).
         """
         assert 0 <= index < len(self), index  # the writer bounds n_backgrounds by the set's length
-        for name, value in (("width", width), ("height", height)):
-            # DatasetSpec allows any size from 1 px: the smallest one a background is made at is refused here
-            if value < MIN_SIZE_PX:
-                raise BadValueError(f"{name} must be >= {MIN_SIZE_PX} pixels, got {value}")
+        assert min(width, height) >= MIN_SIZE_PX, (width, height)  # DatasetSpec's image size
         key = (int(index), int(width), int(height))
         if key not in self._cache:
             image = self._loader(index, width, height)

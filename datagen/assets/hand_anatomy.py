@@ -33,7 +33,6 @@ from hupbench.core.geometry import (
     matrix_to_axis_angle,
     matrix_to_euler_xyz,
 )
-from hupbench.core.errors import BadValueError
 
 MM = 1e-3
 NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
@@ -47,6 +46,9 @@ FINGER_LENGTHS_MM = {
     "ring": (77.0, 46.0, 31.0, 20.0),
     "little": (70.0, 39.0, 22.0, 18.0),
 }
+#: the hand's length, metres: wrist to the middle fingertip with the finger straight (its wrist-to-MCP
+#: distance plus its three phalanges), the farthest any point of the hand reaches from the wrist
+HAND_LENGTH_M = sum(FINGER_LENGTHS_MM["middle"]) * MM
 # CMC distance from the wrist, metacarpal, proximal, distal (ranges 36-47, 31-37, 27-30)
 THUMB_LENGTHS_MM = (22.0, 42.0, 34.0, 28.0)
 
@@ -115,12 +117,8 @@ class HandSpec:
     max_faces: int = 7800
 
     def __post_init__(self) -> None:
-        if not np.isfinite(self.scale) or not 0.5 <= self.scale <= 1.5:
-            raise BadValueError(f"hand scale must be in [0.5, 1.5], got {self.scale!r}")
-        if not np.isfinite(self.voxel_m) or not 0.0003 <= self.voxel_m <= 0.004:
-            raise BadValueError(f"voxel_m must be in [0.3, 4] mm, got {self.voxel_m!r} m")
-        if self.max_faces < 1000:
-            raise BadValueError(f"max_faces must be at least 1000, got {self.max_faces}")
+        # built in code (no config node makes one): invariants, not input checks
+        assert 0.5 <= self.scale <= 1.5 and 0.0003 <= self.voxel_m <= 0.004 and self.max_faces >= 1000, self
 
 
 def unit_vector(v) -> np.ndarray:

@@ -28,7 +28,6 @@ Convention:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
@@ -36,11 +35,15 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from hupbench.core import tolerances as tol
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_int, check_number
 from hupbench.core.errors import BadValueError
 
 
 # --------------------------------------------------------------------------- spec
+
+
+#: the ProbeSpec sizes that may be zero (metres); every other size and count is positive
+_MAY_BE_ZERO = ("sdf_margin", "marker_height", "handle_flare")
 
 
 @dataclass(frozen=True)
@@ -157,19 +160,11 @@ class ProbeSpec:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            v = getattr(self, f.name)
+            value, name = getattr(self, f.name), f"ProbeSpec.{f.name}"
             if f.type in ("int", int):
-                check_int(v, f"ProbeSpec.{f.name}")
-            else:
-                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-                    raise BadValueError(f"ProbeSpec.{f.name} must be a number (metres), got {v!r}")
-                if not math.isfinite(v):
-                    raise BadValueError(f"ProbeSpec.{f.name} must be finite, got {v!r}")
-            if f.name in ("sdf_margin", "marker_height", "handle_flare"):
-                if v < 0:
-                    raise BadValueError(f"ProbeSpec.{f.name} must be >= 0, got {v!r}")
-            elif v <= 0:
-                raise BadValueError(f"ProbeSpec.{f.name} must be positive, got {v!r}")
+                check_int(value, name, 1)
+            else:  # metres: positive, but for the three that may be zero
+                check_number(value, name, 0, low_open=f.name not in _MAY_BE_ZERO)
         if self.n_around % 4 or self.n_around < 16:
             raise BadValueError(f"ProbeSpec.n_around must be a multiple of 4 and >= 16, got {self.n_around}")
         if self.n_lens_rings < 2 or self.n_fillet_rings < 2 or self.n_body_rings < 8 or self.n_cap_rings < 2:

@@ -22,6 +22,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -38,6 +39,9 @@ from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.errors import RunFailedError
+
+if TYPE_CHECKING:
+    from hupbench.datagen.dataset.writer import GenerateRun
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -255,11 +259,12 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
 
 
-def _worker_init(spec: DatasetSpec, grasps_path: str, backgrounds_dir: str | None, platform: str | None,
-                 parent_pid: int | None = None) -> None:
+def _worker_init(run: "GenerateRun", grasps_path: str, parent_pid: int | None = None) -> None:
+    """Build this process's :class:`ChunkRenderer` for ``run`` (a :class:`hupbench.datagen.dataset.writer.GenerateRun`)
+    from the dataset's grasps file; a pool worker (``parent_pid`` given) dies with its parent."""
     if parent_pid is not None:
         die_with_parent(parent_pid)
-    _worker["chunks"] = ChunkRenderer(spec, grasps_path, backgrounds_dir, platform)
+    _worker["chunks"] = ChunkRenderer(run.dataset, grasps_path, run.job.backgrounds_dir, run.job.platform)
 
 
 def _render_chunk(args) -> tuple[int, int]:
@@ -299,5 +304,3 @@ def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:
 def _chunk_path(root: Path, split: str, chunk: int) -> Path:
     return Path(root) / split / ".chunks" / f"{chunk:05d}.npz"
 
-
-# --- the run -------------------------------------------------------------------------

@@ -10,11 +10,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hupbench.datagen.dataset.spec import BOX_CENTRE
-from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.core import keypoints as kp
-from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS
+from hupbench.core.contract import read_manifest
 from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.geometry import axis_angle_to_matrix
+from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
+from hupbench.datagen.assets.probe_mesh import MAX_LENGTH_M, PROBE_MESH_FIELDS
+from hupbench.datagen.dataset.spec import BOX_CENTRE
 
 if TYPE_CHECKING:
     from hupbench.datagen.assets.probe import Probe
@@ -25,6 +27,20 @@ GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id"
 #: what a dataset records of a grasps.npz when it is there: the probe orientation Theta_Vol (Euler
 #: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
 OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
+#: the default dataset's grasps, shipped with hupbench (the benchmark's grasps: ``hupbench generate`` renders
+#: them unless given a grasps file, so that every machine makes the same dataset); ``hupbench grasps`` with
+#: the default config made them, on a 2-core AMD EPYC
+DEFAULT_GRASPS = Path(__file__).with_name("default_grasps.npz")
+#: the longest rotation vector of a joint (and of the hand as a whole), radians: half a turn, the most a
+#: rotation vector written by a hand model (e.g. MANO, Romero et al. 2017) takes; no finger joint turns
+#: more than about 105 degrees (:func:`hupbench.datagen.assets.hand_anatomy.joint_limits_rad`)
+MAX_JOINT_ROTATION_RAD = np.pi
+#: the farthest a grasp's wrist lies from the probe frame's origin, metres: a hand's length beyond the
+#: longest probe (:data:`hupbench.datagen.assets.probe_mesh.MAX_LENGTH_M`)
+MAX_WRIST_DISTANCE_M = MAX_LENGTH_M + HAND_LENGTH_M
+_EXPECTED = "expected a grasps.npz written by `hupbench grasps`"
+
+
 def read_grasps_probe_record(path: str | Path) -> dict:
     """The record of the probe a grasps file was made for (:attr:`hupbench.datagen.assets.probe.Probe.record`) without
     building the probe: the JSON it carries, or ``{"kind": "procedural"}`` when it carries no mesh."""
@@ -42,29 +58,28 @@ def read_grasps_probe(path: str | Path | bytes):
     from the mesh it carries, or None when it carries none (the procedural probe's grasps).
 
     Raises:
-        BadValueError: the probe arrays are incomplete or malformed.
+        MissingFileError, BadValueError: the file is missing or damaged (:func:`read_grasps`), or its probe
+            arrays are incomplete or do not match their record.
     """
     import json
 
     from hupbench.datagen.assets.probe import probe_from_geometry
     from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec, probe_geometry_sha256
 
+    read_grasps(path)
     name = "grasps (bytes)" if isinstance(path, bytes) else str(path)
-    if not isinstance(path, bytes) and not Path(path).is_file():
-        raise MissingFileError(f"grasps file {path} not found (it carries the probe mesh)")
     with np.load(io.BytesIO(path) if isinstance(path, bytes) else path, allow_pickle=False) as data:
         present = [k for k in PROBE_MESH_FIELDS if k in data.files]
         if not present:
             return None
-        if len(present) != len(PROBE_MESH_FIELDS):
-            raise BadValueError(f"grasps file {name} holds {present} but not all of {list(PROBE_MESH_FIELDS)}: its "
-                                "probe mesh is incomplete; write it again with `hupbench grasps`")
-        vertices, faces = data["probe_mesh_vertices"], data["probe_mesh_faces"]
-        record = json.loads(str(data["probe_mesh_record"]))
-    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,) \
-            or faces.dtype.kind not in "iu" or probe_geometry_sha256(vertices, faces) != record.get("geometry_sha256"):
-        raise BadValueError(f"grasps file {name}: its probe mesh does not match its record (damaged); write it again "
-                            "with `hupbench grasps`")
+        arrays = {k: data[k] for k in present}
+    record = json.loads(str(arrays["probe_mesh_record"])) if "probe_mesh_record" in arrays else {}
+    vertices, faces = arrays.get("probe_mesh_vertices"), arrays.get("probe_mesh_faces")
+    if len(present) != len(PROBE_MESH_FIELDS) or vertices.ndim != 2 or vertices.shape[1:] != (3,) \
+            or faces.ndim != 2 or faces.shape[1:] != (3,) or faces.dtype.kind not in "iu" \
+            or probe_geometry_sha256(vertices, faces) != record.get("geometry_sha256"):
+        raise BadValueError(f"grasps file {name}: its probe mesh ({', '.join(present)}) is incomplete or does not "
+                            "match its record (damaged); write it again with `hupbench grasps`")
     spec = ProbeMeshSpec(record["path"], record["unit"], record["align"], record["sha256"])
     return probe_from_geometry(vertices, faces, spec)
 
@@ -74,90 +89,109 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
 
     Every array of :data:`GRASP_FIELDS` is read in full (the zip's CRC is checked on the way) and
     checked: a float (pose, translation) or integer (ids) dtype, the row shape, one row per grasp
-    in each, at least one grasp, finite values, unique ids.
+    in each, at least one grasp, finite values, unique ids, and poses a hand can take: every joint's
+    rotation vector at most :data:`MAX_JOINT_ROTATION_RAD` long, the wrist within
+    :data:`MAX_WRIST_DISTANCE_M` of the probe.
 
     Args:
         path: the file, or its bytes (what a Ray actor on another machine is sent).
 
     Returns:
-        {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres,
-        "grasp_id": (G,) int64}, and "probe_euler_deg" (G, 3) float64 degrees when the file holds it.
+        {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres (the wrist in
+        the probe frame), "grasp_id": (G,) int64}, and "probe_euler_deg" (G, 3) float64 degrees when the file
+        holds it.
 
     Raises:
-        FileNotFoundError: no such file. ValueError: anything else wrong; the message names the
-        file and what was expected.
+        MissingFileError: no such file. BadValueError: anything else wrong; the message names the file and
+        what was expected.
     """
     if isinstance(path, bytes):
         name, source = "grasps (bytes)", io.BytesIO(path)
     else:
         path = Path(path)
         name, source = str(path), path
-        if path.is_dir():
-            raise BadValueError(f"grasps file {path} is a folder; expected a grasps.npz written by `hupbench grasps`")
-        if not path.is_file():
+        if not path.exists():
             raise MissingFileError(f"grasps file {path} not found (run `hupbench grasps` or set grasps_path=null)")
-        if path.stat().st_size == 0:
-            raise BadValueError(f"grasps file {path} is empty (0 bytes); expected a grasps.npz written by `hupbench grasps`")
+    arrays, problem = _read_arrays(source)
+    problem = problem or _arrays_problem(arrays)
+    if problem:
+        raise BadValueError(f"grasps file {name}{problem}")
+    out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
+           "grasp_id": arrays["grasp_id"].astype(np.int64)}
+    if "probe_euler_deg" in arrays:
+        out["probe_euler_deg"] = arrays["probe_euler_deg"].astype(np.float64)
+    return out
+
+
+def _read_arrays(source: Path | io.BytesIO) -> tuple[dict[str, np.ndarray], str | None]:
+    """The arrays of :data:`GRASP_FIELDS` (and those of :data:`OPTIONAL_GRASP_FIELDS` present), read in full,
+    or what keeps the file from being read, as the rest of its error line."""
+    if isinstance(source, Path):
+        if source.is_dir():
+            return {}, f" is a folder; {_EXPECTED}"
+        if source.stat().st_size == 0:
+            return {}, f" is empty (0 bytes); {_EXPECTED}"
     if not zipfile.is_zipfile(source):
-        size = len(path) if isinstance(path, bytes) else path.stat().st_size
-        raise BadValueError(f"grasps file {name} is not an .npz archive ({size} bytes, no zip directory); expected a "
-                         "grasps.npz written by `hupbench grasps`")
+        size = source.getbuffer().nbytes if isinstance(source, io.BytesIO) else source.stat().st_size
+        return {}, f" is not an .npz archive ({size} bytes, no zip directory); {_EXPECTED}"
     if isinstance(source, io.BytesIO):
         source.seek(0)  # is_zipfile read the end of the buffer
     arrays = {}
     try:
         with np.load(source, allow_pickle=False) as data:
             if not hasattr(data, "files"):
-                raise BadValueError(f"grasps file {name} holds a single array, not an .npz archive of the arrays "
-                                 f"{list(GRASP_FIELDS)}")
+                return {}, f" holds a single array, not an .npz archive of the arrays {list(GRASP_FIELDS)}"
             absent = [k for k in GRASP_FIELDS if k not in data.files]
             if absent:
-                raise BadValueError(f"grasps file {name} lacks the arrays {absent} (it holds {sorted(data.files)}); "
-                                 "expected a grasps.npz written by `hupbench grasps`")
+                return {}, f" lacks the arrays {absent} (it holds {sorted(data.files)}); {_EXPECTED}"
             for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files)]:
                 try:
                     arrays[key] = data[key]
                 except ValueError as exc:  # object arrays: numpy refuses to unpickle them
-                    raise BadValueError(f"grasps file {name}: {key} cannot be read as a numeric array ({exc})") from None
+                    return {}, f": {key} cannot be read as a numeric array ({exc})"
     except ValueError as exc:
-        if str(exc).startswith("grasps file"):
-            raise
-        raise BadValueError(f"grasps file {name} is not an .npz archive ({exc})") from None
+        return {}, f" is not an .npz archive ({exc})"
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, KeyError, zlib.error, OSError) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
-        raise BadValueError(f"grasps file {name} is damaged or not an .npz archive ({type(exc).__name__}: {exc}); "
-                         "write it again with `hupbench grasps`") from None
-    rows = {k: a.shape[0] if a.ndim else None for k, a in arrays.items()}
+        return {}, (f" is damaged or not an .npz archive ({type(exc).__name__}: {exc}); write it again with "
+                    "`hupbench grasps`")
+    return arrays, None
+
+
+def _arrays_problem(arrays: dict[str, np.ndarray]) -> str | None:
+    """What is wrong with a grasps file's arrays (:func:`read_grasps` lists the checks), as the rest of its error
+    line, or None."""
     for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS).items():
-        if key not in arrays:
+        array = arrays.get(key)
+        if array is None:
             continue
-        array = arrays[key]
         if array.dtype.kind not in (("f", "i", "u") if kind == "f" else ("i", "u")):
-            raise BadValueError(f"grasps file {name}: {key} is {array.dtype}, expected "
-                             + ("float numbers" if kind == "f" else "integer ids"))
+            return f": {key} is {array.dtype}, expected " + ("float numbers" if kind == "f" else "integer ids")
         if array.ndim != 1 + len(row_shape) or array.shape[1:] != row_shape:
-            raise BadValueError(f"grasps file {name}: {key} has shape {array.shape}, expected (G, "
-                             + ", ".join(str(v) for v in row_shape) + ")" if row_shape else f"grasps file {name}: "
-                             f"{key} has shape {array.shape}, expected (G,)")
+            return f": {key} has shape {array.shape}, expected (G, " + ", ".join(str(v) for v in row_shape) + ")" \
+                if row_shape else f": {key} has shape {array.shape}, expected (G,)"
+    rows = {k: len(a) for k, a in arrays.items()}
     if len(set(rows.values())) != 1:
-        raise BadValueError(f"grasps file {name}: the arrays have different numbers of rows {rows}; expected one row "
-                         "per grasp in each")
+        return f": the arrays have different numbers of rows {rows}; expected one row per grasp in each"
     if rows["hand_pose"] == 0:
-        raise BadValueError(f"grasps file {name} holds no grasps (0 rows)")
-    out = {"hand_pose": arrays["hand_pose"].astype(np.float64), "hand_trans": arrays["hand_trans"].astype(np.float64),
-           "grasp_id": arrays["grasp_id"].astype(np.int64)}
-    if "probe_euler_deg" in arrays:
-        out["probe_euler_deg"] = arrays["probe_euler_deg"].astype(np.float64)
-    for key in [k for k in out if k != "grasp_id"]:
-        bad = ~np.isfinite(out[key]).all(axis=1)
+        return " holds no grasps (0 rows)"
+    for key in [k for k in arrays if k != "grasp_id"]:
+        bad = ~np.isfinite(arrays[key].astype(np.float64)).all(axis=1)
         if bad.any():
-            raise BadValueError(f"grasps file {name}: {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} "
-                             "hold NaN or inf")
-    ids, counts = np.unique(out["grasp_id"], return_counts=True)
+            return f": {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} hold NaN or inf"
+    ids, counts = np.unique(arrays["grasp_id"], return_counts=True)
     if (counts > 1).any():
-        raise BadValueError(f"grasps file {name}: grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat")
-    return out
+        return f": grasp_id must be unique, {ids[counts > 1][:10].tolist()} repeat"
+    turn = np.linalg.norm(arrays["hand_pose"].astype(np.float64).reshape(-1, 16, 3), axis=-1).max(axis=1)
+    wrist = np.linalg.norm(arrays["hand_trans"].astype(np.float64), axis=1)
+    for values, limit, what in ((turn, MAX_JOINT_ROTATION_RAD, "hand_pose turns a joint by more than half a turn "
+                                 f"(rotation vectors longer than {MAX_JOINT_ROTATION_RAD:.4f} rad"),
+                                (wrist, MAX_WRIST_DISTANCE_M, "hand_trans puts the wrist farther from the probe than a "
+                                 f"hand can reach it ({MAX_WRIST_DISTANCE_M:g} m")):
+        bad = np.flatnonzero(values > limit)
+        if len(bad):
+            return (f": {what}, up to {values[bad].max():.4g}) in rows {bad[:10].tolist()}; expected a pose a hand "
+                    "can take, in radians and metres")
+    return None
 
 
 def rendered_with(grasps: dict[str, np.ndarray], ann: dict[str, np.ndarray]) -> np.ndarray:
@@ -230,8 +264,6 @@ def probe_of_dataset(root_or_manifest, manifest: dict | None = None) -> "Probe":
         MissingFileError, BadValueError: the manifest, the grasps file or the mesh is missing or does not
             match the record.
     """
-    import json
-
     from hupbench.datagen.assets.probe import ProbeSpec, build_mesh_probe, build_probe
     from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec
     from hupbench.core.io import file_sha256
@@ -240,10 +272,7 @@ def probe_of_dataset(root_or_manifest, manifest: dict | None = None) -> "Probe":
         manifest, root = root_or_manifest, None
     else:
         root = Path(root_or_manifest)
-        path = root / "manifest.json"
-        if manifest is None and not path.is_file():
-            raise MissingFileError(f"{root} has no manifest.json: not a finished hupbench dataset")
-        manifest = json.loads(path.read_text()) if manifest is None else manifest
+        manifest = read_manifest(root) if manifest is None else manifest
     record = manifest.get("probe", {"kind": "procedural"})
     if record.get("kind") == "procedural":
         return build_probe(ProbeSpec(**record["spec"]) if "spec" in record else ProbeSpec())

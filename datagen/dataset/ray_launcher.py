@@ -116,19 +116,18 @@ class ChunkActor:
 
     Args:
         factory: ``"package.module:Name"`` of the renderer class, called as
-            ``Name(spec, grasps_npz, backgrounds_dir, platform)``. A name rather than the class: the
-            class's module imports the renderer, and the actor must choose its GL platform first.
-        spec, grasps_npz (the grasps file's bytes), backgrounds_dir, platform: the factory's arguments.
+            ``Name(run.dataset, grasps_npz, run.job.backgrounds_dir, platform)``. A name rather than the class:
+            the class's module imports the renderer, and the actor must choose its GL platform first.
+        run: the :class:`hupbench.datagen.dataset.writer.GenerateRun`. grasps_npz: the dataset's grasps file's bytes.
     """
 
-    def __init__(self, factory: str, spec, grasps_npz: bytes, backgrounds_dir: str | None,
-                 platform: str | None) -> None:
+    def __init__(self, factory: str, run, grasps_npz: bytes) -> None:
         from hupbench.datagen.render import gl
 
         # an actor is its own process: fix PYOPENGL_PLATFORM here, before anything imports
-        # pyrender or PyOpenGL (each node picks what works on it when platform is None)
-        self.platform = gl.configure(platform)
-        self._chunks = resolve_factory(factory)(spec, grasps_npz, backgrounds_dir, self.platform)
+        # pyrender or PyOpenGL (each node picks what works on it when run.job.platform is None)
+        self.platform = gl.configure(run.job.platform)
+        self._chunks = resolve_factory(factory)(run.dataset, grasps_npz, run.job.backgrounds_dir, self.platform)
 
     def info(self) -> dict:
         """{"pid", "host", "platform"} of this actor."""
@@ -139,19 +138,19 @@ class ChunkActor:
         return self._chunks.render(chunk, split, frames, layout)
 
 
-def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], layout, spec, grasps_npz: bytes,
-                  job, on_chunk: Callable[[object], None], log=print) -> dict:
+def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], layout, run, grasps_npz: bytes,
+                  on_chunk: Callable[[object], None], log=print) -> dict:
     """Render chunks on Ray actors and hand each result to ``on_chunk`` in the driver.
 
     Args:
         factory: the chunk renderer every actor builds, ``"package.module:Name"`` (see :class:`ChunkActor`).
         jobs: (chunk, split, frame indices) of the chunks to render.
         layout: the dataset's :class:`hupbench.datagen.dataset.spec.Layout`.
-        spec: the :class:`hupbench.datagen.dataset.spec.DatasetSpec`.
+        run: the :class:`hupbench.datagen.dataset.writer.GenerateRun`, sent to every actor; of its ``job``: the
+            ``ray`` options, ``workers`` (actors on a private runtime when ``ray.num_workers`` is None), the GL
+            ``platform`` for every actor (None: each picks its own) and ``backgrounds_dir`` (must exist on every
+            node).
         grasps_npz: bytes of the dataset's grasps.npz (sent to every actor).
-        job: the run's :class:`hupbench.datagen.dataset.writer.RenderJob`: its ``ray`` options, ``workers`` (actors on a
-            private runtime when ``ray.num_workers`` is None), GL ``platform`` for every actor (None: each
-            picks its own) and ``backgrounds_dir`` (must exist on every node).
         on_chunk: called once per finished chunk with its ``ChunkOutput`` (writes it).
         log: progress messages.
 
@@ -162,7 +161,7 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
         RuntimeError: Ray missing, actors that cannot start, or a chunk whose actors kept dying.
     """
     ray = require_ray()
-    options, default_workers = job.ray, job.workers
+    options, default_workers = run.job.ray, run.job.workers
     started_here = not ray.is_initialized()
     if started_here:
         _init_ray(ray, options, default_workers)
@@ -175,7 +174,7 @@ def render_chunks(factory: str, jobs: list[tuple[int, str, tuple[int, ...]]], la
         def new_actor():
             # the arguments travel with the actor's creation task (a grasps file is kilobytes), so a
             # restarted actor does not depend on an object-store entry staying alive
-            return remote_cls.remote(factory, spec, grasps_npz, job.backgrounds_dir, job.platform)
+            return remote_cls.remote(factory, run, grasps_npz)
 
         actors = [new_actor() for _ in range(n_actors)]
         for i, info in enumerate(_wait_started(ray, actors, options.start_timeout_s)):

@@ -15,17 +15,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hupbench.core import keypoints as kp
 from hupbench.core.camera import Intrinsics
 from hupbench.core.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
-from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions
-from hupbench.datagen.render.renderer import MODALITIES, check_modalities
-from hupbench.core import keypoints as kp
-from hupbench.core.input_checks import check_int, is_whole
 from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_int, is_whole
+from hupbench.datagen.assets.backgrounds import MIN_SIZE_PX
+from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
+from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions, viewpoints
+from hupbench.datagen.render.renderer import MODALITIES, check_modalities
 
 
 GENERATOR_VERSION = "0.3.0"
-#: HUP-3D's lamp box (REFERENCE.md), metres in the published renderer's camera frame: Blender's camera axes
+#: HUP-3D's lamp box (the published renderer, manuelbirlo/HUP-3D_renderer), metres in the published renderer's camera frame: Blender's camera axes
 #: (x right, y up, looking down -z), so z = 0.5 is half a metre behind the camera
 LAMP_LOW = np.array([-0.6, 0.1, 0.5])
 LAMP_HIGH = np.array([0.6, 0.4, 0.5])
@@ -42,23 +44,41 @@ LAMP_INTENSITY_PER_WATT = 0.015
 #: the camera distances a dataset may use, metres: nearer than 0.1 m the hand and probe reach behind the
 #: camera plane (z_ego 0.001: 8 keypoints behind it), beyond 10 m they cover a few pixels
 Z_EGO_RANGE_M = (0.1, 10.0)
-#: the largest image side the renderer is asked for (as predict's largest input)
+#: the largest image side the renderer is asked for (as predict's largest input); the smallest is the
+#: smallest a background image is made at (hupbench.datagen.assets.backgrounds.MIN_SIZE_PX)
 MAX_IMAGE_SIDE = 8192
+_SIDE_HINT = " (pixels)"
 
 
-def _distances(z_ego_m) -> tuple:
+def _distances(z_ego_m) -> tuple[float, ...]:
+    """``dataset.z_ego_m`` as a tuple of distinct camera distances in :data:`Z_EGO_RANGE_M`, metres."""
     low, high = Z_EGO_RANGE_M
     values = list(z_ego_m) if not isinstance(z_ego_m, (str, bytes)) and hasattr(z_ego_m, "__iter__") else None
     if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                              and low <= v <= high for v in values):
         raise BadValueError(f"dataset.z_ego_m must be a non-empty list of camera distances from {low} to {high} m "
                          f"(e.g. [0.5, 0.8]), got {z_ego_m if values is None else values!r}")
+    repeated = sorted({float(v) for v in values if values.count(v) > 1})
+    if repeated:
+        raise BadValueError(f"dataset.z_ego_m lists {repeated} more than once: each distance renders every view, so a "
+                            f"repeat renders the same frames again; list each distance once, got {values!r}")
     return tuple(float(v) for v in values)
+
+
+def max_focal_px(side_px: int, z_ego_m: tuple[float, ...]) -> float:
+    """The longest focal length, pixels, at which an image side of ``side_px`` pixels still spans the hand's
+    length (:data:`hupbench.datagen.assets.hand_anatomy.HAND_LENGTH_M`) at the farthest camera distance.
+
+    A pinhole camera of focal length f pixels sees ``side_px / f`` metres across per metre of distance
+    (Hartley and Zisserman, Multiple View Geometry, 2nd ed., eq. 6.1): at ``max(z_ego_m)`` the side spans
+    ``side_px * z / f`` metres, which must hold the hand, or no frame of the dataset shows it whole.
+    """
+    return side_px * max(z_ego_m) / HAND_LENGTH_M
 
 
 def check_principal_point(intrinsics: Intrinsics, prefix: str) -> None:
     """The principal point lies in the image: the camera aims at the scene's look-at point, which lands
-    there, so outside it a camera sees nothing (``cx=-5000`` rendered no foreground pixel at all).
+    there, so outside it the camera sees no foreground.
 
     Args:
         intrinsics: the camera. prefix: the config node's dotted path, e.g. ``"dataset."``.
@@ -72,10 +92,10 @@ def check_principal_point(intrinsics: Intrinsics, prefix: str) -> None:
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """Everything that determines the frames.
+    """Everything that determines the frames (the ``dataset`` node of ``conf/generate.yaml``), checked here.
 
     Attributes:
-        z_ego_m: camera distances to the grasp, metres.
+        z_ego_m: camera distances to the grasp, metres, each listed once.
         splits: grasps per split, in the order of the grasps file (train, val, test), on the
             "unseen_grasps" track; None on the "unseen_views" track, where every grasp is in every split.
         track: what the evaluation splits hold out (``TRACKS``): "unseen_grasps" (HUP-3D's protocol,
@@ -91,8 +111,12 @@ class DatasetSpec:
             (0, 0, z_ego) in the camera frame: a keypoint name (default "middle_mcp", keypoint 9,
             as the published renderer) or "box_centre" (centre of the 29 keypoints' box in the
             world frame).
-        width, height, fx, fy, cx, cy: the camera.
-        n_backgrounds, n_gloves: counts (backgrounds come from the background set).
+        width, height, fx, fy, cx, cy: the camera, pixels: square images (the training and evaluation
+            readers take square frames), the principal point inside the image, and a focal length short
+            enough for the image to span the hand at the farthest camera distance (:func:`max_focal_px`).
+        n_backgrounds, n_gloves: counts (backgrounds come from the background set; 1 or 2 gloves, HUP-3D's
+            two glove colours).
+        intrinsics: the camera as :class:`hupbench.core.camera.Intrinsics`, built once from the fields above.
     """
 
     z_ego_m: tuple = (0.5, 0.8)
@@ -113,12 +137,14 @@ class DatasetSpec:
     cy: float = 128.0
     n_backgrounds: int = 8
     n_gloves: int = 2
+    intrinsics: Intrinsics = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "z_ego_m", _distances(self.z_ego_m))
-        for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", 1, MAX_IMAGE_SIDE),
-                                ("height", 1, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, None)):
-            check_int(getattr(self, name), f"dataset.{name}", low, high)
+        hints = {"width": _SIDE_HINT, "height": _SIDE_HINT, "n_gloves": " (HUP-3D's two glove colours)"}
+        for name, low, high in (("jpeg_quality", 0, 100), ("seed", 0, None), ("width", MIN_SIZE_PX, MAX_IMAGE_SIDE),
+                                ("height", MIN_SIZE_PX, MAX_IMAGE_SIDE), ("n_backgrounds", 1, None), ("n_gloves", 1, 2)):
+            check_int(getattr(self, name), f"dataset.{name}", low, high, hint=hints.get(name, ""))
         if self.track not in TRACKS:
             raise BadValueError(f"dataset.track must be one of {', '.join(TRACKS)}, got {self.track!r}")
         check_int(self.view_stride, "dataset.view_stride", 3, None)
@@ -137,17 +163,27 @@ class DatasetSpec:
         object.__setattr__(self, "modalities", check_modalities(self.modalities))
         if self.rgb_format not in ("jpg", "png"):
             raise BadValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
-        Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)  # validates
-        check_principal_point(self.intrinsics, "dataset.")
-        if self.n_gloves not in (1, 2):
-            raise BadValueError(f"n_gloves must be 1 or 2 (HUP-3D's two glove colours), got {self.n_gloves}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
             raise BadValueError(f"look_at must be {BOX_CENTRE!r} or a keypoint name (e.g. {PAPER_LOOK_AT!r}), "
                              f"got {self.look_at!r}")
+        self._set_camera()
 
-    @property
-    def intrinsics(self) -> Intrinsics:
-        return Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+    def _set_camera(self) -> None:
+        """Build :attr:`intrinsics` from width, height, fx, fy, cx, cy (checked integers already) and check that
+        it is square, aims inside the image and sees the hand whole."""
+        if self.width != self.height:
+            raise BadValueError(f"dataset.width and dataset.height must be equal (the training and evaluation readers "
+                                f"take square frames), got {self.width} x {self.height}")
+        intrinsics = Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+        check_principal_point(intrinsics, "dataset.")
+        longest = max_focal_px(self.width, self.z_ego_m)
+        if max(intrinsics.fx, intrinsics.fy) > longest:
+            raise BadValueError(
+                f"dataset.fx and dataset.fy must be at most {longest:.0f} px for {self.width} px images at "
+                f"z_ego_m up to {max(self.z_ego_m):g} m, so that the image spans the hand "
+                f"({HAND_LENGTH_M * 1000:.0f} mm, wrist to middle fingertip) at the farthest camera distance, "
+                f"got fx={intrinsics.fx:g}, fy={intrinsics.fy:g}")
+        object.__setattr__(self, "intrinsics", intrinsics)
 
 
 @dataclass(frozen=True)
@@ -242,6 +278,32 @@ def chunk_plan(layout: Layout, grasps_of: dict[str, list[int]], views_of: dict[s
                 if chosen:
                     out.append((name, chosen))
     return out
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """How the frames of a dataset are laid out, split and grouped into chunks.
+
+    Attributes:
+        layout: the frame index <-> (grasp, z, background, glove, view) bijection.
+        grasps: split -> the grasp indices (into the grasps file) it holds (:func:`split_of_grasps`).
+        views: split -> the view positions (into the sphere's view list) it holds (:func:`split_of_views`);
+            a frame is in the split that holds both its grasp and its view.
+        chunks: (split, frame indices) of each chunk, numbered by their place (:func:`chunk_plan`).
+    """
+
+    layout: Layout
+    grasps: dict[str, list[int]]
+    views: dict[str, list[int]]
+    chunks: list[tuple[str, tuple[int, ...]]]
+
+
+def frame_plan(spec: DatasetSpec, n_grasps: int) -> FramePlan:
+    """The :class:`FramePlan` of ``spec`` rendered from ``n_grasps`` grasps."""
+    view_ids, _ = viewpoints(spec.sphere)
+    layout = Layout(n_grasps, len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
+    grasps, views = split_of_grasps(spec, n_grasps), split_of_views(spec, len(view_ids))
+    return FramePlan(layout, grasps, views, chunk_plan(layout, grasps, views))
 
 
 def lamp(spec: DatasetSpec, index: int) -> dict[str, np.ndarray]:

@@ -54,7 +54,7 @@ import numpy as np
 
 from hupbench.core.camera import look_at
 from hupbench.core.geometry import invert_transform, make_transform
-from hupbench.core.input_checks import check_shape, is_whole
+from hupbench.core.input_checks import check_number, check_shape, is_whole
 from hupbench.core.errors import BadValueError
 
 VARIANTS = ("ceil", "floor")
@@ -90,26 +90,19 @@ class SphereSpec:
 
     def __post_init__(self) -> None:
         for name in ("r_sph_m", "r_circ_m"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise BadValueError(f"sphere {name} must be positive and finite, got {v!r}")
+            check_number(getattr(self, name), f"sphere {name}", 0, low_open=True)
         if self.r_circ_m >= self.r_sph_m:
             raise BadValueError(f"sphere r_circ_m ({self.r_circ_m}) must be smaller than r_sph_m ({self.r_sph_m})")
-        if self.variant not in VARIANTS:
-            raise BadValueError(f"sphere variant must be one of {VARIANTS}, got {self.variant!r}")
-        if self.axis not in AXES:
-            raise BadValueError(f"sphere axis must be one of {AXES}, got {self.axis!r}")
-        cone = self.elbow_cone_deg
-        if isinstance(cone, bool) or not isinstance(cone, (int, float)) or not 0 <= cone < 180:
-            raise BadValueError(f"sphere elbow_cone_deg must be a number in [0, 180), got {cone!r}")
+        for name, allowed in (("variant", VARIANTS), ("axis", AXES)):
+            if getattr(self, name) not in allowed:
+                raise BadValueError(f"sphere {name} must be one of {allowed}, got {getattr(self, name)!r}")
+        check_number(self.elbow_cone_deg, "sphere elbow_cone_deg", 0, 180)
         exclude = tuple(self.exclude or ())
-        for e in exclude:
-            if isinstance(e, str):
-                if e not in EXCLUDE_RULES:
-                    raise BadValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {e!r}")
-            elif not is_whole(e):
-                raise BadValueError(f"sphere exclude entries must be view ids or one of {EXCLUDE_RULES}, got {e!r}")
+        unknown = [e for e in exclude if not (e in EXCLUDE_RULES if isinstance(e, str) else is_whole(e))]
+        if unknown:
+            raise BadValueError(f"sphere exclude rules are {EXCLUDE_RULES} (or view ids), got {unknown[0]!r}")
         object.__setattr__(self, "exclude", exclude)
+        viewpoints(self)  # view ids beyond the sphere, or no view left: refused here, not while rendering
 
 
 def latitude_count(spec: SphereSpec) -> int:
@@ -158,7 +151,7 @@ def elbow_direction(axis: str) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def excluded_view_ids(spec: SphereSpec = SphereSpec()) -> tuple[int, ...]:
+def excluded_view_ids(spec: SphereSpec) -> tuple[int, ...]:
     """Ids (into :func:`all_viewpoints`) that ``spec.exclude`` leaves out, ascending."""
     angles = all_viewpoints(spec)
     total = len(angles)
@@ -178,7 +171,7 @@ def excluded_view_ids(spec: SphereSpec = SphereSpec()) -> tuple[int, ...]:
 
 
 @functools.lru_cache(maxsize=16)
-def viewpoints(spec: SphereSpec = SphereSpec()) -> tuple[np.ndarray, np.ndarray]:
+def viewpoints(spec: SphereSpec) -> tuple[np.ndarray, np.ndarray]:
     """The views in use after exclusions (cached per spec; the arrays are read-only).
 
     Returns:

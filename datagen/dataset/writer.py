@@ -1,11 +1,11 @@
-"""Dataset generation: Algorithm 1 of HUP-3D, written to the dataset contract of DESIGN.md.
+"""Dataset generation: Algorithm 1 of HUP-3D, written to the dataset contract (:mod:`hupbench.core.contract`).
 
 Frames are the product grasps x z_ego x backgrounds x gloves x viewpoints.
 The frame index is the mixed-radix number of that tuple, viewpoints fastest:
 
     i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view
 
-and frame ``i`` is a pure function of (config, i): its camera comes from the
+and frame ``i`` is a pure function of (config, grasps, i): its camera comes from the
 sphere, its lamp from a generator seeded with (seed, i). Frames are rendered
 in chunks of one (grasp, z_ego, background) block (n_glove x n_view frames
 sharing the meshes); a chunk's image files are written atomically, then its
@@ -15,8 +15,9 @@ other is rendered again on resume (overwriting, never duplicating).
 rendered by :class:`hupbench.datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
 (:mod:`hupbench.datagen.dataset.ray_launcher`), and written by :func:`hupbench.datagen.dataset.chunks.write_chunk`. When every
 chunk is done the rows are merged into ``<split>/annotations.npz`` and
-``manifest.json`` is written last. Run again on a finished dataset, generate renders the chunks whose
-image files are missing or empty once more, from the grasps the annotations were rendered from.
+``manifest.json`` is written last (with the sha256 of the dataset's copy of its grasps, ``grasps_sha256``).
+Run again on a finished dataset, generate renders the chunks whose image files are missing or empty once
+more, from the grasps the annotations were rendered from.
 
 Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the
@@ -34,7 +35,7 @@ import shutil
 import time
 from dataclasses import InitVar, asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Iterator
 
 import numpy as np
 
@@ -42,11 +43,11 @@ from hupbench.datagen.assets.backgrounds import BackgroundSet
 from hupbench.datagen.assets.probe_mesh import ProbeSource
 from hupbench.core.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
                                       read_annotations, read_manifest)
-from hupbench.datagen.dataset.grasps_file import GraspSet, read_grasps, read_grasps_probe_record, rendered_with
+from hupbench.datagen.dataset.grasps_file import (DEFAULT_GRASPS, GraspSet, read_grasps, read_grasps_probe_record,
+                                                  rendered_with)
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
 from hupbench.datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
-from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, Layout, chunk_plan, protocol, split_of_grasps,
-                                  split_of_views, view_directions_arm)
+from hupbench.datagen.dataset.spec import DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, view_directions_arm
 from hupbench.datagen.dataset.sphere import viewpoints
 from hupbench.core.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
@@ -69,15 +70,6 @@ from hupbench.core.errors import BadValueError
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
 RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
-
-
-@dataclass(frozen=True)
-class SplitPlan:
-    """Which grasps (indices into the grasps file) and views (positions in the sphere's view list) each
-    split holds; a frame is in the split that holds both its grasp and its view."""
-
-    grasps: dict[str, list[int]]
-    views: dict[str, list[int]]
 
 
 @dataclass(frozen=True)
@@ -126,11 +118,14 @@ def check_platform(platform, what: str) -> str | None:
 
 @dataclass(frozen=True)
 class GenerateRun:
-    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered.
+    """``conf/generate.yaml``: the dataset, its grasps and folder, and how its frames are rendered; the
+    writer (:func:`generate`), its worker processes and its Ray actors take it whole.
 
     Attributes:
         dataset: what the frames are. out_dir: the dataset folder.
-        grasps_path: the grasps file to render; None makes the default grasps into ``out_dir/grasps``.
+        grasps_path: the grasps file to render; None renders the default grasps that ship with hupbench
+            (:data:`hupbench.datagen.dataset.grasps_file.DEFAULT_GRASPS`) for the procedural probe, and for a
+            probe mesh makes grasps for it into ``out_dir/grasps`` first (``hupbench grasps``).
         progress: a progress bar on stderr.
         probe: which probe; the grasps file must have been made for it (checked by
             :func:`check_grasps_probe` before rendering).
@@ -158,6 +153,19 @@ class GenerateRun:
             raise BadValueError(f"progress must be true or false, got {self.progress!r}")
         check_writable(self.out_dir, "out_dir")
 
+    @property
+    def makes_grasps(self) -> bool:
+        """Whether the grasps are made for this run (a probe mesh and no ``grasps_path``)."""
+        return self.grasps_path is None and self.probe.mesh is not None
+
+    @property
+    def grasps_file(self) -> Path:
+        """The grasps file the frames are rendered from: ``grasps_path``, the shipped default grasps, or
+        ``out_dir/grasps/grasps.npz`` where :attr:`makes_grasps`."""
+        if self.grasps_path is not None:
+            return Path(self.grasps_path)
+        return Path(self.out_dir) / "grasps" / "grasps.npz" if self.makes_grasps else DEFAULT_GRASPS
+
 
 def check_grasps_probe(grasps_path: Path, source: ProbeSource) -> None:
     """The grasps file was made for the probe ``source`` names (the same file, unit and alignment), or one line
@@ -176,18 +184,9 @@ def check_grasps_probe(grasps_path: Path, source: ProbeSource) -> None:
 
 
 def config_hash(resolved: dict) -> str:
-    """sha256 of the resolved config with the keys that do not change frames removed. A nested ``_target_`` is
-    hashed by its name before the packages moved under hupbench (``hupbench.datagen.x`` as ``datagen.x``): a
-    dataset made before the move keeps its hash, and ``generate`` into its folder still recognises it."""
-    keep = {k: _pre_move_targets(v) for k, v in resolved.items() if k not in RUN_ONLY_KEYS}
+    """sha256 (hex) of the resolved config without the keys that do not change a frame (:data:`RUN_ONLY_KEYS`)."""
+    keep = {k: v for k, v in resolved.items() if k not in RUN_ONLY_KEYS}
     return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _pre_move_targets(value):
-    if isinstance(value, dict):
-        return {k: (v.removeprefix("hupbench.") if k == "_target_" and isinstance(v, str) else _pre_move_targets(v))
-                for k, v in value.items()}
-    return value
 
 
 def parse_shard(shard: str | None) -> tuple[int, int]:
@@ -195,11 +194,11 @@ def parse_shard(shard: str | None) -> tuple[int, int]:
     if shard in (None, "", "0/1"):
         return 0, 1
     try:
-        k, n = (int(x) for x in str(shard).split("/"))
-    except ValueError as exc:
-        raise BadValueError(f"shard must look like k/n (e.g. 0/4), got {shard!r}") from exc
-    if not (n >= 1 and 0 <= k < n):
-        raise BadValueError(f"shard {shard!r}: need 0 <= k < n")
+        k, n = (int(part) for part in str(shard).split("/"))
+    except ValueError:  # not two whole numbers
+        k, n = -1, 0
+    if not 0 <= k < n:
+        raise BadValueError(f"shard must look like k/n with 0 <= k < n (e.g. 0/4), got {shard!r}")
     return k, n
 
 
@@ -275,36 +274,9 @@ def _remove_tmp_of(out_dir: Path, pids: set[int] | None) -> None:
             path.unlink(missing_ok=True)
 
 
-@dataclass
-class _Run:
-    """What the locked part of a generate run works with (built by :func:`generate`)."""
-
-    spec: DatasetSpec
-    out_dir: Path
-    grasps_path: Path
-    grasps: GraspSet
-    backgrounds: BackgroundSet
-    job: RenderJob
-    resolved_config: dict
-    progress: bool
-    log: Callable
-    layout: Layout = field(init=False)
-    splits: SplitPlan = field(init=False)
-    chunks: list = field(init=False)
-    chash: str = field(init=False)
-
-    def __post_init__(self) -> None:
-        view_ids, _ = viewpoints(self.spec.sphere)
-        self.layout = Layout(len(self.grasps), len(self.spec.z_ego_m), self.spec.n_backgrounds, self.spec.n_gloves,
-                             len(view_ids))
-        self.splits = SplitPlan(split_of_grasps(self.spec, len(self.grasps)), split_of_views(self.spec, len(view_ids)))
-        self.chunks = chunk_plan(self.layout, self.splits.grasps, self.splits.views)
-        self.chash = config_hash(self.resolved_config)
-
-
-def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_config: dict, job: RenderJob = RenderJob(),
-             progress: bool = True, log=print, lock: OutputLock | None = None) -> dict:
-    """Render (or resume, or repair) a dataset. See the module docstring for the layout and the guarantees.
+def generate(run: GenerateRun, resolved_config: dict, log=print, lock: OutputLock | None = None) -> dict:
+    """Render (or resume, or repair) the dataset of ``run``. See the module docstring for the layout and the
+    guarantees.
 
     Everything is checked before anything is written; then the run holds the output folder
     (:func:`run_lock`) until it returns, removes the temporary files of killed runs, and renders
@@ -312,9 +284,10 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     dataset whose image files are missing or empty (rendered again, byte for byte).
 
     Args:
-        spec: what the frames are. out_dir: the dataset folder. grasps_path: the grasps file to render.
+        run: what the frames are, from which grasps file (:attr:`GenerateRun.grasps_file`, which must exist),
+            into which folder, and how they are rendered.
         resolved_config: the resolved config, recorded in the manifest (its frame-changing keys hashed).
-        job: where and how the frames are rendered. progress: a progress bar on stderr.
+        log: receives progress lines.
         lock: the lock of this run when the caller already holds it (``with run_lock(out_dir,
             shard) as lock``); None takes it here.
 
@@ -325,184 +298,268 @@ def generate(spec: DatasetSpec, out_dir: Path, grasps_path: Path, resolved_confi
     Raises:
         LockedError: another live generate run holds the folder (or this shard).
     """
-    out_dir = Path(out_dir)
-    if job.backgrounds_dir:
-        backgrounds = BackgroundSet.from_dir(job.backgrounds_dir)
-    else:
-        backgrounds = BackgroundSet.builtin()
-    if len(backgrounds) < spec.n_backgrounds:
-        raise BadValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
-                            f"{len(backgrounds)} image(s)" + (f" ({job.backgrounds_dir})" if job.backgrounds_dir else ""))
-    run = _Run(spec, out_dir, Path(grasps_path), GraspSet(grasps_path), backgrounds, job, resolved_config, progress, log)
+    writer = DatasetWriter(run, resolved_config, log)
+    job = run.job
     with contextlib.ExitStack() as stack:
         if lock is None:
-            lock = stack.enter_context(run_lock(out_dir, job.shard))
-        assert lock.folder.resolve() == (out_dir if job.n == 1 else shard_lock_folder(out_dir, job.k, job.n)).resolve()
+            lock = stack.enter_context(run_lock(writer.out_dir, job.shard))
+        held = writer.out_dir if job.n == 1 else shard_lock_folder(writer.out_dir, job.k, job.n)
+        assert lock.folder.resolve() == held.resolve(), (lock.folder, held)
         if lock.taken_over:
             log(f"took over the lock of a generate run that is gone (pid {lock.taken_over.get('pid')} on "
                 f"{lock.taken_over.get('host')})")
-        return _generate_locked(run, stack)
+        return writer.write(stack)
 
 
-def _start_or_resume(run: _Run) -> None:
-    """Record a new run's config hash in ``.progress.json``, or check that a partial dataset here was
-    started with this config and these grasps; copy the grasps into the dataset."""
-    out_dir, grasps_path = run.out_dir, run.grasps_path
-    progress_file = out_dir / ".progress.json"
-    copied = out_dir / "grasps.npz"
-    if progress_file.is_file():
-        try:
-            started = json.loads(progress_file.read_text())
-        except ValueError as exc:
-            raise BadValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
-                                "again") from None
-        if not isinstance(started, dict) or started.get("config_hash") != run.chash:
-            raise BadValueError(f"{out_dir} holds a partial dataset started with another config; "
-                                "resume it with the same config or choose a new out_dir")
-        if copied.is_file() and copied.resolve() != grasps_path.resolve() \
-                and file_sha256(copied) != file_sha256(grasps_path):
-            raise BadValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
-                                "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
-    else:
-        write_json(progress_file, {"config_hash": run.chash, "layout": asdict(run.layout)})
-    if not copied.is_file() or grasps_path.resolve() != copied.resolve():
-        write_with(copied, lambda tmp: shutil.copyfile(grasps_path, tmp))
+class DatasetWriter:
+    """Writes the dataset of one :class:`GenerateRun` while the run holds its folder (:func:`generate`).
 
+    Args:
+        run: the run. resolved_config: the resolved config, recorded in the manifest. log: progress lines.
 
-def _generate_locked(run: _Run, stack: contextlib.ExitStack) -> dict:
-    """The part of :func:`generate` that runs while it holds the folder (or its shard)."""
-    out_dir, job, log = run.out_dir, run.job, run.log
-    if job.n == 1:
-        # no other run is live here (the lock): whatever temporary files lie around are a killed run's.
-        # A shard leaves them to the finishing run, since other shards may be writing theirs
-        _remove_all_tmp(out_dir)
-    manifest_file = out_dir / "manifest.json"
-    if manifest_file.is_file():
-        return _finished(run)
-    _start_or_resume(run)
-    todo = [c for c in range(len(run.chunks)) if c % job.n == job.k and not _chunk_path(out_dir, run.chunks[c][0], c).is_file()]
-    start = time.perf_counter()
-    rendered = _render(run, todo)
-    seconds = time.perf_counter() - start
-    partial = {"out_dir": str(out_dir), "frames_total": run.layout.size, "frames_rendered": rendered,
-               "seconds": seconds, "complete": False, "counts": {}}
-    if job.n > 1:
-        # the shards that find every chunk done race to finish the dataset: one at a time, and once
-        try:
-            stack.enter_context(OutputLock(out_dir, "generate"))
-        except LockedError as exc:
-            log(f"not finishing the dataset: {exc}")
-            return partial
+    Attributes:
+        run, resolved_config, log: as given. out_dir: ``run.out_dir`` as a path.
+        backgrounds: the background set (``run.job.backgrounds_dir`` or the built-ins).
+        grasps: the grasps rendered (:class:`hupbench.datagen.dataset.grasps_file.GraspSet` of
+            ``run.grasps_file``). plan: the frames' :class:`hupbench.datagen.dataset.spec.FramePlan`.
+        config_hash: :func:`config_hash` of ``resolved_config``.
+    """
+
+    def __init__(self, run: GenerateRun, resolved_config: dict, log=print) -> None:
+        spec, job = run.dataset, run.job
+        self.backgrounds = BackgroundSet.from_dir(job.backgrounds_dir) if job.backgrounds_dir else BackgroundSet.builtin()
+        if len(self.backgrounds) < spec.n_backgrounds:
+            raise BadValueError(f"dataset.n_backgrounds={spec.n_backgrounds} but the background set holds only "
+                                f"{len(self.backgrounds)} image(s)"
+                                + (f" ({job.backgrounds_dir})" if job.backgrounds_dir else ""))
+        self.run, self.out_dir, self.resolved_config, self.log = run, Path(run.out_dir), resolved_config, log
+        self.grasps = GraspSet(run.grasps_file)
+        self.plan = frame_plan(spec, len(self.grasps))
+        self.config_hash = config_hash(resolved_config)
+
+    def write(self, stack: contextlib.ExitStack) -> dict:
+        """Render what is missing and finish the dataset (:func:`generate`'s locked part); ``stack`` holds the
+        folder's lock, and takes the unsharded lock when a shard finishes the dataset."""
+        out_dir, job, chunks = self.out_dir, self.run.job, self.plan.chunks
+        if job.n == 1:
+            # no other run is live here (the lock): whatever temporary files lie around are a killed run's.
+            # A shard leaves them to the finishing run, since other shards may be writing theirs
+            _remove_all_tmp(out_dir)
+        manifest_file = out_dir / "manifest.json"
         if manifest_file.is_file():
-            return {**_finished(run), "frames_rendered": rendered, "seconds": seconds}
-    missing = [c for c in range(len(run.chunks)) if not _chunk_path(out_dir, run.chunks[c][0], c).is_file()]
-    if missing:
-        log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
-        return partial
-    counts = _finalise(run)
-    return {"out_dir": str(out_dir), "frames_total": run.layout.size, "frames_rendered": rendered, "seconds": seconds,
-            "complete": True, "counts": counts}
+            return self._finished()
+        self._start_or_resume()
+        todo = [c for c in range(len(chunks)) if c % job.n == job.k and not _chunk_path(out_dir, chunks[c][0], c).is_file()]
+        start = time.perf_counter()
+        rendered = self._render(todo)
+        seconds = time.perf_counter() - start
+        partial = {"out_dir": str(out_dir), "frames_total": self.plan.layout.size, "frames_rendered": rendered,
+                   "seconds": seconds, "complete": False, "counts": {}}
+        if job.n > 1:
+            # the shards that find every chunk done race to finish the dataset: one at a time, and once
+            try:
+                stack.enter_context(OutputLock(out_dir, "generate"))
+            except LockedError as exc:
+                self.log(f"not finishing the dataset: {exc}")
+                return partial
+            if manifest_file.is_file():
+                return {**self._finished(), "frames_rendered": rendered, "seconds": seconds}
+        missing = [c for c in range(len(chunks)) if not _chunk_path(out_dir, chunks[c][0], c).is_file()]
+        if missing:
+            self.log(f"{len(missing)} chunks still missing (other shards); the manifest is written when all are done")
+            return partial
+        return {**partial, "complete": True, "counts": self._finalise()}
 
-
-def _render(run: _Run, todo: list[int]) -> int:
-    """Render and write the chunks ``todo`` (indices into ``run.chunks``); returns the frames written."""
-    out_dir, job, chunks, layout = run.out_dir, run.job, run.chunks, run.layout
-    if not todo:
-        return 0
-    n_frames = sum(len(chunks[c][1]) for c in todo)
-    run.log(f"rendering {n_frames} frames ({len(todo)} chunks) with "
-            + (f"{job.workers} worker(s)" if job.launcher == "local" else "Ray")
-            + (f", shard {job.k}/{job.n}" if job.n > 1 else ""))
-    for split in SPLITS:
-        for m in run.spec.modalities:
-            (out_dir / split / m).mkdir(parents=True, exist_ok=True)
-        (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
-    jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
-    init = (run.spec, str(out_dir / "grasps.npz"), job.backgrounds_dir, job.platform)
-    bar = _progress(n_frames, run.progress, "rendering")
-    rendered = 0
-    writers = {os.getpid()}
-    try:
-        if job.launcher == "ray":
-            from hupbench.datagen.dataset.ray_launcher import render_chunks
-
-            def on_chunk(output: ChunkOutput) -> None:
-                nonlocal rendered
-                count = write_chunk(out_dir, output, run.spec.rgb_format)
-                rendered += count
-                bar.update(count)
-
-            render_chunks("hupbench.datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout, run.spec,
-                          (out_dir / "grasps.npz").read_bytes(), job, on_chunk, run.log)
-        elif job.workers == 1:
-            _worker_init(*init)
-            for _, count in map(_render_chunk, jobs):
-                rendered += count
-                bar.update(count)
+    def _start_or_resume(self) -> None:
+        """Record a new run's config hash in ``.progress.json``, or check that a partial dataset here was
+        started with this config and these grasps; copy the grasps into the dataset."""
+        out_dir, grasps_path = self.out_dir, self.run.grasps_file
+        progress_file = out_dir / ".progress.json"
+        copied = out_dir / "grasps.npz"
+        if progress_file.is_file():
+            try:
+                started = json.loads(progress_file.read_text())
+            except ValueError as exc:
+                raise BadValueError(f"{progress_file} is not valid JSON ({exc}); delete it to start the dataset "
+                                    "again") from None
+            if not isinstance(started, dict) or started.get("config_hash") != self.config_hash:
+                raise BadValueError(f"{out_dir} holds a partial dataset started with another config; "
+                                    "resume it with the same config or choose a new out_dir")
+            if copied.is_file() and copied.resolve() != grasps_path.resolve() \
+                    and file_sha256(copied) != file_sha256(grasps_path):
+                raise BadValueError(f"{out_dir} holds a partial dataset started with other grasps than {grasps_path} "
+                                    "(its grasps.npz differs); resume it with the same grasps or choose a new out_dir")
         else:
-            ctx = multiprocessing.get_context("spawn")
-            with workers_ignore_ctrl_c():
-                pool = ctx.Pool(min(job.workers, len(jobs)), initializer=_worker_init, initargs=(*init, os.getpid()))
-            with pool:
-                writers.update(p.pid for p in multiprocessing.active_children())
-                try:
-                    for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
-                        rendered += count
-                        bar.update(count)
-                except _WorkerDiskFull as exc:
-                    raise DiskFullError(exc.args[0]) from None
-                finally:
+            write_json(progress_file, {"config_hash": self.config_hash, "layout": asdict(self.plan.layout)})
+        if not copied.is_file() or grasps_path.resolve() != copied.resolve():
+            write_with(copied, lambda tmp: shutil.copyfile(grasps_path, tmp))
+
+    def _render(self, todo: list[int]) -> int:
+        """Render and write the chunks ``todo`` (indices into ``plan.chunks``); returns the frames written."""
+        out_dir, run, chunks, layout = self.out_dir, self.run, self.plan.chunks, self.plan.layout
+        job = run.job
+        if not todo:
+            return 0
+        n_frames = sum(len(chunks[c][1]) for c in todo)
+        self.log(f"rendering {n_frames} frames ({len(todo)} chunks) with "
+                 + (f"{job.workers} worker(s)" if job.launcher == "local" else "Ray")
+                 + (f", shard {job.k}/{job.n}" if job.n > 1 else ""))
+        for split in SPLITS:
+            for m in run.dataset.modalities:
+                (out_dir / split / m).mkdir(parents=True, exist_ok=True)
+            (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
+        jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
+        grasps = out_dir / "grasps.npz"  # the dataset's copy, which every worker renders from
+        bar = _progress(n_frames, run.progress, "rendering")
+        rendered = 0
+        writers = {os.getpid()}
+        try:
+            if job.launcher == "ray":
+                from hupbench.datagen.dataset.ray_launcher import render_chunks
+
+                def on_chunk(output: ChunkOutput) -> None:
+                    nonlocal rendered
+                    count = write_chunk(out_dir, output, run.dataset.rgb_format)
+                    rendered += count
+                    bar.update(count)
+
+                render_chunks("hupbench.datagen.dataset.chunks:ChunkRenderer", [(c, *chunks[c]) for c in todo], layout,
+                              run, grasps.read_bytes(), on_chunk, self.log)
+            elif job.workers == 1:
+                _worker_init(run, str(grasps))
+                for _, count in map(_render_chunk, jobs):
+                    rendered += count
+                    bar.update(count)
+            else:
+                ctx = multiprocessing.get_context("spawn")
+                with workers_ignore_ctrl_c():
+                    pool = ctx.Pool(min(job.workers, len(jobs)), initializer=_worker_init,
+                                    initargs=(run, str(grasps), os.getpid()))
+                with pool:
                     writers.update(p.pid for p in multiprocessing.active_children())
-            # leaving the pool stopped its workers (SIGTERM), maybe in the middle of a file
-    except BaseException:
-        _remove_tmp_of(out_dir, None if job.n == 1 else writers)
-        raise
-    finally:
-        bar.close()
-    return rendered
+                    try:
+                        for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
+                            rendered += count
+                            bar.update(count)
+                    except _WorkerDiskFull as exc:
+                        raise DiskFullError(exc.args[0]) from None
+                    finally:
+                        writers.update(p.pid for p in multiprocessing.active_children())
+                # leaving the pool stopped its workers (SIGTERM), maybe in the middle of a file
+        except BaseException:
+            _remove_tmp_of(out_dir, None if job.n == 1 else writers)
+            raise
+        finally:
+            bar.close()
+        return rendered
 
+    def _finished(self) -> dict:
+        """The answer for a folder whose manifest exists: this config's dataset, with the image files of its
+        frames (this shard's) that are missing or empty rendered again."""
+        out_dir, job = self.out_dir, self.run.job
+        manifest = read_manifest(out_dir)
+        if manifest.get("config_hash") != self.config_hash:
+            raise BadValueError(f"{out_dir} holds a finished dataset made with another config; choose a new out_dir")
+        _remove_scaffolding(out_dir)
+        lacking = [(c, path) for c, (split, frames) in enumerate(self.plan.chunks) if c % job.n == job.k
+                   for path in self._frame_files(split, frames) if not _has_bytes(path)]
+        rendered, start = 0, time.perf_counter()
+        if lacking:
+            if not self._rendered_from():
+                raise BadValueError(f"{out_dir} holds a finished dataset whose grasps.npz is missing, differs from "
+                                    f"{self.run.grasps_file} or is not the one its frames were rendered with, and "
+                                    f"{len(lacking)} of its image files are missing or empty: generate it again into a "
+                                    "new out_dir")
+            todo = sorted({c for c, _ in lacking})
+            self.log(f"the finished dataset lacks {len(lacking)} image file(s) (first "
+                     f"{lacking[0][1].relative_to(out_dir)}): rendering their {len(todo)} chunk(s) again")
+            rendered = self._render(todo)
+            _remove_scaffolding(out_dir)
+        return {"out_dir": str(out_dir), "frames_total": self.plan.layout.size, "frames_rendered": rendered,
+                "seconds": time.perf_counter() - start, "complete": True, "counts": manifest["counts"]}
 
-def _finished(run: _Run) -> dict:
-    """The answer for a folder whose manifest exists: this config's dataset, with the image files of its
-    frames (this shard's) that are missing or empty rendered again."""
-    manifest = read_manifest(run.out_dir)
-    if manifest.get("config_hash") != run.chash:
-        raise BadValueError(f"{run.out_dir} holds a finished dataset made with another config; choose a new out_dir")
-    _remove_scaffolding(run.out_dir)
-    lacking = [(c, path) for c, (split, frames) in enumerate(run.chunks) if c % run.job.n == run.job.k
-               for path in _frame_files(run, split, frames) if not _has_bytes(path)]
-    rendered, start = 0, time.perf_counter()
-    if lacking:
-        if not _rendered_from(run):
-            raise BadValueError(f"{run.out_dir} holds a finished dataset whose grasps.npz is missing, differs from "
-                                f"{run.grasps_path} or is not the one its frames were rendered with, and "
-                                f"{len(lacking)} of its image files are missing or empty: generate it again into a "
-                                "new out_dir")
-        todo = sorted({c for c, _ in lacking})
-        run.log(f"the finished dataset lacks {len(lacking)} image file(s) (first {lacking[0][1].relative_to(run.out_dir)}): "
-                f"rendering their {len(todo)} chunk(s) again")
-        rendered = _render(run, todo)
-        _remove_scaffolding(run.out_dir)
-    return {"out_dir": str(run.out_dir), "frames_total": run.layout.size, "frames_rendered": rendered,
-            "seconds": time.perf_counter() - start, "complete": True, "counts": manifest["counts"]}
+    def _rendered_from(self) -> bool:
+        """The dataset's copy of the grasps is the grasps given and the one its annotations were rendered from
+        (missing frames are rendered from it again)."""
+        copied = self.out_dir / "grasps.npz"
+        if not copied.is_file() or file_sha256(copied) != file_sha256(self.run.grasps_file):
+            return False
+        arrays = read_grasps(copied)
+        keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans")
+        return all(rendered_with(arrays, read_annotations(self.out_dir, split, keys)).all()
+                   for split, count in read_manifest(self.out_dir)["counts"].items() if count)
 
+    def _frame_files(self, split: str, frames: tuple[int, ...]) -> Iterator[Path]:
+        spec = self.run.dataset
+        for index in frames:
+            for modality in spec.modalities:
+                yield frame_path(self.out_dir, split, modality, index, spec.rgb_format)
 
-def _rendered_from(run: _Run) -> bool:
-    """The dataset's copy of the grasps is the grasps given and the one its annotations were rendered from
-    (missing frames are rendered from it again)."""
-    copied = run.out_dir / "grasps.npz"
-    if not copied.is_file() or file_sha256(copied) != file_sha256(run.grasps_path):
-        return False
-    arrays = read_grasps(copied)
-    keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans")
-    return all(rendered_with(arrays, read_annotations(run.out_dir, split, keys)).all()
-               for split, count in read_manifest(run.out_dir)["counts"].items() if count)
+    def _finalise(self) -> dict:
+        """Merge the chunk rows per split, then write the manifest (last); returns the frames per split."""
+        out_dir, chunks = self.out_dir, self.plan.chunks
+        counts, merged_splits = {}, {}
+        for split in SPLITS:
+            parts = []
+            for c in (c for c, (chunk_split, _) in enumerate(chunks) if chunk_split == split):
+                with np.load(_chunk_path(out_dir, split, c)) as data:
+                    parts.append({key: data[key] for key in data.files})
+            merged = {key: np.concatenate([p[key] for p in parts]) for key in ANNOTATION_DTYPES} if parts else \
+                {key: np.zeros((0,), dtype=dt) for key, dt in ANNOTATION_DTYPES.items()}
+            counts[split] = int(len(merged["frame_id"]))
+            merged_splits[split] = merged
+            if counts[split]:
+                save_npz(out_dir / split / "annotations.npz", merged)
+        floors = split_floors(merged_splits) if counts["train"] else {}
+        write_json(out_dir / "manifest.json", self._manifest(counts, floors))
+        _remove_scaffolding(out_dir)
+        return counts
 
-
-def _frame_files(run: _Run, split: str, frames: tuple[int, ...]) -> Iterator[Path]:
-    for index in frames:
-        for modality in run.spec.modalities:
-            yield frame_path(run.out_dir, split, modality, index, run.spec.rgb_format)
+    def _manifest(self, counts: dict[str, int], floors: dict) -> dict:
+        """The manifest of the finished dataset (the fields :func:`hupbench.core.contract.read_manifest` reads)."""
+        spec, plan, grasps = self.run.dataset, self.plan, self.grasps
+        view_ids, angles = viewpoints(spec.sphere)
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
+                          "git_commit": self.resolved_config.get("_provenance", {}).get("git_commit", "unknown")},
+            "config": self.resolved_config,
+            "config_hash": self.config_hash,
+            "counts": counts,
+            "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in plan.grasps.items()},
+            "grasp_indices": plan.grasps,
+            "grasp_theta_vol_deg": {str(int(i)): (None if e is None else [float(v) for v in e])
+                                    for i, e in zip(grasps.grasp_id, grasps.probe_euler_deg)},
+            # the dataset's copy of the grasps it was rendered from
+            "grasps_sha256": file_sha256(self.out_dir / "grasps.npz"),
+            "layout": {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(plan.layout.shape),
+                       "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
+                       "chunk_size": plan.layout.chunk_size},
+            "image_size": [spec.width, spec.height],
+            "K": spec.intrinsics.K.tolist(),
+            "modalities": list(spec.modalities),
+            "rgb_format": spec.rgb_format,
+            "keypoint_names": list(kp.KEYPOINT_NAMES),
+            "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],
+            "seg_labels": SEG_LABELS,
+            "depth_scale_m": DEPTH_SCALE_M,
+            "z_ego_m": list(spec.z_ego_m),
+            "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(),
+                           "phi_rad": angles[:, 1].tolist(), "sphere": asdict(spec.sphere),
+                           # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
+                           # the same for every grasp, whichever way the sphere is attached
+                           "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
+                           "split_view_ids": {split: view_ids[positions].tolist()
+                                              for split, positions in plan.views.items()}},
+            "protocol": protocol(spec),
+            "split_floors": {"definition": FLOORS_DEFINITION, "splits": floors},
+            "backgrounds": {"names": list(self.backgrounds.names[: spec.n_backgrounds]),
+                            "fingerprint": self.backgrounds.fingerprint()},
+            "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
+            "arm_rgb": list(ARM_RGB),
+            # the probe the frames show (hupbench.datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
+            "probe": grasps.probe.record,
+        }
 
 
 def _has_bytes(path: Path) -> bool:
@@ -516,67 +573,6 @@ def _progress(total: int, enabled: bool, desc: str | None = None, unit: str = "f
     from tqdm import tqdm
 
     return tqdm(total=total, unit=unit, desc=desc, disable=not enabled, smoothing=0.1, dynamic_ncols=True)
-
-
-def _finalise(run: _Run) -> dict:
-    """Merge the chunk rows per split, then write the manifest (last)."""
-    out_dir, spec, layout, splits, chunks, grasps = run.out_dir, run.spec, run.layout, run.splits, run.chunks, run.grasps
-    resolved_config, backgrounds = run.resolved_config, run.backgrounds
-    counts, merged_splits = {}, {}
-    for split in SPLITS:
-        parts = []
-        for c in (c for c, (chunk_split, _) in enumerate(chunks) if chunk_split == split):
-            with np.load(_chunk_path(out_dir, split, c)) as data:
-                parts.append({key: data[key] for key in data.files})
-        merged = {key: np.concatenate([p[key] for p in parts]) for key in ANNOTATION_DTYPES} if parts else \
-            {key: np.zeros((0,), dtype=dt) for key, dt in ANNOTATION_DTYPES.items()}
-        counts[split] = int(len(merged["frame_id"]))
-        merged_splits[split] = merged
-        if counts[split]:
-            save_npz(out_dir / split / "annotations.npz", merged)
-    view_ids, angles = viewpoints(spec.sphere)
-    floors = split_floors(merged_splits) if counts["train"] else {}
-    manifest = {
-        "schema_version": SCHEMA_VERSION,
-        "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
-                      "git_commit": resolved_config.get("_provenance", {}).get("git_commit", "unknown")},
-        "config": resolved_config,
-        "config_hash": run.chash,
-        "counts": counts,
-        "grasp_ids": {split: [int(grasps.grasp_id[g]) for g in gs] for split, gs in splits.grasps.items()},
-        "grasp_indices": splits.grasps,
-        "grasp_theta_vol_deg": {str(int(i)): (None if e is None else [float(v) for v in e])
-                                for i, e in zip(grasps.grasp_id, grasps.probe_euler_deg)},
-        "layout": {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(layout.shape),
-                   "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
-                   "chunk_size": layout.chunk_size},
-        "image_size": [spec.width, spec.height],
-        "K": spec.intrinsics.K.tolist(),
-        "modalities": list(spec.modalities),
-        "rgb_format": spec.rgb_format,
-        "keypoint_names": list(kp.KEYPOINT_NAMES),
-        "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],
-        "seg_labels": SEG_LABELS,
-        "depth_scale_m": DEPTH_SCALE_M,
-        "z_ego_m": list(spec.z_ego_m),
-        "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(), "phi_rad": angles[:, 1].tolist(),
-                       "sphere": asdict(spec.sphere),
-                       # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
-                       # the same for every grasp, whichever way the sphere is attached
-                       "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
-                       "split_view_ids": {split: view_ids[positions].tolist() for split, positions in splits.views.items()}},
-        "protocol": protocol(spec),
-        "split_floors": {"definition": FLOORS_DEFINITION, "splits": floors},
-        "backgrounds": {"names": list(backgrounds.names[: spec.n_backgrounds]),
-                        "fingerprint": backgrounds.fingerprint()},
-        "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
-        "arm_rgb": list(ARM_RGB),
-        # the probe the frames show (hupbench.datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
-        "probe": grasps.probe.record,
-    }
-    write_json(out_dir / "manifest.json", manifest)
-    _remove_scaffolding(out_dir)
-    return counts
 
 
 def _remove_scaffolding(out_dir: Path) -> None:

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import zipfile
 import zlib
@@ -52,7 +51,7 @@ import torch
 from torch import nn
 
 from hupbench.datagen.grasps.params import JOINTS, PARAM_DIM, ROT, TRANS, unit_to_angles
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_int, check_number
 from hupbench.core.rotations_torch import matrix_to_rot6d, rot6d_to_matrix
 from hupbench.core.errors import BadTypeError, BadValueError, MissingFileError
 from hupbench.core.io import save_npz
@@ -78,14 +77,6 @@ _FILE_VERSION = 1
 #: the .npz entry holding the JSON header; state_dict keys never start with an underscore
 _HEADER_KEY = "__header__"
 CORPUS_KEYS = ("x", "bps", "init_rot6d", "init_trans")
-
-
-def _finite_float(name: str, value, minimum: float = 0.0, strict: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise BadTypeError(f"{name} must be a number, got {type(value).__name__}")
-    if not math.isfinite(value) or value < minimum or (strict and value == minimum):
-        relation = ">" if strict else ">="
-        raise BadValueError(f"{name} must be finite and {relation} {minimum}, got {value}")
 
 
 @dataclass(frozen=True)
@@ -132,12 +123,10 @@ class CVAEConfig:
         for name in ("n_bps", "latent_dim", "hidden", "bps_embed", "epochs", "batch_size"):
             check_int(getattr(self, name), name, low=1, error=BadTypeError)
         check_int(self.seed, "seed", low=0)
-        _finite_float("lr", self.lr, strict=True)
+        check_number(self.lr, "lr", 0, low_open=True)
         for name in ("kl_weight", "keypoint_weight", "rot_weight", "trans_weight", "joint_weight"):
-            _finite_float(name, getattr(self, name))
-        _finite_float("val_fraction", self.val_fraction, strict=True)
-        if self.val_fraction > 0.5:
-            raise BadValueError(f"val_fraction must be in (0, 0.5], got {self.val_fraction}")
+            check_number(getattr(self, name), name, 0)
+        check_number(self.val_fraction, "val_fraction", 0, 0.5, low_open=True)
 
 
 class CVAEOutput(NamedTuple):
@@ -424,28 +413,9 @@ def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"no grasp CVAE weights at {path}")
-    size = path.stat().st_size
-    if size == 0:
-        raise BadValueError(f"{path} is empty (0 bytes): not a grasp CVAE weights file")
-    if not zipfile.is_zipfile(path):
-        # np.load reads any other bytes as a pickle and answers with a message about allow_pickle
-        raise BadValueError(f"{path} is not a grasp CVAE weights file: not a zip (.npz) archive ({size} bytes; "
-                         f"damaged, truncated or another kind of file)")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            entries = {name: npz[name] for name in npz.files}
-    except (zipfile.BadZipFile, EOFError, ValueError, OSError, zlib.error) as exc:
-        # a member whose bytes do not match its CRC, or cut short inside the archive
-        raise BadValueError(f"{path}: damaged grasp CVAE weights file ({type(exc).__name__}: {exc})") from exc
-    if _HEADER_KEY not in entries:
-        raise BadValueError(f"{path} is not a grasp CVAE weights file: no {_HEADER_KEY!r} entry")
-    try:
-        header = json.loads(str(entries.pop(_HEADER_KEY)[()]))
-    except json.JSONDecodeError as exc:
-        raise BadValueError(f"{path}: the {_HEADER_KEY!r} entry is not valid JSON: {exc}") from exc
-    if header.get("format") != _FILE_FORMAT or header.get("version") != _FILE_VERSION:
-        raise BadValueError(f"{path}: expected format {_FILE_FORMAT!r} version {_FILE_VERSION}, "
-                         f"got {header.get('format')!r} version {header.get('version')!r}")
+    entries, header, problem = _read_weights_file(path)
+    if problem:
+        raise BadValueError(f"{path}{problem}")
     fields = {f.name for f in dataclasses.fields(CVAEConfig)}
     saved = header.get("config", {})
     if set(saved) != fields:
@@ -468,6 +438,34 @@ def load_cvae(path: str | os.PathLike) -> tuple[GraspCVAE, CVAEConfig, dict]:
     model.load_state_dict({name: torch.from_numpy(entries[name]).to(expected[name].dtype) for name in expected})
     model.eval()
     return model, config, header.get("metadata", {})
+
+
+def _read_weights_file(path: Path) -> tuple[dict[str, np.ndarray], dict, str | None]:
+    """(the entries but the header, the header, None) of a weights file, or what keeps it from being one as the
+    rest of :func:`load_cvae`'s error line."""
+    size = path.stat().st_size
+    if size == 0:
+        return {}, {}, " is empty (0 bytes): not a grasp CVAE weights file"
+    if not zipfile.is_zipfile(path):
+        # np.load reads any other bytes as a pickle and answers with a message about allow_pickle
+        return {}, {}, (f" is not a grasp CVAE weights file: not a zip (.npz) archive ({size} bytes; damaged, "
+                        "truncated or another kind of file)")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            entries = {name: npz[name] for name in npz.files}
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError, zlib.error) as exc:
+        # a member whose bytes do not match its CRC, or cut short inside the archive
+        return {}, {}, f": damaged grasp CVAE weights file ({type(exc).__name__}: {exc})"
+    if _HEADER_KEY not in entries:
+        return {}, {}, f" is not a grasp CVAE weights file: no {_HEADER_KEY!r} entry"
+    try:
+        header = json.loads(str(entries.pop(_HEADER_KEY)[()]))
+    except json.JSONDecodeError as exc:
+        return {}, {}, f": the {_HEADER_KEY!r} entry is not valid JSON: {exc}"
+    if header.get("format") != _FILE_FORMAT or header.get("version") != _FILE_VERSION:
+        return {}, {}, (f": expected format {_FILE_FORMAT!r} version {_FILE_VERSION}, got {header.get('format')!r} "
+                        f"version {header.get('version')!r}")
+    return entries, header, None
 
 
 def load_shipped_cvae() -> tuple[GraspCVAE, CVAEConfig, dict]:

@@ -38,16 +38,16 @@ SHADINGS = ("blinn_phong", "pbr")
 GL_PIXEL_CENTRE_OFFSET = 0.5
 
 
-def check_modalities(modalities: Iterable[str]) -> tuple[str, ...]:
-    """Validate a modality list and return it as a sorted-by-canonical-order tuple."""
+def check_modalities(modalities: Iterable[str], prefix: str = "") -> tuple[str, ...]:
+    """The modalities asked for, in :data:`MODALITIES`' order; ``prefix`` starts the error line (the config key,
+    e.g. ``"render.modalities: "``)."""
     if isinstance(modalities, str):
         modalities = (modalities,)
     modalities = tuple(modalities)
-    if not modalities:
-        raise BadValueError(f"at least one modality must be asked for, from {MODALITIES}")
     unknown = [m for m in modalities if m not in MODALITIES]
-    if unknown:
-        raise BadValueError(f"unknown modality {unknown[0]!r}; choose from {MODALITIES}")
+    if not modalities or unknown:
+        raise BadValueError(prefix + (f"unknown modality {unknown[0]!r}; choose from {MODALITIES}" if unknown else
+                                      f"at least one modality must be asked for, from {MODALITIES}"))
     return tuple(m for m in MODALITIES if m in modalities)
 
 

@@ -33,23 +33,24 @@ def run_generate(cfg: DictConfig, log=print) -> dict:
 
 
 def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
-    """Make the default grasps if needed, and render (or resume) the dataset of the built ``run``;
-    ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns :func:`hupbench.datagen.dataset.writer.generate`'s
-    dict."""
+    """Render (or resume) the dataset of the built ``run`` from its grasps file (:attr:`GenerateRun.grasps_file`):
+    the one given, the default grasps shipped with hupbench, or, for a probe mesh without ``grasps_path``,
+    grasps made for the mesh into ``OUT_DIR/grasps`` first (``conf/grasps.yaml`` with the run's probe).
+    ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns
+    :func:`hupbench.datagen.dataset.writer.generate`'s dict."""
     from hupbench.datagen.assets.backgrounds import BackgroundSet
     from hupbench.datagen.dataset.writer import check_grasps_probe, generate, run_lock
 
-    # a bad photographs' folder fails before the default grasps take minutes
+    # a bad photographs' folder fails before the folder is taken (and the grasps take minutes)
     if run.job.backgrounds_dir is not None:
         BackgroundSet.from_dir(run.job.backgrounds_dir)
-    out_dir = Path(run.out_dir)
-    grasps_path = Path(run.grasps_path) if run.grasps_path else out_dir / "grasps" / "grasps.npz"
-    make_grasps = run.grasps_path is None and not grasps_path.is_file()
+    grasps_path = run.grasps_file
+    make_grasps = run.makes_grasps and not grasps_path.is_file()
     if make_grasps:
         from hupbench.config import compose
 
         probe = run.probe
-        grasps_cfg = compose("grasps", [f"out_dir={out_dir / 'grasps'}", f"probe.mesh={_override_value(probe.mesh)}",
+        grasps_cfg = compose("grasps", [f"out_dir={grasps_path.parent}", f"probe.mesh={_override_value(probe.mesh)}",
                                         f"probe.mesh_unit={probe.mesh_unit}", f"probe.align={str(probe.align).lower()}"])
         n_grasps = grasps_cfg.generate.n_select
         splits = run.dataset.splits
@@ -59,11 +60,11 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     else:
         # a bad file, or grasps made for another probe, fail before the folder is taken
         check_grasps_probe(grasps_path, run.probe)
-    # one run per folder (or shard), from the default grasps to the manifest
-    with run_lock(out_dir, run.job.shard) as lock:
+    # one run per folder (or shard), from the grasps to the manifest
+    with run_lock(Path(run.out_dir), run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():
             from hupbench.verbs.grasps import run_grasps
 
-            log(f"no grasps given: generating the default {n_grasps} grasps into {grasps_path.parent}")
+            log(f"no grasps given for probe.mesh: generating {n_grasps} grasps for it into {grasps_path.parent}")
             run_grasps(grasps_cfg, log=log)
-        return generate(run.dataset, out_dir, grasps_path, resolved, run.job, run.progress, log, lock)
+        return generate(run, resolved, log, lock)

@@ -1,4 +1,10 @@
-"""``hupbench grasps``: synthesise, score and select grasps; write grasps.npz, grasps.json and a contact sheet."""
+"""``hupbench grasps``: synthesise, score and select grasps; write grasps.npz, grasps.json and a contact sheet.
+
+Which grasps come out depends on the CPU's floating point (the refinement's sums round differently on
+another CPU, and the selection amplifies the difference): ``hupbench generate`` renders the default grasps
+shipped with hupbench (:data:`hupbench.datagen.dataset.grasps_file.DEFAULT_GRASPS`), so that every machine
+makes the same default dataset.
+"""
 
 from __future__ import annotations
 
@@ -19,6 +25,11 @@ from hupbench.datagen.dataset.writer import check_platform
 from hupbench.datagen.assets.probe_mesh import ProbeSource
 from hupbench.config import build, build_group
 from hupbench.provenance import run_info
+
+
+#: what a run of ``hupbench grasps`` says first
+CPU_NOTE = ("the grasps selected depend on this CPU's floating point (another CPU may select others); `hupbench "
+            "generate` renders the default grasps shipped with hupbench unless given grasps_path=...")
 
 
 @dataclass(frozen=True)
@@ -80,6 +91,7 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     torch.set_num_threads(run.threads)
     start = time.perf_counter()
     out_dir, gen_config = Path(run.out_dir), run.generate
+    log(CPU_NOTE)
     # beside the folder, which a refused or failed run does not create
     with OutputLock.for_file(out_dir, "grasps"):
         probe = probe_of(run.probe)

@@ -13,7 +13,6 @@ chunks and the training continues from its last checkpoint.
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,10 +40,6 @@ STAGE_LISTS = ("grasps", "dataset", "train")
 MAX_PREVIEW_SIDE = 4096
 #: the preview camera's farthest distance from the probe, metres (as generate's z_ego_m)
 MAX_VIEW_DISTANCE_M = 10.0
-
-
-def _is_number(value) -> bool:
-    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
 
 
 @dataclass(frozen=True)
@@ -99,14 +94,11 @@ class QuickstartRun:
         for key in ("width", "height"):
             # the preview renders offscreen at this size: 100000 px asked for 10^10 pixels
             check_int(camera[key], f"camera.{key}", 1, MAX_PREVIEW_SIDE, hint=" (pixels)")
-        for key in ("fx", "fy", "cx", "cy"):
-            if not _is_number(camera[key]):
-                raise BadValueError(f"camera.{key} must be a finite number of pixels, got {camera[key]!r}")
+        for key in ("fx", "fy", "cx", "cy"):  # pixels; focal lengths positive
+            check_number(camera[key], f"camera.{key}", 0 if key in ("fx", "fy") else None, low_open=True)
         for key in ("distance_m", "azimuth_deg", "elevation_deg"):
-            check_number(view[key], f"view.{key}")
-        if view["distance_m"] > MAX_VIEW_DISTANCE_M:
-            raise BadValueError(f"view.distance_m must be at most {MAX_VIEW_DISTANCE_M:g} m (the hand and probe fill "
-                                f"a few pixels beyond), got {view['distance_m']:g}")
+            # beyond MAX_VIEW_DISTANCE_M the hand and probe fill a few pixels
+            check_number(view[key], f"view.{key}", high=MAX_VIEW_DISTANCE_M if key == "distance_m" else None)
         object.__setattr__(self, "camera", build_group(camera, "camera"))
         check_principal_point(self.camera, "camera.")
         object.__setattr__(self, "view", build_group(view, "view"))
@@ -116,10 +108,7 @@ class QuickstartRun:
             raise BadValueError(f"render.modalities must be a list of {', '.join(MODALITIES)}, got {modalities!r}")
         from hupbench.datagen.render.renderer import check_modalities
 
-        try:
-            check_modalities(modalities)
-        except ValueError as exc:
-            raise BadValueError(f"render.modalities: {exc}") from None
+        check_modalities(modalities, "render.modalities: ")
 
     def stage_overrides(self) -> dict:
         """{stage: its list of overrides, "eval_latency": bool}, from ``fast_overrides`` when ``fast``."""

@@ -36,11 +36,8 @@ def test_forearm_follows_hand_rotation_and_wrist_angles():
     np.testing.assert_allclose(wrist_rotation(0.0, 0.0), np.eye(3), atol=1e-15)
 
 
-@pytest.mark.parametrize("change, message", [
-    (dict(length_m=0.0), "arm length_m must be positive and finite, got 0.0"),
-    (dict(wrist_width_m=float("nan")), "arm wrist_width_m must be positive and finite, got nan"),
-    (dict(segments_around=4), r"arm tessellation too coarse: segments_around=4 \(>= 8\), segments_along=24"),
-])
-def test_bad_arm_spec(change, message):
-    with pytest.raises(ValueError, match=message):
+@pytest.mark.parametrize("change", [dict(length_m=0.0), dict(wrist_width_m=float("nan")), dict(segments_around=4)])
+def test_an_arm_spec_out_of_its_range_is_a_bug(change):
+    """No config node builds an ArmSpec: a value out of range is the caller's bug (an assert), not bad input."""
+    with pytest.raises(AssertionError):
         ArmSpec(**change)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hupbench.datagen.dataset.spec import DatasetSpec
-from hupbench.datagen.dataset.writer import generate
+from hupbench.datagen.dataset.writer import GenerateRun, generate
 from hupbench.core.io import save_npz
 
 from helpers.datasets import TINY_SPEC  # noqa: E402  (tests/ is on sys.path)
@@ -30,7 +30,7 @@ def dataset(tiny_dataset, tmp_path):
 def _again(root, **spec):
     """generate once more on ``root`` with the config it was made with (conftest's tiny_dataset)."""
     spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 1, "val": 1, "test": 1}} | spec))
-    return generate(spec, root, root / "grasps.npz", {"test": "tiny_dataset"}, progress=False, log=QUIET)
+    return generate(GenerateRun(spec, root, root / "grasps.npz", progress=False), {"test": "tiny_dataset"}, log=QUIET)
 
 
 def test_generate_renders_the_missing_image_files_of_a_finished_dataset_again(dataset):

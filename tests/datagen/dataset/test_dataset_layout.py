@@ -56,7 +56,7 @@ def test_lamp_is_a_pure_function_of_seed_and_index():
     (dict(z_ego_m=(-0.5,)), "z_ego_m must be a non-empty list of camera distances from 0.1 to 10.0 m"),
     (dict(modalities=("rgb", "normals")), "unknown modality 'normals'"),
     (dict(splits={"train": 7, "dev": 4}), "splits must map"),
-    (dict(width=0), "dataset.width must be a whole number from 1 to 8192"),
+    (dict(width=0), "dataset.width must be a whole number from 16 to 8192"),
     (dict(rgb_format="bmp"), "rgb_format"),
     (dict(look_at="centre"), "look_at must be 'box_centre' or a keypoint name .* got 'centre'"),
 ])

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from hupbench.datagen.dataset.spec import DatasetSpec
-from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.dataset.writer import GenerateRun, generate
 from hupbench.core.geometry import axis_angle_to_matrix, invert_transform, transform_points
 from hupbench.core.io import save_npz
 from hupbench.datagen.dataset.verify import verify
@@ -25,7 +25,7 @@ from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noq
 
 def run(out, grasps, spec=(), **job):
     spec = DatasetSpec(**{**TINY, **dict(spec)})
-    return generate(spec, out, grasps, {"test": "tiny"}, RenderJob(**job), progress=False, log=lambda *_: None)
+    return generate(GenerateRun(spec, out, grasps, progress=False, **job), {"test": "tiny"}, log=lambda *_: None)
 
 
 @pytest.fixture(scope="module")
@@ -258,17 +258,14 @@ def test_verify_checks_the_protocols_look_at(tiny, tmp_path):
     assert "wrist at" in next(p["detail"] for p in problems if p["kind"] == "look_at")
 
 
-def test_a_dataset_made_before_the_packages_moved_keeps_its_config_hash():
-    """The config hash reads a nested ``_target_`` by its name before hupbench 0.2 moved the packages under
-    hupbench: the hash of a config naming ``hupbench.datagen.dataset.spec.DatasetSpec`` is the sha256 of the
-    JSON that hupbench 0.1 hashed, naming ``datagen.dataset.spec.DatasetSpec``."""
+def test_the_config_hash_leaves_out_what_does_not_change_a_frame():
+    """The hash is the sha256 of the config's JSON without the run-only keys, nested targets as written."""
     import hashlib
 
     from hupbench.datagen.dataset.writer import config_hash
 
-    now = {"seed": 3, "workers": 2, "spec": {"_target_": "hupbench.datagen.dataset.spec.DatasetSpec", "size": 64,
-                                             "sphere": {"_target_": "hupbench.datagen.dataset.sphere.SphereSpec"}}}
-    before = {"seed": 3, "spec": {"_target_": "datagen.dataset.spec.DatasetSpec", "size": 64,
-                                  "sphere": {"_target_": "datagen.dataset.sphere.SphereSpec"}}}
-    assert config_hash(now) == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
+    now = {"seed": 3, "workers": 2, "spec": {"_target_": "hupbench.datagen.dataset.spec.DatasetSpec", "size": 64}}
+    kept = {"seed": 3, "spec": {"_target_": "hupbench.datagen.dataset.spec.DatasetSpec", "size": 64}}
+    assert config_hash(now) == hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
+    assert config_hash(now) == config_hash({**now, "workers": 1, "out_dir": "elsewhere"})
     assert config_hash(now) != config_hash({**now, "seed": 4})

@@ -13,7 +13,7 @@ from hupbench.datagen.render import gl
 from hupbench.datagen.dataset.chunks import frame_camera
 from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.spec import DatasetSpec, Layout
-from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.dataset.writer import GenerateRun, generate
 from hupbench.datagen.render.renderer import Renderer
 from hupbench.datagen.render.scene import Grasp, scene_parts
 from hupbench.datagen.dataset.sphere import viewpoints
@@ -107,8 +107,8 @@ def test_one_and_two_workers_write_the_same_bytes(tmp_path, spec, frames):
     grasps = write_grasps(tmp_path / "grasps.npz", n=2)
     spec = DatasetSpec(**spec)
     for workers in (1, 2):
-        result = generate(spec, tmp_path / f"w{workers}", grasps, {"test": "determinism"}, RenderJob(workers=workers),
-                          progress=False, log=lambda *_: None)
+        result = generate(GenerateRun(spec, tmp_path / f"w{workers}", grasps, progress=False, workers=workers),
+                          {"test": "determinism"}, log=lambda *_: None)
         assert result["complete"] and result["frames_rendered"] == frames
     one, two = _files(tmp_path / "w1"), _files(tmp_path / "w2")
     assert sorted(one) == sorted(two)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hupbench.datagen.dataset.spec import DatasetSpec
-from hupbench.datagen.dataset.writer import RenderJob, generate
+from hupbench.datagen.dataset.writer import GenerateRun, generate
 from hupbench.datagen.dataset.ray_launcher import RAY_MISSING, RayOptions
 from hupbench.datagen.dataset.verify import verify
 from hupbench.cli import main
@@ -29,7 +29,7 @@ FOUR_BACKGROUNDS = {"n_backgrounds": 4}
 
 def run(out, grasps, launcher, spec=(), log=lambda *_: None, **job):
     spec = DatasetSpec(**{**TINY, **dict(spec)})
-    return generate(spec, out, grasps, {"test": "ray"}, RenderJob(launcher=launcher, **job), progress=False, log=log)
+    return generate(GenerateRun(spec, out, grasps, progress=False, launcher=launcher, **job), {"test": "ray"}, log=log)
 
 
 def files(root):

@@ -32,14 +32,14 @@ WHITE = 255
 def two_distances(tmp_path_factory):
     """One grasp at two camera distances (0.5 and 0.8 m), one background, one glove, 48 px frames, train only."""
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
 
     folder = tmp_path_factory.mktemp("two_distances")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
     spec = DatasetSpec(**(TINY_SPEC | {"splits": {"train": 1, "val": 0, "test": 0}, "z_ego_m": (0.5, 0.8),
                                        "n_backgrounds": 1, "width": 48, "height": 48, "fx": 90.0, "fy": 90.0,
                                        "cx": 24.0, "cy": 24.0}))
-    generate(spec, root, grasps, {"test": "two_distances"}, progress=False, log=lambda *_: None)
+    generate(GenerateRun(spec, root, grasps, progress=False), {"test": "two_distances"}, log=lambda *_: None)
     return root
 
 

@@ -102,15 +102,19 @@ def test_exclusions_are_configurable():
 @pytest.mark.parametrize("kwargs, message", [
     (dict(r_circ_m=0.8), "must be smaller than r_sph_m"),
     (dict(r_circ_m=1.0), "must be smaller than r_sph_m"),
-    (dict(r_sph_m=-1.0), "r_sph_m must be positive"),
+    (dict(r_sph_m=-1.0), "r_sph_m must be a finite number > 0, got -1.0"),
     (dict(variant="round"), "variant must be one of"),
     (dict(axis="vertical"), r"axis must be one of \('body', 'forearm'\), got 'vertical'"),
     (dict(exclude=("hollow",)), "exclude rules are .* got 'hollow'"),
-    (dict(exclude=(1.5,)), "exclude entries must be view ids"),
-    (dict(elbow_cone_deg=-1.0), r"elbow_cone_deg must be a number in \[0, 180\)"),
-    (dict(elbow_cone_deg=180.0), r"elbow_cone_deg must be a number in \[0, 180\)"),
+    (dict(exclude=(1.5,)), r"exclude rules are .* \(or view ids\), got 1.5"),
+    (dict(exclude=(92,)), r"exclude id 92 is not a view: ids are 0..91"),
+    (dict(exclude=("poles", *range(1, 91))), "the sphere exclusions leave no view"),
+    (dict(elbow_cone_deg=-1.0), r"elbow_cone_deg must be a finite number in \[0, 180\], got -1.0"),
+    (dict(elbow_cone_deg=180.0), "the sphere exclusions leave no view"),
+    (dict(elbow_cone_deg=True), r"elbow_cone_deg must be a finite number in \[0, 180\], got True"),
 ])
 def test_bad_sphere(kwargs, message):
+    """Refused when the spec is built (the config is checked), view ids and the views left included."""
     with pytest.raises(ValueError, match=message):
         SphereSpec(**kwargs)
 

@@ -10,7 +10,7 @@ import hupbench.datagen.render.renderer as renderer_module
 from hupbench.datagen.dataset.spec import DatasetSpec, Layout, chunk_plan, split_of_grasps, split_of_views
 from hupbench.datagen.dataset.sphere import viewpoints
 from hupbench.datagen.dataset.verify import verify
-from hupbench.datagen.dataset.writer import generate
+from hupbench.datagen.dataset.writer import GenerateRun, generate
 
 from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
 
@@ -63,7 +63,7 @@ def test_track_config_refused(kwargs, message):
 def views_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("views")
     grasps = write_grasps(root / "grasps.npz", n=2)
-    generate(DatasetSpec(**VIEWS), root / "ds", grasps, {"test": "views"}, progress=False, log=_quiet)
+    generate(GenerateRun(DatasetSpec(**VIEWS), root / "ds", grasps, progress=False), {"test": "views"}, log=_quiet)
     return root / "ds"
 
 
@@ -104,10 +104,10 @@ def test_verify_finds_a_floor_the_manifest_misstates(views_dataset, tmp_path):
 def test_verify_finds_images_half_a_pixel_off_their_labels(tmp_path, monkeypatch):
     grasps = write_grasps(tmp_path / "grasps.npz", n=2)
     spec = DatasetSpec(**(TINY | dict(width=128, height=128, fx=240.0, fy=240.0, cx=64.0, cy=64.0, n_backgrounds=1)))
-    generate(spec, tmp_path / "good", grasps, {"test": "shift"}, progress=False, log=_quiet)
+    generate(GenerateRun(spec, tmp_path / "good", grasps, progress=False), {"test": "shift"}, log=_quiet)
     # the renderer as it was: GL's pixel centres taken for the contract's
     monkeypatch.setattr(renderer_module, "GL_PIXEL_CENTRE_OFFSET", 0.0)
-    generate(spec, tmp_path / "shifted", grasps, {"test": "shift"}, progress=False, log=_quiet)
+    generate(GenerateRun(spec, tmp_path / "shifted", grasps, progress=False), {"test": "shift"}, log=_quiet)
     good, shifted = verify(tmp_path / "good", workers=1, log=_quiet), verify(tmp_path / "shifted", workers=1, log=_quiet)
     assert good["ok"] and abs(np.array(good["image_shift"]["median_px"])).max() < 0.1
     np.testing.assert_allclose(shifted["image_shift"]["median_px"], [-0.5, -0.5], atol=0.1)

@@ -187,13 +187,13 @@ def test_glove_pair_ratio_needs_enough_blocks():
 def two_gloves(tmp_path_factory):
     """20 frames at 128 px: one grasp, one background, both gloves, 10 views (frame = glove * 10 + view)."""
     from hupbench.datagen.dataset.spec import DatasetSpec
-    from hupbench.datagen.dataset.writer import generate
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
 
     folder = tmp_path_factory.mktemp("two_gloves")
     grasps, root = write_grasps(folder / "grasps.npz", n=1), folder / "dataset"
     spec = DatasetSpec(**(TINY_SPEC | dict(splits={"train": 1, "val": 0, "test": 0}, n_gloves=2, n_backgrounds=1,
                                            width=128, height=128, fx=240.0, fy=240.0, cx=64.0, cy=64.0)))
-    generate(spec, root, grasps, {"test": "two_gloves"}, progress=False, log=quiet)
+    generate(GenerateRun(spec, root, grasps, progress=False), {"test": "two_gloves"}, log=quiet)
     return root
 
 

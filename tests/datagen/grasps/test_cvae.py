@@ -278,7 +278,7 @@ def test_training_is_deterministic_and_logs_keypoints():
     [
         ({"latent_dim": 0}, ValueError, "latent_dim must be a whole number >= 1"),
         ({"epochs": 1.5}, TypeError, "epochs must be a whole number"),
-        ({"lr": 0.0}, ValueError, "lr must be finite and > 0"),
+        ({"lr": 0.0}, ValueError, "lr must be a finite number > 0"),
         ({"kl_weight": float("nan")}, ValueError, "kl_weight"),
         ({"val_fraction": 0.7}, ValueError, "val_fraction"),
         ({"seed": -1}, ValueError, "seed"),

@@ -51,7 +51,7 @@ CASES = {
     "jpeg-quality-word": (dataset(jpeg_quality="high"), "dataset.jpeg_quality=high", ["jpeg_quality", "high"]),
     "width-huge": (dataset(width=100000, cx=50000.0), "dataset.width=100000 dataset.cx=50000.0", ["width", "100000"]),
     "width-word": (dataset(width="wide"), "dataset.width=wide", ["width", "wide"]),
-    "height-negative": (dataset(height=-64), "dataset.height=-64", ["height", "from 1 to 8192"]),
+    "height-negative": (dataset(height=-64), "dataset.height=-64", ["height", "from 16 to 8192"]),
     "fx-zero": (dataset(fx=0.0), "dataset.fx=0.0", ["fx", "positive"]),
     "fx-nan": (dataset(fx=float("nan")), "dataset.fx=nan", ["fx", "finite"]),
     "cx-inf": (dataset(cx=float("inf")), "dataset.cx=inf", ["cx", "finite"]),

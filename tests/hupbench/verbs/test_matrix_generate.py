@@ -135,7 +135,7 @@ CASES = {
     # z_ego
     "z-ego-negative": lambda t, g, d: (["dataset.z_ego_m=[-0.5]"], ["z_ego_m"]),
     # image and camera
-    "width-zero": lambda t, g, d: (["dataset.width=0"], ["width", "from 1 to 8192"]),
+    "width-zero": lambda t, g, d: (["dataset.width=0"], ["width", "from 16 to 8192"]),
     "sphere-circle-too-big": lambda t, g, d: (["dataset.sphere.r_circ_m=0.9"], ["r_circ_m", "r_sph_m"]),
     # counts
     "n-backgrounds-beyond-the-set": lambda t, g, d: (["dataset.n_backgrounds=9"], ["n_backgrounds", "9", "8"]),

@@ -45,7 +45,7 @@ CASES = {
     "grasps-unknown-key": lambda t: (["grasps=['generate.colour=1']"], ["grasps stage", "generate.colour", "conf/grasps.yaml"]),
     "grasps-threads-huge": lambda t: (["grasps=['threads=100000']"], ["grasps stage", "threads", "100000"]),
     "grasps-sheet-tile-zero": lambda t: (["grasps=['sheet.tile_px=0']"], ["grasps stage", "sheet.tile_px", "32 to 4096"]),
-    "dataset-width-zero": lambda t: (["dataset=['dataset.width=0']"], ["dataset stage", "dataset.width", "from 1 to 8192"]),
+    "dataset-width-zero": lambda t: (["dataset=['dataset.width=0']"], ["dataset stage", "dataset.width", "from 16 to 8192"]),
     "dataset-workers-zero": lambda t: (["dataset=['workers=0']"], ["dataset stage", "workers", ">= 1"]),
     "dataset-splits-negative": lambda t: (["dataset=['dataset.splits={train:3,val:-1,test:0}']"], ["dataset stage", "splits", ">= 0"]),
     "train-max-steps-zero": lambda t: (["train=['train.max_steps=0']"], ["train stage", "conf/quickstart.yaml's train list", "train.max_steps", ">= 1"]),

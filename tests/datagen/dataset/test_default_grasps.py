@@ -1,0 +1,112 @@
+"""The default dataset is the same on every machine: its grasps ship with hupbench, pinned by their bytes, and
+`hupbench generate` renders them without synthesising (the synthesis depends on the CPU's floating point:
+an Intel Xeon selected grasps 67 and 121 where the AMD EPYC that made the leaderboard's dataset selected 41 and
+104)."""
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hupbench.config import compose
+from hupbench.core.contract import SPLITS
+from hupbench.datagen.dataset.grasps_file import DEFAULT_GRASPS, read_grasps
+from hupbench.verbs.generate import run_generate
+
+REPO = Path(__file__).resolve().parents[3]
+
+#: sha256 of datagen/dataset/default_grasps.npz: `hupbench grasps` with the default config on a 2-core AMD EPYC
+DEFAULT_GRASPS_SHA256 = "8f79386f096ccdcf417422d1a42cebe069f09b55859243b19bb1393cebced587"
+#: the leaderboard dataset's grasps in file order (leaderboard/results/*.json, "grasp_theta_vol_deg"): the
+#: splits take them 7 / 2 / 2 in this order
+LEADERBOARD_GRASP_IDS = {"train": [108, 18, 0, 57, 106, 93, 19], "val": [44, 104], "test": [41, 76]}
+#: the default config shrunk without touching its grasps or splits: one distance, background and glove, 32 px
+#: images and the 10 views of a coarse sphere
+SMALL = ["dataset.z_ego_m=[0.5]", "dataset.n_backgrounds=1", "dataset.n_gloves=1", "dataset.width=32",
+         "dataset.height=32", "dataset.sphere.r_circ_m=0.4", "dataset.sphere.exclude=[poles]", "workers=1",
+         "progress=false"]
+#: the small default dataset's grasp ids, cameras and 3D keypoints per split (made by `_reference_arrays` on the
+#: machine that made the shipped grasps); floats compare within FLOAT_TOL (metres for keypoints and translations)
+REFERENCE = Path(__file__).with_name("default_dataset_reference.npz")
+FLOAT_TOL = 1e-5
+REFERENCE_KEYS = ("grasp_id", "frame_id", "K", "T_cam_world", "keypoints_3d_cam")
+
+
+def _sha256(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def test_the_shipped_default_grasps_are_pinned_and_are_the_leaderboards():
+    assert _sha256(DEFAULT_GRASPS) == DEFAULT_GRASPS_SHA256
+    ids = read_grasps(DEFAULT_GRASPS)["grasp_id"].tolist()
+    assert ids == [i for split in SPLITS for i in LEADERBOARD_GRASP_IDS[split]]
+    for path in sorted((REPO / "leaderboard" / "results").glob("*.json")):
+        held = json.loads(path.read_text())["dataset"].get("grasp_theta_vol_deg") or {}
+        assert {int(i) for i in held} <= set(ids), path.name
+
+
+def test_the_default_grasps_are_package_data():
+    """pyproject.toml installs the file with the package (a wheel without it could not render the default)."""
+    import fnmatch
+    import tomllib
+
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    relative = DEFAULT_GRASPS.relative_to(REPO / "datagen" / "dataset").as_posix()
+    assert any(fnmatch.fnmatch(relative, pattern) for pattern in package_data["hupbench.datagen.dataset"])
+
+
+def _reference_arrays(root: Path) -> dict[str, np.ndarray]:
+    """{"<split>/<key>": array} of :data:`REFERENCE_KEYS` from a finished dataset's annotations."""
+    out = {}
+    for split in SPLITS:
+        with np.load(root / split / "annotations.npz") as data:
+            out.update({f"{split}/{key}": data[key] for key in REFERENCE_KEYS})
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_default(tmp_path_factory):
+    """The small default dataset, made with the grasps' synthesis made to fail (it must not run)."""
+    root = tmp_path_factory.mktemp("default") / "dataset"
+    patch = pytest.MonkeyPatch()
+
+    def no_synthesis(*args, **kwargs):
+        raise AssertionError("generate synthesised grasps instead of rendering the shipped default grasps")
+
+    patch.setattr("hupbench.verbs.grasps.run_grasps", no_synthesis)
+    patch.setattr("hupbench.datagen.grasps.synthesis.generate_candidates", no_synthesis)
+    try:
+        result = run_generate(compose("generate", [f"out_dir={root}", *SMALL]), log=lambda *_: None)
+    finally:
+        patch.undo()
+    assert result["complete"]
+    return root
+
+
+def test_generate_with_the_default_config_renders_the_shipped_grasps(small_default):
+    manifest = json.loads((small_default / "manifest.json").read_text())
+    assert manifest["grasps_sha256"] == DEFAULT_GRASPS_SHA256 == _sha256(small_default / "grasps.npz")
+    assert manifest["grasp_ids"] == LEADERBOARD_GRASP_IDS
+    assert manifest["config"]["grasps_path"] is None
+    assert not (small_default / "grasps").exists()  # nothing synthesised into OUT_DIR/grasps
+
+
+def test_the_small_default_dataset_equals_the_committed_reference(small_default):
+    """Grasp ids and frame ids exactly, K, T_cam_world and the 3D keypoints within FLOAT_TOL: grasps chosen
+    on another CPU (other ids, other poses) fail here."""
+    got = _reference_arrays(small_default)
+    with np.load(REFERENCE) as data:
+        want = {key: data[key] for key in data.files}
+    assert sorted(got) == sorted(want)
+    for key, expected in want.items():
+        if key.endswith(("grasp_id", "frame_id")):
+            np.testing.assert_array_equal(got[key], expected, err_msg=key)
+        else:
+            np.testing.assert_allclose(got[key], expected, rtol=0, atol=FLOAT_TOL, err_msg=key)
+
+
+if __name__ == "__main__":  # python tests/datagen/dataset/test_default_grasps.py DATASET: write the reference
+    np.savez_compressed(REFERENCE, **_reference_arrays(Path(sys.argv[1])))
