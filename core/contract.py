@@ -152,15 +152,8 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
         raise _fail(path, f"lacks {', '.join(missing)}")
     if manifest["schema_version"] != SCHEMA_VERSION:
         raise _fail(path, f"schema_version is {manifest['schema_version']!r}; this hupbench reads {SCHEMA_VERSION}")
-    names = manifest["keypoint_names"]
-    if not isinstance(names, list) or len(names) != kp.NUM_KEYPOINTS:
-        n = len(names) if isinstance(names, list) else type(names).__name__
-        raise _fail(path, f"keypoint_names: the dataset has {n} keypoints; {needs} {kp.NUM_KEYPOINTS} "
-                          f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
-    if names != list(kp.KEYPOINT_NAMES):
-        i = next(i for i, (a, b) in enumerate(zip(names, kp.KEYPOINT_NAMES)) if a != b)
-        raise _fail(path, f"keypoint_names[{i}] is {names[i]!r}, expected {kp.KEYPOINT_NAMES[i]!r} "
-                          "(hupbench.core.keypoints' order)")
+    if manifest["keypoint_names"] != list(kp.KEYPOINT_NAMES):
+        raise _fail(path, _names_problem(manifest["keypoint_names"], needs))
     counts = manifest["counts"]
     if not isinstance(counts, dict) or set(counts) - set(SPLITS) or \
             any(not is_whole(v) or v < 0 for v in counts.values()):
@@ -237,14 +230,11 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
                 raise _fail(path, f"lacks the arrays {absent}")
             for key in keys:
                 arrays[key] = data[key]
-    except ValueError as exc:
-        if str(exc).startswith(str(path)):
+    except (ValueError, zipfile.BadZipFile, EOFError, KeyError, OSError, zipfile.LargeZipFile) as exc:
+        if isinstance(exc, FileNotFoundError) or str(exc).startswith(str(path)):  # gone meanwhile; our own refusal
             raise
-        raise DamagedFileError(f"{path}: damaged or not an annotations file ({exc})") from exc
-    except (zipfile.BadZipFile, EOFError, KeyError, OSError, zipfile.LargeZipFile) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
-        raise DamagedFileError(f"{path}: damaged ({type(exc).__name__}: {exc}); regenerate the dataset") from exc
+        raise DamagedFileError(f"{path}: damaged or not an annotations file ({type(exc).__name__}: {exc}); "
+                               "regenerate the dataset") from exc
     for key in keys:
         problem = _array_problem(key, arrays[key], manifest["counts"].get(split, 0), split)
         if problem is not None:
@@ -253,6 +243,17 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     if len(ids) > 1 and not (np.diff(ids) > 0).all():
         raise _fail(path, "frame_id is not strictly ascending (repeated or shuffled rows)")
     return arrays
+
+
+def _names_problem(names, needs: str) -> str:
+    """How a manifest's ``keypoint_names`` differ from :mod:`hupbench.core.keypoints`' names in order: their
+    count (``needs`` names who expects the 29), or the first name out of place."""
+    if not isinstance(names, list) or len(names) != kp.NUM_KEYPOINTS:
+        n = len(names) if isinstance(names, list) else type(names).__name__
+        return (f"keypoint_names: the dataset has {n} keypoints; {needs} {kp.NUM_KEYPOINTS} "
+                f"({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+    i = next(i for i, (a, b) in enumerate(zip(names, kp.KEYPOINT_NAMES)) if a != b)
+    return f"keypoint_names[{i}] is {names[i]!r}, expected {kp.KEYPOINT_NAMES[i]!r} (hupbench.core.keypoints' order)"
 
 
 def _array_problem(key: str, array: np.ndarray, rows: int, split: str) -> str | None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_shape
 
 # one colour per finger (RGB), the wrist grey, the probe box orange
 FINGER_RGB = {
@@ -85,9 +86,7 @@ def colorize_depth(depth_m: np.ndarray, near_m: float | None = None, far_m: floa
     Returns:
         (H, W, 3) uint8.
     """
-    depth_m = np.asarray(depth_m, dtype=np.float64)
-    if depth_m.ndim != 2:
-        raise BadValueError(f"depth_m must be (H, W), got {depth_m.shape}")
+    depth_m = check_shape(depth_m, ("H", "W"), "depth_m").astype(np.float64)
     hit = depth_m > 0
     out = np.zeros(depth_m.shape + (3,), dtype=np.uint8)
     if not hit.any():

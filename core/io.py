@@ -166,14 +166,13 @@ def atomic_output(path: str | Path, suffix: str = "") -> Iterator[Path]:
     path = Path(path)
     tmp = tmp_path(path, suffix)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        yield tmp
-        os.replace(tmp, path)
-    except BaseException as exc:
+        with writing(path):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            yield tmp
+            os.replace(tmp, path)
+    except BaseException:
         with contextlib.suppress(OSError):  # never made (no folder for it, a name too long): the first error counts
             tmp.unlink()
-        if isinstance(exc, OSError):
-            raise _explain(exc, path) from exc
         raise
 
 
@@ -191,17 +190,12 @@ def atomic_folder(path: str | Path) -> Iterator[Path]:
     stage = tmp_path(path)
     shutil.rmtree(stage, ignore_errors=True)
     try:
-        stage.mkdir(parents=True)
-        yield stage
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(stage, path)
-    except OSError as exc:
-        shutil.rmtree(stage, ignore_errors=True)
-        explained = _explain(exc, path)
-        if explained is exc:  # a reader's error (a missing input file): as it came
-            raise
-        raise explained from exc
+        with writing(path):  # a reader's error (a missing input file) passes as it came
+            stage.mkdir(parents=True)
+            yield stage
+            if path.exists():
+                shutil.rmtree(path)
+            os.replace(stage, path)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
@@ -367,22 +361,21 @@ class OutputLock:
         record = {"pid": os.getpid(), "host": socket.gethostname(), "what": self.what,
                   "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "command": " ".join(sys.argv)}
         data = (json.dumps(record, indent=2) + "\n").encode()
-        try:
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, data, 0)
-        except OSError as exc:
-            self.path.unlink(missing_ok=True)  # an empty lock file would outlive the failed run
-            os.close(fd)
-            raise _explain(exc, self.target) from exc  # the user knows the output, not its lock file
+        with writing(self.target):  # the user knows the output, not its lock file
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, data, 0)
+            except OSError:
+                self.path.unlink(missing_ok=True)  # an empty lock file would outlive the failed run
+                os.close(fd)
+                raise
         self._fd = fd
         return self
 
     def _open_locked(self) -> int:
-        try:
+        with writing(self.target):  # the user knows the output, not its lock file
             self.folder.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:  # the user knows the output, not its lock file
-            raise _explain(exc, self.target) from exc
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

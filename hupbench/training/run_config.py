@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number, is_number
+from hupbench.core.io import check_writable
 from hupbench.core.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import DataConfig
@@ -130,6 +131,7 @@ class TrainRun:
         check_choice(self.device, "device", ("cpu", "cuda"))
         check_choice(self.precision, "precision", ("auto", "fp32", "bf16"))
         check_bool_fields(self)
+        check_writable(self.folder, "run_dir" if self.run_dir else "out_root/run_name")
         if self.model.n_keypoints != kp.NUM_KEYPOINTS:
             raise BadValueError(f"model.n_keypoints must be {kp.NUM_KEYPOINTS} (21 hand joints + 8 probe corners, "
                                 f"as every dataset has), got {self.model.n_keypoints}")

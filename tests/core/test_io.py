@@ -1,4 +1,5 @@
-"""hupbench.core.io: atomic writes, the full-disk message, stale temporary files and the output lock."""
+"""hupbench.core.io: atomic writes, the full-disk message and other paths that cannot be written, stale temporary
+files and the output lock."""
 
 import errno
 import json
@@ -169,3 +170,44 @@ def test_file_lock_refuses_a_second_writer_of_one_file(tmp_path):
         with io.OutputLock.for_file(tmp_path / "other.json", "eval"):
             pass  # another file of the same folder is free
     assert sorted(p.name for p in tmp_path.iterdir()) == [], "the lock file was left behind"
+
+
+@pytest.mark.parametrize("target, message", [
+    ("file/sub/a.json", "cannot write {d}/file/sub/a.json: {d}/file is a file, not a folder"),
+    ("folder", "cannot write {d}/folder: it is a folder; expected a file"),
+    ("n" * 300 + "/a.json", "cannot write {d}/" + "n" * 300 + "/a.json: the path, or a name in it, is longer than "
+                            "the file system allows"),
+])
+def test_a_path_that_cannot_be_written_is_named(tmp_path, target, message):
+    """A file where a folder belongs, a folder where the file belongs, a name over the file system's 255 bytes:
+    one user error naming the path (each was an OSError without it, or with only its errno), no temporary file."""
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(io.BadPathError) as info:
+        io.write_json(tmp_path / target, {})
+    assert str(info.value) == message.format(d=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder"]
+
+
+def test_check_writable_names_a_path_too_long(tmp_path):
+    with pytest.raises(io.BadPathError, match=rf"^cannot write out_dir {tmp_path}/nnn+: the path, or a name in it, is "
+                                              "longer than the file system allows$"):
+        io.check_writable(tmp_path / ("n" * 300), "out_dir")
+
+
+def test_writing_names_the_path_and_the_fix_and_lets_other_errors_through(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(io.BadPathError, match=r"^cannot write the cache .*/file/c: .*/file is a file, not a folder; "
+                                              r"set cache_dir$"):
+        with io.writing(tmp_path / "file" / "c", "the cache", fix="set cache_dir") as folder:
+            folder.mkdir(parents=True)
+    with pytest.raises(FileNotFoundError) as info:  # a reader's error is not the output's
+        with io.writing(tmp_path / "out"):
+            (tmp_path / "missing").read_text()
+    assert type(info.value) is FileNotFoundError
+
+
+def test_the_lock_of_a_folder_that_is_a_file_names_the_folder(tmp_path):
+    (tmp_path / "run").write_text("x")
+    with pytest.raises(io.BadPathError, match=r"^cannot write .*/run: it is a file; expected a folder$"):
+        io.OutputLock(tmp_path / "run", "training").acquire()

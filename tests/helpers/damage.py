@@ -98,6 +98,9 @@ def damage_dataset(case: str, src: Path, tmp_path: Path, split: str) -> tuple[Pa
         rewrite_annotations(root, split, lambda a: a | {"keypoints_3d_cam": np.where(
             np.arange(len(a["frame_id"]))[:, None, None] == 3, np.nan, a["keypoints_3d_cam"]).astype(np.float32)})
         return root, ("annotations.npz", "nan")
+    if case == "annotations-K-zero":  # training ended in a traceback, eval warned and went on
+        rewrite_annotations(root, split, lambda a: a | {"K": np.zeros_like(a["K"])})
+        return root, ("annotations.npz", "K has fx or fy <= 0", "row 0")
     frame = first_frame(root, split)
     if case == "rgb-missing":
         frame.unlink()
@@ -120,8 +123,8 @@ def damage_dataset(case: str, src: Path, tmp_path: Path, split: str) -> tuple[Pa
 DATASET_CASES = ["dataset-missing", "dataset-empty-folder", "dataset-is-a-file", "manifest-bad-json",
                  "manifest-21-keypoints", "annotations-missing", "annotations-empty", "annotations-truncated",
                  "annotations-random-bytes", "annotations-flipped-byte", "annotations-row-short",
-                 "annotations-21-keypoints", "annotations-nan", "rgb-missing", "rgb-undecodable", "rgb-tiny",
-                 "rgb-huge", "rgb-not-square"]
+                 "annotations-21-keypoints", "annotations-nan", "annotations-K-zero", "rgb-missing", "rgb-undecodable",
+                 "rgb-tiny", "rgb-huge", "rgb-not-square"]
 
 
 def damage_checkpoint(case: str, src: Path, tmp_path: Path) -> tuple[Path, tuple[str, ...]]:

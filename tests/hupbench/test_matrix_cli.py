@@ -1,5 +1,5 @@
 """The top-level `hupbench` command: bad input (docs/robustness.md, ## hupbench (CLI)), --version,
---debug and each verb's --help.
+--debug, each verb's --help, and a standard output that is full or closed (hupbench.error_lines.answered).
 
 Bad input to the command itself is argparse's business: a usage line on stderr, then one line
 `hupbench: error: ...` naming what was wrong and what was expected, exit 2, no traceback.
@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from helpers.cli import assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import CliAnswer, assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
 from hupbench import __version__
 from hupbench.cli import VERBS
 from helpers import REPO
@@ -78,3 +78,26 @@ def test_verb_help(verb, capsys):
     assert answer.rc == 0, answer
     assert answer.out.startswith(f"usage: hupbench {verb}"), answer.out[:300]
     assert "--help" in answer.out and answer.err == ""
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("stdout", ["full", "closed"])
+def test_matrix_cli_stdout_full_or_closed(stdout, tiny_dataset, tmp_path):
+    """A verb's report on a full standard output (``> /dev/full``) is one line and exit 1: the report the user
+    asked for is lost. A reader that closed the pipe early (``| head -1``) took what it wanted: the verb finishes
+    and exits with its own code, 0 for a dataset that passes. Both ended in a traceback (measured before:
+    ``OSError: [Errno 28] No space left on device`` from verify's first line; ``BrokenPipeError`` and exit 1
+    after verify had passed)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with open("/dev/full", "w") if stdout == "full" else os.fdopen(write_end, "w") as sink:
+        done = subprocess.run([sys.executable, "-m", "hupbench.cli", "verify", str(tiny_dataset), "--workers", "1"],
+                              stdout=sink, stderr=subprocess.PIPE, text=True, env=env, timeout=300)
+    if stdout == "closed":
+        assert done.returncode == 0 and done.stderr == "", done.stderr
+        return
+    os.close(write_end)
+    assert_clean_error(CliAnswer(done.returncode, "", done.stderr), "cannot write to standard output",
+                       "No space left on device", prefix="hupbench verify: error:")
+    assert done.returncode == 1

@@ -2,51 +2,30 @@
 
 Every case gives one line ``train.py: error: ...`` naming the file or the field and what was expected,
 exit code 1, no traceback, and nothing that looks complete (no summary.json, no temporary file).
-Most cases run in this process through :func:`hupbench.training.loop.main` (train.py's body, the same answer
-its command line prints); a few run ``python train.py`` itself, for Hydra's own errors (malformed
-overrides) and for a read-only run folder (a read-only tmpfs in a private mount namespace). A bad value of one
-config field is a unit test of its node (tests/hupbench/training/test_train_config.py); here one case per node
-checks that the command line reaches it.
+Most cases run in this process through :func:`hupbench.verbs.train.task` (train.py's Hydra job) under
+:func:`hupbench.error_lines.answered` (the one catch of train.py and hupbench train: the same answer their command
+lines print); a few run ``python train.py`` or ``hupbench train`` itself, for Hydra's own errors (malformed
+overrides), a read-only run folder (a read-only tmpfs in a private mount namespace) and standard output that is
+full or closed. A bad value of one config field is a unit test of its node
+(tests/hupbench/training/test_train_config.py); here one case per node checks that the command line reaches it.
 
 The helpers that damage datasets and checkpoints are shared with test_matrix_eval and test_matrix_export.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 from helpers.cli import CliAnswer, assert_clean_error, assert_nothing_complete
-from helpers.training import TRAIN_PREFIX, tiny_cfg, train_answer, train_py
+from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer, train_py
 from helpers.damage import CHECKPOINT_CASES, DATASET_CASES, damage_checkpoint, damage_dataset
 from helpers.faults import private_mount
-
-
-# ----------------------------------------------------------------------------------------------
-# damage, shared with the eval and export matrices
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 # ----------------------------------------------------------------------------------------------
@@ -76,13 +55,40 @@ OVERRIDE_CASES = {
     "loss-weight-negative": (["loss.w3d=-1"], ("loss.w3d", ">= 0")),
     "device-tpu": (["device=tpu"], ("device", "'cpu' or 'cuda'")),
     "backbone-unknown": (["model.backbone=resnet99"], ("resnet99",)),
+    "channels-last-maybe": (["channels_last=maybe"], ("channels_last must be true or false", "'maybe'")),
+    "progress-maybe": (["train.progress=maybe"], ("train.progress must be true or false", "'maybe'")),
 }
+
+# what stands in the way of the run's outputs on disk, made in the test's folder: each was a traceback
+OUTPUT_CASES = {
+    "run-dir-is-a-file": ("taken", "run_dir {run} is not a folder (a file of that name exists)"),
+    "run-dir-too-long": ("r" * 300, "cannot write run_dir {run}: the path, or a name in it, is longer than the file "
+                                    "system allows"),
+    "tb-is-a-file": ("run/tb", "cannot write {run}/tb: it is a file; expected a folder"),
+    "metrics-is-a-folder": ("run/metrics.jsonl/", "cannot write {run}/metrics.jsonl: it is a folder; expected a file"),
+    "checkpoints-is-a-file": ("run/checkpoints", "cannot write {run}/checkpoints: it is a file; expected a folder"),
+    "cache-dir-is-a-file": ("cache", "cannot write the frame cache {cache}: it is a file; expected a folder; set "
+                                     "data.cache_dir to a writable folder"),
+}
+
+
+def output_fault(case: str, tmp_path: Path) -> tuple[Path, Path, str]:
+    """(run folder, frame cache folder, the error line's text) of an OUTPUT_CASES case, its obstacle made."""
+    made, line = OUTPUT_CASES[case]
+    run_dir = tmp_path / ("taken" if case == "run-dir-is-a-file" else "r" * 300 if case == "run-dir-too-long" else "run")
+    obstacle = tmp_path / made
+    if made.endswith("/"):
+        obstacle.mkdir(parents=True)
+    elif case != "run-dir-too-long":
+        obstacle.parent.mkdir(parents=True, exist_ok=True)
+        obstacle.write_text("a file where the run writes")
+    return run_dir, tmp_path / "cache", line.format(run=run_dir, cache=tmp_path / "cache")
 
 CASES = ([f"dataset:{c}" for c in DATASET_CASES]
          + [f"resume:{c}" for c in CHECKPOINT_CASES]
          + ["resume:other-run-config", "resume:auto-last-truncated"]
          + [f"override:{c}" for c in OVERRIDE_CASES]
-         + ["output:run-dir-is-a-file"])
+         + [f"output:{c}" for c in OUTPUT_CASES])
 
 
 @pytest.mark.matrix
@@ -114,9 +120,9 @@ def test_matrix_train(case, tiny_dataset, tmp_path, capsys, request):
         overrides, needles = OVERRIDE_CASES[name]
         answer = train_answer(capsys, tiny_cfg(tiny_dataset, run_dir, cache, *overrides))
     else:
-        (tmp_path / "taken").write_text("a file where the run folder should go")
-        run_dir, needles = tmp_path / "taken", ("taken",)
-        answer = train_answer(capsys, tiny_cfg(tiny_dataset, run_dir, cache))
+        run_dir, cache, line = output_fault(name, tmp_path)
+        needles = (line,)
+        answer = train_answer(capsys, tiny_cfg(tiny_dataset, run_dir, cache, "train.tensorboard=true"))
     assert_clean_error(answer, *needles, prefix=TRAIN_PREFIX)
     assert answer.rc == 1
     assert_nothing_complete(tmp_path, "summary.json")
@@ -174,3 +180,44 @@ def test_matrix_train_cli(case, tiny_dataset, tmp_path):
     assert_clean_error(answer, *needles, prefix=TRAIN_PREFIX)
     assert answer.rc == 1
     assert_nothing_complete(tmp_path, "summary.json")
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("entry", ["train.py", "hupbench train"])
+def test_matrix_train_output_fault_through_each_entry(entry, tiny_dataset, tmp_path):
+    """A file where the run's tb/ folder goes, through ``python train.py`` and ``hupbench train`` alike: one line
+    naming it (both end through hupbench.error_lines.answered)."""
+    run_dir, cache, line = output_fault("tb-is-a-file", tmp_path)
+    argv = ([sys.executable, str(REPO / "train.py")] if entry == "train.py" else
+            [sys.executable, "-m", "hupbench.cli", "train"])
+    done = subprocess.run([*argv, *tiny_overrides(tiny_dataset, run_dir, cache, "train.tensorboard=true")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    prefix = "train.py: error:" if entry == "train.py" else "hupbench train: error:"
+    assert_clean_error(CliAnswer(done.returncode, done.stdout, done.stderr), line, prefix=prefix)
+    assert done.returncode == 1
+    assert_nothing_complete(tmp_path, "summary.json")
+
+
+@pytest.mark.matrix
+@pytest.mark.parametrize("stdout", ["full", "closed"])
+def test_matrix_train_stdout_full_or_closed(stdout, tiny_dataset, tmp_path):
+    """train.py's standard output on a full device (``> /dev/full``) is one line and exit 1; a reader that closed
+    the pipe (``| head -1``) took what it wanted: the run finishes, writes its summary and exits 0. Each ended
+    in a traceback (and a closed pipe in exit 1 after the work was done)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    sink = open("/dev/full", "w") if stdout == "full" else os.fdopen(write_end, "w")
+    with sink:
+        done = subprocess.run([sys.executable, str(REPO / "train.py"),
+                               *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache")],
+                              stdout=sink, stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=600,
+                              env={**os.environ, "PYTHONPATH": str(REPO)})
+    if stdout == "closed":
+        assert done.returncode == 0 and done.stderr == "", done.stderr
+        assert (tmp_path / "run" / "summary.json").is_file()
+        return
+    os.close(write_end)
+    assert_clean_error(CliAnswer(done.returncode, "", done.stderr), "cannot write to standard output",
+                       "No space left on device", prefix=TRAIN_PREFIX)
+    assert done.returncode == 1
