@@ -73,6 +73,19 @@ def test_predict_from_images_and_depth_pngs_equals_pytorch_on_the_reader(rgbd_mo
     assert min(moved) > 1e-4
 
 
+def test_export_records_the_training_depth_range(rgbd_model, tiny_dataset):
+    """The calibration predict checks depth maps against: the lowest and highest median depth of the training
+    frames' maps, in metres."""
+    from hupbench.core.contract import read_manifest
+    from hupbench.inference.image_statistics import depth_median_m
+    from hupbench.inference.images import read_depth_png
+
+    _, _, result = rgbd_model
+    scale = read_manifest(tiny_dataset)["depth_scale_m"]
+    medians = [depth_median_m(read_depth_png(p) * scale) for p in sorted((tiny_dataset / "train" / "depth").iterdir())]
+    assert result["image_statistics"]["depth_median_m"] == [round(min(medians), 4), round(max(medians), 4)]
+
+
 def test_depth_is_resized_like_the_reader():
     """predict's depth input equals the training reader's depth channel at a smaller input (nearest pixel)."""
     from hupbench.input_geometry import depth_channel, pad_and_resize
