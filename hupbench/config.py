@@ -13,27 +13,29 @@ from pathlib import Path
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from hupbench.core.errors import BadValueError, MissingFileError, UserError
+from hupbench.core.input_checks import is_whole
 
 HYDRA_VERSION_BASE = "1.3"
 
 
 def _focal_px(focal_mm: float, sensor_mm: float, width: int, height: int) -> float:
     """``${focal_px:FOCAL_MM,SENSOR_MM,WIDTH,HEIGHT}``: the focal length in pixels of a lens on a sensor
-    fitted to the larger image side (:meth:`hupbench.core.camera.Intrinsics.from_lens`)."""
+    fitted to the larger image side (:meth:`hupbench.core.camera.Intrinsics.from_lens`); nan for a side that is
+    not a whole number >= 1, which the config's own check then names."""
     from hupbench.core.camera import Intrinsics
 
-    if not all(_is_positive_whole(v) for v in (width, height)):
-        return float("nan")  # the config's own check names the bad width or height, which it checks first
+    if not all(_is_side(v) for v in (width, height)):
+        return float("nan")
     return Intrinsics.from_lens(float(focal_mm), float(sensor_mm), int(width), int(height)).fx
 
 
 def _centre_px(side: int) -> float:
-    """``${centre_px:SIDE}``: the principal point of an image side, pixels (its middle)."""
-    return int(side) / 2.0 if _is_positive_whole(side) else float("nan")
+    """``${centre_px:SIDE}``: the principal point of an image side, pixels (its middle); nan as :func:`_focal_px`."""
+    return int(side) / 2.0 if _is_side(side) else float("nan")
 
 
-def _is_positive_whole(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+def _is_side(value) -> bool:
+    return is_whole(value) and value > 0
 
 
 # the camera configs derive fx, fy, cx, cy from the lens and the image size, so that changing the image

@@ -1,7 +1,8 @@
 """The hand's anatomy: bone lengths, joint limits, the rest skeleton and the pose parametrisation.
 
-Adult right hand, 50th percentile (REFERENCE.md); MANO's kinematic tree (16 joints) plus 5
-fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
+An adult right hand of about the 50th percentile (186 mm from the wrist to the middle fingertip, between the
+50th-percentile hand lengths of adult women and men in Pheasant and Haslegrave, Bodyspace, 3rd ed., 2006);
+MANO's kinematic tree (16 joints, Romero et al. 2017) plus 5 fingertips; a MANO-style pose of 48 axis-angle values and its conversion to anatomical angles.
 :mod:`hupbench.datagen.assets.hand_mesh` builds the skinned surface, :mod:`hupbench.datagen.assets.hand` the posable model.
 
 Convention:
@@ -38,7 +39,7 @@ MM = 1e-3
 NUM_JOINTS = kp.MANO_NUM_JOINTS  # 16
 POSE_DIM = 3 * NUM_JOINTS  # 48
 
-# --- adult right hand, 50th percentile (REFERENCE.md), millimetres -----------------
+# --- adult right hand of about the 50th percentile (module docstring), millimetres -----
 # wrist-to-MCP distance and phalanx lengths (proximal, middle, distal to tip)
 FINGER_LENGTHS_MM = {
     "index": (85.0, 46.0, 27.0, 18.0),
@@ -106,8 +107,8 @@ class HandSpec:
     """Parameters of the procedural hand.
 
     Attributes:
-        scale: overall size; 1.0 is the adult 50th-percentile hand of
-            REFERENCE.md, lengths and radii scale linearly.
+        scale: overall size; 1.0 is the hand of the module's tables (about the adult 50th percentile);
+            lengths and radii scale linearly.
         voxel_m: marching-cubes grid step for the rest mesh, metres.
         max_faces: triangle budget after decimation.
     """

@@ -79,6 +79,11 @@ MARKER_RADIUS_M = 0.006
 MARKER_LIFT_M = 0.0005
 #: nodes within this many grid steps of the surface get exact distances
 SDF_EXACT_BAND = 3.0
+#: the most triangles a probe mesh may have. Deriving its signed distance takes time in proportion to them
+#: (minutes per ten thousand on two cores), and more do not reach the grasps: on the procedural probe's
+#: surface (0.021 m^2) 50,000 triangles are 0.4 mm^2 each, a fifth of a face of the signed-distance grid's
+#: 1.5 mm cells (:attr:`ProbeMeshSpec.sdf_spacing`). The procedural probe has 13,012.
+MAX_FACES = 50_000
 #: the lowest z (metres) of a mesh taken as it is may miss 0 by this much
 ORIGIN_TOLERANCE_M = 1e-4
 
@@ -165,6 +170,12 @@ def _read(path: Path) -> trimesh.Trimesh:
                             f"{path.suffix[1:].upper()} file)")
     if not np.isfinite(loaded.vertices).all():
         raise BadValueError(f"probe.mesh {path} has vertices that are NaN or infinite")
+    if len(faces) > MAX_FACES:
+        simplified = path.with_name(f"{path.stem}_{MAX_FACES // 1000}k{path.suffix}")
+        raise BadValueError(f"probe.mesh {path} has {len(faces):,} triangles, more than the {MAX_FACES:,} a probe may "
+                            "have (its signed distance takes minutes per 10,000 triangles): simplify it first, e.g. "
+                            f"python -c \"import trimesh; trimesh.load('{path}').simplify_quadric_decimation("
+                            f"face_count={MAX_FACES}).export('{simplified}')\"")
     return loaded
 
 

@@ -20,7 +20,7 @@ from hupbench.datagen.assets.hand_anatomy import HandSpec, clamp_pose
 from hupbench.datagen.assets.probe import Probe, ProbeSpec, build_probe
 from hupbench.datagen.render.renderer import SEG_LABELS, MeshPart
 
-#: HUP-3D's colours (REFERENCE.md): the two glove colours and the arm
+#: HUP-3D's colours (the published renderer, manuelbirlo/HUP-3D_renderer): the two glove colours and the arm
 GLOVE_RGB = ((0.5647, 0.5922, 0.7686), (0.3804, 0.6196, 0.8667))
 ARM_RGB = (1.0, 0.6784, 0.3765)
 PROBE_BODY_RGB = (0.86, 0.86, 0.84)

@@ -84,6 +84,7 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     from hupbench.datagen.grasps.sheet import contact_sheet
     from hupbench.datagen.assets.hand import build_hand
     from hupbench.datagen.assets.probe import probe_of
+    from hupbench.datagen.assets.probe_mesh import read_cached
 
     import torch
 
@@ -94,10 +95,15 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
     log(CPU_NOTE)
     # beside the folder, which a refused or failed run does not create
     with OutputLock.for_file(out_dir, "grasps"):
+        if run.probe.mesh is not None:
+            # read and repaired first (a mesh over the face budget is refused here), then its signed distance
+            faces = read_cached(run.probe.spec)[1]
+            log(f"probe: {run.probe.mesh}: {len(faces):,} triangles; deriving its signed distance and regions "
+                f"(about a minute per 10,000 triangles)")
         probe = probe_of(run.probe)
         if run.probe.mesh is not None:
-            log(f"probe: {run.probe.mesh} ({len(probe.mesh.faces)} triangles, {probe.mesh.extents[2] * 1000:.0f} mm "
-                f"long, marker {'placed' if probe.marker_patch is not None else 'none: no surface at its spot'})")
+            log(f"probe: {probe.mesh.extents[2] * 1000:.0f} mm long, marker "
+                f"{'placed' if probe.marker_patch is not None else 'none: no surface at its spot'}")
         log(f"generating {len(gen_config.theta_vol_deg)} x {gen_config.starts_per_theta} candidates "
             f"({gen_config.sampler} sampler)")
         candidates = generate_candidates(gen_config, refine_config=run.refine, log=log, probe=probe)

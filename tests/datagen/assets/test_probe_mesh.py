@@ -150,3 +150,25 @@ def test_probe_source_options_checked():
     with pytest.raises(BadValueError, match="probe.align must be true or false, got 'yes'"):
         ProbeSource(None, align="yes")
     assert ProbeSource().spec is None
+
+
+def test_a_mesh_over_the_face_budget_is_refused_with_a_simplification_that_works(tmp_path, monkeypatch):
+    """The refusal names the count and the budget, and the command it suggests makes a mesh the loader takes."""
+    import re
+    import subprocess
+    import sys
+
+    import hupbench.datagen.assets.probe_mesh as probe_mesh
+
+    monkeypatch.setattr(probe_mesh, "MAX_FACES", 5_000)  # a small budget keeps the test quick
+    mesh = trimesh.creation.icosphere(subdivisions=5)  # 20,480 triangles
+    mesh.apply_scale([0.03, 0.02, 0.08])
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    path = tmp_path / "dense.stl"
+    mesh.export(path)
+    with pytest.raises(BadValueError, match=r"has 20,480 triangles, more than the 5,000 a probe may have") as caught:
+        load_probe_mesh(_spec(path))
+    command = re.search(r'python -c "(.*)"$', str(caught.value)).group(1)
+    subprocess.run([sys.executable, "-c", command], check=True, cwd=tmp_path)
+    simplified = load_probe_mesh(_spec(tmp_path / "dense_5k.stl"))
+    assert len(simplified.faces) <= 5_000 and simplified.is_watertight

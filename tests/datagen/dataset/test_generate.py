@@ -269,3 +269,20 @@ def test_the_config_hash_leaves_out_what_does_not_change_a_frame():
     assert config_hash(now) == hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
     assert config_hash(now) == config_hash({**now, "workers": 1, "out_dir": "elsewhere"})
     assert config_hash(now) != config_hash({**now, "seed": 4})
+
+
+def test_the_camera_is_built_once_per_dataset(tmp_path, monkeypatch):
+    """DatasetSpec builds (and checks) its Intrinsics; rendering and writing a dataset never builds another."""
+    from hupbench.core.camera import Intrinsics
+
+    spec = DatasetSpec(**TINY)
+    grasps = write_grasps(tmp_path / "grasps.npz")
+
+    def built_again(self):
+        raise AssertionError("an Intrinsics was built while the dataset was generated")
+
+    monkeypatch.setattr(Intrinsics, "__post_init__", built_again)
+    result = generate(GenerateRun(spec, tmp_path / "ds", grasps, progress=False), {"test": "camera"},
+                      log=lambda *_: None)
+    assert result["complete"]
+    assert json.loads((tmp_path / "ds" / "manifest.json").read_text())["K"] == spec.intrinsics.K.tolist()

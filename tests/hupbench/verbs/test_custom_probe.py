@@ -30,8 +30,22 @@ def linear_grasps(tmp_path_factory):
     folder = tmp_path_factory.mktemp("custom_probe")
     stl = folder / "linear.stl"
     linear_probe_mesh().export(stl)
-    run_grasps(compose("grasps", [f"out_dir={folder / 'grasps'}", f"probe.mesh={stl}", *GRASPS]), log=lambda *_: None)
+    LINES.clear()
+    run_grasps(compose("grasps", [f"out_dir={folder / 'grasps'}", f"probe.mesh={stl}", *GRASPS]), log=LINES.append)
     return stl, folder / "grasps" / "grasps.npz"
+
+
+#: what the grasps run of the linear probe printed
+LINES: list[str] = []
+
+
+def test_grasps_says_what_it_does_before_the_long_steps(linear_grasps):
+    """First that the result depends on the CPU, then the mesh's size before its signed distance is derived
+    (a dense mesh kept the run silent for minutes), then the candidates."""
+    stl, _ = linear_grasps
+    assert "depend on this CPU's floating point" in LINES[0]
+    assert LINES[1].startswith(f"probe: {stl}: 32 triangles; deriving its signed distance")
+    assert LINES[3].startswith("generating 2 x 2 candidates")
 
 
 def test_linear_probe_grasps_dataset_verify_train(linear_grasps, tmp_path):

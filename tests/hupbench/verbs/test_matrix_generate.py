@@ -137,6 +137,17 @@ CASES = {
     # image and camera
     "width-zero": lambda t, g, d: (["dataset.width=0"], ["width", "from 16 to 8192"]),
     "sphere-circle-too-big": lambda t, g, d: (["dataset.sphere.r_circ_m=0.9"], ["r_circ_m", "r_sph_m"]),
+    # datasets nobody could use: a camera that sees a fraction of the hand, every frame twice, images the readers
+    # refuse, images smaller than a background is made at, a view id beyond the sphere
+    "focal-length-beyond-the-hand": lambda t, g, d: (["dataset.fx=1e9", "dataset.fy=1e9"],
+                                                     ["dataset.fx", "at most 172 px", "hand", "1e+09"]),
+    "z-ego-listed-twice": lambda t, g, d: (["dataset.z_ego_m=[0.5,0.5]"], ["z_ego_m", "[0.5]", "more than once"]),
+    "image-not-square": lambda t, g, d: (["dataset.width=64", "dataset.height=48", "dataset.cy=24.0"],
+                                         ["dataset.width", "dataset.height", "square", "64 x 48"]),
+    "image-smaller-than-a-background": lambda t, g, d: (["dataset.width=8", "dataset.height=8", "dataset.cx=4.0",
+                                                         "dataset.cy=4.0"], ["dataset.width", "from 16", "got 8"]),
+    "sphere-exclude-id-beyond-the-sphere": lambda t, g, d: (["dataset.sphere.exclude=[poles,99]"],
+                                                            ["exclude id 99", "not a view"]),
     # counts
     "n-backgrounds-beyond-the-set": lambda t, g, d: (["dataset.n_backgrounds=9"], ["n_backgrounds", "9", "8"]),
     "splits-not-adding-up": lambda t, g, d: (["dataset.splits={train:5,val:0,test:0}"], ["splits", "5", "2"]),
@@ -170,6 +181,12 @@ CASES = {
                                             ["bad_grasps.npz", "grasp_id"]),
     "grasps-fractional-ids": lambda t, g, d: ([f"grasps_path={_grasps_with(t, g, grasp_id=np.array([0.5, 1.5]))}"],
                                               ["bad_grasps.npz", "grasp_id", "int"]),
+    "grasps-pose-times-1000": lambda t, g, d: (
+        [f"grasps_path={_grasps_with(t, g, hand_pose=_good_arrays(g)['hand_pose'] * 1000)}"],
+        ["bad_grasps.npz", "hand_pose", "half a turn", "rows [0, 1]", "radians"]),
+    "grasps-wrist-in-millimetres": lambda t, g, d: (
+        [f"grasps_path={_grasps_with(t, g, hand_trans=_good_arrays(g)['hand_trans'] * 1000)}"],
+        ["bad_grasps.npz", "hand_trans", "wrist", "metres"]),
     "grasps-duplicate-ids": lambda t, g, d: ([f"grasps_path={_grasps_with(t, g, grasp_id=np.array([4, 4]))}"],
                                              ["bad_grasps.npz", "grasp_id", "unique"]),
     # background photographs

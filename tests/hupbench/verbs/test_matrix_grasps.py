@@ -48,6 +48,19 @@ def _weights(tmp: Path, kind: str) -> Path:
     raise ValueError(kind)
 
 
+def _dense_probe(tmp: Path) -> Path:
+    """A probe-sized ellipsoid of 81,920 triangles as STL: over the face budget (a scan exported at full
+    resolution; one of half a million took `hupbench grasps` over five minutes before it printed anything)."""
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=6)
+    mesh.apply_scale([0.03, 0.02, 0.08])
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    path = tmp / "dense.stl"
+    mesh.export(path)
+    return path
+
+
 def _finished_dataset(tmp: Path) -> Path:
     """A folder with a manifest.json: a finished dataset, whose grasps.npz its frames were rendered from."""
     folder = tmp / "dataset"
@@ -70,6 +83,10 @@ CASES = {
     "starts-per-theta-zero": lambda t: (["generate.starts_per_theta=0"], ["starts_per_theta", "whole number >= 1"]),
     "refine-iterations-negative": lambda t: (["refine.iterations=-5"], ["iterations", ">= 0"]),
     "sheet-tile-zero": lambda t: (["sheet.tile_px=0"], ["sheet.tile_px", "32 to 4096"]),
+    # the probe
+    "probe-mesh-over-the-face-budget": lambda t: ([f"probe.mesh={_dense_probe(t)}"],
+                                                  ["probe.mesh", "dense.stl", "81,920 triangles", "50,000",
+                                                   "simplify_quadric_decimation(face_count=50000)"]),
     # the output folder
     "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
     "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'g'}"], ["out_dir", "file is a file"]),
