@@ -6,6 +6,7 @@ node pooling, the adaptive Graph U-Net, the 2D refinement), ``hopenet``,
 dataclass shares), ``build`` (``build_model`` from a saved config, strict checkpoint loading), ``coords``
 (pixels <-> normalised image coordinates) and ``model_tolerances``.
 
-May import: torch, numpy and itself. Never ``datagen`` or ``hupbench``: a model is built from
-numbers (keypoint count, input size, the prior layout), not from the generator or the CLI.
+May import: torch, numpy, itself and the shared core (``hupbench.core``: its check vocabulary). Never
+``datagen`` or the rest of ``hupbench``: a model is built from numbers (keypoint count, input size, the prior
+layout), not from the generator or the CLI.
 """

@@ -51,11 +51,6 @@ class ResNetRegressorConfig(ModelConfig):
     backbone: str = "resnet50"
     predict_2d: bool = False
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not isinstance(self.predict_2d, bool):
-            raise ValueError(f"predict_2d must be true or false, got {self.predict_2d!r}")
-
 
 class ResNetRegressor(nn.Module):
     """ResNet backbone + linear heads regressing keypoints directly, built from its config."""

@@ -19,6 +19,7 @@ from itertools import pairwise
 import torch
 from torch import nn
 
+from hupbench.core.input_checks import check_int
 from hupbench.models.model_tolerances import ADJACENCY_DEGREE_EPS
 
 __all__ = [
@@ -98,8 +99,7 @@ def _check_nodes(x: torch.Tensor, n_nodes: int, channels: int | str, name: str) 
 
 def _check_positive(**values: int) -> None:
     for name, value in values.items():
-        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            raise ValueError(f"{name} must be a positive int, got {value!r}")
+        check_int(value, name, 1)
 
 
 class GraphConv(nn.Module):
@@ -195,8 +195,7 @@ def default_node_counts(n_nodes: int) -> tuple[int, ...]:
         HOPE-Net's (15, 7, 4, 2, 1) for 29 nodes; otherwise halving (rounded up) down to 1,
         e.g. 21 -> (11, 6, 3, 2, 1).
     """
-    if isinstance(n_nodes, bool) or not isinstance(n_nodes, int) or n_nodes < 2:
-        raise ValueError(f"n_nodes must be an int >= 2 to pool, got {n_nodes!r}")
+    check_int(n_nodes, "n_nodes", 2)  # fewer nodes do not pool
     if n_nodes == 29:
         return HOPENET_NODE_COUNTS
     counts = []

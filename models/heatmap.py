@@ -58,7 +58,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from hupbench.models.model_config import ModelConfig, check_camera, check_whole
+from hupbench.core.input_checks import check_choice, check_int, check_number
+from hupbench.models.model_config import ModelConfig, check_camera
 from hupbench.models.hopenet import normalized_intrinsics, unproject_normalized
 from hupbench.models.prior import PointPrior
 from hupbench.models.resnet import check_backbone, resnet
@@ -171,28 +172,22 @@ class HUPNetConfig(ModelConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_whole("neck_channels", self.neck_channels)
-        if not isinstance(self.depth_anchor, bool):
-            raise ValueError(f"depth_anchor must be true or false, got {self.depth_anchor!r}")
-        if self.probe_head not in ("corners", "rigid"):
-            raise ValueError(f"probe_head must be 'corners' or 'rigid', got {self.probe_head!r}")
+        check_int(self.neck_channels, "neck_channels", 1)
+        check_choice(self.probe_head, "probe_head", ("corners", "rigid"))
         if self.probe_head == "rigid" and self.n_keypoints < N_CORNERS:
             raise ValueError(f"probe_head 'rigid' poses the last {N_CORNERS} keypoints, the model has {self.n_keypoints}")
-        check_whole("probe_crop_px", self.probe_crop_px, 0)
-        if isinstance(self.heatmap_stride, bool) or self.heatmap_stride not in (4, 8):
-            raise ValueError(f"heatmap_stride must be 4 or 8, got {self.heatmap_stride!r}")
+        check_int(self.probe_crop_px, "probe_crop_px", 0)
+        check_choice(self.heatmap_stride, "heatmap_stride", (4, 8))
         check_backbone(self.probe_crop_backbone)
         if self.probe_crop_px and self.probe_head != "rigid":
             raise ValueError("probe_crop_px feeds the rigid probe head: it needs probe_head 'rigid'")
         if self.backbone_size is not None:
-            check_whole("backbone_size", self.backbone_size, 16)
+            check_int(self.backbone_size, "backbone_size", 16)
         if self.probe_half_extents is not None:
             extents = torch.as_tensor(self.probe_half_extents, dtype=torch.float64)
             if extents.shape != (3,) or not torch.isfinite(extents).all() or (extents <= 0).any():
                 raise ValueError(f"probe_half_extents must be 3 positive finite numbers, got {self.probe_half_extents!r}")
-        if isinstance(self.canvas_margin, bool) or not 0.0 <= self.canvas_margin <= 2.0:
-            raise ValueError(f"canvas_margin must be in [0, 2] (fractions of the image width), got "
-                             f"{self.canvas_margin!r}")
+        check_number(self.canvas_margin, "canvas_margin", 0.0, 2.0)  # fractions of the image width
         if self.K_input is not None or self.input_size is not None:
             check_camera(self.K_input, self.input_size, self.STRIDE)
             backbone = self.backbone_size or self.input_size

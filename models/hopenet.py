@@ -25,7 +25,8 @@ import torch
 from torch import nn
 
 from hupbench.models.coords import pixels_to_normalized
-from hupbench.models.model_config import ModelConfig, check_camera, check_whole
+from hupbench.core.input_checks import check_choice, check_int
+from hupbench.models.model_config import ModelConfig, check_camera
 from hupbench.models.graph import GraphNet2D, GraphUNet
 from hupbench.models.prior import PointPrior
 from hupbench.models.resnet import resnet
@@ -177,9 +178,8 @@ class HOPENetConfig(ModelConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.lift not in LIFTS:
-            raise ValueError(f"lift must be one of {LIFTS}, got {self.lift!r}")
-        check_whole("unet_image_channels", self.unet_image_channels, 0)
+        check_choice(self.lift, "lift", LIFTS)
+        check_int(self.unet_image_channels, "unet_image_channels", 0)
         if self.K_input is not None or self.input_size is not None:
             check_camera(self.K_input, self.input_size)
 

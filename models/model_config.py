@@ -7,12 +7,12 @@ export rebuild it from the saved dict (:meth:`ModelConfig.saved`, :func:`hupbenc
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import torch
 
+from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number
 from hupbench.models.resnet import check_backbone
 
 #: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
@@ -29,18 +29,13 @@ def plain(value: Any) -> Any:
     return [plain(v) for v in value] if isinstance(value, (list, tuple)) else value
 
 
-def check_whole(name: str, value: Any, low: int = 1) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
-
-
 def check_camera(K_input: Any, input_size: Any, multiple: int = 1) -> None:
     """K_input a finite (3, 3) intrinsics matrix with fx, fy > 0 (pixels of the model input); input_size
     a positive multiple of ``multiple``."""
     K = torch.as_tensor(K_input, dtype=torch.float64)
     if K.shape != (3, 3) or not torch.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"K_input must be a finite (3, 3) intrinsics matrix with fx, fy > 0, got {K.tolist()}")
-    check_whole("input_size", input_size)
+    check_int(input_size, "input_size", 1)
     if input_size % multiple:
         raise ValueError(f"input_size must be a positive multiple of {multiple}, got {input_size!r}")
 
@@ -83,15 +78,12 @@ class ModelConfig:
         for f in fields(self):
             object.__setattr__(self, f.name, nested(getattr(self, f.name)))
         check_backbone(self.backbone)
-        check_whole("n_keypoints", self.n_keypoints, self.min_keypoints)
-        if self.input_channels not in (3, 4):
-            raise ValueError(f"input_channels must be 3 (RGB) or 4 (RGB and depth), got {self.input_channels!r}")
+        check_int(self.n_keypoints, "n_keypoints", self.min_keypoints)
+        check_choice(self.input_channels, "input_channels", (3, 4))  # RGB, or RGB and depth
         for name in ("probe_fit", "hand_fit"):
-            if getattr(self, name) not in FITS:
-                raise ValueError(f"{name} must be one of {', '.join(FITS)}, got {getattr(self, name)!r}")
-        scale = self.points3d_scale
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
-            raise ValueError(f"points3d_scale must be a positive finite number, got {scale!r}")
+            check_choice(getattr(self, name), name, FITS)
+        check_number(self.points3d_scale, "points3d_scale", 0.0, low_open=True)
+        check_bool_fields(self)  # the subclasses' boolean fields too
         if self.points3d_mean is not None:
             mean = torch.as_tensor(self.points3d_mean, dtype=torch.float64)
             if mean.shape != (self.n_keypoints, 3) or not torch.isfinite(mean).all():

@@ -164,7 +164,7 @@ def test_graph_conv_bad_input():
     conv = GraphConv(5, 3, n_nodes=4)
     with pytest.raises(ValueError, match=r"\(B, 4, 5\), got \(2, 3, 5\)"):
         conv(torch.randn(2, 3, 5))
-    with pytest.raises(ValueError, match="n_nodes must be a positive int"):
+    with pytest.raises(ValueError, match="n_nodes must be a whole number >= 1"):
         GraphConv(5, 3, n_nodes=0)
 
 

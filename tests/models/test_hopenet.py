@@ -117,7 +117,7 @@ def test_no_device_moves_and_only_parameters_or_bn_buffers():
 def test_bad_arguments():
     with pytest.raises(ValueError, match="unknown ResNet 'resnet9'"):
         HOPENetConfig(backbone="resnet9")
-    with pytest.raises(ValueError, match="n_keypoints must be an int >= 2, got 1"):
+    with pytest.raises(ValueError, match="n_keypoints must be a whole number >= 2, got 1"):
         HOPENetConfig(n_keypoints=1)
     with pytest.raises(ValueError, match=r"images must be \(B, 3, H, W\) float, got \(2, 64, 64\)"):
         HOPENet()(torch.randn(2, 64, 64))

@@ -106,7 +106,7 @@ def test_backbone_mismatch_and_bad_state():
 
 @pytest.mark.parametrize(("key", "part"), [("probe_fit", "the probe"), ("hand_fit", "the hand")])
 def test_the_fits_are_checked_where_the_model_is_built(key, part):
-    with pytest.raises(ValueError, match=f"{key} must be one of none, depth, got 'icp'"):
+    with pytest.raises(ValueError, match=f"{key} must be 'none' or 'depth', got 'icp'"):
         build_model({"name": "hopenet", "backbone": "resnet10", key: "icp"})
     with pytest.raises(ValueError, match=f"{key} 'depth' fits {part} to the depth input: it needs "
                                          "data.reader.input_modalities=rgb\\+depth"):

@@ -32,8 +32,8 @@ def test_prior_survives_config_and_state_round_trip():
 @pytest.mark.parametrize("mean,scale,match", [
     ([[0.0, 0.0, 0.0]] * 28, 1.0, r"points3d_mean must be a finite \(29, 3\) layout, got shape \(28, 3\)"),
     ([[0.0, 0.0, float("nan")]] * 29, 1.0, r"points3d_mean must be a finite \(29, 3\) layout"),
-    (None, 0.0, "points3d_scale must be a positive finite number, got 0.0"),
-    (None, float("inf"), "points3d_scale must be a positive finite number"),
+    (None, 0.0, "points3d_scale must be a finite number > 0, got 0.0"),
+    (None, float("inf"), "points3d_scale must be a finite number > 0"),
 ])
 def test_bad_prior(mean, scale, match):
     with pytest.raises(ValueError, match=match):

@@ -59,7 +59,7 @@ def test_channels_last_matches_contiguous():
 
 
 def test_bad_arguments():
-    with pytest.raises(ValueError, match="n_keypoints must be an int >= 1, got 0"):
+    with pytest.raises(ValueError, match="n_keypoints must be a whole number >= 1, got 0"):
         ResNetRegressorConfig(n_keypoints=0)
     with pytest.raises(ValueError, match="predict_2d must be true or false, got 'yes'"):
         ResNetRegressorConfig(predict_2d="yes")
