@@ -28,8 +28,9 @@ def is_whole(value: Any) -> bool:
 
 
 def is_number(value: Any) -> bool:
-    """True for a finite Python or numpy real number (not a bool, not NaN or inf)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+    """True for a finite Python or numpy real number (not a bool, not NaN or inf; an integer of any size)."""
+    return (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+            and (isinstance(value, numbers.Integral) or math.isfinite(value)))
 
 
 def _bounds(low, high, low_open: bool = False, fmt: str = "") -> str:

@@ -32,7 +32,7 @@ from typing import Any
 from hupbench.core.contract import TRACKS
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.provenance import RUN_NAME_PATTERN
-from hupbench.core.input_checks import is_whole
+from hupbench.core.input_checks import is_number, is_whole
 from hupbench.core.io import write_json
 from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
@@ -134,10 +134,6 @@ def _keys(d, parts: tuple, keys: tuple, optional: tuple = ()) -> None:
         raise BadValueError(f"{_path(parts)} has unknown key(s) {unknown}; {expected}")
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, nullable: bool) -> None:
     """``d[parts[-1]]`` passes ``ok`` (or is None where ``nullable``), else an error saying ``expected``."""
     value = d[parts[-1]]
@@ -148,7 +144,7 @@ def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, null
 def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf, unit: str | None = None) -> None:
     """A finite number in [0, high], and at most ``LIMITS[unit]``."""
     bounds = " >= 0" if high == math.inf else f" in [0, {high:g}]"
-    _check(d, parts, lambda v: _is_number(v) and math.isfinite(v) and 0.0 <= v <= high, f"a finite number{bounds}",
+    _check(d, parts, lambda v: is_number(v) and 0.0 <= v <= high, f"a finite number{bounds}",
            nullable)
     value = d[parts[-1]]
     if unit is not None and value is not None and value > LIMITS[unit]:
@@ -253,7 +249,7 @@ def _validate_probe_pose(pose, parts: tuple) -> None:
     _number(pose, parts + ("mspd_px",), nullable=True, unit="px")
     for key in _POSE_FRACTION_KEYS:
         _number(pose, parts + (key,), nullable=False, high=1.0)
-    _check(pose, parts + ("diameter_mm",), lambda v: _is_number(v) and math.isfinite(v) and v > 0.0,
+    _check(pose, parts + ("diameter_mm",), lambda v: is_number(v) and v > 0.0,
            "a finite number > 0", False)
     _integer(pose, parts + ("image_width_px",), nullable=False, low=1)
     _integer(pose, parts + ("model_points",), nullable=False, low=1)
@@ -345,7 +341,7 @@ def validate_grasp_theta_vol(theta_vol, where: str | None = None) -> dict | None
         if not isinstance(grasp, str) or not GRASP_ID_PATTERN.match(grasp):
             _fail(parts, "keyed by grasp ids written as decimal integers", grasp)
         if angles is not None and not (isinstance(angles, list) and len(angles) == 3
-                                       and all(_is_number(a) and math.isfinite(a) for a in angles)):
+                                       and all(is_number(a) for a in angles)):
             _fail(parts + (grasp,), "[x, y, z]: three finite numbers (degrees), or null", angles)
     return theta_vol
 

@@ -68,8 +68,9 @@ def test_check_shape_named_axes_take_one_size():
         assert str(info.value) == message
 
 
-@pytest.mark.parametrize("value,number", [(3, True), (2.5, True), (np.float32(1.5), True), (True, False),
-                                          (float("nan"), False), (float("inf"), False), ("3", False), (None, False)])
+@pytest.mark.parametrize("value,number", [(3, True), (10**400, True), (2.5, True), (np.float32(1.5), True),
+                                          (True, False), (float("nan"), False), (float("inf"), False), ("3", False),
+                                          (None, False)])
 def test_is_number(value, number):
     assert is_number(value) is number
 
