@@ -3,12 +3,13 @@ augmented per batch on the training device.
 
 Modules: ``reader`` (the manifest, the annotations, one frame decoded and resized, the labels in the
 input image), ``cache`` (a split's frames decoded once into a memory map, keyed by the files it read),
-``augment`` (rotation and colour jitter of a batch; frames to model images), ``loaders`` (a training
-run's loaders; ``data.pipeline`` picks only the source of uint8 frames).
+``augment`` (rotation and colour jitter of a batch; frames to model images), ``loaders`` (the ``data``
+config node, :class:`DataConfig`, and a training run's loaders; ``data.pipeline`` picks only the source of
+uint8 frames).
 
-May import: the dataset contract (``hupbench.core.contract``), ``datagen`` shared modules (camera, io,
-input checks, errors), ``hupbench.input_geometry``, ``hupbench.config``, torch, kornia, OpenCV, numpy.
-Never ``hupbench.evaluation``, ``hupbench.inference``, the verbs or the CLI.
+May import: the shared core (``hupbench.core``: the dataset contract, camera, io, input checks, errors),
+``hupbench.input_geometry``, torch, kornia, OpenCV, numpy. Never ``hupbench.training``,
+``hupbench.evaluation``, ``hupbench.inference``, the verbs or the CLI.
 """
 
 from hupbench.data.augment import BatchAugment, model_images

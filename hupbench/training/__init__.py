@@ -1,13 +1,14 @@
 """Training: one loop for every model, and the pieces it is made of.
 
-Owns: the loop (``loop``: ``train(run, folder)`` = setup, steps, validation, checkpoints, summary; ``python
-train.py`` calls ``loop.main``), the typed run config (``run_config``: frozen nodes, each checking its
-own fields), the loss (``losses``), the learning-rate schedule and epoch order (``schedule``), validation
-and batch-norm re-estimation (``validation``), the run's log (``run_log``: metrics.jsonl, TensorBoard,
-train.log and the progress bar). The run's inputs come from
-:mod:`hupbench.data`.
+Owns: the loop (``loop``: ``train(run)`` = setup, steps, validation, checkpoints, summary, over the typed run;
+``python train.py`` and ``hupbench train`` reach it through :mod:`hupbench.verbs.train`), the typed run
+config (``run_config``: frozen nodes, each checking its own fields), which checkpoint a run continues
+(``resume``), the loss (``losses``), the learning-rate schedule (``schedule``), validation and batch-norm
+re-estimation (``validation``), the run's log (``run_log``: metrics.jsonl, TensorBoard, train.log and the
+progress bar). The run's inputs come from :mod:`hupbench.data`.
 
-May import: ``models``, the dataset contract (``hupbench.core.contract``), ``datagen`` shared
-modules (keypoints, io), ``hupbench`` top-level modules (config, errors, provenance, checkpoint,
-data, metrics), torch, numpy, Hydra/OmegaConf. Never ``hupbench.inference`` or the CLI.
+May import: ``models``, the shared core (``hupbench.core``: the dataset contract, keypoints, io, errors,
+input checks), ``hupbench`` top-level modules (config, provenance, checkpoint, metrics, input_geometry),
+``hupbench.data``, torch, numpy, Hydra/OmegaConf. Never ``hupbench.inference``, ``hupbench.evaluation``,
+the verbs or the CLI.
 """
