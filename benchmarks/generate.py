@@ -1,11 +1,11 @@
 """End-to-end dataset generation speed: render + composite + encode + write, per worker count.
 
 Renders the same small dataset (the first grasp of a grasps file, 2 distances,
-``--backgrounds`` backgrounds, 2 gloves, 90 views) with 1 and 2 worker
+``--backgrounds`` backgrounds, 2 gloves, 90 views of ``--size`` pixels) with 1 and 2 worker
 processes into temporary folders and prints frames per second and the
-projected wall time of the full default dataset (31,680 frames).
+projected wall time of the full default dataset (31,680 frames; meaningful at the default 256 px).
 
-Usage: python benchmarks/generate.py GRASPS_NPZ [--backgrounds 4] [--workers 1 2]
+Usage: python benchmarks/generate.py GRASPS_NPZ [--backgrounds 4] [--workers 1 2] [--size 256] [--r-circ-m 0.15]
 """
 
 from __future__ import annotations
@@ -25,15 +25,21 @@ def main() -> None:
     parser.add_argument("grasps", help="a grasps.npz (from hupbench grasps)")
     parser.add_argument("--backgrounds", type=int, default=4)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--size", type=int, default=256, help="image side, pixels (intrinsics scale with it)")
+    parser.add_argument("--r-circ-m", type=float, default=0.15, help="0.15: the default 90 views per sphere; 0.4: 10")
     args = parser.parse_args()
 
     from hupbench.datagen.dataset.spec import DatasetSpec
+    from hupbench.datagen.dataset.sphere import SphereSpec
     from hupbench.datagen.dataset.writer import GenerateRun, generate
     from hupbench.core.io import save_npz
 
     with np.load(args.grasps) as data:
         one = {k: (data[k][:1] if data[k].ndim and len(data[k]) > 1 else data[k]) for k in data.files}
-    spec = DatasetSpec(splits={"train": 1, "val": 0, "test": 0}, n_backgrounds=args.backgrounds)
+    scale = args.size / 256
+    spec = DatasetSpec(splits={"train": 1, "val": 0, "test": 0}, n_backgrounds=args.backgrounds,
+                       sphere=SphereSpec(r_circ_m=args.r_circ_m), width=args.size, height=args.size,
+                       fx=480.0 * scale, fy=480.0 * scale, cx=128.0 * scale, cy=128.0 * scale)
     with tempfile.TemporaryDirectory() as tmp:
         grasps = save_npz(Path(tmp) / "one_grasp.npz", one)
         for workers in args.workers:

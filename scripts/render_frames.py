@@ -1,12 +1,12 @@
 """Render a few frames of the default dataset with this checkout's generator, and set two such renders side by side.
 
-  python3 scripts/render_frames.py render GRASPS_NPZ OUT.npz [--shading pbr]   # in each checkout to compare
+  python3 scripts/render_frames.py render GRASPS_NPZ OUT.npz [--shading pbr] [--frames 5 1450]   # in each checkout
   python3 scripts/render_frames.py compare BEFORE.npz AFTER.npz OUT.png [--titles before after]
 
 ``render`` draws frames of the default dataset spec (the paper protocol) through the generator's own chunk
 renderer: different grasps, distances, backgrounds, gloves and views. ``compare`` writes one column per frame:
 the two renders and their absolute difference (x3), and prints the mean difference per frame.
-docs/rendering.md shows the result for the renderer before and after issue 21.
+docs/rendering.md shows the result for two versions of the renderer.
 """
 
 from __future__ import annotations
@@ -22,7 +22,9 @@ import numpy as np
 FRAMES = (5, 1450, 3000 + 90 + 40, 9000 + 180 * 3 + 60, 16000 + 33, 28990)
 
 
-def render(grasps: str, out: str, shading: str | None) -> None:
+def render(grasps: str, out: str, shading: str | None, frames: tuple[int, ...] = FRAMES) -> None:
+    """Render ``frames`` (indices of the default layout) of the default spec with the grasps file ``grasps`` into
+    ``out`` (an .npz of encoded images by frame index)."""
     from hupbench.datagen.dataset.chunks import ChunkRenderer
     from hupbench.datagen.dataset.spec import DatasetSpec, Layout
 
@@ -36,7 +38,7 @@ def render(grasps: str, out: str, shading: str | None) -> None:
         renderer.renderer = Renderer(spec.intrinsics, shading=shading)
     takes_frames = "frames" in inspect.signature(renderer.render).parameters
     images = {}
-    for index in FRAMES:
+    for index in frames:
         chunk = index // layout.chunk_size
         # the split only names the output folder; the frames are rendered alike in any split
         output = (renderer.render(chunk, "train", (index,), layout) if takes_frames
@@ -72,6 +74,7 @@ def main() -> None:
     r.add_argument("grasps")
     r.add_argument("out")
     r.add_argument("--shading", choices=("blinn_phong", "pbr"), help="colour shader (default: the generator's)")
+    r.add_argument("--frames", type=int, nargs="+", default=FRAMES, help="frame indices of the default layout")
     c = sub.add_parser("compare")
     c.add_argument("before")
     c.add_argument("after")
@@ -79,7 +82,7 @@ def main() -> None:
     c.add_argument("--titles", nargs=2, default=("before", "after"))
     args = parser.parse_args()
     if args.verb == "render":
-        render(args.grasps, args.out, args.shading)
+        render(args.grasps, args.out, args.shading, tuple(args.frames))
     else:
         compare(args.before, args.after, args.out, tuple(args.titles))
 

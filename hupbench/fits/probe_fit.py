@@ -181,7 +181,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
     model, s = probe_model(), settings
-    with torch.inference_mode():
+    # no_grad, not inference_mode: the probe caches its signed distance grid as tensors on first use, and
+    # inference tensors in that cache would break the grasp refinement's autograd later in the same process
+    with torch.no_grad():
         K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
         rgb = torch.as_tensor(images[:, :3], dtype=torch.float32)
         depth = torch.as_tensor(images[:, 3], dtype=torch.float32)

@@ -1,0 +1,212 @@
+"""Every script of scripts/ and benchmarks/ runs on the tiny test dataset with its smallest arguments, so that none
+of them rots when the package under it changes; the shell scripts parse. Each runs in this process
+(``runpy``, as ``python scripts/NAME.py ARGS`` would) and what it prints is checked for its figures' lines."""
+
+from __future__ import annotations
+
+import ast
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from helpers import REPO
+from helpers.models import INPUT_SIZE, make_checkpoint
+
+SCRIPTS = REPO / "scripts"
+BENCHMARKS = REPO / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def depth_checkpoint(tmp_path_factory, tiny_dataset):
+    """An untrained RGB-D HUPNet at the tiny dataset's 64 px (a heatmap model: it has a keypoint confidence)."""
+    from hupbench.data import HUPDataset, ReaderConfig
+
+    K = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    return make_checkpoint(tmp_path_factory.mktemp("rgbd") / "hupnet_rgbd.pt", tiny_dataset, name="hupnet",
+                           backbone="resnet10", input_channels=4, K_input=K.tolist(), input_size=INPUT_SIZE)
+
+
+def run_script(path: Path, *argv, monkeypatch, capsys) -> str:
+    """Run ``python path argv`` in this process; its stdout. Torch's thread count is restored after."""
+    threads = torch.get_num_threads()
+    monkeypatch.setattr(sys, "argv", [str(path), *map(str, argv)])
+    monkeypatch.syspath_prepend(str(path.parent))  # the scripts import their siblings (diagnose_errors)
+    try:
+        runpy.run_path(str(path), run_name="__main__")
+    finally:
+        torch.set_num_threads(threads)
+    return capsys.readouterr().out
+
+
+def test_diagnose_errors(exported, tiny_dataset, monkeypatch, capsys):
+    ckpt, _ = exported
+    out = run_script(SCRIPTS / "diagnose_errors.py", ckpt, tiny_dataset, "--frames", "6", "--batch", "4",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "6 of 20 frames, input 64 px rgb; mm" in out
+    for line in ("hand ", "probe ", "probe, half turn", "hand: wrist (keypoint 0)", "grasp "):
+        assert f"\n{line}" in out, line
+
+
+@pytest.mark.parametrize("script", ["hand_fit_ablation.py", "probe_fit_ablation.py"])
+def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, capsys):
+    import json
+
+    out = run_script(SCRIPTS / script, depth_checkpoint, tiny_dataset, "--frames", "2", "--batch", "2",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["frames"] == 2
+    if script == "hand_fit_ablation.py":
+        assert set(summary["hand_mm"]) == {"network", "fit", "fit, rigid hand", "fit, no free space",
+                                           "fit from the truth"}
+    else:
+        assert set(summary["probe_mm"]) == {"network", "fit"}
+
+
+def test_the_fit_ablations_refuse_an_rgb_checkpoint(exported, tiny_dataset, monkeypatch, capsys):
+    ckpt, _ = exported
+    with pytest.raises(SystemExit, match="reads rgb; this script needs rgb\\+depth"):
+        run_script(SCRIPTS / "probe_fit_ablation.py", ckpt, tiny_dataset, monkeypatch=monkeypatch, capsys=capsys)
+
+
+def test_diagnose_hopenet(exported, tiny_dataset, tmp_path, monkeypatch, capsys):
+    from omegaconf import OmegaConf
+
+    from hupbench.config import compose
+
+    ckpt, _ = exported
+    payload = torch.load(ckpt, map_location="cpu", weights_only=True)  # with the loss weights of a training config
+    payload["config"]["loss"] = OmegaConf.to_container(compose("train", ["model=hopenet_r10_128"]).loss, resolve=True)
+    torch.save(payload, tmp_path / "trained.pt")
+    out = run_script(SCRIPTS / "diagnose_hopenet.py", tmp_path / "trained.pt", tiny_dataset, "--frames", "4",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "4 val frames, input 64 px" in out and "gradient into the pooled feature from the weighted 3D" in out
+
+
+def test_diagnose_lifting(tiny_dataset, monkeypatch, capsys):
+    out = run_script(SCRIPTS / "diagnose_lifting.py", tiny_dataset, "--steps", "2", "--batch", "4", "--input-size",
+                     "64", "--threads", "1", monkeypatch=monkeypatch, capsys=capsys)
+    assert "20 training and 20 validation frames" in out
+    assert all(f"  {name} " in out for name in ("constant", "direct", "camera"))
+
+
+def test_measure_keypoint_confidence(depth_checkpoint, tiny_dataset, monkeypatch, capsys):
+    out = run_script(SCRIPTS / "measure_keypoint_confidence.py", depth_checkpoint, tiny_dataset, "--frames", "3",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "3 test frames" in out and "32 noise images" in out
+
+
+def test_measure_ood_statistics(exported, tiny_dataset, monkeypatch, capsys):
+    ckpt, _ = exported
+    photos = str(tiny_dataset / "test" / "rgb" / "*.jpg")  # frames stand in for photographs
+    out = run_script(SCRIPTS / "measure_ood_statistics.py", ckpt, tiny_dataset, "--photos", photos, "--frames",
+                     "6", "4", "4", monkeypatch=monkeypatch, capsys=capsys)
+    assert "6 train / 4 val / 4 test frames, 20 photographs" in out
+    assert "backbone feature" in out and "image statistics" in out
+
+
+def test_docs_pictures(tiny_dataset, tmp_path, monkeypatch, capsys):
+    import numpy as np
+
+    from helpers.damage import copy_dataset
+    from hupbench.core.io import save_npz
+
+    # the contact sheet prints the scores `hupbench grasps` writes: the shipped grasps' first three as the tiny ones
+    dataset = copy_dataset(tiny_dataset, tmp_path / "dataset")
+    with np.load(REPO / "datagen" / "dataset" / "default_grasps.npz") as data:
+        save_npz(dataset / "grasps.npz", {k: data[k][:3] if data[k].ndim else data[k] for k in data.files}
+                 | {"grasp_id": np.arange(3)})
+    out = run_script(SCRIPTS / "docs_pictures.py", dataset, "--out", tmp_path, monkeypatch=monkeypatch,
+                     capsys=capsys)
+    written = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert written == ["dataset_samples.png", "grasps_contact_sheet.png", "preview.png"], written
+    assert str(tmp_path / "preview.png") in out
+
+
+def test_render_frames(tiny_dataset, tmp_path, monkeypatch, capsys):
+    script = SCRIPTS / "render_frames.py"
+    out = run_script(script, "render", tiny_dataset / "grasps.npz", tmp_path / "a.npz", "--frames", "5",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert f"1 frames -> {tmp_path / 'a.npz'}" in out
+    out = run_script(script, "compare", tmp_path / "a.npz", tmp_path / "a.npz", tmp_path / "same.png",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "frame      5: mean |difference| 0.0 levels" in out and (tmp_path / "same.png").is_file()
+
+
+def test_custom_probe_picture(tmp_path, monkeypatch, capsys):
+    out = run_script(SCRIPTS / "custom_probe_picture.py", "--work", tmp_path / "work", "--out", tmp_path / "p.png",
+                     "--smoke", monkeypatch=monkeypatch, capsys=capsys)
+    assert out.strip().endswith(str(tmp_path / "p.png")) and (tmp_path / "p.png").is_file()
+
+
+def test_robustness_doc_parses(monkeypatch, capsys):
+    """Its run is the whole matrix (tests/test_robustness_doc.py checks the doc against the cases): here its
+    command line."""
+    with pytest.raises(SystemExit) as info:
+        run_script(SCRIPTS / "robustness_doc.py", "--help", monkeypatch=monkeypatch, capsys=capsys)
+    assert info.value.code == 0
+
+
+@pytest.mark.parametrize("script", sorted(p.name for p in SCRIPTS.glob("*.sh")))
+def test_shell_scripts_parse(script):
+    done = subprocess.run(["bash", "-n", str(SCRIPTS / script)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
+def test_benchmark_generate(tiny_dataset, monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "generate.py", tiny_dataset / "grasps.npz", "--backgrounds", "1", "--workers", "1",
+                     "--size", "32", "--r-circ-m", "0.4", monkeypatch=monkeypatch, capsys=capsys)
+    assert "workers 1: 48 frames in" in out  # 1 grasp x 2 distances x 1 background x 2 gloves x 12 views
+
+
+def test_benchmark_grasps(monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "grasps.py", "--orientations", "1", "--starts", "2", "--budgets", "0", "1",
+                     "--samplers", "heuristic", "random", "--threads", "1", monkeypatch=monkeypatch, capsys=capsys)
+    assert "1 orientations x 2 candidates" in out
+    assert sum(line.split()[0] in ("heuristic", "random") for line in out.splitlines()[2:]) == 4
+
+
+def test_benchmark_render(monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "render.py", "--frames", "2", "--repeats", "1", "--size", "32",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert out.count("shading blinn_phong") == 1 and out.count("shading pbr") == 1 and "ms/frame" in out
+
+
+def test_benchmark_train(tiny_dataset, monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "train.py", tiny_dataset, "--model", "hopenet_r10_128", "--batch", "2",
+                     "--steps", "1", "--warmup", "0", "--threads", "1", "--pipelines", "jpeg:0,cache:0",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "jpeg:0" in out and "cache:0 / jpeg:0" in out
+
+
+def test_benchmark_scale_training(tiny_dataset, monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "scale.py", "training", "--dataset", tiny_dataset, "--batch", "2", "--steps", "2",
+                     "--threads", "1", "--processes", "1", monkeypatch=monkeypatch, capsys=capsys)
+    assert "1 process(es) x 1 thread(s), batch 2 each" in out
+
+
+def test_benchmark_scale_generation(tiny_dataset, monkeypatch, capsys):
+    pytest.importorskip("ray")
+    out = run_script(BENCHMARKS / "scale.py", "generation", "--backgrounds", "2", "--size", "32", "--r-circ-m", "0.4",
+                     "--ray-workers", "1", "--local-workers", "1", "--grasps", tiny_dataset / "grasps.npz",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "annotations byte-identical across all 2 runs: yes" in out
+
+
+def test_every_script_and_benchmark_has_a_test():
+    text = Path(__file__).read_text()
+    names = {p.name for folder in (SCRIPTS, BENCHMARKS) for p in folder.glob("*.py")}
+    assert not sorted(n for n in names if f'"{n}"' not in text), "a script without a test here"
+
+
+def test_no_script_writes_a_module_s_attributes():
+    """Scripts pass settings (e.g. hupbench.fits.HandFitSettings) instead of overwriting a module's state."""
+    offenders = []
+    for path in sorted([*SCRIPTS.glob("*.py"), *BENCHMARKS.glob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "setattr":
+                offenders.append(f"{path.name}:{node.lineno}")
+    assert not offenders, offenders
