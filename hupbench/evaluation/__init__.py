@@ -4,8 +4,9 @@ Owns: ``hupbench eval`` (``evaluate``: a checkpoint or an ONNX export over a spl
 loop that predicts a split, also used by scripts/; ``split_metrics``: MPJPE by part and the breakdowns, whose
 per-frame buckets ``breakdowns`` labels; ``probe_pose``: the BOP scores; ``latency``: parameters, FLOPs and
 latency), the results file (``results``:
-schema, validation, atomic writes) and the leaderboard (``leaderboard``: the table and the
-error-against-time plots, rebuilt from results/).
+schema, strict reading, validation, atomic writes) and the leaderboard (``leaderboard``: the verb, its rows and
+training logs; ``leaderboard_table``: the cells; ``leaderboard_readme``: the README; ``leaderboard_plots``: the
+error-against-time plots; rebuilt from results/).
 
 May import: ``hupbench.inference`` (the ONNX contract and onnxruntime sessions, to time an export),
 ``hupbench.fits`` (what runs after the network),
