@@ -151,3 +151,16 @@ def test_a_batch_is_fitted_frame_by_frame():
     assert [F.DECISIONS[d] for d in report.decision] == ["marker", "network"]
     assert error_mm(out3d[0], R1, t1) < 2.0 and error_mm(out3d[1], R2, t2) < 2.0
     assert (report.inliers > F.ProbeFitSettings().min_inliers).all()
+
+
+def test_the_fit_leaves_the_probe_usable_for_autograd():
+    """The probe caches its signed distance grid as tensors on first use: a fit first (eval, predict) must not make
+    them inference tensors, which the grasp refinement's autograd in the same process could not use."""
+    import torch
+
+    R, t = MARKER_IN_VIEW
+    fit(render(R, t), *network_output(R, t, turn=0.5))
+    points = torch.zeros(4, 3, dtype=torch.float32, requires_grad=True)
+    distance, _ = build_probe().signed_distance_and_gradient_torch(points)
+    distance.sum().backward()
+    assert points.grad is not None and torch.isfinite(points.grad).all()
