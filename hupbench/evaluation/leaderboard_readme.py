@@ -85,9 +85,10 @@ def _details(row: dict) -> list[str]:
         lines.append(f"- GFLOPs per image {flops}; evaluated from {model['format'] or MISSING}")
     latency = row["latency_ms_per_image"]
     if any(v is not None for runtime in latency.values() for v in runtime.values()):
-        lines.append(f"- latency ms/image, batch 1 / batch 32: ONNX Runtime {number_cell(latency['onnxruntime']['batch1'])}"
-                     f" / {number_cell(latency['onnxruntime']['batch32'])}, PyTorch {number_cell(latency['pytorch']['batch1'])}"
-                     f" / {number_cell(latency['pytorch']['batch32'])}; device: {text_cell(row['device'] or MISSING)}")
+        onnx, torch = latency["onnxruntime"], latency["pytorch"]
+        lines.append(f"- latency ms/image, batch 1 / batch 32: ONNX Runtime {number_cell(onnx['batch1'])} / "
+                     f"{number_cell(onnx['batch32'])}, PyTorch {number_cell(torch['batch1'])} / "
+                     f"{number_cell(torch['batch32'])}; device: {text_cell(row['device'] or MISSING)}")
     if training["samples_seen"] is not None or training["epochs"] is not None:
         lines.append(f"- training: {training['samples_seen'] if training['samples_seen'] is not None else MISSING}"
                      f" samples, {number_cell(training['epochs'], 1)} epochs")
@@ -96,7 +97,8 @@ def _details(row: dict) -> list[str]:
     if training["log"] is not None:
         lines.append(f"- training log: [`{training['log']}`]({training['log']})")
     if row["git_commit"] is not None:
-        lines.append(f"- git commit `{row['git_commit']}`" + (f", evaluated {row['created_utc']}" if row["created_utc"] else ""))
+        lines.append(f"- git commit `{row['git_commit']}`"
+                     + (f", evaluated {row['created_utc']}" if row["created_utc"] else ""))
     if row["source"] is not None:
         lines.append(f"- source: {text_cell(row['source'])}")
     return lines + [""] + _grasp_details(row)
@@ -114,8 +116,8 @@ def _grasp_details(row: dict) -> list[str]:
     lines += markdown_table(GRASP_COLUMNS, ["---:"] * len(GRASP_COLUMNS), table)
     by_theta = row["breakdowns"].get("theta_vol")
     if by_theta:
-        shown = "; ".join(f"{text_cell(label)} {triplet_cell(by_theta[label]['mpjpe_mm'])} ({by_theta[label]['frames']} "
-                          f"frames)" for label in sorted(by_theta, key=natural_key))
+        shown = "; ".join(f"{text_cell(label)} {triplet_cell(by_theta[label]['mpjpe_mm'])} "
+                          f"({by_theta[label]['frames']} frames)" for label in sorted(by_theta, key=natural_key))
         lines += [f"MPJPE by probe orientation Theta_Vol, hand / probe / all (mm): {shown}.", ""]
     return lines
 

@@ -248,7 +248,7 @@ def check_graph(props: dict[str, str], model: bytes, source: str = "model") -> N
     ``hupbench.graph_sha256`` is the graph's :func:`graph_sha256`; ``source`` names the file in the error."""
     recorded, actual = props.get(GRAPH_SHA256), graph_sha256(model)
     if recorded != actual:
-        found = (f"its hupbench.graph_sha256 is {recorded[:12]!r}..." if recorded else "it has no hupbench.graph_sha256")
+        found = f"its hupbench.graph_sha256 is {recorded[:12]!r}..." if recorded else "it has no hupbench.graph_sha256"
         raise BadValueError(f"{source}: its hupbench metadata were not written for this graph ({found}, the graph's "
                             f"sha256 is {actual[:12]}...): metadata copied onto another model, or a graph changed "
                             "after export; export the checkpoint again with `hupbench export CKPT`")
