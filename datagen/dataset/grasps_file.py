@@ -42,11 +42,11 @@ _EXPECTED = "expected a grasps.npz written by `hupbench grasps`"
 
 
 def read_grasps_probe_record(path: str | Path) -> dict:
-    """The record of the probe a grasps file was made for (:attr:`hupbench.datagen.assets.probe.Probe.record`) without
-    building the probe: the JSON it carries, or ``{"kind": "procedural"}`` when it carries no mesh."""
+    """The record of the probe a grasps file (checked by :func:`read_grasps`) was made for
+    (:attr:`hupbench.datagen.assets.probe.Probe.record`) without building the probe: the JSON it carries, or
+    ``{"kind": "procedural"}`` when it carries no mesh."""
     import json
 
-    read_grasps(path)  # a missing or damaged file: its one-line error
     with np.load(path, allow_pickle=False) as data:
         if "probe_mesh_record" not in data.files:
             return {"kind": "procedural"}

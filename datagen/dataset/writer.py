@@ -47,7 +47,8 @@ from hupbench.datagen.dataset.grasps_file import (DEFAULT_GRASPS, GraspSet, read
                                                   rendered_with)
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
 from hupbench.datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
-from hupbench.datagen.dataset.spec import DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, view_directions_arm
+from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, split_of_grasps,
+                                          view_directions_arm)
 from hupbench.datagen.dataset.sphere import viewpoints
 from hupbench.core.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
@@ -128,7 +129,7 @@ class GenerateRun:
             probe mesh makes grasps for it into ``out_dir/grasps`` first (``hupbench grasps``).
         progress: a progress bar on stderr.
         probe: which probe; the grasps file must have been made for it (checked by
-            :func:`check_grasps_probe` before rendering).
+            :func:`check_grasps_file` before rendering).
         job: built from the config's ``workers``, ``launcher``, ``shard``, ``ray``, ``render.platform`` and
             ``backgrounds.dir``.
     """
@@ -167,19 +168,23 @@ class GenerateRun:
         return Path(self.out_dir) / "grasps" / "grasps.npz" if self.makes_grasps else DEFAULT_GRASPS
 
 
-def check_grasps_probe(grasps_path: Path, source: ProbeSource) -> None:
-    """The grasps file was made for the probe ``source`` names (the same file, unit and alignment), or one line
-    saying which probe each is. Reads the file's probe record only (building the probe takes seconds, and this
-    runs before the folder's lock is asked for)."""
-    record = read_grasps_probe_record(grasps_path)
-    spec = source.spec
+def check_grasps_file(run: GenerateRun) -> None:
+    """The run's grasps file (:attr:`GenerateRun.grasps_file`) can be rendered: a grasps file
+    (:func:`hupbench.datagen.dataset.grasps_file.read_grasps`) made for the probe the run names (the same file,
+    unit and alignment; else one line saying which probe each is) and holding the grasps ``dataset.splits``
+    counts. Reads the file's arrays and probe record only (building the probe takes seconds, and this runs
+    before the folder's lock is asked for)."""
+    path = run.grasps_file
+    split_of_grasps(run.dataset, len(read_grasps(path)["grasp_id"]))
+    record = read_grasps_probe_record(path)
+    spec = run.probe.spec
     wanted = {"kind": "procedural"} if spec is None else spec.record()
     made = {k: v for k, v in record.items() if k in wanted}
     if made != wanted:
         def say(r: dict) -> str:
             return "the procedural probe" if r["kind"] == "procedural" else \
                 f"probe.mesh={r['path']} (sha256 {r['sha256'][:12]}, unit {r['unit']}, align {r['align']})"
-        raise BadValueError(f"grasps file {grasps_path} was made for {say(record)} but this run names {say(wanted)}: "
+        raise BadValueError(f"grasps file {path} was made for {say(record)} but this run names {say(wanted)}: "
                             "pass the grasps' probe or make grasps for this one (`hupbench grasps probe.mesh=...`)")
 
 

@@ -39,7 +39,7 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
     ``resolved`` (:func:`resolved_config`) goes into the manifest. Returns
     :func:`hupbench.datagen.dataset.writer.generate`'s dict."""
     from hupbench.datagen.assets.backgrounds import BackgroundSet
-    from hupbench.datagen.dataset.writer import check_grasps_probe, generate, run_lock
+    from hupbench.datagen.dataset.writer import check_grasps_file, generate, run_lock
 
     # a bad photographs' folder fails before the folder is taken (and the grasps take minutes)
     if run.job.backgrounds_dir is not None:
@@ -58,8 +58,8 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
             raise BadValueError(f"splits {splits} add up to {sum(splits.values())} grasps but the default grasps "
                                 f"config selects {n_grasps}")
     else:
-        # a bad file, or grasps made for another probe, fail before the folder is taken
-        check_grasps_probe(grasps_path, run.probe)
+        # a bad file, grasps made for another probe or splits that count other grasps fail before the folder is taken
+        check_grasps_file(run)
     # one run per folder (or shard), from the grasps to the manifest
     with run_lock(Path(run.out_dir), run.job.shard) as lock:
         if make_grasps and not grasps_path.is_file():

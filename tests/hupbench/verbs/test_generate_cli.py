@@ -11,7 +11,7 @@ from hupbench.verbs.generate import run_generate
     ("dataset.sphere.r_circ_m=0.9", "r_circ_m .* must be smaller than r_sph_m"),
     ("dataset.z_ego_m=[0.5,0.0]", "z_ego_m must be a non-empty list of camera distances from 0.1 to 10.0 m"),
     ("dataset.z_ego_m=[-0.8]", "z_ego_m must be a non-empty list of camera distances from 0.1 to 10.0 m"),
-    ("dataset.splits={train:7,val:2,test:3}", "add up to 12 grasps but the default grasps config selects 11"),
+    ("dataset.splits={train:7,val:2,test:3}", "add up to 12 grasps but the grasps file holds 11"),
     ("shard=3/2", "shard"),
 ])
 def test_bad_config_fails_before_rendering(tmp_path, override, message):
