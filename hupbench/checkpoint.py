@@ -12,13 +12,13 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_int
 from hupbench.core.io import write_with
-from hupbench.inference.model_file import check_intrinsics
 from hupbench.input_geometry import INPUT_SIZE_RANGE
 from hupbench.models.build import build_model, load_checkpoint_state
 
@@ -94,7 +94,13 @@ class Checkpoint:
                                 f"state dict (name -> tensor), got {type(config).__name__} and {type(state).__name__}")
         check_int(payload["input_size"], f"checkpoint {path}: input_size", *INPUT_SIZE_RANGE)
         check_int(payload["step"], f"checkpoint {path}: step", low=0)
-        check_intrinsics(payload["K_input"], f"checkpoint {path}: K_input")
+        try:
+            K = np.asarray(payload["K_input"], dtype=np.float64)
+        except (TypeError, ValueError):  # ragged, or not numbers
+            K = np.zeros(0)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise BadValueError(f"checkpoint {path}: K_input must be a finite 3 x 3 matrix with positive focal "
+                                f"lengths, got {payload['K_input']!r:.80}")
         return cls(**{f.name: payload[f.name] for f in fields(cls) if f.name in payload}, path=path)
 
     def build_model(self) -> nn.Module:

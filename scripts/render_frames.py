@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -226,7 +226,7 @@ def format_table(results: dict) -> str:
 def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Evaluate a checkpoint or an exported ONNX model on one split and write the results JSON.
 
-    The model file, ``--out`` (a leaderboard row: the package code committed) and the dataset are checked
+    ``--out`` (a leaderboard row: the package code committed), the dataset and the model file are checked
     before the model runs; the results file is then locked (a second eval writing it is refused) until it is
     written, and any failure writes none.
 
@@ -243,8 +243,6 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
     if options.threads is not None:
         torch.set_num_threads(options.threads)
     try:
-        if not options.model.is_file():
-            raise MissingFileError(f"model file {options.model} does not exist")
         row = options.out is not None and is_leaderboard_row(options.out)
         if options.out is not None:  # an unwritable --out is refused before minutes of work
             check_writable(options.out, "--out", file=True)

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError, RunFailedError
 from hupbench.fits import after_network, fits
 from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
@@ -40,16 +39,14 @@ class EvalModel:
 
     def __init__(self, path: Path) -> None:
         from hupbench.checkpoint import load_model
-        from hupbench.inference.export import contract_model
+        from hupbench.inference.export import check_keypoint_count, contract_model
         from hupbench.provenance import default_run_name
 
         self.path = Path(path)
         if self.path.suffix.lower() == ".onnx":
             self.format, self.payload, self.module = "onnx", None, None
             self.onnx = load_onnx_model(self.path, torch.get_num_threads())
-            if len(self.onnx.keypoint_names) != kp.NUM_KEYPOINTS:
-                raise BadValueError(f"{path} predicts {len(self.onnx.keypoint_names)} keypoints; the benchmark has "
-                                    f"{kp.NUM_KEYPOINTS}")
+            check_keypoint_count(len(self.onnx.keypoint_names), str(path))
             if not self.onnx.model_config:  # eval rebuilds the architecture to count its parameters and FLOPs
                 raise BadValueError(f"{path} lacks metadata hupbench.model_config, which eval needs for the model's "
                                     "cost")

@@ -38,7 +38,7 @@ from hupbench.input_geometry import INPUT_MODALITIES, pixels_to_normalized
 from hupbench.provenance import check_run_name, default_run_name, git_commit
 
 __all__ = ["OPSET", "PARITY_MAX_3D_MM", "ContractModule", "ExportOptions", "calibrate_image_statistics",
-           "contract_model", "export_onnx", "onnx_metadata", "run_export"]
+           "check_keypoint_count", "contract_model", "export_onnx", "onnx_metadata", "run_export"]
 
 #: the ONNX opset of every exported file (fixed: the contract with ``hupbench predict``)
 OPSET = 18
@@ -143,14 +143,19 @@ class ContractModule(nn.Module):
         return points2d, points3d
 
 
+def check_keypoint_count(n: int, source: str) -> None:
+    """A model of ``n`` keypoints is one of the benchmark's (its 29, in the order of :mod:`hupbench.core.keypoints`);
+    ``source`` names the model in the error."""
+    if n != kp.NUM_KEYPOINTS:
+        raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
+                            f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+
+
 def contract_model(model: nn.Module, payload: dict[str, Any], source: str, confidence: bool = False) -> ContractModule:
     """:class:`ContractModule` in eval mode for a model and payload of :func:`hupbench.checkpoint.load_model`
     (which checked K_input and the input size); ``source`` names the checkpoint in errors; ``confidence``: the
     third output where the model has one (the exported file's)."""
-    n = model.config.n_keypoints
-    if n != kp.NUM_KEYPOINTS:
-        raise BadValueError(f"{source}: the model predicts {n} keypoints; the benchmark and the ONNX contract need "
-                            f"{kp.NUM_KEYPOINTS} ({kp.NUM_HAND} hand + {kp.NUM_CORNERS} probe corners)")
+    check_keypoint_count(model.config.n_keypoints, source)
     return ContractModule(model, payload["K_input"], int(payload["input_size"]), confidence).eval()
 
 

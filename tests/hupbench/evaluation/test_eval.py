@@ -297,7 +297,7 @@ def test_bad_input(exported, tiny_dataset, tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("hello")
     with pytest.raises(ValueError, match=r"unknown model file type 'notes.txt'.*\.pt.*\.onnx"):
         evaluate(tmp_path / "notes.txt", tiny_dataset, **out)
-    with pytest.raises(FileNotFoundError, match="model file .*missing.pt does not exist"):
+    with pytest.raises(FileNotFoundError, match="checkpoint .*missing.pt does not exist"):
         evaluate(tmp_path / "missing.pt", tiny_dataset, **out)
     with pytest.raises(FileNotFoundError, match="dataset .*nowhere does not exist"):
         evaluate(ckpt, tmp_path / "nowhere", **out)
