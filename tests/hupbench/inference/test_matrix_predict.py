@@ -434,6 +434,30 @@ def test_matrix_predict_depth(case, tmp_path, capsys):
     assert not record["ok"] and record["keypoints_3d_m"] is None and record["error"] in line
 
 
+def test_matrix_predict_fitting_model_on_another_probes_dataset(tiny_dataset, tmp_path, capsys):
+    """A model with probe_fit: depth on the depth maps of a dataset made with another probe's mesh (predicted with
+    exit 0 before, the procedural probe fitted to the other probe's surface): refused in one line naming the
+    dataset's manifest and its probe; nothing written."""
+    metadata = depth_metadata((0.4, 0.8)) | {"hupbench.model_config": json.dumps(
+        {"name": "dot", "input_channels": 4, "probe_fit": "depth"})}
+    model = make_dot_model(tmp_path / "fit.onnx", metadata, reads_depth=True)
+    dataset = tmp_path / "linear_probe_dataset"
+    manifest = json.loads((tiny_dataset / "manifest.json").read_text())
+    manifest["probe"] = {"kind": "mesh", "path": "/data/probes/linear.stl", "unit": "m", "align": False,
+                         "sha256": "0" * 64, "geometry_sha256": "0" * 64}  # as generate probe.mesh=... records it
+    write(dataset / "manifest.json", json.dumps(manifest).encode())
+    image = write(dataset / "test" / "rgb" / "a.png", png_bytes(dot_image(40, 30, (30, 7))))
+    depth = np.zeros((30, 40), np.uint16)
+    depth[5:20, 10:30] = 6000
+    (dataset / "test" / "depth").mkdir(parents=True)
+    cv2.imwrite(str(dataset / "test" / "depth" / "a.png"), depth)
+    out = tmp_path / "out"
+    answer = run_cli(capsys, *predict_argv(model, [image], out, "--depth", dataset / "test" / "depth"))
+    assert_clean_error(answer, str(dataset / "manifest.json"), "linear.stl", "probe fit",
+                       "know only the default procedural probe")
+    assert not out.exists()
+
+
 # ------------------------------------------------------------------ faults
 
 
