@@ -1,0 +1,90 @@
+"""hupbench.fits: what a model asks to run after its network, the probe the fits know, and the settings each fit
+takes as an argument (a variant without touching module state)."""
+
+from dataclasses import FrozenInstanceError, replace
+
+import numpy as np
+import pytest
+
+from hupbench.core import keypoints as kp
+from hupbench.core.errors import BadValueError
+from hupbench.fits import (
+    FITTED_PROBE,
+    HandFitSettings,
+    ProbeFitSettings,
+    after_network,
+    check_fitted_probe,
+    fits,
+)
+
+MESH_PROBE = {"kind": "mesh", "path": "/data/probes/linear.stl", "unit": "m", "align": False, "sha256": "0" * 64,
+              "geometry_sha256": "0" * 64}
+
+
+@pytest.mark.parametrize(("config", "asked"), [
+    ({"name": "hupnet"}, ()), ({"probe_fit": "none", "hand_fit": "none"}, ()), ({"hand_fit": "depth"}, ("hand",)),
+    ({"hand_fit": "depth", "probe_fit": "depth"}, ("probe", "hand"))])
+def test_what_a_model_asks_for_in_the_order_it_runs(config, asked):
+    assert fits(config) == asked
+
+
+@pytest.mark.parametrize("record", [None, FITTED_PROBE, {"kind": "procedural"}])
+def test_the_default_probe_is_the_fits_probe(record):
+    check_fitted_probe({"probe_fit": "depth", "hand_fit": "depth"}, record, "DATASET/manifest.json")
+
+
+@pytest.mark.parametrize(("record", "shown"), [
+    (MESH_PROBE, "'/data/probes/linear.stl' (mesh)"),
+    ({"kind": "procedural", "spec": {"length_m": 0.2}}, "{'length_m': 0.2} (procedural)")])
+def test_another_probe_is_refused_for_a_model_that_fits_and_accepted_for_one_that_does_not(record, shown):
+    with pytest.raises(BadValueError) as info:
+        check_fitted_probe({"hand_fit": "depth"}, record, "DATASET/manifest.json")
+    assert str(info.value) == (f"DATASET/manifest.json: the data shows the probe {shown}, but the model's hand fit "
+                               "(probe_fit/hand_fit: depth) know only the default procedural probe; use a model "
+                               "without the fits on this data")
+    check_fitted_probe({"name": "hupnet"}, record, "DATASET/manifest.json")
+
+
+def test_settings_are_frozen_values_with_the_defaults_every_model_runs_with():
+    with pytest.raises(FrozenInstanceError):
+        HandFitSettings().free_weight = 0.0
+    variant = replace(HandFitSettings(), free_weight=0.0)
+    assert variant.free_weight == 0.0 and HandFitSettings().free_weight == 0.3
+    assert ProbeFitSettings().hypotheses == 24 and ProbeFitSettings() == ProbeFitSettings()
+
+
+def test_after_network_passes_each_fit_its_settings(monkeypatch):
+    from hupbench.fits import hand_fit, probe_fit
+
+    seen = []
+
+    def stand_in(part):
+        def fit(points2d, points3d, images, K_input, settings):
+            seen.append((part, settings))
+            return points2d, points3d + 1.0, None
+        return fit
+
+    monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe"))
+    monkeypatch.setattr(hand_fit, "fit_hand", stand_in("hand"))
+    probe, hand = ProbeFitSettings(min_inliers=5), HandFitSettings(iterations=2)
+    points2d, points3d = np.zeros((1, kp.NUM_KEYPOINTS, 2), np.float32), np.zeros((1, kp.NUM_KEYPOINTS, 3))
+    out2d, out3d = after_network({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d,
+                                 np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe, hand)
+    assert seen == [("probe", probe), ("hand", hand)]
+    assert out2d.dtype == out3d.dtype == np.float64 and (out3d == 2.0).all()
+
+
+def test_a_setting_changes_what_the_probe_fit_does():
+    """The same frame with min_inliers beyond any frame's points: the network's corners are kept."""
+    from test_probe_fit import MARKER_IN_VIEW, network_output, render
+
+    from hupbench.fits.probe_fit import DECISIONS, fit_probe
+
+    R, t = MARKER_IN_VIEW
+    image = render(R, t)[None]
+    points2d, points3d = network_output(R, t, turn=0.5)
+    K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
+    _, fitted, report = fit_probe(points2d, points3d, image, K)
+    _, kept, strict = fit_probe(points2d, points3d, image, K, ProbeFitSettings(min_inliers=10 ** 6))
+    assert DECISIONS[report.decision[0]] == "marker" and DECISIONS[strict.decision[0]] == "kept"
+    assert not np.allclose(fitted, points3d) and np.array_equal(kept, points3d)
