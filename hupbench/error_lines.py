@@ -23,9 +23,6 @@ from collections.abc import Callable
 
 from hupbench.core.errors import UserError
 
-#: what a bad input or a fault raises (Hydra's and OmegaConf's errors are added where Hydra is imported)
-USER_ERRORS = (UserError,)
-
 
 class StdoutError(UserError, OSError):
     """Standard output could not be written (a full disk or device behind a redirection)."""
@@ -57,7 +54,7 @@ def answered(prog: str, work: Callable[[], int], debug: bool = False, interrupte
         # the loader and generator workers, in the same process group, got the same SIGINT and end quietly
         print(f"{prog}: {interrupted}", file=sys.stderr)
         return 130
-    except (*USER_ERRORS, HydraException, OmegaConfBaseException) as exc:
+    except (UserError, HydraException, OmegaConfBaseException) as exc:
         if debug:
             raise
         hydra = isinstance(exc, (HydraException, OmegaConfBaseException))

@@ -109,18 +109,33 @@ def main(argv: Sequence[str], prog: str = "hupbench train") -> int:
         overrides = [a for a in argv if "=" in a and not a.startswith("-")]
         print(help_text(prog, overrides), end="")  # composed with them: a bad one is an error
         return 0
+    def job(cfg: DictConfig) -> float:
+        try:
+            return task(cfg)
+        except Exception as exc:  # past Hydra, which would print a line of its own for an Exception
+            raise _JobFailed(exc) from None
+
     saved_argv, saved_full_error = sys.argv, os.environ.get("HYDRA_FULL_ERROR")
     # Hydra prints its own errors over several lines (and a hint about this variable); with it set they
     # propagate to the one catch, which answers them in one line like every other error
     os.environ["HYDRA_FULL_ERROR"] = "1"
     sys.argv = [prog, *argv]  # Hydra reads its command line there
+    failed = None
     try:
         # Hydra names the job after this module (train): the log file is RUN/train.log as with train.py
-        hydra.main(config_path=str(config_dir()), config_name="train", version_base=HYDRA_VERSION_BASE)(task)()
+        hydra.main(config_path=str(config_dir()), config_name="train", version_base=HYDRA_VERSION_BASE)(job)()
+    except _JobFailed as carried:
+        failed = carried.args[0]
     finally:
         sys.argv = saved_argv
         if saved_full_error is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
             os.environ["HYDRA_FULL_ERROR"] = saved_full_error
+    if failed is not None:
+        raise failed  # outside the handler: its own traceback and cause, nothing of the carrier
     return 0
+
+
+class _JobFailed(BaseException):
+    """A job's exception carried past Hydra's job runner (a BaseException: Hydra catches only Exception)."""

@@ -112,7 +112,7 @@ def test_fault_train_second_run_refused(tiny_dataset, tmp_path):
 def test_fault_train_stale_lock_taken_over(tiny_dataset, tmp_path, reference, capsys):
     """The lock file of a run killed with SIGKILL stays behind; the next run takes it over, says so, and
     finishes as an uninterrupted run would."""
-    from hupbench.training import loop as train
+    from hupbench.verbs.train import task
     from hupbench.config import compose
 
     run_dir, cache = tmp_path / "run", tmp_path / "cache"
@@ -120,7 +120,7 @@ def test_fault_train_stale_lock_taken_over(tiny_dataset, tmp_path, reference, ca
     holder.send_signal(signal.SIGKILL)
     holder.wait()
     assert json.loads((run_dir / ".hupbench.lock").read_text())["pid"] == holder.pid
-    train.main(compose("train", overrides(tiny_dataset, run_dir, cache)))
+    task(compose("train", overrides(tiny_dataset, run_dir, cache)))
     out = capsys.readouterr().out
     assert f"took over {run_dir} from a run that is gone (pid {holder.pid} on {socket.gethostname()})" in out
     assert_whole_run(run_dir, reference, cache)
@@ -240,7 +240,7 @@ def test_fault_train_sigkill_many_times(seed, tiny_dataset, tmp_path, reference)
 def test_fault_train_stale_tmp_removed(tiny_dataset, tmp_path, reference, capsys):
     """Temporary files that killed runs left (measured before: 23 MB of .last.pt.tmpNNN and .best.pt.tmpNNN
     that survived a later successful resume) are removed when training starts; a live writer's are kept."""
-    from hupbench.training import loop as train
+    from hupbench.verbs.train import task
     from hupbench.config import compose
 
     run_dir, cache = tmp_path / "run", tmp_path / "cache"
@@ -251,7 +251,7 @@ def test_fault_train_stale_tmp_removed(tiny_dataset, tmp_path, reference, capsys
     for path in [*stale, live]:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(b"\0" * 1000)
-    train.main(compose("train", overrides(tiny_dataset, run_dir, cache)))
+    task(compose("train", overrides(tiny_dataset, run_dir, cache)))
     out = capsys.readouterr().out
     for path in stale[:3]:
         assert not path.exists() and f"removed {path}, a temporary file of a run that was killed" in out

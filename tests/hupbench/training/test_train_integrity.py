@@ -76,7 +76,7 @@ THREADS = usable_cores() + 1
 @pytest.mark.matrix
 @pytest.mark.parametrize("override, needles", [
     ("optim.optimizer.weight_decay=-1", ("optim.optimizer.weight_decay", ">= 0")),
-    (f"threads={THREADS}", (f"threads={THREADS}", "CPU core")),
+    (f"threads={THREADS}", ("threads must be a whole number", f"got {THREADS}", "CPU core")),
 ], ids=["weight-decay-negative-cli", "threads-over-cores-cli"])
 def test_matrix_train_refused_before_work(override, needles, tiny_dataset, tmp_path, capsys):
     """Measured before: weight_decay=-1 failed after the frame cache was built and the first validation ran, in
