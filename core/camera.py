@@ -16,7 +16,7 @@ import numpy as np
 
 from hupbench.core import tolerances as tol
 from hupbench.core.geometry import check_last_axes, invert_transform, make_transform
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_int, check_number
 from hupbench.core.errors import BadValueError
 
 #: diag(1, -1, -1): flips y and z, mapping OpenCV camera axes to OpenGL ones and back
@@ -60,8 +60,8 @@ class Intrinsics:
 
         HUP-3D: 60 mm on 32 mm at 256 x 256 gives fx = fy = 480, cx = cy = 128.
         """
-        if focal_mm <= 0 or sensor_mm <= 0:
-            raise BadValueError(f"focal_mm and sensor_mm must be positive, got {focal_mm}, {sensor_mm}")
+        check_number(focal_mm, "focal_mm", 0.0, low_open=True)
+        check_number(sensor_mm, "sensor_mm", 0.0, low_open=True)
         f = focal_mm / sensor_mm * max(width, height)
         return cls(f, f, width / 2.0, height / 2.0, width, height)
 

@@ -35,7 +35,7 @@ def answered(prog: str, work: Callable[[], int], debug: bool = False, interrupte
     Args:
         prog: the program as the user typed it, e.g. ``"hupbench eval"`` or ``"train.py"``.
         work: runs the verb and returns its exit code.
-        debug: re-raise a refusal and Ctrl-C (their tracebacks) instead of answering them.
+        debug: let a refusal and Ctrl-C through (their tracebacks) instead of answering them.
         interrupted: the words after ``PROG: `` on Ctrl-C.
         config, example: :func:`hydra_error_line`'s, for a malformed override or an unknown key.
     """

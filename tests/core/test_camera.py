@@ -31,7 +31,7 @@ def test_bad_focal_or_principal_point_raises(values, message):
 def test_from_lens():
     assert Intrinsics.from_lens(60.0, 32.0, 256, 256).K.tolist() == [[480.0, 0.0, 128.0], [0.0, 480.0, 128.0],
                                                                      [0.0, 0.0, 1.0]]
-    with pytest.raises(ValueError, match="focal_mm and sensor_mm must be positive, got 0.0, 32.0"):
+    with pytest.raises(ValueError, match="focal_mm must be a finite number > 0, got 0.0"):
         Intrinsics.from_lens(0.0, 32.0, 256, 256)
 
 
