@@ -80,10 +80,10 @@ MARKER_LIFT_M = 0.0005
 #: nodes within this many grid steps of the surface get exact distances
 SDF_EXACT_BAND = 3.0
 #: the most triangles a probe mesh may have. Deriving its signed distance takes time in proportion to them
-#: (minutes per ten thousand on two cores), and more do not reach the grasps: on the procedural probe's
-#: surface (0.021 m^2) 50,000 triangles are 0.4 mm^2 each, a fifth of a face of the signed-distance grid's
-#: 1.5 mm cells (:attr:`ProbeMeshSpec.sdf_spacing`). The procedural probe has 13,012.
-MAX_FACES = 50_000
+#: (on two busy cores about 4 min for 20,000 and 10 min for 50,000), and finer ones do not reach the
+#: grasps: on the procedural probe's surface (0.021 m^2, 13,012 triangles) 20,000 triangles are 1 mm^2
+#: each, under half a face of the signed-distance grid's 1.5 mm cells (:attr:`ProbeMeshSpec.sdf_spacing`)
+MAX_FACES = 20_000
 #: the lowest z (metres) of a mesh taken as it is may miss 0 by this much
 ORIGIN_TOLERANCE_M = 1e-4
 

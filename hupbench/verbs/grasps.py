@@ -99,7 +99,7 @@ def make_grasps(run: GraspsRun, cfg: DictConfig, log=print) -> dict:
             # read and repaired first (a mesh over the face budget is refused here), then its signed distance
             faces = read_cached(run.probe.spec)[1]
             log(f"probe: {run.probe.mesh}: {len(faces):,} triangles; deriving its signed distance and regions "
-                f"(about a minute per 10,000 triangles)")
+                f"(minutes for thousands of triangles)")
         probe = probe_of(run.probe)
         if run.probe.mesh is not None:
             log(f"probe: {probe.mesh.extents[2] * 1000:.0f} mm long, marker "

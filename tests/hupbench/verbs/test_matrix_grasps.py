@@ -85,8 +85,8 @@ CASES = {
     "sheet-tile-zero": lambda t: (["sheet.tile_px=0"], ["sheet.tile_px", "32 to 4096"]),
     # the probe
     "probe-mesh-over-the-face-budget": lambda t: ([f"probe.mesh={_dense_probe(t)}"],
-                                                  ["probe.mesh", "dense.stl", "81,920 triangles", "50,000",
-                                                   "simplify_quadric_decimation(face_count=50000)"]),
+                                                  ["probe.mesh", "dense.stl", "81,920 triangles", "20,000",
+                                                   "simplify_quadric_decimation(face_count=20000)"]),
     # the output folder
     "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
     "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'g'}"], ["out_dir", "file is a file"]),
