@@ -1,4 +1,5 @@
-"""What produced an output: resolved config, git commit, package versions."""
+"""What produced an output: the resolved config, the git commit (and whether the package code differs from it),
+the package versions, the machine; and run names, which name results files and exported models."""
 
 from __future__ import annotations
 
