@@ -156,6 +156,9 @@ def model_label(model_config: dict, input_size: int) -> str:
 
 
 def _training_block(model_path: Path, payload: dict | None) -> dict:
+    """The ``training`` block of a results file from a checkpoint's record (``payload``; None for an ONNX model:
+    all None): wall time (s, validation included where recorded), samples seen, epochs, and the hardware line of
+    the run's ``run.json`` beside its ``checkpoints/`` folder; ``command`` and ``log`` are the caller's."""
     block = {"wall_s": None, "hardware": None, "samples_seen": None, "epochs": None, "command": None, "log": None}
     if payload is None:
         return block
