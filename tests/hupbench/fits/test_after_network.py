@@ -73,18 +73,3 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     assert seen == [("probe", probe), ("hand", hand)]
     assert out2d.dtype == out3d.dtype == np.float64 and (out3d == 2.0).all()
 
-
-def test_a_setting_changes_what_the_probe_fit_does():
-    """The same frame with min_inliers beyond any frame's points: the network's corners are kept."""
-    from test_probe_fit import MARKER_IN_VIEW, network_output, render
-
-    from hupbench.fits.probe_fit import DECISIONS, fit_probe
-
-    R, t = MARKER_IN_VIEW
-    image = render(R, t)[None]
-    points2d, points3d = network_output(R, t, turn=0.5)
-    K = np.array([[240.0, 0.0, 63.75], [0.0, 240.0, 63.75], [0.0, 0.0, 1.0]])
-    _, fitted, report = fit_probe(points2d, points3d, image, K)
-    _, kept, strict = fit_probe(points2d, points3d, image, K, ProbeFitSettings(min_inliers=10 ** 6))
-    assert DECISIONS[report.decision[0]] == "marker" and DECISIONS[strict.decision[0]] == "kept"
-    assert not np.allclose(fitted, points3d) and np.array_equal(kept, points3d)

@@ -164,3 +164,14 @@ def test_the_fit_leaves_the_probe_usable_for_autograd():
     distance, _ = build_probe().signed_distance_and_gradient_torch(points)
     distance.sum().backward()
     assert points.grad is not None and torch.isfinite(points.grad).all()
+
+
+def test_a_setting_changes_what_the_probe_fit_does():
+    """The same frame with min_inliers beyond any frame's points: the network's corners are kept."""
+    R, t = MARKER_IN_VIEW
+    image = render(R, t)[None]
+    points2d, points3d = network_output(R, t, turn=0.5)
+    _, fitted, report = F.fit_probe(points2d, points3d, image, K)
+    _, kept, strict = F.fit_probe(points2d, points3d, image, K, F.ProbeFitSettings(min_inliers=10 ** 6))
+    assert F.DECISIONS[report.decision[0]] == "marker" and F.DECISIONS[strict.decision[0]] == "kept"
+    assert not np.allclose(fitted, points3d) and np.array_equal(kept, points3d)
