@@ -227,7 +227,8 @@ def _parity_images(dataset: Path, input_size: int, frames: int, modalities: str 
 
 def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float | None]:
     """Max |onnxruntime - PyTorch| of the outputs on model ``images`` (B, C, S, S): {"points3d_mm",
-    "points2d_norm", "points2d_px" (input-image pixels), "confidence" (None without that output), "frames"}."""
+    "points2d_norm", "points2d_px" (input-image pixels), "confidence" (None without that output), "frames"}; NaN
+    where an output is not finite (:func:`parity_failures` judges them)."""
     with torch.inference_mode():
         ref = module(images)
     got = run_onnx_with_confidence(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
@@ -237,10 +238,24 @@ def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) 
 
     d3, d2 = gap(got[1], ref[1]) * 1000.0, gap(got[0], ref[0])
     dc = gap(got[2], ref[2]) if module.with_confidence else None
-    if not (np.isfinite(d3) and np.isfinite(d2) and (dc is None or np.isfinite(dc))):
-        raise RunFailedError("the ONNX or PyTorch outputs hold NaN or inf on real images")
     return {"points3d_mm": d3, "points2d_norm": d2, "points2d_px": d2 * module.input_size / 2.0, "confidence": dc,
             "frames": int(images.shape[0])}
+
+
+def parity_failures(diff: dict[str, float | None]) -> list[str]:
+    """What of a :func:`parity` check is beyond the allowed (outputs that are not finite, points3d beyond
+    ``PARITY_MAX_3D_MM``, the confidence beyond ``PARITY_MAX_CONFIDENCE``), in words; empty when it passed."""
+    gaps = [diff["points3d_mm"], diff["points2d_norm"]] + ([] if diff["confidence"] is None else [diff["confidence"]])
+    if not np.isfinite(gaps).all():
+        return ["the ONNX or PyTorch outputs hold NaN or inf on real images"]
+    failed = []
+    if diff["points3d_mm"] > PARITY_MAX_3D_MM:
+        failed.append(f"points3d differ by up to {diff['points3d_mm']:.4f} mm (> {PARITY_MAX_3D_MM} mm) between "
+                      f"onnxruntime and PyTorch")
+    if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE:
+        failed.append(f"the keypoint confidence differs by up to {diff['confidence']:.2e} (> "
+                      f"{PARITY_MAX_CONFIDENCE:g}) between onnxruntime and PyTorch")
+    return failed
 
 
 def calibrate_image_statistics(dataset: Path, input_size: int, reads_depth: bool = False) -> ImageStatistics:
@@ -319,14 +334,9 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
             log(f"parity on {diff['frames']} real images of {dataset}: max |ORT - PyTorch| points3d "
                 f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
                 f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
-            failed = ([f"points3d differ by up to {diff['points3d_mm']:.4f} mm (> {PARITY_MAX_3D_MM} mm)"]
-                      if diff["points3d_mm"] > PARITY_MAX_3D_MM else []) + \
-                     ([f"the keypoint confidence differs by up to {diff['confidence']:.2e} (> "
-                       f"{PARITY_MAX_CONFIDENCE:g})"]
-                      if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE else [])
+            failed = parity_failures(diff)
             if failed:
-                raise RunFailedError(f"ONNX parity check failed: {' and '.join(failed)} between onnxruntime and "
-                                     f"PyTorch; nothing written to {out}")
+                raise RunFailedError(f"ONNX parity check failed: {'; '.join(failed)}; nothing written to {out}")
     log(f"out-of-distribution check calibrated on {calibration.frames['train']} training frames; threshold "
         f"{calibration.threshold:.2f} = percentile {calibration.percentile:g} of {calibration.frames['threshold']} "
         f"{calibration.frames['threshold_split']} frames")

@@ -187,3 +187,14 @@ def test_export_prints_no_exporter_noise(tmp_path):
     assert "torchvision is not installed" not in done.stderr + done.stdout
     assert "LeafSpec" not in done.stderr + done.stdout
     assert (tmp_path / "m.onnx").is_file()
+
+
+@pytest.mark.parametrize(("diff", "failed"), [
+    ({"points3d_mm": 0.01, "points2d_norm": 1e-5, "confidence": None}, []),
+    ({"points3d_mm": float("nan"), "points2d_norm": 1e-5, "confidence": 0.0},
+     ["the ONNX or PyTorch outputs hold NaN or inf on real images"]),
+    ({"points3d_mm": 0.5, "points2d_norm": 1e-5, "confidence": 0.01},
+     ["points3d differ by up to 0.5000 mm (> 0.1 mm) between onnxruntime and PyTorch",
+      "the keypoint confidence differs by up to 1.00e-02 (> 0.001) between onnxruntime and PyTorch"])])
+def test_parity_failures_say_what_is_beyond_the_allowed(diff, failed):
+    assert E.parity_failures(diff) == failed
