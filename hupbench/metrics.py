@@ -168,7 +168,8 @@ def _proper_rotation(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 def rotation_onto(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(N, 3, 3) float64 proper rotations R turning each centred (N, K, 3) ``src`` onto its centred ``dst``
-    (minimising |dst_c - src_c R^T|, Kabsch, no scale)."""
+    (minimising |dst_c - src_c R^T|, no scale: Kabsch, "A solution for the best rotation to relate two sets of
+    vectors", Acta Crystallographica A32, 1976)."""
     x = np.asarray(src, np.float64) - np.asarray(src, np.float64).mean(axis=1, keepdims=True)
     y = np.asarray(dst, np.float64) - np.asarray(dst, np.float64).mean(axis=1, keepdims=True)
     return _proper_rotation(np.einsum("nki,nkj->nij", y, x))[0]
