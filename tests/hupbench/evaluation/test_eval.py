@@ -558,3 +558,18 @@ def test_frame_choice_known_answer():
     assert samples == [0, 4, 8]
     assert worst == [1, 3, 8, 5]  # largest first, ties by row
     assert frame_choice(np.array([5.0]), n_sample=4, n_worst=4) == ([0], [0])
+
+
+def test_the_dataset_is_recorded_by_name_and_hashes_and_its_grasps_hash_printed(exported, tiny_dataset, tmp_path):
+    """The results name the dataset by its name and the sha256 of its manifest and grasps, never by a path of the
+    machine that evaluated it; eval prints the grasps' sha256 (in its log and its table)."""
+    ckpt, _ = exported
+    lines = []
+    answer = evaluate(ckpt, tiny_dataset, out=tmp_path / "r.json", latency=False, log=lines.append)
+    record = answer["results"]["dataset"]
+    assert record["grasps_sha256"] == file_sha256(tiny_dataset / "grasps.npz")
+    assert record["manifest_sha256"] == file_sha256(tiny_dataset / "manifest.json")
+    assert record["name"] == "hupbench dataset (60 frames)" and "path" not in record
+    assert str(tiny_dataset.parent) not in json.dumps(load_results(tmp_path / "r.json"))
+    assert f"grasps sha256 {record['grasps_sha256']}" in "\n".join(lines)
+    assert re.search(rf"dataset grasps sha256\s+{record['grasps_sha256']}", answer["table"])
