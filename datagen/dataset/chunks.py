@@ -22,7 +22,6 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -39,9 +38,6 @@ from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.errors import RunFailedError
-
-if TYPE_CHECKING:
-    from hupbench.datagen.dataset.writer import GenerateRun
 
 
 def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
@@ -259,7 +255,7 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
 
 
-def _worker_init(run: "GenerateRun", grasps_path: str, parent_pid: int | None = None) -> None:
+def _worker_init(run, grasps_path: str, parent_pid: int | None = None) -> None:
     """Build this process's :class:`ChunkRenderer` for ``run`` (a :class:`hupbench.datagen.dataset.writer.GenerateRun`)
     from the dataset's grasps file; a pool worker (``parent_pid`` given) dies with its parent."""
     if parent_pid is not None:
