@@ -49,7 +49,7 @@ def trained(tiny_dataset, tmp_path_factory):
 OVERRIDE_CASES = {
     "batch-size-zero": (["data.batch_size=0"], ("data.batch_size", "whole number >= 1")),
     "batch-size-over-split": (["data.batch_size=64"], ("data.batch_size", "fewer than one batch of 64")),
-    "epochs-zero": (["train.max_steps=null", "train.epochs=0"], ("train.epochs", "whole number >= 1")),
+    "epochs-zero": (["train.max_steps=null", "train.epochs=0"], ("train.epochs", "whole number from 1 to")),
     "lr-nan": (["optim.optimizer.lr=nan"], ("optim.optimizer.lr", "(0, 1]")),
     "input-size-tiny": (["data.reader.input_size=8"], ("data.reader.input_size", "16")),
     "loss-weight-negative": (["loss.w3d=-1"], ("loss.w3d", ">= 0")),
