@@ -17,7 +17,7 @@ def warmup_cosine(optimizer: torch.optim.Optimizer, total_steps: int, warmup_ste
     rate, then cosine decay to ``final_lr_fraction`` of it at the last step (values checked by
     :class:`hupbench.training.run_config.OptimConfig`)."""
     assert total_steps >= 1 and 0.0 <= final_lr_fraction <= 1.0, (total_steps, final_lr_fraction)
-    warmup = max(0, min(int(warmup_steps), total_steps // 10))
+    warmup = min(warmup_steps, total_steps // 10)
 
     def factor(step: int) -> float:
         if step < warmup:
@@ -35,5 +35,5 @@ def learning_rate(optim: OptimConfig, global_batch: int) -> float:
     (Goyal et al. 2017, "Accurate, large minibatch SGD"), lr x global batch / N, which the
     scheduler's linear warm-up makes safe in the first steps.
     """
-    lr = float(optim.optimizer.keywords["lr"])
+    lr = optim.optimizer.keywords["lr"]
     return lr if optim.reference_batch is None else lr * global_batch / optim.reference_batch

@@ -19,7 +19,6 @@ from hupbench.models.hopenet import HOPENetOutput
 from helpers import REPO
 
 
-
 def tiny_cfg(dataset, run_dir, *extra):
     """The real train config shrunk to a few steps on the 64 px tiny dataset."""
     return compose("train", [
@@ -60,6 +59,20 @@ def test_short_run_writes_everything(tiny_dataset, tmp_path):
     # the model unprojects through the camera the checkpoint records
     assert payload["model_config"] == model.config.saved() and payload["model_config"]["K_input"] == payload["K_input"]
     assert 0.3 < float(model.prior3d.mean[:, 2].mean()) < 1.0  # metres in front of the camera
+
+
+def test_train_reads_the_typed_run(tiny_dataset, tmp_path):
+    """train(run) takes every value from the typed run, not from the composed config it records: a run whose
+    data node says batch 2 and whose schedule says 3 steps trains 3 steps of 2 frames and validates on 4
+    frames, while run.config (the recorded config) still says batch 4, 4 steps and 8 validation frames."""
+    from dataclasses import replace
+
+    run = train_config(tiny_cfg(tiny_dataset, tmp_path / "run"))
+    run = replace(run, data=replace(run.data, batch_size=2, val_frames=4),
+                  train=replace(run.train, max_steps=3, val_every=3, ckpt_every=3))
+    assert run.config["data"]["batch_size"] == 4 and run.config["train"]["max_steps"] == 4
+    result = loop.train(run, log=lambda *_: None)
+    assert (result["steps"], result["samples_seen"], result["val_mpjpe_mm"]["frames"]) == (3, 6, 4)
 
 
 def test_resume_gives_the_same_next_losses(tiny_dataset, tmp_path):
