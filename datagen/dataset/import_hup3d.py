@@ -69,12 +69,7 @@ from hupbench.core.contract import (
 )
 from hupbench.datagen.dataset.sphere import SphereSpec, all_viewpoints, latitude_count
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.geometry import (
-    axis_angle_to_matrix,
-    euler_to_matrix,
-    invert_transform,
-    transform_points,
-)
+from hupbench.core.geometry import axis_angle_to_matrix, euler_to_matrix, invert_transform, transform_points
 from hupbench.core.io import atomic_folder, check_writable, encode_image, file_sha256, save_npz, write_bytes, write_json
 
 FORMAT = "HUP-3D"
@@ -405,27 +400,24 @@ def view_of(pose3: np.ndarray, rotations: np.ndarray) -> int:
 # --- the verb ---------------------------------------------------------------------------------
 
 
-def _check_out(out: Path) -> None:
-    check_writable(out, "OUT")
-    if out.is_dir() and any(out.iterdir()):
-        raise BadValueError(f"output {out} is not empty: import-hup3d writes a new dataset into an empty or new "
-                            "folder")
+class ImportContext(NamedTuple):
+    """What every frame of one import shares: the depth source ("auto" or "png"), K (3, 3), the probe's box
+    corners (8, 3) in its mesh frame, the sphere's view rotations (V, 3, 3) and (theta, phi) angles (V, 2), the
+    background names, the distinct grasps seen so far (hand pose and translation as float32 bytes -> (hand_pose
+    (48,), hand_trans (3,)) as first seen, in grasp-index order; a new grasp is added) and the folder written."""
+    depth: str
+    K: np.ndarray
+    corners_probe: np.ndarray
+    view_rotations: np.ndarray
+    view_angles: np.ndarray
+    backgrounds: list[str]
+    grasps: dict[bytes, tuple]
+    out: Path
 
 
-class ViewLookup(NamedTuple):
-    """The sphere's views: their body rotations (:func:`view_rotations`) and (theta, phi) angles."""
-    rotations: np.ndarray
-    angles: np.ndarray
-
-
-def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray, corners_probe: np.ndarray,
-                   views: ViewLookup, backgrounds: list[str], grasps: dict[bytes, tuple], out: Path):
-    """One published frame written into ``out`` in hupbench's layout; returns (its annotation row, its image
-    size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from).
-
-    ``grasps`` maps each distinct grasp (its hand pose and translation as float32 bytes) to (hand_pose (48,),
-    hand_trans (3,)) as first seen, in grasp-index order; a new grasp is added, and the row stores its grasp's
-    values."""
+def _convert_frame(f, meta: dict, frame_id: int, size, ctx: ImportContext):
+    """One published frame written into ``ctx.out`` in hupbench's layout; returns (its annotation row, its image
+    size (W, H), the slack of its stored depth in metres, "exr" or "png": where its depth came from)."""
     # chunks imports the renderer: only when converting
     from hupbench.datagen.dataset.chunks import visibility
 
@@ -441,18 +433,18 @@ def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray
         if image.shape[:2] != size[::-1] or not right:
             raise BadValueError(f"{f.file(name)}: {image.dtype} {image.shape}, expected a {size[0]} x {size[1]} "
                                 f"{kind or 'image'}")
-    if depth == "auto" and f.file("exr").is_file():
+    if ctx.depth == "auto" and f.file("exr").is_file():
         radial, approx, depth_kind = read_exr_depth(f.file("exr")), 0.0, "exr"
     else:
         radial = radial_from_png(levels, meta["far_m"], meta["near_m"])
         approx, depth_kind = (meta["far_m"] - meta["near_m"]) / (2 * DEPTH_LEVELS), "png"
-    z = planar_depth(radial, K)
+    z = planar_depth(radial, ctx.K)
     stored = np.where(z > 0, np.clip(np.rint(z / DEPTH_SCALE_M), 1, 65535), 0).astype(np.uint16)
     # the slack of a stored depth: the PNG's rounding and the uint16's
     slack = approx + DEPTH_SCALE_M / 2
-    kp3d, T_cam_probe = keypoints_cam(meta, corners_probe)
+    kp3d, T_cam_probe = keypoints_cam(meta, ctx.corners_probe)
     kp3d = kp3d.astype(np.float32)
-    kp2d = project_points(kp3d.astype(np.float64), K).astype(np.float32)
+    kp2d = project_points(kp3d.astype(np.float64), ctx.K).astype(np.float32)
     if meta["coords_2d"] is not None:
         off = np.abs(kp2d[kp.HAND_SLICE] - (meta["coords_2d"][list(PUBLISHED_TO_HUPBENCH)] - 0.5)).max()
         if off > tol.IMPORT_COORDS_2D_PX:
@@ -460,20 +452,20 @@ def _convert_frame(f, meta: dict, frame_id: int, size, depth: str, K: np.ndarray
                                 "cam_calib and cam_extr: the meta is not self-consistent")
     visible = visibility(kp3d.astype(np.float64), kp2d.astype(np.float64),
                          stored.astype(np.float64) * DEPTH_SCALE_M, labels, slack_m=slack)
-    view = view_of(meta["pose3"], views.rotations)
+    view = view_of(meta["pose3"], ctx.view_rotations)
     key = np.concatenate([meta["hand_pose"], meta["hand_trans"]]).astype(np.float32).tobytes()
-    hand_pose, hand_trans = grasps.setdefault(key, (meta["hand_pose"], meta["hand_trans"]))
-    grasp = list(grasps).index(key)
-    row = {"frame_id": frame_id, "keypoints_3d_cam": kp3d, "keypoints_2d": kp2d, "visible": visible, "K": K,
+    hand_pose, hand_trans = ctx.grasps.setdefault(key, (meta["hand_pose"], meta["hand_trans"]))
+    grasp = list(ctx.grasps).index(key)
+    row = {"frame_id": frame_id, "keypoints_3d_cam": kp3d, "keypoints_2d": kp2d, "visible": visible, "K": ctx.K,
            "T_cam_world": T_cam_probe, "grasp_id": grasp, "grasp_index": grasp, "view_id": view,
-           "theta": views.angles[view, 0] if view >= 0 else -1.0,
-           "phi": views.angles[view, 1] if view >= 0 else -1.0, "z_ego": meta["z"],
-           "background_id": backgrounds.index(meta["bg_name"]), "glove_id": -1, "hand_pose": hand_pose,
+           "theta": ctx.view_angles[view, 0] if view >= 0 else -1.0,
+           "phi": ctx.view_angles[view, 1] if view >= 0 else -1.0, "z_ego": meta["z"],
+           "background_id": ctx.backgrounds.index(meta["bg_name"]), "glove_id": -1, "hand_pose": hand_pose,
            "hand_trans": hand_trans, "light_position_cam": np.zeros(3), "light_color": np.zeros(3),
            "light_energy_w": 0.0}
-    write_bytes(frame_path(out, f.split, "rgb", frame_id), rgb_bytes)
-    write_bytes(frame_path(out, f.split, "depth", frame_id), encode_image(".png", stored))
-    write_bytes(frame_path(out, f.split, "seg", frame_id), encode_image(".png", labels))
+    write_bytes(frame_path(ctx.out, f.split, "rgb", frame_id), rgb_bytes)
+    write_bytes(frame_path(ctx.out, f.split, "depth", frame_id), encode_image(".png", stored))
+    write_bytes(frame_path(ctx.out, f.split, "seg", frame_id), encode_image(".png", labels))
     return row, size, slack, depth_kind
 
 
@@ -498,7 +490,10 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
     for option, value, allowed in (("--split", split, (None, *SPLITS)), ("--depth", depth, DEPTH_SOURCES)):
         if value not in allowed:
             raise BadValueError(f"{option} must be one of {[v for v in allowed if v]}, got {value!r}")
-    _check_out(out)
+    check_writable(out, "OUT")
+    if out.is_dir() and any(out.iterdir()):
+        raise BadValueError(f"output {out} is not empty: import-hup3d writes a new dataset into an empty or new "
+                            "folder")
     frames, split_from = find_frames(source, split)
     probe = read_probe_mesh(probe_mesh)
     metas = [read_meta(f.file("meta")) for f in frames]
@@ -506,17 +501,16 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
     for f, meta in zip(frames, metas):
         if np.abs(hupbench_K(meta["cam_calib"]) - K).max() > tol.IMPORT_META_MATCH:
             raise BadValueError(f"{f.file('meta')}: cam_calib differs from the first frame's; one K per dataset")
-    views = ViewLookup(view_rotations(), all_viewpoints(SphereSpec()))
     backgrounds = sorted({m["bg_name"] for m in metas})
-    grasps: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
     rows = {s: {name: [] for name in ANNOTATION_FIELDS} for s in SPLITS}
     depth_from = {"exr": 0, "png": 0}
     error_max, size, listing = 0.0, None, []
     # built beside OUT and renamed into place: a frame that fails leaves OUT as it was
     with atomic_folder(out) as stage:
+        ctx = ImportContext(depth, K, probe.corners_probe, view_rotations(), all_viewpoints(SphereSpec()), backgrounds,
+                            {}, stage)
         for frame_id, (f, meta) in enumerate(zip(frames, metas)):
-            row, frame_size, slack, depth_kind = _convert_frame(f, meta, frame_id, size, depth, K, probe.corners_probe,
-                                                                views, backgrounds, grasps, stage)
+            row, frame_size, slack, depth_kind = _convert_frame(f, meta, frame_id, size, ctx)
             size = size or frame_size
             depth_from[depth_kind] += 1
             error_max = max(error_max, slack)
@@ -524,7 +518,7 @@ def run_import_hup3d(source: str | Path, probe_mesh: str | Path, out: str | Path
                 rows[f.split][name].append(value)
             listing.append((frame_id, f.split, f.file("meta").relative_to(source).as_posix(),
                             "exr" if depth_kind == "exr" else "png8"))
-        counts = _write_tables(stage, rows, listing, grasps, probe)
+        counts = _write_tables(stage, rows, listing, ctx.grasps, probe)
         views_unknown = int(sum(np.count_nonzero(np.asarray(rows[s]["view_id"]) < 0) for s in counts))
         summary = {"split_from": split_from, "depth_from": depth_from, "error_max_m": error_max,
                    "views_unknown": views_unknown, "image_size": size, "K": K, "backgrounds": backgrounds,
