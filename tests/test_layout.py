@@ -1,9 +1,9 @@
 """The package layout stays readable: no import cycles, no upward imports, no giant files or functions.
 
-DESIGN.md: data flows conf -> datagen -> dataset on disk -> hupbench -> models' predictions -> metrics;
-``models`` never imports ``datagen`` or ``hupbench``; ``datagen`` never imports ``models`` or ``hupbench``
-(installed as ``hupbench.models`` and ``hupbench.datagen``: the folders keep their names, pyproject.toml maps them);
-the inference path (``hupbench.inference.predict``) imports no torch. Each subpackage's ``__init__``
+Data flows conf -> datagen -> dataset on disk -> hupbench -> models' predictions -> metrics, over a shared core:
+``core`` imports none of the others; ``models`` and ``datagen`` import only the core (installed as
+``hupbench.core``, ``hupbench.models`` and ``hupbench.datagen``: the folders keep their names, pyproject.toml maps
+them); the inference path (``hupbench.inference.predict``) imports no torch and no generator module. Each subpackage's ``__init__``
 docstring says what it may import; this test holds the rules that can be read from the code.
 """
 
@@ -148,7 +148,7 @@ NEVER = {
     "hupbench.verbs": ("hupbench.cli",),
     "hupbench.data": ("hupbench.evaluation", "hupbench.inference", "hupbench.verbs", "hupbench.cli"),
 }
-#: the torch-free inference path (DESIGN.md: predict runs where torch is not installed)
+#: the torch-free inference path (predict runs where torch is not installed)
 TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupbench.inference.overlay",
               "hupbench.inference.model_file", "hupbench.inference.runtime",
               "hupbench.error_lines", "hupbench.cli")

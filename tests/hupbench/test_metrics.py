@@ -58,7 +58,7 @@ def test_split_is_keypoint_weighted():
 
 
 def test_paper_all_is_not_keypoint_weighted():
-    # REFERENCE.md: the paper's 8.65 mm is not (21 x 5.33 + 8 x 17.05) / 29
+    # HUP-3D (Birlo et al.) reports all 8.65 mm for hand 5.33 and probe 17.05: not (21 x 5.33 + 8 x 17.05) / 29
     assert (21 * 5.33 + 8 * 17.05) / 29 == pytest.approx(8.56, abs=0.005)
     assert "29 keypoints" in M.ALL_AVERAGING
 

@@ -15,7 +15,8 @@ from hupbench.datagen.assets.hand_anatomy import (
     pose_to_anatomical,
 )
 
-# REFERENCE.md, adult 50th percentile, mm: wrist->MCP, proximal, middle, distal (DIP->tip)
+# an adult hand of about the 50th percentile (Pheasant and Haslegrave, Bodyspace, 3rd ed., 2006), mm: wrist->MCP,
+# proximal, middle, distal (DIP->tip), written out here so that a change of the model's table shows
 REFERENCE_FINGERS_MM = {
     "index": (85, 46, 27, 18),
     "middle": (84, 50, 32, 20),
