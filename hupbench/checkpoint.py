@@ -82,8 +82,10 @@ class Checkpoint:
                                 f"torch.save): {type(exc).__name__}: {reason}") from exc
         header = (payload.get("format"), payload.get("version")) if isinstance(payload, dict) else (None, None)
         if header != (FORMAT, VERSION):
-            raise BadValueError(f"{path} is not a hupbench checkpoint of version {VERSION} (format={FORMAT!r}); its "
-                                f"format and version are {header[0]!r:.40} and {header[1]!r:.40}")
+            said = ", ".join(f"{name} {value!r:.40}" if value is not None else f"no {name}"
+                             for name, value in zip(("format", "version"), header))
+            raise BadValueError(f"{path} is not a hupbench checkpoint of version {VERSION} (format={FORMAT!r}): it "
+                                f"has {said}")
         missing = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING
                    and f.name not in payload]
         if missing:

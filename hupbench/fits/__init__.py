@@ -49,7 +49,8 @@ def check_fitted_probe(model_config: dict, probe_record: dict | None, source: st
         shown = record.get("path") or record.get("spec") or record.get("kind")
         raise BadValueError(f"{source}: the data shows the probe {shown!r} ({record.get('kind')}), but the model's "
                             f"{' and '.join(asked)} fit{'s' if len(asked) > 1 else ''} (probe_fit/hand_fit: depth) "
-                            f"know only the default procedural probe; use a model without the fits on this data")
+                            f"{'know' if len(asked) > 1 else 'knows'} only the default procedural probe; use a model "
+                            "without the fits on this data")
 
 
 def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,

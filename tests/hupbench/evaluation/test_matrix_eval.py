@@ -171,7 +171,7 @@ def test_matrix_eval(case, exported, tiny_dataset, tmp_path, capsys):
     elif kind == "dataset" and name == "other-probe-for-a-fitting-model":
         model, dataset = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth"), \
             other_probe_dataset(tiny_dataset, tmp_path)
-        needles = ("manifest.json", "linear.stl", "probe fit", "know only the default procedural probe")
+        needles = ("manifest.json", "linear.stl", "probe fit", "knows only the default procedural probe")
     elif kind == "dataset":
         dataset, needles = damage_dataset(name, tiny_dataset, tmp_path, "test")
     elif kind == "option":

@@ -40,7 +40,7 @@ def test_another_probe_is_refused_for_a_model_that_fits_and_accepted_for_one_tha
     with pytest.raises(BadValueError) as info:
         check_fitted_probe({"hand_fit": "depth"}, record, "DATASET/manifest.json")
     assert str(info.value) == (f"DATASET/manifest.json: the data shows the probe {shown}, but the model's hand fit "
-                               "(probe_fit/hand_fit: depth) know only the default procedural probe; use a model "
+                               "(probe_fit/hand_fit: depth) knows only the default procedural probe; use a model "
                                "without the fits on this data")
     check_fitted_probe({"name": "hupnet"}, record, "DATASET/manifest.json")
 

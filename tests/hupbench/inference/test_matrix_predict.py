@@ -454,7 +454,7 @@ def test_matrix_predict_fitting_model_on_another_probes_dataset(tiny_dataset, tm
     out = tmp_path / "out"
     answer = run_cli(capsys, *predict_argv(model, [image], out, "--depth", dataset / "test" / "depth"))
     assert_clean_error(answer, str(dataset / "manifest.json"), "linear.stl", "probe fit",
-                       "know only the default procedural probe")
+                       "knows only the default procedural probe")
     assert not out.exists()
 
 

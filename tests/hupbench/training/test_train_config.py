@@ -67,11 +67,9 @@ CASES = {
     "seed-negative": (lambda: run(seed=-1), ("seed", "from 0 to 2147483647")),
     "precision-fp16": (lambda: run(precision="fp16"), ("precision", "'auto' or 'fp32' or 'bf16'")),
     "n-keypoints-21": (lambda: run(model=HOPENetConfig(n_keypoints=21)), ("model.n_keypoints", "29")),
-    # booleans: a string from the command line was taken as true
-    "channels-last-maybe": (lambda: run(channels_last="maybe"), ("channels_last must be true or false", "'maybe'")),
+    # booleans: a string from the command line was taken as true (channels_last and train.progress: test_matrix_train.py)
     "compile-number": (lambda: run(compile=1), ("compile must be true or false", "got 1")),
     "tensorboard-maybe": (lambda: Schedule(tensorboard="maybe"), ("train.tensorboard must be true or false",)),
-    "progress-maybe": (lambda: Schedule(progress="maybe"), ("train.progress must be true or false", "'maybe'")),
 }
 
 
