@@ -142,6 +142,16 @@ def test_custom_probe_picture(tmp_path, monkeypatch, capsys):
     assert out.strip().endswith(str(tmp_path / "p.png")) and (tmp_path / "p.png").is_file()
 
 
+def test_import_graph(monkeypatch, capsys):
+    out = run_script(SCRIPTS / "import_graph.py", monkeypatch=monkeypatch, capsys=capsys)
+    edges = {tuple(line.split()[::2][:2]) for line in out.splitlines()}
+    assert ("hupbench.datagen.dataset", "hupbench.core") in edges and ("hupbench.training", "hupbench.models") in edges
+    # the core leans on nothing of the project, the generator and the models on the core alone
+    assert not [e for e in edges if e[0] == "hupbench.core"]
+    assert not [e for e in edges if e[0].startswith(("hupbench.datagen", "hupbench.models"))
+                and not e[1].startswith(("hupbench.core", "hupbench.datagen"))]
+
+
 def test_robustness_doc_parses(monkeypatch, capsys):
     """Its run is the whole matrix (tests/test_robustness_doc.py checks the doc against the cases): here its
     command line."""
