@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from hupbench.core.input_checks import check_int
-from hupbench.models.model_tolerances import ADJACENCY_DEGREE_EPS
+from hupbench.core.tolerances import ADJACENCY_DEGREE_EPS
 
 __all__ = [
     "ACTIVATION_SLOPE",

@@ -14,7 +14,7 @@ from hupbench.models.graph import (
     default_node_counts,
     normalized_adjacency,
 )
-from hupbench.models.model_tolerances import ADJACENCY_DEGREE_EPS
+from hupbench.core.tolerances import ADJACENCY_DEGREE_EPS
 
 
 def textbook(adjacency: torch.Tensor) -> torch.Tensor:

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from hupbench.models.hopenet import HOPENet, HOPENetConfig, HOPENetOutput
-from hupbench.models.model_tolerances import (
+from hupbench.core.tolerances import (
     BF16_AUTOCAST_REL_2D,
     BF16_AUTOCAST_REL_2D_INIT,
     BF16_AUTOCAST_REL_3D,
@@ -69,7 +69,7 @@ def test_each_stage_feeds_the_next():
 
 @pytest.mark.parametrize("backbone", ["resnet10", "resnet18"])
 def test_bf16_autocast_agrees_with_fp32(backbone):
-    # tolerances measured over 120 random-init models, see models/model_tolerances.py
+    # tolerances measured over 120 random-init models, see core/tolerances.py
     torch.manual_seed(0)
     model = HOPENet(HOPENetConfig(backbone=backbone)).eval()
     images = torch.randn(4, 3, 96, 96)

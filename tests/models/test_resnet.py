@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from hupbench.models.resnet import RESNET_SPECS, ResNetOutput, resnet, strip_classifier
-from hupbench.models.model_tolerances import CHANNELS_LAST_REL
+from hupbench.core.tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:

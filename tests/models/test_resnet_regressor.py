@@ -3,7 +3,7 @@ import torch
 
 from hupbench.models.baseline import RegressorOutput, ResNetRegressor, ResNetRegressorConfig
 from hupbench.models.hopenet import HOPENetOutput
-from hupbench.models.model_tolerances import CHANNELS_LAST_REL
+from hupbench.core.tolerances import CHANNELS_LAST_REL
 
 
 def scaled_difference(approx: torch.Tensor, exact: torch.Tensor) -> float:
