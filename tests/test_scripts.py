@@ -108,6 +108,30 @@ def test_measure_ood_statistics(exported, tiny_dataset, monkeypatch, capsys):
     assert "backbone feature" in out and "image statistics" in out
 
 
+def test_measure_depth_range(tiny_dataset, monkeypatch, capsys):
+    """The ranges it prints are the splits' median depths, and its verdict is check_depth's: calibrated on the
+    training frames, every validation frame passes and the same frames at ten times their scale fail."""
+    import numpy as np
+
+    from hupbench.inference import image_statistics as stats
+    from hupbench.inference.images import read_depth_png
+
+    out = run_script(SCRIPTS / "measure_depth_range.py", tiny_dataset, monkeypatch=monkeypatch, capsys=capsys)
+    maps = {split: [read_depth_png(p) for p in sorted((tiny_dataset / split / "depth").glob("*.png"))]
+            for split in ("train", "val")}
+    medians = {split: np.array([stats.depth_median_m(m * 1e-4) for m in maps[split]]) for split in maps}
+    lines = out.splitlines()
+    for line, split in zip(lines, ("train", "val")):
+        assert line == (f"{split}: 20 frames, median depth {medians[split].min():.3f}-{medians[split].max():.3f} m")
+    assert float(lines[2].rsplit(" ", 1)[1]) <= stats.DEPTH_MARGIN
+    assert lines[4] == "DEPTH_MARGIN 1.5: keeps every val frame: yes; refuses the unit slips: yes"
+    calibration = stats.calibrate(np.zeros((2, 10)) + np.eye(2, 10), np.zeros((1, 10)), "val", medians["train"])
+    for depth in maps["val"]:
+        calibration.check_depth(depth, 1e-4, "val")
+        with pytest.raises(ValueError, match="another unit"):
+            calibration.check_depth(depth, 1e-3, "val")
+
+
 def test_docs_pictures(tiny_dataset, tmp_path, monkeypatch, capsys):
     import numpy as np
 

@@ -22,7 +22,7 @@ frames (the median of a map's valid, non-zero values, metres). A depth map whose
 widened by the factor :data:`DEPTH_MARGIN` is refused (:meth:`ImageStatistics.check_depth`): a map in another
 unit than ``--depth-scale-m`` says is off by a factor 10 or more (millimetres read as 0.1 mm, a scale ten times
 the map's), a camera at another distance by less. The factor is chosen on the quickstart dataset's validation
-split (README, prediction section).
+split (``scripts/measure_depth_range.py``; README, prediction section).
 """
 
 from __future__ import annotations
