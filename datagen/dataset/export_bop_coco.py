@@ -110,10 +110,11 @@ class ExportOptions:
 
 def dataset_probe_mesh(root: Path, manifest: dict):
     """The probe a dataset was rendered with, as a ``trimesh.Trimesh`` in metres, probe frame (shared: copy it
-    before changing it): :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset`."""
+    before changing it): :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset` of the folder and the
+    manifest the export read."""
     from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 
-    return probe_of_dataset(root).mesh
+    return probe_of_dataset(root, manifest).mesh
 
 
 def run_export_dataset(opts: ExportOptions, provenance: dict | None = None, log=print) -> dict:
