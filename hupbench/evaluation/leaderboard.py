@@ -14,7 +14,7 @@ import contextlib
 from pathlib import Path
 
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_int, is_number
 from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp
 from hupbench.evaluation.leaderboard_plots import plot_latency, plot_training
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT, render_readme
@@ -95,7 +95,7 @@ def read_validation_curve(path: Path, cited_by: str | None = None) -> list[tuple
         values = {"train_wall_s": (record.get("train_wall_s"), MAX_TRAIN_WALL_S),
                   "val_mpjpe_mm['all']": (mpjpe.get("all") if isinstance(mpjpe, dict) else None, LIMITS["mm"])}
         for name, (value, high) in values.items():
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= high):
+            if not (is_number(value) and 0 <= value <= high):
                 raise BadValueError(f"{where}:{lineno}: validation line needs {name} as a finite number from 0 to "
                                     f"{high:g}, got {value!r}")
         curve.append((float(values["train_wall_s"][0]), float(values["val_mpjpe_mm['all']"][0])))

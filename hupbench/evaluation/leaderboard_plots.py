@@ -130,7 +130,8 @@ def plot_latency(rows: list[dict]) -> bytes:
             points.append((ms, row["metrics"]["mpjpe_mm"]["all"]))
             labels.append(plot_label(row))
             runtimes.append(runtime)
-    with _figure(rows, extra_height_in=LIST_ROW_IN * (len(points) + 1) if points else 0.0) as (fig, ax, reported):
+    list_in = LIST_ROW_IN * (len(points) + 1) if points else 0.0  # the numbered list under the axes
+    with _figure(rows, extra_height_in=list_in) as (fig, ax, reported):
         for runtime, marker in (("ONNX Runtime", "o"), ("PyTorch", "s")):
             chosen = [p for p, r in zip(points, runtimes) if r == runtime]
             if chosen:
@@ -159,7 +160,7 @@ def plot_latency(rows: list[dict]) -> bytes:
         log_scale = ", log scale" if scale == "log" else ""
         return _png_bytes(fig, ax, f"inference latency (ms per image, batch 1{log_scale})",
                           "test MPJPE, all 29 keypoints (mm)", "Error against inference latency (lower left is better)",
-                          "lower right", bottom_in=LIST_ROW_IN * (len(points) + 1) if points else 0.0)
+                          "lower right", bottom_in=list_in)
 
 
 def plot_training(rows: list[dict], curves: list[tuple[dict, list[tuple[float, float]]]]) -> bytes:

@@ -136,7 +136,7 @@ def _floor_lines(rows: list[dict]) -> list[str]:
     for kind in (k for k in FLOOR_KINDS if k in floors):
         lines += [f"Split floor, hand / probe / all (mm; column *split floor*): {FLOOR_NAMES[kind]}.", ""]
         for (name, sha), mm in sorted(floors[kind].items()):
-            lines.append(f"- {text_cell(name)}" + (f" (manifest sha256 `{sha[:12]}`)" if sha else "")
+            lines.append(f"- {text_cell(name)}" + (f" (manifest sha256 {sha_cell(sha)})" if sha else "")
                          + f", test split: {triplet_cell(mm)}")
         lines.append("")
     return lines
