@@ -310,7 +310,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     """(the results dict of the model on the split: metrics, breakdowns, floors, latency and provenance; the
     outputs behind it: "pred2d", "gt2d" (N, 29, 2) normalised, "errors" (N, 29) mm, "reader", "image_size")."""
     from hupbench.core.contract import read_annotations
-    from hupbench.evaluation.results import blank_results
+    from hupbench.evaluation.results import UTC_FORMAT, blank_results
     from hupbench.input_geometry import normalized_to_pixels
     from hupbench.provenance import git_commit, hardware_description
 
@@ -361,5 +361,5 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     results["training"]["command"] = options.training_command
     results["training"]["log"] = options.training_log
     results["git_commit"] = git_commit()
-    results["created_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    results["created_utc"] = time.strftime(UTC_FORMAT, time.gmtime())
     return results, {"pred2d": pred2d, "gt2d": gt2d, "errors": errors, "reader": reader, "image_size": image_size}
