@@ -3,8 +3,8 @@
 A model's saved config asks for the fits (``probe_fit: depth``, ``hand_fit: depth``); :func:`after_network` runs
 them on its output, in eval (:mod:`hupbench.evaluation.prediction`) and ``hupbench predict`` alike. The probe's fit
 (:mod:`hupbench.fits.probe_fit`) poses the procedural probe's surface; the hand's (:mod:`hupbench.fits.hand_fit`) fits a
-capsule hand and leaves that probe's surface out. Both know only the procedural probe: data made with another
-probe is refused by :func:`check_fitted_probe`.
+capsule hand and leaves that probe's surface out; both read the depth input through :mod:`hupbench.fits.depth_points`.
+Both know only the procedural probe: data made with another probe is refused by :func:`check_fitted_probe`.
 
 May import: ``hupbench.core``, ``hupbench.metrics``, ``hupbench.input_geometry``, torch and numpy, and the
 generator's probe and hand (``datagen.assets``, the shapes the fits fit); this module itself imports neither torch

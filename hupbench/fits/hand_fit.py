@@ -42,9 +42,9 @@ import numpy as np
 import torch
 
 from hupbench.core import keypoints as kp
+from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_points2d, sample_points, unproject_depth
 from hupbench.fits.probe_fit import probe_model
 from hupbench.fits.settings import HandFitSettings
-from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
 __all__ = ["HandFit", "HandFitSettings", "fit_hand"]
@@ -141,7 +141,7 @@ def _residuals(theta, hand, points, weight, nearest, depth, K, s: HandFitSetting
     a, b = _ends(_pose(theta, hand), caps)
     surface = (_segment_distance(points, a[nearest], b[nearest]) - caps.radius[nearest]) * weight
     samples = a[:, None] + torch.linspace(0.0, 1.0, s.free_samples)[None, :, None] * (b - a)[:, None]   # (C, F, 3)
-    z = samples[..., 2].clamp_min(1e-3)
+    z = samples[..., 2].clamp_min(MIN_PROJECTION_Z_M)
     u = K[0, 0] * samples[..., 0] / z + K[0, 2]
     v = K[1, 1] * samples[..., 1] / z + K[1, 2]
     size = depth.shape[-1]
@@ -163,18 +163,11 @@ def _measured_points(depth: torch.Tensor, K: torch.Tensor, hand: torch.Tensor, p
                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes,
     and their (B, P) weights (1 real, 0 padding), P = ``s.max_points`` (module docstring, step 2)."""
-    B, S, _ = depth.shape
-    v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
-    z = depth.reshape(B, -1)
-    points = torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
-    near = (z > 0) & (_nearest(points, hand, caps)[0] < s.reach_m)
+    points = unproject_depth(depth, K)
+    near = (points[..., 2] > 0) & (_nearest(points, hand, caps)[0] < s.reach_m)
     on_probe, _ = probe_model().probe.signed_distance_and_gradient_torch((points - probe_translation[:, None])
                                                                             @ probe_rotation)
-    near &= on_probe > s.probe_gap_m
-    order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
-    keys = torch.where(near, order + 1.0, torch.zeros_like(z))
-    top = keys.topk(min(s.max_points, S * S), dim=1).indices
-    return torch.gather(points, 1, top[..., None].expand(-1, -1, 3)), torch.gather(near, 1, top).float()
+    return sample_points(points, near & (on_probe > s.probe_gap_m), s.max_points)
 
 
 def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
@@ -222,11 +215,8 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         count = real.sum(1).numpy().astype(np.int64)
     use = (count >= s.min_points) & solved.numpy() & np.isfinite(fitted).all(axis=(1, 2))
     fitted = np.where(use[:, None, None], fitted, np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64))
-    K64 = np.asarray(K_input, dtype=np.float64)
-    z = np.maximum(fitted[..., 2], 1e-3)
-    uv = np.stack([K64[0, 0] * fitted[..., 0] / z + K64[0, 2], K64[1, 1] * fitted[..., 1] / z + K64[1, 2]], -1)
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[:, kp.HAND_SLICE] = fitted
-    out2d[:, kp.HAND_SLICE] = np.where(use[:, None, None], pixels_to_normalized(uv, images.shape[-1]),
+    out2d[:, kp.HAND_SLICE] = np.where(use[:, None, None], input_points2d(fitted, K_input, images.shape[-1]),
                                        out2d[:, kp.HAND_SLICE])
     return out2d, out3d, HandFit(count, use)

@@ -45,8 +45,8 @@ import torch
 
 from hupbench.core import keypoints as kp
 from hupbench.core.rotations_torch import axis_angle_to_matrix
+from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_points2d, sample_points, unproject_depth
 from hupbench.fits.settings import ProbeFitSettings
-from hupbench.input_geometry import pixels_to_normalized
 from hupbench.metrics import fit_rigid_pose
 
 __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "ProbeModel", "fit_probe", "probe_model"]
@@ -104,17 +104,9 @@ def _measured_points(depth: torch.Tensor, K: torch.Tensor, centre: torch.Tensor,
                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, P, 3) camera-frame points of the depth map (B, S, S) within ``reach`` metres of ``centre`` (B, 3) and
     their (B, P) weights (1 real, 0 padding), P = ``max_points`` (fewer for a smaller map)."""
-    B, S, _ = depth.shape
-    v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
-    z = depth.reshape(B, -1)
-    points = torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
-    near = (z > 0) & ((points - centre[:, None]).norm(dim=-1) < reach)
-    order = torch.rand(S * S, generator=torch.Generator().manual_seed(0))     # the same order for every frame
-    keys = torch.where(near, order + 1.0, torch.zeros_like(z))
-    count = min(max_points, S * S)
-    top = keys.topk(count, dim=1).indices
-    chosen = torch.gather(points, 1, top[..., None].expand(-1, -1, 3))
-    return chosen, torch.gather(near, 1, top).float()
+    points = unproject_depth(depth, K)
+    near = (points[..., 2] > 0) & ((points - centre[:, None]).norm(dim=-1) < reach)
+    return sample_points(points, near, max_points)
 
 
 def _refine(model: ProbeModel, p: torch.Tensor, w_real: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
@@ -145,14 +137,14 @@ def _marker_site(model: ProbeModel, rotation: torch.Tensor, translation: torch.T
     site = rotation @ model.marker + translation                                  # (B, 3)
     normal = rotation @ model.marker_normal
     facing = -(normal * site).sum(-1) / site.norm(dim=-1).clamp_min(1e-9)
-    z = site[:, 2].clamp_min(1e-3)
+    z = site[:, 2].clamp_min(MIN_PROJECTION_Z_M)
     u = torch.round(K[0, 0] * site[:, 0] / z + K[0, 2]).long()
     v = torch.round(K[1, 1] * site[:, 1] / z + K[1, 2]).long()
     r = s.marker_window
     offsets = torch.arange(-r, r + 1)
     cols = (u[:, None] + offsets).clamp(0, S - 1)                                 # (B, W)
     rows = (v[:, None] + offsets).clamp(0, S - 1)
-    inside = ((u >= r) & (u < S - r) & (v >= r) & (v < S - r) & (site[:, 2] > 1e-3)).float()
+    inside = ((u >= r) & (u < S - r) & (v >= r) & (v < S - r) & (site[:, 2] > MIN_PROJECTION_Z_M)).float()
     index = torch.arange(B)[:, None, None]
     window_depth = depth[index, rows[:, :, None], cols[:, None, :]]               # (B, W, W)
     window_rgb = rgb.permute(0, 2, 3, 1)[index, rows[:, :, None], cols[:, None, :]]  # (B, W, W, 3)
@@ -226,11 +218,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         rotation = torch.where(choose_a[:, None, None], RA, RB)
         fitted = model.corners @ rotation.transpose(1, 2) + tA[:, None]
         fitted = fitted.double().numpy()
-    K64 = np.asarray(K_input, dtype=np.float64)
-    z = np.maximum(fitted[..., 2], 1e-3)
-    uv = np.stack([K64[0, 0] * fitted[..., 0] / z + K64[0, 2], K64[1, 1] * fitted[..., 1] / z + K64[1, 2]], -1)
     use = ~kept.numpy()
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[use, kp.CORNER_SLICE] = fitted[use]
-    out2d[use, kp.CORNER_SLICE] = pixels_to_normalized(uv[use], images.shape[-1])
+    out2d[use, kp.CORNER_SLICE] = input_points2d(fitted[use], K_input, images.shape[-1])
     return out2d, out3d, ProbeFit(decision.numpy().astype(np.int64), inliers.numpy().astype(np.int64))
