@@ -455,6 +455,17 @@ def test_fit_rigid_pose_recovers_the_pose_of_exact_points():
     np.testing.assert_allclose(np.linalg.det(fitted[:, :3, :3]), 1.0)
 
 
+def test_fit_rigid_pose_takes_one_point_set_per_frame():
+    """(N, K, 3) object points, a different set in each frame (a prediction aligned onto the truth): each frame's
+    own pose, and the same answer as fitting each frame alone."""
+    T = _poses(4)
+    objects = np.random.default_rng(2).normal(0.0, 0.05, (4, 6, 3))
+    observed = np.einsum("nij,nkj->nki", T[:, :3, :3], objects) + T[:, None, :3, 3]
+    np.testing.assert_allclose(M.fit_rigid_pose(objects, observed), T, atol=1e-12)
+    one_by_one = np.concatenate([M.fit_rigid_pose(objects[i], observed[i:i + 1]) for i in range(4)])
+    np.testing.assert_allclose(M.fit_rigid_pose(objects, observed), one_by_one, atol=1e-12)
+
+
 @pytest.mark.parametrize("n", [1, 70])   # 70 frames: more than one chunk
 def test_identity_pose_scores_zero(n):
     T, pts = _poses(n), _half_turn_symmetric_points()
