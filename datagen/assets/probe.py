@@ -35,7 +35,9 @@ from hupbench.datagen.assets.probe_mesh import (
     ProbeMeshSpec,
     ProbeSource,
     TriangleDistance,
+    box_corners,
     marker_patch,
+    mesh_probe_record,
     probe_geometry_sha256,
     read_cached,
     regions,
@@ -141,8 +143,7 @@ class Probe:
         self.lens_face_mask = lens_face_mask
         self.marker_face_mask = marker_face_mask
         self.region_z = region_z
-        bounds = np.asarray(mesh.bounds, dtype=np.float64)  # (2, 3) min, max
-        self.corners_probe = np.array([[bounds[b, axis] for axis, b in enumerate(bits)] for bits in CORNER_BITS])
+        self.corners_probe = box_corners(mesh.bounds)
         self._distance = distance
         xs, ys, zs = sdf_axes
         self.sdf_grid = sdf_grid
@@ -160,7 +161,7 @@ class Probe:
         or ``{"kind": "mesh", "path", "sha256" (of the file), "unit", "align", "geometry_sha256"}``."""
         if isinstance(self.spec, ProbeSpec):
             return {"kind": "procedural"} if self.spec == ProbeSpec() else {"kind": "procedural", "spec": asdict(self.spec)}
-        return {**self.spec.record(), "geometry_sha256": probe_geometry_sha256(self.mesh.vertices, self.mesh.faces)}
+        return mesh_probe_record(self.spec, self.mesh.vertices, self.mesh.faces)
 
     # ---------------------------------------------------------------- numpy
 

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from hupbench.datagen.assets.probe_shape import RegionZ
 from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.keypoints import CORNER_BITS
 from hupbench.core.io import file_sha256
 from hupbench.datagen.mesh_distance import (
     FEATURE_EAB,
@@ -58,8 +59,10 @@ __all__ = [
     "ProbeMeshSpec",
     "ProbeSource",
     "align_principal_axes",
+    "box_corners",
     "linear_probe_mesh",
     "load_probe_mesh",
+    "mesh_probe_record",
     "probe_geometry_sha256",
 ]
 
@@ -341,6 +344,19 @@ def probe_geometry_sha256(vertices: np.ndarray, faces: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def mesh_probe_record(spec: ProbeMeshSpec, vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """What a grasps file and a dataset's manifest record of a mesh probe
+    (:attr:`hupbench.datagen.assets.probe.Probe.record`): its file's record and the sha256 of its geometry as used."""
+    return {**spec.record(), "geometry_sha256": probe_geometry_sha256(vertices, faces)}
+
+
+def box_corners(bounds: np.ndarray) -> np.ndarray:
+    """(8, 3) float64: the corners of the axis-aligned box ``bounds`` ((2, 3): min, max), in the order of the
+    probe's corner keypoints (:data:`hupbench.core.keypoints.CORNER_BITS`)."""
+    bounds = np.asarray(bounds, dtype=np.float64)
+    return np.array([[bounds[b, axis] for axis, b in enumerate(bits)] for bits in CORNER_BITS])
+
+
 def regions(mesh: trimesh.Trimesh) -> tuple[RegionZ, np.ndarray]:
     """The regions (:data:`REGION_FRACTIONS`) and the (F,) bool lens faces of a mesh in the probe frame."""
     length = float(mesh.bounds[1, 2])
@@ -522,8 +538,9 @@ PROBE_MESH_FIELDS = ("probe_mesh_vertices", "probe_mesh_faces", "probe_mesh_reco
 
 
 def probe_arrays(probe) -> dict[str, np.ndarray]:
-    """The arrays a grasps file carries for its probe: none for the procedural probe, else
-    :data:`PROBE_MESH_FIELDS` ((V, 3) float64 metres probe frame, (F, 3) int64, a JSON string)."""
+    """The arrays a grasps file carries for its probe (a :class:`hupbench.datagen.assets.probe.Probe`, or what has
+    its ``spec``, ``mesh`` and ``record``): none for the procedural probe, else :data:`PROBE_MESH_FIELDS`
+    ((V, 3) float64 metres probe frame, (F, 3) int64, a JSON string)."""
     import json
 
     if not isinstance(probe.spec, ProbeMeshSpec):

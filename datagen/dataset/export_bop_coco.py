@@ -293,10 +293,9 @@ def _check_probe_frame(mesh_m, ann: dict, where: Path) -> None:
     dataset's probe and world = probe frame, so ``T_cam_world`` is the model -> camera pose."""
     from hupbench.core.geometry import transform_points
     from hupbench.core.tolerances import CORNER_FRAME_TOL_M
+    from hupbench.datagen.assets.probe_mesh import box_corners
 
-    bounds = np.asarray(mesh_m.bounds, np.float64)
-    corners_probe = np.array([[bounds[b, axis] for axis, b in enumerate(bits)] for bits in kp.CORNER_BITS])
-    corners_cam = transform_points(ann["T_cam_world"], corners_probe)                   # (N, 8, 3) metres
+    corners_cam = transform_points(ann["T_cam_world"], box_corners(mesh_m.bounds))     # (N, 8, 3) metres
     error = np.abs(corners_cam - ann["keypoints_3d_cam"][:, kp.CORNER_SLICE]).max()
     if error > CORNER_FRAME_TOL_M:
         raise BadValueError(f"{where}: the probe mesh's box, placed by T_cam_world, is {error * MM_PER_M:.3f} mm from "

@@ -218,27 +218,31 @@ def read_meta(path: Path) -> dict:
     return out
 
 
-def read_probe_mesh(path: Path):
+class PublishedProbe(NamedTuple):
+    """A probe PLY as stored: ``ProbeMeshSpec``, ``trimesh.Trimesh`` (metres), box corners (8, 3), manifest record."""
+    spec: object
+    mesh: object
+    corners_probe: np.ndarray
+    record: dict
+
+
+def read_probe_mesh(path: Path) -> PublishedProbe:
     """The probe the published frames were rendered with, from its PLY, in the mesh's own frame.
 
     The mesh is taken as stored (metres, no repair): ``affine_transform`` places exactly these vertices, and
     the box corners (keypoints 21-28, :data:`hupbench.core.keypoints.CORNER_BITS` order, the published
-    ``get_obj_corners3d`` order) are their axis-aligned box, :attr:`Probe.corners_probe`.
+    ``get_obj_corners3d`` order) are their axis-aligned box. The import derives no signed distance (it needs none).
 
     Args:
         path: the probe PLY the dataset was rendered with (not in the public repositories).
-
-    Returns:
-        :class:`hupbench.datagen.assets.probe.Probe` of a ``ProbeMeshSpec`` (unit "m", no align) whose
-        ``record`` the manifest keeps and whose geometry the dataset's grasps.npz carries.
 
     Raises:
         MissingFileError: no file. BadValueError: not a triangle mesh of a hand-held size in metres.
     """
     import trimesh
 
-    from hupbench.datagen.assets.probe import probe_from_geometry
-    from hupbench.datagen.assets.probe_mesh import MAX_LENGTH_M, MIN_LENGTH_M, ProbeMeshSpec
+    from hupbench.datagen.assets.probe_mesh import MAX_LENGTH_M, MIN_LENGTH_M, ProbeMeshSpec, box_corners, \
+        mesh_probe_record
 
     if not path.is_file():
         raise MissingFileError(f"probe mesh {path} does not exist (the PLY the dataset was rendered with, e.g. "
@@ -254,7 +258,7 @@ def read_probe_mesh(path: Path):
         raise BadValueError(f"probe mesh {path}: not a triangle mesh of the probe in metres ({why}); expected the "
                             f"probe's PLY, {MIN_LENGTH_M:g} to {MAX_LENGTH_M:g} m long")
     spec = ProbeMeshSpec(str(path.resolve()), "m", False, file_sha256(path))
-    return probe_from_geometry(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64), spec)
+    return PublishedProbe(spec, mesh, box_corners(mesh.bounds), mesh_probe_record(spec, mesh.vertices, mesh.faces))
 
 
 # --- the conversion of one frame -------------------------------------------------------------
@@ -403,8 +407,8 @@ def view_of(pose3: np.ndarray, rotations: np.ndarray) -> int:
 class ImportContext(NamedTuple):
     """What every frame of one import shares: the depth source ("auto" or "png"), K (3, 3), the probe's box
     corners (8, 3) in its mesh frame, the sphere's view rotations (V, 3, 3) and (theta, phi) angles (V, 2), the
-    background names, the distinct grasps seen so far (hand pose and translation as float32 bytes -> (hand_pose
-    (48,), hand_trans (3,)) as first seen, in grasp-index order; a new grasp is added) and the folder written."""
+    background names, the distinct grasps seen so far (hand pose and translation as float32 bytes -> (grasp index,
+    hand_pose (48,), hand_trans (3,)) as first seen; a new grasp is added) and the folder written."""
     depth: str
     K: np.ndarray
     corners_probe: np.ndarray
@@ -454,8 +458,7 @@ def _convert_frame(f, meta: dict, frame_id: int, size, ctx: ImportContext):
                          stored.astype(np.float64) * DEPTH_SCALE_M, labels, slack_m=slack)
     view = view_of(meta["pose3"], ctx.view_rotations)
     key = np.concatenate([meta["hand_pose"], meta["hand_trans"]]).astype(np.float32).tobytes()
-    hand_pose, hand_trans = ctx.grasps.setdefault(key, (meta["hand_pose"], meta["hand_trans"]))
-    grasp = list(ctx.grasps).index(key)
+    grasp, hand_pose, hand_trans = ctx.grasps.setdefault(key, (len(ctx.grasps), meta["hand_pose"], meta["hand_trans"]))
     row = {"frame_id": frame_id, "keypoints_3d_cam": kp3d, "keypoints_2d": kp2d, "visible": visible, "K": ctx.K,
            "T_cam_world": T_cam_probe, "grasp_id": grasp, "grasp_index": grasp, "view_id": view,
            "theta": ctx.view_angles[view, 0] if view >= 0 else -1.0,
@@ -550,8 +553,8 @@ def _write_tables(out: Path, rows: dict, listing: list[tuple], grasps: dict, pro
     writer.writerow(["frame_id", "split", "published_meta", "depth_from"])
     writer.writerows(listing)
     write_bytes(out / "imported_frames.csv", text.getvalue().encode())
-    save_npz(out / GRASPS, {"hand_pose": np.array([pose for pose, _ in grasps.values()], np.float64),
-                            "hand_trans": np.array([trans for _, trans in grasps.values()], np.float64),
+    save_npz(out / GRASPS, {"hand_pose": np.array([pose for _, pose, _ in grasps.values()], np.float64),
+                            "hand_trans": np.array([trans for _, _, trans in grasps.values()], np.float64),
                             "grasp_id": np.arange(len(grasps), dtype=np.int64), **probe_arrays(probe)})
     return counts
 

@@ -36,9 +36,17 @@ def published(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def imported(published, tmp_path_factory):
+    """The import of ``published``, which builds no Probe: nothing of it needs the probe's signed distance (seconds
+    to minutes for a mesh of thousands of triangles)."""
     root, _, _ = published
     out = tmp_path_factory.mktemp("imported") / "ds"
-    result = H.run_import_hup3d(root / "HUP-3D", root / "probe.ply", out, log=lambda line: None)
+
+    def no_probe(*args, **kwargs):
+        raise AssertionError("import-hup3d built a Probe (its signed distance) that nothing of the import reads")
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("hupbench.datagen.assets.probe.probe_from_geometry", no_probe)
+        result = H.run_import_hup3d(root / "HUP-3D", root / "probe.ply", out, log=lambda line: None)
     return out, result
 
 
