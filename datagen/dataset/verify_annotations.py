@@ -184,7 +184,7 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
         centre = 0.5 * (world.min(axis=1) + world.max(axis=1))
         point = transform_points(ann["T_cam_world"], centre[:, None])[:, 0]
     else:
-        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]  # _check_manifest_extras checked the name
+        point = cam[:, kp.KEYPOINT_NAMES.index(look_at)]  # check_manifest_extras checked the name
     expected = np.zeros_like(point)
     expected[:, 2] = ann["z_ego"]
     err = np.linalg.norm(point - expected, axis=1)

@@ -232,8 +232,8 @@ def test_imported_dataset_records_its_probe_and_grasps(published, imported):
 
 
 def test_bop_export_and_probe_pose_metrics_work_on_imported_data(imported, tmp_path):
-    """Before the probe was recorded, the BOP export refused an imported dataset and eval dropped its
-    probe-pose metrics, both blaming the mesh: the procedural probe stood in for the PLY."""
+    """The imported dataset's probe is the PLY's (not the procedural one): the BOP export takes it, its model is
+    the PLY's box, and eval's probe-pose metrics score the annotated corners against it."""
     from hupbench.datagen.dataset.export_bop_coco import ExportOptions, run_export_dataset
     from hupbench.evaluation.probe_pose import dataset_probe, probe_pose_scores
 

@@ -49,8 +49,8 @@ def _weights(tmp: Path, kind: str) -> Path:
 
 
 def _dense_probe(tmp: Path) -> Path:
-    """A probe-sized ellipsoid of 81,920 triangles as STL: over the face budget (a scan exported at full
-    resolution; one of half a million took `hupbench grasps` over five minutes before it printed anything)."""
+    """A probe-sized ellipsoid of 81,920 triangles as STL: over the face budget (as a scan exported at full
+    resolution)."""
     import trimesh
 
     mesh = trimesh.creation.icosphere(subdivisions=6)
