@@ -92,10 +92,9 @@ def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool,
             bar.update(1)
         if net.module is not None:
             def run_torch(images):
-                with torch.inference_mode():
-                    points2d, points3d = net.module(torch.from_numpy(images))
+                outputs = net.network(torch.from_numpy(images))
                 if after is not None:
-                    after(images, (points2d.double().numpy(), points3d.double().numpy()))
+                    after(images, outputs)
             for batch, (warmup, repeats) in LATENCY_RUNS.items():
                 bar.set_postfix_str(f"PyTorch batch {batch}")
                 out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, size, batch, warmup, repeats, channels)
