@@ -288,9 +288,9 @@ def test_fault_eval_two_runs_at_once(exported, tiny_dataset, tmp_path, capsys):
 
 @pytest.mark.matrix
 def test_matrix_eval_leaderboard_row_from_uncommitted_code(exported, tiny_dataset, tmp_path, capsys, monkeypatch):
-    """--out leaderboard/results/NAME.json from a source tree whose package code has uncommitted changes (measured
-    before: written, its git_commit "+dirty", a row nobody can reproduce): refused before the model runs, naming the
-    changed files; the same eval from the committed tree writes the row."""
+    """--out leaderboard/results/NAME.json from a source tree whose package code has uncommitted changes (its
+    git_commit would say "+dirty": a row nobody can reproduce): refused before the model runs, naming the changed
+    files; the same eval from the committed tree writes the row."""
     import subprocess
 
     from hupbench import provenance
