@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -20,11 +21,13 @@ def resolved_config(cfg: DictConfig) -> dict:
     return resolved
 
 
-def _override_value(path) -> str:
-    """A path as a Hydra override's value (quoted: it may hold '=' or spaces), or null."""
-    if path is None:
-        return "null"
-    return "'" + str(path).replace("\\", "\\\\").replace("'", "\\'") + "'"
+def probe_overrides(mesh, mesh_unit: str = "m", align: bool = False) -> list[str]:
+    """The overrides that name a probe in a config with a ``probe`` node (``conf/grasps.yaml``,
+    ``conf/generate.yaml``): ``mesh`` a path or None (null, the procedural probe). The path is quoted (it may
+    hold '=' or spaces) as Hydra's override grammar reads a quoted value: a quote escaped, and a backslash
+    doubled only where it precedes a quote (or the closing one); other backslashes are taken as they stand."""
+    value = "null" if mesh is None else "'" + re.sub(r"(\\+)(?='|$)", r"\1\1", str(mesh)).replace("'", "\\'") + "'"
+    return [f"probe.mesh={value}", f"probe.mesh_unit={mesh_unit}", f"probe.align={str(align).lower()}"]
 
 
 def run_generate(cfg: DictConfig, log=print) -> dict:
@@ -50,8 +53,8 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
         from hupbench.config import compose
 
         probe = run.probe
-        grasps_cfg = compose("grasps", [f"out_dir={grasps_path.parent}", f"probe.mesh={_override_value(probe.mesh)}",
-                                        f"probe.mesh_unit={probe.mesh_unit}", f"probe.align={str(probe.align).lower()}"])
+        grasps_cfg = compose("grasps", [f"out_dir={grasps_path.parent}",
+                                        *probe_overrides(probe.mesh, probe.mesh_unit, probe.align)])
         n_grasps = grasps_cfg.generate.n_select
         splits = run.dataset.splits
         if splits is not None and sum(splits.values()) != n_grasps:

@@ -30,6 +30,7 @@ from hupbench.datagen.render.preview import PreviewView
 from hupbench.config import build, build_group, compose
 from hupbench.provenance import run_info
 from hupbench.training.run_config import TrainRun, train_config
+from hupbench.verbs.generate import probe_overrides
 from hupbench.verbs.grasps import GraspsRun
 from hupbench.verbs.train import RECOMMENDED_EXPERIMENT
 
@@ -117,9 +118,7 @@ class QuickstartRun:
         probe = self.probe or {}
         if probe.get("mesh") is not None:
             # grasps and dataset use the same probe
-            mesh = "'" + str(probe["mesh"]).replace("'", "\\'") + "'"
-            same = [f"probe.mesh={mesh}", f"probe.mesh_unit={probe.get('mesh_unit', 'm')}",
-                    f"probe.align={str(probe.get('align', False)).lower()}"]
+            same = probe_overrides(probe["mesh"], probe.get("mesh_unit", "m"), probe.get("align", False))
             out["grasps"] += same
             out["dataset"] += same
         return out

@@ -75,3 +75,14 @@ def test_the_run_builds_the_preview_camera_and_view(packaged, tmp_path):
     assert built.stage_overrides()["grasps"] == ["generate.n_select=5"]
     fast = change(fast=True)(packaged, tmp_path)
     assert fast.stage_overrides()["eval_latency"] is False
+
+
+def test_a_probe_mesh_reaches_the_grasps_and_dataset_stages_as_given(packaged, tmp_path):
+    """The grasps and dataset stages name the run's probe; a path with a quote, a backslash, '=' and a space
+    composes back to itself in both stage configs."""
+    mesh = str(tmp_path / "it's a=b\\probe.stl")
+    built = change(probe={"mesh": mesh, "mesh_unit": "mm", "align": True})(packaged, tmp_path)
+    overrides = built.stage_overrides()
+    for stage, config in (("grasps", "grasps"), ("dataset", "generate")):
+        probe = compose(config, overrides[stage]).probe
+        assert (probe.mesh, probe.mesh_unit, probe.align) == (mesh, "mm", True), stage
