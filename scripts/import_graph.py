@@ -13,16 +13,21 @@ from __future__ import annotations
 
 import argparse
 import ast
+import tomllib
 from collections import Counter
 from pathlib import Path
 
-#: repository folder -> installed package name
-FOLDERS = {"hupbench": "hupbench", "core": "hupbench.core", "datagen": "hupbench.datagen", "models": "hupbench.models"}
+
+def folders(root: Path) -> dict[str, str]:
+    """Repository folder -> installed package name: ``hupbench`` and the checkout's pyproject.toml ``package-dir``."""
+    package_dir = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"].get("package-dir", {})
+    return {"hupbench": "hupbench", **{folder: name for name, folder in package_dir.items()}}
 
 
-def module_name(root: Path, path: Path) -> str:
+def module_name(root: Path, path: Path, installed: dict[str, str]) -> str:
+    """The installed name of the module at ``path`` (``installed``: :func:`folders`)."""
     parts = path.relative_to(root).with_suffix("").parts
-    names = [FOLDERS[parts[0]], *parts[1:]]
+    names = [installed[parts[0]], *parts[1:]]
     return ".".join(names[:-1] if names[-1] == "__init__" else names)
 
 
@@ -34,11 +39,12 @@ def package_of(module: str, packages: set[str]) -> str | None:
 
 def import_counts(root: Path) -> Counter:
     """{(package, package it imports): number of import statements}, self-imports left out."""
-    files = [p for folder in FOLDERS if (root / folder).is_dir() for p in sorted((root / folder).rglob("*.py"))]
-    packages = {module_name(root, p) for p in files if p.name == "__init__.py"}
+    installed = folders(root)
+    files = [p for folder in installed if (root / folder).is_dir() for p in sorted((root / folder).rglob("*.py"))]
+    packages = {module_name(root, p, installed) for p in files if p.name == "__init__.py"}
     counts: Counter = Counter()
     for path in files:
-        source = package_of(module_name(root, path), packages)
+        source = package_of(module_name(root, path, installed), packages)
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module and not node.level:
                 targets = [node.module]
