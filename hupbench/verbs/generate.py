@@ -21,13 +21,17 @@ def resolved_config(cfg: DictConfig) -> dict:
     return resolved
 
 
+def quoted(path) -> str:
+    """``path`` as a Hydra override's value, which may hold '=', ',', brackets, quotes or spaces: quoted as the
+    override grammar reads a quoted value (a quote escaped, a backslash doubled only where it precedes a quote
+    or the closing one; other backslashes are taken as they stand); None as null."""
+    return "null" if path is None else "'" + re.sub(r"(\\+)(?='|$)", r"\1\1", str(path)).replace("'", "\\'") + "'"
+
+
 def probe_overrides(mesh, mesh_unit: str = "m", align: bool = False) -> list[str]:
     """The overrides that name a probe in a config with a ``probe`` node (``conf/grasps.yaml``,
-    ``conf/generate.yaml``): ``mesh`` a path or None (null, the procedural probe). The path is quoted (it may
-    hold '=' or spaces) as Hydra's override grammar reads a quoted value: a quote escaped, and a backslash
-    doubled only where it precedes a quote (or the closing one); other backslashes are taken as they stand."""
-    value = "null" if mesh is None else "'" + re.sub(r"(\\+)(?='|$)", r"\1\1", str(mesh)).replace("'", "\\'") + "'"
-    return [f"probe.mesh={value}", f"probe.mesh_unit={mesh_unit}", f"probe.align={str(align).lower()}"]
+    ``conf/generate.yaml``): ``mesh`` a path or None (null, the procedural probe)."""
+    return [f"probe.mesh={quoted(mesh)}", f"probe.mesh_unit={mesh_unit}", f"probe.align={str(align).lower()}"]
 
 
 def run_generate(cfg: DictConfig, log=print) -> dict:
@@ -53,7 +57,7 @@ def generate_dataset(run: GenerateRun, resolved: dict, log=print) -> dict:
         from hupbench.config import compose
 
         probe = run.probe
-        grasps_cfg = compose("grasps", [f"out_dir={grasps_path.parent}",
+        grasps_cfg = compose("grasps", [f"out_dir={quoted(grasps_path.parent)}",
                                         *probe_overrides(probe.mesh, probe.mesh_unit, probe.align)])
         n_grasps = grasps_cfg.generate.n_select
         splits = run.dataset.splits

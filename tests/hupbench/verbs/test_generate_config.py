@@ -86,3 +86,30 @@ def test_the_run_builds_its_render_job():
     job = built.job
     assert (job.workers, job.k, job.n, job.platform, job.backgrounds_dir) == (2, 1, 2, "osmesa", "photos")
     assert built.grasps_path is None and built.progress is True
+
+
+def test_grasps_for_a_probe_mesh_are_made_where_the_run_names(tmp_path, monkeypatch):
+    """generate hands out_dir and probe.mesh to the grasps it makes for a mesh as given, in a folder whose name
+    holds a quote, '=', ',', a backslash and a space (unquoted, '=' or ',' broke the override)."""
+    from hupbench.datagen.assets.probe_mesh import ProbeSource, linear_probe_mesh
+    from hupbench.verbs.generate import generate_dataset
+
+    folder = tmp_path / "it's a=b,c\\d"
+    folder.mkdir()
+    stl = folder / "linear.stl"
+    linear_probe_mesh().export(stl)
+    asked = []
+
+    class Stop(Exception):
+        """Stops generate where it would make the grasps: only the grasps run's config is looked at."""
+
+    def grasps_run(cfg, log=print):
+        asked.append((cfg.out_dir, cfg.probe.mesh))
+        raise Stop
+
+    monkeypatch.setattr("hupbench.verbs.grasps.run_grasps", grasps_run)
+    run = GenerateRun(DatasetSpec(**{**TINY_SPEC, "splits": {"train": 7, "val": 2, "test": 2}}), str(folder / "ds"),
+                      probe=ProbeSource(str(stl)), workers=1, progress=False)
+    with pytest.raises(Stop):
+        generate_dataset(run, {"test": "quoted"}, log=lambda *_: None)
+    assert asked == [(str(folder / "ds" / "grasps"), str(stl))]
