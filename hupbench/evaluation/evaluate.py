@@ -342,7 +342,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
                         "input_size": int(net.input_size), "format": net.format}
     results["metrics"] = split_metrics(normalized_to_pixels(pred2d, image_size), normalized_to_pixels(gt2d, image_size),
                                        pred3d, gt3d, fields, log)
-    probe = dataset_probe(dataset)
+    probe = dataset_probe(dataset, manifest)
     K_stored = np.asarray(fields["K"], np.float64)                                      # (N, 3, 3) stored images
     results["metrics"]["probe_pose"] = logged_probe_pose(pred3d, gt3d, K_stored, image_size[0], probe, "model", log)
     results["metrics"]["split_floor_probe_pose"] = floor_probe_pose(dataset, manifest, floor, fields, gt3d,

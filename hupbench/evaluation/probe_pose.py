@@ -21,13 +21,14 @@ __all__ = ["PROBE_BOX_FIT_TOL_M", "dataset_probe", "floor_probe_pose", "logged_p
 PROBE_BOX_FIT_TOL_M = 1e-5
 
 
-def dataset_probe(dataset: Path):
+def dataset_probe(dataset: Path, manifest: dict | None = None):
     """The probe a dataset was rendered with (a ``hupbench.datagen.assets.probe.Probe``, the procedural one or the
     user's mesh its manifest records): its ``corners_probe`` are the known box fitted onto the corners and
-    its ``mesh.vertices`` the model points of the BOP metrics."""
+    its ``mesh.vertices`` the model points of the BOP metrics. ``manifest``: the dataset's, as the caller read it
+    (default: read here)."""
     from hupbench.datagen.dataset.grasps_file import probe_of_dataset
 
-    return probe_of_dataset(dataset)
+    return probe_of_dataset(dataset, manifest)
 
 
 def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K: np.ndarray, image_width_px: int,

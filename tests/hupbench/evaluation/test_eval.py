@@ -153,7 +153,7 @@ def test_a_probe_mesh_that_is_not_the_datasets_gets_no_pose_metrics(exported, ti
     ckpt, _ = exported
     probe = build_probe()
     larger = SimpleNamespace(corners_probe=probe.corners_probe * 1.1, mesh=probe.mesh)
-    monkeypatch.setattr(EV, "dataset_probe", lambda dataset: larger)
+    monkeypatch.setattr(EV, "dataset_probe", lambda dataset, manifest: larger)
     lines = []
     r = evaluate(ckpt, tiny_dataset, out=tmp_path / "larger.json", latency=False, log=lines.append)["results"]
     assert r["metrics"]["probe_pose"] is None and r["metrics"]["split_floor_probe_pose"] is None
