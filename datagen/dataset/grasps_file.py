@@ -54,19 +54,18 @@ def read_grasps_probe_record(path: str | Path) -> dict:
 
 
 def read_grasps_probe(path: str | Path | bytes):
-    """The probe a grasps file (or its bytes) was made for: a :class:`hupbench.datagen.assets.probe.Probe` built
-    from the mesh it carries, or None when it carries none (the procedural probe's grasps).
+    """The probe a grasps file (or its bytes, checked by :func:`read_grasps`) was made for: a
+    :class:`hupbench.datagen.assets.probe.Probe` built from the mesh it carries, or None when it carries none (the
+    procedural probe's grasps).
 
     Raises:
-        MissingFileError, BadValueError: the file is missing or damaged (:func:`read_grasps`), or its probe
-            arrays are incomplete or do not match their record.
+        BadValueError: its probe arrays are incomplete or do not match their record.
     """
     import json
 
     from hupbench.datagen.assets.probe import probe_from_geometry
     from hupbench.datagen.assets.probe_mesh import ProbeMeshSpec, probe_geometry_sha256
 
-    read_grasps(path)
     name = "grasps (bytes)" if isinstance(path, bytes) else str(path)
     with np.load(io.BytesIO(path) if isinstance(path, bytes) else path, allow_pickle=False) as data:
         present = [k for k in PROBE_MESH_FIELDS if k in data.files]
@@ -278,6 +277,7 @@ def probe_of_dataset(root_or_manifest, manifest: dict | None = None) -> "Probe":
         return build_probe(ProbeSpec(**record["spec"]) if "spec" in record else ProbeSpec())
     spec = ProbeMeshSpec(record["path"], record["unit"], record["align"], record["sha256"])
     if root is not None:
+        read_grasps(root / "grasps.npz")  # a missing or damaged file: its one-line error
         probe = read_grasps_probe(root / "grasps.npz")
         if probe is None or probe.record["geometry_sha256"] != record["geometry_sha256"]:
             raise BadValueError(f"{root / 'grasps.npz'} does not hold the probe mesh the manifest records "

@@ -263,3 +263,21 @@ def test_verify_checks_the_imported_grasps_file(imported, tmp_path):
     details = [p["detail"] for p in result["problems"] if p["kind"] == "grasps_file"]
     assert any("not the manifest's grasps_sha256" in d for d in details), details
     assert any("not the grasps the frames were rendered with" in d for d in details), details
+
+
+def test_the_probe_of_a_dataset_without_its_grasps_file_is_one_line(imported, tmp_path):
+    """A mesh probe's dataset rebuilds its probe from grasps.npz: missing or damaged, the error names the file."""
+    import shutil
+
+    from hupbench.core.errors import MissingFileError
+    from hupbench.datagen.dataset.grasps_file import probe_of_dataset
+
+    out, _ = imported
+    copy = tmp_path / "ds"
+    shutil.copytree(out, copy)
+    (copy / "grasps.npz").write_bytes(b"not an npz")
+    with pytest.raises(ValueError, match=r"grasps file .*grasps.npz is not an .npz archive \(10 bytes"):
+        probe_of_dataset(copy)
+    (copy / "grasps.npz").unlink()
+    with pytest.raises(MissingFileError, match=r"grasps file .*grasps.npz not found"):
+        probe_of_dataset(copy)
