@@ -211,3 +211,30 @@ def test_the_lock_of_a_folder_that_is_a_file_names_the_folder(tmp_path):
     (tmp_path / "run").write_text("x")
     with pytest.raises(io.BadPathError, match=r"^cannot write .*/run: it is a file; expected a folder$"):
         io.OutputLock(tmp_path / "run", "training").acquire()
+
+
+def test_atomic_folder_replaces_only_a_complete_build(tmp_path):
+    """A build that fails leaves the folder it would replace as it was and no stage beside it; one that
+    completes replaces it whole."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    with pytest.raises(KeyError):
+        with io.atomic_folder(out) as stage:
+            (stage / "new.txt").write_text("half")
+            raise KeyError("a frame failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    with io.atomic_folder(out) as stage:
+        assert stage.parent == tmp_path and stage != out
+        (stage / "new.txt").write_text("whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert [(p.name, p.read_text()) for p in out.iterdir()] == [("new.txt", "whole")]
+
+
+def test_atomic_folder_names_a_file_in_its_way(tmp_path):
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(io.BadPathError, match=r"^cannot write .*/out: it is a file; expected a folder$"):
+        with io.atomic_folder(tmp_path / "out") as stage:
+            (stage / "a.txt").write_text("x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and (tmp_path / "out").read_text() == "a file"
