@@ -62,7 +62,7 @@ def train(run: TrainRun, log=print) -> dict:
     folder, console = run.folder, RunConsole(log, place.is_main)
     manifest = read_manifest(Path(run.data.root), needs="the models are built for")
     with _run_folder(folder, place.is_main, console.line):
-        resumed = resume_checkpoint(run, folder)
+        resumed = resume_checkpoint(run)
         finished = finished_run(folder, resumed)
         if finished is not None:
             console.open_file(folder)

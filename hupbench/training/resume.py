@@ -26,9 +26,10 @@ RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_d
                     "data.cache_dir", "label")
 
 
-def resume_checkpoint(run: TrainRun, folder: Path) -> Checkpoint | None:
-    """The checkpoint ``run`` continues in ``folder`` (None: a new run), checked to be of its config and
+def resume_checkpoint(run: TrainRun) -> Checkpoint | None:
+    """The checkpoint ``run`` continues in its run folder (None: a new run), checked to be of its config and
     dataset."""
+    folder = run.folder
     mode, last = run.train.resume, folder / "checkpoints" / "last.pt"
     if mode in (None, "never") and last.exists():
         raise BadValueError(f"{folder} already holds a checkpoint ({last}); use train.resume=auto to continue it, "
