@@ -1,5 +1,9 @@
 """Running a verb in this process and judging its answer (the bad-input matrix, docs/robustness.md)."""
 
+import os
+import subprocess
+
+from helpers import REPO
 from helpers.answers import record_answer, record_input
 
 
@@ -25,6 +29,19 @@ def run_cli(capsys, *argv: str) -> CliAnswer:
         rc = exc.code if isinstance(exc.code, int) else 1
     captured = capsys.readouterr()
     return CliAnswer(rc, captured.out, captured.err)
+
+
+def run_with_stdout(argv: list[str], stdout: str, **kwargs) -> CliAnswer:
+    """Run ``argv`` in a subprocess with its standard output on a full device (``"full"``: ``> /dev/full``) or
+    on a pipe whose reader is gone (``"closed"``: ``| head -1`` once head has exited); its standard error
+    captured. ``kwargs`` go to :func:`subprocess.run` (``cwd``, ``timeout``)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with os.fdopen(write_end, "w") as pipe, open("/dev/full", "w") as full:
+        done = subprocess.run(argv, stdout=full if stdout == "full" else pipe, stderr=subprocess.PIPE, text=True,
+                              env=env, **kwargs)
+    return CliAnswer(done.returncode, "", done.stderr)
 
 
 def assert_clean_error(answer: CliAnswer, *needles: str, prefix: str | None = None) -> str:

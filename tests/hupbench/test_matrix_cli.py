@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from helpers.cli import CliAnswer, assert_clean_error, run_cli  # noqa: E402  (tests/ is on sys.path)
+from helpers.cli import assert_clean_error, run_cli, run_with_stdout  # noqa: E402  (tests/ is on sys.path)
 from hupbench import __version__
 from hupbench.cli import VERBS
 from helpers import REPO
@@ -88,16 +88,11 @@ def test_matrix_cli_stdout_full_or_closed(stdout, tiny_dataset, tmp_path):
     and exits with its own code, 0 for a dataset that passes. Both ended in a traceback (measured before:
     ``OSError: [Errno 28] No space left on device`` from verify's first line; ``BrokenPipeError`` and exit 1
     after verify had passed)."""
-    read_end, write_end = os.pipe()
-    os.close(read_end)
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    with open("/dev/full", "w") if stdout == "full" else os.fdopen(write_end, "w") as sink:
-        done = subprocess.run([sys.executable, "-m", "hupbench.cli", "verify", str(tiny_dataset), "--workers", "1"],
-                              stdout=sink, stderr=subprocess.PIPE, text=True, env=env, timeout=300)
+    answer = run_with_stdout([sys.executable, "-m", "hupbench.cli", "verify", str(tiny_dataset), "--workers", "1"],
+                             stdout, timeout=300)
     if stdout == "closed":
-        assert done.returncode == 0 and done.stderr == "", done.stderr
+        assert answer.rc == 0 and answer.err == "", answer.err
         return
-    os.close(write_end)
-    assert_clean_error(CliAnswer(done.returncode, "", done.stderr), "cannot write to standard output",
-                       "No space left on device", prefix="hupbench verify: error:")
-    assert done.returncode == 1
+    assert_clean_error(answer, "cannot write to standard output", "No space left on device",
+                       prefix="hupbench verify: error:")
+    assert answer.rc == 1

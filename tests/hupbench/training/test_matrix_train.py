@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers.cli import CliAnswer, assert_clean_error, assert_nothing_complete
+from helpers.cli import CliAnswer, assert_clean_error, assert_nothing_complete, run_with_stdout
 from helpers.training import REPO, TRAIN_PREFIX, tiny_cfg, tiny_overrides, train_answer, train_py
 from helpers.damage import CHECKPOINT_CASES, DATASET_CASES, damage_checkpoint, damage_dataset
 from helpers.faults import private_mount
@@ -205,19 +205,12 @@ def test_matrix_train_stdout_full_or_closed(stdout, tiny_dataset, tmp_path):
     """train.py's standard output on a full device (``> /dev/full``) is one line and exit 1; a reader that closed
     the pipe (``| head -1``) took what it wanted: the run finishes, writes its summary and exits 0. Each ended
     in a traceback (and a closed pipe in exit 1 after the work was done)."""
-    read_end, write_end = os.pipe()
-    os.close(read_end)
-    sink = open("/dev/full", "w") if stdout == "full" else os.fdopen(write_end, "w")
-    with sink:
-        done = subprocess.run([sys.executable, str(REPO / "train.py"),
-                               *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache")],
-                              stdout=sink, stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=600,
-                              env={**os.environ, "PYTHONPATH": str(REPO)})
+    answer = run_with_stdout([sys.executable, str(REPO / "train.py"),
+                              *tiny_overrides(tiny_dataset, tmp_path / "run", tmp_path / "cache")],
+                             stdout, cwd=tmp_path, timeout=600)
     if stdout == "closed":
-        assert done.returncode == 0 and done.stderr == "", done.stderr
+        assert answer.rc == 0 and answer.err == "", answer.err
         assert (tmp_path / "run" / "summary.json").is_file()
         return
-    os.close(write_end)
-    assert_clean_error(CliAnswer(done.returncode, "", done.stderr), "cannot write to standard output",
-                       "No space left on device", prefix=TRAIN_PREFIX)
-    assert done.returncode == 1
+    assert_clean_error(answer, "cannot write to standard output", "No space left on device", prefix=TRAIN_PREFIX)
+    assert answer.rc == 1
