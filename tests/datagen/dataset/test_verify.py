@@ -344,3 +344,19 @@ def test_datasets_with_some_modalities(tiny_dataset, tmp_path, modalities):
     (broken / "train" / modalities[0] / ("000004.jpg" if modalities[0] == "rgb" else "000004.png")).write_bytes(b"")
     problems = verify(broken, workers=1, log=quiet)["problems"]
     assert [(p["kind"], p["frame_id"]) for p in problems] == [("undecodable_file", 4)]
+
+
+def test_a_K_whose_last_row_is_not_0_0_1_is_no_camera(tiny_dataset):
+    """The contract's reader takes K with positive focal lengths; verify's row check refuses the frame whose last
+    row is not 0 0 1 and checks no further with it."""
+    from hupbench.datagen.dataset.verify_annotations import check_rows
+
+    manifest = read_manifest(tiny_dataset)
+    ann = read_annotations(tiny_dataset, "train", manifest=manifest)
+    ann["K"][4, 2] = [0.0, 0.0, 2.0]
+    problems, usable = check_rows(ann, "train", manifest)
+    frame = int(ann["frame_id"][4])
+    bad = [p for p in problems if p["kind"] == "bad_annotations"]
+    assert [p["frame_id"] for p in bad] == [frame] and "is not a camera matrix" in bad[0]["detail"]
+    assert np.flatnonzero(~usable).tolist() == [4]
+    assert [p["kind"] for p in problems if p["kind"] != "bad_annotations"] == ["manifest_mismatch"]
