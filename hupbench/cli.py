@@ -206,7 +206,7 @@ def _export_dataset(args: list[str]) -> int:
         ExportOptions,
         run_export_dataset,
     )
-    from hupbench.provenance import run_info
+    from hupbench.provenance import run_provenance
 
     parser = argparse.ArgumentParser(
         prog="hupbench export-dataset", formatter_class=_DefaultsHelp,
@@ -227,8 +227,7 @@ def _export_dataset(args: list[str]) -> int:
                         help="BOP: leave the probe's half turn about its long axis out of models_info.json")
     ns = parser.parse_intermixed_args(args)
     opts = ExportOptions(ns.dataset, ns.out, ns.format, images=ns.images, force=ns.force, symmetry=not ns.no_symmetry)
-    provenance = {k: v for k, v in run_info({}).items() if k != "config"}
-    result = run_export_dataset(opts, provenance, log=lambda *_: None)
+    result = run_export_dataset(opts, run_provenance(), log=lambda *_: None)
     print(f"hupbench export-dataset: {result['format'].upper()} export of "
           + ", ".join(f"{n} {split}" for split, n in result["frames"].items())
           + f" frames in {result['seconds']:.0f} s -> {result['out']} ({result['linked']} image files linked, "

@@ -99,11 +99,10 @@ def package_versions(names=PACKAGES) -> dict[str, str]:
     return out
 
 
-def run_info(cfg: DictConfig | dict, **extra) -> dict:
-    """Provenance record for a run."""
-    resolved = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+def run_provenance(**extra) -> dict:
+    """Where and with what a run ran: the git commit, package versions, Python, platform and the time (UTC), with
+    ``extra`` fields; the record a dataset's manifest and an export carry beside their own config."""
     return {
-        "config": resolved,
         "git_commit": git_commit(),
         "packages": package_versions(),
         "python": sys.version.split()[0],
@@ -111,6 +110,12 @@ def run_info(cfg: DictConfig | dict, **extra) -> dict:
         "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         **extra,
     }
+
+
+def run_info(cfg: DictConfig | dict, **extra) -> dict:
+    """Provenance record for a run: its resolved config and :func:`run_provenance`."""
+    resolved = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    return {"config": resolved, **run_provenance(**extra)}
 
 
 def hardware_description(device) -> str:

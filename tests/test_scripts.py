@@ -203,6 +203,12 @@ def test_benchmark_grasps(monkeypatch, capsys):
     assert sum(line.split()[0] in ("heuristic", "random") for line in out.splitlines()[2:]) == 4
 
 
+def test_benchmark_probe_mesh(monkeypatch, capsys):
+    out = run_script(BENCHMARKS / "probe_mesh.py", "--subdivisions", "0", monkeypatch=monkeypatch, capsys=capsys)
+    rows = [line.split() for line in out.splitlines()[2:]]
+    assert [row[0] for row in rows] == ["20"] and float(rows[0][1]) > 0, out
+
+
 def test_benchmark_render(monkeypatch, capsys):
     out = run_script(BENCHMARKS / "render.py", "--frames", "2", "--repeats", "1", "--size", "32",
                      monkeypatch=monkeypatch, capsys=capsys)

@@ -10,14 +10,14 @@ from omegaconf import DictConfig, OmegaConf
 from hupbench.datagen.dataset.writer import GenerateRun
 from hupbench.core.errors import BadValueError
 from hupbench.config import build
-from hupbench.provenance import run_info
+from hupbench.provenance import run_provenance
 
 
 def resolved_config(cfg: DictConfig) -> dict:
     """The config a dataset records in its manifest: the composed one, resolved, with the run's provenance."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
     del resolved["_target_"]
-    resolved["_provenance"] = {k: v for k, v in run_info({}).items() if k != "config"}
+    resolved["_provenance"] = run_provenance()
     return resolved
 
 

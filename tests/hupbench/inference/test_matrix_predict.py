@@ -529,31 +529,22 @@ def test_matrix_predict_stdout_full_or_closed(stdout, dot_model, tmp_path):
     """predict's report on a closed pipe (``| head -1``) is dropped: the predictions are written and predict exits
     0 (it exited 1 with a traceback although its results were written); on a full standard output
     (``> /dev/full``) the predictions are written too, and the lost report is one line with exit 1."""
-    import os
-    import subprocess
     import sys
 
-    from helpers import REPO
     from helpers.answers import record_answer
+    from helpers.cli import run_with_stdout
 
     images = tmp_path / "in"
     images.mkdir()
     cv2.imwrite(str(images / "a.png"), dot_image(S, S, (S // 3, S // 2)))
-    read_end, write_end = os.pipe()
-    os.close(read_end)
-    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    with open("/dev/full", "w") if stdout == "full" else os.fdopen(write_end, "w") as sink:
-        done = subprocess.run([sys.executable, "-m", "hupbench.cli", "predict", str(dot_model), str(images / "a.png"),
-                               "--out", str(tmp_path / "out")], stdout=sink, stderr=subprocess.PIPE, text=True,
-                              env=env, timeout=300)
-    if stdout == "full":
-        os.close(write_end)
+    done = run_with_stdout([sys.executable, "-m", "hupbench.cli", "predict", str(dot_model), str(images / "a.png"),
+                            "--out", str(tmp_path / "out")], stdout, timeout=300)
     predictions = json.loads((tmp_path / "out" / "predictions.json").read_text())
     assert predictions["counts"] == {"images": 1, "ok": 1, "failed": 0}
     if stdout == "closed":
-        assert done.returncode == 0 and done.stderr == "", done.stderr
+        assert done.rc == 0 and done.err == "", done.err
         return
-    lines = done.stderr.strip().splitlines()
-    assert done.returncode == 1 and len(lines) == 1, done.stderr
+    lines = done.err.strip().splitlines()
+    assert done.rc == 1 and len(lines) == 1, done.err
     assert lines[0].startswith("hupbench predict: error: cannot write to standard output"), lines
     record_answer(lines[0])
