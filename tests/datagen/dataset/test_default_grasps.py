@@ -110,3 +110,36 @@ def test_the_small_default_dataset_equals_the_committed_reference(small_default)
 
 if __name__ == "__main__":  # python tests/datagen/dataset/test_default_grasps.py DATASET: write the reference
     np.savez_compressed(REFERENCE, **_reference_arrays(Path(sys.argv[1])))
+
+
+#: sha256 of every file of the small default dataset (relative path -> hex), made at commit 3b75534 before the
+#: clinic track existed: the paper protocol's frames stay byte-identical while other tracks are added. The
+#: manifest is hashed as sorted JSON without "generator" (its git commit), "config" and "config_hash" (the
+#: config gains nodes other tracks use); every other file byte for byte
+PAPER_SMALL_SHA256 = Path(__file__).with_name("paper_small_sha256.json")
+#: the manifest keys left out of its hash (see PAPER_SMALL_SHA256)
+MANIFEST_PROVENANCE_KEYS = ("generator", "config", "config_hash")
+
+
+def dataset_sha256(root: Path) -> dict[str, str]:
+    """{relative path: sha256} of every file of a finished dataset, the manifest as PAPER_SMALL_SHA256 says."""
+    out = {}
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        relative = path.relative_to(root).as_posix()
+        if relative == "manifest.json":
+            manifest = json.loads(path.read_text())
+            for key in MANIFEST_PROVENANCE_KEYS:
+                manifest.pop(key)
+            data = json.dumps(manifest, sort_keys=True).encode()
+        else:
+            data = path.read_bytes()
+        out[relative] = hashlib.sha256(data).hexdigest()
+    return out
+
+
+def test_the_small_default_dataset_is_byte_identical_to_the_paper_protocols(small_default):
+    want = json.loads(PAPER_SMALL_SHA256.read_text())
+    got = dataset_sha256(small_default)
+    assert sorted(got) == sorted(want)
+    changed = sorted(k for k in want if got[k] != want[k])
+    assert not changed, f"{len(changed)} of {len(want)} files differ from the paper protocol's, e.g. {changed[:5]}"
