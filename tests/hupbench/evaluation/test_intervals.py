@@ -1,0 +1,74 @@
+"""The bootstrap interval over test grasps against a plain numpy reference, and its zero-width and seed cases."""
+
+import numpy as np
+import pytest
+
+from hupbench.evaluation.intervals import METHOD, grasp_interval, grasp_interval_of_grasps
+
+#: a hand-made results set: frame errors (mm) of four grasps with 3, 1, 2 and 4 frames
+GRASP_IDS = np.array([41, 41, 41, 7, 76, 76, 120, 120, 120, 120])
+ERRORS_MM = np.array([30.0, 28.0, 31.0, 9.5, 7.0, 8.5, 15.0, 16.0, 14.0, 17.5])
+
+
+def _reference(errors, grasp_ids, resamples, seed):
+    """The interval by a loop: draw the grasps of each resample, gather their frames, take the mean."""
+    grasps = sorted(set(grasp_ids.tolist()))
+    drawn = np.random.default_rng(seed).integers(0, len(grasps), size=(resamples, len(grasps)))
+    statistics = []
+    for row in drawn:
+        frames = [e for g in row for e, gid in zip(errors, grasp_ids) if gid == grasps[g]]
+        statistics.append(np.mean(frames))
+    return np.percentile(statistics, 2.5), np.percentile(statistics, 97.5)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_interval_equals_a_numpy_reference(seed):
+    out = grasp_interval(ERRORS_MM, GRASP_IDS, resamples=2000, seed=seed)
+    low, high = _reference(ERRORS_MM, GRASP_IDS, 2000, seed)
+    assert out["low"] == pytest.approx(low, abs=1e-9) and out["high"] == pytest.approx(high, abs=1e-9)
+    assert out["estimate"] == pytest.approx(ERRORS_MM.mean(), abs=1e-12)
+    assert (out["n_grasps"], out["resamples"], out["seed"], out["confidence"], out["method"]) == \
+        (4, 2000, seed, 0.95, METHOD)
+    assert out["low"] < out["estimate"] < out["high"]
+    # the four grasps' means are 29.67, 9.5, 7.75, 15.63 mm: the interval lies within their range
+    assert 7.75 <= out["low"] and out["high"] <= 29.67
+
+
+def test_per_grasp_values_give_the_interval_of_frames_carrying_them():
+    values, frames = np.array([22.5, 8.0, 30.25]), np.array([3, 1, 5])
+    per_frame = np.repeat(values, frames)
+    ids = np.repeat([2, 5, 9], frames)
+    by_grasp = grasp_interval_of_grasps(values, frames, resamples=3000, seed=1)
+    by_frame = grasp_interval(per_frame, ids, resamples=3000, seed=1)
+    for key in ("estimate", "low", "high"):
+        assert by_grasp[key] == pytest.approx(by_frame[key], abs=1e-9)
+    assert by_grasp["estimate"] == pytest.approx(np.average(values, weights=frames))
+    assert (by_grasp["low"], by_grasp["high"]) == pytest.approx(_reference(per_frame, ids, 3000, 1), abs=1e-9)
+
+
+def test_same_error_in_every_grasp_gives_zero_width():
+    errors = np.full(10, 18.62)
+    out = grasp_interval(errors, GRASP_IDS, resamples=500)
+    assert out["low"] == out["high"] == out["estimate"] == 18.62
+    floor = grasp_interval_of_grasps(np.full(4, 59.3), np.array([3, 1, 2, 4]), resamples=500)
+    assert floor["low"] == floor["high"] == floor["estimate"] == 59.3
+
+
+def test_one_grasp_gives_zero_width():
+    out = grasp_interval(np.array([1.0, 2.0, 6.0]), np.array([4, 4, 4]), resamples=100)
+    assert out["low"] == out["high"] == pytest.approx(3.0) and out["n_grasps"] == 1
+
+
+def test_seeded_draws_are_reproducible_and_seeds_differ():
+    a = grasp_interval(ERRORS_MM, GRASP_IDS, resamples=200, seed=11)
+    assert a == grasp_interval(ERRORS_MM, GRASP_IDS, resamples=200, seed=11)
+    b = grasp_interval(ERRORS_MM, GRASP_IDS, resamples=200, seed=12)
+    assert (a["low"], a["high"]) != (b["low"], b["high"])
+
+
+def test_two_grasps_interval_spans_both_grasp_means():
+    """With two grasps the extreme resamples are each grasp alone: the 95 % interval reaches both means."""
+    errors, ids = np.array([29.52, 29.52, 7.72, 7.72]), np.array([41, 41, 76, 76])
+    out = grasp_interval(errors, ids)
+    assert out["resamples"] == 10_000 and out["seed"] == 0
+    assert out["low"] == pytest.approx(7.72) and out["high"] == pytest.approx(29.52)
