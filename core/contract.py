@@ -44,10 +44,14 @@ SPLITS = ("train", "val", "test")
 MODALITIES = ("rgb", "depth", "seg")
 RGB_FORMATS = ("jpg", "png")
 #: what a dataset's evaluation splits hold out (manifest ``protocol.track``): whole grasps (HUP-3D's
-#: protocol) or views of the sphere
-UNSEEN_GRASPS, UNSEEN_VIEWS = "unseen_grasps", "unseen_views"
-TRACKS = (UNSEEN_GRASPS, UNSEEN_VIEWS)
+#: protocol), views of the sphere, or whole grasps and their subjects in the clinic's world (a hand per
+#: grasp, a patient under the probe, a room behind, cameras where a sonographer's head can be)
+UNSEEN_GRASPS, UNSEEN_VIEWS, CLINIC = "unseen_grasps", "unseen_views", "clinic"
+TRACKS = (UNSEEN_GRASPS, UNSEEN_VIEWS, CLINIC)
+#: the mask's labels; the room of the clinic track is background (0) with depth
 SEG_LABELS = {"background": 0, "hand": 1, "arm": 2, "probe": 3}
+#: the clinic track's labels: the patient's body is 4
+CLINIC_SEG_LABELS = {**SEG_LABELS, "patient": 4}
 DEPTH_SCALE_M = 1e-4  # uint16 depth unit: 0.1 mm, up to 6.55 m
 MANIFEST = "manifest.json"
 ANNOTATIONS = "annotations.npz"
@@ -75,6 +79,36 @@ ANNOTATION_FIELDS: dict[str, tuple[type, tuple[int, ...]]] = {
     "light_energy_w": (np.float64, ()),
 }
 ANNOTATION_DTYPES = {name: dtype for name, (dtype, _) in ANNOTATION_FIELDS.items()}
+#: what the clinic track's annotations hold beyond ANNOTATION_FIELDS: the subject's hand as measured on the
+#: rendered hand (length wrist to middle fingertip, metacarpal breadth; mm) and sex (0 woman, 1 man), the skin
+#: tone drawn for the frame, the head's roll about the optical axis (degrees) and where keypoint 9 was aimed
+#: (pixels). ``theta`` and ``phi`` hold the camera's polar angle from the room's vertical and its azimuth,
+#: ``z_ego`` its distance to keypoint 9 (metres), ``view_id`` the camera's index among its grasp's
+CLINIC_ANNOTATION_FIELDS: dict[str, tuple[type, tuple[int, ...]]] = {
+    "hand_length_mm": (np.float64, ()),
+    "hand_breadth_mm": (np.float64, ()),
+    "subject_sex": (np.int64, ()),
+    "skin_tone_id": (np.int64, ()),
+    "roll_deg": (np.float64, ()),
+    "aim_px": (np.float64, (2,)),
+}
+
+
+def track_of(manifest: dict) -> str:
+    """A manifest's track (``protocol.track``; datasets that predate the record are the paper protocol's)."""
+    protocol = manifest.get("protocol")
+    track = protocol.get("track", UNSEEN_GRASPS) if isinstance(protocol, dict) else UNSEEN_GRASPS
+    return track if track in TRACKS else UNSEEN_GRASPS
+
+
+def annotation_fields(track: str) -> dict[str, tuple[type, tuple[int, ...]]]:
+    """The annotation arrays of a track's datasets: name -> (dtype, row shape)."""
+    return {**ANNOTATION_FIELDS, **CLINIC_ANNOTATION_FIELDS} if track == CLINIC else dict(ANNOTATION_FIELDS)
+
+
+def seg_labels(track: str) -> dict[str, int]:
+    """The mask's labels of a track's datasets."""
+    return dict(CLINIC_SEG_LABELS) if track == CLINIC else dict(SEG_LABELS)
 #: arrays whose values must be finite
 FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
 
@@ -195,7 +229,7 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
     Args:
         root: dataset folder.
         split: "train", "val" or "test".
-        keys: the arrays to return (default: all of :data:`ANNOTATION_FIELDS`; "frame_id" is
+        keys: the arrays to return (default: all of the track's :func:`annotation_fields`; "frame_id" is
             always read and checked).
         manifest: the dataset's manifest (read with :func:`read_manifest` when None).
 
@@ -212,8 +246,9 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         manifest = read_manifest(root)
     # the split and the keys come from code (a user's split went through read_manifest)
     assert split in SPLITS, split
-    keys = list(ANNOTATION_FIELDS) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
-    assert set(keys) <= set(ANNOTATION_FIELDS), keys
+    fields = annotation_fields(track_of(manifest))
+    keys = list(fields) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
+    assert set(keys) <= set(fields), keys
     path = annotations_path(root, split)
     if not path.is_file():
         raise MissingFileError(f"{path} is missing (the manifest counts {manifest['counts'].get(split, 0)} "
@@ -236,7 +271,7 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         raise DamagedFileError(f"{path}: damaged or not an annotations file ({type(exc).__name__}: {exc}); "
                                "regenerate the dataset") from exc
     for key in keys:
-        problem = _array_problem(key, arrays[key], manifest["counts"].get(split, 0), split)
+        problem = _array_problem(key, fields[key], arrays[key], manifest["counts"].get(split, 0), split)
         if problem is not None:
             raise _fail(path, problem)
     ids = arrays["frame_id"]
@@ -256,12 +291,12 @@ def _names_problem(names, needs: str) -> str:
     return f"keypoint_names[{i}] is {names[i]!r}, expected {kp.KEYPOINT_NAMES[i]!r} (hupbench.core.keypoints' order)"
 
 
-def _array_problem(key: str, array: np.ndarray, rows: int, split: str) -> str | None:
+def _array_problem(key: str, field: tuple, array: np.ndarray, rows: int, split: str) -> str | None:
     """What annotation array ``key`` breaks of the contract, in words (None: nothing): its dtype and row shape
-    (:data:`ANNOTATION_FIELDS`), its ``rows`` (the manifest's count for ``split``), finite values
+    (``field``, from :func:`annotation_fields`), its ``rows`` (the manifest's count for ``split``), finite values
     (:data:`FINITE_FIELDS`), and for K, positive focal lengths (a K of zeros projects every point to the
     origin)."""
-    dtype, row_shape = ANNOTATION_FIELDS[key]
+    dtype, row_shape = field
     if array.dtype != np.dtype(dtype):
         return f"{key} is {array.dtype}, expected {np.dtype(dtype)}"
     if array.shape != (rows, *row_shape):

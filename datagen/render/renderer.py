@@ -13,7 +13,7 @@ Convention:
     under point lamps, ambient, emissive) by default; ``shading="pbr"`` keeps pyrender's
     physically based shader (about half the speed, a near-identical look: docs/rendering.md).
     Depth is the camera-frame z in metres (float32), 0 where no surface
-    was hit. Labels: 0 background, 1 hand, 2 arm, 3 probe (``SEG_LABELS``).
+    was hit. Labels: 0 background, 1 hand, 2 arm, 3 probe (``SEG_LABELS``), 4 the patient on the clinic track.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 from hupbench.datagen.render import gl
 from hupbench.core.camera import Intrinsics, swap_gl_cv_axes
-from hupbench.core.contract import MODALITIES, SEG_LABELS
+from hupbench.core.contract import CLINIC_SEG_LABELS, MODALITIES, SEG_LABELS
 from hupbench.core.geometry import invert_transform
 from hupbench.core.errors import BadValueError
 
@@ -58,7 +58,8 @@ class MeshPart:
     Attributes:
         name: identifier, e.g. "hand", "probe_lens".
         mesh: ``trimesh.Trimesh`` in the world frame, metres.
-        label: segmentation label (``SEG_LABELS`` value).
+        label: segmentation label (a ``CLINIC_SEG_LABELS`` value); 0 (background) for scenery that has depth
+            but is no object of the dataset, such as a room's walls.
         color: (3,) RGB in [0, 1].
         roughness: PBR roughness in [0, 1].
         smooth: interpolate vertex normals (False shows facets).
@@ -76,7 +77,7 @@ class MeshPart:
     emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        assert self.label in SEG_LABELS.values() and self.label != 0, (self.name, self.label)
+        assert self.label in CLINIC_SEG_LABELS.values(), (self.name, self.label)
         for name in ("color", "emissive"):
             value = np.asarray(getattr(self, name), dtype=np.float64)
             assert value.shape == (3,) and np.all((value >= 0) & (value <= 1)), (self.name, name, value)
