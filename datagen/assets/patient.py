@@ -1,0 +1,342 @@
+"""The patient under the probe: a late-pregnancy abdomen, its signed distance, its mesh and its placement.
+
+The body is a torso (an ellipsoid lying on a bed) with the gravid abdomen on it, a sphere of radius R
+whose cap rises above the torso, joined by a smooth union (Quilez, "smooth minimum",
+https://iquilezles.org/articles/smin/). The probe's lens rests on the sphere's cap, where the skin's
+radius of curvature is exactly R.
+
+Why R in 15-25 cm: the symphysis-fundal height, the arc over the uterus from the pubic symphysis to the
+fundus, is about 30-36 cm in the last ten weeks of pregnancy (INTERGROWTH-21st standards, Papageorghiou
+et al., "International standards for symphysis-fundal height based on serial measurements from the
+Fetal Growth Longitudinal Study of the INTERGROWTH-21st Project", BMJ 2016;355:i5662). The supine
+anterior abdomen spans some 90-120 degrees of arc between those two points, so an arc of 30-36 cm over
+90-120 degrees has a radius of 0.30 / (2 pi / 3) = 0.14 m to 0.36 / (pi / 2) = 0.23 m; an abdominal
+girth of about 1 m at term, a circle of radius 0.16 m, flattened at the front, agrees.
+
+Convention:
+    Metres. Body frame: origin on the bed's top surface under the abdomen; +z up, away from the bed
+    (the room's vertical, where a sonographer's head is); +x from the head towards the feet; +y to the
+    patient's left. World = the probe frame of :mod:`hupbench.datagen.assets.probe` (origin at the
+    lens apex, +z from the lens towards the cable); ``T_world_body`` maps body points into it. Signed
+    distances are NEGATIVE INSIDE the body, as for the probe.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_int, check_number, is_number
+
+__all__ = ["PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
+           "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb"]
+
+#: the config node of :class:`PatientSpec`, named in its error messages
+NODE = "dataset.clinic.patient"
+#: the radii a config may ask for: below 0.1 m the bump is no longer star-shaped from the body's core
+#: (its mesh, :func:`body_mesh`, is cast from there); above 0.5 m it overhangs the bed
+RADIUS_LIMITS_M = (0.1, 0.5)
+#: torso ellipsoid semi-axes (x, y, z), metres: half of a supine adult woman's trunk length from pubis to
+#: chest, of her hip breadth (about 0.37 m at the 50th percentile: Pheasant & Haslegrave, Bodyspace,
+#: 3rd ed., 2006) and of a non-pregnant abdominal depth (about 0.24 m)
+TORSO_SEMI_AXES_M = np.array([0.38, 0.19, 0.12])
+#: torso centre in the body frame: 2 cm towards the head from the abdomen, sunk 1 cm into the mattress
+TORSO_CENTRE_M = np.array([-0.02, 0.0, 0.11])
+#: height of the abdomen's apex above the bed: a term abdomen's supine anterior-posterior depth
+APEX_HEIGHT_M = 0.30
+#: width of the smooth union between the abdomen's sphere and the torso, metres
+BLEND_M = 0.04
+#: the mesh's rays start here (inside the torso and every allowed sphere); the body is star-shaped from it
+MESH_ORIGIN_M = np.array([-0.02, 0.0, 0.14])
+#: icosphere subdivisions of the mesh: 5,120 triangles
+MESH_SUBDIVISIONS = 4
+#: the contact lies on the cap within this angle of the abdomen's apex, so its skin normal is within this
+#: angle of the vertical and it stays clear of the union with the torso
+CONTACT_MAX_POLAR_DEG = 40.0
+#: the deepest any probe point may sink into the skin, metres
+PROBE_MAX_DEPTH_M = 0.002
+
+
+@dataclass(frozen=True)
+class PatientSpec:
+    """The patient under the probe (config node ``dataset.clinic.patient``).
+
+    Attributes:
+        radius_m: (low, high) metres, the range the abdomen's radius of curvature is drawn from, uniformly,
+            per placement (see the module docstring for 0.15-0.25 m).
+        max_tilt_deg: degrees, the largest angle between the probe's long axis and the skin normal.
+        press_m: metres, how deep the deepest lens point sits in the skin (lens-skin contact).
+        max_penetration_m: metres, the deepest any hand or forearm vertex may be inside the body or below
+            the bed's top.
+        attempts: placements drawn before :func:`place_patient` gives up on a grasp.
+    """
+
+    radius_m: Sequence[float] = (0.15, 0.25)
+    max_tilt_deg: float = 15.0
+    press_m: float = 0.0005
+    max_penetration_m: float = 0.003
+    attempts: int = 16
+
+    def __post_init__(self) -> None:
+        low, high = RADIUS_LIMITS_M
+        pair = list(self.radius_m) if isinstance(self.radius_m, Sequence) and not isinstance(self.radius_m, str) \
+            else None
+        if pair is None or len(pair) != 2 or not all(is_number(v) for v in pair) \
+                or not low <= pair[0] <= pair[1] <= high:
+            raise BadValueError(f"{NODE}.radius_m must be two numbers [low, high], low <= high, from {low} to "
+                                f"{high} m, got {_listed(self.radius_m)}")
+        object.__setattr__(self, "radius_m", (float(pair[0]), float(pair[1])))
+        object.__setattr__(self, "max_tilt_deg", check_number(self.max_tilt_deg, f"{NODE}.max_tilt_deg", 0, 45))
+        object.__setattr__(self, "press_m", check_number(self.press_m, f"{NODE}.press_m", 0, PROBE_MAX_DEPTH_M))
+        object.__setattr__(self, "max_penetration_m",
+                           check_number(self.max_penetration_m, f"{NODE}.max_penetration_m", 0, 0.01))
+        object.__setattr__(self, "attempts", check_int(self.attempts, f"{NODE}.attempts", 1, 1000))
+
+
+def _listed(value) -> str:
+    """A config value as the user wrote it: a list-like as ``[a, b]``, anything else as its repr."""
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        return "[" + ", ".join(repr(v) for v in value) + "]"
+    return repr(value)
+
+
+@dataclass(frozen=True)
+class PatientPlacement:
+    """Where the patient lies for one grasp; plain numpy, stored in a grasps file (:func:`placement_arrays`).
+
+    Attributes:
+        T_world_body: (4, 4) float64, the body frame in the world (probe) frame, metres.
+        radius_m: float, the abdomen's radius of curvature.
+        vertical_world: (3,) float64 unit, the room's up (the bed's outward normal) in the world frame.
+        normal_world: (3,) float64 unit, the skin's outward normal at the contact, world frame.
+        lens_skin_m: float, the signed distance of the deepest lens vertex (negative: pressed into the skin).
+        penetration_m: float >= 0, the deepest hand or forearm vertex inside the body or below the bed top.
+    """
+
+    T_world_body: np.ndarray
+    radius_m: float
+    vertical_world: np.ndarray
+    normal_world: np.ndarray
+    lens_skin_m: float
+    penetration_m: float
+
+
+# --------------------------------------------------------------------------- the body's shape
+
+
+def _sphere_centre(radius_m: float) -> np.ndarray:
+    """(3,) the abdomen sphere's centre in the body frame: its apex at ``APEX_HEIGHT_M`` above the bed."""
+    return np.array([0.0, 0.0, APEX_HEIGHT_M - radius_m])
+
+
+def _ellipsoid_sdf(points: np.ndarray) -> np.ndarray:
+    """(N,) approximate signed distance to the torso ellipsoid: exact on the surface to first order.
+
+    Quilez's bound ``k0 (k0 - 1) / k1`` (https://iquilezles.org/articles/ellipsoids/): zero on the
+    surface with a unit gradient there, so it errs by O(d^2 / r) at a distance d from it.
+    """
+    q = points - TORSO_CENTRE_M
+    k0 = np.linalg.norm(q / TORSO_SEMI_AXES_M, axis=-1)
+    k1 = np.linalg.norm(q / TORSO_SEMI_AXES_M ** 2, axis=-1)
+    return k0 * (k0 - 1.0) / np.maximum(k1, 1e-12)
+
+
+def body_sdf_local(radius_m: float, points_body: np.ndarray) -> np.ndarray:
+    """Signed distance to the body in its own frame.
+
+    Args:
+        radius_m: the abdomen's radius of curvature, metres.
+        points_body: (N, 3) float64, metres, body frame.
+
+    Returns:
+        (N,) float64, metres, negative inside. Exact on the abdomen's cap (where the torso is more than
+        ``BLEND_M`` farther than the sphere); elsewhere a smooth union whose zero level is the surface.
+    """
+    sphere = np.linalg.norm(points_body - _sphere_centre(radius_m), axis=-1) - radius_m
+    torso = _ellipsoid_sdf(points_body)
+    h = np.clip(0.5 + 0.5 * (torso - sphere) / BLEND_M, 0.0, 1.0)
+    return h * sphere + (1.0 - h) * torso - BLEND_M * h * (1.0 - h)
+
+
+def body_sdf(placement: PatientPlacement, points_world: np.ndarray) -> np.ndarray:
+    """Signed distance to the placed body.
+
+    Args:
+        placement: where the body lies.
+        points_world: (N, 3) float64, metres, world frame.
+
+    Returns:
+        (N,) float64, metres, negative inside (see :func:`body_sdf_local`).
+    """
+    T = placement.T_world_body
+    return body_sdf_local(placement.radius_m, (np.asarray(points_world) - T[:3, 3]) @ T[:3, :3])
+
+
+@functools.lru_cache(maxsize=64)
+def _body_mesh_local(radius_m: float) -> trimesh.Trimesh:
+    """The body's mesh in its own frame: an icosphere's rays from ``MESH_ORIGIN_M`` cut at the zero level."""
+    sphere = trimesh.creation.icosphere(subdivisions=MESH_SUBDIVISIONS)
+    # stretching the unit directions by the torso's axes spreads the vertices evenly over its flat surface
+    directions = sphere.vertices * TORSO_SEMI_AXES_M
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    inner, outer = np.zeros(len(directions)), np.full(len(directions), 2.0)
+    assert (body_sdf_local(radius_m, MESH_ORIGIN_M[None]) < 0).all()
+    for _ in range(48):  # bisection to 2 m / 2^48: the vertices lie on the zero level
+        middle = 0.5 * (inner + outer)
+        inside = body_sdf_local(radius_m, MESH_ORIGIN_M + middle[:, None] * directions) < 0
+        inner, outer = np.where(inside, middle, inner), np.where(inside, outer, middle)
+    vertices = MESH_ORIGIN_M + (0.5 * (inner + outer))[:, None] * directions
+    mesh = trimesh.Trimesh(vertices, sphere.faces, process=False)
+    assert mesh.is_watertight and mesh.volume > 0
+    return mesh
+
+
+def body_mesh(placement: PatientPlacement) -> trimesh.Trimesh:
+    """The placed body's surface: watertight, outward-wound, 5,120 triangles, world frame, metres.
+
+    Its vertices lie on the zero level of :func:`body_sdf`; its flat triangles cut under the curved skin
+    by at most about (edge length)^2 / (8 R), a fraction of a millimetre.
+    """
+    mesh = _body_mesh_local(float(placement.radius_m)).copy()
+    mesh.apply_transform(placement.T_world_body)
+    return mesh
+
+
+# --------------------------------------------------------------------------- skin tones
+
+#: the ten sRGB colours of the Monk Skin Tone scale (Monk, "The Monk Skin Tone Scale", 2023,
+#: https://skintone.google/the-scale; published as hex #f6ede4 ... #292420), in [0, 1]
+SKIN_RGB = tuple(tuple(int(code[i:i + 2], 16) / 255.0 for i in (0, 2, 4)) for code in (
+    "f6ede4", "f3e7db", "f7ead0", "eadaba", "d7bd96", "a07e56", "825c43", "604134", "3a312a", "292420"))
+
+
+def skin_rgb(index: int) -> tuple[float, float, float]:
+    """(3,) sRGB in [0, 1]: Monk skin tone ``index % 10`` (0 the lightest, 9 the darkest)."""
+    return SKIN_RGB[index % len(SKIN_RGB)]
+
+
+# --------------------------------------------------------------------------- placement
+
+
+def _frame(normal: np.ndarray, spin: float) -> np.ndarray:
+    """(3, 3) a right-handed orthonormal frame whose third column is ``normal``, turned by ``spin`` about it."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    c, s = math.cos(spin), math.sin(spin)
+    return np.column_stack([c * u + s * v, -s * u + c * v, normal])
+
+
+def _cap_direction(rng: np.random.Generator, max_polar_rad: float) -> np.ndarray:
+    """(3,) a unit vector drawn uniformly over the cap within ``max_polar_rad`` of +z."""
+    cos_polar = rng.uniform(math.cos(max_polar_rad), 1.0)
+    azimuth = rng.uniform(0.0, 2.0 * math.pi)
+    sin_polar = math.sqrt(max(0.0, 1.0 - cos_polar ** 2))
+    return np.array([sin_polar * math.cos(azimuth), sin_polar * math.sin(azimuth), cos_polar])
+
+
+def _draw_pose(spec: PatientSpec, rng: np.random.Generator) -> tuple[float, np.ndarray, np.ndarray]:
+    """One draw of the radius, the body's rotation and the body-frame contact point.
+
+    Returns:
+        radius_m; R_world_body (3, 3); contact_body (3,) metres, on the abdomen's cap.
+    """
+    radius = rng.uniform(*spec.radius_m)
+    normal_body = _cap_direction(rng, math.radians(CONTACT_MAX_POLAR_DEG))
+    normal_world = _cap_direction(rng, math.radians(spec.max_tilt_deg))  # the skin's outward normal: +z tilted
+    R_world_body = _frame(normal_world, rng.uniform(0.0, 2.0 * math.pi)) @ _frame(normal_body, 0.0).T
+    return radius, R_world_body, _sphere_centre(radius) + radius * normal_body
+
+
+def _pressed(radius: float, R_world_body: np.ndarray, contact_body: np.ndarray, lens_world: np.ndarray,
+             press_m: float) -> np.ndarray:
+    """(4, 4) T_world_body that puts the deepest lens vertex ``press_m`` inside the skin.
+
+    The body starts with its contact point on the lens apex and moves along the contact's normal; a
+    step of s changes the lens's signed distances by about -s there, so a few Newton steps converge.
+    """
+    normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
+    T = np.eye(4)
+    T[:3, :3] = R_world_body
+    T[:3, 3] = -R_world_body @ contact_body
+    for _ in range(50):
+        error = body_sdf_local(radius, (lens_world - T[:3, 3]) @ R_world_body).min() + press_m
+        if abs(error) < 1e-9:
+            break
+        T[:3, 3] += error * normal_world
+    return T
+
+
+def place_patient(spec: PatientSpec, probe, hand_vertices_world: np.ndarray, arm_vertices_world: np.ndarray,
+                  rng: np.random.Generator) -> PatientPlacement | None:
+    """Lay the patient under a grasp's probe, with the lens pressed into the skin of the abdomen.
+
+    Each attempt draws the radius R uniformly in ``spec.radius_m``, the skin's outward normal within
+    ``spec.max_tilt_deg`` of the probe's +z axis (uniform over that cap), the contact on the abdomen's cap
+    within ``CONTACT_MAX_POLAR_DEG`` of its apex (so the room's vertical is that close to the skin normal)
+    and a spin of the body about the normal; then moves the body along the normal until the deepest lens
+    vertex is ``spec.press_m`` inside. An attempt is kept when no probe vertex is deeper than
+    ``PROBE_MAX_DEPTH_M`` and no hand or forearm vertex is more than ``spec.max_penetration_m`` inside the
+    body or below the bed's top.
+
+    Args:
+        spec: the patient config.
+        probe: the :class:`hupbench.datagen.assets.probe.Probe` the hand holds, at the world origin.
+        hand_vertices_world: (V, 3) float64, metres, world frame, the posed hand mesh's vertices.
+        arm_vertices_world: (A, 3) float64, metres, world frame, the forearm mesh's vertices.
+        rng: the seeded generator the draws come from.
+
+    Returns:
+        The first kept placement, or None when ``spec.attempts`` attempts all failed.
+    """
+    vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
+    lens_world = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
+    body_parts = np.concatenate([hand_vertices_world, arm_vertices_world]).astype(np.float64)
+    for _ in range(spec.attempts):
+        radius, R_world_body, contact_body = _draw_pose(spec, rng)
+        T = _pressed(radius, R_world_body, contact_body, lens_world, spec.press_m)
+        normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
+        placement = PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world, 0.0, 0.0)
+        if body_sdf(placement, vertices).min() < -PROBE_MAX_DEPTH_M:
+            continue
+        parts_body = (body_parts - T[:3, 3]) @ R_world_body
+        depth = np.maximum(-body_sdf_local(radius, parts_body), -parts_body[:, 2])
+        penetration = max(0.0, float(depth.max()))
+        if penetration <= spec.max_penetration_m:
+            return PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world,
+                                    float(body_sdf(placement, lens_world).min()), penetration)
+    return None
+
+
+#: the grasps-file fields of a placement, each (G, ...) over the grasps
+PLACEMENT_FIELDS = {"patient_T_world_body": "T_world_body", "patient_radius_m": "radius_m",
+                    "patient_vertical_world": "vertical_world", "patient_normal_world": "normal_world",
+                    "patient_lens_skin_m": "lens_skin_m", "patient_penetration_m": "penetration_m"}
+
+
+def placement_arrays(placements: Sequence[PatientPlacement]) -> dict[str, np.ndarray]:
+    """The placements of G grasps as grasps-file arrays.
+
+    Returns:
+        ``patient_T_world_body`` (G, 4, 4), ``patient_radius_m`` (G,), ``patient_vertical_world`` (G, 3),
+        ``patient_normal_world`` (G, 3), ``patient_lens_skin_m`` (G,), ``patient_penetration_m`` (G,);
+        float64, metres, world frame.
+    """
+    return {key: np.array([getattr(p, name) for p in placements], dtype=np.float64).reshape(
+        (len(placements),) + np.shape(getattr(placements[0], name)) if placements else (0,))
+        for key, name in PLACEMENT_FIELDS.items()}
+
+
+def placement_from_arrays(arrays: dict[str, np.ndarray], i: int) -> PatientPlacement:
+    """Grasp ``i``'s placement from the arrays of :func:`placement_arrays` (a read grasps file)."""
+    values = {name: np.array(arrays[key][i], dtype=np.float64) for key, name in PLACEMENT_FIELDS.items()}
+    for name in ("radius_m", "lens_skin_m", "penetration_m"):
+        values[name] = float(values[name])
+    return PatientPlacement(**values)
