@@ -95,7 +95,7 @@ def floor_probe_pose(dataset: Path, manifest: dict, floor: dict | None, fields: 
 
     if floor is None:
         return None
-    nearest = {int(g): e["nearest_train_grasp_id"] for g, e in floor["per_grasp"].items()}
+    nearest = {int(g): e.get("nearest_train_grasp_id") for g, e in floor["per_grasp"].items()}
     if floor["floor_kind"] != NEAREST_TRAIN_GRASP or None in nearest.values():
         log("no probe pose metrics of the split floor: only the nearest-training-grasp floor records its choice")
         return None

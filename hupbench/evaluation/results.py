@@ -1,4 +1,4 @@
-"""The results JSON: one file per evaluated model, schema version 4; ``hupbench eval`` writes it,
+"""The results JSON: one file per evaluated model, schema version 5; ``hupbench eval`` writes it,
 ``hupbench leaderboard`` reads it.
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
@@ -7,7 +7,9 @@ needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's ``all`` i
 of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported row's lies between them, as
 every mean over the 29 keypoints does. The dataset is named by ``name``, ``manifest_sha256`` and
 ``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of the machine
-that evaluated it. Versions 1 to 3 load upgraded to 4 (docs/metrics.md); only 4 is written. Metrics of
+that evaluated it. The ``intervals`` block holds the 95 % bootstrap intervals over the test grasps of the MPJPE
+and of the split floor (:mod:`hupbench.evaluation.intervals`). Versions 1 to 4 load upgraded to 5
+(docs/metrics.md), with no intervals; only 5 is written. Metrics of
 ``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative hand MPJPE, the probe's BOP pose scores and the split
 floor's) may be absent: readers take them as unknown.
 
@@ -37,11 +39,15 @@ from hupbench.core.io import write_json
 from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 #: versions :func:`load_results` reads (older ones are upgraded on load)
-READABLE_VERSIONS = (1, 2, 3, 4)
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 #: the version that added the track, the split's floor and the per-grasp breakdown
 GRASP_FIELDS_VERSION = 3
+#: the version that named the dataset by its grasps' sha256 instead of a path
+DATASET_SHA_VERSION = 4
+#: the version that added the intervals over test grasps
+INTERVALS_VERSION = 5
 KINDS = ("measured", "reported")
 FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
@@ -58,7 +64,8 @@ FLOOR_NAMES = {
 
 _TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metrics", "breakdowns",
                 "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
-_TOP_KEYS = _TOP_KEYS_V2 + ("track", "split_floor")
+_TOP_KEYS_V3 = _TOP_KEYS_V2 + ("track", "split_floor")
+_TOP_KEYS = _TOP_KEYS_V3 + ("intervals",)
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
 _DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
 _DATASET_KEYS_V3 = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
@@ -81,10 +88,13 @@ _LATENCY_BATCHES = ("batch1", "batch32")
 _TRAINING_KEYS = ("wall_s", "hardware", "samples_seen", "epochs", "command", "log")
 _BUCKET_KEYS = ("frames", "mpjpe_mm")
 _BUCKET_MPJPE_KEYS = ("all", "hand", "probe")
-_FLOOR_KEYS = ("floor_kind", "floor_mm", "nearest_train_grasp_mm", "nearest_train_view_mm", "train_mean_mm",
-               "per_grasp")
-_GRASP_FLOOR_KEYS = ("floor_mm", "nearest_train_grasp_id", "nearest_train_grasp_mm", "nearest_train_view_mm",
-                     "train_mean_mm", "frames")
+_FLOOR_KEYS = ("floor_kind", "floor_mm", "per_grasp")
+_GRASP_FLOOR_KEYS = ("floor_mm", "frames")
+#: a floor's further figures: one per floor kind (mm triplets, null where undefined) and the mean training grasp's;
+#: per grasp also the id of what replaced it
+_FLOOR_FIGURES = tuple(f"{kind}_mm" for kind in FLOOR_KINDS) + ("train_mean_mm",)
+_GRASP_FLOOR_IDS = tuple(f"{kind}_id" for kind in FLOOR_KINDS)
+_INTERVAL_KEYS = ("method", "confidence", "resamples", "seed", "grasps", "mpjpe_mm", "split_floor_mm")
 #: a grasp id as a key (JSON keys are strings): the decimal form of an integer
 GRASP_ID_PATTERN = re.compile(r"^-?(0|[1-9][0-9]*)$")
 SHA256_PATTERN = re.compile(r"^[0-9a-f]{64}$")
@@ -293,26 +303,25 @@ def validate_split_floor(floor, where: str | None = None) -> dict:
     of a manifest's ``split_floors["splits"]`` (datagen/dataset/floors.py) as eval copies it into
     ``results['split_floor']``::
 
-        {"floor_kind": "nearest_train_grasp" | "nearest_train_view",
+        {"floor_kind": one of FLOOR_KINDS, e.g. "nearest_train_grasp",
          "floor_mm": T,                  # the split's headline floor, the one floor_kind names
-         "nearest_train_grasp_mm": T,    # each evaluated grasp replaced by the nearest training grasp
-         "nearest_train_view_mm": T | null,   # each frame by the nearest training view of its grasp
-         "train_mean_mm": T,             # every frame predicted as the mean training grasp
-         "per_grasp": {"<grasp id>": {"floor_mm": T, "nearest_train_grasp_id": int | null,
-                                      "nearest_train_grasp_mm": T, "nearest_train_view_mm": T | null,
-                                      "train_mean_mm": T, "frames": int | null}}}
+         "per_grasp": {"<grasp id>": {"floor_mm": T, "frames": int | null, ...}},
+         ...}
 
-    where T is {"hand", "probe", "all"}: mean distance per keypoint in mm (the 21 hand keypoints, the 8
-    probe corners, all 29), seen from the true camera, and ``frames`` the grasp's frames in the split (the
-    weight of its floor in the split's). ``where`` names the block in errors (default
-    ``results['split_floor']``). Returns ``floor``.
+    and optionally, in the block and in each grasp's entry, each kind's figure ``"<kind>_mm": T | null``
+    (e.g. ``"nearest_train_grasp_mm"``: each evaluated grasp replaced by the nearest training grasp) and
+    ``"train_mean_mm": T | null`` (every frame predicted as the mean training grasp), and per grasp
+    ``"<kind>_id": int | null`` (e.g. ``"nearest_train_grasp_id"``), where T is {"hand", "probe", "all"}: mean
+    distance per keypoint in mm (the 21 hand keypoints, the 8 probe corners, all 29), seen from the true
+    camera, and ``frames`` the grasp's frames in the split (the weight of its floor in the split's). ``where``
+    names the block in errors (default ``results['split_floor']``). Returns ``floor``.
     """
     parts = ("split_floor",) if where is None else (_Root(where),)
-    _keys(floor, parts, _FLOOR_KEYS)
+    _keys(floor, parts, _FLOOR_KEYS, _FLOOR_FIGURES)
     _choice(floor, parts + ("floor_kind",), FLOOR_KINDS, nullable=False)
-    for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
-        _floor_mm(floor, parts + (key,), nullable=False)
-    _floor_mm(floor, parts + ("nearest_train_view_mm",), nullable=True)
+    _floor_mm(floor, parts + ("floor_mm",), nullable=False)
+    for key in (k for k in _FLOOR_FIGURES if k in floor):
+        _floor_mm(floor, parts + (key,), nullable=True)
     per_grasp = floor["per_grasp"]
     if not isinstance(per_grasp, dict):
         _fail(parts + ("per_grasp",), "a dict of grasp id -> that grasp's floors", per_grasp)
@@ -320,11 +329,12 @@ def validate_split_floor(floor, where: str | None = None) -> dict:
         if not isinstance(grasp, str) or not GRASP_ID_PATTERN.match(grasp):
             _fail(parts + ("per_grasp",), "keyed by grasp ids written as decimal integers", grasp)
         entry_parts = parts + ("per_grasp", grasp)
-        _keys(entry, entry_parts, _GRASP_FLOOR_KEYS)
-        for key in ("floor_mm", "nearest_train_grasp_mm", "train_mean_mm"):
-            _floor_mm(entry, entry_parts + (key,), nullable=False)
-        _floor_mm(entry, entry_parts + ("nearest_train_view_mm",), nullable=True)
-        _check(entry, entry_parts + ("nearest_train_grasp_id",), is_whole, "an integer grasp id", True)
+        _keys(entry, entry_parts, _GRASP_FLOOR_KEYS, _FLOOR_FIGURES + _GRASP_FLOOR_IDS)
+        _floor_mm(entry, entry_parts + ("floor_mm",), nullable=False)
+        for key in (k for k in _FLOOR_FIGURES if k in entry):
+            _floor_mm(entry, entry_parts + (key,), nullable=True)
+        for key in (k for k in _GRASP_FLOOR_IDS if k in entry):
+            _check(entry, entry_parts + (key,), is_whole, "an integer id", True)
         _integer(entry, entry_parts + ("frames",), nullable=True)
     return floor
 
@@ -372,6 +382,47 @@ def _validate_grasp_fields(d: dict) -> None:
                   f"the grasp's frames in results['breakdowns']['grasp'] ({grasps[grasp]['frames']})", entry["frames"])
 
 
+def _interval_triplet(block: dict, parts: tuple, *, nullable: bool) -> None:
+    """``block[parts[-1]]`` is {"hand", "probe", "all"} -> [low, high], finite mm, 0 <= low <= high."""
+    if block[parts[-1]] is None and nullable:
+        return
+    _keys(block[parts[-1]], parts, _BUCKET_MPJPE_KEYS)
+    for part in _BUCKET_MPJPE_KEYS:
+        bounds = block[parts[-1]][part]
+        if not (isinstance(bounds, list) and len(bounds) == 2 and all(is_number(b) for b in bounds)
+                and 0.0 <= bounds[0] <= bounds[1] <= LIMITS["mm"]):
+            _fail(parts + (part,), f"[low, high]: two finite numbers, 0 <= low <= high <= {LIMITS['mm']:g} mm", bounds)
+
+
+def _validate_intervals(d: dict) -> None:
+    """Version 5: ``results['intervals']``, null or the bootstrap intervals over the test grasps
+    (:mod:`hupbench.evaluation.intervals`)::
+
+        {"method": str, "confidence": 0.95, "resamples": int >= 1, "seed": int >= 0, "grasps": int >= 1,
+         "mpjpe_mm": I, "split_floor_mm": I | null}
+
+    where I is {"hand", "probe", "all"} -> [low, high] mm; ``grasps`` is the number of evaluated grasps (those
+    of ``breakdowns['grasp']`` where recorded), ``split_floor_mm`` null where the row has no split floor."""
+    block = d["intervals"]
+    if block is None:
+        return
+    parts = ("intervals",)
+    _keys(block, parts, _INTERVAL_KEYS)
+    _string(block, parts + ("method",), nullable=False)
+    _check(block, parts + ("confidence",), lambda v: is_number(v) and 0.0 < v < 1.0, "a number in (0, 1)", False)
+    _integer(block, parts + ("resamples",), nullable=False, low=1)
+    _integer(block, parts + ("seed",), nullable=False)
+    _integer(block, parts + ("grasps",), nullable=False, low=1)
+    _interval_triplet(block, parts + ("mpjpe_mm",), nullable=False)
+    _interval_triplet(block, parts + ("split_floor_mm",), nullable=True)
+    if block["split_floor_mm"] is not None and d["split_floor"] is None:
+        _fail(parts + ("split_floor_mm",), "null where results['split_floor'] is null", block["split_floor_mm"])
+    grasps = d["breakdowns"].get("grasp")
+    if grasps is not None and block["grasps"] != len(grasps):
+        _fail(parts + ("grasps",), f"the number of evaluated grasps in results['breakdowns']['grasp'] ({len(grasps)})",
+              block["grasps"])
+
+
 def validate_results(d: dict) -> dict:
     """Check and return a results dict against its schema version (3, or 1 and 2 for older files); an error
     names the first bad, missing or unknown field by its path, e.g.
@@ -382,7 +433,8 @@ def validate_results(d: dict) -> dict:
     if not is_whole(version) or version not in READABLE_VERSIONS:
         _fail(("schema_version",), f"{SCHEMA_VERSION} (the version this hupbench writes) or one of "
                                    f"{list(READABLE_VERSIONS[:-1])} (read and upgraded)", version)
-    _keys(d, (), _TOP_KEYS if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
+    _keys(d, (), _TOP_KEYS if version >= INTERVALS_VERSION else
+          _TOP_KEYS_V3 if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
@@ -400,8 +452,9 @@ def validate_results(d: dict) -> dict:
     _choice(model, ("model", "format"), FORMATS, nullable=True)
 
     dataset = d["dataset"]
-    _keys(dataset, ("dataset",), {SCHEMA_VERSION: _DATASET_KEYS, 3: _DATASET_KEYS_V3}.get(version, _DATASET_KEYS_V2))
-    if version < SCHEMA_VERSION:
+    _keys(dataset, ("dataset",), _DATASET_KEYS if version >= DATASET_SHA_VERSION else
+          {3: _DATASET_KEYS_V3}.get(version, _DATASET_KEYS_V2))
+    if version < DATASET_SHA_VERSION:
         _string(dataset, ("dataset", "path"), nullable=True)
     else:
         _sha256(dataset, ("dataset", "grasps_sha256"))
@@ -441,6 +494,8 @@ def validate_results(d: dict) -> dict:
     _string(d, ("source",), nullable=d["kind"] != "reported")
     if version >= GRASP_FIELDS_VERSION:
         _validate_grasp_fields(d)
+    if version >= INTERVALS_VERSION:
+        _validate_intervals(d)
     return d
 
 
@@ -460,15 +515,16 @@ def blank_results(kind: str, run_name: str) -> dict:
         "device": None,
         "training": dict.fromkeys(_TRAINING_KEYS),
         "git_commit": None, "created_utc": None, "source": None, "track": None, "split_floor": None,
+        "intervals": None,
     }
     return copy.deepcopy(blank)
 
 
 def upgrade_results(d: dict) -> dict:
-    """``d`` validated, as is in version 4, else upgraded into a new dict (``d`` is left as it was): version 1
+    """``d`` validated, as is in version 5, else upgraded into a new dict (``d`` is left as it was): version 1
     gains ``metrics.probe_symmetric_mpjpe_mm`` and ``metrics.spread_ratio``, versions 1 and 2 ``track``,
-    ``split_floor`` and ``dataset.grasp_theta_vol_deg``, all ``None`` (never measured); every older version's
-    dataset record loses its ``path`` and gains ``grasps_sha256`` = ``None``. A metric of
+    ``split_floor`` and ``dataset.grasp_theta_vol_deg``, versions 1 to 4 ``intervals``, all ``None`` (never
+    measured); versions 1 to 3's dataset record loses its ``path`` and gains ``grasps_sha256`` = ``None``. A metric of
     ``_OPTIONAL_METRIC_KEYS`` stays absent where a file lacks it."""
     validate_results(d)
     version = d["schema_version"]
@@ -480,6 +536,7 @@ def upgrade_results(d: dict) -> dict:
         out["metrics"] |= {"probe_symmetric_mpjpe_mm": None, "spread_ratio": dict.fromkeys(_SPREAD_KEYS)}
     if version < GRASP_FIELDS_VERSION:
         out |= {"track": None, "split_floor": None}
+    out["intervals"] = None
     out["dataset"] = {key: d["dataset"].get(key) for key in _DATASET_KEYS}
     return validate_results(out)
 

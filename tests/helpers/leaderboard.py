@@ -28,6 +28,13 @@ def split_floor_block(frames=(2880, 2880)):
                                  "train_mean_mm": triplet(40.0, 70.0), "frames": frames[1]}}}
 
 
+def intervals_block(floor=True):
+    """A results file's bootstrap intervals over two test grasps (``floor``: of the split floor too)."""
+    return {"method": "percentile bootstrap over test grasps", "confidence": 0.95, "resamples": 10_000, "seed": 0,
+            "grasps": 2, "mpjpe_mm": {"hand": [9.0, 11.0], "probe": [16.0, 22.0], "all": [10.9, 13.8]},
+            "split_floor_mm": {"hand": [15.0, 25.0], "probe": [30.0, 50.0], "all": [19.1, 31.9]} if floor else None}
+
+
 #: the committed leaderboard folder
 COMMITTED = REPO / "leaderboard"
 #: what the leaderboard writes

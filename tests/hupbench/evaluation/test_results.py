@@ -15,7 +15,7 @@ from hupbench.evaluation.results import (
     validate_split_floor,
     write_results,
 )
-from helpers.leaderboard import split_floor_block, triplet
+from helpers.leaderboard import intervals_block, split_floor_block, triplet
 from helpers import REPO
 
 
@@ -42,6 +42,7 @@ def measured_row(run_name="hopenet_r18_128"):
     d["dataset"]["grasp_theta_vol_deg"] = {"3": [0.0, 0.0, 180.0], "12": None}
     d["track"] = "unseen_grasps"
     d["split_floor"] = split_floor_block()
+    d["intervals"] = intervals_block()
     d["latency_ms_per_image"] = {"pytorch": {"batch1": 20.0, "batch32": 8.0},
                                  "onnxruntime": {"batch1": 10.0, "batch32": None}}
     d["device"] = "cpu: 2 threads"
@@ -70,7 +71,8 @@ def test_blank_is_fresh_and_incomplete():
     a, b = blank_results("measured", "r"), blank_results("measured", "r")
     a["model"]["name"] = "x"
     assert b["model"]["name"] is None
-    assert a["schema_version"] == SCHEMA_VERSION == 4
+    assert a["schema_version"] == SCHEMA_VERSION == 5
+    assert a["intervals"] is None
     assert "path" not in a["dataset"] and a["dataset"]["grasps_sha256"] is None
     assert a["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert a["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
@@ -120,8 +122,8 @@ def _delete(d, path):
     (("breakdowns", "colour"), {}, r"results\['breakdowns'\] has unknown key\(s\) \['colour'\]"),
     (("model",), "hopenet", r"results\['model'\] must be a dict, got 'hopenet'"),
     (("extra",), 1, r"results has unknown key\(s\) \['extra'\]"),
-    (("schema_version",), 5, r"results\['schema_version'\] must be 4 .* or one of \[1, 2, 3\] .* got 5"),
-    (("schema_version",), "4", r"results\['schema_version'\] must be 4 .* got '4'"),
+    (("schema_version",), 6, r"results\['schema_version'\] must be 5 .* or one of \[1, 2, 3, 4\] .* got 6"),
+    (("schema_version",), "5", r"results\['schema_version'\] must be 5 .* got '5'"),
     (("metrics", "probe_symmetric_mpjpe_mm"), -0.5,
      r"results\['metrics'\]\['probe_symmetric_mpjpe_mm'\] must be a finite number >= 0 or null, got -0.5"),
     (("metrics", "probe_symmetric_mpjpe_mm"), 19.5,
@@ -129,8 +131,18 @@ def _delete(d, path):
     (("metrics", "spread_ratio", "y"), "wide", r"results\['metrics'\]\['spread_ratio'\]\['y'\] must be a finite"),
     (("metrics", "spread_ratio"), {"x": 1.0, "y": 1.0}, r"\['spread_ratio'\] is missing key\(s\) \['z'\]"),
     (("metrics", "spread_ratio"), None, r"results\['metrics'\]\['spread_ratio'\] must be a dict, got None"),
-    (("track",), "unseen_people", r"results\['track'\] must be one of 'unseen_grasps', 'unseen_views' or null, "
-                                  r"got 'unseen_people'"),
+    (("track",), "unseen_people", r"results\['track'\] must be one of 'unseen_grasps', 'unseen_views', 'clinic' "
+                                  r"or null, got 'unseen_people'"),
+    (("intervals", "mpjpe_mm", "probe"), [22.0, 16.0],
+     r"results\['intervals'\]\['mpjpe_mm'\]\['probe'\] must be \[low, high\]: two finite numbers, 0 <= low <= high"),
+    (("intervals", "mpjpe_mm", "hand"), 9.0, r"\['intervals'\]\['mpjpe_mm'\]\['hand'\] must be \[low, high\]"),
+    (("intervals", "split_floor_mm"), {"hand": [1.0, 2.0]},
+     r"results\['intervals'\]\['split_floor_mm'\] is missing key\(s\) \['all', 'probe'\]"),
+    (("intervals", "resamples"), 0, r"results\['intervals'\]\['resamples'\] must be an integer >= 1, got 0"),
+    (("intervals", "confidence"), 95, r"results\['intervals'\]\['confidence'\] must be a number in \(0, 1\), got 95"),
+    (("intervals", "grasps"), 3, r"results\['intervals'\]\['grasps'\] must be the number of evaluated grasps in "
+                                 r"results\['breakdowns'\]\['grasp'\] \(2\), got 3"),
+    (("intervals", "seed"), None, r"results\['intervals'\]\['seed'\] must be an integer >= 0, got None"),
     (("track",), None, r"results\['track'\] must be one of .* where split_floor is given, got None"),
     (("split_floor", "floor_kind"), "oracle",
      r"results\['split_floor'\]\['floor_kind'\] must be one of 'nearest_train_grasp', 'nearest_train_view', got"),
@@ -139,7 +151,7 @@ def _delete(d, path):
     (("split_floor", "train_mean_mm"), {"hand": 1.0, "all": 1.0},
      r"results\['split_floor'\]\['train_mean_mm'\] is missing key\(s\) \['probe'\]"),
     (("split_floor", "per_grasp", "3", "nearest_train_grasp_id"), 2.5,
-     r"results\['split_floor'\]\['per_grasp'\]\['3'\]\['nearest_train_grasp_id'\] must be an integer grasp id"),
+     r"results\['split_floor'\]\['per_grasp'\]\['3'\]\['nearest_train_grasp_id'\] must be an integer id"),
     (("split_floor", "per_grasp", "3", "nearest_train_view_mm"), {"hand": -1.0, "probe": 1.0, "all": 1.0},
      r"\['per_grasp'\]\['3'\]\['nearest_train_view_mm'\]\['hand'\] must be a finite number >= 0, got -1.0"),
     (("split_floor", "per_grasp", "3", "frames"), 2879,
@@ -207,9 +219,17 @@ def test_write_refuses_bad_row_and_writes_nothing(tmp_path):
     assert not (tmp_path / "r.json").exists()
 
 
+def version_4_row():
+    """A row as hupbench wrote it before schema version 5: no intervals."""
+    row = measured_row()
+    row["schema_version"] = 4
+    del row["intervals"]
+    return row
+
+
 def version_3_row():
     """A row as hupbench wrote it before schema version 4: the dataset by its path, no grasps' sha256."""
-    row = measured_row()
+    row = version_4_row()
     row["schema_version"] = 3
     del row["dataset"]["grasps_sha256"]
     row["dataset"]["path"] = "/home/someone/hupbench_out/dataset"
@@ -239,7 +259,7 @@ def test_version_2_rows_load_upgraded_with_track_floor_and_orientations_unknown(
     kept = copy.deepcopy(old)
     new = upgrade_results(old)
     assert old == kept
-    assert new["schema_version"] == 4
+    assert new["schema_version"] == 5
     assert (new["track"], new["split_floor"], new["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
     assert "path" not in new["dataset"] and new["dataset"]["grasps_sha256"] is None
     assert new["breakdowns"] == old["breakdowns"] and new["metrics"] == old["metrics"]
@@ -280,6 +300,10 @@ def test_floor_fields_that_need_each_other():
         validate_results(row)
     # a track without a floor (a manifest with a track but no floors, or the train split) is fine
     row["split_floor"] = None
+    with pytest.raises(ValueError, match=r"results\['intervals'\]\['split_floor_mm'\] must be null where "
+                                         r"results\['split_floor'\] is null"):
+        validate_results(row)
+    row["intervals"]["split_floor_mm"] = None
     assert validate_results(row)["track"] == "unseen_grasps"
     # no grasp breakdown: the floor and the orientations need not name its grasps
     row = measured_row()
@@ -305,7 +329,7 @@ def test_version_1_rows_load_upgraded_with_the_new_fields_unknown(tmp_path):
     kept = copy.deepcopy(old)
     new = upgrade_results(old)
     assert old == kept  # the input is not changed
-    assert new["schema_version"] == 4
+    assert new["schema_version"] == 5
     assert new["metrics"]["probe_symmetric_mpjpe_mm"] is None
     assert new["metrics"]["spread_ratio"] == {"x": None, "y": None, "z": None}
     assert {k: v for k, v in new["metrics"].items() if k in old["metrics"]} == old["metrics"]
@@ -337,10 +361,10 @@ def test_committed_results_load():
 
 def test_load_names_the_file(tmp_path):
     row = measured_row()
-    row["schema_version"] = 5
+    row["schema_version"] = 6
     bad = tmp_path / "future.json"
     bad.write_text(json.dumps(row))
-    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 4"):
+    with pytest.raises(ValueError, match=rf"^{bad}: results\['schema_version'\] must be 5"):
         load_results(bad)
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")
@@ -420,7 +444,7 @@ def test_version_3_rows_load_without_their_path(tmp_path):
     new = upgrade_results(old)
     assert old == kept
     assert new["dataset"] == {k: v for k, v in measured_row()["dataset"].items()} | {"grasps_sha256": None}
-    assert {k: v for k, v in new.items() if k not in ("dataset", "schema_version")} == \
+    assert {k: v for k, v in new.items() if k not in ("dataset", "schema_version", "intervals")} == \
         {k: v for k, v in old.items() if k not in ("dataset", "schema_version")}
     path = tmp_path / "v3.json"
     path.write_text(json.dumps(old))
@@ -494,3 +518,18 @@ def test_duplicate_keys_and_deep_nesting_are_named(tmp_path):
     deep.write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(ValueError, match=rf"^{deep}: not valid JSON: maximum recursion depth exceeded"):
         load_results(deep)
+
+
+def test_a_floor_needs_only_its_kind_headline_and_per_grasp_floors():
+    """A floor of any kind is read by its kind, headline and per-grasp floors; the figures of the other kinds and
+    of the mean training grasp are optional."""
+    block = {"floor_kind": "nearest_train_grasp", "floor_mm": triplet(20.0, 40.0),
+             "per_grasp": {"3": {"floor_mm": triplet(15.0, 30.0), "frames": 2880},
+                           "12": {"floor_mm": triplet(25.0, 50.0), "frames": None}}}
+    assert validate_split_floor(block) is block
+    block["per_grasp"]["3"]["nearest_train_grasp_id"] = 0
+    block["nearest_train_view_mm"] = None
+    assert validate_split_floor(block) is block
+    del block["per_grasp"]["12"]["frames"]
+    with pytest.raises(ValueError, match=r"\['per_grasp'\]\['12'\] is missing key\(s\) \['frames'\]"):
+        validate_split_floor(block)
