@@ -95,13 +95,13 @@ def skin_torch(R_world, t_world, joints_rest, vertices_rest, weights):
     return (R_blend @ vertices_rest[:, :, None])[..., 0] + weights @ offset
 
 
-def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarray:
+def forward_kinematics(pose: np.ndarray, trans, spec: HandSpec = HandSpec()) -> np.ndarray:
     """World transforms of the 16 joints.
 
     Args:
         pose: (48,) or (B, 48) float axis-angle (module Convention).
         trans: (3,) or (B, 3) float, metres, wrist position in the world.
-        scale: hand size.
+        spec: the hand's size and proportions.
 
     Returns:
         (16, 4, 4) or (B, 16, 4, 4) float64 ``G``: ``G[j] @ [p_rest - J_j, 1]``
@@ -109,7 +109,7 @@ def forward_kinematics(pose: np.ndarray, trans, scale: float = 1.0) -> np.ndarra
     """
     pose = as_pose(pose)
     trans = np.asarray(trans, dtype=np.float64)
-    joints, _ = rest_skeleton(scale)
+    joints, _ = rest_skeleton(spec)
     batch = pose.shape[:-1]
     R = axis_angle_to_matrix(pose.reshape(batch + (NUM_JOINTS, 3)))  # (..., 16, 3, 3)
     R_world, t_world = forward_kinematics_torch(
@@ -149,14 +149,32 @@ class HandModel:
 
     def __init__(self, spec: HandSpec) -> None:
         self.spec = spec
-        self.joints_rest, self.tips_rest = rest_skeleton(spec.scale)
+        self.joints_rest, self.tips_rest = rest_skeleton(spec)
         self.vertices_rest, self.faces, self.weights = build_mesh(spec)
         self.limits_rad = joint_limits_rad()
 
     @property
+    def length_mm(self) -> float:
+        """Hand length, mm: the wrist joint to the middle fingertip in the rest pose (anthropometry's hand
+        length, wrist crease to the tip of the middle finger: Pheasant and Haslegrave, Bodyspace, 3rd ed., 2006)."""
+        return float(np.linalg.norm(self.tips_rest[kp.MANO_FINGER_ORDER.index("middle")])) * 1e3
+
+    @property
+    def breadth_mm(self) -> float:
+        """Metacarpal hand breadth, mm: the rest mesh's extent across the palm (hand-frame z) at the level of the
+        index-to-little MCPs (vertices between the least and the most distal of their x), thumb excluded
+        (vertices whose skinning weight is mostly on the thumb's joints), as anthropometry measures it across
+        the metacarpal heads (Pheasant and Haslegrave 2006)."""
+        mcp_x = self.joints_rest[[1 + 3 * i for i, f in enumerate(kp.MANO_FINGER_ORDER) if f != "thumb"], 0]
+        thumb = self.weights[:, 1 + 3 * kp.MANO_FINGER_ORDER.index("thumb"):].sum(axis=1) > 0.5
+        x = self.vertices_rest[:, 0]
+        z = self.vertices_rest[(x >= mcp_x.min()) & (x <= mcp_x.max()) & ~thumb, 2]
+        return float(z.max() - z.min()) * 1e3
+
+    @property
     def keypoints_rest(self) -> np.ndarray:
         """(21, 3) float64 rest keypoints, metres, hand frame, OpenPose order."""
-        G = forward_kinematics(np.zeros(POSE_DIM), np.zeros(3), self.spec.scale)
+        G = forward_kinematics(np.zeros(POSE_DIM), np.zeros(3), self.spec)
         return _posed_keypoints(G, self.joints_rest, self.tips_rest)
 
     def keypoints(self, pose: np.ndarray, trans, clamp: bool = True) -> np.ndarray:
@@ -171,8 +189,8 @@ class HandModel:
             (21, 3) or (B, 21, 3) float64, metres, world frame, OpenPose order.
         """
         if clamp:
-            pose = clamp_pose(pose, scale=self.spec.scale)
-        G = forward_kinematics(pose, trans, self.spec.scale)
+            pose = clamp_pose(pose)
+        G = forward_kinematics(pose, trans, self.spec)
         return _posed_keypoints(G, self.joints_rest, self.tips_rest)
 
     def vertices(self, pose: np.ndarray, trans, clamp: bool = True) -> np.ndarray:
@@ -187,8 +205,8 @@ class HandModel:
             (V, 3) or (B, V, 3) float64, metres, world frame.
         """
         if clamp:
-            pose = clamp_pose(pose, scale=self.spec.scale)
-        G = forward_kinematics(pose, trans, self.spec.scale)
+            pose = clamp_pose(pose)
+        G = forward_kinematics(pose, trans, self.spec)
         t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
         return skin_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(self.joints_rest), t(self.vertices_rest),
                           t(self.weights)).numpy()
@@ -210,7 +228,7 @@ class HandModel:
                 "tips_rest": self.tips_rest,
                 "vertices_rest": self.vertices_rest,
                 "weights": self.weights,
-                "frames": anatomical_frames(self.spec.scale),
+                "frames": anatomical_frames(),
                 "limits": self.limits_rad,
             }
             cache[key] = {k: torch.as_tensor(v, dtype=dtype, device=device) for k, v in arrays.items()}

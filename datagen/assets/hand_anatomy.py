@@ -102,24 +102,51 @@ def joint_limits_rad() -> np.ndarray:
     return np.deg2rad(np.array(rows, dtype=np.float64))
 
 
+#: the range of every proportion factor of :class:`HandSpec` (and of its scale): half to one and a half of the
+#: tables' hand, wider than adult hands vary (Pheasant and Haslegrave 2006: 1st-99th percentile hand lengths
+#: within about +-15 % of the mean)
+FACTOR_RANGE = (0.5, 1.5)
+#: :class:`HandSpec`'s size and proportion fields, in the order a grasps file records them
+PROPORTION_FIELDS = ("scale", "palm", "fingers", "breadth", "thickness")
+
+
 @dataclass(frozen=True)
 class HandSpec:
-    """Parameters of the procedural hand.
+    """Parameters of the procedural hand: its size, its proportions and how finely it is meshed.
+
+    Every proportion is a factor on the module's tables (1.0 keeps them); they change lengths and widths but
+    never the rest directions of the bones, so that the anatomical frames, and what a pose means, are the same
+    on every hand.
 
     Attributes:
         scale: overall size; 1.0 is the hand of the module's tables (about the adult 50th percentile);
             lengths and radii scale linearly.
+        palm: wrist-to-MCP lengths along the hand (x in the hand frame) and the thumb CMC's distance from the wrist.
+        fingers: phalanx lengths (fingers and thumb).
+        breadth: spacing of the MCPs across the palm (z in the hand frame) and the palm's and wrist's widths.
+        thickness: capsule radii of the fingers and thumb, the palm slab's and wrist's thickness, the palmar arch.
         voxel_m: marching-cubes grid step for the rest mesh, metres.
         max_faces: triangle budget after decimation.
     """
 
     scale: float = 1.0
+    palm: float = 1.0
+    fingers: float = 1.0
+    breadth: float = 1.0
+    thickness: float = 1.0
     voxel_m: float = 0.0012
     max_faces: int = 7800
 
     def __post_init__(self) -> None:
-        # built in code (no config node makes one): invariants, not input checks
-        assert 0.5 <= self.scale <= 1.5 and 0.0003 <= self.voxel_m <= 0.004 and self.max_faces >= 1000, self
+        # built in code or from a subject whose config or file was checked where it entered: invariants
+        low, high = FACTOR_RANGE
+        assert all(low <= getattr(self, name) <= high for name in PROPORTION_FIELDS), self
+        assert 0.0003 <= self.voxel_m <= 0.004 and self.max_faces >= 1000, self
+
+    @property
+    def proportions(self) -> tuple[float, ...]:
+        """(scale, palm, fingers, breadth, thickness), the order of :data:`PROPORTION_FIELDS`."""
+        return tuple(getattr(self, name) for name in PROPORTION_FIELDS)
 
 
 def unit_vector(v) -> np.ndarray:
@@ -127,11 +154,15 @@ def unit_vector(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def rest_skeleton(scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def rest_skeleton(spec: HandSpec = HandSpec()) -> tuple[np.ndarray, np.ndarray]:
     """Rest-pose joints and fingertips in the hand frame.
 
+    The proportions move the joints along the table's bone directions (``palm`` the MCPs' x and the thumb
+    CMC's distance, ``breadth`` the MCPs' z, ``thickness`` the palmar arch's y, ``fingers`` the phalanges), so
+    every bone keeps its rest direction.
+
     Args:
-        scale: hand size factor (1.0 = adult 50th percentile).
+        spec: the hand's size and proportions (its mesh settings are not used).
 
     Returns:
         joints_hand: (16, 3) float64, metres, MANO joint order.
@@ -143,20 +174,20 @@ def rest_skeleton(scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
         if finger == "thumb":
             d0, *bones = THUMB_LENGTHS_MM
-            chain = [unit_vector(_THUMB_DIRS[0]) * d0]
+            chain = [unit_vector(_THUMB_DIRS[0]) * (d0 * spec.palm)]
             for length, direction in zip(bones, _THUMB_DIRS[1:]):
-                chain.append(chain[-1] + unit_vector(direction) * length)
+                chain.append(chain[-1] + unit_vector(direction) * (length * spec.fingers))
         else:
             d0, *bones = FINGER_LENGTHS_MM[finger]
             y, z = _MCP_Y_MM[finger], _MCP_Z_MM[finger]
-            mcp = np.array([np.sqrt(d0**2 - y**2 - z**2), y, z])
+            mcp = np.array([np.sqrt(d0**2 - y**2 - z**2) * spec.palm, y * spec.thickness, z * spec.breadth])
             direction = unit_vector([1.0, 0.0, _SPLAY[finger]])
             chain = [mcp]
             for length in bones:
-                chain.append(chain[-1] + direction * length)
+                chain.append(chain[-1] + direction * (length * spec.fingers))
         joints[1 + 3 * i : 4 + 3 * i] = chain[:3]
         tips[i] = chain[3]
-    return joints * MM * scale, tips * MM * scale
+    return joints * MM * spec.scale, tips * MM * spec.scale
 
 
 def child_of_joint(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
@@ -170,14 +201,15 @@ def child_of_joint(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
     return ends
 
 
-def anatomical_frames(scale: float = 1.0) -> np.ndarray:
-    """Rest-pose anatomical axes of joints 1..15.
+def anatomical_frames() -> np.ndarray:
+    """Rest-pose anatomical axes of joints 1..15, the same for every :class:`HandSpec` (its proportions keep the
+    bones' rest directions).
 
     Returns:
         (15, 3, 3) float64; column 0 the flexion axis, 1 the abduction axis,
         2 the bone direction (twist axis), in the hand frame, right-handed.
     """
-    joints, tips = rest_skeleton(scale)
+    joints, tips = rest_skeleton()
     ends = child_of_joint(joints, tips)
     frames = np.zeros((15, 3, 3))
     for j in range(1, NUM_JOINTS):
@@ -203,57 +235,54 @@ def as_pose(pose: np.ndarray) -> np.ndarray:
     return pose
 
 
-def pose_to_anatomical(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
+def pose_to_anatomical(pose: np.ndarray) -> np.ndarray:
     """Joint rotations as anatomical angles.
 
     Args:
         pose: (48,) or (B, 48) float axis-angle (see module Convention).
-        scale: hand size (the anatomical axes do not depend on it).
 
     Returns:
         (15, 3) or (B, 15, 3) float64 (flexion, abduction, twist), radians.
     """
     pose = as_pose(pose)
-    A = anatomical_frames(scale)
+    A = anatomical_frames()
     R = axis_angle_to_matrix(pose[..., 3:].reshape(pose.shape[:-1] + (15, 3)))  # (..., 15, 3, 3)
     R_anat = np.swapaxes(A, -1, -2) @ R @ A
     return matrix_to_euler_xyz(R_anat)
 
 
-def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0), scale: float = 1.0) -> np.ndarray:
+def anatomical_to_pose(angles: np.ndarray, global_axis_angle=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Build a 48-value pose from anatomical angles.
 
     Args:
         angles: (15, 3) or (B, 15, 3) float (flexion, abduction, twist), radians,
             MANO joint order.
         global_axis_angle: (3,) or (B, 3) float, hand frame -> world rotation.
-        scale: hand size (the anatomical axes do not depend on it).
 
     Returns:
         (48,) or (B, 48) float64 pose.
     """
     angles = np.asarray(angles, dtype=np.float64)
     g = np.asarray(global_axis_angle, dtype=np.float64)
-    A = anatomical_frames(scale)
+    A = anatomical_frames()
     R = A @ euler_to_matrix(angles, "xyz") @ np.swapaxes(A, -1, -2)
     joints_aa = matrix_to_axis_angle(R).reshape(angles.shape[:-2] + (45,))
     g = np.broadcast_to(g, joints_aa.shape[:-1] + (3,))
     return np.concatenate([g, joints_aa], axis=-1)
 
 
-def clamp_pose(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
+def clamp_pose(pose: np.ndarray) -> np.ndarray:
     """Enforce the anatomical joint limits.
 
     Args:
         pose: (48,) or (B, 48) float axis-angle.
-        scale: hand size (the anatomical axes do not depend on it).
 
     Returns:
         (48,) or (B, 48) float64 pose whose joints are within limits (the
         global rotation is untouched).
     """
     pose = as_pose(pose)
-    angles = pose_to_anatomical(pose, scale)
+    angles = pose_to_anatomical(pose)
     limits = joint_limits_rad()
     # a hair of slack so that poses built at a limit do not flicker across it
     slack = 1e-9
@@ -262,5 +291,5 @@ def clamp_pose(pose: np.ndarray, scale: float = 1.0) -> np.ndarray:
     if not np.any(outside):
         return pose.copy()
     clamped = np.clip(angles, limits[..., 0], limits[..., 1])
-    return anatomical_to_pose(clamped, pose[..., :3], scale)
+    return anatomical_to_pose(clamped, pose[..., :3])
 

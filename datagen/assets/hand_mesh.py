@@ -60,9 +60,17 @@ class _Primitive:
 
 
 def _primitives(spec: HandSpec) -> list[_Primitive]:
-    """Implicit pieces of the rest hand, each tied to the joint that moves it."""
+    """Implicit pieces of the rest hand, each tied to the joint that moves it.
+
+    The palm's and wrist's table points (mm) stretch with the spec's proportions: x with ``palm``, y with
+    ``thickness``, z with ``breadth``; radii and the slab's thickness with ``thickness``.
+    """
     s = spec.scale * MM
-    joints, tips = rest_skeleton(spec.scale)
+    t = spec.thickness
+
+    def at(x, y, z):
+        return np.array([x * spec.palm, y * t, z * spec.breadth]) * s
+    joints, tips = rest_skeleton(spec)
     prims: list[_Primitive] = []
 
     def capsule(a, b, r, bone):
@@ -71,7 +79,7 @@ def _primitives(spec: HandSpec) -> list[_Primitive]:
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
         j0 = 1 + 3 * i
         chain = [joints[j0], joints[j0 + 1], joints[j0 + 2], tips[i]]
-        radii = np.array(THUMB_RADII_MM if finger == "thumb" else FINGER_RADII_MM[finger]) * s
+        radii = np.array(THUMB_RADII_MM if finger == "thumb" else FINGER_RADII_MM[finger]) * t * s
         for k in range(3):
             a, b = chain[k], chain[k + 1]
             if k == 2:  # the tip keypoint sits on the surface at the end of the pad
@@ -79,16 +87,16 @@ def _primitives(spec: HandSpec) -> list[_Primitive]:
             capsule(a, b, radii[k], j0 + k)
         if finger != "thumb":
             # knuckle: the metacarpal head, a little dorsal of the MCP centre
-            head = joints[j0] + np.array([-4.0, 2.5, 0.0]) * s
-            prims.append(_Primitive(0, lambda p, c=head, r=radii[0] + 1.2 * s: np.linalg.norm(p - c, axis=1) - r))
+            head = joints[j0] + np.array([-4.0, 2.5 * t, 0.0]) * s
+            prims.append(_Primitive(0, lambda p, c=head, r=radii[0] + 1.2 * t * s: np.linalg.norm(p - c, axis=1) - r))
 
     # palm: a rounded slab over the convex polygon of wrist corners and MCP heads (x-z plane)
     mcps = {f: joints[1 + 3 * i] for i, f in enumerate(kp.MANO_FINGER_ORDER)}
     poly = np.array(
         [
             [mcps["index"][0] - 6 * s, mcps["index"][2] + 2 * s],
-            [5 * s, -21 * s],
-            [5 * s, 21 * s],
+            [5 * spec.palm * s, -21 * spec.breadth * s],
+            [5 * spec.palm * s, 21 * spec.breadth * s],
             [mcps["little"][0] - 6 * s, mcps["little"][2] - 1 * s],
             [mcps["ring"][0] - 5 * s, mcps["ring"][2]],
             [mcps["middle"][0] - 5 * s, mcps["middle"][2]],
@@ -97,8 +105,8 @@ def _primitives(spec: HandSpec) -> list[_Primitive]:
     # order counter-clockwise in the (x, z) plane
     centre = poly.mean(axis=0)
     poly = poly[np.argsort(np.arctan2(poly[:, 1] - centre[1], poly[:, 0] - centre[0]))]
-    half_thickness, rounding = 12.0 * s, 9.0 * s
-    palm_y = -3.0 * s
+    half_thickness, rounding = 12.0 * t * s, 9.0 * t * s
+    palm_y = -3.0 * t * s
 
     def palm(p):
         d2 = _polygon_sdf_2d(p[:, [0, 2]], poly) + rounding
@@ -108,9 +116,9 @@ def _primitives(spec: HandSpec) -> list[_Primitive]:
 
     prims.append(_Primitive(0, palm))
     # hypothenar pad along the ulnar edge of the palm
-    capsule(np.array([14.0, -6.0, 20.0]) * s, np.array([52.0, -6.0, 26.0]) * s, 10.0 * s, 0)
+    capsule(at(14.0, -6.0, 20.0), at(52.0, -6.0, 26.0), 10.0 * t * s, 0)
     # wrist: an oval bar across, carrying the hand into the forearm
-    capsule(np.array([-2.0, -2.0, -19.0]) * s, np.array([-2.0, -2.0, 19.0]) * s, 14.5 * s, 0)
+    capsule(at(-2.0, -2.0, -19.0), at(-2.0, -2.0, 19.0), 14.5 * t * s, 0)
     return prims
 
 
@@ -119,7 +127,7 @@ def build_mesh(spec: HandSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from skimage.measure import marching_cubes
 
     prims = _primitives(spec)
-    joints, tips = rest_skeleton(spec.scale)
+    joints, tips = rest_skeleton(spec)
     pad = 20.0 * MM * spec.scale
     lo = np.minimum(joints.min(0), tips.min(0)) - pad
     step = spec.voxel_m
@@ -205,11 +213,12 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 
 def bone_radii(spec: HandSpec) -> np.ndarray:
-    """(16,) capsule radius of the bone each joint moves, metres (0 for the wrist)."""
+    """(16,) capsule radius of the bone each joint moves, metres (0 for the wrist): the tables' radii times
+    the spec's scale and thickness."""
     radii = np.zeros(NUM_JOINTS)
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
         radii[1 + 3 * i : 4 + 3 * i] = THUMB_RADII_MM if finger == "thumb" else FINGER_RADII_MM[finger]
-    return radii * MM * spec.scale
+    return radii * spec.thickness * MM * spec.scale
 
 
 def _skin_weights(verts, faces, prims, spec: HandSpec) -> np.ndarray:
@@ -232,7 +241,7 @@ def _skin_weights(verts, faces, prims, spec: HandSpec) -> np.ndarray:
     w = np.zeros((len(verts), NUM_JOINTS))
     w[np.arange(len(verts)), owner] = 1.0
 
-    joints, tips = rest_skeleton(spec.scale)
+    joints, tips = rest_skeleton(spec)
     ends = child_of_joint(joints, tips)
     radii = bone_radii(spec)
     thumb_cmc = 13

@@ -14,7 +14,8 @@ from hupbench.core import keypoints as kp
 from hupbench.core.contract import read_manifest
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.geometry import axis_angle_to_matrix
-from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
+from hupbench.datagen.assets.hand_anatomy import FACTOR_RANGE, PROPORTION_FIELDS, HandSpec
+from hupbench.datagen.assets.subjects import ADULT_HAND_BREADTH_MM, ADULT_HAND_LENGTH_MM
 from hupbench.datagen.assets.probe_mesh import MAX_LENGTH_M, PROBE_MESH_FIELDS
 from hupbench.datagen.dataset.spec import BOX_CENTRE
 
@@ -27,17 +28,23 @@ GRASP_FIELDS = {"hand_pose": ("f", (48,)), "hand_trans": ("f", (3,)), "grasp_id"
 #: what a dataset records of a grasps.npz when it is there: the probe orientation Theta_Vol (Euler
 #: angles, degrees) each grasp was made for (``hupbench grasps`` writes it)
 OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
+#: each grasp's subject (``hupbench grasps +subjects=clinic`` writes them, all or none): sex (0 woman, 1 man), the
+#: hand's :data:`hupbench.datagen.assets.hand_anatomy.PROPORTION_FIELDS`, and its measured length and breadth, mm
+SUBJECT_FIELDS = {"subject_sex": ("i", ()), "subject_hand": ("f", (len(PROPORTION_FIELDS),)),
+                  "hand_length_mm": ("f", ()), "hand_breadth_mm": ("f", ())}
 #: the default dataset's grasps, shipped with hupbench (the benchmark's grasps: ``hupbench generate`` renders
 #: them unless given a grasps file, so that every machine makes the same dataset); ``hupbench grasps`` with
 #: the default config made them, on a 2-core AMD EPYC
 DEFAULT_GRASPS = Path(__file__).with_name("default_grasps.npz")
+#: the clinic track's grasps, one per subject, shipped with hupbench: ``hupbench grasps +subjects=clinic``
+CLINIC_GRASPS = Path(__file__).with_name("clinic_grasps.npz")
 #: the longest rotation vector of a joint (and of the hand as a whole), radians: half a turn, the most a
 #: rotation vector written by a hand model (e.g. MANO, Romero et al. 2017) takes; no finger joint turns
 #: more than about 105 degrees (:func:`hupbench.datagen.assets.hand_anatomy.joint_limits_rad`)
 MAX_JOINT_ROTATION_RAD = np.pi
 #: the farthest a grasp's wrist lies from the probe frame's origin, metres: a hand's length beyond the
-#: longest probe (:data:`hupbench.datagen.assets.probe_mesh.MAX_LENGTH_M`)
-MAX_WRIST_DISTANCE_M = MAX_LENGTH_M + HAND_LENGTH_M
+#: longest probe (:data:`hupbench.datagen.assets.probe_mesh.MAX_LENGTH_M`) and the longest adult hand
+MAX_WRIST_DISTANCE_M = MAX_LENGTH_M + ADULT_HAND_LENGTH_MM[1] * 1e-3
 _EXPECTED = "expected a grasps.npz written by `hupbench grasps`"
 
 
@@ -119,6 +126,9 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
            "grasp_id": arrays["grasp_id"].astype(np.int64)}
     if "probe_euler_deg" in arrays:
         out["probe_euler_deg"] = arrays["probe_euler_deg"].astype(np.float64)
+    if "subject_sex" in arrays:
+        out["subject_sex"] = arrays["subject_sex"].astype(np.int8)
+        out |= {k: arrays[k].astype(np.float64) for k in SUBJECT_FIELDS if k != "subject_sex"}
     return out
 
 
@@ -143,7 +153,11 @@ def _read_arrays(source: Path | io.BytesIO) -> tuple[dict[str, np.ndarray], str 
             absent = [k for k in GRASP_FIELDS if k not in data.files]
             if absent:
                 return {}, f" lacks the arrays {absent} (it holds {sorted(data.files)}); {_EXPECTED}"
-            for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files)]:
+            subject = [k for k in SUBJECT_FIELDS if k in data.files]
+            if subject and len(subject) != len(SUBJECT_FIELDS):
+                return {}, (f" holds the subject arrays {subject} but not {sorted(set(SUBJECT_FIELDS) - set(subject))}"
+                            "; expected all of them or none")
+            for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files), *subject]:
                 try:
                     arrays[key] = data[key]
                 except ValueError as exc:  # object arrays: numpy refuses to unpickle them
@@ -159,7 +173,7 @@ def _read_arrays(source: Path | io.BytesIO) -> tuple[dict[str, np.ndarray], str 
 def _arrays_problem(arrays: dict[str, np.ndarray]) -> str | None:
     """What is wrong with a grasps file's arrays (:func:`read_grasps` lists the checks), as the rest of its error
     line, or None."""
-    for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS).items():
+    for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS | SUBJECT_FIELDS).items():
         array = arrays.get(key)
         if array is None:
             continue
@@ -174,7 +188,7 @@ def _arrays_problem(arrays: dict[str, np.ndarray]) -> str | None:
     if rows["hand_pose"] == 0:
         return " holds no grasps (0 rows)"
     for key in [k for k in arrays if k != "grasp_id"]:
-        bad = ~np.isfinite(arrays[key].astype(np.float64)).all(axis=1)
+        bad = ~np.isfinite(arrays[key].astype(np.float64).reshape(len(arrays[key]), -1)).all(axis=1)
         if bad.any():
             return f": {key} must be finite; rows {np.flatnonzero(bad)[:10].tolist()} hold NaN or inf"
     ids, counts = np.unique(arrays["grasp_id"], return_counts=True)
@@ -190,6 +204,25 @@ def _arrays_problem(arrays: dict[str, np.ndarray]) -> str | None:
         if len(bad):
             return (f": {what}, up to {values[bad].max():.4g}) in rows {bad[:10].tolist()}; expected a pose a hand "
                     "can take, in radians and metres")
+    return _subjects_problem(arrays) if "subject_sex" in arrays else None
+
+
+def _subjects_problem(arrays: dict[str, np.ndarray]) -> str | None:
+    """What is wrong with a grasps file's :data:`SUBJECT_FIELDS` (shapes and finiteness checked), or None."""
+    low, high = FACTOR_RANGE
+    for values, bad_rows, what in (
+            (arrays["subject_sex"], ~np.isin(arrays["subject_sex"], (0, 1)), "subject_sex must be 0 (woman) or 1 (man)"),
+            (arrays["subject_hand"], ((arrays["subject_hand"] < low) | (arrays["subject_hand"] > high)).any(axis=1),
+             f"subject_hand's {list(PROPORTION_FIELDS)} must be within {low:g}..{high:g}"),
+            (arrays["hand_length_mm"], (arrays["hand_length_mm"] < ADULT_HAND_LENGTH_MM[0])
+             | (arrays["hand_length_mm"] > ADULT_HAND_LENGTH_MM[1]),
+             f"hand_length_mm must be within {ADULT_HAND_LENGTH_MM[0]:g}..{ADULT_HAND_LENGTH_MM[1]:g} (adult sizes)"),
+            (arrays["hand_breadth_mm"], (arrays["hand_breadth_mm"] < ADULT_HAND_BREADTH_MM[0])
+             | (arrays["hand_breadth_mm"] > ADULT_HAND_BREADTH_MM[1]),
+             f"hand_breadth_mm must be within {ADULT_HAND_BREADTH_MM[0]:g}..{ADULT_HAND_BREADTH_MM[1]:g} (adult sizes)")):
+        rows = np.flatnonzero(bad_rows)
+        if len(rows):
+            return f": {what}; rows {rows[:10].tolist()} are not"
     return None
 
 
@@ -223,10 +256,15 @@ class GraspSet:
         self.path = None if isinstance(path, bytes) else Path(path)
         #: the probe the grasps were made for (:func:`read_grasps_probe`, else the procedural one)
         self.probe = read_grasps_probe(path) or build_probe()
-        hand, probe = build_hand(), self.probe
+        #: each grasp's subject (:data:`SUBJECT_FIELDS` arrays, (G,) or (G, 5)), or None when the file has none
+        self.subjects = {k: arrays[k] for k in SUBJECT_FIELDS} if "subject_sex" in arrays else None
+        if self.subjects is None:
+            hand_keypoints = build_hand().keypoints(self.hand_pose, self.hand_trans, clamp=False)
+        else:  # each grasp on its own hand (build_hand caches the hands)
+            hand_keypoints = np.stack([build_hand(self.hand_spec(g)).keypoints(self.hand_pose[g], self.hand_trans[g],
+                                                                               clamp=False) for g in range(len(self))])
         self.keypoints_world = np.concatenate(
-            [hand.keypoints(self.hand_pose, self.hand_trans, clamp=False),
-             np.broadcast_to(probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
+            [hand_keypoints, np.broadcast_to(self.probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
         R = axis_angle_to_matrix(self.hand_pose[:, :3])
         self.forearm_axis = -R[:, :, 0]
         self.dorsal = R[:, :, 1]
@@ -235,12 +273,30 @@ class GraspSet:
     def __len__(self) -> int:
         return len(self.hand_pose)
 
+    def hand_spec(self, g: int) -> HandSpec:
+        """Grasp ``g``'s hand: its subject's (``subject_hand``), or the tables' hand ``HandSpec()`` for a file
+        without subjects."""
+        if self.subjects is None:
+            return HandSpec()
+        return HandSpec(*(float(v) for v in self.subjects["subject_hand"][g]))
+
     def look_at_points(self, look_at: str) -> np.ndarray:
         """(G, 3) float64, metres, world frame: each grasp's camera target (see ``DatasetSpec.look_at``)."""
         if look_at == BOX_CENTRE:
             return self.box_centre
         assert look_at in kp.KEYPOINT_NAMES, look_at  # DatasetSpec checked it
         return self.keypoints_world[:, kp.KEYPOINT_NAMES.index(look_at)]
+
+
+def subjects_record(grasps: GraspSet) -> dict:
+    """The manifest's record of a grasps file's subjects: per grasp (file order) the sex (0 woman, 1 man) and
+    the hand's measured length and breadth, mm, and its proportions; empty lists for a file without subjects."""
+    if grasps.subjects is None:
+        return {"subject_sex": [], "hand_length_mm": [], "hand_breadth_mm": [], "subject_hand": []}
+    return {"subject_sex": grasps.subjects["subject_sex"].tolist(),
+            "hand_length_mm": np.round(grasps.subjects["hand_length_mm"], 3).tolist(),
+            "hand_breadth_mm": np.round(grasps.subjects["hand_breadth_mm"], 3).tolist(),
+            "subject_hand": grasps.subjects["subject_hand"].tolist(), "subject_hand_fields": list(PROPORTION_FIELDS)}
 
 
 def probe_of_dataset(root_or_manifest, manifest: dict | None = None) -> "Probe":

@@ -187,15 +187,17 @@ def select_grasps(candidates: dict, hand, n: int, seed: int, pinned_ids=None) ->
     return ok[picked]
 
 
-def grasp_arrays(candidates: dict, ids: np.ndarray, config: GraspGenConfig, probe) -> dict[str, np.ndarray]:
-    """The arrays of ``grasps.npz`` for the chosen candidate ids."""
+def grasp_arrays(candidates: dict, ids: np.ndarray, config: GraspGenConfig, probe,
+                 hand_spec: HandSpec = HandSpec()) -> dict[str, np.ndarray]:
+    """The arrays of ``grasps.npz`` for the chosen candidate ids, their keypoints on the hand ``hand_spec`` that
+    the candidates were refined for."""
     g = candidates["grasps"].take(ids)
     thetas = np.array(config.theta_vol_deg)[candidates["theta_index"][ids]]
     T_gen = np.stack([T_gen_probe(t, probe) for t in thetas])
     gen = [to_generator_frame(g.take([i]), T_gen[i]) for i in range(len(ids))]
     pose = anatomical_to_pose(g.angles, matrix_to_axis_angle(g.R_global))
     pose_gen = np.concatenate([anatomical_to_pose(b.angles, matrix_to_axis_angle(b.R_global)) for b in gen])
-    hand = build_hand()
+    hand = build_hand(hand_spec)
     keypoints = hand.keypoints(pose, g.trans, clamp=False)
     out = {
         "grasp_id": ids.astype(np.int64),

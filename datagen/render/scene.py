@@ -107,7 +107,7 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
 
     hand = build_hand(models.hand)
     probe = probe or build_probe(models.probe)
-    pose = clamp_pose(grasp.hand_pose, scale=models.hand.scale)
+    pose = clamp_pose(grasp.hand_pose)
     hand_mesh = hand.mesh(pose, grasp.hand_trans, clamp=False)
     arm_mesh = forearm_mesh(
         axis_angle_to_matrix(pose[:3]), grasp.hand_trans, grasp.wrist_flexion, grasp.wrist_deviation, models.arm
