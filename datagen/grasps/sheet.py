@@ -12,7 +12,8 @@ from hupbench.core.camera import Intrinsics, look_at
 from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.core.draw import grid, stack, text_block, titled
 from hupbench.datagen.render.renderer import PointLight, Renderer, RenderSettings
-from hupbench.datagen.render.scene import Grasp, scene_parts
+from hupbench.datagen.assets.hand_anatomy import HandSpec
+from hupbench.datagen.render.scene import Grasp, SceneModels, scene_parts
 
 VIEW_DISTANCE_M = 0.42
 
@@ -67,7 +68,10 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
     tiles = []
     with Renderer(intrinsics, platform=platform) as renderer:
         for i, gid in enumerate(arrays["grasp_id"]):
-            renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i]), probe=probe))
+            # each grasp on its subject's hand when the arrays carry one
+            hand = HandSpec(*map(float, arrays["subject_hand"][i])) if "subject_hand" in arrays else HandSpec()
+            renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i]),
+                                           SceneModels(hand=hand), probe=probe))
             split = f" ({split_of[int(gid)]})" if split_of and int(gid) in split_of else ""
             labels = (f"grasp {int(gid)}{split}",
                       f"pen {arrays['score_max_penetration_mm'][i]:.1f} mm, pads {int(arrays['score_pads_in_contact'][i])}",
