@@ -24,7 +24,8 @@ FINGER_RGB = {
     "little": (200, 80, 230),
 }
 PROBE_RGB = (255, 140, 0)
-SEG_RGB = np.array([[0, 0, 0], [90, 110, 230], [240, 170, 90], [235, 235, 235]], dtype=np.uint8)
+#: mask label -> RGB: 0 background, 1 hand, 2 arm, 3 probe, 4 the patient (the clinic track)
+SEG_RGB = np.array([[0, 0, 0], [90, 110, 230], [240, 170, 90], [235, 235, 235], [200, 90, 150]], dtype=np.uint8)
 _SHIFT = 2  # fixed-point bits for sub-pixel drawing
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 TITLE_SCALE = 0.45
@@ -101,7 +102,7 @@ def colorize_depth(depth_m: np.ndarray, near_m: float | None = None, far_m: floa
 
 
 def colorize_labels(seg: np.ndarray) -> np.ndarray:
-    """Label map (0 background, 1 hand, 2 arm, 3 probe) to RGB; checked, since a sample sheet reads it from a file."""
+    """Label map (0 background, 1 hand, 2 arm, 3 probe, 4 patient) to RGB; checked, since a sample sheet reads it from a file."""
     seg = np.asarray(seg)
     if seg.ndim != 2 or not np.issubdtype(seg.dtype, np.integer):
         raise BadValueError(f"seg must be an (H, W) integer label map, got {seg.shape} {seg.dtype}")

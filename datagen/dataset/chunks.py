@@ -27,30 +27,43 @@ import cv2
 import numpy as np
 
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATION_DTYPES, DEPTH_SCALE_M, frame_path
+from hupbench.core.contract import ANNOTATION_DTYPES, CLINIC, DEPTH_SCALE_M, annotation_fields, frame_path
 from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
 from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.io import DiskFullError, encode_image, save_npz, write_bytes
 from hupbench.datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
-from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, scene_parts
+from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, SceneModels, scene_parts
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.errors import RunFailedError
 
 
-def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int) -> dict:
-    """Camera and annotation geometry of one frame (no rendering)."""
+def frame_camera(spec: DatasetSpec, grasps: GraspSet, layout: Layout, index: int, world=None) -> dict:
+    """Camera and annotation geometry of one frame (no rendering).
+
+    Args:
+        spec, grasps, layout: the dataset's. index: the frame.
+        world: the clinic track's :class:`hupbench.datagen.dataset.clinic.ClinicWorld` (its cameras replace the
+            sphere's), None on the other tracks.
+    """
     g, z, b, c, v = layout.tuple(index)
-    view_ids, angles = viewpoints(spec.sphere)
-    theta, phi = angles[v]
-    frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g], spec.sphere.axis)
-    T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.look_at_points(spec.look_at)[g], frame,
-                              spec.sphere.axis)
+    if world is not None:
+        cams = world.cameras(g)
+        T_cam_world, view_id = cams["T_cam_world"][v], v
+        theta, phi, z_ego = np.radians(90.0 - cams["elevation_deg"][v]), np.radians(cams["azimuth_deg"][v]), \
+            cams["distance_m"][v]
+    else:
+        view_ids, angles = viewpoints(spec.sphere)
+        theta, phi = angles[v]
+        frame = sphere_frame(grasps.forearm_axis[g], grasps.dorsal[g], spec.sphere.axis)
+        T_cam_world = camera_pose(theta, phi, spec.z_ego_m[z], grasps.look_at_points(spec.look_at)[g], frame,
+                                  spec.sphere.axis)
+        view_id, z_ego = int(view_ids[v]), spec.z_ego_m[z]
     keypoints_cam = transform_points(T_cam_world, grasps.keypoints_world[g])
-    return {"grasp": g, "z": z, "background": b, "glove": c, "view": v, "view_id": int(view_ids[v]),
-            "theta": theta, "phi": phi, "T_cam_world": T_cam_world, "keypoints_cam": keypoints_cam,
+    return {"grasp": g, "z": z, "background": b, "glove": c, "view": v, "view_id": view_id,
+            "theta": theta, "phi": phi, "z_ego": z_ego, "T_cam_world": T_cam_world, "keypoints_cam": keypoints_cam,
             "keypoints_2d": project_points(keypoints_cam, spec.intrinsics.K)}
 
 
@@ -137,6 +150,12 @@ class ChunkRenderer:
         self.grasps = GraspSet(grasps)
         self.backgrounds = BackgroundSet.from_dir(backgrounds_dir) if backgrounds_dir else BackgroundSet.builtin()
         self.renderer = Renderer(spec.intrinsics, platform=platform)
+        #: the clinic track's patients, rooms and cameras (None on the other tracks)
+        self.world = None
+        if spec.track == CLINIC:
+            from hupbench.datagen.dataset.clinic import ClinicWorld
+
+            self.world = ClinicWorld(spec, self.grasps, grasps)
         self._grasp_loaded = None
         #: (grasp, z, view) -> what the view's frames share (:meth:`_view`)
         self._views: dict[tuple[int, int, int], dict] = {}
@@ -153,18 +172,26 @@ class ChunkRenderer:
         """
         from hupbench.datagen.assets.backgrounds import composite
 
-        spec, grasps, renderer = self.spec, self.grasps, self.renderer
+        spec, grasps, renderer, world = self.spec, self.grasps, self.renderer, self.world
         rows, files = [], []
         for index in frames:
-            cam = frame_camera(spec, grasps, layout, index)
+            cam = frame_camera(spec, grasps, layout, index, world)
             g = cam["grasp"]
             if self._grasp_loaded != g:
-                renderer.set_parts(scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]), probe=grasps.probe))
+                grasp = Grasp(grasps.hand_pose[g], grasps.hand_trans[g])
+                if world is None:
+                    renderer.set_parts(scene_parts(grasp, probe=grasps.probe))
+                else:
+                    renderer.set_parts(scene_parts(grasp, SceneModels(hand=grasps.hand_spec(g)), probe=grasps.probe)
+                                       + world.parts(g))
                 self._grasp_loaded = g
             view = self._view(cam)
             light = lamp(spec, index)
             if "rgb" in spec.modalities:
                 renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
+                if world is not None:
+                    for name, rgb in world.colours(g, cam["background"]).items():
+                        renderer.set_color(name, rgb)
                 T_world_cam = invert_transform(cam["T_cam_world"])
                 position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
                 settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[PointLight(
@@ -181,12 +208,13 @@ class ChunkRenderer:
                 "visible": view["visible"],
                 "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
                 "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
-                "z_ego": spec.z_ego_m[cam["z"]], "background_id": cam["background"], "glove_id": cam["glove"],
+                "z_ego": cam["z_ego"], "background_id": cam["background"], "glove_id": cam["glove"],
                 "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
                 "light_position_cam": light["position_cam"], "light_color": light["color"],
                 "light_energy_w": light["energy_w"],
+                **({} if world is None else world.rows(g, cam["background"], cam["view"])),
             })
-        return ChunkOutput(chunk, split, files, _stack_rows(rows))
+        return ChunkOutput(chunk, split, files, _stack_rows(rows, annotation_fields(spec.track)))
 
     def _view(self, cam: dict) -> dict:
         """What the frames of one view of the loaded grasp share: the label pass's depth and labels,
@@ -293,8 +321,9 @@ def _render_chunk_in_worker(args) -> tuple[int, int]:
         raise
 
 
-def _stack_rows(rows: list[dict]) -> dict[str, np.ndarray]:
-    return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dt) for k, dt in ANNOTATION_DTYPES.items()}
+def _stack_rows(rows: list[dict], fields: dict) -> dict[str, np.ndarray]:
+    """The rows' arrays of ``fields`` (:func:`hupbench.core.contract.annotation_fields`), stacked in their dtypes."""
+    return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dtype) for k, (dtype, _) in fields.items()}
 
 
 def _chunk_path(root: Path, split: str, chunk: int) -> Path:

@@ -47,7 +47,7 @@ def _check_modalities(manifest: dict) -> None:
         raise BadValueError(f"a sample sheet needs rgb, depth and seg; the dataset lacks {sorted(missing)}")
 
 
-def _read_frame(root: Path, split: str, manifest: dict, frame_id: int) -> dict:
+def read_frame(root: Path, split: str, manifest: dict, frame_id: int) -> dict:
     """{"rgb": (H, W, 3) uint8 RGB, "depth_m": (H, W) float64 metres, "seg": (H, W) uint8} of one stored frame."""
     images = {}
     for m in ("rgb", "depth", "seg"):
@@ -136,7 +136,7 @@ def sample_sheet(root, split: str = "train", view: int | None = None, tile_px: i
             rows = np.flatnonzero(first & (ann["background_id"] == b) & (ann["glove_id"] == glove))
             if len(rows):
                 i = int(rows[min(view, len(rows) - 1)])
-                shown.append((b, glove, i, _read_frame(root, split, manifest, int(ann["frame_id"][i]))))
+                shown.append((b, glove, i, read_frame(root, split, manifest, int(ann["frame_id"][i]))))
     depth_range_m = _depth_range_m([frame for *_, frame in shown])
     tiles = []
     for b, glove, i, frame in shown:
@@ -306,7 +306,7 @@ def overview(root, tile_px: int = 180, columns: int = 6, n_views: int = 12, max_
     plan = overview_plan(root, n_views, max_grasps)
     manifest, ann = plan["manifest"], plan["annotations"]
     names = (manifest.get("backgrounds") or {}).get("names") or []
-    frames = {pick: _read_frame(root, pick[0], manifest, int(ann[pick[0]]["frame_id"][pick[1]]))
+    frames = {pick: read_frame(root, pick[0], manifest, int(ann[pick[0]]["frame_id"][pick[1]]))
               for pick in plan["views"] + plan["distances"] + plan["grasps"]}
     width = columns * (tile_px + 6) + 6
 

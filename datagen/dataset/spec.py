@@ -11,17 +11,18 @@ generator seeded with (seed, i).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.camera import Intrinsics
-from hupbench.core.contract import SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
+from hupbench.core.contract import CLINIC, SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_int, is_whole
 from hupbench.datagen.assets.backgrounds import MIN_SIZE_PX
 from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
+from hupbench.datagen.dataset.head import HeadSpec
 from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions, viewpoints
 from hupbench.datagen.render.renderer import MODALITIES, check_modalities
 
@@ -97,10 +98,14 @@ class DatasetSpec:
     Attributes:
         z_ego_m: camera distances to the grasp, metres, each listed once.
         splits: grasps per split, in the order of the grasps file (train, val, test), on the
-            "unseen_grasps" track; None on the "unseen_views" track, where every grasp is in every split.
+            "unseen_grasps" and "clinic" tracks; None on the "unseen_views" track, where every grasp is in every
+            split.
         track: what the evaluation splits hold out (``TRACKS``): "unseen_grasps" (HUP-3D's protocol,
-            DexYCB's S3: whole grasps) or "unseen_views" (DexYCB's S2: every grasp in every split, the
-            views split by :func:`split_of_views`).
+            DexYCB's S3: whole grasps), "unseen_views" (DexYCB's S2: every grasp in every split, the
+            views split by :func:`split_of_views`) or "clinic" (whole grasps, each with its own subject's hand and
+            patient placement, seen by ``head``'s cameras instead of the sphere's).
+        head: on the "clinic" track, where the cameras can be (:class:`hupbench.datagen.dataset.head.HeadSpec`);
+            None on the others, whose cameras are the sphere's at ``z_ego_m``.
         view_stride: on the "unseen_views" track, of every ``view_stride`` consecutive views of the
             sphere one goes to test and one to val (:func:`split_of_views`).
         modalities: which of rgb, depth, seg to write.
@@ -137,6 +142,7 @@ class DatasetSpec:
     cy: float = 128.0
     n_backgrounds: int = 8
     n_gloves: int = 2
+    head: HeadSpec | None = None
     intrinsics: Intrinsics = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -148,6 +154,10 @@ class DatasetSpec:
         if self.track not in TRACKS:
             raise BadValueError(f"dataset.track must be one of {', '.join(TRACKS)}, got {self.track!r}")
         check_int(self.view_stride, "dataset.view_stride", 3, None)
+        if (self.track == CLINIC) != (self.head is not None):
+            raise BadValueError("dataset.head places the clinic track's cameras and only theirs: "
+                                + ("set it (`hupbench generate +track=clinic` does)" if self.track == CLINIC else
+                                   f"set dataset.head=null on the {self.track} track, or dataset.track=clinic"))
         if self.track == UNSEEN_VIEWS:
             if self.splits is not None:
                 raise BadValueError("dataset.splits counts grasps per split on the unseen_grasps track; the unseen_views "
@@ -155,7 +165,7 @@ class DatasetSpec:
                                  "set dataset.splits=null, as `hupbench generate +track=unseen_views` does")
         else:
             if self.splits is None:
-                raise BadValueError(f"dataset.splits must map {SPLITS} to grasp counts on the unseen_grasps track, got null")
+                raise BadValueError(f"dataset.splits must map {SPLITS} to grasp counts on the {self.track} track, got null")
             splits = dict(self.splits)
             if set(splits) - set(SPLITS) or any(not is_whole(v) or v < 0 for v in splits.values()):
                 raise BadValueError(f"splits must map {SPLITS} to grasp counts >= 0, got {splits}")
@@ -176,14 +186,24 @@ class DatasetSpec:
                                 f"take square frames), got {self.width} x {self.height}")
         intrinsics = Intrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
         check_principal_point(intrinsics, "dataset.")
-        longest = max_focal_px(self.width, self.z_ego_m)
+        longest = max_focal_px(self.width, self.distances_m)
         if max(intrinsics.fx, intrinsics.fy) > longest:
             raise BadValueError(
                 f"dataset.fx and dataset.fy must be at most {longest:.0f} px for {self.width} px images at "
-                f"z_ego_m up to {max(self.z_ego_m):g} m, so that the image spans the hand "
+                f"camera distances up to {max(self.distances_m):g} m, so that the image spans the hand "
                 f"({HAND_LENGTH_M * 1000:.0f} mm, wrist to middle fingertip) at the farthest camera distance, "
                 f"got fx={intrinsics.fx:g}, fy={intrinsics.fy:g}")
         object.__setattr__(self, "intrinsics", intrinsics)
+
+    @property
+    def distances_m(self) -> tuple[float, ...]:
+        """The camera distances to the look-at point, metres: ``z_ego_m``, or the head's range on the clinic track."""
+        return tuple(self.head.distance_m) if self.head is not None else self.z_ego_m
+
+    @property
+    def n_views(self) -> int:
+        """Cameras per (grasp, distance): the sphere's views in use, or the head's cameras per grasp (clinic)."""
+        return self.head.views_per_grasp if self.head is not None else len(viewpoints(self.sphere)[0])
 
 
 @dataclass(frozen=True)
@@ -243,13 +263,13 @@ def split_of_grasps(spec: DatasetSpec, n_grasps: int) -> dict[str, list[int]]:
 def split_of_views(spec: DatasetSpec, n_views: int) -> dict[str, list[int]]:
     """View positions (into :func:`hupbench.datagen.dataset.sphere.viewpoints`) of each split.
 
-    On the unseen_grasps track every split holds every view. On the unseen_views track the views,
+    On the unseen_grasps and clinic tracks every split holds every view. On the unseen_views track the views,
     in the sphere's order (pole, then ring by ring from north to south), are dealt in runs of
     ``view_stride``: position ``stride // 2`` of each run goes to test, the last to val, the rest to
     train, so every ring of at least ``view_stride`` views has test and val views, and no test or val
     view is ever seen in training.
     """
-    if spec.track == UNSEEN_GRASPS:
+    if spec.track != UNSEEN_VIEWS:
         return {name: list(range(n_views)) for name in SPLITS}
     stride = spec.view_stride
     held_out = {stride // 2: "test", stride - 1: "val"}
@@ -300,9 +320,9 @@ class FramePlan:
 
 def frame_plan(spec: DatasetSpec, n_grasps: int) -> FramePlan:
     """The :class:`FramePlan` of ``spec`` rendered from ``n_grasps`` grasps."""
-    view_ids, _ = viewpoints(spec.sphere)
-    layout = Layout(n_grasps, len(spec.z_ego_m), spec.n_backgrounds, spec.n_gloves, len(view_ids))
-    grasps, views = split_of_grasps(spec, n_grasps), split_of_views(spec, len(view_ids))
+    n_z = 1 if spec.track == CLINIC else len(spec.z_ego_m)  # a clinic camera draws its own distance
+    layout = Layout(n_grasps, n_z, spec.n_backgrounds, spec.n_gloves, spec.n_views)
+    grasps, views = split_of_grasps(spec, n_grasps), split_of_views(spec, spec.n_views)
     return FramePlan(layout, grasps, views, chunk_plan(layout, grasps, views))
 
 
@@ -336,8 +356,15 @@ def protocol(spec: DatasetSpec) -> dict:
     """The viewing protocol of a dataset, for its manifest.
 
     "name" is "paper" when the sphere, its exclusions and the look-at are the published
-    renderer's, "forearm_box_centre" for the forearm sphere looking at the box centre, else "custom".
+    renderer's, "forearm_box_centre" for the forearm sphere looking at the box centre, "clinic" for the clinic
+    track's head cameras, else "custom".
     """
+    if spec.track == CLINIC:
+        return {"name": CLINIC, "track": CLINIC, "view_stride": None, "look_at": PAPER_LOOK_AT,
+                "look_at_index": kp.KEYPOINT_NAMES.index(PAPER_LOOK_AT), "head": asdict(spec.head),
+                "image_up": "the room's vertical projected into the image, turned by the head's roll",
+                "cameras": "per grasp, a seeded draw of head.views_per_grasp cameras above the bed plane "
+                           "(hupbench.datagen.dataset.head)"}
     s = spec.sphere
     geometry = (s.r_sph_m, s.r_circ_m, s.variant) == (0.8, 0.15, "ceil")
     if geometry and s.axis == "body" and s.exclude == ("elbow",) and s.elbow_cone_deg == 10.0 \

@@ -41,32 +41,24 @@ import numpy as np
 
 from hupbench.datagen.assets.backgrounds import BackgroundSet
 from hupbench.datagen.assets.probe_mesh import ProbeSource
-from hupbench.core.contract import (ANNOTATION_DTYPES, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, frame_path,
-                                      read_annotations, read_manifest)
-from hupbench.datagen.dataset.grasps_file import (DEFAULT_GRASPS, GraspSet, read_grasps, read_grasps_probe_record,
-                                                  rendered_with)
+from hupbench.core.contract import (CLINIC, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, annotation_fields, frame_path,
+                                      read_annotations, read_manifest, seg_labels)
+from hupbench.datagen.dataset.grasps_file import (CLINIC_GRASPS, DEFAULT_GRASPS, GraspSet, read_grasps,
+                                                  read_grasps_probe_record, rendered_with, subjects_record)
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
-from hupbench.datagen.dataset.floors import DEFINITION as FLOORS_DEFINITION, split_floors
+from hupbench.datagen.dataset.floors import definition as floors_definition, split_floors
 from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, split_of_grasps,
                                           view_directions_arm)
 from hupbench.datagen.dataset.sphere import viewpoints
 from hupbench.core.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
 from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
-from hupbench.datagen.render.renderer import SEG_LABELS
 from hupbench.datagen.render.scene import ARM_RGB, GLOVE_RGB
 from hupbench.datagen.render import gl
 from hupbench.core import keypoints as kp
 from hupbench.core.input_checks import check_int
-from hupbench.datagen.dataset.chunks import (
-    ChunkOutput,
-    _WorkerDiskFull,
-    _chunk_path,
-    _render_chunk,
-    _render_chunk_in_worker,
-    _worker_init,
-    write_chunk,
-)
+from hupbench.datagen.dataset.chunks import (ChunkOutput, _WorkerDiskFull, _chunk_path, _render_chunk,
+                                             _render_chunk_in_worker, _worker_init, write_chunk)
 from hupbench.core.errors import BadValueError
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
@@ -125,7 +117,8 @@ class GenerateRun:
     Attributes:
         dataset: what the frames are. out_dir: the dataset folder.
         grasps_path: the grasps file to render; None renders the default grasps that ship with hupbench
-            (:data:`hupbench.datagen.dataset.grasps_file.DEFAULT_GRASPS`) for the procedural probe, and for a
+            (:data:`hupbench.datagen.dataset.grasps_file.DEFAULT_GRASPS`, on the clinic track
+            :data:`~hupbench.datagen.dataset.grasps_file.CLINIC_GRASPS`) for the procedural probe, and for a
             probe mesh makes grasps for it into ``out_dir/grasps`` first (``hupbench grasps``).
         progress: a progress bar on stderr.
         probe: which probe; the grasps file must have been made for it (checked by
@@ -165,7 +158,9 @@ class GenerateRun:
         ``out_dir/grasps/grasps.npz`` where :attr:`makes_grasps`."""
         if self.grasps_path is not None:
             return Path(self.grasps_path)
-        return Path(self.out_dir) / "grasps" / "grasps.npz" if self.makes_grasps else DEFAULT_GRASPS
+        if self.makes_grasps:
+            return Path(self.out_dir) / "grasps" / "grasps.npz"
+        return CLINIC_GRASPS if self.dataset.track == CLINIC else DEFAULT_GRASPS
 
 
 def check_grasps_file(run: GenerateRun) -> None:
@@ -503,19 +498,19 @@ class DatasetWriter:
     def _finalise(self) -> dict:
         """Merge the chunk rows per split, then write the manifest (last); returns the frames per split."""
         out_dir, chunks = self.out_dir, self.plan.chunks
-        counts, merged_splits = {}, {}
+        counts, merged_splits, fields = {}, {}, annotation_fields(self.run.dataset.track)
         for split in SPLITS:
             parts = []
             for c in (c for c, (chunk_split, _) in enumerate(chunks) if chunk_split == split):
                 with np.load(_chunk_path(out_dir, split, c)) as data:
                     parts.append({key: data[key] for key in data.files})
-            merged = {key: np.concatenate([p[key] for p in parts]) for key in ANNOTATION_DTYPES} if parts else \
-                {key: np.zeros((0,), dtype=dt) for key, dt in ANNOTATION_DTYPES.items()}
+            merged = {key: np.concatenate([p[key] for p in parts]) for key in fields} if parts else \
+                {key: np.zeros((0,), dtype=dt) for key, (dt, _) in fields.items()}
             counts[split] = int(len(merged["frame_id"]))
             merged_splits[split] = merged
             if counts[split]:
                 save_npz(out_dir / split / "annotations.npz", merged)
-        floors = split_floors(merged_splits) if counts["train"] else {}
+        floors = split_floors(merged_splits, self.run.dataset.track) if counts["train"] else {}
         write_json(out_dir / "manifest.json", self._manifest(counts, floors))
         _remove_scaffolding(out_dir)
         return counts
@@ -523,7 +518,6 @@ class DatasetWriter:
     def _manifest(self, counts: dict[str, int], floors: dict) -> dict:
         """The manifest of the finished dataset (the fields :func:`hupbench.core.contract.read_manifest` reads)."""
         spec, plan, grasps = self.run.dataset, self.plan, self.grasps
-        view_ids, angles = viewpoints(spec.sphere)
         return {
             "schema_version": SCHEMA_VERSION,
             "generator": {"name": "hupbench.datagen", "version": GENERATOR_VERSION,
@@ -546,25 +540,37 @@ class DatasetWriter:
             "rgb_format": spec.rgb_format,
             "keypoint_names": list(kp.KEYPOINT_NAMES),
             "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],
-            "seg_labels": SEG_LABELS,
+            "seg_labels": seg_labels(spec.track),
             "depth_scale_m": DEPTH_SCALE_M,
-            "z_ego_m": list(spec.z_ego_m),
-            "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(),
-                           "phi_rad": angles[:, 1].tolist(), "sphere": asdict(spec.sphere),
-                           # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
-                           # the same for every grasp, whichever way the sphere is attached
-                           "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
-                           "split_view_ids": {split: view_ids[positions].tolist()
-                                              for split, positions in plan.views.items()}},
+            **self._cameras(),
             "protocol": protocol(spec),
-            "split_floors": {"definition": FLOORS_DEFINITION, "splits": floors},
+            "split_floors": {"definition": floors_definition(spec.track), "splits": floors},
             "backgrounds": {"names": list(self.backgrounds.names[: spec.n_backgrounds]),
                             "fingerprint": self.backgrounds.fingerprint()},
             "gloves_rgb": [list(c) for c in GLOVE_RGB[: spec.n_gloves]],
             "arm_rgb": list(ARM_RGB),
             # the probe the frames show (hupbench.datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
             "probe": grasps.probe.record,
+            **({} if spec.track != CLINIC else {"subjects": subjects_record(grasps)}),
         }
+
+    def _cameras(self) -> dict:
+        """The manifest's "z_ego_m" and "viewpoints": the sphere's views, or on the clinic track the head's camera
+        indices (each grasp draws its own cameras; the annotations hold every frame's)."""
+        spec, plan = self.run.dataset, self.plan
+        if spec.track == CLINIC:
+            ids = list(range(spec.n_views))
+            return {"z_ego_m": list(spec.distances_m), "viewpoints": {
+                "ids": ids, "head": asdict(spec.head), "split_view_ids": {split: ids for split in plan.views}}}
+        view_ids, angles = viewpoints(spec.sphere)
+        return {"z_ego_m": list(spec.z_ego_m),
+                "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(),
+                               "phi_rad": angles[:, 1].tolist(), "sphere": asdict(spec.sphere),
+                               # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
+                               # the same for every grasp, whichever way the sphere is attached
+                               "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
+                               "split_view_ids": {split: view_ids[positions].tolist()
+                                                  for split, positions in plan.views.items()}}}
 
 
 def _has_bytes(path: Path) -> bool:

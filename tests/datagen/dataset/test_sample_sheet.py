@@ -66,7 +66,7 @@ def test_sample_sheet_tiles_then_legends(tiny_dataset):
             assert not np.all(sheet[y : y + 32, x : x + 32] == WHITE), (row, col)
     footer = sheet[grid_h + 6 :]
     assert footer.shape[0] > 40
-    for rgb in [*SEG_RGB[1:], *FINGER_RGB.values(), PROBE_RGB]:
+    for rgb in [*SEG_RGB[1:4], *FINGER_RGB.values(), PROBE_RGB]:  # the paper protocol's labels: no patient
         assert _has_colour(footer, rgb), rgb
 
 
