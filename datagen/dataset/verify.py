@@ -50,6 +50,22 @@ verify reads through :mod:`hupbench.core.contract`. Two kinds of answer:
   ``grasps_file``       grasps.npz is missing, unreadable, or not the grasps the frames were rendered
                         with (their hand poses, translations and ids in the annotations), or its
                         sha256 is not the manifest's ``grasps_sha256``
+  ``lens_skin``         (clinic track) a grasp whose probe lens is not on its patient's skin (its
+                        deepest vertex more than 1 mm above it, or a probe vertex more than 2 mm deep)
+                        or whose hand or forearm, as rendered, reaches more than 3 mm into the body or
+                        the bed; one problem per grasp, naming its frames
+  ``camera_in_patient`` (clinic track) a camera centre inside the patient or below the bed's top
+  ``hand_size``         (clinic track) a frame's hand_length_mm / hand_breadth_mm other than its grasp's
+                        subject's in grasps.npz
+  ``patient_depth``     (clinic track) pixels the mask calls patient, unprojected with their depth, off
+                        the body's surface by more than max(3 mm, 1.5 pixel footprints)
+
+On the clinic track (manifest ``protocol.track``; :mod:`hupbench.datagen.dataset.verify_clinic`) the room
+behind has depth and label 0 and hides the background image, each grasp has its own hand and patient
+(grasps.npz) and the head turns keypoint 9 off the optical axis. There ``pose_mismatch`` rebuilds the keypoints
+on each grasp's own hand; ``look_at`` checks that the look-at keypoint projects at the frame's ``aim_px``, z_ego
+from the camera centre; ``mask_depth`` is a pixel without depth; ``empty_frame`` a mask without hand, forearm
+or probe; the RGB image is not compared with a background image; seg labels include ``patient`` (4).
 
 The checks that need no image: :mod:`hupbench.datagen.dataset.verify_annotations`; how the per-frame checks
 work: :mod:`hupbench.datagen.dataset.verify_frames`.
@@ -68,6 +84,7 @@ import numpy as np
 
 from hupbench.core.contract import (
     ANNOTATIONS,
+    CLINIC,
     MANIFEST,
     SPLITS,
     DamagedFileError,
@@ -75,6 +92,8 @@ from hupbench.core.contract import (
     check_manifest,
     read_annotations,
     read_manifest,
+    seg_labels,
+    track_of,
 )
 from hupbench.core.input_checks import is_whole
 from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
@@ -94,7 +113,7 @@ from hupbench.datagen.dataset.verify_frames import _CONTEXT, _problem, check_fra
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
          "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
-         "rgb_channels", "grasps_file")
+         "rgb_channels", "grasps_file", "lens_skin", "camera_in_patient", "hand_size", "patient_depth")
 #: what verify leaves out on a dataset converted from another format (manifest "imported"), and why
 IMPORTED_SKIPS = (
     ("pose_mismatch: the stored hand pose is the source's MANO parameters and the probe its own mesh; hupbench's "
@@ -107,7 +126,7 @@ IMPORTED_SKIPS = (
 POOL_MIN_FRAMES = 64
 #: annotation fields the per-frame checks use
 FRAME_KEYS = ("frame_id", "keypoints_3d_cam", "keypoints_2d", "visible", "K", "T_cam_world", "background_id",
-              "glove_id", "light_color")
+              "glove_id", "light_color", "grasp_index")
 
 
 # --- reading the manifest and the annotations -----------------------------------------------
@@ -321,9 +340,18 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
     probe = probe_of_dataset(root, manifest) if imported is None else None
     if imported is not None:
         skipped += IMPORTED_SKIPS
+    track = track_of(manifest)
+    world = None  # the clinic track's grasps with their subjects and patients
+    if track == CLINIC:
+        from hupbench.datagen.dataset.verify_clinic import read_clinic_grasps
+
+        world, why = read_clinic_grasps(root)
+        if why:
+            skipped.append(f"pose_mismatch, lens_skin, camera_in_patient, hand_size, patient_depth: {why}")
     backgrounds, gloves, quality = None, None, _jpeg_quality(manifest)
     if "rgb" in manifest["modalities"] and "seg" in manifest["modalities"]:
-        backgrounds, why = _load_backgrounds(manifest)
+        backgrounds, why = _load_backgrounds(manifest) if track != CLINIC else \
+            (None, "the clinic track's room covers the backdrop")
         if why:
             skipped.append(f"RGB against background images: {why}")
         gloves = manifest.get("gloves_rgb")
@@ -343,9 +371,16 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         problems += found
         ann = {k: v[usable] for k, v in ann.items()}
         annotations[split] = ann
-        problems += check_geometry(ann, split, stored_pose=imported is None, probe=probe)
+        if track == CLINIC:
+            from hupbench.datagen.dataset.verify_clinic import check_clinic_annotations, hand_spec_of
+
+            problems += check_geometry(ann, split, stored_pose=world is not None, probe=probe,
+                                       hand_spec=hand_spec_of(world))
+            problems += check_clinic_annotations(ann, split, manifest["protocol"]["look_at"], world, probe)
+        else:
+            problems += check_geometry(ann, split, stored_pose=imported is None, probe=probe)
         # datasets made before the manifest recorded a protocol have no look-at to check
-        if "protocol" in manifest:
+        if "protocol" in manifest and track != CLINIC:
             problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
         partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
         for i in range(len(ann["frame_id"])):
@@ -369,6 +404,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
             f"{1000 * imported['depth']['error_max_m']:.2f} mm")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")
     _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality, probe=probe,
+                    track=track, labels=seg_labels(track), clinic=world,
                     gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
     try:
         frame_problems, shifts = _check_frames(jobs, workers, progress)
@@ -416,9 +452,10 @@ def _floor_line(floor: dict) -> str:
     def mm(t: dict) -> str:
         return f"hand {t['hand']:.1f} / probe {t['probe']:.1f} / all {t['all']:.1f} mm"
 
-    parts = [f"nearest training grasp under the true camera {mm(floor['nearest_train_grasp_mm'])}"]
-    if floor["nearest_train_view_mm"] is not None:
-        parts.append(f"nearest training view of the same grasp {mm(floor['nearest_train_view_mm'])}")
-    parts.append(f"mean training grasp {mm(floor['train_mean_mm'])}")
+    names = (("nearest_train_frame_mm", "nearest training frame of any grasp and view"),
+             ("nearest_train_grasp_mm", "nearest training grasp under the true camera"),
+             ("nearest_train_view_mm", "nearest training view of the same grasp"),
+             ("train_mean_mm", "mean training grasp"))
+    parts = [f"{words} {mm(floor[key])}" for key, words in names if floor.get(key) is not None]
     return "; ".join(parts) + (f" (a model that only recalls training labels scores no better than the "
                                f"{floor['floor_kind']} one)")

@@ -16,7 +16,7 @@ import numpy as np
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATIONS, MANIFEST, MODALITIES, SEG_LABELS, SPLITS
+from hupbench.core.contract import ANNOTATIONS, CLINIC, MANIFEST, MODALITIES, SPLITS, seg_labels, track_of
 from hupbench.core.errors import BadValueError
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.io import file_sha256
@@ -37,16 +37,21 @@ def problem_detail(exc: Exception, path: Path) -> str:
 
 
 def check_manifest_extras(manifest: dict, root: Path) -> None:
-    """Manifest fields verify relies on beyond the contract's: protocol.look_at, gloves_rgb and seg_labels."""
+    """Manifest fields verify relies on beyond the contract's: protocol.look_at, gloves_rgb and seg_labels (the
+    track's, :func:`hupbench.core.contract.seg_labels`)."""
     path = root / MANIFEST
-    labels = manifest.get("seg_labels", SEG_LABELS)
-    if labels != SEG_LABELS:
-        raise BadValueError(f"{path}: seg_labels must be the contract's {SEG_LABELS}, got {labels!r}")
+    track_labels = seg_labels(track_of(manifest))
+    labels = manifest.get("seg_labels", track_labels)
+    if labels != track_labels:
+        raise BadValueError(f"{path}: seg_labels must be the contract's {track_labels}, got {labels!r}")
     protocol = manifest.get("protocol")
     if protocol is not None:
         look_at = protocol.get("look_at") if isinstance(protocol, dict) else None
         if look_at != "box_centre" and look_at not in kp.KEYPOINT_NAMES:
             raise BadValueError(f"{path}: protocol.look_at must be 'box_centre' or a keypoint name, got {look_at!r}")
+        if track_of(manifest) == CLINIC and look_at not in kp.KEYPOINT_NAMES:
+            raise BadValueError(f"{path}: protocol.look_at must be a keypoint name on the clinic track (the head "
+                                f"aims at a keypoint), got {look_at!r}")
     imported = manifest.get("imported")
     error = imported.get("depth", {}).get("error_max_m") if isinstance(imported, dict) and \
         isinstance(imported.get("depth"), dict) else None
@@ -129,7 +134,7 @@ def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[di
     if "train" not in annotations or not len(annotations["train"]["frame_id"]):
         return None, []
     try:
-        floors = split_floors(annotations)
+        floors = split_floors(annotations, track_of(manifest))
     except ValueError as exc:
         return None, [_problem(None, None, "split_floors", str(exc), ANNOTATIONS)]
     recorded = (manifest.get("split_floors") or {}).get("splits") if isinstance(manifest.get("split_floors"), dict) \
@@ -148,9 +153,12 @@ def check_split_floors(annotations: dict[str, dict], manifest: dict) -> tuple[di
     return floors, problems
 
 
-def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None) -> list[dict]:
+def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None, hand_spec=None) -> list[dict]:
     """Checks that need no image: reprojection and (``stored_pose``) the stored pose, against ``probe``
-    (the dataset's, :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)."""
+    (the dataset's, :func:`hupbench.datagen.dataset.grasps_file.probe_of_dataset`; None: the procedural one)
+    and the hand: ``hand_spec`` maps a row's ``grasp_index`` to its grasp's
+    :class:`hupbench.datagen.assets.hand_anatomy.HandSpec`, or None for an index the grasps file lacks (the
+    clinic track's subjects); None: the default hand for every row."""
     from hupbench.datagen.assets.hand import build_hand
     from hupbench.datagen.assets.probe import build_probe
 
@@ -165,9 +173,18 @@ def check_geometry(ann: dict, split: str, stored_pose: bool = True, probe=None) 
                                  rel))
     if not stored_pose:
         return problems
-    hand, probe = build_hand(), probe or build_probe()
-    world = np.concatenate([hand.keypoints(ann["hand_pose"], ann["hand_trans"], clamp=False),
-                            np.broadcast_to(probe.corners_probe, (len(ann["frame_id"]), 8, 3))], axis=1)
+    probe = probe or build_probe()
+    if hand_spec is None:
+        hand_world = build_hand().keypoints(ann["hand_pose"], ann["hand_trans"], clamp=False)
+    else:
+        hand_world = np.full((len(ann["frame_id"]), kp.NUM_HAND, 3), np.nan)  # NaN: fails, a grasp the file lacks
+        for g in np.unique(ann["grasp_index"]).tolist():
+            rows = ann["grasp_index"] == g
+            spec = hand_spec(g)
+            if spec is not None:
+                hand_world[rows] = build_hand(spec).keypoints(ann["hand_pose"][rows], ann["hand_trans"][rows],
+                                                              clamp=False)
+    world = np.concatenate([hand_world, np.broadcast_to(probe.corners_probe, (len(ann["frame_id"]), 8, 3))], axis=1)
     cam = transform_points(ann["T_cam_world"], world)
     err3 = np.linalg.norm(cam - ann["keypoints_3d_cam"], axis=-1).max(axis=1)
     for i in np.flatnonzero(~(err3 <= tol.VERIFY_KEYPOINT_M)):

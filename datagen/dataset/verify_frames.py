@@ -33,7 +33,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
-from hupbench.core.contract import SEG_LABELS, frame_path
+from hupbench.core.contract import CLINIC, SEG_LABELS, frame_path
 from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
     glove_pair_ratio,
@@ -50,6 +50,8 @@ from hupbench.core.geometry import invert_transform, transform_points
 PROBE_BAD_FRACTION = 0.05
 #: forearm pixels (inside the mask, off its edge) a frame needs for the channel-order check
 MIN_ARM_PIXELS = 20
+#: the labels of what the camera is aimed at (the clinic track's patient and room are not)
+HAND_ARM_PROBE = (SEG_LABELS["hand"], SEG_LABELS["arm"], SEG_LABELS["probe"])
 
 
 def _problem(split, frame_id, kind, detail, file=None) -> dict:
@@ -157,7 +159,7 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
             problems.append(_problem(split, frame_id, "missing_file" if why == "missing" else "undecodable_file",
                                      why, rel))
             continue
-        wrong = image_format_problem(image, m, size)
+        wrong = image_format_problem(image, m, size, _CONTEXT.get("labels", SEG_LABELS))
         if wrong:
             problem = _problem(split, frame_id, "image_format", wrong, rel)
             if image.shape[:2] != size[::-1]:
@@ -167,14 +169,24 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
         images[m] = image
     labels_agree = True  # depth and mask tell the same geometry (or there is no depth to ask)
     shift = None
-    label = next((m for m in ("seg", "depth") if m in images), None)
-    if label is not None and not images[label].any():
+    clinic = _CONTEXT.get("track") == CLINIC
+    if not clinic:
+        label = next((m for m in ("seg", "depth") if m in images), None)
+        empty = label is not None and not images[label].any()
+    else:  # the room and the patient have depth and the room is background: the mask tells the foreground
+        label = "seg" if "seg" in images else None
+        empty = label is not None and not np.isin(images["seg"], HAND_ARM_PROBE).any()
+    if empty:
         problems.append(_problem(split, frame_id, "empty_frame", f"the {label} image shows nothing in front of the "
                                  "background: the camera sees neither hand nor probe", names[label]))
+    if clinic and "depth" in images:
+        found = _check_clinic_depth(row, images, names, split, _CONTEXT.get("clinic"))
+        labels_agree = not found
+        problems += found
     if "depth" in images and "seg" in images:
         seg, depth = images["seg"], images["depth"]
         both = f"{names['depth']} + {names['seg']}"
-        off = mask_depth_mismatch_px(depth, seg)
+        off = 0 if clinic else mask_depth_mismatch_px(depth, seg)  # the clinic's: _check_clinic_depth
         if off > tol.VERIFY_MASK_DEPTH_PX:
             labels_agree = False
             problems.append(_problem(split, frame_id, "mask_depth",
@@ -205,6 +217,27 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
             if row.get("partner") is not None:
                 problems += _check_glove_pair(split, row, row["partner"], rgb, seg)
     return problems, shift
+
+
+def _check_clinic_depth(row: dict, images: dict, names: dict, split: str, world) -> list[dict]:
+    """A clinic frame's depth: a value in every pixel (:func:`hupbench.datagen.dataset.verify_clinic.depth_holes_problem`)
+    and, with the mask and the dataset's patients (``world``, a
+    :class:`~hupbench.datagen.dataset.verify_clinic.ClinicGrasps`, None when the grasps file holds none), its
+    patient pixels on the body's surface (``patient_depth``)."""
+    from hupbench.datagen.dataset.verify_clinic import depth_holes_problem, patient_depth_problem
+
+    frame_id = int(row["frame_id"])
+    problems = []
+    holes = depth_holes_problem(images["depth"])
+    if holes:
+        problems.append(_problem(split, frame_id, "mask_depth", holes, names["depth"]))
+    g = int(row["grasp_index"])
+    if "seg" in images and world is not None and 0 <= g < len(world.placements):
+        off = patient_depth_problem(row, images["depth"].astype(np.float64) * _CONTEXT["manifest"]["depth_scale_m"],
+                                    images["seg"], world.placements[g])
+        if off:
+            problems.append(_problem(split, frame_id, "patient_depth", off, f"{names['depth']} + {names['seg']}"))
+    return problems
 
 
 def _check_channel_order(rgb: np.ndarray, seg: np.ndarray, split: str, frame_id: int, rel: str) -> list[dict]:

@@ -85,12 +85,14 @@ def read_image(path: Path, modality: str) -> tuple[np.ndarray | None, str | None
     return image, None
 
 
-def image_format_problem(image: np.ndarray, modality: str, size: tuple[int, int]) -> str | None:
+def image_format_problem(image: np.ndarray, modality: str, size: tuple[int, int],
+                         labels: dict[str, int] = SEG_LABELS) -> str | None:
     """What is wrong with a decoded image against the contract (None when nothing).
 
     Args:
         image: as :func:`read_image` returns it. modality: "rgb", "depth" or "seg".
         size: the manifest's image_size (width, height).
+        labels: the mask's labels on the dataset's track (:func:`hupbench.core.contract.seg_labels`).
     """
     w, h = size
     if image.shape[:2] != (h, w):
@@ -101,9 +103,9 @@ def image_format_problem(image: np.ndarray, modality: str, size: tuple[int, int]
         if image.dtype != np.uint8 or image.ndim != 2:
             return f"{image.dtype} with {1 if image.ndim == 2 else image.shape[2]} channel(s), expected single-channel uint8"
         present = np.flatnonzero(np.bincount(image.ravel(), minlength=256))
-        unknown = sorted(set(present.tolist()) - set(SEG_LABELS.values()))
+        unknown = sorted(set(present.tolist()) - set(labels.values()))
         if unknown:
-            return f"labels {unknown[:8]} outside {SEG_LABELS}"
+            return f"labels {unknown[:8]} outside {labels}"
     return None
 
 

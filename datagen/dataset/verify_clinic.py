@@ -1,0 +1,249 @@
+"""The clinic track's checks of :mod:`hupbench.datagen.dataset.verify`: what the track promises of its world.
+
+On the clinic track (:mod:`hupbench.datagen.dataset.clinic`) every grasp has its own subject's hand and its own
+patient placement, both read from the dataset's ``grasps.npz`` (``subject_*`` / ``hand_*_mm`` and ``patient_*``
+arrays), and its cameras are a sonographer's head's (:mod:`hupbench.datagen.dataset.head`). verify checks here:
+
+* ``lens_skin``: per grasp, the probe's lens rests on the skin (its deepest vertex at most
+  :data:`LENS_ABOVE_SKIN_M` above it), no probe vertex deeper than
+  :data:`hupbench.datagen.assets.patient.PROBE_MAX_DEPTH_M`, and no vertex of the hand or forearm, built as the
+  renderer builds them for the grasp's hand, more than :data:`BODY_PENETRATION_M` inside the body or below the
+  bed's top; reported once per failing grasp with its frames;
+* ``camera_in_patient``: each camera centre (from ``T_cam_world``) outside the body and above the bed plane;
+* ``hand_size``: each frame's ``hand_length_mm`` / ``hand_breadth_mm`` are its grasp's subject's;
+* ``look_at``: keypoint 9 (the manifest's ``protocol.look_at``) projects at the frame's ``aim_px`` and lies
+  ``z_ego`` from the camera centre (the head turned the target off the optical axis);
+* ``patient_depth`` (per frame, with the images): pixels the mask calls patient, unprojected with their depth,
+  lie on the body's surface;
+* ``mask_depth`` (per frame): every pixel has depth (the room and the patient stand behind everything).
+
+Convention:
+    World = probe frame, metres; ``T_cam_world`` in OpenCV axes; signed distances negative inside the body
+    (:func:`hupbench.datagen.assets.patient.body_sdf`); the bed's top is the body frame's z = 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hupbench.core import keypoints as kp
+from hupbench.core import tolerances as tol
+from hupbench.core.camera import project_points
+from hupbench.core.contract import ANNOTATIONS, CLINIC_SEG_LABELS
+from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.datagen.assets.patient import (PLACEMENT_FIELDS, PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf,
+                                             placement_from_arrays)
+from hupbench.datagen.dataset.verify_frames import PROBE_BAD_FRACTION, _problem
+from hupbench.datagen.dataset.verify_images import shrink_mask
+
+#: the lens's deepest vertex lies at most this far above the skin: it rests on it, metres
+LENS_ABOVE_SKIN_M = 0.001
+#: no hand or forearm vertex lies deeper than this inside the body (or below the bed's top), metres
+BODY_PENETRATION_M = 0.003
+#: a frame's subject measures and its grasp's subject's are copies of one float64: they agree to this, mm
+HAND_SIZE_MM = 1e-6
+#: the hand measures a frame records (the grasps file holds the same names)
+HAND_SIZE_FIELDS = ("hand_length_mm", "hand_breadth_mm")
+
+
+@dataclass
+class ClinicGrasps:
+    """What the clinic checks read of a dataset's ``grasps.npz``.
+
+    Attributes:
+        grasps: the :class:`hupbench.datagen.dataset.grasps_file.GraspSet` (each grasp's hand: ``hand_spec(g)``;
+            its subject's measures: ``subjects``).
+        placements: each grasp's patient placement, grasps-file order.
+        contact: {grasp index: (lens height m, deepest probe vertex m, hand / forearm penetration m)}, filled
+            by :func:`check_lens_skin` (each grasp measured once).
+    """
+
+    grasps: object
+    placements: list[PatientPlacement]
+    contact: dict
+
+
+def read_clinic_grasps(root: Path) -> tuple[ClinicGrasps | None, str | None]:
+    """The dataset's grasps with their subjects and patient placements, or None and why the clinic checks of
+    the world cannot run (the grasps file's own problems are :func:`check_grasps_file`'s to report)."""
+    from hupbench.datagen.dataset.grasps_file import GraspSet
+
+    path = root / "grasps.npz"
+    try:
+        grasps = GraspSet(path)
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in PLACEMENT_FIELDS if k in data.files}
+    except (OSError, ValueError) as exc:
+        return None, f"grasps.npz is not readable ({type(exc).__name__})"
+    missing = [k for k in PLACEMENT_FIELDS if k not in arrays or len(arrays[k]) != len(grasps)]
+    if missing or grasps.subjects is None:
+        what = f"patient placements ({', '.join(missing)})" if missing else "subjects (subject_hand, hand_*_mm)"
+        return None, f"grasps.npz holds no {what} for its {len(grasps)} grasps"
+    return ClinicGrasps(grasps, [placement_from_arrays(arrays, g) for g in range(len(grasps))], {}), None
+
+
+def _known(ann: dict, world: ClinicGrasps) -> np.ndarray:
+    """(N,) bool: rows whose grasp_index names a grasp of the file (others are check_grasps_file's)."""
+    return (ann["grasp_index"] >= 0) & (ann["grasp_index"] < len(world.placements))
+
+
+def check_hand_size(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
+    """Each frame's hand length and breadth against its grasp's subject's (the grasps file's)."""
+    rows = np.flatnonzero(_known(ann, world))
+    problems = []
+    for key in HAND_SIZE_FIELDS:
+        expected = world.grasps.subjects[key][ann["grasp_index"][rows]]
+        off = np.abs(ann[key][rows] - expected)
+        for i, e, o in zip(rows[~(off <= HAND_SIZE_MM)], expected[~(off <= HAND_SIZE_MM)], off[~(off <= HAND_SIZE_MM)]):
+            problems.append(_problem(split, ann["frame_id"][i], "hand_size",
+                                     f"{key} {ann[key][i]:.3f}, its grasp's subject's (grasp index "
+                                     f"{int(ann['grasp_index'][i])}) is {e:.3f} ({o:.3f} mm off)",
+                                     f"{split}/{ANNOTATIONS}"))
+    return problems
+
+
+def check_aim(ann: dict, split: str, look_at: str) -> list[dict]:
+    """The head camera's aim: the look-at keypoint (a keypoint name: the manifest's ``protocol.look_at``) projects
+    at the frame's ``aim_px`` (within ``tol.VERIFY_REPROJECTION_PX``) and lies ``z_ego`` from the camera centre
+    (within ``tol.VERIFY_LOOK_AT_M``)."""
+    point = ann["keypoints_3d_cam"][:, kp.KEYPOINT_NAMES.index(look_at)].astype(np.float64)
+    uv = project_points(point[:, None], ann["K"], behind="nan")[:, 0]
+    px = np.abs(uv - ann["aim_px"]).max(axis=1)
+    metres = np.abs(np.linalg.norm(point, axis=1) - ann["z_ego"])
+    bad = ~(px <= tol.VERIFY_REPROJECTION_PX) | ~(metres <= tol.VERIFY_LOOK_AT_M)
+    return [_problem(split, ann["frame_id"][i], "look_at",
+                     f"{look_at} projects at {np.round(uv[i], 3).tolist()} px, {np.linalg.norm(point[i]):.6f} m "
+                     f"from the camera; expected aim_px {np.round(ann['aim_px'][i], 3).tolist()} at z_ego "
+                     f"{ann['z_ego'][i]:.6f} m", f"{split}/{ANNOTATIONS}")
+            for i in np.flatnonzero(bad)]
+
+
+def _body_frame_height(placement: PatientPlacement, points_world: np.ndarray) -> np.ndarray:
+    """(N,) height of world points above the bed's top (the body frame's z), metres."""
+    T = placement.T_world_body
+    return ((np.asarray(points_world) - T[:3, 3]) @ T[:3, :3])[:, 2]
+
+
+def check_cameras(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
+    """Each camera centre outside its grasp's patient (``body_sdf`` > 0) and above the bed plane."""
+    problems = []
+    centres = invert_transform(ann["T_cam_world"])[:, :3, 3]  # (N, 3) world
+    for i in np.flatnonzero(_known(ann, world)):
+        placement = world.placements[int(ann["grasp_index"][i])]
+        sdf = float(body_sdf(placement, centres[i][None])[0])
+        height = float(_body_frame_height(placement, centres[i][None])[0])
+        if not (sdf > 0 and height > 0):
+            problems.append(_problem(split, ann["frame_id"][i], "camera_in_patient",
+                                     f"the camera centre is {'inside' if sdf <= 0 else 'outside'} the body "
+                                     f"({1000 * sdf:.1f} mm from the skin) and {1000 * height:.1f} mm above the "
+                                     "bed's top: a head cannot be there", f"{split}/{ANNOTATIONS}"))
+    return problems
+
+
+def grasp_contact(world: ClinicGrasps, g: int, probe) -> tuple[float, float, float]:
+    """Grasp ``g``'s lens against its patient, as rendered.
+
+    The hand and forearm are built as the renderer builds them
+    (:func:`hupbench.datagen.render.scene.scene_parts` with the grasp's hand, ``GraspSet.hand_spec``).
+
+    Returns:
+        (the lens's deepest vertex's signed distance to the skin, the deepest probe vertex's, the deepest hand or
+        forearm vertex's depth inside the body or below the bed's top, >= 0), metres.
+    """
+    from hupbench.datagen.render.scene import Grasp, SceneModels, scene_parts
+
+    if g not in world.contact:
+        grasps, placement = world.grasps, world.placements[g]
+        parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
+                                                      SceneModels(hand=grasps.hand_spec(g)), probe=probe)}
+        vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
+        lens = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
+        body = np.concatenate([np.asarray(parts["hand"].vertices), np.asarray(parts["arm"].vertices)])
+        depth = np.maximum(-body_sdf(placement, body), -_body_frame_height(placement, body))
+        world.contact[g] = (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
+                            max(0.0, float(depth.max())))
+    return world.contact[g]
+
+
+def check_lens_skin(ann: dict, split: str, world: ClinicGrasps, probe) -> list[dict]:
+    """Per grasp of the split: the lens on the skin, the probe no deeper than ``PROBE_MAX_DEPTH_M``, the hand and
+    forearm no deeper than :data:`BODY_PENETRATION_M`; one problem per failing grasp, naming its frames."""
+    problems = []
+    known = _known(ann, world)
+    for g in np.unique(ann["grasp_index"][known]).tolist():
+        lens_m, probe_m, hand_m = grasp_contact(world, g, probe)
+        why = []
+        if lens_m > LENS_ABOVE_SKIN_M:
+            why.append(f"the lens floats {1000 * lens_m:.2f} mm above the skin (at most {1000 * LENS_ABOVE_SKIN_M:g})")
+        if probe_m < -PROBE_MAX_DEPTH_M:
+            why.append(f"the probe sinks {-1000 * probe_m:.2f} mm into the skin (at most {1000 * PROBE_MAX_DEPTH_M:g})")
+        if hand_m > BODY_PENETRATION_M:
+            why.append(f"a hand or forearm vertex lies {1000 * hand_m:.2f} mm inside the body or the bed (at most "
+                       f"{1000 * BODY_PENETRATION_M:g})")
+        if why:
+            frames = ann["frame_id"][known & (ann["grasp_index"] == g)]
+            problems.append(_problem(split, frames[0], "lens_skin",
+                                     f"grasp index {g} ({len(frames)} frames, first {int(frames[0]):06d}): "
+                                     + "; ".join(why), "grasps.npz"))
+    return problems
+
+
+def patient_depth_problem(row: dict, depth_m: np.ndarray, seg: np.ndarray, placement: PatientPlacement
+                          ) -> str | None:
+    """Pixels the mask calls patient (off its edge), unprojected with their depth and K into the world, against
+    the body's surface: more than ``PROBE_BAD_FRACTION`` of them off it by more than max(3 mm, 1.5 pixel
+    footprints) (``tol.VERIFY_PROBE_SURFACE_M``, as the probe's) is a problem.
+
+    Args:
+        row: the frame's annotations ("K", "T_cam_world"). depth_m: (H, W) metres. seg: (H, W) labels.
+        placement: the frame's grasp's patient.
+
+    Returns:
+        What is wrong, or None.
+    """
+    ys, xs = np.nonzero(shrink_mask(seg == CLINIC_SEG_LABELS["patient"], 1) & (depth_m > 0))
+    if not len(xs):
+        return None
+    pick = np.linspace(0, len(xs) - 1, min(len(xs), 400)).astype(int)
+    K = np.asarray(row["K"])
+    z = depth_m[ys[pick], xs[pick]]
+    cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
+    off = np.abs(body_sdf(placement, transform_points(invert_transform(row["T_cam_world"]), cam)))
+    limit = np.maximum(tol.VERIFY_PROBE_SURFACE_M, 1.5 * z / K[0, 0])
+    bad = np.mean(off > limit)
+    if bad <= PROBE_BAD_FRACTION:
+        return None
+    return f"{100 * bad:.0f}% of patient pixels off the body's surface (max {1000 * off.max():.1f} mm)"
+
+
+def depth_holes_problem(depth: np.ndarray) -> str | None:
+    """What is wrong with a clinic frame's stored depth: pixels without depth (the room and the patient stand
+    behind everything, so every pixel has one), or None."""
+    holes = int(np.count_nonzero(depth == 0))
+    if not holes:
+        return None
+    return (f"{holes} pixels without depth: on the clinic track the room and the patient have depth in every "
+            "pixel (the depth belongs to another track's frame, or lost part of the scene)")
+
+
+def check_clinic_annotations(ann: dict, split: str, look_at: str, world: ClinicGrasps | None, probe
+                             ) -> list[dict]:
+    """A clinic split's checks that need no image: the aim (:func:`check_aim`) and, with the dataset's grasps
+    (``world``; None when its grasps file holds no subjects or patients), the hand size, the cameras and the
+    lens on the skin."""
+    problems = check_aim(ann, split, look_at)
+    if world is not None:
+        problems += check_hand_size(ann, split, world) + check_cameras(ann, split, world) \
+            + check_lens_skin(ann, split, world, probe)
+    return problems
+
+
+def hand_spec_of(world: ClinicGrasps | None):
+    """grasp index -> its grasp's HandSpec (None for an index the file lacks), for
+    :func:`hupbench.datagen.dataset.verify_annotations.check_geometry`; None without the dataset's grasps."""
+    if world is None:
+        return None
+    return lambda g: world.grasps.hand_spec(g) if 0 <= g < len(world.placements) else None
