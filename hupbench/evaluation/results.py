@@ -37,7 +37,7 @@ from hupbench.provenance import RUN_NAME_PATTERN
 from hupbench.core.input_checks import is_number, is_whole
 from hupbench.core.io import write_json
 from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
-from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
+from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_FRAME, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 
 SCHEMA_VERSION = 5
 #: versions :func:`load_results` reads (older ones are upgraded on load)
@@ -60,6 +60,8 @@ FLOOR_NAMES = {
                             "grasps cannot do better than this"),
     NEAREST_TRAIN_VIEW: ("nearest training view of the same grasp and distance under the true camera: a model "
                            "that only recalls training views cannot do better than this"),
+    NEAREST_TRAIN_FRAME: ("nearest training frame of any grasp and view, by its camera-frame keypoints: a model "
+                          "that only recalls training images' labels cannot do better than this"),
 }
 
 _TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metrics", "breakdowns",

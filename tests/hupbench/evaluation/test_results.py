@@ -145,7 +145,8 @@ def _delete(d, path):
     (("intervals", "seed"), None, r"results\['intervals'\]\['seed'\] must be an integer >= 0, got None"),
     (("track",), None, r"results\['track'\] must be one of .* where split_floor is given, got None"),
     (("split_floor", "floor_kind"), "oracle",
-     r"results\['split_floor'\]\['floor_kind'\] must be one of 'nearest_train_grasp', 'nearest_train_view', got"),
+     r"results\['split_floor'\]\['floor_kind'\] must be one of 'nearest_train_grasp', 'nearest_train_view', "
+     r"'nearest_train_frame', got"),
     (("split_floor", "floor_mm", "probe"), None,
      r"results\['split_floor'\]\['floor_mm'\]\['probe'\] must be a finite number >= 0, got None"),
     (("split_floor", "train_mean_mm"), {"hand": 1.0, "all": 1.0},
