@@ -18,8 +18,8 @@ import numpy as np
 
 from hupbench.core.errors import BadValueError
 
-__all__ = ["check_bool", "check_bool_fields", "check_choice", "check_int", "check_number", "check_shape", "is_number",
-           "is_whole"]
+__all__ = ["check_bool", "check_bool_fields", "check_choice", "check_int", "check_interval", "check_number",
+           "check_shape", "is_number", "is_whole"]
 
 
 def is_whole(value: Any) -> bool:
@@ -75,6 +75,18 @@ def check_number(value: Any, name: str, low: float | None = None, high: float | 
         return float(value)
     raise BadValueError(f"{name} must be a finite number{_bounds(low, high, low_open, 'g')}"
                      f"{' or null' if optional else ''}, got {value!r}")
+
+
+def check_interval(value: Any, name: str, low: float, high: float, unit: str = "") -> tuple[float, float]:
+    """``value`` as (lower, upper) when it is two finite numbers with low <= lower <= upper <= high (a list, a
+    tuple or a config's list); the error names the range, e.g. ``NAME must be two numbers [low, high],
+    low <= high, from 0.1 to 10 m, got [0.8, 0.35]``."""
+    pair = list(value) if isinstance(value, Sequence) and not isinstance(value, (str, bytes)) else None
+    if pair is not None and len(pair) == 2 and all(is_number(v) for v in pair) and low <= pair[0] <= pair[1] <= high:
+        return float(pair[0]), float(pair[1])
+    written = "[" + ", ".join(repr(v) for v in pair) + "]" if pair is not None else repr(value)
+    raise BadValueError(f"{name} must be two numbers [low, high], low <= high, from {low:g} to {high:g}"
+                        f"{' ' + unit if unit else ''}, got {written}")
 
 
 def check_bool(value: Any, name: str) -> bool:

@@ -31,8 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from hupbench.core.errors import BadValueError
-from hupbench.core.input_checks import check_int, check_number, is_number
+from hupbench.core.input_checks import check_int, check_interval, check_number
 
 __all__ = ["PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
            "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb"]
@@ -86,26 +85,13 @@ class PatientSpec:
     attempts: int = 16
 
     def __post_init__(self) -> None:
-        low, high = RADIUS_LIMITS_M
-        pair = list(self.radius_m) if isinstance(self.radius_m, Sequence) and not isinstance(self.radius_m, str) \
-            else None
-        if pair is None or len(pair) != 2 or not all(is_number(v) for v in pair) \
-                or not low <= pair[0] <= pair[1] <= high:
-            raise BadValueError(f"{NODE}.radius_m must be two numbers [low, high], low <= high, from {low} to "
-                                f"{high} m, got {_listed(self.radius_m)}")
-        object.__setattr__(self, "radius_m", (float(pair[0]), float(pair[1])))
+        object.__setattr__(self, "radius_m", check_interval(self.radius_m, f"{NODE}.radius_m", *RADIUS_LIMITS_M,
+                                                           unit="m"))
         object.__setattr__(self, "max_tilt_deg", check_number(self.max_tilt_deg, f"{NODE}.max_tilt_deg", 0, 45))
         object.__setattr__(self, "press_m", check_number(self.press_m, f"{NODE}.press_m", 0, PROBE_MAX_DEPTH_M))
         object.__setattr__(self, "max_penetration_m",
                            check_number(self.max_penetration_m, f"{NODE}.max_penetration_m", 0, 0.01))
         object.__setattr__(self, "attempts", check_int(self.attempts, f"{NODE}.attempts", 1, 1000))
-
-
-def _listed(value) -> str:
-    """A config value as the user wrote it: a list-like as ``[a, b]``, anything else as its repr."""
-    if isinstance(value, Sequence) and not isinstance(value, str):
-        return "[" + ", ".join(repr(v) for v in value) + "]"
-    return repr(value)
 
 
 @dataclass(frozen=True)

@@ -39,10 +39,10 @@ import numpy as np
 from hupbench.core.camera import Intrinsics
 from hupbench.core.errors import BadValueError, RunFailedError
 from hupbench.core.geometry import skew
-from hupbench.core.input_checks import check_int, check_number, is_number
+from hupbench.core.input_checks import check_int, check_interval, check_number, is_number
 
 #: the config node's dotted path, naming its keys in errors
-NODE = "dataset.clinic.head"
+NODE = "dataset.head"
 #: camera distances a head can be at, metres (the configurable range must lie within)
 DISTANCE_LIMITS_M = (0.1, 10.0)
 #: rounds of redraws of refused cameras before giving up (a cap with 1 % clear room still fills)
@@ -51,7 +51,7 @@ MAX_DRAW_ROUNDS = 200
 
 @dataclass(frozen=True)
 class HeadSpec:
-    """Where a sonographer's head-worn camera can be (config node ``dataset.clinic.head``).
+    """Where a sonographer's head-worn camera can be (config node ``dataset.head``).
 
     Attributes:
         distance_m: (min, max) camera to target distance, metres, drawn uniformly (continuously) in
@@ -74,12 +74,8 @@ class HeadSpec:
     views_per_grasp: int = 33
 
     def __post_init__(self) -> None:
-        low, high = DISTANCE_LIMITS_M
-        d = tuple(self.distance_m) if isinstance(self.distance_m, (tuple, list)) else None
-        if d is None or len(d) != 2 or not all(is_number(x) and low <= x <= high for x in d) or d[0] > d[1]:
-            raise BadValueError(f"{NODE}.distance_m must be [min, max] metres with {low} <= min <= max <= {high}, "
-                                f"got {self.distance_m!r}")
-        object.__setattr__(self, "distance_m", (float(d[0]), float(d[1])))
+        object.__setattr__(self, "distance_m", check_interval(self.distance_m, f"{NODE}.distance_m",
+                                                             *DISTANCE_LIMITS_M, unit="m"))
         for name, high_open in (("elevation_min_deg", 90.0), ("aim_jitter", 0.5)):
             value = getattr(self, name)
             if not (is_number(value) and 0.0 <= value < high_open):

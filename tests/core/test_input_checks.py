@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hupbench.core.errors import BadTypeError
-from hupbench.core.input_checks import (check_bool, check_bool_fields, check_choice, check_int, check_number,
-                                        check_shape, is_number, is_whole)
+from hupbench.core.input_checks import (check_bool, check_bool_fields, check_choice, check_int, check_interval,
+                                        check_number, check_shape, is_number, is_whole)
 
 
 @pytest.mark.parametrize("value,whole", [(3, True), (np.int64(3), True), (True, False), (np.bool_(True), False),
@@ -111,3 +111,18 @@ def test_check_choice_refuses_naming_the_choices(value, choices, message):
 
 def test_check_choice_returns_the_value():
     assert check_choice("cuda", "device", ("cpu", "cuda")) == "cuda" and check_choice(8, "stride", (4, 8)) == 8
+
+
+@pytest.mark.parametrize("value,written", [((0.8, 0.35), "[0.8, 0.35]"), ([0.05, 0.8], "[0.05, 0.8]"),
+                                           ([0.3], "[0.3]"), ([0.3, float("nan")], "[0.3, nan]"), (0.5, "0.5"),
+                                           ("0.3, 0.5", "'0.3, 0.5'"), ([True, 0.5], "[True, 0.5]")])
+def test_check_interval_refuses_naming_the_field(value, written):
+    with pytest.raises(ValueError) as info:
+        check_interval(value, "dataset.head.distance_m", 0.1, 10.0, unit="m")
+    assert str(info.value) == ("dataset.head.distance_m must be two numbers [low, high], low <= high, from 0.1 to 10 m, "
+                               f"got {written}")
+
+
+def test_check_interval_returns_floats_and_accepts_its_bounds():
+    assert check_interval([0.1, np.float32(10.0)], "x", 0.1, 10.0) == (0.1, 10.0)
+    assert check_interval((2, 2), "x", 0, 5) == (2.0, 2.0)

@@ -5,6 +5,8 @@ import math
 import cv2
 import numpy as np
 import pytest
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 from hupbench.core.camera import Intrinsics, project_points
 from hupbench.core.errors import BadValueError, RunFailedError
@@ -154,16 +156,17 @@ def test_against_opencv_project_points():
 
 
 @pytest.mark.parametrize("overrides, message", [
-    ({"elevation_min_deg": 90.0}, r"dataset.clinic.head.elevation_min_deg must be a finite number in \[0, 90\)"),
+    ({"elevation_min_deg": 90.0}, r"dataset.head.elevation_min_deg must be a finite number in \[0, 90\)"),
     ({"elevation_min_deg": -1.0}, "elevation_min_deg must be a finite number in"),
-    ({"distance_m": (0.05, 0.8)}, r"dataset.clinic.head.distance_m must be \[min, max\] metres with 0.1 <= min"),
+    ({"distance_m": (0.05, 0.8)},
+     r"dataset.head.distance_m must be two numbers \[low, high\], low <= high, from 0.1 to 10 m, got \[0.05, 0.8\]"),
     ({"distance_m": (0.8, 0.35)}, "distance_m must be"),
     ({"distance_m": (0.35, 11.0)}, "distance_m must be"),
     ({"distance_m": 0.5}, "distance_m must be"),
-    ({"views_per_grasp": 0}, "dataset.clinic.head.views_per_grasp must be a whole number >= 1"),
+    ({"views_per_grasp": 0}, "dataset.head.views_per_grasp must be a whole number >= 1"),
     ({"aim_jitter": -0.1}, r"aim_jitter must be a finite number in \[0, 0.5\)"),
     ({"aim_jitter": 0.5}, "aim_jitter must be"),
-    ({"roll_deg": -5.0}, r"dataset.clinic.head.roll_deg must be a finite number in \[0, 180\]"),
+    ({"roll_deg": -5.0}, r"dataset.head.roll_deg must be a finite number in \[0, 180\]"),
     ({"roll_deg": float("nan")}, "roll_deg must be"),
 ])
 def test_bad_values_are_refused_naming_the_key(overrides, message):
@@ -176,3 +179,6 @@ def test_defaults():
     assert (spec.distance_m, spec.elevation_min_deg, spec.aim_jitter, spec.roll_deg, spec.views_per_grasp) == \
         ((0.35, 0.8), 25.0, 0.15, 15.0, 33)
     assert HeadSpec(distance_m=[0.5, 0.5]).distance_m == (0.5, 0.5)
+    # as the config hands it over
+    node = OmegaConf.create({"_target_": "hupbench.datagen.dataset.head.HeadSpec", "distance_m": [0.4, 0.7]})
+    assert instantiate(node).distance_m == (0.4, 0.7)
