@@ -47,10 +47,14 @@ ADULT_HAND_BREADTH_MM = (55.0, 115.0)
 #: leave :data:`hupbench.datagen.assets.hand_anatomy.FACTOR_RANGE`
 BREADTH_PER_LENGTH = (0.36, 0.53)
 #: how close a built hand's measured length and breadth come to the subject's, mm
-MATCH_MM = 0.5
+MATCH_MM = 0.8
 #: the breadth's change per unit breadth factor on the tables' hand, mm: the index-to-little MCP spacing
 #: (:data:`hupbench.datagen.assets.hand_anatomy._MCP_Z_MM`); the Newton step of :meth:`Subject.hand_spec`
 _BREADTH_SLOPE_MM = 53.0
+#: the tables' hand's measured breadth (HandSpec()), mm, and its change per unit thickness factor (the index
+#: and little knuckles' radii, :data:`hupbench.datagen.assets.hand_anatomy.FINGER_RADII_MM` plus 1.2 mm each):
+#: the first guess of :meth:`Subject.hand_spec`'s breadth factor
+_TABLE_BREADTH_MM, _THICKNESS_SLOPE_MM = 74.0, 19.2
 _MAX_SOLVE_STEPS = 8
 MAX_SUBJECTS = 100_000
 
@@ -140,7 +144,10 @@ def _solve_hand(subject: Subject, voxel_m: float) -> HandSpec:
     from hupbench.datagen.assets.hand import build_hand
 
     palm, fingers = subject.finger_ratio ** -0.5, subject.finger_ratio ** 0.5
-    breadth = 1.0
+    scale = subject.length_mm / (np.linalg.norm(rest_skeleton(HandSpec(palm=palm, fingers=fingers))[1][1]) * 1e3)
+    breadth = float(np.clip(1.0 + (subject.breadth_mm / scale - _TABLE_BREADTH_MM
+                                   - _THICKNESS_SLOPE_MM * (subject.thickness - 1.0)) / _BREADTH_SLOPE_MM,
+                            *FACTOR_RANGE))
     for _ in range(_MAX_SOLVE_STEPS):
         unit = HandSpec(palm=palm, fingers=fingers, breadth=breadth, thickness=subject.thickness)
         tips = rest_skeleton(unit)[1]
