@@ -277,6 +277,21 @@ def _collapse_image_size(problems: list[dict], frames: int, size: tuple[int, int
     return out
 
 
+def _check_geometry(ann: dict, split: str, manifest: dict, probe, world) -> list[dict]:
+    """A split's checks of the labels against the stored pose and the camera's aim, on the manifest's track
+    (the clinic track's with ``world``, its :class:`~hupbench.datagen.dataset.verify_clinic.ClinicGrasps` or None)."""
+    if track_of(manifest) == CLINIC:
+        from hupbench.datagen.dataset.verify_clinic import check_clinic_annotations, hand_spec_of
+
+        return check_geometry(ann, split, stored_pose=world is not None, probe=probe, hand_spec=hand_spec_of(world)) \
+            + check_clinic_annotations(ann, split, manifest["protocol"]["look_at"], world, probe)
+    problems = check_geometry(ann, split, stored_pose=manifest.get("imported") is None, probe=probe)
+    # datasets made before the manifest recorded a protocol have no look-at to check
+    if "protocol" in manifest:
+        problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
+    return problems
+
+
 def _check_frames(jobs: list, workers: int, progress: bool | None) -> tuple[list[dict], list]:
     """:func:`check_frame` over ``jobs`` (in ``workers`` processes when there are enough), with a progress bar:
     (the problems found, the image shifts measured)."""
@@ -371,17 +386,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         problems += found
         ann = {k: v[usable] for k, v in ann.items()}
         annotations[split] = ann
-        if track == CLINIC:
-            from hupbench.datagen.dataset.verify_clinic import check_clinic_annotations, hand_spec_of
-
-            problems += check_geometry(ann, split, stored_pose=world is not None, probe=probe,
-                                       hand_spec=hand_spec_of(world))
-            problems += check_clinic_annotations(ann, split, manifest["protocol"]["look_at"], world, probe)
-        else:
-            problems += check_geometry(ann, split, stored_pose=imported is None, probe=probe)
-        # datasets made before the manifest recorded a protocol have no look-at to check
-        if "protocol" in manifest and track != CLINIC:
-            problems += check_look_at(ann, split, manifest["protocol"]["look_at"])
+        problems += _check_geometry(ann, split, manifest, probe, world)
         partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
         for i in range(len(ann["frame_id"])):
             row = {k: ann[k][i] for k in FRAME_KEYS}

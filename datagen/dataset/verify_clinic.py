@@ -13,9 +13,9 @@ arrays), and its cameras are a sonographer's head's (:mod:`hupbench.datagen.data
 * ``hand_size``: each frame's ``hand_length_mm`` / ``hand_breadth_mm`` are its grasp's subject's;
 * ``look_at``: keypoint 9 (the manifest's ``protocol.look_at``) projects at the frame's ``aim_px`` and lies
   ``z_ego`` from the camera centre (the head turned the target off the optical axis);
-* ``patient_depth`` (per frame, with the images): pixels the mask calls patient, unprojected with their depth,
-  lie on the body's surface;
-* ``mask_depth`` (per frame): every pixel has depth (the room and the patient stand behind everything).
+and, per frame with the images (:mod:`hupbench.datagen.dataset.verify_frames`), ``patient_depth`` (pixels the mask
+calls patient, unprojected with their depth, lie on the body's surface) and ``mask_depth`` (every pixel has depth:
+the room and the patient stand behind everything).
 
 Convention:
     World = probe frame, metres; ``T_cam_world`` in OpenCV axes; signed distances negative inside the body
@@ -32,12 +32,11 @@ import numpy as np
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATIONS, CLINIC_SEG_LABELS
-from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.core.contract import ANNOTATIONS
+from hupbench.core.geometry import invert_transform
 from hupbench.datagen.assets.patient import (PLACEMENT_FIELDS, PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf,
                                              placement_from_arrays)
-from hupbench.datagen.dataset.verify_frames import PROBE_BAD_FRACTION, _problem
-from hupbench.datagen.dataset.verify_images import shrink_mask
+from hupbench.datagen.dataset.verify_frames import _problem
 
 #: the lens's deepest vertex lies at most this far above the skin: it rests on it, metres
 LENS_ABOVE_SKIN_M = 0.001
@@ -97,7 +96,8 @@ def check_hand_size(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
     for key in HAND_SIZE_FIELDS:
         expected = world.grasps.subjects[key][ann["grasp_index"][rows]]
         off = np.abs(ann[key][rows] - expected)
-        for i, e, o in zip(rows[~(off <= HAND_SIZE_MM)], expected[~(off <= HAND_SIZE_MM)], off[~(off <= HAND_SIZE_MM)]):
+        bad = ~(off <= HAND_SIZE_MM)  # NaN fails
+        for i, e, o in zip(rows[bad], expected[bad], off[bad]):
             problems.append(_problem(split, ann["frame_id"][i], "hand_size",
                                      f"{key} {ann[key][i]:.3f}, its grasp's subject's (grasp index "
                                      f"{int(ann['grasp_index'][i])}) is {e:.3f} ({o:.3f} mm off)",
@@ -189,44 +189,6 @@ def check_lens_skin(ann: dict, split: str, world: ClinicGrasps, probe) -> list[d
                                      f"grasp index {g} ({len(frames)} frames, first {int(frames[0]):06d}): "
                                      + "; ".join(why), "grasps.npz"))
     return problems
-
-
-def patient_depth_problem(row: dict, depth_m: np.ndarray, seg: np.ndarray, placement: PatientPlacement
-                          ) -> str | None:
-    """Pixels the mask calls patient (off its edge), unprojected with their depth and K into the world, against
-    the body's surface: more than ``PROBE_BAD_FRACTION`` of them off it by more than max(3 mm, 1.5 pixel
-    footprints) (``tol.VERIFY_PROBE_SURFACE_M``, as the probe's) is a problem.
-
-    Args:
-        row: the frame's annotations ("K", "T_cam_world"). depth_m: (H, W) metres. seg: (H, W) labels.
-        placement: the frame's grasp's patient.
-
-    Returns:
-        What is wrong, or None.
-    """
-    ys, xs = np.nonzero(shrink_mask(seg == CLINIC_SEG_LABELS["patient"], 1) & (depth_m > 0))
-    if not len(xs):
-        return None
-    pick = np.linspace(0, len(xs) - 1, min(len(xs), 400)).astype(int)
-    K = np.asarray(row["K"])
-    z = depth_m[ys[pick], xs[pick]]
-    cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
-    off = np.abs(body_sdf(placement, transform_points(invert_transform(row["T_cam_world"]), cam)))
-    limit = np.maximum(tol.VERIFY_PROBE_SURFACE_M, 1.5 * z / K[0, 0])
-    bad = np.mean(off > limit)
-    if bad <= PROBE_BAD_FRACTION:
-        return None
-    return f"{100 * bad:.0f}% of patient pixels off the body's surface (max {1000 * off.max():.1f} mm)"
-
-
-def depth_holes_problem(depth: np.ndarray) -> str | None:
-    """What is wrong with a clinic frame's stored depth: pixels without depth (the room and the patient stand
-    behind everything, so every pixel has one), or None."""
-    holes = int(np.count_nonzero(depth == 0))
-    if not holes:
-        return None
-    return (f"{holes} pixels without depth: on the clinic track the room and the patient have depth in every "
-            "pixel (the depth belongs to another track's frame, or lost part of the scene)")
 
 
 def check_clinic_annotations(ann: dict, split: str, look_at: str, world: ClinicGrasps | None, probe

@@ -21,6 +21,11 @@ How the RGB checks work (thresholds and their measurements in :mod:`hupbench.cor
   and both images fit the mask's background, so a file from another view does not implicate the
   other glove's frame.
 
+On the clinic track the room behind has depth and label 0 and hides the background image: there a frame's
+depth must hold a value in every pixel (:func:`depth_holes_problem`), its patient pixels must lie on the body
+(:func:`patient_depth_problem`), its mask must show hand, forearm or probe, and its RGB image is not compared with
+a background image.
+
 A frame that holds another frame's RGB image is found when the two differ in silhouette (its
 background shows the other's object), background or glove. When a smaller silhouette is nested in
 a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
@@ -33,7 +38,8 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
-from hupbench.core.contract import CLINIC, SEG_LABELS, frame_path
+from hupbench.core.contract import CLINIC, CLINIC_SEG_LABELS, SEG_LABELS, frame_path
+from hupbench.datagen.assets.patient import PatientPlacement, body_sdf
 from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
     glove_pair_ratio,
@@ -220,12 +226,10 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
 
 
 def _check_clinic_depth(row: dict, images: dict, names: dict, split: str, world) -> list[dict]:
-    """A clinic frame's depth: a value in every pixel (:func:`hupbench.datagen.dataset.verify_clinic.depth_holes_problem`)
+    """A clinic frame's depth: a value in every pixel (:func:`depth_holes_problem`)
     and, with the mask and the dataset's patients (``world``, a
     :class:`~hupbench.datagen.dataset.verify_clinic.ClinicGrasps`, None when the grasps file holds none), its
     patient pixels on the body's surface (``patient_depth``)."""
-    from hupbench.datagen.dataset.verify_clinic import depth_holes_problem, patient_depth_problem
-
     frame_id = int(row["frame_id"])
     problems = []
     holes = depth_holes_problem(images["depth"])
@@ -238,6 +242,44 @@ def _check_clinic_depth(row: dict, images: dict, names: dict, split: str, world)
         if off:
             problems.append(_problem(split, frame_id, "patient_depth", off, f"{names['depth']} + {names['seg']}"))
     return problems
+
+
+def patient_depth_problem(row: dict, depth_m: np.ndarray, seg: np.ndarray, placement: PatientPlacement
+                          ) -> str | None:
+    """Pixels the mask calls patient (off its edge), unprojected with their depth and K into the world, against
+    the body's surface: more than ``PROBE_BAD_FRACTION`` of them off it by more than max(3 mm, 1.5 pixel
+    footprints) (``tol.VERIFY_PROBE_SURFACE_M``, as the probe's) is a problem.
+
+    Args:
+        row: the frame's annotations ("K", "T_cam_world"). depth_m: (H, W) metres. seg: (H, W) labels.
+        placement: the frame's grasp's patient.
+
+    Returns:
+        What is wrong, or None.
+    """
+    ys, xs = np.nonzero(shrink_mask(seg == CLINIC_SEG_LABELS["patient"], 1) & (depth_m > 0))
+    if not len(xs):
+        return None
+    pick = np.linspace(0, len(xs) - 1, min(len(xs), 400)).astype(int)
+    K = np.asarray(row["K"])
+    z = depth_m[ys[pick], xs[pick]]
+    cam = np.stack([(xs[pick] - K[0, 2]) * z / K[0, 0], (ys[pick] - K[1, 2]) * z / K[1, 1], z], axis=1)
+    off = np.abs(body_sdf(placement, transform_points(invert_transform(row["T_cam_world"]), cam)))
+    limit = np.maximum(tol.VERIFY_PROBE_SURFACE_M, 1.5 * z / K[0, 0])
+    bad = np.mean(off > limit)
+    if bad <= PROBE_BAD_FRACTION:
+        return None
+    return f"{100 * bad:.0f}% of patient pixels off the body's surface (max {1000 * off.max():.1f} mm)"
+
+
+def depth_holes_problem(depth: np.ndarray) -> str | None:
+    """What is wrong with a clinic frame's stored depth: pixels without depth (the room and the patient stand
+    behind everything, so every pixel has one), or None."""
+    holes = int(np.count_nonzero(depth == 0))
+    if not holes:
+        return None
+    return (f"{holes} pixels without depth: on the clinic track the room and the patient have depth in every "
+            "pixel (the depth belongs to another track's frame, or lost part of the scene)")
 
 
 def _check_channel_order(rgb: np.ndarray, seg: np.ndarray, split: str, frame_id: int, rel: str) -> list[dict]:
