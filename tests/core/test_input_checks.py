@@ -119,8 +119,8 @@ def test_check_choice_returns_the_value():
 def test_check_interval_refuses_naming_the_field(value, written):
     with pytest.raises(ValueError) as info:
         check_interval(value, "dataset.head.distance_m", 0.1, 10.0, unit="m")
-    assert str(info.value) == ("dataset.head.distance_m must be two numbers [low, high], low <= high, from 0.1 to 10 m, "
-                               f"got {written}")
+    assert str(info.value) == ("dataset.head.distance_m must be two numbers [low, high], low <= high, "
+                               f"from 0.1 to 10 m, got {written}")
 
 
 def test_check_interval_returns_floats_and_accepts_its_bounds():
