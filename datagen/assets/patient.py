@@ -33,7 +33,7 @@ import trimesh
 
 from hupbench.core.input_checks import check_int, check_interval, check_number
 
-__all__ = ["PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
+__all__ = ["PLACEMENT_FIELDS", "PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
            "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb"]
 
 #: the config node of :class:`PatientSpec`, named in its error messages
@@ -327,16 +327,15 @@ def place_patient(spec: PatientSpec, probe, hand_vertices_world: np.ndarray, arm
     for _ in range(spec.attempts):
         radius, R_world_body, contact_body = _draw_pose(spec, rng)
         T = _pressed(radius, R_world_body, contact_body, lens_world, spec.press_m)
-        normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
-        placement = PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world, 0.0, 0.0)
-        if body_sdf(placement, vertices).min() < -PROBE_MAX_DEPTH_M:
+        if body_sdf_local(radius, (vertices - T[:3, 3]) @ R_world_body).min() < -PROBE_MAX_DEPTH_M:
             continue
         parts_body = (body_parts - T[:3, 3]) @ R_world_body
         depth = np.maximum(-body_sdf_local(radius, parts_body), -parts_body[:, 2])
         penetration = float(depth.max(initial=0.0))
         if penetration <= spec.max_penetration_m:
-            return PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world,
-                                    float(body_sdf(placement, lens_world).min()), penetration)
+            lens_skin = float(body_sdf_local(radius, (lens_world - T[:3, 3]) @ R_world_body).min())
+            normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
+            return PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world, lens_skin, penetration)
     return None
 
 
