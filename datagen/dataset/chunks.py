@@ -34,7 +34,7 @@ from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoint
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.io import DiskFullError, encode_image, save_npz, write_bytes
 from hupbench.datagen.render.renderer import SEG_LABELS, PointLight, RenderSettings
-from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, SceneModels, scene_parts
+from hupbench.datagen.render.scene import GLOVE_RGB, Grasp, models_of, scene_parts
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.errors import RunFailedError
@@ -182,7 +182,7 @@ class ChunkRenderer:
                 if world is None:
                     renderer.set_parts(scene_parts(grasp, probe=grasps.probe))
                 else:
-                    renderer.set_parts(scene_parts(grasp, SceneModels(hand=grasps.hand_spec(g)), probe=grasps.probe)
+                    renderer.set_parts(scene_parts(grasp, models_of(grasps.hand_spec(g)), probe=grasps.probe)
                                        + world.parts(g))
                 self._grasp_loaded = g
             view = self._view(cam)

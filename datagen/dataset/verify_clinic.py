@@ -153,12 +153,12 @@ def grasp_contact(world: ClinicGrasps, g: int, probe) -> tuple[float, float, flo
         (the lens's deepest vertex's signed distance to the skin, the deepest probe vertex's, the deepest hand or
         forearm vertex's depth inside the body or below the bed's top, >= 0), metres.
     """
-    from hupbench.datagen.render.scene import Grasp, SceneModels, scene_parts
+    from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
 
     if g not in world.contact:
         grasps, placement = world.grasps, world.placements[g]
         parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
-                                                      SceneModels(hand=grasps.hand_spec(g)), probe=probe)}
+                                                      models_of(grasps.hand_spec(g)), probe=probe)}
         vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
         lens = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
         body = np.concatenate([np.asarray(parts["hand"].vertices), np.asarray(parts["arm"].vertices)])

@@ -69,6 +69,13 @@ class SceneModels:
     arm: ArmSpec = ArmSpec()
 
 
+def models_of(hand: HandSpec) -> SceneModels:
+    """The scene models of a subject's hand: the forearm scaled with the hand (as the grasp refinement's
+    forearm, :func:`hupbench.datagen.grasps.refine.hand_regions`, which it kept clear of the probe), the probe
+    the default; ``models_of(HandSpec())`` is ``SceneModels()``."""
+    return SceneModels(hand=hand, arm=ArmSpec(scale=hand.scale))
+
+
 def keypoints_world(grasp: Grasp, models: SceneModels = SceneModels(), probe: Probe | None = None) -> np.ndarray:
     """The 29 keypoints of a grasp.
 
