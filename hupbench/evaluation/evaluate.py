@@ -23,11 +23,18 @@ from hupbench import metrics
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_int
 from hupbench.core.processes import check_threads
+from hupbench.evaluation.intervals import CONFIDENCE, RESAMPLES, SEED, interval_text
 from hupbench.evaluation.latency import measured_latency, model_cost
 from hupbench.evaluation.prediction import EvalModel, predict_split, split_reader
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
 from hupbench.evaluation.results import FLOOR_NAMES
-from hupbench.evaluation.split_metrics import grasp_theta_vol_deg, split_breakdowns, split_floor, split_metrics
+from hupbench.evaluation.split_metrics import (
+    grasp_theta_vol_deg,
+    split_breakdowns,
+    split_floor,
+    split_intervals,
+    split_metrics,
+)
 from hupbench.fits import check_fitted_probe, fits
 from hupbench.input_geometry import INPUT_MODALITIES
 from hupbench.provenance import check_run_name
@@ -61,6 +68,8 @@ class EvalOptions:
         progress: progress bars (with ETA) over the model pass and the latency timings, on a terminal.
         figures: also draw prediction beside ground truth (sample and worst frames) and the PCK curve
             (:mod:`hupbench.evaluation.figures`) into ``figures_dir`` (default :func:`default_figures_dir`).
+        interval_resamples, interval_seed: the bootstrap resamples (>= 1) and seed (>= 0) of the 95 % intervals
+            over the test grasps (:mod:`hupbench.evaluation.intervals`).
     """
 
     model: Path
@@ -77,9 +86,13 @@ class EvalOptions:
     progress: bool = True
     figures: bool = False
     figures_dir: Path | None = None
+    interval_resamples: int = RESAMPLES
+    interval_seed: int = SEED
 
     def __post_init__(self) -> None:
         check_int(self.batch_size, "batch_size", low=1)
+        check_int(self.interval_resamples, "interval_resamples", low=1)
+        check_int(self.interval_seed, "interval_seed", low=0)
         if self.threads is not None:
             check_threads(self.threads, "--threads")
         model = Path(self.model)
@@ -192,8 +205,7 @@ def format_table(results: dict) -> str:
         ("dataset", (f"{results['dataset']['name']}, split {results['dataset']['split']}, "
                     f"{results['dataset']['frames']} frames")),
         ("dataset grasps sha256", results["dataset"].get("grasps_sha256") or "- (not recorded by its manifest)"),
-        ("MPJPE all / hand / probe", (f"{f(m['mpjpe_mm']['all'])} / {f(m['mpjpe_mm']['hand'])} / "
-                                     f"{f(m['mpjpe_mm']['probe'])} mm")),
+        *_mpjpe_rows(results, f),
         ("root-relative hand MPJPE, wrist / middle MCP",
          f"{f(m['root_relative_hand_mpjpe_mm'])} / {f(m.get('middle_mcp_relative_hand_mpjpe_mm'))} mm"),
         ("probe MPJPE, half-turn symmetric", f"{f(m['probe_symmetric_mpjpe_mm'])} mm"),
@@ -210,11 +222,6 @@ def format_table(results: dict) -> str:
     pose = m.get("probe_pose")
     if pose is not None:
         rows += probe_pose_rows("probe", pose, f)
-    floor = results["split_floor"]
-    if floor is not None:
-        mm = floor["floor_mm"]
-        rows.append(("split floor hand / probe / all",
-                     f"{f(mm['hand'])} / {f(mm['probe'])} / {f(mm['all'])} mm ({floor['floor_kind']})"))
     floor_pose = m.get("split_floor_probe_pose")
     if floor_pose is not None:
         rows += probe_pose_rows("split floor probe", floor_pose, f)
@@ -224,6 +231,32 @@ def format_table(results: dict) -> str:
                                                f"{f(b['mpjpe_mm']['probe'])} probe ({b['frames']} frames)")))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def _mpjpe_rows(results: dict, f) -> list[tuple[str, str]]:
+    """Table rows of each MPJPE (all / hand / probe) with its interval over the test grasps and the split floor
+    beside it, e.g. ("MPJPE probe", "18.62 mm [95 % CI 7.7-29.5], split floor 59.30 [53.0-65.6]"), and the
+    intervals' provenance."""
+    mpjpe, floor, intervals = results["metrics"]["mpjpe_mm"], results["split_floor"], results["intervals"]
+    level = f"{100 * (CONFIDENCE if intervals is None else intervals['confidence']):g} % CI"
+    rows = []
+    for part in ("all", "hand", "probe"):
+        text = f"{f(mpjpe[part])} mm"
+        if intervals is not None:
+            text += f" {interval_text(intervals['mpjpe_mm'][part], f'{level} ')}"
+        if floor is not None:
+            text += f", split floor {f(floor['floor_mm'][part])}"
+            if intervals is not None:
+                text += f" {interval_text((intervals['split_floor_mm'] or {}).get(part))}"
+        rows.append((f"MPJPE {part}", text))
+    if floor is not None:
+        name = FLOOR_NAMES.get(floor["floor_kind"])
+        rows.append(("split floor", floor["floor_kind"] + ("" if name is None else f": {name}")))
+    if intervals is not None:
+        grasps = intervals["grasps"]
+        rows.append((level, f"{intervals['method']}; {grasps} test grasp{'' if grasps == 1 else 's'}, "
+                            f"{intervals['resamples']:,} resamples, seed {intervals['seed']}"))
+    return rows
 
 
 def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[str, Any]:
@@ -349,11 +382,10 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
                                                                      image_size[0], probe, log)
     results["breakdowns"] = split_breakdowns(errors, fields, manifest, theta_vol_by_grasp)
     results["track"], results["split_floor"] = track, floor
-    if floor is not None:
-        model_mm = results["metrics"]["mpjpe_mm"]
-        log(f"{split} split floor: hand {floor['floor_mm']['hand']:.2f} / probe {floor['floor_mm']['probe']:.2f} / all "
-            f"{floor['floor_mm']['all']:.2f} mm ({FLOOR_NAMES[floor['floor_kind']]}); this model: hand "
-            f"{model_mm['hand']:.2f} / probe {model_mm['probe']:.2f} / all {model_mm['all']:.2f} mm")
+    results["intervals"] = split_intervals(errors, fields["grasp_id"], floor, options.interval_resamples,
+                                           options.interval_seed)
+    for name, text in _mpjpe_rows(results, lambda v: f"{v:.2f}"):
+        log(f"{split} {name}: {text}")
     if options.latency:
         results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress)
     results["device"] = hardware_description(torch.device("cpu"))

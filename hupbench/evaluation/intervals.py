@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONFIDENCE", "METHOD", "RESAMPLES", "SEED", "grasp_interval", "grasp_interval_of_grasps"]
+__all__ = ["CONFIDENCE", "METHOD", "RESAMPLES", "SEED", "grasp_interval", "grasp_interval_of_grasps", "interval_text"]
 
 #: the interval's coverage
 CONFIDENCE = 0.95
@@ -102,3 +102,9 @@ def grasp_interval_of_grasps(values: np.ndarray, frames: np.ndarray, resamples: 
     assert values.ndim == 1 and values.shape == frames.shape and len(values) >= 1, (values.shape, frames.shape)
     ref = values[0]
     return _interval(float(ref), (values - ref) * frames, frames, resamples, seed, confidence)
+
+
+def interval_text(bounds: list[float] | None, label: str = "", missing: str = "—") -> str:
+    """``"[7.7-29.5]"`` (``label`` ``"95 % CI "``: ``"[95 % CI 7.7-29.5]"``): an interval's [low, high] in one
+    decimal, or ``missing`` where there is none."""
+    return missing if bounds is None else f"[{label}{bounds[0]:.1f}-{bounds[1]:.1f}]"

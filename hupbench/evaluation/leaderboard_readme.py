@@ -20,9 +20,11 @@ from hupbench.evaluation.leaderboard_table import (
     TRACK_TITLES,
     code_cell,
     grasp_rows,
+    interval_triplet_cell,
     markdown_table,
     natural_key,
     number_cell,
+    row_intervals,
     row_track,
     sha_cell,
     spread_cell,
@@ -33,6 +35,7 @@ from hupbench.evaluation.leaderboard_table import (
 from hupbench.evaluation.results import (
     FLOOR_NAMES,
     GRASP_FIELDS_VERSION,
+    INTERVALS_VERSION,
     SCHEMA_VERSION,
     WEIGHTED_MEAN_TOLERANCE_MM,
     keypoint_weighted_all_mm,
@@ -56,6 +59,7 @@ def _details(row: dict) -> list[str]:
         data += f", manifest sha256 {sha_cell(dataset['manifest_sha256'])}"
     lines.append(data + f", grasps sha256 {sha_cell(dataset['grasps_sha256'])}")
     lines.append(f"- MPJPE all {mpjpe['all']:.2f} mm, averaged: {text_cell(mpjpe['all_averaging'])}")
+    lines.append(_interval_line(row))
     weighted = keypoint_weighted_all_mm(mpjpe)
     if weighted is not None:
         check = (f"- keypoint-weighted mean of hand and probe: (21 × {mpjpe['hand']:.2f} + 8 × {mpjpe['probe']:.2f})"
@@ -103,6 +107,27 @@ def _details(row: dict) -> list[str]:
         lines.append(f"- source: {text_cell(row['source'])}")
     return lines + [""] + _grasp_details(row)
 
+def _floor_name(kind: str) -> str:
+    """What a floor kind is, in words (its name where hupbench has no words for it)."""
+    return FLOOR_NAMES.get(kind, kind)
+
+
+def _interval_line(row: dict) -> str:
+    """The row's 95 % intervals over the test grasps, how they were drawn, or why it has none."""
+    intervals = row["intervals"]
+    if intervals is None:
+        return (f"- 95 % CI over the test grasps: {MISSING} (" + ("a paper's number" if row["kind"] != "measured" else
+                f"the results file was written before results schema version {INTERVALS_VERSION}; `hupbench eval` "
+                "adds it") + ")")
+    mpjpe, floor = row["metrics"]["mpjpe_mm"], row["split_floor"]
+    line = (f"- {100 * intervals['confidence']:g} % CI over the {intervals['grasps']} test grasps "
+            f"({intervals['resamples']:,} bootstrap resamples of the grasps, seed {intervals['seed']}), hand / probe / "
+            f"all (mm): MPJPE {interval_triplet_cell(mpjpe, intervals['mpjpe_mm'])}")
+    if floor is not None:
+        line += f"; split floor {interval_triplet_cell(floor['floor_mm'], intervals['split_floor_mm'])}"
+    return line
+
+
 def _grasp_details(row: dict) -> list[str]:
     """The row's per-grasp table and its MPJPE by probe orientation, or a line saying they are not recorded."""
     table = grasp_rows(row)
@@ -112,7 +137,7 @@ def _grasp_details(row: dict) -> list[str]:
         return [f"Per grasp: {MISSING} (the results file records no grasp breakdown: it was written before results "
                 f"schema version {GRASP_FIELDS_VERSION}; `hupbench eval` adds it).", ""]
     floor = row["split_floor"]
-    lines = ["Per test grasp" + ("" if floor is None else f" (floor: {FLOOR_NAMES[floor['floor_kind']]})") + ":", ""]
+    lines = ["Per test grasp" + ("" if floor is None else f" (floor: {_floor_name(floor['floor_kind'])})") + ":", ""]
     lines += markdown_table(GRASP_COLUMNS, ["---:"] * len(GRASP_COLUMNS), table)
     by_theta = row["breakdowns"].get("theta_vol")
     if by_theta:
@@ -123,21 +148,27 @@ def _grasp_details(row: dict) -> list[str]:
 
 
 def _floor_lines(rows: list[dict]) -> list[str]:
-    """The test split's floor of each dataset the rows were evaluated on, named by what it is."""
-    floors: dict[str, dict[tuple, dict]] = {}  # floor kind -> (dataset name, manifest sha256) -> floor_mm
+    """The test split's floor of each dataset the rows were evaluated on, named by what it is, with its 95 %
+    interval over the test grasps where a row records one (rows of one dataset share the floor; the first row
+    with an interval gives it)."""
+    # floor kind -> (dataset name, manifest sha256) -> (floor_mm, its intervals or None)
+    floors: dict[str, dict[tuple, tuple[dict, dict | None]]] = {}
     for row in rows:
         if row["split_floor"] is not None:
             key = (row["dataset"]["name"], row["dataset"]["manifest_sha256"] or "")
-            floors.setdefault(row["split_floor"]["floor_kind"], {}).setdefault(key, row["split_floor"]["floor_mm"])
+            by_dataset = floors.setdefault(row["split_floor"]["floor_kind"], {})
+            if by_dataset.get(key, (None, None))[1] is None:
+                by_dataset[key] = (row["split_floor"]["floor_mm"], row_intervals(row, "split_floor_mm"))
     if not floors:
         return [f"Split floor: {MISSING} for every row here (results files written before results schema version "
                 f"{GRASP_FIELDS_VERSION}, datasets made before split floors, and the paper record none).", ""]
     lines = []
-    for kind in (k for k in FLOOR_KINDS if k in floors):
-        lines += [f"Split floor, hand / probe / all (mm; column *split floor*): {FLOOR_NAMES[kind]}.", ""]
-        for (name, sha), mm in sorted(floors[kind].items()):
+    for kind in sorted(floors, key=lambda k: (FLOOR_KINDS + (k,)).index(k)):
+        lines += [f"Split floor, hand / probe / all (mm; column *split floor*) [95 % CI over the test grasps]: "
+                  f"{_floor_name(kind)}.", ""]
+        for (name, sha), (mm, bounds) in sorted(floors[kind].items()):
             lines.append(f"- {text_cell(name)}" + (f" (manifest sha256 {sha_cell(sha)})" if sha else "")
-                         + f", test split: {triplet_cell(mm)}")
+                         + f", test split: {interval_triplet_cell(mm, bounds)}")
         lines.append("")
     return lines
 
@@ -224,9 +255,19 @@ def _meaning() -> list[str]:
         ("- Split floor (hand / probe / all, mm, mean distance per keypoint as in MPJPE), from the dataset's "
          "manifest: what a model that only recalls training labels scores on the test split. Unseen grasps: each "
          f"test grasp replaced by the {FLOOR_NAMES['nearest_train_grasp']}. Unseen views: each test frame replaced "
-         f"by the {FLOOR_NAMES['nearest_train_view']}. A row near or above its floor has learnt little beyond the "
+         f"by the {FLOOR_NAMES['nearest_train_view']}. Clinic: each test frame replaced by the "
+         f"{_floor_name('nearest_train_frame')}. A row near or above its floor has learnt little beyond the "
          "training labels. Each measured row's details list its MPJPE and floor per test grasp, with the grasp's "
          "probe orientation Theta_Vol (Euler angles x, y, z of the probe in the grasp generator, degrees)."),
+        ("- 95 % CI, in brackets beside each MPJPE and floor (one decimal): the percentile bootstrap interval over "
+         "the test grasps (Efron & Tibshirani 1993, *An Introduction to the Bootstrap*, ch. 13). The frames of a "
+         "grasp share its hand and probe pose, so the grasp is what is resampled: the test grasps are drawn with "
+         "replacement as many times as there are, the mean error is recomputed over the drawn grasps' frames (a "
+         "grasp drawn twice counts twice), and the interval holds the middle 95 % of those means over the "
+         "resamples (10,000 by default; each results file records the number and the seed). It says how far the "
+         "number could move with other test grasps of the same kind: with two test grasps it is wide, with one it "
+         f"has zero width and says nothing. [{MISSING}] where the results file records no interval (written before "
+         f"results schema version {INTERVALS_VERSION}, or a paper's number)."),
         ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
          "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
          "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),

@@ -1,7 +1,8 @@
 """The leaderboard's cells: a validated results row as Markdown table cells, its track, its label and its order.
 
-Numbers are formatted explicitly (two decimals for mm and ms, three for the AUC) so that the same results
-give the same bytes; an unknown value is the missing mark :data:`MISSING`.
+Numbers are formatted explicitly (two decimals for mm and ms, three for the AUC, one for the bounds of a 95 %
+interval over the test grasps) so that the same results give the same bytes; an unknown value is the missing mark
+:data:`MISSING`, and so is the interval of a row whose results record none (``"9.88 [—]"``).
 
 Convention: errors in mm, latency in ms per image at batch 1, times in seconds.
 """
@@ -12,6 +13,7 @@ import re
 from collections.abc import Sequence
 
 from hupbench.core.contract import UNSEEN_GRASPS
+from hupbench.evaluation.intervals import interval_text
 
 MISSING = "—"
 #: the track of rows whose results name none (the paper's, and datasets made before tracks)
@@ -23,6 +25,8 @@ TRACK_TITLES = {
                       "before tracks) belong here."),
     "unseen_views": ("Unseen views", "every grasp is in the training split; the test split's camera views of the "
                      "sphere are not."),
+    "clinic": ("Clinic", "hands of many sizes on a patient's abdomen in a room with depth, seen from where a "
+               "sonographer's head can be; the test split's grasps and hands are not in the training split."),
 }
 #: the axes and threshold of the spread ratios (hupbench.metrics.SPREAD_AXES, SPREAD_RATIO_WARN), kept
 #: here as plain values so that the leaderboard does not import torch
@@ -31,8 +35,9 @@ SPREAD_RATIO_WARN = 0.5
 #: hexadecimal digits of a sha256 shown in the table and the details
 SHA_DIGITS = 12
 
-TABLE_COLUMNS = ("model", "kind", "test data", "grasps sha256", "input (px)", "params (M)", "MPJPE all (mm)",
-                 "MPJPE hand (mm)", "MPJPE probe (mm)", "split floor hand / probe / all (mm)",
+TABLE_COLUMNS = ("model", "kind", "test data", "grasps sha256", "input (px)", "params (M)", "MPJPE all (mm) [95 % CI]",
+                 "MPJPE hand (mm) [95 % CI]", "MPJPE probe (mm) [95 % CI]",
+                 "split floor hand / probe / all (mm) [95 % CI]",
                  "MPJPE probe, half-turn symmetric (mm)", "PA-MPJPE hand (mm)", "AUC 0-50 mm", "spread ratio x / y / z",
                  "training (time, hardware)", "latency ONNX Runtime (ms/image, batch 1)",
                  "latency PyTorch (ms/image, batch 1)", "command")
@@ -96,6 +101,26 @@ def triplet_cell(mm: dict | None) -> str:
     return " / ".join(number_cell(mm[part]) for part in ("hand", "probe", "all"))
 
 
+def interval_cell(value: float | None, bounds: list[float] | None) -> str:
+    """``"18.62 [7.7-29.5]"``: a value (two decimals) and its 95 % interval over the test grasps (one decimal),
+    ``"18.62 [—]"`` where the results record no interval, the missing mark where the value is unknown."""
+    return MISSING if value is None else f"{number_cell(value)} {interval_text(bounds, missing=f'[{MISSING}]')}"
+
+
+def interval_triplet_cell(mm: dict | None, bounds: dict | None) -> str:
+    """:func:`triplet_cell` of hand / probe / all with each value's interval (``bounds``: part -> [low, high],
+    or None where none is recorded)."""
+    if mm is None:
+        return MISSING
+    return " / ".join(interval_cell(mm[part], None if bounds is None else bounds[part])
+                      for part in ("hand", "probe", "all"))
+
+
+def row_intervals(row: dict, block: str) -> dict | None:
+    """The row's intervals (part -> [low, high]) of ``block`` ("mpjpe_mm" or "split_floor_mm"), None if none."""
+    return None if row["intervals"] is None else row["intervals"][block]
+
+
 def row_track(row: dict) -> str:
     """The track whose table holds the row: its results' track, else ``PAPER_TRACK``."""
     return row["track"] or PAPER_TRACK
@@ -132,10 +157,10 @@ def table_row(row: dict) -> list[str]:
         sha_cell(row["dataset"]["grasps_sha256"]),
         MISSING if model["input_size"] is None else str(model["input_size"]),
         number_cell(params),
-        number_cell(mpjpe["all"]),
-        number_cell(mpjpe["hand"]),
-        number_cell(mpjpe["probe"]),
-        triplet_cell(None if row["split_floor"] is None else row["split_floor"]["floor_mm"]),
+        *(interval_cell(mpjpe[part], (row_intervals(row, "mpjpe_mm") or {}).get(part))
+          for part in ("all", "hand", "probe")),
+        interval_triplet_cell(None if row["split_floor"] is None else row["split_floor"]["floor_mm"],
+                              row_intervals(row, "split_floor_mm")),
         number_cell(metrics["probe_symmetric_mpjpe_mm"]),
         number_cell(metrics["pa_mpjpe_hand_mm"]),
         number_cell(metrics["pck_auc_0_50mm"], 3),
@@ -158,7 +183,7 @@ def grasp_rows(row: dict) -> list[list[str]]:
         bucket, floor = measured.get(grasp), floors.get(grasp)
         mpjpe = {} if bucket is None else bucket["mpjpe_mm"]
         angles = theta_vol.get(grasp)
-        nearest = None if floor is None else floor["nearest_train_grasp_id"]
+        nearest = None if floor is None else floor.get("nearest_train_grasp_id")
         out.append([grasp, MISSING if angles is None else ", ".join(f"{a:g}" for a in angles),
                     MISSING if bucket is None else str(bucket["frames"]),
                     number_cell(mpjpe.get("hand")), number_cell(mpjpe.get("probe")), number_cell(mpjpe.get("all")),

@@ -15,6 +15,7 @@ from hupbench.core import probe_symmetry as PS
 from hupbench.core.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
+from hupbench.evaluation.intervals import METHOD
 from hupbench.evaluation.results import load_results
 from helpers.models import INPUT_SIZE, make_checkpoint
 
@@ -275,7 +276,10 @@ def test_eval_cli_prints_table(exported, tiny_dataset, tmp_path, capsys):
     printed = capsys.readouterr().out
     results = load_results(out)
     all_mm = results["metrics"]["mpjpe_mm"]["all"]
-    assert f"{all_mm:.2f} / " in printed and "MPJPE all / hand / probe" in printed
+    low, high = results["intervals"]["mpjpe_mm"]["all"]
+    assert re.search(rf"\nMPJPE all +{all_mm:.2f} mm \[95 % CI {low:.1f}-{high:.1f}\]", printed)
+    assert re.search(r"\n95 % CI +" + re.escape(f"{results['intervals']['method']}; 1 test grasp, 10,000 resamples, "
+                                                 "seed 0\n"), printed)
     assert "latitude: egocentric" in printed and f"results written to {out}" in printed
     assert results["device"].endswith("1 threads")
     assert torch.get_num_threads() >= 1  # restored after the run
@@ -396,11 +400,20 @@ def test_grasp_and_theta_vol_breakdowns_and_the_split_floor(exported, tiny_datas
     assert r["track"] == "unseen_grasps"
     assert r["split_floor"] == manifest["split_floors"]["splits"]["test"]
     assert r["split_floor"]["floor_mm"]["all"] == pytest.approx((21 * 12 + 8 * 30) / 29)
-    assert ("test split floor: hand 12.00 / probe 30.00 / all 16.97 mm (nearest training grasp under the true camera: "
-            "a model that only recognises training grasps cannot do better than this); this model: hand 5.20 / probe "
-            "5.20 / all 5.20 mm") in lines
+    # one test grasp: every resample is that grasp, the intervals have zero width
+    intervals = r["intervals"]
+    assert {k: v for k, v in intervals.items() if not k.endswith("_mm")} == \
+        {"method": METHOD, "confidence": 0.95, "resamples": 10_000, "seed": 0, "grasps": 1}
+    for part, floor_mm in (("all", (21 * 12 + 8 * 30) / 29), ("hand", 12.0), ("probe", 30.0)):
+        assert intervals["mpjpe_mm"][part] == pytest.approx([5.2, 5.2], abs=1e-4)
+        assert intervals["split_floor_mm"][part] == pytest.approx([floor_mm, floor_mm])
+    assert "test MPJPE probe: 5.20 mm [95 % CI 5.2-5.2], split floor 30.00 [30.0-30.0]" in lines
+    assert ("test split floor: nearest_train_grasp: nearest training grasp under the true camera: a model that only "
+            "recognises training grasps cannot do better than this") in lines
+    assert f"test 95 % CI: {METHOD}; 1 test grasp, 10,000 resamples, seed 0" in lines
     table = out["table"]
-    assert re.search(r"\nsplit floor hand / probe / all +12\.00 / 30\.00 / 16\.97 mm \(nearest_train_grasp\)\n", table)
+    assert re.search(r"\nMPJPE all +5\.20 mm \[95 % CI 5\.2-5\.2\], split floor 16\.97 \[17\.0-17\.0\]\n", table)
+    assert re.search(r"\nMPJPE hand +5\.20 mm \[95 % CI 5\.2-5\.2\], split floor 12\.00 \[12\.0-12\.0\]\n", table)
     assert re.search(r"\ntrack +unseen_grasps\n", table)
     assert f"grasp: {test_grasp}" in table and "theta_vol: theta_vol_z=180" in table
     # the floor's probe pose: the manifest's nearest training grasp in each frame's view
@@ -436,6 +449,9 @@ def test_datasets_without_tracks_and_floors(exported, tiny_dataset, tmp_path):
     assert (r["track"], r["split_floor"], r["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
     assert set(r["breakdowns"]) == {"latitude", "z_ego", "background", "grasp"}
     assert "split floor" not in EV.format_table(r)
+    # the MPJPE's interval needs no floor
+    assert r["intervals"]["split_floor_mm"] is None and r["intervals"]["grasps"] == 1
+    assert r["intervals"]["mpjpe_mm"]["all"] == pytest.approx([r["metrics"]["mpjpe_mm"]["all"]] * 2)
 
 
 def _edited(change):
@@ -450,7 +466,7 @@ def _edited(change):
 @pytest.mark.parametrize("change, message", [
     (lambda m: m["protocol"].update(track="unseen_people"),
      r"manifest.json: manifest\['protocol'\]\['track'\] must be one of unseen_grasps, unseen_views, "
-     r"got 'unseen_people'"),
+     r"clinic, got 'unseen_people'"),
     (lambda m: m["split_floors"]["splits"]["test"]["floor_mm"].pop("probe"),
      r"manifest.json: manifest\['split_floors'\]\['splits'\]\['test'\]\['floor_mm'\] is missing key\(s\) \['probe'\]"),
     (lambda m: m["split_floors"]["splits"]["test"].update(per_grasp={"999": m["split_floors"]["splits"]["test"]

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from hupbench.evaluation.intervals import METHOD, grasp_interval, grasp_interval_of_grasps
+from hupbench.evaluation.intervals import METHOD, grasp_interval, grasp_interval_of_grasps, interval_text
+from hupbench.evaluation.split_metrics import split_intervals
 
 #: a hand-made results set: frame errors (mm) of four grasps with 3, 1, 2 and 4 frames
 GRASP_IDS = np.array([41, 41, 41, 7, 76, 76, 120, 120, 120, 120])
@@ -72,3 +73,27 @@ def test_two_grasps_interval_spans_both_grasp_means():
     out = grasp_interval(errors, ids)
     assert out["resamples"] == 10_000 and out["seed"] == 0
     assert out["low"] == pytest.approx(7.72) and out["high"] == pytest.approx(29.52)
+
+
+def test_split_intervals_of_each_mpjpe_and_the_floor():
+    """The eval's block: per-keypoint errors of hand-made frames, the floor's per-grasp values, one set of draws."""
+    rng = np.random.default_rng(5)
+    errors = rng.uniform(1.0, 40.0, size=(len(GRASP_IDS), 29))                     # (N, 29) mm
+    floor = {"per_grasp": {str(g): {"floor_mm": {"hand": 10.0 + g, "probe": 50.0 - g / 4, "all": 20.0 + g / 2},
+                                    "frames": int(np.sum(GRASP_IDS == g))} for g in (7, 41, 76, 120)}}
+    block = split_intervals(errors, GRASP_IDS, floor, resamples=1500, seed=2)
+    assert (block["method"], block["confidence"], block["resamples"], block["seed"], block["grasps"]) == \
+        (METHOD, 0.95, 1500, 2, 4)
+    for part, cols in (("all", slice(None)), ("hand", slice(0, 21)), ("probe", slice(21, 29))):
+        assert block["mpjpe_mm"][part] == pytest.approx(_reference(errors[:, cols].mean(axis=1), GRASP_IDS, 1500, 2),
+                                                        abs=1e-9)
+        per_frame_floor = np.array([floor["per_grasp"][str(g)]["floor_mm"][part] for g in GRASP_IDS])
+        assert block["split_floor_mm"][part] == pytest.approx(_reference(per_frame_floor, GRASP_IDS, 1500, 2),
+                                                              abs=1e-9)
+    assert split_intervals(errors, GRASP_IDS, None, 10, 0)["split_floor_mm"] is None
+
+
+def test_interval_text():
+    assert interval_text([7.71, 29.46]) == "[7.7-29.5]"
+    assert interval_text([7.71, 29.46], "95 % CI ") == "[95 % CI 7.7-29.5]"
+    assert interval_text(None) == "—" and interval_text(None, missing="[—]") == "[—]"

@@ -17,7 +17,7 @@ from hupbench.evaluation.leaderboard_plots import DPI, FIGSIZE_IN, pareto_front
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT
 from hupbench.evaluation.leaderboard_table import format_duration, grasp_rows, inference_latency_ms, table_row
 from hupbench.evaluation.results import keypoint_weighted_all_mm, load_results, write_results
-from helpers.leaderboard import COMMITTED, OUTPUTS, measured, split_floor_block, triplet, write_log
+from helpers.leaderboard import COMMITTED, OUTPUTS, intervals_block, measured, split_floor_block, triplet, write_log
 from helpers import REPO
 
 
@@ -50,7 +50,8 @@ def png_software(data: bytes) -> str:
 
 def with_grasps(row: dict, track: str = "unseen_grasps", floor_kind: str = "nearest_train_grasp") -> dict:
     """``row`` evaluated on a dataset with tracks and floors: grasps 3 (Theta_Vol z 180) and 12 (orientation not
-    recorded), the test split's floor of :func:`test_results.split_floor_block`."""
+    recorded), the test split's floor of :func:`test_results.split_floor_block`, the intervals of
+    :func:`helpers.leaderboard.intervals_block`."""
     row["breakdowns"] = {"grasp": {"3": {"frames": 2000, "mpjpe_mm": triplet(9.0, 16.0)},
                                    "12": {"frames": 3760, "mpjpe_mm": triplet(11.5, 22.25)}},
                          "theta_vol": {"theta_vol_z=180": {"frames": 2000, "mpjpe_mm": triplet(9.0, 16.0)},
@@ -58,6 +59,7 @@ def with_grasps(row: dict, track: str = "unseen_grasps", floor_kind: str = "near
     row["dataset"]["grasp_theta_vol_deg"] = {"3": [0.0, 0.0, 180.0], "12": None}
     row["track"] = track
     row["split_floor"] = split_floor_block(frames=(2000, 3760)) | {"floor_kind": floor_kind}
+    row["intervals"] = intervals_block()
     return row
 
 
@@ -160,12 +162,12 @@ def test_synthetic_measured_rows_in_table(synthetic_board):
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
     assert text.count("## Track: ") == 1 and "## Track: Unseen grasps (`unseen_grasps`)" in text
     assert table[2] == ("| HOPE-Net (ResNet-50, 224 px) | measured | hupbench default | `cdcdcdcdcdcd` | 128 | 12.35 | "
-                        "10.46 | 8.00 | 16.90 | — | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | "
+                        "10.46 [—] | 8.00 [—] | 16.90 [—] | — | 15.90 | 4.57 | 0.812 | 0.90 / 1.01 / 0.46 | 20.0 h, 1x H100 | 80.00 | "
                         "150.00 | `python train.py run_name=slow_big` |")
     assert table[3].endswith("| 5.0 h | — | 40.00 | `python train.py run_name=torch_only` |")
     assert table[4].split(" | ")[14] == "25 min, 1x H100"
     assert table[0] == ("| HOPE-Net, HUP-3D paper (backbone and input size not stated) | reported in paper | "
-                        "HUP-3D (paper) | — | — | — | 8.65 | 5.33 | 17.05 | " + " | ".join(["—"] * 9) + " |")
+                        "HUP-3D (paper) | — | — | — | 8.65 [—] | 5.33 [—] | 17.05 [—] | " + " | ".join(["—"] * 9) + " |")
     # each row names the grasps its test data were rendered from
     assert ("- test data: hupbench default, split `test`, 5760 frames, manifest sha256 `abababababab`, grasps sha256 "
             "`cdcdcdcdcdcd`") in text
@@ -188,10 +190,17 @@ def test_floor_and_per_grasp_table(synthetic_board):
     text = (synthetic_board / README).read_text()
     # the floor beside the row, and named plainly above the table
     row = next(line for line in table_lines(text) if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
-    assert row.split(" | ")[6:11] == ["10.46", "8.00", "16.90", "20.00 / 40.00 / 25.52", "15.90"]
-    assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training grasp under the true camera: "
-            "a model that only recognises training grasps cannot do better than this.") in text
-    assert "- hupbench default (manifest sha256 `abababababab`), test split: 20.00 / 40.00 / 25.52\n" in text
+    # each MPJPE and floor with its 95 % interval over the test grasps
+    assert row.split(" | ")[6:11] == ["10.46 [10.9-13.8]", "8.00 [9.0-11.0]", "16.90 [16.0-22.0]",
+                                      "20.00 [15.0-25.0] / 40.00 [30.0-50.0] / 25.52 [19.1-31.9]", "15.90"]
+    assert ("Split floor, hand / probe / all (mm; column *split floor*) [95 % CI over the test grasps]: nearest "
+            "training grasp under the true camera: a model that only recognises training grasps cannot do better "
+            "than this.") in text
+    assert ("- hupbench default (manifest sha256 `abababababab`), test split: 20.00 [15.0-25.0] / 40.00 [30.0-50.0] / "
+            "25.52 [19.1-31.9]\n") in text
+    assert ("- 95 % CI over the 2 test grasps (10,000 bootstrap resamples of the grasps, seed 0), hand / probe / all "
+            "(mm): MPJPE 8.00 [9.0-11.0] / 16.90 [16.0-22.0] / 10.46 [10.9-13.8]; split floor 20.00 [15.0-25.0] / "
+            "40.00 [30.0-50.0] / 25.52 [19.1-31.9]\n") in text.split("(`slow_big`)")[1]
     # the per-grasp table in the row's details, grasps by id, with orientation, frames, MPJPE and floor
     details = text.split("(`slow_big`)")[1].split("\n### ")[0]
     assert ("| grasp | Theta_Vol x, y, z (deg) | frames | MPJPE hand (mm) | MPJPE probe (mm) | MPJPE all (mm) | "
@@ -245,11 +254,12 @@ def test_two_tracks_make_two_tables(synthetic_board):
         "ResNet-50 baseline, HUP-3D paper (input size not stated)",
         "HOPE-Net (ResNet-50, 224 px)", "ResNet-50 regressor (224 px)", "HOPE-Net (ResNet-10, 64 px)"]
     assert [line.split(" | ")[0][2:] for line in unseen_views] == ["HUPNet (ResNet-18, 128 px)"]
-    assert unseen_views[0].split(" | ")[6:10] == ["5.03", "4.00", "7.75", "2.00 / 4.00 / 2.55"]
+    assert unseen_views[0].split(" | ")[6:10] == ["5.03 [10.9-13.8]", "4.00 [9.0-11.0]", "7.75 [16.0-22.0]",
+                                                  "2.00 [15.0-25.0] / 4.00 [30.0-50.0] / 2.55 [19.1-31.9]"]
     views_section = text.split("## Track: Unseen views")[1].split("\n## ")[0]
     assert "1 row (1 measured, 0 reported)" in views_section
-    assert ("Split floor, hand / probe / all (mm; column *split floor*): nearest training view of the same grasp and "
-            "distance under the true camera: a model that only recalls training views cannot do better than this.") \
+    assert ("Split floor, hand / probe / all (mm; column *split floor*) [95 % CI over the test grasps]: nearest "
+            "training view of the same grasp and distance under the true camera: a model that only recalls training views cannot do better than this.") \
         in views_section
     grasps_section = text.split("## Track: Unseen grasps")[1].split("\n## ")[0]
     assert "nearest training grasp under the true camera" in grasps_section and "training view" not in grasps_section
@@ -332,6 +342,7 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
     data["schema_version"] = 1
     del data["metrics"]["probe_symmetric_mpjpe_mm"], data["metrics"]["spread_ratio"]
     del data["track"], data["split_floor"], data["dataset"]["grasp_theta_vol_deg"], data["dataset"]["grasps_sha256"]
+    del data["intervals"]
     data["dataset"]["path"] = "/data/hupbench_out/dataset"
     path.write_text(json.dumps(data))
     run_leaderboard(synthetic_board)
@@ -339,7 +350,9 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
     row = next(line for line in text.splitlines() if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
     cells = row.split(" | ")
     assert cells[3] == "—"  # the grasps' sha256: not recorded then
-    assert cells[9:14] == ["—", "—", "4.57", "0.812", "—"]
+    assert cells[6:14] == ["10.46 [—]", "8.00 [—]", "16.90 [—]", "—", "—", "4.57", "0.812", "—"]
+    assert ("- 95 % CI over the test grasps: — (the results file was written before results schema version 5; "
+            "`hupbench eval` adds it)\n") in text.split("(`slow_big`)")[1]
     assert "15.90 mm (plain" not in text and "spread ratio of predicted to true 3D keypoints across the test" not in \
         text.split("(`slow_big`)")[1].split("###")[0]
 
@@ -355,9 +368,9 @@ def test_spread_constants_match_the_metrics():
 def test_wrong_schema_version_is_rejected_with_its_name(synthetic_board):
     path = synthetic_board / "results" / "slow_big.json"
     data = json.loads(path.read_text())
-    data["schema_version"] = 5
+    data["schema_version"] = 6
     path.write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 4"):
+    with pytest.raises(ValueError, match=r"slow_big\.json: results\['schema_version'\] must be 5"):
         run_leaderboard(synthetic_board)
     assert not (synthetic_board / README).exists()  # nothing written
 
@@ -465,3 +478,23 @@ def test_one_measured_row_draws_no_pareto_frontier(synthetic_board, monkeypatch)
     plot_latency(rows)
     # (2 ms, 30 mm), (40 ms, 12 mm), (80 ms, 10.456 mm): each is faster or better than the others
     assert [label for label in labels if "Pareto" in label] == ["Pareto frontier (3 of 3 rows)"]
+
+
+def test_clinic_rows_get_their_own_table_floor_and_intervals(synthetic_board):
+    """A clinic row (a floor kind of its own) goes under its own heading with its own floor, each with its interval."""
+    clinic = with_grasps(measured("clinic_net", "HUPNet (ResNet-18, 128 px)", 146 / 29, 4.0, 7.75, 3.0, 6.0, 600.0,
+                                  log=False), track="clinic", floor_kind="nearest_train_frame")
+    write_results(synthetic_board / "results" / "clinic_net.json", clinic)
+    run_leaderboard(synthetic_board)
+    text = (synthetic_board / README).read_text()
+    assert "## Track: Clinic (`clinic`)" in text and text.count("## Track: ") == 2
+    clinic_rows = table_lines(text, "Clinic")
+    assert [line.split(" | ")[0][2:] for line in clinic_rows] == ["HUPNet (ResNet-18, 128 px)"]
+    assert clinic_rows[0].split(" | ")[6:10] == ["5.03 [10.9-13.8]", "4.00 [9.0-11.0]", "7.75 [16.0-22.0]",
+                                                 "20.00 [15.0-25.0] / 40.00 [30.0-50.0] / 25.52 [19.1-31.9]"]
+    section = text.split("## Track: Clinic")[1].split("\n## ")[0]
+    assert "[95 % CI over the test grasps]: nearest training frame of any grasp and view" in section
+    assert "nearest training grasp" not in section
+    # the paper protocol's table keeps its rows, with no interval recorded ([—])
+    assert "HUPNet (ResNet-18, 128 px)" not in "\n".join(table_lines(text, "Unseen grasps"))
+    assert table_lines(text, "Unseen grasps")[2].split(" | ")[6] == "10.46 [—]"
