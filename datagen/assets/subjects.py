@@ -95,16 +95,16 @@ class SubjectSpec:
     hand_breadth_mm: tuple = (64.0, 100.0)
 
     def __post_init__(self) -> None:
-        check_int(self.count, "subjects.count", 1, MAX_SUBJECTS)
-        check_int(self.seed, "subjects.seed", 0, 2**32 - 1)
-        check_number(self.women_fraction, "subjects.women_fraction", 0.0, 1.0)
+        check_int(self.count, "count", 1, MAX_SUBJECTS)
+        check_int(self.seed, "seed", 0, 2**32 - 1)
+        check_number(self.women_fraction, "women_fraction", 0.0, 1.0)
         object.__setattr__(self, "hand_length_mm",
-                           _check_range(self.hand_length_mm, "subjects.hand_length_mm", ADULT_HAND_LENGTH_MM))
+                           _check_range(self.hand_length_mm, "hand_length_mm", ADULT_HAND_LENGTH_MM))
         object.__setattr__(self, "hand_breadth_mm",
-                           _check_range(self.hand_breadth_mm, "subjects.hand_breadth_mm", ADULT_HAND_BREADTH_MM))
+                           _check_range(self.hand_breadth_mm, "hand_breadth_mm", ADULT_HAND_BREADTH_MM))
         length, breadth = self.hand_length_mm, self.hand_breadth_mm
         if breadth[1] < BREADTH_PER_LENGTH[0] * length[0] or breadth[0] > BREADTH_PER_LENGTH[1] * length[1]:
-            raise BadValueError(f"subjects.hand_breadth_mm {list(breadth)} and subjects.hand_length_mm "
+            raise BadValueError(f"hand_breadth_mm {list(breadth)} and hand_length_mm "
                                 f"{list(length)} admit no hand: breadth / length must be within "
                                 f"{BREADTH_PER_LENGTH[0]:g}..{BREADTH_PER_LENGTH[1]:g}")
 

@@ -44,15 +44,35 @@ def test_built_hands_measure_their_targets(subjects):
 
 
 @pytest.mark.parametrize("change, message", [
-    (dict(count=0), "subjects.count must be a whole number from 1 to"),
-    (dict(women_fraction=1.5), r"subjects.women_fraction must be a finite number in \[0, 1\]"),
-    (dict(hand_length_mm=[100, 200]), r"subjects.hand_length_mm must be \[low, high\] with 130 <= low < high <= 230"),
-    (dict(hand_length_mm=[200, 180]), r"subjects.hand_length_mm must be \[low, high\] with 130"),
-    (dict(hand_length_mm=[150]), r"subjects.hand_length_mm must be \[low, high\]"),
-    (dict(hand_breadth_mm=[60, 300]), r"subjects.hand_breadth_mm must be \[low, high\] with 55 <= low < high <= 115"),
+    (dict(count=0), "count must be a whole number from 1 to"),
+    (dict(women_fraction=1.5), r"women_fraction must be a finite number in \[0, 1\]"),
+    (dict(hand_length_mm=[100, 200]), r"hand_length_mm must be \[low, high\] with 130 <= low < high <= 230"),
+    (dict(hand_length_mm=[200, 180]), r"hand_length_mm must be \[low, high\] with 130"),
+    (dict(hand_length_mm=[150]), r"hand_length_mm must be \[low, high\]"),
+    (dict(hand_breadth_mm=[60, 300]), r"hand_breadth_mm must be \[low, high\] with 55 <= low < high <= 115"),
     (dict(hand_length_mm=[130, 140], hand_breadth_mm=[100, 115]), "admit no hand: breadth / length"),
 ])
 def test_bad_subject_spec_refused_with_its_line(change, message):
     with pytest.raises(BadValueError, match=message) as info:
         SubjectSpec(**change)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("subjects.count=0", "subjects: count must be a whole number from 1 to"),
+    ("subjects.hand_length_mm=[120,240]", r"subjects: hand_length_mm must be \[low, high\] with 130"),
+    ("subjects.women_fraction=-0.1", r"subjects: women_fraction must be a finite number in \[0, 1\]"),
+])
+def test_bad_clinic_subjects_refused_before_any_grasp(tmp_path, override, message):
+    from hupbench.config import build, compose
+
+    with pytest.raises(BadValueError, match=message):
+        build(compose("grasps", [f"out_dir={tmp_path}", "+subjects=clinic", override]))
+    assert not any(tmp_path.iterdir())
+
+
+def test_without_subjects_the_grasps_run_is_the_single_hand_one(tmp_path):
+    from hupbench.config import build, compose
+
+    assert build(compose("grasps", [f"out_dir={tmp_path}"])).subjects is None
+    assert build(compose("grasps", [f"out_dir={tmp_path}", "+subjects=clinic"])).subjects == SubjectSpec()
