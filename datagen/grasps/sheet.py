@@ -13,7 +13,7 @@ from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.core.draw import grid, stack, text_block, titled
 from hupbench.datagen.render.renderer import PointLight, Renderer, RenderSettings
 from hupbench.datagen.assets.hand_anatomy import HandSpec
-from hupbench.datagen.render.scene import Grasp, SceneModels, scene_parts
+from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
 
 VIEW_DISTANCE_M = 0.42
 
@@ -71,7 +71,7 @@ def contact_sheet(arrays: dict, size: int = 200, platform: str | None = None,
             # each grasp on its subject's hand when the arrays carry one
             hand = HandSpec(*map(float, arrays["subject_hand"][i])) if "subject_hand" in arrays else HandSpec()
             renderer.set_parts(scene_parts(Grasp(arrays["hand_pose"][i], arrays["hand_trans"][i]),
-                                           SceneModels(hand=hand), probe=probe))
+                                           models_of(hand), probe=probe))
             split = f" ({split_of[int(gid)]})" if split_of and int(gid) in split_of else ""
             labels = (f"grasp {int(gid)}{split}",
                       f"pen {arrays['score_max_penetration_mm'][i]:.1f} mm, pads {int(arrays['score_pads_in_contact'][i])}",

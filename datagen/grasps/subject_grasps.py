@@ -20,7 +20,7 @@ import numpy as np
 
 from hupbench.core.errors import BadValueError
 from hupbench.core.geometry import axis_angle_to_matrix, matrix_to_axis_angle
-from hupbench.datagen.assets.arm import ArmSpec, forearm_mesh
+from hupbench.datagen.assets.arm import forearm_mesh
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose
 from hupbench.datagen.assets.hand import build_hand
 from hupbench.datagen.assets.patient import PatientSpec, place_patient, placement_arrays
@@ -28,6 +28,7 @@ from hupbench.datagen.assets.subjects import Subject
 from hupbench.datagen.grasps.synthesis import MAX_SEED, GraspGenConfig, generate_candidates, grasp_arrays
 from hupbench.datagen.assets.probe_mesh import PROBE_MESH_FIELDS
 from hupbench.datagen.grasps.refine import RefineConfig
+from hupbench.datagen.render.scene import models_of
 
 #: rounds of new starts for a subject before giving up
 MAX_ATTEMPTS = 4
@@ -47,14 +48,13 @@ def subject_config(config: GraspGenConfig, subject: Subject, attempt: int) -> Gr
 
 def _placed(candidates: dict, hand, probe, patient: PatientSpec, rng: np.random.Generator):
     """(candidate id, placement) of the lowest-energy plausible candidate that admits a patient, or None. The
-    forearm is the one the refinement kept clear of the probe (:func:`hupbench.datagen.grasps.refine.hand_regions`:
-    the hand's scale)."""
+    forearm is the one rendered with the hand (:func:`hupbench.datagen.render.scene.models_of`)."""
     g = candidates["grasps"]
     plausible = np.flatnonzero(candidates["scores"]["plausible"])
     for i in plausible[np.argsort(g.energy[plausible], kind="stable")][:MAX_PLACEMENT_TRIES]:
         hand_pose = anatomical_to_pose(g.angles[i], matrix_to_axis_angle(g.R_global[i]))
         hand_vertices = hand.vertices(hand_pose, g.trans[i], clamp=False)
-        arm = forearm_mesh(axis_angle_to_matrix(hand_pose[:3]), g.trans[i], spec=ArmSpec(scale=hand.spec.scale))
+        arm = forearm_mesh(axis_angle_to_matrix(hand_pose[:3]), g.trans[i], spec=models_of(hand.spec).arm)
         placement = place_patient(patient, probe, hand_vertices, np.asarray(arm.vertices), rng)
         if placement is not None:
             return int(i), placement
