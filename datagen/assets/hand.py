@@ -133,6 +133,24 @@ def _posed_keypoints(G: np.ndarray, joints_rest: np.ndarray, tips_rest: np.ndarr
     return keypoints_torch(t(G[..., :3, :3]), t(G[..., :3, 3]), t(joints_rest), t(tips_rest)).numpy()
 
 
+def hand_keypoints(spec: HandSpec, pose: np.ndarray, trans, clamp: bool = True) -> np.ndarray:
+    """Posed keypoints of the hand ``spec`` from its skeleton alone (no mesh is built).
+
+    Args:
+        spec: the hand's size and proportions.
+        pose: (48,) or (B, 48) float axis-angle.
+        trans: (3,) or (B, 3) float, metres, wrist position in the world.
+        clamp: enforce joint limits first (see :func:`clamp_pose`).
+
+    Returns:
+        (21, 3) or (B, 21, 3) float64, metres, world frame, OpenPose order.
+    """
+    if clamp:
+        pose = clamp_pose(pose)
+    joints, tips = rest_skeleton(spec)
+    return _posed_keypoints(forward_kinematics(pose, trans, spec), joints, tips)
+
+
 class HandModel:
     """Articulated, skinned right hand.
 
@@ -188,10 +206,7 @@ class HandModel:
         Returns:
             (21, 3) or (B, 21, 3) float64, metres, world frame, OpenPose order.
         """
-        if clamp:
-            pose = clamp_pose(pose)
-        G = forward_kinematics(pose, trans, self.spec)
-        return _posed_keypoints(G, self.joints_rest, self.tips_rest)
+        return hand_keypoints(self.spec, pose, trans, clamp)
 
     def vertices(self, pose: np.ndarray, trans, clamp: bool = True) -> np.ndarray:
         """Linear blend skinning of the mesh.
@@ -268,7 +283,8 @@ class HandModel:
         return trimesh.Trimesh(self.vertices(pose, trans, clamp), self.faces, process=False)
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=128)
 def build_hand(spec: HandSpec = HandSpec()) -> HandModel:
-    """The hand for ``spec``, built once per process."""
+    """The hand for ``spec``, built once per process (a clinic grasps file's subjects' hands: 60, about 0.5 MB
+    each, all kept)."""
     return HandModel(spec)

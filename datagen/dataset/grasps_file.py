@@ -246,7 +246,7 @@ class GraspSet:
     """
 
     def __init__(self, path: str | Path | bytes) -> None:
-        from hupbench.datagen.assets.hand import build_hand
+        from hupbench.datagen.assets.hand import build_hand, hand_keypoints as hand_keypoints_of
         from hupbench.datagen.assets.probe import build_probe
 
         arrays = read_grasps(path)
@@ -260,9 +260,9 @@ class GraspSet:
         self.subjects = {k: arrays[k] for k in SUBJECT_FIELDS} if "subject_sex" in arrays else None
         if self.subjects is None:
             hand_keypoints = build_hand().keypoints(self.hand_pose, self.hand_trans, clamp=False)
-        else:  # each grasp on its own hand (build_hand caches the hands)
-            hand_keypoints = np.stack([build_hand(self.hand_spec(g)).keypoints(self.hand_pose[g], self.hand_trans[g],
-                                                                               clamp=False) for g in range(len(self))])
+        else:  # each grasp on its own hand, from its skeleton (its mesh is built where it is rendered)
+            hand_keypoints = np.stack([hand_keypoints_of(self.hand_spec(g), self.hand_pose[g], self.hand_trans[g],
+                                                         clamp=False) for g in range(len(self))])
         self.keypoints_world = np.concatenate(
             [hand_keypoints, np.broadcast_to(self.probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
         R = axis_angle_to_matrix(self.hand_pose[:, :3])

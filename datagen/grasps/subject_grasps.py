@@ -7,12 +7,16 @@ the first that admits a patient placement (:func:`hupbench.datagen.assets.patien
 the skin, no hand or forearm vertex deep in the body) is the subject's grasp. A subject with none gets new starts
 (another seed), up to :data:`MAX_ATTEMPTS` rounds.
 
+Each subject is made with one torch thread, in one of ``workers`` processes: a subject's grasp does not depend
+on how many workers share the subjects (torch's CPU results depend on its thread count).
+
 Convention:
     Probe frame (the renderer's world), metres, as :mod:`hupbench.datagen.grasps.synthesis`.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import time
 from dataclasses import replace
 
@@ -68,7 +72,7 @@ def subject_grasp(subject: Subject, config: GraspGenConfig, refine_config: Refin
     Returns:
         dict: "arrays" (:func:`~hupbench.datagen.grasps.synthesis.grasp_arrays` of the one grasp, its
         ``grasp_id`` the subject's index), "placement", "attempts" (rounds used, 1 = no retry), "candidates" and
-        "plausible" (counts over the rounds).
+        "plausible" (counts over the rounds), "hand" (its HandSpec) and its measured "length_mm", "breadth_mm".
 
     Raises:
         BadValueError: no round gave a plausible grasp that admits a patient (more starts may).
@@ -88,39 +92,71 @@ def subject_grasp(subject: Subject, config: GraspGenConfig, refine_config: Refin
             i, placement = found
             arrays = grasp_arrays(candidates, np.array([i]), sub_config, probe, spec)
             arrays["grasp_id"] = np.array([subject.index], dtype=np.int64)
-            return {"arrays": arrays, "placement": placement, "attempts": attempt + 1, **counts}
+            return {"arrays": arrays, "placement": placement, "attempts": attempt + 1, "hand": spec,
+                    "length_mm": hand.length_mm, "breadth_mm": hand.breadth_mm, **counts}
         log(f"  subject {subject.index}: no plausible grasp with a patient in round {attempt + 1}; new starts")
     raise BadValueError(f"subject {subject.index} ({subject.length_mm:.0f} x {subject.breadth_mm:.0f} mm hand): no "
                         f"plausible grasp admits a patient after {MAX_ATTEMPTS} rounds of {config.starts_per_theta} "
                         "starts; raise generate.starts_per_theta")
 
 
-def subject_grasps(subjects: list[Subject], config: GraspGenConfig, refine_config: RefineConfig, probe,
-                   patient: PatientSpec, log=print) -> dict:
+def _subject_in_worker(job: tuple) -> dict:
+    """:func:`subject_grasp` in a worker process, on one torch thread, its log lines returned."""
+    import torch
+
+    from hupbench.datagen.assets.probe import probe_of
+
+    subject, config, refine_config, probe_source, patient = job
+    torch.set_num_threads(1)
+    lines = []
+    result = subject_grasp(subject, config, refine_config, probe_of(probe_source), patient, log=lines.append)
+    return result | {"log": lines}
+
+
+def subject_grasps(subjects: list[Subject], config: GraspGenConfig, refine_config: RefineConfig, probe_source,
+                   patient: PatientSpec, workers: int = 1, log=print) -> dict:
     """One grasp per subject (:func:`subject_grasp`), as the arrays of a grasps file.
+
+    Args:
+        probe_source: :class:`hupbench.datagen.assets.probe_mesh.ProbeSource`, the probe each worker builds.
+        workers: processes sharing the subjects (1: in this process).
 
     Returns:
         dict: "arrays" (the grasps file's arrays, one row per subject in order, with :data:`hupbench.datagen.dataset.
         grasps_file.SUBJECT_FIELDS` and the ``patient_*`` arrays), "retried" (indices of subjects that needed more
         than one round), "candidates", "plausible", "seconds".
     """
+    from hupbench.core.processes import workers_ignore_ctrl_c
+
     start = time.perf_counter()
+    jobs = [(subject, config, refine_config, probe_source, patient) for subject in subjects]
+    if workers == 1:
+        done = map(_subject_in_worker, jobs)
+    else:
+        with workers_ignore_ctrl_c():
+            pool = multiprocessing.get_context("spawn").Pool(min(workers, len(jobs)))
+        done = pool.imap(_subject_in_worker, jobs)
     results = []
-    for subject in subjects:
-        results.append(subject_grasp(subject, config, refine_config, probe, patient, log))
-        log(f"  subject {subject.index} ({'man' if subject.sex else 'woman'}, {subject.length_mm:.0f} x "
-            f"{subject.breadth_mm:.0f} mm): {results[-1]['attempts']} round(s), "
-            f"{time.perf_counter() - start:.0f} s so far")
+    try:
+        for subject, result in zip(subjects, done):
+            results.append(result)
+            for line in result["log"]:
+                log(line)
+            log(f"  subject {subject.index} ({'man' if subject.sex else 'woman'}, {subject.length_mm:.0f} x "
+                f"{subject.breadth_mm:.0f} mm): {result['attempts']} round(s), "
+                f"{time.perf_counter() - start:.0f} s so far")
+    finally:
+        if workers > 1:
+            pool.terminate()
     rows = [r["arrays"] for r in results]
     # each result holds one grasp: its per-grasp arrays have a leading axis of 1; the probe's are shared
     arrays = {k: (np.concatenate([r[k] for r in rows]) if v.ndim and len(v) == 1 and k not in PROBE_MESH_FIELDS
                   else v)
               for k, v in rows[0].items()}
-    hands = [build_hand(s.hand_spec()) for s in subjects]
     arrays |= {"subject_sex": np.array([s.sex for s in subjects], dtype=np.int8),
-               "subject_hand": np.array([h.spec.proportions for h in hands], dtype=np.float64),
-               "hand_length_mm": np.array([h.length_mm for h in hands]),
-               "hand_breadth_mm": np.array([h.breadth_mm for h in hands])}
+               "subject_hand": np.array([r["hand"].proportions for r in results], dtype=np.float64),
+               "hand_length_mm": np.array([r["length_mm"] for r in results]),
+               "hand_breadth_mm": np.array([r["breadth_mm"] for r in results])}
     arrays |= placement_arrays([r["placement"] for r in results])
     return {"arrays": arrays, "retried": [s.index for s, r in zip(subjects, results) if r["attempts"] > 1],
             "candidates": sum(r["candidates"] for r in results), "plausible": sum(r["plausible"] for r in results),

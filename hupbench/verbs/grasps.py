@@ -39,7 +39,8 @@ class GraspsRun:
     """``conf/grasps.yaml`` (``_recursive_: false``: the groups are built here, their errors named by group).
 
     Attributes:
-        out_dir: the output folder. threads: torch CPU threads (results are reproducible at a fixed count).
+        out_dir: the output folder. threads: torch CPU threads (results are reproducible at a fixed count); with
+            subjects, worker processes of one torch thread each (results do not depend on their count).
         generate: what to generate. refine: the refinement.
         probe: which probe (the procedural one, or your mesh: README "Your own probe").
         subjects: None for every grasp on the tables' hand (``HandSpec()``), selected from all candidates; or
@@ -155,7 +156,7 @@ def _subject_grasps(run: GraspsRun, probe, log) -> tuple[dict, dict, dict]:
     subjects = draw_subjects(run.subjects)
     log(f"generating one grasp for each of {len(subjects)} subjects ({run.generate.starts_per_theta} starts each, "
         f"{run.generate.sampler} sampler)")
-    made = subject_grasps(subjects, run.generate, run.refine, probe, run.patient, log)
+    made = subject_grasps(subjects, run.generate, run.refine, run.probe, run.patient, workers=run.threads, log=log)
     arrays = made["arrays"]
     summary = scores_json(arrays, run.generate)
     for row, sex, length, breadth in zip(summary["grasps"], arrays["subject_sex"], arrays["hand_length_mm"],
