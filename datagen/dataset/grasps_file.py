@@ -36,7 +36,8 @@ SUBJECT_FIELDS = {"subject_sex": ("i", ()), "subject_hand": ("f", (len(PROPORTIO
 #: them unless given a grasps file, so that every machine makes the same dataset); ``hupbench grasps`` with
 #: the default config made them, on a 2-core AMD EPYC
 DEFAULT_GRASPS = Path(__file__).with_name("default_grasps.npz")
-#: the clinic track's grasps, one per subject, shipped with hupbench: ``hupbench grasps +subjects=clinic``
+#: the clinic track's grasps, one per subject, shipped with hupbench (like the default grasps, so that every machine
+#: renders the same clinic dataset): ``hupbench grasps +subjects=clinic`` made them, on a 2-core AMD EPYC
 CLINIC_GRASPS = Path(__file__).with_name("clinic_grasps.npz")
 #: the longest rotation vector of a joint (and of the hand as a whole), radians: half a turn, the most a
 #: rotation vector written by a hand model (e.g. MANO, Romero et al. 2017) takes; no finger joint turns
