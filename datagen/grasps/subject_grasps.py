@@ -107,9 +107,13 @@ def _subject_in_worker(job: tuple) -> dict:
     from hupbench.datagen.assets.probe import probe_of
 
     subject, config, refine_config, probe_source, patient = job
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
     lines = []
-    result = subject_grasp(subject, config, refine_config, probe_of(probe_source), patient, log=lines.append)
+    try:
+        result = subject_grasp(subject, config, refine_config, probe_of(probe_source), patient, log=lines.append)
+    finally:  # in this process (one worker), its caller's threads again
+        torch.set_num_threads(threads)
     return result | {"log": lines}
 
 

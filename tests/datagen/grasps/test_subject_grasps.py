@@ -69,3 +69,16 @@ def test_bad_subject_fields_are_refused(clinic, tmp_path, change, message):
     np.savez(tmp_path / "grasps.npz", **data)
     with pytest.raises(BadValueError, match=message):
         read_grasps(tmp_path / "grasps.npz")
+
+
+def test_a_subjects_grasp_does_not_depend_on_the_worker_count(clinic):
+    from hupbench.config import build
+    from hupbench.datagen.grasps.subject_grasps import subject_grasps
+
+    out, _ = clinic
+    run = build(compose("grasps", [f"out_dir={out}_again", *TINY]))
+    made = subject_grasps(draw_subjects(run.subjects), run.generate, run.refine, run.probe, run.patient, workers=2,
+                          log=lambda *_: None)["arrays"]
+    written = np.load(out / "grasps.npz")  # made by one worker (threads=1)
+    for key in ("hand_pose", "hand_trans", "subject_hand", "hand_length_mm", "patient_T_world_body"):
+        np.testing.assert_array_equal(made[key], written[key])
