@@ -105,8 +105,11 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
 
     Returns:
         {"hand_pose": (G, 48) float64 axis-angle radians, "hand_trans": (G, 3) float64 metres (the wrist in
-        the probe frame), "grasp_id": (G,) int64}, and "probe_euler_deg" (G, 3) float64 degrees when the file
-        holds it.
+        the probe frame), "grasp_id": (G,) int64}, "probe_euler_deg" (G, 3) float64 degrees when the file
+        holds it, and its subjects when it holds them (:data:`SUBJECT_FIELDS`, checked: sex 0 or 1, proportions
+        within :data:`hupbench.datagen.assets.hand_anatomy.FACTOR_RANGE`, length and breadth within adult
+        sizes): "subject_sex" (G,) int8, "subject_hand" (G, 5) float64, "hand_length_mm" and "hand_breadth_mm"
+        (G,) float64.
 
     Raises:
         MissingFileError: no such file. BadValueError: anything else wrong; the message names the file and
