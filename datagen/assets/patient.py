@@ -36,8 +36,6 @@ from hupbench.core.input_checks import check_int, check_interval, check_number
 __all__ = ["PLACEMENT_FIELDS", "PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
            "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb"]
 
-#: the config node of :class:`PatientSpec`, named in its error messages
-NODE = "dataset.clinic.patient"
 #: the radii a config may ask for: below 0.1 m the bump is no longer star-shaped from the body's core
 #: (its mesh, :func:`body_mesh`, is cast from there); above 0.5 m it overhangs the bed
 RADIUS_LIMITS_M = (0.1, 0.5)
@@ -66,7 +64,8 @@ PROBE_MAX_DEPTH_M = 0.002
 
 @dataclass(frozen=True)
 class PatientSpec:
-    """The patient under the probe (config node ``dataset.clinic.patient``).
+    """The patient under the probe (config node ``patient`` of ``hupbench grasps +subjects=clinic``,
+    conf/subjects/clinic.yaml).
 
     Attributes:
         radius_m: (low, high) metres, the range the abdomen's radius of curvature is drawn from, uniformly,
@@ -85,13 +84,13 @@ class PatientSpec:
     attempts: int = 16
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "radius_m", check_interval(self.radius_m, f"{NODE}.radius_m", *RADIUS_LIMITS_M,
+        object.__setattr__(self, "radius_m", check_interval(self.radius_m, "radius_m", *RADIUS_LIMITS_M,
                                                            unit="m"))
-        object.__setattr__(self, "max_tilt_deg", check_number(self.max_tilt_deg, f"{NODE}.max_tilt_deg", 0, 45))
-        object.__setattr__(self, "press_m", check_number(self.press_m, f"{NODE}.press_m", 0, PROBE_MAX_DEPTH_M))
+        object.__setattr__(self, "max_tilt_deg", check_number(self.max_tilt_deg, "max_tilt_deg", 0, 45))
+        object.__setattr__(self, "press_m", check_number(self.press_m, "press_m", 0, PROBE_MAX_DEPTH_M))
         object.__setattr__(self, "max_penetration_m",
-                           check_number(self.max_penetration_m, f"{NODE}.max_penetration_m", 0, 0.01))
-        object.__setattr__(self, "attempts", check_int(self.attempts, f"{NODE}.attempts", 1, 1000))
+                           check_number(self.max_penetration_m, "max_penetration_m", 0, 0.01))
+        object.__setattr__(self, "attempts", check_int(self.attempts, "attempts", 1, 1000))
 
 
 @dataclass(frozen=True)
