@@ -155,7 +155,7 @@ class ChunkRenderer:
         if spec.track == CLINIC:
             from hupbench.datagen.dataset.clinic import ClinicWorld
 
-            self.world = ClinicWorld(spec, self.grasps, grasps)
+            self.world = ClinicWorld(spec, self.grasps)
         self._grasp_loaded = None
         #: (grasp, z, view) -> what the view's frames share (:meth:`_view`)
         self._views: dict[tuple[int, int, int], dict] = {}

@@ -15,15 +15,13 @@ Convention:
 
 from __future__ import annotations
 
-import io
-from pathlib import Path
-
 import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.contract import CLINIC_SEG_LABELS, SEG_LABELS
+from hupbench.core.errors import BadValueError
 from hupbench.datagen.assets.arm import ArmSpec
-from hupbench.datagen.assets.patient import SKIN_RGB, body_mesh, body_sdf, placement_from_arrays
+from hupbench.datagen.assets.patient import SKIN_RGB, body_mesh, body_sdf
 from hupbench.datagen.assets.room import room_meshes
 from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.head import head_cameras
@@ -41,6 +39,14 @@ SKIN_ROUGHNESS, ROOM_ROUGHNESS = 0.6, 0.9
 _LOOK_AT = kp.KEYPOINT_NAMES.index("middle_mcp")
 
 
+def check_clinic_grasps(grasps: dict[str, np.ndarray], path) -> None:
+    """A grasps file (:func:`hupbench.datagen.dataset.grasps_file.read_grasps`' arrays of ``path``) can be rendered on
+    the clinic track: it holds each grasp's subject and patient."""
+    if "subject_sex" not in grasps or "patient_radius_m" not in grasps:
+        raise BadValueError(f"grasps file {path} holds no subjects and patients: the clinic track renders grasps made "
+                            "by `hupbench grasps +subjects=clinic` (grasps_path=null renders the shipped ones)")
+
+
 def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N,) distance from (N, 3) points to the segment from ``a`` to ``b`` (3,), metres."""
     ab = b - a
@@ -53,16 +59,12 @@ class ClinicWorld:
 
     Args:
         spec: the dataset spec (track "clinic": ``spec.head`` set).
-        grasps: the grasps rendered. source: their file, or its bytes (a Ray actor elsewhere), read for the
-            ``patient_*`` arrays.
+        grasps: the grasps rendered, with their subjects and patients (:func:`check_clinic_grasps` checked them).
     """
 
-    def __init__(self, spec: DatasetSpec, grasps: GraspSet, source: str | Path | bytes) -> None:
-        assert spec.head is not None, spec.track
-        with np.load(io.BytesIO(source) if isinstance(source, bytes) else source, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files if k.startswith("patient_")}
-        self.spec, self.grasps = spec, grasps
-        self.placements = [placement_from_arrays(arrays, g) for g in range(len(grasps))]
+    def __init__(self, spec: DatasetSpec, grasps: GraspSet) -> None:
+        assert spec.head is not None and grasps.placements is not None and grasps.subjects is not None
+        self.spec, self.grasps, self.placements = spec, grasps, grasps.placements
         self._cameras: dict[int, dict] = {}
         self._arm_length_m = ArmSpec().length_m
 

@@ -32,6 +32,13 @@ OPTIONAL_GRASP_FIELDS = {"probe_euler_deg": ("f", (3,))}
 #: hand's :data:`hupbench.datagen.assets.hand_anatomy.PROPORTION_FIELDS`, and its measured length and breadth, mm
 SUBJECT_FIELDS = {"subject_sex": ("i", ()), "subject_hand": ("f", (len(PROPORTION_FIELDS),)),
                   "hand_length_mm": ("f", ()), "hand_breadth_mm": ("f", ())}
+#: the patient placed under each grasp (``hupbench grasps +subjects=clinic`` writes them, all or none:
+#: :data:`hupbench.datagen.assets.patient.PLACEMENT_FIELDS`): metres, world (probe) frame
+PATIENT_FIELDS = {"patient_T_world_body": ("f", (4, 4)), "patient_radius_m": ("f", ()),
+                  "patient_vertical_world": ("f", (3,)), "patient_normal_world": ("f", (3,)),
+                  "patient_lens_skin_m": ("f", ()), "patient_penetration_m": ("f", ())}
+#: the field groups a grasps file holds all of or none of
+_ALL_OR_NONE = {"subject": SUBJECT_FIELDS, "patient": PATIENT_FIELDS}
 #: the default dataset's grasps, shipped with hupbench (the benchmark's grasps: ``hupbench generate`` renders
 #: them unless given a grasps file, so that every machine makes the same dataset); ``hupbench grasps`` with
 #: the default config made them, on a 2-core AMD EPYC
@@ -109,7 +116,7 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
         holds it, and its subjects when it holds them (:data:`SUBJECT_FIELDS`, checked: sex 0 or 1, proportions
         within :data:`hupbench.datagen.assets.hand_anatomy.FACTOR_RANGE`, length and breadth within adult
         sizes): "subject_sex" (G,) int8, "subject_hand" (G, 5) float64, "hand_length_mm" and "hand_breadth_mm"
-        (G,) float64.
+        (G,) float64; and its patients' placements when it holds them (:data:`PATIENT_FIELDS`, float64).
 
     Raises:
         MissingFileError: no such file. BadValueError: anything else wrong; the message names the file and
@@ -133,6 +140,7 @@ def read_grasps(path: str | Path | bytes) -> dict[str, np.ndarray]:
     if "subject_sex" in arrays:
         out["subject_sex"] = arrays["subject_sex"].astype(np.int8)
         out |= {k: arrays[k].astype(np.float64) for k in SUBJECT_FIELDS if k != "subject_sex"}
+    out |= {k: arrays[k].astype(np.float64) for k in PATIENT_FIELDS if k in arrays}
     return out
 
 
@@ -157,11 +165,14 @@ def _read_arrays(source: Path | io.BytesIO) -> tuple[dict[str, np.ndarray], str 
             absent = [k for k in GRASP_FIELDS if k not in data.files]
             if absent:
                 return {}, f" lacks the arrays {absent} (it holds {sorted(data.files)}); {_EXPECTED}"
-            subject = [k for k in SUBJECT_FIELDS if k in data.files]
-            if subject and len(subject) != len(SUBJECT_FIELDS):
-                return {}, (f" holds the subject arrays {subject} but not {sorted(set(SUBJECT_FIELDS) - set(subject))}"
-                            "; expected all of them or none")
-            for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files), *subject]:
+            grouped = []
+            for group, fields in _ALL_OR_NONE.items():
+                held = [k for k in fields if k in data.files]
+                if held and len(held) != len(fields):
+                    return {}, (f" holds the {group} arrays {held} but not {sorted(set(fields) - set(held))}; "
+                                "expected all of them or none")
+                grouped += held
+            for key in [*GRASP_FIELDS, *(k for k in OPTIONAL_GRASP_FIELDS if k in data.files), *grouped]:
                 try:
                     arrays[key] = data[key]
                 except ValueError as exc:  # object arrays: numpy refuses to unpickle them
@@ -177,7 +188,7 @@ def _read_arrays(source: Path | io.BytesIO) -> tuple[dict[str, np.ndarray], str 
 def _arrays_problem(arrays: dict[str, np.ndarray]) -> str | None:
     """What is wrong with a grasps file's arrays (:func:`read_grasps` lists the checks), as the rest of its error
     line, or None."""
-    for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS | SUBJECT_FIELDS).items():
+    for key, (kind, row_shape) in (GRASP_FIELDS | OPTIONAL_GRASP_FIELDS | SUBJECT_FIELDS | PATIENT_FIELDS).items():
         array = arrays.get(key)
         if array is None:
             continue
@@ -267,6 +278,13 @@ class GraspSet:
         else:  # each grasp on its own hand, from its skeleton (its mesh is built where it is rendered)
             hand_keypoints = np.stack([hand_keypoints_of(self.hand_spec(g), self.hand_pose[g], self.hand_trans[g],
                                                          clamp=False) for g in range(len(self))])
+        #: each grasp's patient (:class:`hupbench.datagen.assets.patient.PatientPlacement`), or None when the
+        #: file has none
+        self.placements = None
+        if "patient_radius_m" in arrays:
+            from hupbench.datagen.assets.patient import placement_from_arrays
+
+            self.placements = [placement_from_arrays(arrays, g) for g in range(len(self.hand_pose))]
         self.keypoints_world = np.concatenate(
             [hand_keypoints, np.broadcast_to(self.probe.corners_probe, (len(self), kp.NUM_CORNERS, 3))], axis=1)
         R = axis_angle_to_matrix(self.hand_pose[:, :3])

@@ -34,8 +34,7 @@ from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
 from hupbench.core.contract import ANNOTATIONS
 from hupbench.core.geometry import invert_transform
-from hupbench.datagen.assets.patient import (PLACEMENT_FIELDS, PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf,
-                                             placement_from_arrays)
+from hupbench.datagen.assets.patient import PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf
 from hupbench.datagen.dataset.verify_frames import _problem
 
 #: the lens's deepest vertex lies at most this far above the skin: it rests on it, metres
@@ -70,18 +69,14 @@ def read_clinic_grasps(root: Path) -> tuple[ClinicGrasps | None, str | None]:
     the world cannot run (the grasps file's own problems are :func:`check_grasps_file`'s to report)."""
     from hupbench.datagen.dataset.grasps_file import GraspSet
 
-    path = root / "grasps.npz"
     try:
-        grasps = GraspSet(path)
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in PLACEMENT_FIELDS if k in data.files}
+        grasps = GraspSet(root / "grasps.npz")
     except (OSError, ValueError) as exc:
         return None, f"grasps.npz is not readable ({type(exc).__name__})"
-    missing = [k for k in PLACEMENT_FIELDS if k not in arrays or len(arrays[k]) != len(grasps)]
-    if missing or grasps.subjects is None:
-        what = f"patient placements ({', '.join(missing)})" if missing else "subjects (subject_hand, hand_*_mm)"
+    if grasps.placements is None or grasps.subjects is None:
+        what = "patient placements (patient_*)" if grasps.placements is None else "subjects (subject_hand, hand_*_mm)"
         return None, f"grasps.npz holds no {what} for its {len(grasps)} grasps"
-    return ClinicGrasps(grasps, [placement_from_arrays(arrays, g) for g in range(len(grasps))], {}), None
+    return ClinicGrasps(grasps, grasps.placements, {}), None
 
 
 def _known(ann: dict, world: ClinicGrasps) -> np.ndarray:

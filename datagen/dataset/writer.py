@@ -45,6 +45,7 @@ from hupbench.core.contract import (CLINIC, DEPTH_SCALE_M, SCHEMA_VERSION, SPLIT
                                       read_annotations, read_manifest, seg_labels)
 from hupbench.datagen.dataset.grasps_file import (CLINIC_GRASPS, DEFAULT_GRASPS, GraspSet, read_grasps,
                                                   read_grasps_probe_record, rendered_with, subjects_record)
+from hupbench.datagen.dataset.clinic import check_clinic_grasps
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
 from hupbench.datagen.dataset.floors import definition as floors_definition, split_floors
 from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, split_of_grasps,
@@ -166,11 +167,14 @@ class GenerateRun:
 def check_grasps_file(run: GenerateRun) -> None:
     """The run's grasps file (:attr:`GenerateRun.grasps_file`) can be rendered: a grasps file
     (:func:`hupbench.datagen.dataset.grasps_file.read_grasps`) made for the probe the run names (the same file,
-    unit and alignment; else one line saying which probe each is) and holding the grasps ``dataset.splits``
-    counts. Reads the file's arrays and probe record only (building the probe takes seconds, and this runs
-    before the folder's lock is asked for)."""
+    unit and alignment; else one line saying which probe each is), holding the grasps ``dataset.splits``
+    counts and, on the clinic track, their subjects and patients. Reads the file's arrays and probe record only
+    (building the probe takes seconds, and this runs before the folder's lock is asked for)."""
     path = run.grasps_file
-    split_of_grasps(run.dataset, len(read_grasps(path)["grasp_id"]))
+    arrays = read_grasps(path)
+    if run.dataset.track == CLINIC:
+        check_clinic_grasps(arrays, path)
+    split_of_grasps(run.dataset, len(arrays["grasp_id"]))
     record = read_grasps_probe_record(path)
     spec = run.probe.spec
     wanted = {"kind": "procedural"} if spec is None else spec.record()
