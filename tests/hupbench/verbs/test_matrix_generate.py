@@ -152,6 +152,15 @@ CASES = {
     "n-backgrounds-beyond-the-set": lambda t, g, d: (["dataset.n_backgrounds=9"], ["n_backgrounds", "9", "8"]),
     "splits-not-adding-up": lambda t, g, d: (["dataset.splits={train:5,val:0,test:0}"], ["splits", "5", "2"]),
     "splits-unknown-name": lambda t, g, d: (["dataset.splits={train:1,holdout:1}"], ["splits", "holdout"]),
+    # the clinic track (+track=clinic): its cameras, its splits, its grasps
+    "clinic-elevation-leaves-no-camera": lambda t, g, d: (["+track=clinic", "dataset.head.elevation_min_deg=90"],
+                                                          ["dataset.head.elevation_min_deg", "[0, 90)", "got 90"]),
+    "clinic-distances-inverted": lambda t, g, d: (["+track=clinic", "dataset.head.distance_m=[0.8,0.35]"],
+                                                  ["dataset.head.distance_m", "[0.8, 0.35]"]),
+    "clinic-no-test-grasps": lambda t, g, d: (["+track=clinic", "dataset.splits={train:2,val:0,test:0}"],
+                                              ["dataset.splits", "train and test", "clinic"]),
+    "clinic-grasps-without-subjects": lambda t, g, d: (["+track=clinic"], [str(g), "subjects and patients",
+                                                                           "+subjects=clinic"]),
     # the grasps file
     "grasps-missing": lambda t, g, d: ([f"grasps_path={t / 'nope.npz'}"], ["nope.npz", "not found"]),
     "grasps-a-folder": lambda t, g, d: ([f"grasps_path={t}"], [str(t), "folder"]),

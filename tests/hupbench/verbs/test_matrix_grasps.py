@@ -87,6 +87,12 @@ CASES = {
     "probe-mesh-over-the-face-budget": lambda t: ([f"probe.mesh={_dense_probe(t)}"],
                                                   ["probe.mesh", "dense.stl", "81,920 triangles", "20,000",
                                                    "simplify_quadric_decimation(face_count=20000)"]),
+    # the clinic track's subjects and patients (+subjects=clinic)
+    "subjects-hand-length-below-adult-sizes": lambda t: (["+subjects=clinic", "subjects.hand_length_mm=[100,220]"],
+                                                         ["subjects", "hand_length_mm", "130", "230", "[100, 220]"]),
+    "subjects-count-zero": lambda t: (["+subjects=clinic", "subjects.count=0"], ["subjects", "count", "got 0"]),
+    "patient-radius-zero": lambda t: (["+subjects=clinic", "patient.radius_m=[0,0.2]"],
+                                      ["patient", "radius_m", "from 0.1 to 0.5 m", "[0, 0.2]"]),
     # the output folder
     "out-dir-is-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x')}"], ["out_dir", "file", "not a folder"]),
     "out-dir-under-a-file": lambda t: ([f"out_dir={_write(t / 'file', b'x') / 'g'}"], ["out_dir", "file is a file"]),
