@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CONFIDENCE", "METHOD", "RESAMPLES", "SEED", "grasp_interval", "grasp_interval_of_grasps", "interval_text"]
+__all__ = ["CONFIDENCE", "METHOD", "PARTS", "RESAMPLES", "SEED", "grasp_interval", "grasp_interval_of_grasps",
+           "interval_text", "intervals_block"]
 
 #: the interval's coverage
 CONFIDENCE = 0.95
@@ -27,6 +28,8 @@ SEED = 0
 #: how the interval is made, as results files record it
 METHOD = ("percentile bootstrap over test grasps: grasps drawn with replacement, statistic the mean over the drawn "
           "grasps' frames")
+#: the keypoint sets of each MPJPE and floor, as results files key them
+PARTS = ("all", "hand", "probe")
 
 
 def _interval(ref: float, deviation_sums: np.ndarray, frames: np.ndarray, resamples: int, seed: int,
@@ -102,6 +105,43 @@ def grasp_interval_of_grasps(values: np.ndarray, frames: np.ndarray, resamples: 
     assert values.ndim == 1 and values.shape == frames.shape and len(values) >= 1, (values.shape, frames.shape)
     ref = values[0]
     return _interval(float(ref), (values - ref) * frames, frames, resamples, seed, confidence)
+
+
+def intervals_block(by_grasp: dict[str, dict], floor_by_grasp: dict[str, dict] | None, resamples: int = RESAMPLES,
+                    seed: int = SEED) -> dict:
+    """The ``intervals`` block of a results file, from its per-grasp records: the intervals over the grasps
+    (:func:`grasp_interval_of_grasps`, one set of draws for all) of the MPJPE all / hand / probe and of the split
+    floor.
+
+    A resample's statistic, the mean error over the drawn grasps' frames, depends on each grasp's mean error and
+    frame count only, so these are the intervals :func:`grasp_interval` gives of the frames' errors (equal up to
+    float rounding), with the same draws: grasps in increasing id.
+
+    Args:
+        by_grasp: {decimal grasp id: {"frames": int >= 1, "mpjpe_mm": {"all", "hand", "probe": float mm}}}, each
+            grasp's frames and mean error over them (a results file's ``breakdowns["grasp"]``), G >= 1 grasps.
+        floor_by_grasp: {grasp id: {"floor_mm": {"all", "hand", "probe": float mm}, ...}} of the same grasps (a
+            split floor's ``per_grasp``), each weighted by its frames in ``by_grasp``; or None.
+        resamples: bootstrap resamples >= 1. seed: the draws' seed.
+
+    Returns:
+        {"method": :data:`METHOD`, "confidence", "resamples", "seed", "grasps": G, "mpjpe_mm": {part: [low, high]},
+        "split_floor_mm": {part: [low, high]} or None}, mm.
+    """
+    grasps = sorted(by_grasp, key=int)
+    assert grasps and (floor_by_grasp is None or set(floor_by_grasp) == set(grasps)), (grasps, floor_by_grasp)
+    frames = np.array([by_grasp[g]["frames"] for g in grasps], np.int64)                # (G,)
+
+    def bounds(values: list[float]) -> list[float]:
+        interval = grasp_interval_of_grasps(np.array(values, np.float64), frames, resamples, seed)
+        return [interval["low"], interval["high"]]
+
+    floor = None if floor_by_grasp is None else {
+        part: bounds([floor_by_grasp[g]["floor_mm"][part] for g in grasps]) for part in PARTS}
+    return {"method": METHOD, "confidence": CONFIDENCE, "resamples": int(resamples), "seed": int(seed),
+            "grasps": len(grasps), "mpjpe_mm": {part: bounds([by_grasp[g]["mpjpe_mm"][part] for g in grasps])
+                                                for part in PARTS},
+            "split_floor_mm": floor}
 
 
 def interval_text(bounds: list[float] | None, label: str = "", missing: str = "—") -> str:

@@ -18,7 +18,7 @@ from hupbench.core.input_checks import check_int, is_number
 from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp
 from hupbench.evaluation.leaderboard_plots import plot_latency, plot_training
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT, render_readme
-from hupbench.evaluation.leaderboard_table import sort_key
+from hupbench.evaluation.leaderboard_table import sort_key, with_intervals
 from hupbench.evaluation.results import LIMITS, load_results, parse_json, read_bytes
 
 README = "README.md"
@@ -29,7 +29,9 @@ MAX_TRAIN_WALL_S = 1e8
 def load_rows(results_dir: Path) -> list[dict]:
     """Every ``<run_name>.json`` of a folder (at least one), validated, sorted by
     :func:`~hupbench.evaluation.leaderboard_table.sort_key`: each must be a test-split result named by its run
-    name, and a measured row must name its command."""
+    name, and a measured row must name its command. Each row carries its intervals
+    (:func:`~hupbench.evaluation.leaderboard_table.with_intervals`: recorded, or recomputed from its grasp
+    breakdown)."""
     assert results_dir.is_dir(), results_dir
     paths = sorted(results_dir.glob("*.json"))
     if not paths:
@@ -57,7 +59,7 @@ def load_rows(results_dir: Path) -> list[dict]:
                                 f"--out {path} --training-command 'COMMAND THAT TRAINED IT' (as "
                                 f"scripts/paper_protocol.sh does), or move the file out of {results_dir} if it "
                                 "is not a leaderboard row")
-        rows.append(row)
+        rows.append(with_intervals(row))
     return sorted(rows, key=sort_key)
 
 

@@ -13,6 +13,7 @@ from hupbench.datagen.dataset.floors import FLOOR_KINDS
 from hupbench.evaluation.leaderboard_table import (
     GRASP_COLUMNS,
     MISSING,
+    RECORDED,
     SPREAD_AXES,
     SPREAD_RATIO_WARN,
     TABLE_ALIGN,
@@ -113,16 +114,18 @@ def _floor_name(kind: str) -> str:
 
 
 def _interval_line(row: dict) -> str:
-    """The row's 95 % intervals over the test grasps, how they were drawn, or why it has none."""
+    """The row's 95 % intervals over the test grasps, how they were drawn and whence, or why it has none."""
     intervals = row["intervals"]
     if intervals is None:
         return (f"- 95 % CI over the test grasps: {MISSING} (" + ("a paper's number" if row["kind"] != "measured" else
-                f"the results file was written before results schema version {INTERVALS_VERSION}; `hupbench eval` "
-                "adds it") + ")")
+                "the results file records neither intervals nor a per-grasp breakdown to recompute them from: it was "
+                f"written before results schema version {GRASP_FIELDS_VERSION}; `hupbench eval` adds them") + ")")
     mpjpe, floor = row["metrics"]["mpjpe_mm"], row["split_floor"]
+    whence = ("" if row["intervals_from"] == RECORDED else "; recomputed from the results file's per-grasp breakdown, "
+              "each grasp's mean error and frames, with `hupbench eval`'s draws")
     line = (f"- {100 * intervals['confidence']:g} % CI over the {intervals['grasps']} test grasps "
-            f"({intervals['resamples']:,} bootstrap resamples of the grasps, seed {intervals['seed']}), hand / probe / "
-            f"all (mm): MPJPE {interval_triplet_cell(mpjpe, intervals['mpjpe_mm'])}")
+            f"({intervals['resamples']:,} bootstrap resamples of the grasps, seed {intervals['seed']}{whence}), "
+            f"hand / probe / all (mm): MPJPE {interval_triplet_cell(mpjpe, intervals['mpjpe_mm'])}")
     if floor is not None:
         line += f"; split floor {interval_triplet_cell(floor['floor_mm'], intervals['split_floor_mm'])}"
     return line
@@ -266,8 +269,11 @@ def _meaning() -> list[str]:
          "grasp drawn twice counts twice), and the interval holds the middle 95 % of those means over the "
          "resamples (10,000 by default; each results file records the number and the seed). It says how far the "
          "number could move with other test grasps of the same kind: with two test grasps it is wide, with one it "
-         f"has zero width and says nothing. [{MISSING}] where the results file records no interval (written before "
-         f"results schema version {INTERVALS_VERSION}, or a paper's number)."),
+         f"has zero width and says nothing. Results files written before results schema version "
+         f"{INTERVALS_VERSION} record no interval: theirs is recomputed from the file's per-grasp breakdown (each "
+         "grasp's mean error and frames, and each grasp's floor, are all the bootstrap needs) with the same "
+         f"resamples, seed and draws, so it is the interval `hupbench eval` writes. [{MISSING}] where there is no "
+         "breakdown to recompute it from (a paper's number)."),
         ("- PA-MPJPE hand: hand MPJPE after a Procrustes alignment (scale, rotation, translation) of the 21 "
          "predicted joints to the true ones. AUC 0-50 mm: area under the 3D PCK curve (fraction of keypoints "
          "within a threshold) for thresholds from 0 to 50 mm, normalised to [0, 1]."),

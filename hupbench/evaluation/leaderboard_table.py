@@ -2,7 +2,8 @@
 
 Numbers are formatted explicitly (two decimals for mm and ms, three for the AUC, one for the bounds of a 95 %
 interval over the test grasps) so that the same results give the same bytes; an unknown value is the missing mark
-:data:`MISSING`, and so is the interval of a row whose results record none (``"9.88 [—]"``).
+:data:`MISSING`, and so is the interval of a row whose results record neither an interval nor a grasp breakdown
+to recompute it from (``"9.88 [—]"``).
 
 Convention: errors in mm, latency in ms per image at batch 1, times in seconds.
 """
@@ -13,7 +14,7 @@ import re
 from collections.abc import Sequence
 
 from hupbench.core.contract import UNSEEN_GRASPS
-from hupbench.evaluation.intervals import interval_text
+from hupbench.evaluation.intervals import PARTS, interval_text, intervals_block
 
 MISSING = "—"
 #: the track of rows whose results name none (the paper's, and datasets made before tracks)
@@ -114,6 +115,25 @@ def interval_triplet_cell(mm: dict | None, bounds: dict | None) -> str:
         return MISSING
     return " / ".join(interval_cell(mm[part], None if bounds is None else bounds[part])
                       for part in ("hand", "probe", "all"))
+
+
+#: where a row's intervals come from (``with_intervals``' ``"intervals_from"``)
+RECORDED, RECOMPUTED = "results", "breakdown"
+
+
+def with_intervals(row: dict) -> dict:
+    """``row`` with ``"intervals_from"``: :data:`RECORDED` where its results file records intervals; else, where
+    it records a grasp breakdown, :data:`RECOMPUTED` and the intervals ``hupbench eval`` writes, recomputed from
+    that breakdown and the split floor's ``per_grasp``
+    (:func:`~hupbench.evaluation.intervals.intervals_block`, default resamples and seed); else None (a paper's
+    number, a results file written before grasp breakdowns)."""
+    grasps = row["breakdowns"].get("grasp")
+    if row["intervals"] is not None:
+        return row | {"intervals_from": RECORDED}
+    if not grasps or any(b["frames"] < 1 or any(b["mpjpe_mm"][p] is None for p in PARTS) for b in grasps.values()):
+        return row | {"intervals_from": None}
+    floor = None if row["split_floor"] is None else row["split_floor"]["per_grasp"]
+    return row | {"intervals": intervals_block(grasps, floor), "intervals_from": RECOMPUTED}
 
 
 def row_intervals(row: dict, block: str) -> dict | None:

@@ -16,13 +16,10 @@ from hupbench.core.contract import TRACKS
 from hupbench.core.errors import BadValueError
 from hupbench.core.probe_symmetry import probe_symmetry_group
 from hupbench.evaluation import breakdowns
-from hupbench.evaluation.intervals import CONFIDENCE, METHOD, grasp_interval, grasp_interval_of_grasps
+from hupbench.evaluation.intervals import intervals_block
 from hupbench.evaluation.results import validate_grasp_theta_vol, validate_split_floor
 
 __all__ = ["grasp_theta_vol_deg", "split_breakdowns", "split_floor", "split_intervals", "split_metrics"]
-
-#: the keypoints of each MPJPE: all 29, the 21 hand joints, the 8 probe corners
-_PARTS = {"all": slice(None), "hand": kp.HAND_SLICE, "probe": kp.CORNER_SLICE}
 
 
 def grasp_theta_vol_deg(manifest: dict, grasp_ids: list[int], where: str) -> dict[str, list[float] | None] | None:
@@ -112,7 +109,9 @@ def split_breakdowns(errors_mm: np.ndarray, fields: dict, manifest: dict,
 def split_intervals(errors_mm: np.ndarray, grasp_id: np.ndarray, floor: dict | None, resamples: int,
                     seed: int) -> dict:
     """The ``intervals`` block of a results file: the 95 % bootstrap intervals over the evaluated grasps
-    (:mod:`hupbench.evaluation.intervals`) of the MPJPE all / hand / probe and of the split floor's ``floor_mm``.
+    (:func:`hupbench.evaluation.intervals.intervals_block`) of the MPJPE all / hand / probe and of the split floor's
+    ``floor_mm``, from the grasp breakdown the results file records (:func:`split_breakdowns`' ``"grasp"``), so
+    that the block can be recomputed from a results file alone.
 
     Every interval uses the same draws of grasps (one ``seed``), so that they describe the same resamples.
 
@@ -123,17 +122,8 @@ def split_intervals(errors_mm: np.ndarray, grasp_id: np.ndarray, floor: dict | N
             each grasp weighted by its frames in ``grasp_id``.
         resamples: bootstrap resamples >= 1. seed: the draws' seed.
     """
-    frame_mm = {part: errors_mm[:, cols].mean(axis=1) for part, cols in _PARTS.items()}   # part -> (N,) mm
-    mpjpe = {part: grasp_interval(e, grasp_id, resamples, seed) for part, e in frame_mm.items()}
-    grasps, frames = np.unique(grasp_id, return_counts=True)
-    floor_mm = None
-    if floor is not None:
-        per_grasp = [floor["per_grasp"][str(int(g))]["floor_mm"] for g in grasps]
-        floor_mm = {part: grasp_interval_of_grasps(np.array([e[part] for e in per_grasp]), frames, resamples, seed)
-                    for part in _PARTS}
-    return {"method": METHOD, "confidence": CONFIDENCE, "resamples": int(resamples), "seed": int(seed),
-            "grasps": len(grasps), "mpjpe_mm": {part: [i["low"], i["high"]] for part, i in mpjpe.items()},
-            "split_floor_mm": None if floor_mm is None else {part: [i["low"], i["high"]] for part, i in floor_mm.items()}}
+    by_grasp = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.grasp_labels(grasp_id))
+    return intervals_block(by_grasp, None if floor is None else floor["per_grasp"], resamples, seed)
 
 
 def _symmetric_probe_error(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, log) -> float | None:

@@ -1,10 +1,18 @@
 """The bootstrap interval over test grasps against a plain numpy reference, and its zero-width and seed cases."""
 
+import json
+
 import numpy as np
 import pytest
 
-from hupbench.evaluation.intervals import METHOD, grasp_interval, grasp_interval_of_grasps, interval_text
-from hupbench.evaluation.split_metrics import split_intervals
+from hupbench.evaluation.intervals import (
+    METHOD,
+    grasp_interval,
+    grasp_interval_of_grasps,
+    interval_text,
+    intervals_block,
+)
+from hupbench.evaluation.split_metrics import split_breakdowns, split_intervals
 
 #: a hand-made results set: frame errors (mm) of four grasps with 3, 1, 2 and 4 frames
 GRASP_IDS = np.array([41, 41, 41, 7, 76, 76, 120, 120, 120, 120])
@@ -91,6 +99,31 @@ def test_split_intervals_of_each_mpjpe_and_the_floor():
         assert block["split_floor_mm"][part] == pytest.approx(_reference(per_frame_floor, GRASP_IDS, 1500, 2),
                                                               abs=1e-9)
     assert split_intervals(errors, GRASP_IDS, None, 10, 0)["split_floor_mm"] is None
+
+
+def test_intervals_recomputed_from_a_results_files_breakdown_equal_evals():
+    """What eval writes (the grasp breakdown, the floor, the intervals), read back from JSON: the intervals
+    recomputed from the breakdown and the floor's per-grasp values are the stored ones, and those of the
+    frames' errors (:func:`grasp_interval`) to well below the printed digits."""
+    rng = np.random.default_rng(8)
+    # twelve grasps, ids whose text order is not their numeric order, frames 1-6 each: a near-continuous statistic
+    grasps = np.array([3, 5, 7, 9, 12, 25, 41, 76, 90, 103, 120, 200])
+    grasp_ids = np.repeat(grasps, rng.integers(1, 7, size=len(grasps)))                 # (N,)
+    errors = rng.gamma(2.0, 6.0, size=(len(grasp_ids), 29)) * (1.0 + grasp_ids[:, None] % 4)   # (N, 29) mm
+    floor = {"per_grasp": {str(g): {"floor_mm": {"hand": 10.0 + g / 3, "probe": 55.0 - g / 5, "all": 20.0 + g / 7},
+                                    "frames": int(np.sum(grasp_ids == g))} for g in grasps}}
+    fields = {"theta": np.full(len(grasp_ids), 0.5), "z_ego": np.full(len(grasp_ids), 0.5),
+              "background_id": np.zeros(len(grasp_ids), int), "grasp_id": grasp_ids}
+    written = {"breakdowns": split_breakdowns(errors, fields, {}, None), "split_floor": floor,
+               "intervals": split_intervals(errors, grasp_ids, floor, 10_000, 0)}
+    results = json.loads(json.dumps(written))
+    recomputed = intervals_block(results["breakdowns"]["grasp"], results["split_floor"]["per_grasp"])
+    assert recomputed == results["intervals"]
+    for part, cols in (("all", slice(None)), ("hand", slice(0, 21)), ("probe", slice(21, 29))):
+        by_frame = grasp_interval(errors[:, cols].mean(axis=1), grasp_ids)
+        assert recomputed["mpjpe_mm"][part] == pytest.approx([by_frame["low"], by_frame["high"]], abs=1e-9)
+        assert interval_text(recomputed["mpjpe_mm"][part]) == interval_text([by_frame["low"], by_frame["high"]])
+        assert recomputed["mpjpe_mm"][part][0] < recomputed["mpjpe_mm"][part][1]
 
 
 def test_interval_text():

@@ -1,5 +1,6 @@
 """The leaderboard: byte-for-byte rebuild of the committed files, the table, the plots, bad input named."""
 
+import copy
 import json
 import shutil
 import struct
@@ -8,15 +9,18 @@ import sys
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 import PIL
 import pytest
 
 from hupbench.cli import main
+from hupbench.evaluation.intervals import RESAMPLES, SEED, interval_text
 from hupbench.evaluation.leaderboard import README, load_rows, read_validation_curve, run_leaderboard
 from hupbench.evaluation.leaderboard_plots import DPI, FIGSIZE_IN, pareto_front
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT
 from hupbench.evaluation.leaderboard_table import format_duration, grasp_rows, inference_latency_ms, table_row
 from hupbench.evaluation.results import keypoint_weighted_all_mm, load_results, write_results
+from hupbench.evaluation.split_metrics import split_intervals
 from helpers.leaderboard import COMMITTED, OUTPUTS, intervals_block, measured, split_floor_block, triplet, write_log
 from helpers import REPO
 
@@ -351,8 +355,9 @@ def test_version_1_rows_show_the_new_metrics_as_missing(synthetic_board):
     cells = row.split(" | ")
     assert cells[3] == "—"  # the grasps' sha256: not recorded then
     assert cells[6:14] == ["10.46 [—]", "8.00 [—]", "16.90 [—]", "—", "—", "4.57", "0.812", "—"]
-    assert ("- 95 % CI over the test grasps: — (the results file was written before results schema version 5; "
-            "`hupbench eval` adds it)\n") in text.split("(`slow_big`)")[1]
+    assert ("- 95 % CI over the test grasps: — (the results file records neither intervals nor a per-grasp breakdown "
+            "to recompute them from: it was written before results schema version 3; `hupbench eval` adds them)\n") \
+        in text.split("(`slow_big`)")[1]
     assert "15.90 mm (plain" not in text and "spread ratio of predicted to true 3D keypoints across the test" not in \
         text.split("(`slow_big`)")[1].split("###")[0]
 
@@ -498,3 +503,60 @@ def test_clinic_rows_get_their_own_table_floor_and_intervals(synthetic_board):
     # the paper protocol's table keeps its rows, with no interval recorded ([—])
     assert "HUPNet (ResNet-18, 128 px)" not in "\n".join(table_lines(text, "Unseen grasps"))
     assert table_lines(text, "Unseen grasps")[2].split(" | ")[6] == "10.46 [—]"
+
+
+def test_rows_before_intervals_get_them_recomputed_from_their_grasp_breakdown(synthetic_board):
+    """A version-4 row records no interval but each grasp's mean error and frames: the leaderboard prints the
+    interval eval would have written. With two grasps the 95 % interval spans the two grasps' values."""
+    path = synthetic_board / "results" / "slow_big.json"
+    data = with_grasps(load_results(path))
+    recorded = copy.deepcopy(data)
+    data["schema_version"] = 4
+    del data["intervals"]
+    path.write_text(json.dumps(data))
+    (row,) = [r for r in load_rows(synthetic_board / "results") if r["run_name"] == "slow_big"]
+    assert row["intervals_from"] == "breakdown"
+    expected = split_intervals_of(recorded)
+    assert {k: v for k, v in row["intervals"].items() if not k.endswith("_mm")} == \
+        {k: v for k, v in expected.items() if not k.endswith("_mm")}
+    for block in ("mpjpe_mm", "split_floor_mm"):
+        for part in ("all", "hand", "probe"):
+            assert row["intervals"][block][part] == pytest.approx(expected[block][part], abs=1e-9)
+    run_leaderboard(synthetic_board)
+    text = (synthetic_board / README).read_text()
+    line = next(line for line in table_lines(text) if line.startswith("| HOPE-Net (ResNet-50, 224 px)"))
+    assert line.split(" | ")[6:10] == ["10.46 [10.9-14.5]", "8.00 [9.0-11.5]", "16.90 [16.0-22.2]",
+                                       "20.00 [15.0-25.0] / 40.00 [30.0-50.0] / 25.52 [19.1-31.9]"]
+    assert ("- 95 % CI over the 2 test grasps (10,000 bootstrap resamples of the grasps, seed 0; recomputed from the "
+            "results file's per-grasp breakdown, each grasp's mean error and frames, with `hupbench eval`'s draws), "
+            "hand / probe / all (mm): MPJPE 8.00 [9.0-11.5] / 16.90 [16.0-22.2] / 10.46 [10.9-14.5]; split floor "
+            "20.00 [15.0-25.0] / 40.00 [30.0-50.0] / 25.52 [19.1-31.9]\n") in text.split("(`slow_big`)")[1]
+    # a row that records its intervals keeps them; the papers' rows have nothing to recompute from
+    write_results(path, recorded)
+    rows = {r["run_name"]: r for r in load_rows(synthetic_board / "results")}
+    assert rows["slow_big"]["intervals_from"] == "results" and rows["slow_big"]["intervals"] == intervals_block()
+    assert rows["paper_hopenet"]["intervals"] is None and rows["paper_hopenet"]["intervals_from"] is None
+
+
+def split_intervals_of(row: dict) -> dict:
+    """The intervals eval writes for frames whose errors are each grasp's mean in ``row``'s breakdown."""
+    grasps = sorted(row["breakdowns"]["grasp"], key=int)
+    frames = [row["breakdowns"]["grasp"][g]["frames"] for g in grasps]
+    errors = np.concatenate([np.tile(np.r_[[row["breakdowns"]["grasp"][g]["mpjpe_mm"]["hand"]] * 21,
+                                           [row["breakdowns"]["grasp"][g]["mpjpe_mm"]["probe"]] * 8], (n, 1))
+                             for g, n in zip(grasps, frames)])                                   # (N, 29) mm
+    grasp_id = np.repeat([int(g) for g in grasps], frames)                                        # (N,)
+    return split_intervals(errors, grasp_id, row["split_floor"], RESAMPLES, SEED)
+
+
+def test_committed_rows_print_intervals_recomputed_from_their_breakdown():
+    """The committed rows predate intervals; the best paper-protocol row's probe and floor intervals."""
+    rows = {r["run_name"]: r for r in load_rows(COMMITTED / "results")}
+    best = rows["paper_hupnet_handfit_cpu"]
+    assert best["intervals_from"] == "breakdown" and best["intervals"]["grasps"] == 2
+    assert interval_text(best["intervals"]["mpjpe_mm"]["probe"]) == "[7.7-29.5]"
+    assert interval_text(best["intervals"]["split_floor_mm"]["probe"]) == "[53.0-65.6]"
+    assert all(row["intervals_from"] == ("breakdown" if row["kind"] == "measured" else None) for row in rows.values())
+    text = (COMMITTED / README).read_text()
+    line = next(line for line in table_lines(text) if "`bash scripts/paper_protocol.sh paper_hupnet_handfit_cpu`" in line)
+    assert line.split(" | ")[8:10] == ["18.62 [7.7-29.5]", "8.17 [6.5-9.9] / 59.30 [53.0-65.6] / 22.27 [19.3-25.2]"]
