@@ -19,21 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 FULL_DATASET_FRAMES = 31680
 #: the clinic track's cameras per grasp (conf/track/clinic.yaml)
 CLINIC_VIEWS = 33
-
-
-def _first(path: Path, n: int, out: Path) -> Path:
-    """A grasps file of the first ``n`` grasps of ``path`` (per-probe arrays kept whole)."""
-    from hupbench.core.io import save_npz
-
-    with np.load(path) as data:
-        count = len(data["grasp_id"])
-        arrays = {k: (data[k][:n] if data[k].ndim and len(data[k]) == count else data[k]) for k in data.files}
-    return save_npz(out, arrays)
 
 
 def _rate(spec, grasps: Path, root: Path, workers: int) -> tuple[int, float]:
@@ -47,7 +35,7 @@ def _rate(spec, grasps: Path, root: Path, workers: int) -> tuple[int, float]:
 
 
 def main() -> None:
-    from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, DEFAULT_GRASPS
+    from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, DEFAULT_GRASPS, first_grasps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("grasps", nargs="?", default=str(DEFAULT_GRASPS), help="a grasps.npz (default: the shipped one)")
@@ -76,7 +64,7 @@ def main() -> None:
     rates: dict[tuple[str, int], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for track, (spec, source, n) in tracks.items():
-            grasps = _first(source, n, Path(tmp) / f"{track}_grasps.npz")
+            grasps = first_grasps(source, n, Path(tmp) / f"{track}_grasps.npz")
             for workers in args.workers:
                 frames, wall = _rate(spec, grasps, Path(tmp) / f"{track}_w{workers}", workers)
                 rates[track, workers] = rate = frames / wall

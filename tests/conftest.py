@@ -29,3 +29,16 @@ def exported(tmp_path_factory, tiny_dataset):
     from helpers.models import exported_model
 
     return exported_model(tmp_path_factory, tiny_dataset)
+
+
+@pytest.fixture(scope="session")
+def tiny_clinic(tmp_path_factory):
+    """(dataset, grasps file) of a finished tiny clinic dataset (helpers.datasets.clinic_spec) of the first 4 shipped
+    clinic grasps: 24 frames. Read only."""
+    from helpers.datasets import CLINIC_SPLITS, generate_clinic
+    from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, first_grasps
+
+    root = tmp_path_factory.mktemp("clinic")
+    grasps = first_grasps(CLINIC_GRASPS, sum(CLINIC_SPLITS.values()), root / "grasps.npz")
+    assert generate_clinic(root / "dataset", grasps)["complete"]
+    return root / "dataset", grasps

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import pytest
 import torch
 
@@ -194,6 +195,25 @@ def test_benchmark_generate(tiny_dataset, monkeypatch, capsys):
     out = run_script(BENCHMARKS / "generate.py", tiny_dataset / "grasps.npz", "--backgrounds", "1", "--workers", "1",
                      "--size", "32", "--r-circ-m", "0.4", monkeypatch=monkeypatch, capsys=capsys)
     assert "workers 1: 48 frames in" in out  # 1 grasp x 2 distances x 1 background x 2 gloves x 12 views
+
+
+def test_benchmark_generate_clinic_beside_the_paper_protocol(tiny_grasps, tiny_clinic, monkeypatch, capsys):
+    _, clinic_grasps = tiny_clinic
+    out = run_script(BENCHMARKS / "generate.py", tiny_grasps, "--clinic", clinic_grasps, "--clinic-grasps", "1",
+                     "--backgrounds", "1", "--workers", "1", "--size", "32", "--r-circ-m", "0.4",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "paper workers 1: 48 frames in" in out  # 1 grasp x 2 distances x 1 background x 2 gloves x 12 views
+    assert "clinic workers 1: 66 frames in" in out  # 1 grasp x 1 background x 2 gloves x 33 cameras
+    assert "the clinic track renders at" in out
+
+
+def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys):
+    dataset, _ = tiny_clinic
+    out = run_script(SCRIPTS / "clinic_picture.py", dataset, tiny_dataset, "--out", tmp_path / "clinic.png",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert out.strip() == str(tmp_path / "clinic.png")
+    image = cv2.imread(str(tmp_path / "clinic.png"))
+    assert image is not None and image.shape[0] > 4 * 200
 
 
 def test_benchmark_grasps(monkeypatch, capsys):

@@ -56,6 +56,17 @@ MAX_WRIST_DISTANCE_M = MAX_LENGTH_M + ADULT_HAND_LENGTH_MM[1] * 1e-3
 _EXPECTED = "expected a grasps.npz written by `hupbench grasps`"
 
 
+def first_grasps(source: str | Path, n: int, out: str | Path) -> Path:
+    """Write the first ``n`` grasps of the grasps file ``source`` (every per-grasp array cut, per-file arrays such
+    as a probe mesh kept whole) to ``out``, for small datasets and benchmarks; returns ``out``."""
+    from hupbench.core.io import save_npz
+
+    with np.load(source, allow_pickle=False) as data:
+        count = len(data["grasp_id"])
+        arrays = {k: (data[k][:n] if data[k].ndim and len(data[k]) == count else data[k]) for k in data.files}
+    return save_npz(out, arrays)
+
+
 def read_grasps_probe_record(path: str | Path) -> dict:
     """The record of the probe a grasps file (checked by :func:`read_grasps`) was made for
     (:attr:`hupbench.datagen.assets.probe.Probe.record`) without building the probe: the JSON it carries, or

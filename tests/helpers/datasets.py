@@ -37,3 +37,25 @@ def annotations(root, splits=("train", "test")):
         with np.load(root / split / "annotations.npz") as data:
             out[split] = {k: data[k] for k in data.files}
     return out
+
+
+#: the grasps per split of a tiny clinic dataset: the first grasps of the shipped clinic grasps (train, val, test)
+CLINIC_SPLITS = {"train": 2, "val": 1, "test": 1}
+
+
+def clinic_spec(**changes):
+    """A tiny clinic-track spec: 48 x 48, 3 head cameras per grasp, 2 rooms, 1 glove; ``changes`` override."""
+    from hupbench.datagen.dataset.head import HeadSpec
+    from hupbench.datagen.dataset.spec import DatasetSpec
+
+    return DatasetSpec(**{"track": "clinic", "splits": CLINIC_SPLITS, "head": HeadSpec(views_per_grasp=3),
+                          "n_backgrounds": 2, "n_gloves": 1, "width": 48, "height": 48, "fx": 90.0, "fy": 90.0,
+                          "cx": 24.0, "cy": 24.0} | changes)
+
+
+def generate_clinic(out, grasps, **changes):
+    """Generate the tiny clinic dataset (:func:`clinic_spec`) of ``grasps`` into ``out``; generate's result."""
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
+
+    return generate(GenerateRun(clinic_spec(**changes), str(out), str(grasps), progress=False), {"test": "clinic"},
+                    log=lambda *_: None)

@@ -16,53 +16,18 @@ import numpy as np
 import pytest
 
 from helpers import REPO
-from helpers.datasets import annotations
+from helpers.datasets import CLINIC_SPLITS as SPLITS, annotations, generate_clinic as run
 from hupbench.core import keypoints as kp
 from hupbench.core.contract import CLINIC_SEG_LABELS, SEG_LABELS
 from hupbench.core.geometry import transform_points
-from hupbench.core.io import save_npz
 from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, GraspSet
 
-#: the first grasps of the shipped clinic grasps a tiny dataset renders (train, val, test)
-SPLITS = {"train": 2, "val": 1, "test": 1}
 #: the palm's six joints: the wrist, the thumb's CMC and the four fingers' MCPs (OpenPose order)
 PALM = [0, 1, 5, 9, 13, 17]
 #: the bounds the clinic track promises, metres: the lens within 1 mm of the skin and at most 2 mm into it, no hand
 #: or forearm vertex more than 3 mm inside the body
 LENS_GAP_M, LENS_DEPTH_M, BODY_DEPTH_M = 0.001, 0.002, 0.003
-
-
-def first_grasps(path, n: int):
-    """The first ``n`` grasps of the shipped clinic grasps file, written to ``path``."""
-    with np.load(CLINIC_GRASPS) as data:
-        count = len(data["grasp_id"])
-        arrays = {k: (data[k][:n] if data[k].ndim and len(data[k]) == count else data[k]) for k in data.files}
-    return save_npz(path, arrays)
-
-
-def spec(**changes):
-    from hupbench.datagen.dataset.head import HeadSpec
-    from hupbench.datagen.dataset.spec import DatasetSpec
-
-    return DatasetSpec(**{"track": "clinic", "splits": SPLITS, "head": HeadSpec(views_per_grasp=3), "n_backgrounds": 2,
-                          "n_gloves": 1, "width": 48, "height": 48, "fx": 90.0, "fy": 90.0, "cx": 24.0,
-                          "cy": 24.0} | changes)
-
-
-def run(out, grasps, **changes):
-    from hupbench.datagen.dataset.writer import GenerateRun, generate
-
-    return generate(GenerateRun(spec(**changes), str(out), str(grasps), progress=False), {"test": "clinic"},
-                    log=lambda *_: None)
-
-
-@pytest.fixture(scope="module")
-def tiny_clinic(tmp_path_factory):
-    root = tmp_path_factory.mktemp("clinic")
-    grasps = first_grasps(root / "grasps_in.npz", sum(SPLITS.values()))
-    result = run(root / "ds", grasps)
-    assert result["complete"]
-    return root / "ds", grasps
+ALL_SPLITS = ("train", "val", "test")
 
 
 def test_the_abdomen_and_the_room_have_depth_in_every_frame(tiny_clinic):
@@ -71,7 +36,7 @@ def test_the_abdomen_and_the_room_have_depth_in_every_frame(tiny_clinic):
     root, _ = tiny_clinic
     objects = [SEG_LABELS[name] for name in ("hand", "arm", "probe")]
     frames = 0
-    for split, ann in annotations(root, ("train", "val", "test")).items():
+    for split, ann in annotations(root, ALL_SPLITS).items():
         for frame_id in ann["frame_id"]:
             depth = cv2.imread(str(root / split / "depth" / f"{frame_id:06d}.png"), cv2.IMREAD_UNCHANGED)
             seg = cv2.imread(str(root / split / "seg" / f"{frame_id:06d}.png"), cv2.IMREAD_UNCHANGED)
@@ -88,7 +53,7 @@ def test_the_patient_and_subjects_are_recorded(tiny_clinic):
     manifest = json.loads((root / "manifest.json").read_text())
     assert manifest["seg_labels"] == CLINIC_SEG_LABELS and manifest["protocol"]["track"] == "clinic"
     subjects = GraspSet(grasps).subjects
-    for ann in annotations(root, ("train", "val", "test")).values():
+    for ann in annotations(root, ALL_SPLITS).values():
         g = ann["grasp_index"]
         np.testing.assert_array_equal(ann["hand_length_mm"], subjects["hand_length_mm"][g])
         np.testing.assert_array_equal(ann["hand_breadth_mm"], subjects["hand_breadth_mm"][g])
@@ -158,7 +123,7 @@ def test_a_killed_clinic_generation_resumes_to_the_same_frames(tiny_clinic, tmp_
     code = textwrap.dedent(f"""
         import sys
         sys.path[:0] = [{os.path.dirname(__file__)!r}, {str(REPO / "tests")!r}]
-        from test_clinic import run
+        from helpers.datasets import generate_clinic as run
         run({str(out)!r}, {str(grasps)!r})
     """)
     proc = subprocess.Popen([sys.executable, "-c", code])
@@ -170,7 +135,7 @@ def test_a_killed_clinic_generation_resumes_to_the_same_frames(tiny_clinic, tmp_
     assert not (out / "manifest.json").exists()
     result = run(out, grasps)
     assert result["complete"] and 0 < result["frames_rendered"] < 24
-    a, b = annotations(out, ("train", "val", "test")), annotations(root, ("train", "val", "test"))
+    a, b = annotations(out, ALL_SPLITS), annotations(root, ALL_SPLITS)
     for split in a:
         for key in a[split]:
             np.testing.assert_array_equal(a[split][key], b[split][key], err_msg=key)

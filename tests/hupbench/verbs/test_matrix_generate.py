@@ -157,8 +157,8 @@ CASES = {
                                                           ["dataset.head.elevation_min_deg", "[0, 90)", "got 90"]),
     "clinic-distances-inverted": lambda t, g, d: (["+track=clinic", "dataset.head.distance_m=[0.8,0.35]"],
                                                   ["dataset.head.distance_m", "[0.8, 0.35]"]),
-    "clinic-no-test-grasps": lambda t, g, d: (["+track=clinic", "dataset.splits={train:2,val:0,test:0}"],
-                                              ["dataset.splits", "train and test", "clinic"]),
+    "clinic-no-training-grasps": lambda t, g, d: (["+track=clinic", "dataset.splits={train:0,val:0,test:2}"],
+                                                  ["dataset.splits", "train at least 1 grasp", "clinic"]),
     "clinic-grasps-without-subjects": lambda t, g, d: (["+track=clinic"], [str(g), "subjects and patients",
                                                                            "+subjects=clinic"]),
     # the grasps file
