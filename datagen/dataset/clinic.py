@@ -66,6 +66,7 @@ class ClinicWorld:
         assert spec.head is not None and grasps.placements is not None and grasps.subjects is not None
         self.spec, self.grasps, self.placements = spec, grasps, grasps.placements
         self._cameras: dict[int, dict] = {}
+        self._colours: dict[tuple[int, int], dict] = {}
         self._arm_length_m = ArmSpec().length_m
 
     def cameras(self, g: int) -> dict:
@@ -101,10 +102,12 @@ class ClinicWorld:
 
     def colours(self, g: int, background: int) -> dict[str, tuple[float, float, float]]:
         """Part name -> RGB of grasp ``g``'s patient and room behind background ``background``: the background
-        index picks the room's palette and, with the grasp, the skin tone."""
-        out = {"patient": tuple(SKIN_RGB[self.skin_tone(g, background)])}
-        out.update({name: tuple(rgb) for name, _, rgb in room_meshes(self.placements[g], background)})
-        return out
+        index picks the room's palette and, with the grasp, the skin tone (kept per grasp and background)."""
+        if (g, background) not in self._colours:
+            out = {"patient": tuple(SKIN_RGB[self.skin_tone(g, background)])}
+            out.update({name: tuple(rgb) for name, _, rgb in room_meshes(self.placements[g], background)})
+            self._colours[g, background] = out
+        return self._colours[g, background]
 
     def rows(self, g: int, background: int, view: int) -> dict:
         """The clinic annotation values of one frame (:data:`hupbench.core.contract.CLINIC_ANNOTATION_FIELDS`)."""
