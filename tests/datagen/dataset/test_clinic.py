@@ -141,3 +141,21 @@ def test_a_killed_clinic_generation_resumes_to_the_same_frames(tiny_clinic, tmp_
             np.testing.assert_array_equal(a[split][key], b[split][key], err_msg=key)
     for path in root.glob("*/*/*.*"):
         assert path.read_bytes() == (out / path.relative_to(root)).read_bytes(), path
+
+
+#: sha256 of datagen/dataset/clinic_grasps.npz: `hupbench grasps +subjects=clinic` with the committed config on a 2-core
+#: AMD EPYC (the selection depends on the CPU's floating point, so generate renders this file, not a new synthesis)
+CLINIC_GRASPS_SHA256 = "8b82677ad1a084ebd980343bbb6d5b1445db025983759833add184465b9932f2"
+
+
+def test_the_shipped_clinic_grasps_are_pinned_package_data_of_sixty_subjects(shipped):
+    import fnmatch
+    import hashlib
+    import tomllib
+
+    assert hashlib.sha256(CLINIC_GRASPS.read_bytes()).hexdigest() == CLINIC_GRASPS_SHA256
+    package_data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    assert any(fnmatch.fnmatch(CLINIC_GRASPS.name, pattern) for pattern in package_data["hupbench.datagen.dataset"])
+    assert len(shipped) == 60 and len(set(shipped.grasp_id.tolist())) == 60
+    assert sorted(np.bincount(shipped.subjects["subject_sex"]).tolist()) == [30, 30]
+    assert shipped.placements is not None and len(shipped.placements) == 60
