@@ -8,7 +8,7 @@ gloves, and 33 head cameras each (the full track's frames per grasp and backgrou
 worker processes into temporary folders; the script prints frames per second, the projected wall time of a full
 track (31,680 frames; meaningful at the default 256 px) and the clinic track's rate as a share of the paper's.
 
-Usage: python benchmarks/generate.py [GRASPS_NPZ] [--clinic [CLINIC_GRASPS_NPZ]] [--clinic-grasps 5]
+Usage: python benchmarks/generate.py [GRASPS_NPZ] [--clinic [CLINIC_GRASPS_NPZ]] [--clinic-grasps 6]
        [--backgrounds 4] [--workers 1 2] [--size 256] [--r-circ-m 0.15]
 """
 
@@ -41,7 +41,7 @@ def main() -> None:
     parser.add_argument("grasps", nargs="?", default=str(DEFAULT_GRASPS), help="a grasps.npz (default: the shipped one)")
     parser.add_argument("--clinic", nargs="?", const=str(CLINIC_GRASPS), default=None,
                         help="also the clinic track, from this clinic grasps.npz (default: the shipped one)")
-    parser.add_argument("--clinic-grasps", type=int, default=5, help="clinic grasps rendered (33 cameras each)")
+    parser.add_argument("--clinic-grasps", type=int, default=6, help="clinic grasps rendered (33 cameras each)")
     parser.add_argument("--backgrounds", type=int, default=4)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--size", type=int, default=256, help="image side, pixels (intrinsics scale with it)")

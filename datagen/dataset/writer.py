@@ -5,19 +5,17 @@ The frame index is the mixed-radix number of that tuple, viewpoints fastest:
 
     i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view
 
-and frame ``i`` is a pure function of (config, grasps, i): its camera comes from the
-sphere, its lamp from a generator seeded with (seed, i). Frames are rendered
-in chunks of one (grasp, z_ego, background) block (n_glove x n_view frames
-sharing the meshes); a chunk's image files are written atomically, then its
-annotation rows, also atomically: a chunk whose rows exist is done, any
-other is rendered again on resume (overwriting, never duplicating).
-``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. Chunks are
+and frame ``i`` is a pure function of (config, grasps, i): its camera comes from the sphere (on the clinic track the
+grasp's head cameras), its lamp from a generator seeded with (seed, i). Frames are rendered in chunks of one (grasp,
+z_ego, background) block (n_glove x n_view frames sharing the meshes); a chunk's image files are written atomically,
+then its annotation rows, also atomically: a chunk whose rows exist is done, any other is rendered again on resume
+(overwriting, never duplicating). ``shard=k/n`` renders only the chunks ``c`` with ``c % n == k``. Chunks are
 rendered by :class:`hupbench.datagen.dataset.chunks.ChunkRenderer`, in local worker processes or on Ray actors
-(:mod:`hupbench.datagen.dataset.ray_launcher`), and written by :func:`hupbench.datagen.dataset.chunks.write_chunk`. When every
-chunk is done the rows are merged into ``<split>/annotations.npz`` and
-``manifest.json`` is written last (with the sha256 of the dataset's copy of its grasps, ``grasps_sha256``).
-Run again on a finished dataset, generate renders the chunks whose image files are missing or empty once
-more, from the grasps the annotations were rendered from.
+(:mod:`hupbench.datagen.dataset.ray_launcher`), and written by :func:`hupbench.datagen.dataset.chunks.write_chunk`.
+When every chunk is done the rows are merged into ``<split>/annotations.npz`` and ``manifest.json`` is written last
+(with the sha256 of the dataset's copy of its grasps, ``grasps_sha256``). Run again on a finished dataset, generate
+renders the chunks whose image files are missing or empty once more, from the grasps the annotations were rendered
+from.
 
 Convention:
     Annotations are in the OpenCV camera frame, metres; 2D in pixels of the
@@ -58,9 +56,9 @@ from hupbench.datagen.render.scene import ARM_RGB, GLOVE_RGB
 from hupbench.datagen.render import gl
 from hupbench.core import keypoints as kp
 from hupbench.core.input_checks import check_int
+from hupbench.core.errors import BadValueError
 from hupbench.datagen.dataset.chunks import (ChunkOutput, _WorkerDiskFull, _chunk_path, _render_chunk,
                                              _render_chunk_in_worker, _worker_init, write_chunk)
-from hupbench.core.errors import BadValueError
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
 RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
@@ -442,7 +440,9 @@ class DatasetWriter:
                 with pool:
                     writers.update(p.pid for p in multiprocessing.active_children())
                     try:
-                        for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs):
+                        # a clinic grasp's chunks go to one worker, which builds its hand and patient once
+                        per_grasp = layout.n_z * layout.n_backgrounds if run.dataset.track == CLINIC else 1
+                        for _, count in pool.imap_unordered(_render_chunk_in_worker, jobs, chunksize=per_grasp):
                             rendered += count
                             bar.update(count)
                     except _WorkerDiskFull as exc:
