@@ -460,7 +460,8 @@ def _floor_line(floor: dict) -> str:
     names = (("nearest_train_frame_mm", "nearest training frame of any grasp and view"),
              ("nearest_train_grasp_mm", "nearest training grasp under the true camera"),
              ("nearest_train_view_mm", "nearest training view of the same grasp"),
-             ("train_mean_mm", "mean training grasp"))
+             ("train_mean_mm", "mean training frame" if floor["floor_kind"] == "nearest_train_frame" else
+              "mean training grasp"))
     parts = [f"{words} {mm(floor[key])}" for key, words in names if floor.get(key) is not None]
     return "; ".join(parts) + (f" (a model that only recalls training labels scores no better than the "
                                f"{floor['floor_kind']} one)")

@@ -148,7 +148,7 @@ def test_verify_prints_the_clinic_floor():
     line = next(x for x in report_lines(result, 5) if x.startswith("  floor of test"))
     mm = floors["test"]["floor_mm"]
     assert (f"nearest training frame of any grasp and view hand {mm['hand']:.1f} / probe {mm['probe']:.1f} / all "
-            f"{mm['all']:.1f} mm; mean training grasp") in line
+            f"{mm['all']:.1f} mm; mean training frame") in line
     assert "nearest training grasp under" not in line and line.endswith("than the nearest_train_frame one)")
 
 
