@@ -216,6 +216,15 @@ def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys
     assert image is not None and image.shape[0] > 4 * 200
 
 
+def test_fit_divergence(exported, tiny_dataset, monkeypatch, capsys):
+    ckpt, _ = exported
+    out = run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--frames", "4", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    lines = out.strip().splitlines()
+    assert lines[0].startswith("network alone : hand MPJPE mean") and lines[1].startswith("network + fits")
+    assert "of 4 val frames" in lines[0] and lines[2].startswith("the fits make the hand worse on")
+
+
 def test_benchmark_grasps(monkeypatch, capsys):
     out = run_script(BENCHMARKS / "grasps.py", "--orientations", "1", "--starts", "2", "--budgets", "0", "1",
                      "--samplers", "heuristic", "random", "--threads", "1", monkeypatch=monkeypatch, capsys=capsys)
