@@ -26,7 +26,7 @@ from hupbench.datagen.assets.hand_anatomy import (
     unit_vector,
 )
 
-def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distance from points (N, 3) to segment ab, and the segment parameter t in [0, 1]."""
     ab = b - a
     t = np.clip((points - a) @ ab / max(ab @ ab, 1e-18), 0.0, 1.0)
@@ -74,7 +74,7 @@ def _primitives(spec: HandSpec) -> list[_Primitive]:
     prims: list[_Primitive] = []
 
     def capsule(a, b, r, bone):
-        prims.append(_Primitive(bone, lambda p, a=a, b=b, r=r: _segment_distance(p, a, b)[0] - r))
+        prims.append(_Primitive(bone, lambda p, a=a, b=b, r=r: segment_distance(p, a, b)[0] - r))
 
     for i, finger in enumerate(kp.MANO_FINGER_ORDER):
         j0 = 1 + 3 * i

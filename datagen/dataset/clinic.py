@@ -21,6 +21,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.contract import CLINIC_SEG_LABELS, SEG_LABELS
 from hupbench.core.errors import BadValueError
 from hupbench.datagen.assets.arm import ArmSpec
+from hupbench.datagen.assets.hand_mesh import segment_distance
 from hupbench.datagen.assets.patient import SKIN_RGB, body_mesh, body_sdf
 from hupbench.datagen.assets.room import room_meshes
 from hupbench.datagen.dataset.grasps_file import GraspSet
@@ -47,13 +48,6 @@ def check_clinic_grasps(grasps: dict[str, np.ndarray], path) -> None:
                             "by `hupbench grasps +subjects=clinic` (grasps_path=null renders the shipped ones)")
 
 
-def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) distance from (N, 3) points to the segment from ``a`` to ``b`` (3,), metres."""
-    ab = b - a
-    t = np.clip((points - a) @ ab / (ab @ ab), 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
-
-
 class ClinicWorld:
     """What the clinic track adds to a grasp: the patient, the room and the head's cameras (cached per grasp).
 
@@ -78,7 +72,7 @@ class ClinicWorld:
 
             def clear(points: np.ndarray) -> np.ndarray:
                 return (body_sdf(placement, points) > HEAD_CLEARANCE_M) \
-                    & (_segment_distance(points, wrist, elbow) > HEAD_CLEARANCE_M)
+                    & (segment_distance(points, wrist, elbow)[0] > HEAD_CLEARANCE_M)
 
             rng = np.random.default_rng([self.spec.seed, CAMERA_STREAM, g])
             self._cameras[g] = head_cameras(self.spec.head, self.spec.intrinsics, grasps.keypoints_world[g, _LOOK_AT],

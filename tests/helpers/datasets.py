@@ -59,3 +59,22 @@ def generate_clinic(out, grasps, **changes):
 
     return generate(GenerateRun(clinic_spec(**changes), str(out), str(grasps), progress=False), {"test": "clinic"},
                     log=lambda *_: None)
+
+
+def kill_after_first_chunk(code: str, out, timeout_s: float = 300.0) -> None:
+    """Run ``code`` (a generation into ``out``) in a new Python process and SIGKILL it as soon as its first chunk is
+    complete, while later chunks are being written (pathlib's glob also matches the hidden temporary file a chunk is
+    written to, .NAME.tmpPID.npz: not that one)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.time() + timeout_s
+    while time.time() < deadline and not list(Path(out).glob("*/.chunks/[!.]*.npz")):
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()

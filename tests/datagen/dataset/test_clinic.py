@@ -5,18 +5,14 @@ generation that resumes to the frames of an unbroken one."""
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
 import textwrap
-import time
 
 import cv2
 import numpy as np
 import pytest
 
 from helpers import REPO
-from helpers.datasets import CLINIC_SPLITS as SPLITS, annotations, generate_clinic as run
+from helpers.datasets import CLINIC_SPLITS as SPLITS, annotations, generate_clinic as run, kill_after_first_chunk
 from hupbench.core import keypoints as kp
 from hupbench.core.contract import CLINIC_SEG_LABELS, SEG_LABELS
 from hupbench.core.geometry import transform_points
@@ -126,12 +122,7 @@ def test_a_killed_clinic_generation_resumes_to_the_same_frames(tiny_clinic, tmp_
         from helpers.datasets import generate_clinic as run
         run({str(out)!r}, {str(grasps)!r})
     """)
-    proc = subprocess.Popen([sys.executable, "-c", code])
-    deadline = time.time() + 300
-    while time.time() < deadline and not list(out.glob("*/.chunks/[!.]*.npz")):
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    kill_after_first_chunk(code, out, 300)
     assert not (out / "manifest.json").exists()
     result = run(out, grasps)
     assert result["complete"] and 0 < result["frames_rendered"] < 24

@@ -3,11 +3,7 @@
 import json
 import os
 import shutil
-import signal
-import subprocess
-import sys
 import textwrap
-import time
 
 import cv2
 import numpy as np
@@ -20,7 +16,8 @@ from hupbench.core.io import save_npz
 from hupbench.datagen.dataset.verify import verify
 
 from helpers import REPO
-from helpers.datasets import TINY_SPEC as TINY, annotations, write_grasps  # noqa: E402  (tests/ is on sys.path)
+from helpers.datasets import (TINY_SPEC as TINY, annotations, kill_after_first_chunk,  # noqa: E402  (tests/ on sys.path)
+                              write_grasps)
 
 
 def run(out, grasps, spec=(), **job):
@@ -91,14 +88,7 @@ def test_sigkill_then_resume_loses_and_duplicates_nothing(tiny, tmp_path):
         from test_generate import run
         run({str(out)!r}, {str(grasps)!r}, spec=dict(n_backgrounds=4, splits={{"train": 1, "val": 0, "test": 1}}))
     """)
-    proc = subprocess.Popen([sys.executable, "-c", code])
-    deadline = time.time() + 120
-    # kill as soon as the first chunk is complete, while later chunks are being written (pathlib's glob
-    # also matches the hidden temporary file a chunk is written to, .NAME.tmpPID.npz: not that one)
-    while time.time() < deadline and not list(out.glob("*/.chunks/[!.]*.npz")):
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    kill_after_first_chunk(code, out, 120)
     assert not (out / "manifest.json").exists()
     result = run(out, grasps, spec=dict(n_backgrounds=4))
     assert result["complete"] and 0 < result["frames_rendered"] < 80
