@@ -218,11 +218,16 @@ def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys
 
 def test_fit_divergence(exported, tiny_dataset, monkeypatch, capsys):
     ckpt, _ = exported
-    out = run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--frames", "4", monkeypatch=monkeypatch,
-                     capsys=capsys)
+    out = run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--frames", "4", "--hand-variant",
+                     "free_weight=0,iterations=2", monkeypatch=monkeypatch, capsys=capsys)
     lines = out.strip().splitlines()
-    assert lines[0].startswith("network alone : hand MPJPE mean") and lines[1].startswith("network + fits")
-    assert "of 4 val frames" in lines[0] and lines[2].startswith("the fits make the hand worse on")
+    assert lines[0].startswith("network alone : hand MPJPE mean") and lines[1].startswith("network + fits: hand")
+    assert lines[2].startswith("network + fits, hand fit free_weight=0, hand fit iterations=2: hand MPJPE mean")
+    assert "of 4 val frames" in lines[0] and lines[3].startswith("the fits make the hand worse on")
+    with pytest.raises(SystemExit):
+        run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--hand-variant", "palm=2",
+                   monkeypatch=monkeypatch, capsys=capsys)
+    assert "'palm=2': expected NAME=NUMBER, NAME one of HandFitSettings' palm_radius_m" in capsys.readouterr().err
 
 
 def test_benchmark_grasps(monkeypatch, capsys):

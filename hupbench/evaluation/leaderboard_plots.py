@@ -18,8 +18,10 @@ from hupbench.evaluation.leaderboard_table import inference_latency_ms, plot_lab
 
 FIGSIZE_IN = (9.0, 6.0)
 DPI = 100  # FIGSIZE_IN x DPI = 900 x 600 px
-#: latencies spread over more than this ratio (slowest / fastest) are drawn on a log axis
+#: latencies, or test errors, spread over more than this ratio (largest / smallest) are drawn on a log axis
 LATENCY_LOG_RATIO = 20.0
+#: validation errors spread over more than this ratio are drawn on a log axis (a first pass is often ten times the last)
+TRAINING_LOG_RATIO = 5.0
 #: inches of figure height per row listed under the latency plot
 LIST_ROW_IN = 0.13
 
@@ -103,8 +105,16 @@ def _draw_references(ax, reported: list[dict]) -> None:
                 fontsize=8, color="0.25")
 
 
-def _y_limit(values: list[float]) -> float:
-    return max(values) * 1.2 if values else 1.0
+def _error_axis(ax, values: list[float], log_ratio: float) -> None:
+    """The y axis of errors (mm) ``values``: from 0, linear; a log axis where they span more than ``log_ratio``
+    times (a row whose fit diverged to metres beside rows of millimetres, a first validation beside the last)."""
+    positive = [v for v in values if v > 0]
+    if positive and max(positive) / min(positive) > log_ratio:
+        ax.set_yscale("log")
+        ax.set_ylim(min(positive) / 1.3, max(positive) * 1.3)
+        _plain_log_ticks(ax.yaxis)
+    else:
+        ax.set_ylim(0, max(values) * 1.2 if values else 1.0)
 
 
 def latency_axis(latencies_ms: Sequence[float]) -> tuple[str, float, float]:
@@ -152,15 +162,17 @@ def plot_latency(rows: list[dict]) -> bytes:
         if not points:
             ax.text(0.5, 0.5, "no measured rows with a latency yet\n(hupbench eval writes them)",
                     transform=ax.transAxes, ha="center", va="center", color="0.4")
-        ax.set_ylim(0, _y_limit([p[1] for p in points] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]))
+        _error_axis(ax, [p[1] for p in points] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported],
+                    LATENCY_LOG_RATIO)
         if points:
             listing = "\n".join(f"{k}: {label} ({x:.2f} ms, {y:.2f} mm)"
                                  for k, (label, (x, y)) in enumerate(zip(labels, points), start=1))
             fig.text(0.01, 0.01, listing, ha="left", va="bottom", fontsize=7.5, family="monospace")
         log_scale = ", log scale" if scale == "log" else ""
+        y_log = ", log scale" if ax.get_yscale() == "log" else ""
         return _png_bytes(fig, ax, f"inference latency (ms per image, batch 1{log_scale})",
-                          "test MPJPE, all 29 keypoints (mm)", "Error against inference latency (lower left is better)",
-                          "lower right", bottom_in=list_in)
+                          f"test MPJPE, all 29 keypoints (mm){y_log}",
+                          "Error against inference latency (lower left is better)", "lower right", bottom_in=list_in)
 
 
 def plot_training(rows: list[dict], curves: list[tuple[dict, list[tuple[float, float]]]]) -> bytes:
@@ -185,15 +197,8 @@ def plot_training(rows: list[dict], curves: list[tuple[dict, list[tuple[float, f
             ax.set_xlim(0, 1)
             ax.text(0.5, 0.5, "no measured rows with a training log yet", transform=ax.transAxes,
                     ha="center", va="center", color="0.4")
-        values = [m for _, c in curves for _, m in c] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported]
-        positive = [v for v in values if v > 0]
-        if positive and max(positive) / min(positive) > 5:
-            # early validation errors are often ten times the final ones: a log axis shows both ends
-            ax.set_yscale("log")
-            ax.set_ylim(min(positive) / 1.3, max(positive) * 1.3)
-            _plain_log_ticks(ax.yaxis)
-        else:
-            ax.set_ylim(0, _y_limit(values))
+        _error_axis(ax, [m for _, c in curves for _, m in c] + [r["metrics"]["mpjpe_mm"]["all"] for r in reported],
+                    TRAINING_LOG_RATIO)
         log_scale = ", log scale" if ax.get_yscale() == "log" else ""
         return _png_bytes(fig, ax, f"training wall time ({unit}, validation passes excluded)",
                           f"validation MPJPE, all 29 keypoints (mm){log_scale}",

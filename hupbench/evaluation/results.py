@@ -2,8 +2,8 @@
 ``hupbench leaderboard`` reads it.
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
-finite numbers within what their unit allows (:data:`LIMITS`). A ``"reported"`` row (quoted from a paper)
-needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's ``all`` is the keypoint-weighted mean
+finite numbers, a reported row's within what their unit allows (:data:`LIMITS`). A ``"reported"`` row (quoted from
+a paper) needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's ``all`` is the keypoint-weighted mean
 of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported row's lies between them, as
 every mean over the 29 keypoints does. The dataset is named by ``name``, ``manifest_sha256`` and
 ``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of the machine
@@ -22,6 +22,7 @@ counted as 2 x multiply-adds, times of day in UTC as ``YYYY-MM-DDTHH:MM:SSZ``.
 
 from __future__ import annotations
 
+import contextvars
 import copy
 import json
 import math
@@ -102,9 +103,11 @@ GRASP_ID_PATTERN = re.compile(r"^-?(0|[1-9][0-9]*)$")
 SHA256_PATTERN = re.compile(r"^[0-9a-f]{64}$")
 #: how ``created_utc`` is written (``time.strftime``)
 UTC_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
-#: the largest value of a number in each unit: beyond it a number is a unit slip or a damaged file, not a
-#: measurement (10 m of error in scenes within 2 m of the camera, 1000 s per image, a 100,000 px error)
+#: the largest hand-typed number (a reported row's) in each unit, beyond which it is a unit slip (10 m of error, 1000 s
+#: per image, a 100,000 px error). A measured row's numbers are eval's, unbounded: a fit that diverges moves keypoints
+#: metres away and, near the camera's plane, millions of pixels (docs/clinic.md), a result to report.
 LIMITS = {"mm": 1e4, "ms": 1e6, "px": 1e5}
+_LIMITED = contextvars.ContextVar("results_limited", default=True)
 #: how far a measured row's ``all`` may lie from the keypoint-weighted mean of its ``hand`` and ``probe``: the
 #: two-decimal rounding of hand-typed numbers
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
@@ -154,12 +157,12 @@ def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, null
 
 
 def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf, unit: str | None = None) -> None:
-    """A finite number in [0, high], and at most ``LIMITS[unit]``."""
+    """A finite number in [0, high], and at most ``LIMITS[unit]`` where the limits apply (a reported row)."""
     bounds = " >= 0" if high == math.inf else f" in [0, {high:g}]"
     _check(d, parts, lambda v: is_number(v) and 0.0 <= v <= high, f"a finite number{bounds}",
            nullable)
     value = d[parts[-1]]
-    if unit is not None and value is not None and value > LIMITS[unit]:
+    if unit is not None and value is not None and _LIMITED.get() and value > LIMITS[unit]:
         _fail(parts, f"at most {LIMITS[unit]:g} {unit} (a larger value is a unit slip or a damaged file)", value)
 
 
@@ -426,7 +429,7 @@ def _validate_intervals(d: dict) -> None:
 
 
 def validate_results(d: dict) -> dict:
-    """Check and return a results dict against its schema version (3, or 1 and 2 for older files); an error
+    """Check and return a results dict against its schema version (5, or 1 to 4 for older files); an error
     names the first bad, missing or unknown field by its path, e.g.
     ``results['metrics']['mpjpe_mm']['hand'] must be a finite number >= 0 or null, got 'x'``."""
     if not isinstance(d, dict) or "schema_version" not in d:
@@ -438,6 +441,14 @@ def validate_results(d: dict) -> dict:
     _keys(d, (), _TOP_KEYS if version >= INTERVALS_VERSION else
           _TOP_KEYS_V3 if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
+    token = _LIMITED.set(d["kind"] != "measured")  # LIMITS apply to reported rows only
+    try:
+        return _validate_row(d, version)
+    finally:
+        _LIMITED.reset(token)
+
+
+def _validate_row(d: dict, version: int) -> dict:
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
         _fail(("run_name",), f"a file stem matching {RUN_NAME_PATTERN.pattern}", run_name)

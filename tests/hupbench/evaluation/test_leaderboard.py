@@ -461,6 +461,24 @@ def test_latency_axis_is_honest():
     assert latency_axis([]) == ("log", 1.0, 1000.0)
 
 
+def test_error_axis_turns_log_where_a_row_diverged():
+    """The test errors of the paper protocol's rows (8.65 to 46.88 mm) stay on a linear axis from 0; a row whose
+    hand fit diverged to metres (the clinic track's 5,412 mm) beside them puts the axis on a log scale that shows
+    both, instead of squashing every other row onto its floor."""
+    import matplotlib.pyplot as plt
+
+    from hupbench.evaluation.leaderboard_plots import LATENCY_LOG_RATIO, _error_axis
+
+    fig, ax = plt.subplots()
+    try:
+        _error_axis(ax, [8.65, 9.88, 46.88], LATENCY_LOG_RATIO)
+        assert ax.get_yscale() == "linear" and ax.get_ylim() == pytest.approx((0.0, 46.88 * 1.2))
+        _error_axis(ax, [8.65, 9.88, 46.88, 5411.97], LATENCY_LOG_RATIO)
+        assert ax.get_yscale() == "log" and ax.get_ylim() == pytest.approx((8.65 / 1.3, 5411.97 * 1.3))
+    finally:
+        plt.close(fig)
+
+
 def test_one_measured_row_draws_no_pareto_frontier(synthetic_board, monkeypatch):
     """A frontier of one row is no line: its legend entry is left out (it named an invisible line)."""
     from matplotlib.axes import Axes
