@@ -392,11 +392,12 @@ def _interval_triplet(block: dict, parts: tuple, *, nullable: bool) -> None:
     if block[parts[-1]] is None and nullable:
         return
     _keys(block[parts[-1]], parts, _BUCKET_MPJPE_KEYS)
+    high, shown = (LIMITS["mm"], f" <= {LIMITS['mm']:g} mm") if _LIMITED.get() else (math.inf, " mm")
     for part in _BUCKET_MPJPE_KEYS:
         bounds = block[parts[-1]][part]
         if not (isinstance(bounds, list) and len(bounds) == 2 and all(is_number(b) for b in bounds)
-                and 0.0 <= bounds[0] <= bounds[1] <= LIMITS["mm"]):
-            _fail(parts + (part,), f"[low, high]: two finite numbers, 0 <= low <= high <= {LIMITS['mm']:g} mm", bounds)
+                and 0.0 <= bounds[0] <= bounds[1] <= high):
+            _fail(parts + (part,), f"[low, high]: two finite numbers, 0 <= low <= high{shown}", bounds)
 
 
 def _validate_intervals(d: dict) -> None:
