@@ -172,7 +172,7 @@ def plot_latency(rows: list[dict]) -> bytes:
         y_log = ", log scale" if ax.get_yscale() == "log" else ""
         return _png_bytes(fig, ax, f"inference latency (ms per image, batch 1{log_scale})",
                           f"test MPJPE, all 29 keypoints (mm){y_log}",
-                          "Error against inference latency (lower left is better)", "lower right", bottom_in=list_in)
+                          "Error against inference latency (lower left is better)", "best", bottom_in=list_in)
 
 
 def plot_training(rows: list[dict], curves: list[tuple[dict, list[tuple[float, float]]]]) -> bytes:
