@@ -262,8 +262,9 @@ def test_benchmark_scale_training(tiny_dataset, monkeypatch, capsys):
     assert "1 process(es) x 1 thread(s), batch 2 each" in out
 
 
-@pytest.mark.slow  # about 2.5 minutes (three generations and a Ray runtime): the default set keeps the Ray launcher's
-# byte identity with the local one (tests/datagen/dataset/test_generate_ray.py) and CI under 20 minutes
+@pytest.mark.slow  # the slowest test of the default set (288 s here beside a training: three generations and a Ray
+# runtime); the default set keeps the Ray launcher's byte identity with the local one (test_generate_ray.py) and CI,
+# which took 1,256 s with it, under 20 minutes
 def test_benchmark_scale_generation(tiny_dataset, monkeypatch, capsys):
     pytest.importorskip("ray")
     out = run_script(BENCHMARKS / "scale.py", "generation", "--backgrounds", "2", "--size", "32", "--r-circ-m", "0.4",
