@@ -2,16 +2,15 @@
 ``hupbench leaderboard`` reads it.
 
 The schema is checked exactly: every key present (``null`` where unknown), no unknown key, exact types,
-finite numbers, a reported row's within what their unit allows (:data:`LIMITS`). A ``"reported"`` row (quoted from
-a paper) needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's ``all`` is the keypoint-weighted mean
-of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported row's lies between them, as
-every mean over the 29 keypoints does. The dataset is named by ``name``, ``manifest_sha256`` and
-``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of the machine
-that evaluated it. The ``intervals`` block holds the 95 % bootstrap intervals over the test grasps of the MPJPE
-and of the split floor (:mod:`hupbench.evaluation.intervals`). Versions 1 to 4 load upgraded to 5
-(docs/metrics.md), with no intervals; only 5 is written. Metrics of
-``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative hand MPJPE, the probe's BOP pose scores and the split
-floor's) may be absent: readers take them as unknown.
+finite numbers within what their unit allows (:data:`LIMITS`; a measured row's: :data:`MEASURED_LIMITS`). A
+``"reported"`` row (quoted from a paper) needs only ``metrics.mpjpe_mm.all`` and a ``source``. A measured row's
+``all`` is the keypoint-weighted mean of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported
+row's lies between them, as every mean over the 29 keypoints does. The dataset is named by ``name``,
+``manifest_sha256`` and ``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of
+the machine that evaluated it. The ``intervals`` block holds the 95 % bootstrap intervals over the test grasps of the
+MPJPE and of the split floor (:mod:`hupbench.evaluation.intervals`). Versions 1 to 4 load upgraded to 5
+(docs/metrics.md), with no intervals; only 5 is written. Metrics of ``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative
+hand MPJPE, the probe's BOP pose scores and the split floor's) may be absent: readers take them as unknown.
 
 The file is read strictly (:func:`parse_json`): an object naming a key twice is refused, where other JSON
 readers keep one of the two values without a word.
@@ -101,13 +100,12 @@ _INTERVAL_KEYS = ("method", "confidence", "resamples", "seed", "grasps", "mpjpe_
 #: a grasp id as a key (JSON keys are strings): the decimal form of an integer
 GRASP_ID_PATTERN = re.compile(r"^-?(0|[1-9][0-9]*)$")
 SHA256_PATTERN = re.compile(r"^[0-9a-f]{64}$")
-#: how ``created_utc`` is written (``time.strftime``)
 UTC_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
-#: the largest hand-typed number (a reported row's) in each unit, beyond which it is a unit slip (10 m of error, 1000 s
-#: per image, a 100,000 px error). A measured row's numbers are eval's, unbounded: a fit that diverges moves keypoints
-#: metres away and, near the camera's plane, millions of pixels (docs/clinic.md), a result to report.
+#: per unit, the largest hand-typed number (a reported row's; beyond: a unit slip) and eval's (a diverged fit reaches
+#: metres, millions of px: docs/clinic.md; beyond 1000 km and its px at the fits' 1 mm projection clamp: damage)
 LIMITS = {"mm": 1e4, "ms": 1e6, "px": 1e5}
-_LIMITED = contextvars.ContextVar("results_limited", default=True)
+MEASURED_LIMITS = {"mm": 1e9, "ms": 1e6, "px": 1e12}
+_LIMITS = contextvars.ContextVar("results_limits", default=LIMITS)  # the row's being validated
 #: how far a measured row's ``all`` may lie from the keypoint-weighted mean of its ``hand`` and ``probe``: the
 #: two-decimal rounding of hand-typed numbers
 WEIGHTED_MEAN_TOLERANCE_MM = 0.01
@@ -157,13 +155,13 @@ def _check(d: dict, parts: tuple, ok: Callable[[Any], bool], expected: str, null
 
 
 def _number(d: dict, parts: tuple, *, nullable: bool, high: float = math.inf, unit: str | None = None) -> None:
-    """A finite number in [0, high], and at most ``LIMITS[unit]`` where the limits apply (a reported row)."""
+    """A finite number in [0, high], at most the row's limit of ``unit`` (:data:`LIMITS`, :data:`MEASURED_LIMITS`)."""
     bounds = " >= 0" if high == math.inf else f" in [0, {high:g}]"
     _check(d, parts, lambda v: is_number(v) and 0.0 <= v <= high, f"a finite number{bounds}",
            nullable)
     value = d[parts[-1]]
-    if unit is not None and value is not None and _LIMITED.get() and value > LIMITS[unit]:
-        _fail(parts, f"at most {LIMITS[unit]:g} {unit} (a larger value is a unit slip or a damaged file)", value)
+    if unit is not None and value is not None and value > _LIMITS.get()[unit]:
+        _fail(parts, f"at most {_LIMITS.get()[unit]:g} {unit} (a larger value is a unit slip or a damaged file)", value)
 
 
 def _integer(d: dict, parts: tuple, *, nullable: bool, low: int = 0) -> None:
@@ -392,12 +390,12 @@ def _interval_triplet(block: dict, parts: tuple, *, nullable: bool) -> None:
     if block[parts[-1]] is None and nullable:
         return
     _keys(block[parts[-1]], parts, _BUCKET_MPJPE_KEYS)
-    high, shown = (LIMITS["mm"], f" <= {LIMITS['mm']:g} mm") if _LIMITED.get() else (math.inf, " mm")
+    high = _LIMITS.get()["mm"]
     for part in _BUCKET_MPJPE_KEYS:
         bounds = block[parts[-1]][part]
         if not (isinstance(bounds, list) and len(bounds) == 2 and all(is_number(b) for b in bounds)
                 and 0.0 <= bounds[0] <= bounds[1] <= high):
-            _fail(parts + (part,), f"[low, high]: two finite numbers, 0 <= low <= high{shown}", bounds)
+            _fail(parts + (part,), f"[low, high]: two finite numbers, 0 <= low <= high <= {high:g} mm", bounds)
 
 
 def _validate_intervals(d: dict) -> None:
@@ -442,18 +440,17 @@ def validate_results(d: dict) -> dict:
     _keys(d, (), _TOP_KEYS if version >= INTERVALS_VERSION else
           _TOP_KEYS_V3 if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
     _choice(d, ("kind",), KINDS, nullable=False)
-    token = _LIMITED.set(d["kind"] != "measured")  # LIMITS apply to reported rows only
+    token = _LIMITS.set(MEASURED_LIMITS if d["kind"] == "measured" else LIMITS)
     try:
         return _validate_row(d, version)
     finally:
-        _LIMITED.reset(token)
+        _LIMITS.reset(token)
 
 
 def _validate_row(d: dict, version: int) -> dict:
     run_name = d["run_name"]
     if not isinstance(run_name, str) or not RUN_NAME_PATTERN.match(run_name):
         _fail(("run_name",), f"a file stem matching {RUN_NAME_PATTERN.pattern}", run_name)
-
     model = d["model"]
     _keys(model, ("model",), _MODEL_KEYS)
     _string(model, ("model", "name"), nullable=False)

@@ -501,17 +501,21 @@ def test_hand_typed_values_beyond_their_unit_are_refused(path, value, message):
 
 
 def test_a_measured_row_keeps_what_a_diverged_fit_measured():
-    """eval's own numbers have no unit limit: the clinic track's hand fit diverged to a hand MPJPE of 7,460 mm (95 %
-    CI 196-21,622 mm) and a 2D error of 2.45 million px (docs/clinic.md), a result the row must carry, not refuse."""
+    """eval's own numbers reach past the hand-typed limits: the clinic track's hand fit diverged to a hand MPJPE of
+    7,460 mm (95 % CI 196-21,622 mm) and a 2D error of 2.45 million px (docs/clinic.md), a result the row must carry,
+    not refuse; 1000 km stays damage."""
     row = measured_row()
     row["metrics"]["mpjpe_mm"] |= {"hand": 7459.89, "probe": 36.19, "all": (21 * 7459.89 + 8 * 36.19) / 29}
     row["metrics"]["pixel_error_px"] = 2452889.05
     row["intervals"]["mpjpe_mm"] = {"hand": [196.0, 21622.4], "probe": [33.1, 39.1], "all": [152.3, 15667.7]}
-    row["latency_ms_per_image"]["pytorch"]["batch1"] = 2e6
     assert validate_results(row) is row
     with pytest.raises(ValueError, match=r"\['pixel_error_px'\] must be at most 100000 px"):
         validate_results(copy.deepcopy(row) | {"kind": "reported", "source": "typed by hand"})
-    assert validate_results(measured_row())["kind"] == "measured"  # the limits are back after a measured row
+    row["metrics"]["mpjpe_mm"] |= {"hand": 2e9, "all": (21 * 2e9 + 8 * 36.19) / 29}
+    with pytest.raises(ValueError, match=r"\['all'\] must be at most 1e\+09 mm"):
+        validate_results(row)  # beyond 1000 km: damage, not a fit
+    with pytest.raises(ValueError, match=r"\['pixel_error_px'\] must be at most 100000 px"):
+        validate_results(reported_row() | {"metrics": reported_row()["metrics"] | {"pixel_error_px": 2452889.05}})
 
 
 @pytest.mark.parametrize("value", ["yesterday", "2025-13-01T00:00:00Z", "2025-01-01 00:00:00", 20250101])
