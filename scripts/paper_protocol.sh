@@ -8,8 +8,8 @@
 # 3. evaluation on the test split -> leaderboard/results/<run_name>.json, its log -> leaderboard/logs/
 # 4. ONNX export (with the parity check) next to the checkpoint, and the leaderboard rebuilt
 # With a second argument, a track of conf/track/ (e.g. clinic), the model trained as above is evaluated, without
-# retraining, on that track's test split instead: its dataset generated unless there, training run (or resumed)
-# unless finished, results -> leaderboard/results/<run_name>_on_<track>.json:
+# retraining, on that track's test split instead: its dataset generated unless there, training run (or resumed),
+# results -> leaderboard/results/<run_name>_on_<track>.json:
 #   bash scripts/paper_protocol.sh paper_hupnet_handfit_cpu clinic
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,7 +29,7 @@ label=$(python3 -c "from hupbench.config import compose; print(compose('train', 
 run_dir=hupbench_out/runs/$run_name
 
 [ -f "$dataset/manifest.json" ] || hupbench generate "+track=$track" progress=false
-[ -f "$run_dir/summary.json" ] && [ -n "$on_track" ] || python3 train.py "+experiment=$experiment"
+python3 train.py "+experiment=$experiment"  # a finished run answers "already complete" at once
 [ -f "$run_dir/summary.json" ] || { echo "training of $run_name did not finish" >&2; exit 1; }
 if [ -n "$on_track" ]; then
     other=$(python3 -c "from hupbench.config import compose; print(compose('generate', ['+track=$on_track']).out_dir)")
