@@ -8,6 +8,7 @@ The layout::
     DATASET/<split>/rgb/<frame_id>.jpg     (or .png, manifest "rgb_format")
     DATASET/<split>/depth/<frame_id>.png   uint16, metres = value * depth_scale_m, 0 = background
     DATASET/<split>/seg/<frame_id>.png     uint8, SEG_LABELS
+    DATASET/<split>/sensor_depth/<frame_id>.png  uint16 as depth, 0 = none measured (a dataset with a depth sensor)
 
 The generator writes through these names; training, verify, eval, export and the quickstart read
 through :func:`read_manifest` and :func:`read_annotations`, which check what they return (the
@@ -42,6 +43,10 @@ from hupbench.core.errors import BadValueError, MissingFileError
 SCHEMA_VERSION = 1
 SPLITS = ("train", "val", "test")
 MODALITIES = ("rgb", "depth", "seg")
+#: a depth camera's measurement (hupbench.core.depth_sensor), stored beside the clean depth when the dataset has one:
+#: uint16 in the depth's unit, 0 = no depth measured; the manifest's "depth_sensor" names the preset and its parameters
+SENSOR_DEPTH = "sensor_depth"
+STORED_MODALITIES = MODALITIES + (SENSOR_DEPTH,)
 RGB_FORMATS = ("jpg", "png")
 #: what a dataset's evaluation splits hold out (manifest ``protocol.track``): whole grasps (HUP-3D's
 #: protocol), views of the sphere, or whole grasps and their subjects in the clinic's world (a hand per
@@ -202,8 +207,11 @@ def check_manifest(manifest: dict, path: Path, needs: str = "this reader expects
     if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise _fail(path, f"K must be a finite 3 x 3 matrix with fx, fy > 0, got {manifest['K']!r}")
     modalities = manifest["modalities"]
-    if not isinstance(modalities, list) or not modalities or any(m not in MODALITIES for m in modalities):
-        raise _fail(path, f"modalities must be a non-empty list from {list(MODALITIES)}, got {modalities!r}")
+    if not isinstance(modalities, list) or not modalities or any(m not in STORED_MODALITIES for m in modalities):
+        raise _fail(path, f"modalities must be a non-empty list from {list(STORED_MODALITIES)}, got {modalities!r}")
+    if (SENSOR_DEPTH in modalities) != isinstance(manifest.get("depth_sensor"), dict):
+        raise _fail(path, "modalities holds sensor_depth exactly when depth_sensor names the sensor's preset, got "
+                    f"{modalities!r} and depth_sensor {manifest.get('depth_sensor')!r}")
     if manifest["rgb_format"] not in RGB_FORMATS:
         raise _fail(path, f"rgb_format must be one of {list(RGB_FORMATS)}, got {manifest['rgb_format']!r}")
     scale = manifest["depth_scale_m"]

@@ -287,6 +287,7 @@ def _predict(args: list[str]) -> int:
 
 
 def _eval(args: list[str]) -> int:
+    from hupbench.data.reader import DEPTH_SENSORS
     from hupbench.evaluation.evaluate import EvalOptions, run_eval
 
     parser = argparse.ArgumentParser(
@@ -319,12 +320,15 @@ def _eval(args: list[str]) -> int:
     parser.add_argument("--figures", nargs="?", const="", metavar="DIR",
                         help="also draw PNGs: prediction beside ground truth on sample and worst frames, the PCK "
                         "curve (default DIR: <model folder>/eval/<model file>.<split>.figures)")
+    parser.add_argument("--depth-sensor", default="dataset", choices=DEPTH_SENSORS,
+                        help="the depth a depth-reading model gets: the dataset's sensor's (else its clean depth), "
+                        "none (the clean z-buffer), or a sensor preset made from the clean depth, seeded per frame")
     ns = parser.parse_args(args)
     result = run_eval(EvalOptions(ns.model, ns.dataset, split=ns.split, out=ns.out, run_name=ns.run_name,
                                   batch_size=ns.batch_size, latency=ns.latency, threads=ns.threads,
                                   training_command=ns.training_command, training_log=ns.training_log,
                                   label=ns.label, progress=ns.progress, figures=ns.figures is not None,
-                                  figures_dir=ns.figures or None))
+                                  figures_dir=ns.figures or None, depth_sensor=ns.depth_sensor))
     print(result["table"])
     print(f"hupbench eval: results written to {result['out']}")
     for name, path in result.get("figures", {}).items():

@@ -27,7 +27,9 @@ import cv2
 import numpy as np
 
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATION_DTYPES, CLINIC, DEPTH_SCALE_M, annotation_fields, frame_path
+from hupbench.core.contract import (ANNOTATION_DTYPES, CLINIC, DEPTH_SCALE_M, SENSOR_DEPTH, annotation_fields, frame_path,
+                                    seg_labels)
+from hupbench.core.depth_sensor import stored_sensor_depth
 from hupbench.datagen.dataset.grasps_file import GraspSet
 from hupbench.datagen.dataset.spec import DatasetSpec, LAMP_INTENSITY_PER_WATT, Layout, lamp
 from hupbench.datagen.dataset.sphere import camera_pose, sphere_frame, viewpoints
@@ -203,6 +205,10 @@ class ChunkRenderer:
                 params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
                 files.append(("rgb", index, encode_image(ext, rgb[..., ::-1], params)))
             files.extend((modality, index, data) for modality, data in view["files"])
+            if spec.sensor is not None:
+                sensor = stored_sensor_depth(view["depth"], view["seg"], spec.intrinsics.K, spec.sensor,
+                                             seg_labels(spec.track), DEPTH_SCALE_M, spec.seed, index)
+                files.append((SENSOR_DEPTH, index, encode_image(".png", sensor)))
             rows.append({
                 "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
                 "visible": view["visible"],
@@ -225,11 +231,13 @@ class ChunkRenderer:
             self._views = {k: v for k, v in self._views.items() if k[:2] == key[:2]}
             labels = self.renderer.render(cam["T_cam_world"], ("depth", "seg"))
             files = []
+            depth = np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16)
             if "depth" in self.spec.modalities:
-                files.append(("depth", encode_image(".png", np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16))))
+                files.append(("depth", encode_image(".png", depth)))
             if "seg" in self.spec.modalities:
                 files.append(("seg", encode_image(".png", labels["seg"])))
-            self._views[key] = {"files": files, "visible": stored_visibility(cam, labels["depth"], labels["seg"])}
+            self._views[key] = {"files": files, "visible": stored_visibility(cam, labels["depth"], labels["seg"]),
+                                "depth": depth, "seg": labels["seg"]}
         return self._views[key]
 
 

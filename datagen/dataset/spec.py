@@ -17,7 +17,9 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.camera import Intrinsics
-from hupbench.core.contract import CLINIC, SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
+from hupbench.core.contract import CLINIC, SENSOR_DEPTH, SPLITS, TRACKS, UNSEEN_GRASPS, UNSEEN_VIEWS
+from hupbench.core.depth_sensor import NONE, SensorPreset
+from hupbench.core.depth_sensor import preset as sensor_preset
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_int, is_whole
 from hupbench.datagen.assets.backgrounds import MIN_SIZE_PX
@@ -109,6 +111,9 @@ class DatasetSpec:
         view_stride: on the "unseen_views" track, of every ``view_stride`` consecutive views of the
             sphere one goes to test and one to val (:func:`split_of_views`).
         modalities: which of rgb, depth, seg to write.
+        depth_sensor: the depth camera whose measurement is written beside the clean depth as "sensor_depth"
+            (:data:`hupbench.core.depth_sensor.PRESETS`), or "none" (the z-buffer alone: the paper protocol). A sensor
+            needs the depth and seg modalities (it is made from the clean depth and each pixel's material).
         rgb_format: "jpg" or "png". jpeg_quality: 0-100.
         seed: lamp randomisation seed.
         sphere: the viewpoint sphere.
@@ -129,6 +134,7 @@ class DatasetSpec:
     track: str = UNSEEN_GRASPS
     view_stride: int = 5
     modalities: tuple = MODALITIES
+    depth_sensor: str = NONE
     rgb_format: str = "jpg"
     jpeg_quality: int = 95
     seed: int = 0
@@ -174,6 +180,9 @@ class DatasetSpec:
                 raise BadValueError(f"dataset.splits must give train at least 1 grasp on the clinic track (its floor and "
                                     f"its models are made from the training grasps' frames), got {splits}")
         object.__setattr__(self, "modalities", check_modalities(self.modalities))
+        if sensor_preset(self.depth_sensor) is not None and not {"depth", "seg"} <= set(self.modalities):
+            raise BadValueError(f"dataset.depth_sensor={self.depth_sensor} is made from the clean depth and the seg "
+                                f"labels: dataset.modalities must hold depth and seg, got {list(self.modalities)}")
         if self.rgb_format not in ("jpg", "png"):
             raise BadValueError(f"rgb_format must be 'jpg' or 'png', got {self.rgb_format!r}")
         if self.look_at != BOX_CENTRE and self.look_at not in kp.KEYPOINT_NAMES:
@@ -197,6 +206,22 @@ class DatasetSpec:
                 f"({HAND_LENGTH_M * 1000:.0f} mm, wrist to middle fingertip) at the farthest camera distance, "
                 f"got fx={intrinsics.fx:g}, fy={intrinsics.fy:g}")
         object.__setattr__(self, "intrinsics", intrinsics)
+
+    @property
+    def sensor(self) -> SensorPreset | None:
+        """The depth camera's preset, None for "none"."""
+        return sensor_preset(self.depth_sensor)
+
+    def sensor_record(self) -> dict:
+        """The manifest's "depth_sensor" entry (the preset, the noise's seed and every parameter), {} without one."""
+        if self.sensor is None:
+            return {}
+        return {"depth_sensor": {"preset": self.depth_sensor, "seed": self.seed, "parameters": self.sensor.parameters()}}
+
+    @property
+    def stored_modalities(self) -> tuple[str, ...]:
+        """What each frame writes: ``modalities``, and "sensor_depth" when there is a depth sensor."""
+        return self.modalities + ((SENSOR_DEPTH,) if self.sensor is not None else ())
 
     @property
     def distances_m(self) -> tuple[float, ...]:

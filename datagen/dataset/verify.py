@@ -108,12 +108,13 @@ from hupbench.datagen.dataset.verify_annotations import (
     problem_detail,
 )
 from hupbench.datagen.dataset.verify_frames import _CONTEXT, _problem, check_frame
+from hupbench.core.depth_sensor import SensorPreset
 
 
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
          "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
-         "rgb_channels", "grasps_file", "lens_skin", "camera_in_patient", "hand_size", "patient_depth")
+         "rgb_channels", "grasps_file", "lens_skin", "camera_in_patient", "hand_size", "patient_depth", "sensor_depth")
 #: what verify leaves out on a dataset converted from another format (manifest "imported"), and why
 IMPORTED_SKIPS = (
     ("pose_mismatch: the stored hand pose is the source's MANO parameters and the probe its own mesh; hupbench's "
@@ -408,8 +409,10 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         log(f"imported ({imported.get('format')}): visibility checked with the depth's precision, "
             f"{1000 * imported['depth']['error_max_m']:.2f} mm")
     log(f"checking {len(jobs)} frames with {workers} worker(s)")
+    recorded = manifest.get("depth_sensor")
+    sensor = None if not isinstance(recorded, dict) else SensorPreset.from_parameters(recorded.get("parameters", {}))
     _CONTEXT.update(root=root, manifest=manifest, backgrounds=backgrounds, jpeg_quality=quality, probe=probe,
-                    track=track, labels=seg_labels(track), clinic=world,
+                    track=track, labels=seg_labels(track), clinic=world, sensor=sensor,
                     gloves=None if gloves is None else np.asarray(gloves, dtype=np.float64))
     try:
         frame_problems, shifts = _check_frames(jobs, workers, progress)

@@ -16,7 +16,7 @@ import numpy as np
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATIONS, CLINIC, MANIFEST, MODALITIES, SPLITS, seg_labels, track_of
+from hupbench.core.contract import ANNOTATIONS, CLINIC, MANIFEST, SPLITS, STORED_MODALITIES, seg_labels, track_of
 from hupbench.core.errors import BadValueError
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.io import file_sha256
@@ -245,7 +245,7 @@ def check_modalities(root: Path, manifest: dict) -> list[dict]:
     """Image folders of a modality the manifest does not list: a manifest that dropped it, or files of
     another dataset (the per-frame checks read only the listed modalities)."""
     problems = []
-    for modality in (m for m in MODALITIES if m not in manifest["modalities"]):
+    for modality in (m for m in STORED_MODALITIES if m not in manifest["modalities"]):
         held = {split: sum(1 for _ in (root / split / modality).glob("*.*"))
                 for split in SPLITS if (root / split / modality).is_dir()}
         if any(held.values()):

@@ -26,6 +26,9 @@ depth must hold a value in every pixel (:func:`depth_holes_problem`), its patien
 (:func:`patient_depth_problem`), its mask must show hand, forearm or probe, and its RGB image is not compared with
 a background image.
 
+A dataset with a depth sensor: each frame's sensor depth against its clean depth and the recorded preset
+(:mod:`hupbench.datagen.dataset.verify_sensor`).
+
 A frame that holds another frame's RGB image is found when the two differ in silhouette (its
 background shows the other's object), background or glove. When a smaller silhouette is nested in
 a larger one only the frame with the smaller mask shows it; in any swap or shuffle at least one of
@@ -38,7 +41,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
-from hupbench.core.contract import CLINIC, CLINIC_SEG_LABELS, SEG_LABELS, frame_path
+from hupbench.core.contract import CLINIC, CLINIC_SEG_LABELS, SEG_LABELS, SENSOR_DEPTH, frame_path
 from hupbench.datagen.assets.patient import PatientPlacement, body_sdf
 from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
@@ -51,6 +54,7 @@ from hupbench.datagen.dataset.verify_images import (
     shrink_mask,
 )
 from hupbench.core.geometry import invert_transform, transform_points
+from hupbench.datagen.dataset.verify_sensor import sensor_depth_problem
 
 #: more than this fraction of a frame's probe pixels off the surface fails it
 PROBE_BAD_FRACTION = 0.05
@@ -189,6 +193,12 @@ def check_frame(job) -> tuple[list[dict], np.ndarray | None]:
         found = _check_clinic_depth(row, images, names, split, _CONTEXT.get("clinic"))
         labels_agree = not found
         problems += found
+    sensor = _CONTEXT.get("sensor")
+    if sensor is not None and all(m in images for m in ("depth", "seg", SENSOR_DEPTH)):
+        why = sensor_depth_problem(images["depth"], images[SENSOR_DEPTH], images["seg"], np.asarray(manifest["K"]),
+                                   sensor, manifest["seg_labels"], manifest["depth_scale_m"])
+        if why:
+            problems.append(_problem(split, frame_id, "sensor_depth", why, f"{names[SENSOR_DEPTH]} + {names['depth']}"))
     if "depth" in images and "seg" in images:
         seg, depth = images["seg"], images["depth"]
         both = f"{names['depth']} + {names['seg']}"

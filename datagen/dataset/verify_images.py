@@ -97,7 +97,7 @@ def image_format_problem(image: np.ndarray, modality: str, size: tuple[int, int]
     w, h = size
     if image.shape[:2] != (h, w):
         return f"{image.shape[1]} x {image.shape[0]} pixels, the manifest's image_size is {w} x {h}"
-    if modality == "depth" and (image.dtype != np.uint16 or image.ndim != 2):
+    if modality in ("depth", "sensor_depth") and (image.dtype != np.uint16 or image.ndim != 2):
         return f"{image.dtype} with {1 if image.ndim == 2 else image.shape[2]} channel(s), expected single-channel uint16"
     if modality == "seg":
         if image.dtype != np.uint8 or image.ndim != 2:

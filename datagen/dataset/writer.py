@@ -407,7 +407,7 @@ class DatasetWriter:
                  + (f"{job.workers} worker(s)" if job.launcher == "local" else "Ray")
                  + (f", shard {job.k}/{job.n}" if job.n > 1 else ""))
         for split in SPLITS:
-            for m in run.dataset.modalities:
+            for m in run.dataset.stored_modalities:
                 (out_dir / split / m).mkdir(parents=True, exist_ok=True)
             (out_dir / split / ".chunks").mkdir(parents=True, exist_ok=True)
         jobs = [(c, str(out_dir), *chunks[c], layout) for c in todo]
@@ -496,7 +496,7 @@ class DatasetWriter:
     def _frame_files(self, split: str, frames: tuple[int, ...]) -> Iterator[Path]:
         spec = self.run.dataset
         for index in frames:
-            for modality in spec.modalities:
+            for modality in spec.stored_modalities:
                 yield frame_path(self.out_dir, split, modality, index, spec.rgb_format)
 
     def _finalise(self) -> dict:
@@ -540,7 +540,7 @@ class DatasetWriter:
                        "chunk_size": plan.layout.chunk_size},
             "image_size": [spec.width, spec.height],
             "K": spec.intrinsics.K.tolist(),
-            "modalities": list(spec.modalities),
+            "modalities": list(spec.stored_modalities), **spec.sensor_record(),
             "rgb_format": spec.rgb_format,
             "keypoint_names": list(kp.KEYPOINT_NAMES),
             "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],

@@ -45,19 +45,23 @@ def cache_paths(cache_dir, split: str, input_size: int, modality: str = "rgb") -
 def cache_key(dataset, modality: str = "rgb") -> dict:
     """What the cache of ``dataset`` (a :class:`hupbench.data.HUPDataset`) depends on, as JSON.
 
-    Each frame file counts by name, size and modification time (ns): about 0.1 s for 20,000 frames,
+    Each frame file it reads counts by name, size and modification time (ns): about 0.1 s for 20,000 frames,
     where hashing their contents would read the whole split. A missing file counts as such; the
     rebuild it causes then names it.
     """
     stamps = hashlib.sha256()
+    files = ("rgb",) if modality == "rgb" else dataset.depth_files
     for row in range(len(dataset)):
-        path = dataset.path(row, modality)
-        try:
-            stat = path.stat()
-            stamps.update(f"{path.name} {stat.st_size} {stat.st_mtime_ns}\n".encode())
-        except FileNotFoundError:
-            stamps.update(f"{path.name} missing\n".encode())
-    return {"format": CACHE_FORMAT, "split": dataset.split, "modality": modality,
+        for path in (dataset.path(row, m) for m in files):
+            name = path.name if modality == "rgb" else f"{path.parent.name}/{path.name}"
+            try:
+                stat = path.stat()
+                stamps.update(f"{name} {stat.st_size} {stat.st_mtime_ns}\n".encode())
+            except FileNotFoundError:
+                stamps.update(f"{name} missing\n".encode())
+    source = {} if modality == "rgb" else {"depth_source": dataset.depth_source, "sensor": (
+        None if dataset.sensor is None else dataset.sensor.parameters())}
+    return {"format": CACHE_FORMAT, **source, "split": dataset.split, "modality": modality,
             "input_size": dataset.config.input_size, "image_size": dataset.manifest["image_size"],
             "resize": RESIZE if modality == "rgb" else "cv2.INTER_NEAREST",
             "frames": len(dataset), "frame_files_sha256": stamps.hexdigest()}

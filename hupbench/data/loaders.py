@@ -68,8 +68,10 @@ class EpochSampler(torch.utils.data.Sampler):
     the ranks see disjoint frames; the tail that does not fill a whole global batch is dropped.
     """
 
-    def __init__(self, n: int, batch_size: int, seed: int, world: int = 1, rank: int = 0) -> None:
+    def __init__(self, n: int, batch_size: int, seed: int, world: int = 1, rank: int = 0,
+                 tag_epoch: bool = False) -> None:
         self.n, self.batch_size, self.seed, self.world, self.rank = n, batch_size, seed, world, rank
+        self.tag_epoch = tag_epoch  # yield i + epoch * n: the loader workers read the epoch from the index
         self.epoch, self.start_batch = 0, 0
         self.batches_per_epoch = n // (batch_size * world)
         if self.batches_per_epoch < 1:
@@ -82,7 +84,7 @@ class EpochSampler(torch.utils.data.Sampler):
     def __iter__(self) -> Iterator[int]:
         order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed * 100_003 + self.epoch))
         used = order[: self.batches_per_epoch * self.batch_size * self.world]
-        mine = used[self.rank:: self.world]
+        mine = used[self.rank:: self.world] + (self.epoch * self.n if self.tag_epoch else 0)
         return iter(mine[self.start_batch * self.batch_size:].tolist())
 
     def __len__(self) -> int:
@@ -96,25 +98,34 @@ class FrameBatches(torch.utils.data.Dataset):
         dataset: the split (its labels, annotations and frames).
         frames: (N, S, S, 3) uint8, the split's frame cache; None decodes each frame when a batch needs it.
         depths: (N, S, S) uint16, the split's depth cache, for a model that reads depth (None decodes each map).
+        fresh: the sensor's noise is drawn afresh per epoch (``data.reader.fresh_sensor_noise``): index
+            ``i + e * N`` is row i of epoch e (:class:`EpochSampler` with ``tag_epoch``), whose depth is draw e + 1.
 
     Batches: "image" (B, S, S, 3) uint8 RGB, with depth "depth" (B, S, S) float32 metres (the model's depth
     channel), "index" (B,) int64 (the row in the split: the augmentation key), and rows of every label of
     ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
     """
 
-    def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None, depths: np.ndarray | None = None) -> None:
-        self.dataset, self.ann, self.frames, self.depths = dataset, dataset.ann, frames, depths
+    def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None, depths: np.ndarray | None = None,
+                 fresh: bool = False) -> None:
+        self.dataset, self.ann, self.frames, self.depths, self.fresh = dataset, dataset.ann, frames, depths, fresh
 
     def __len__(self) -> int:
         return len(self.ann["frame_id"])
 
     def __getitems__(self, indices: list[int]) -> dict:
-        order = np.asarray(indices, dtype=np.int64)
+        tagged = np.asarray(indices, dtype=np.int64)
+        order = tagged % len(self)
         index = torch.from_numpy(order)
         batch = {"image": torch.from_numpy(self._gather(self.frames, self.dataset.frame, order)), "index": index,
                  **{name: value[index] for name, value in self.dataset.labels.items()}}
         if self.dataset.config.depth:
-            batch["depth"] = self.dataset.depth_metres(self._gather(self.depths, self.dataset.depth_frame, order))
+            if self.fresh:
+                depth = np.stack([self.dataset.depth_frame(int(i), int(d))
+                                  for i, d in zip(order, tagged // len(self) + 1)])
+            else:
+                depth = self._gather(self.depths, self.dataset.depth_frame, order)
+            batch["depth"] = self.dataset.depth_metres(depth)
         return batch
 
     @staticmethod
@@ -179,12 +190,15 @@ def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, pr
         wanted = data.pipeline == "cache" and (modality == "rgb" or reader.depth)
         return open_frame_cache(split, data.cache_dir, show, log, modality) if wanted else None
 
-    train_set, val_set = (FrameBatches(split, cached(split, "rgb"), cached(split, "depth")) for split in splits)
+    fresh = reader.fresh_sensor_noise  # training depth drawn per epoch: no cache of it
+    train_set = FrameBatches(splits[0], cached(splits[0], "rgb"), None if fresh else cached(splits[0], "depth"),
+                             fresh=fresh)
+    val_set = FrameBatches(splits[1], cached(splits[1], "rgb"), cached(splits[1], "depth"))
     workers = data.num_workers
     loader_args = {"batch_size": data.batch_size, "num_workers": workers, "collate_fn": _stacked,
                    "pin_memory": place.device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
                    "persistent_workers": workers > 0}
-    sampler = EpochSampler(len(train_set), data.batch_size, seed, place.world, place.rank)
+    sampler = EpochSampler(len(train_set), data.batch_size, seed, place.world, place.rank, tag_epoch=fresh)
     train_loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
     val_indices = np.arange(len(val_set))
     if data.val_frames is not None and data.val_frames < len(val_set):

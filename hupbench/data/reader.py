@@ -5,7 +5,7 @@ Convention:
     3D keypoints: metres, OpenCV camera frame. 2D keypoints: pixels of the input image (pixel centres at
     integers) in ``keypoints_2d_px`` and normalised to [-1, 1] across it (:mod:`hupbench.input_geometry`)
     in ``keypoints_2d``. Frames: (S, S, 3) uint8 RGB, and with ``input_modalities: rgb+depth`` (S, S) uint16
-    depth in the dataset's unit; model images: (C, S, S) float32, RGB in [0, 1] then, for C = 4, the depth
+    depth in the dataset's unit (a depth sensor's, ``data.reader.depth_sensor``); model images: (C, S, S) float32, RGB in [0, 1] then, for C = 4, the depth
     channel in metres (:func:`hupbench.input_geometry.depth_channel`).
 """
 
@@ -19,9 +19,10 @@ import numpy as np
 import torch
 
 from hupbench.core.camera import resize_intrinsics, resize_points
-from hupbench.core.contract import frame_path, read_annotations, read_manifest
+from hupbench.core.contract import SENSOR_DEPTH, frame_path, read_annotations, read_manifest
+from hupbench.core.depth_sensor import NONE, PRESETS, SensorPreset, stored_sensor_depth
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.input_checks import check_choice, check_int, check_number
+from hupbench.core.input_checks import check_bool, check_choice, check_int, check_number
 from hupbench.data.augment import model_images
 from hupbench.input_geometry import (INPUT_MODALITIES, INPUT_SIZE_RANGE, depth_channel, inside_input, pad_and_resize,
                                      pixels_to_normalized)
@@ -65,6 +66,21 @@ def read_depth(path: str | Path, image_size=None) -> np.ndarray:
     return depth
 
 
+def read_seg(path: str | Path, image_size=None) -> np.ndarray:
+    """A stored label map as (H, W) uint8, checked by :func:`_decode_stored` and for its type."""
+    seg = _decode_stored(path, cv2.IMREAD_UNCHANGED, "a seg map", image_size)
+    if seg.dtype != np.uint8 or seg.ndim != 2:
+        raise BadValueError(f"{path} is {seg.dtype} with {1 if seg.ndim == 2 else seg.shape[2]} channel(s); "
+                            "a seg map is single-channel uint8")
+    return seg
+
+
+#: ``data.reader.depth_sensor``: the depth the dataset gives the models ("dataset": its sensor's, else its clean
+#: depth), the clean z-buffer ("none"), or a preset of hupbench.core.depth_sensor made from the clean depth
+DATASET_SENSOR = "dataset"
+DEPTH_SENSORS = (DATASET_SENSOR, NONE, *PRESETS)
+
+
 @dataclass(frozen=True)
 class ReaderConfig:
     """The ``data.reader`` config node: how frames become model inputs, checked here and nowhere else.
@@ -76,6 +92,12 @@ class ReaderConfig:
         seed: augmentation seed (item i of epoch e draws from (seed, e, i)), >= 0.
         input_modalities: what the model reads, a key of ``INPUT_MODALITIES``: "rgb", or "rgb+depth" (the
             dataset's metric depth as a fourth channel).
+        depth_sensor: which depth a model that reads depth gets, one of ``DEPTH_SENSORS``: "dataset" (the
+            dataset's depth sensor's, ``sensor_depth/``, else its clean depth), "none" (the clean z-buffer), or a
+            preset name (that sensor made from the clean depth and seg maps with each frame's seeded noise: the bytes
+            `hupbench generate` would have written with it).
+        fresh_sensor_noise: training frames draw a new sample of the sensor's noise every epoch (epoch e reads
+            draw e + 1; validation reads the dataset's own, draw 0), so that a model is not fitted to one sample.
     """
 
     input_size: int = 128
@@ -83,6 +105,8 @@ class ReaderConfig:
     photometric: float = 0.0
     seed: int = 0
     input_modalities: str = "rgb"
+    depth_sensor: str = DATASET_SENSOR
+    fresh_sensor_noise: bool = False
 
     def __post_init__(self) -> None:
         check_int(self.input_size, "data.reader.input_size", *INPUT_SIZE_RANGE)
@@ -90,6 +114,8 @@ class ReaderConfig:
         check_number(self.photometric, "data.reader.photometric", 0.0, 1.0)
         check_int(self.seed, "data.reader.seed", 0)
         check_choice(self.input_modalities, "data.reader.input_modalities", tuple(INPUT_MODALITIES))
+        check_choice(self.depth_sensor, "data.reader.depth_sensor", DEPTH_SENSORS)
+        check_bool(self.fresh_sensor_noise, "data.reader.fresh_sensor_noise")
 
     @property
     def depth(self) -> bool:
@@ -154,12 +180,39 @@ class HUPDataset(torch.utils.data.Dataset):
         labels = input_labels(self.ann, size / width, size)
         self.labels = {name: torch.from_numpy(np.ascontiguousarray(array)) for name, array in labels.items()}
         self.labels["frame_id"] = torch.from_numpy(self.ann["frame_id"].astype(np.int64))
+        self.sensor, self.depth_files = self._depth_source()
+
+    def _depth_source(self) -> tuple[SensorPreset | None, tuple[str, ...]]:
+        """(the sensor whose depth :meth:`depth_frame` gives, None for the clean depth; the modalities it reads:
+        ("sensor_depth",) stored, ("depth",) clean, ("depth", "seg") a sensor made here), checked against the
+        dataset's files."""
+        config, manifest = self.config, self.manifest
+        stored = manifest.get("depth_sensor") or {}
+        name = stored.get("preset", NONE) if config.depth_sensor == DATASET_SENSOR else config.depth_sensor
+        sensor = None if name == NONE else PRESETS[name]
+        files = ("depth",) if sensor is None else (SENSOR_DEPTH,) if name == stored.get("preset") else ("depth", "seg")
+        if config.fresh_sensor_noise and sensor is None:
+            raise BadValueError(f"data.reader.fresh_sensor_noise draws a depth sensor's noise, but {self.root} has no "
+                                "depth sensor: set data.reader.depth_sensor to one of " + ", ".join(PRESETS))
+        if config.fresh_sensor_noise:
+            files = ("depth", "seg")
+        lacking = [m for m in files if m not in manifest["modalities"]] if config.depth else []
+        if lacking:
+            raise BadValueError(f"data.reader.depth_sensor={config.depth_sensor} reads the {' and '.join(lacking)} "
+                                f"maps, which {self.root} lacks (modalities {manifest['modalities']})")
+        return sensor, files
+
+    @property
+    def depth_source(self) -> dict:
+        """What the depth channel is, as JSON (the frame cache's key and the results record it)."""
+        return {"sensor": None if self.sensor is None else self.sensor.name, "files": list(self.depth_files),
+                "fresh_noise": self.config.fresh_sensor_noise}
 
     def __len__(self) -> int:
         return len(self.ann["frame_id"])
 
     def path(self, index: int, modality: str = "rgb") -> Path:
-        """The file of row ``index``: its RGB image, or its "depth" map."""
+        """The file of row ``index``: its RGB image, or its ``modality`` ("depth", "seg", "sensor_depth") map."""
         return frame_path(self.root, self.split, modality, int(self.ann["frame_id"][index]), self.manifest["rgb_format"])
 
     def frame(self, index: int) -> np.ndarray:
@@ -167,10 +220,19 @@ class HUPDataset(torch.utils.data.Dataset):
         image, _ = pad_and_resize(read_rgb(self.path(index), self.manifest["image_size"]), self.config.input_size)
         return image
 
-    def depth_frame(self, index: int) -> np.ndarray:
-        """(S, S) uint16 depth in the dataset's unit: row ``index``'s map (checked by :func:`read_depth`), resized to
-        the nearest pixel (every value a real surface's)."""
-        depth = read_depth(self.path(index, "depth"), self.manifest["image_size"])
+    def depth_frame(self, index: int, draw: int = 0) -> np.ndarray:
+        """(S, S) uint16 depth in the dataset's unit: row ``index``'s map as ``data.reader.depth_sensor`` says
+        (checked by :func:`read_depth`; ``draw`` > 0: a fresh sample of the sensor's noise), resized to the nearest
+        pixel (every value one the sensor gave)."""
+        size = self.manifest["image_size"]
+        if self.depth_files[0] == "depth" and self.sensor is not None:
+            seed = (self.manifest.get("depth_sensor") or {}).get("seed", 0)
+            depth = stored_sensor_depth(read_depth(self.path(index, "depth"), size),
+                                        read_seg(self.path(index, "seg"), size), np.asarray(self.manifest["K"]), self.sensor,
+                                        self.manifest["seg_labels"], self.manifest["depth_scale_m"], seed,
+                                        int(self.ann["frame_id"][index]), draw)
+        else:
+            depth = read_depth(self.path(index, self.depth_files[0]), size)
         return pad_and_resize(depth, self.config.input_size, interpolation=cv2.INTER_NEAREST)[0]
 
     def depth_metres(self, depth: np.ndarray) -> torch.Tensor:

@@ -21,7 +21,7 @@ import torch
 
 from hupbench import metrics
 from hupbench.core.errors import BadValueError, MissingFileError
-from hupbench.core.input_checks import check_int
+from hupbench.core.input_checks import check_choice, check_int
 from hupbench.core.processes import check_threads
 from hupbench.evaluation.intervals import CONFIDENCE, RESAMPLES, SEED, interval_text
 from hupbench.evaluation.latency import measured_latency, model_cost
@@ -70,6 +70,9 @@ class EvalOptions:
             (:mod:`hupbench.evaluation.figures`) into ``figures_dir`` (default :func:`default_figures_dir`).
         interval_resamples, interval_seed: the bootstrap resamples (>= 1) and seed (>= 0) of the 95 % intervals
             over the test grasps (:mod:`hupbench.evaluation.intervals`).
+        depth_sensor: the depth a depth-reading model gets (``data.reader.depth_sensor``): "dataset" (its
+            sensor's, else its clean depth), "none", or a preset made from the clean depth with each frame's seeded
+            noise (the same depth for every model); the results' ``dataset.depth_sensor`` records it.
     """
 
     model: Path
@@ -88,9 +91,13 @@ class EvalOptions:
     figures_dir: Path | None = None
     interval_resamples: int = RESAMPLES
     interval_seed: int = SEED
+    depth_sensor: str = "dataset"
 
     def __post_init__(self) -> None:
+        from hupbench.data.reader import DEPTH_SENSORS
+
         check_int(self.batch_size, "batch_size", low=1)
+        check_choice(self.depth_sensor, "--depth-sensor", DEPTH_SENSORS)
         check_int(self.interval_resamples, "interval_resamples", low=1)
         check_int(self.interval_seed, "interval_seed", low=0)
         if self.threads is not None:
@@ -348,7 +355,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     from hupbench.provenance import git_commit, hardware_description
 
     dataset, split = options.dataset, options.split
-    reader = split_reader(dataset, split, net)
+    reader = split_reader(dataset, split, net, options.depth_sensor)
     fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
                                                                 "grasp_id", "view_id"), reader.manifest)}
     grasp_ids = sorted({int(g) for g in fields["grasp_id"]})
@@ -357,6 +364,9 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     track, floor = split_floor(manifest, split, grasp_ids, manifest_path)
     results = blank_results("measured", run_name)
     results["dataset"] = _dataset_record(dataset, manifest, split, len(reader), theta_vol_by_grasp, log)
+    if reader.config.depth:
+        results["dataset"]["depth_sensor"] = reader.sensor.name if reader.sensor is not None else "none"
+        log(f"depth: {reader.depth_source}")
     K_eval = reader[0]["K"].double().numpy()
     if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
         log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "

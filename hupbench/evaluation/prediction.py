@@ -116,11 +116,13 @@ class SplitPrediction:
     seconds: float
 
 
-def split_reader(dataset: Path, split: str, net: EvalModel):
-    """The :class:`hupbench.data.HUPDataset` of a split at the model's input size and modalities."""
+def split_reader(dataset: Path, split: str, net: EvalModel, depth_sensor: str = "dataset"):
+    """The :class:`hupbench.data.HUPDataset` of a split at the model's input size and modalities, a depth-reading
+    model reading ``depth_sensor``'s depth (``data.reader.depth_sensor``)."""
     from hupbench.data import HUPDataset, ReaderConfig
 
-    return HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size, input_modalities=net.input_modalities))
+    return HUPDataset(dataset, split, ReaderConfig(input_size=net.input_size, input_modalities=net.input_modalities,
+                                                   depth_sensor=depth_sensor))
 
 
 def evenly_spaced(total: int, frames: int) -> np.ndarray:

@@ -7,13 +7,12 @@ finite numbers within what their unit allows (:data:`LIMITS`; a measured row's: 
 ``all`` is the keypoint-weighted mean of its ``hand`` and ``probe`` (:func:`keypoint_weighted_all_mm`); a reported
 row's lies between them, as every mean over the 29 keypoints does. The dataset is named by ``name``,
 ``manifest_sha256`` and ``grasps_sha256`` (the sha256 of its manifest.json and of its grasps.npz), never by a path of
-the machine that evaluated it. The ``intervals`` block holds the 95 % bootstrap intervals over the test grasps of the
-MPJPE and of the split floor (:mod:`hupbench.evaluation.intervals`). Versions 1 to 4 load upgraded to 5
-(docs/metrics.md), with no intervals; only 5 is written. Metrics of ``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative
-hand MPJPE, the probe's BOP pose scores and the split floor's) may be absent: readers take them as unknown.
-
-The file is read strictly (:func:`parse_json`): an object naming a key twice is refused, where other JSON
-readers keep one of the two values without a word.
+the machine that evaluated it, and, for a model that reads depth, by the ``depth_sensor`` it read. The ``intervals``
+block holds the 95 % bootstrap intervals over the test grasps of the MPJPE and of the split floor
+(:mod:`hupbench.evaluation.intervals`). Versions 1 to 4 load upgraded to 5 (docs/metrics.md), with no intervals; only 5
+is written. Metrics of ``_OPTIONAL_METRIC_KEYS`` (the middle-MCP-relative hand MPJPE, the probe's BOP pose scores and
+the split floor's) may be absent: readers take them as unknown. The file is read strictly (:func:`parse_json`): an
+object naming a key twice is refused, where other JSON readers keep one of the two values without a word.
 
 Convention: errors in millimetres, latencies in milliseconds per image, times in seconds, FLOPs per image
 counted as 2 x multiply-adds, times of day in UTC as ``YYYY-MM-DDTHH:MM:SSZ``.
@@ -32,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from hupbench.core.contract import TRACKS
+from hupbench.core.depth_sensor import NONE, PRESETS
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.provenance import RUN_NAME_PATTERN
 from hupbench.core.input_checks import is_number, is_whole
@@ -262,8 +262,7 @@ def _validate_probe_pose(pose, parts: tuple) -> None:
     _number(pose, parts + ("mspd_px",), nullable=True, unit="px")
     for key in _POSE_FRACTION_KEYS:
         _number(pose, parts + (key,), nullable=False, high=1.0)
-    _check(pose, parts + ("diameter_mm",), lambda v: is_number(v) and v > 0.0,
-           "a finite number > 0", False)
+    _check(pose, parts + ("diameter_mm",), lambda v: is_number(v) and v > 0.0, "a finite number > 0", False)
     _integer(pose, parts + ("image_width_px",), nullable=False, low=1)
     _integer(pose, parts + ("model_points",), nullable=False, low=1)
     _string(pose, parts + ("symmetry",), nullable=False)
@@ -464,7 +463,9 @@ def _validate_row(d: dict, version: int) -> dict:
 
     dataset = d["dataset"]
     _keys(dataset, ("dataset",), _DATASET_KEYS if version >= DATASET_SHA_VERSION else
-          {3: _DATASET_KEYS_V3}.get(version, _DATASET_KEYS_V2))
+          {3: _DATASET_KEYS_V3}.get(version, _DATASET_KEYS_V2), optional=("depth_sensor",))
+    if "depth_sensor" in dataset:
+        _choice(dataset, ("dataset", "depth_sensor"), (NONE, *PRESETS), nullable=False)
     if version < DATASET_SHA_VERSION:
         _string(dataset, ("dataset", "path"), nullable=True)
     else:
@@ -473,7 +474,6 @@ def _validate_row(d: dict, version: int) -> dict:
     _choice(dataset, ("dataset", "split"), SPLITS, nullable=False)
     _integer(dataset, ("dataset", "frames"), nullable=True)
     _string(dataset, ("dataset", "name"), nullable=False)
-
     _validate_metrics(d["metrics"], version)
     _validate_all_mpjpe(d)
     _validate_breakdowns(d["breakdowns"], version)

@@ -44,11 +44,12 @@ CLINIC_SPLITS = {"train": 2, "val": 1, "test": 1}
 
 
 def clinic_spec(**changes):
-    """A tiny clinic-track spec: 48 x 48, 3 head cameras per grasp, 2 rooms, 1 glove; ``changes`` override."""
+    """A tiny clinic-track spec: 48 x 48, 3 head cameras per grasp, 2 rooms, 1 glove, the track's depth sensor; ``changes`` override."""
     from hupbench.datagen.dataset.head import HeadSpec
     from hupbench.datagen.dataset.spec import DatasetSpec
 
     return DatasetSpec(**{"track": "clinic", "splits": CLINIC_SPLITS, "head": HeadSpec(views_per_grasp=3),
+                          "depth_sensor": "hololens2_ahat",
                           "n_backgrounds": 2, "n_gloves": 1, "width": 48, "height": 48, "fx": 90.0, "fy": 90.0,
                           "cx": 24.0, "cy": 24.0} | changes)
 
