@@ -144,9 +144,10 @@ def default_figures_dir(model: Path, split: str) -> Path:
 
 
 def is_leaderboard_row(out: Path) -> bool:
-    """Whether a results path is a leaderboard row: ``.../leaderboard/results/NAME.json``."""
+    """Whether a results path is a leaderboard row: ``.../leaderboard/results/NAME.json``, or a row of its depth sensor
+    table, ``.../leaderboard/robustness/NAME.json``."""
     folder = out.resolve().parent
-    return folder.name == "results" and folder.parent.name == "leaderboard"
+    return folder.name in ("results", "robustness") and folder.parent.name == "leaderboard"
 
 
 def model_label(model_config: dict, input_size: int) -> str:
