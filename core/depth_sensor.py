@@ -57,7 +57,7 @@ import numpy as np
 from hupbench.core.errors import BadValueError
 
 __all__ = ["NONE", "PRESETS", "SensorPreset", "frame_rng", "invalid_probability", "preset", "sensor_depth",
-           "sensor_expectation", "stored_sensor_depth"]
+           "sensor_expectation", "stored_sensor_depth", "depth_input_warnings"]
 
 NONE = "none"
 
@@ -398,3 +398,25 @@ def stored_sensor_depth(depth: np.ndarray, labels: np.ndarray, K: np.ndarray, se
     out = sensor_depth(depth.astype(np.float64) * depth_scale_m, labels, K, sensor, label_ids,
                        frame_rng(seed, frame_id, sensor.name, draw))
     return np.clip(np.round(out / depth_scale_m), 0, np.iinfo(np.uint16).max).astype(np.uint16)
+
+
+#: how far beyond a preset's last measurable depth a user's depth may reach before it is called one the preset cannot
+#: give (the depth camera's offset and the per-pixel ray put the colour camera's depth a little past the range)
+BEYOND_SLACK_M = 0.05
+
+
+def depth_input_warnings(depth_m: np.ndarray, sensor: SensorPreset) -> list[str]:
+    """Why a user's depth map (metres, 0 = none) looks like no depth ``sensor`` (the model's training sensor) gives:
+    no invalid pixel at all (a renderer's z-buffer), or depths beyond what it measures (its wrap or its range)."""
+    out = []
+    if np.all(depth_m > 0):
+        out.append(f"no pixel of the depth map is 0 (no depth): a {sensor.name} depth camera leaves holes (dark "
+                   "plastic, depth edges, grazing surfaces), so this looks like a renderer's z-buffer, not the depth "
+                   "the model was trained on")
+    limit = sensor.wrap_m if sensor.wrap_m > 0 else sensor.max_range_m
+    beyond = float((depth_m > limit + BEYOND_SLACK_M).mean())
+    if beyond > 0:
+        why = "its range wraps there" if sensor.wrap_m > 0 else "its range ends there"
+        out.append(f"{beyond:.1%} of the depth map lies beyond {limit:g} m, which a {sensor.name} depth camera does "
+                   f"not give ({why}): the model was trained on that camera's depth")
+    return out

@@ -1,5 +1,6 @@
 """``hupbench leaderboard``: ``README.md`` (:mod:`~hupbench.evaluation.leaderboard_readme`) and two plots
-(:mod:`~hupbench.evaluation.leaderboard_plots`), rebuilt from ``leaderboard/results/*.json`` and the
+(:mod:`~hupbench.evaluation.leaderboard_plots`), rebuilt from ``leaderboard/results/*.json``, the depth sensor
+table's ``leaderboard/robustness/*.json`` (:mod:`~hupbench.evaluation.leaderboard_robustness`) and the
 training logs under ``logs/``.
 
 A broken input is an error naming the file, and nothing is rewritten: a row that silently dropped out of
@@ -18,6 +19,7 @@ from hupbench.core.input_checks import check_int, is_number
 from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp
 from hupbench.evaluation.leaderboard_plots import plot_latency, plot_training
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT, render_readme
+from hupbench.evaluation.leaderboard_robustness import ROBUSTNESS, check_robustness
 from hupbench.evaluation.leaderboard_table import sort_key, with_intervals
 from hupbench.evaluation.results import LIMITS, load_results, parse_json, read_bytes
 
@@ -138,10 +140,14 @@ def run_leaderboard(dir: str | Path = "leaderboard") -> dict:
         check_writable(root / name, "leaderboard file", file=True)
     clean_stale_tmp(root, recursive=False)
     rows = load_rows(root / "results")
+    robust = []
+    if (root / ROBUSTNESS).is_dir() and any((root / ROBUSTNESS).glob("*.json")):
+        robust = load_rows(root / ROBUSTNESS)
+        check_robustness(robust, rows, root / ROBUSTNESS)
     curves = [(row, read_validation_curve(root / row["training"]["log"], f"results/{row['run_name']}.json"))
               for row in rows if row["kind"] == "measured" and row["training"]["log"] is not None]
     # render everything before writing anything, so a bad log leaves the old files in place
-    files = {README: render_readme(rows).encode("utf-8"), LATENCY_PLOT: plot_latency(rows),
+    files = {README: render_readme(rows, robust).encode("utf-8"), LATENCY_PLOT: plot_latency(rows),
              TRAINING_PLOT: plot_training(rows, curves)}
     paths = _write_together(root, files)
     measured = sum(row["kind"] == "measured" for row in rows)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from hupbench.core.contract import TRACKS
 from hupbench.datagen.dataset.floors import FLOOR_KINDS
+from hupbench.evaluation.leaderboard_robustness import robustness_section
 from hupbench.evaluation.leaderboard_table import (
     GRASP_COLUMNS,
     MISSING,
@@ -190,8 +191,9 @@ def _track_section(track: str, rows: list[dict]) -> list[str]:
     return out + markdown_table(TABLE_COLUMNS, TABLE_ALIGN, [table_row(row) for row in rows])
 
 
-def render_readme(rows: list[dict]) -> str:
-    """The leaderboard README (Markdown ending in one newline) of validated rows sorted by :func:`sort_key`."""
+def render_readme(rows: list[dict], robust: list[dict] = ()) -> str:
+    """The leaderboard README (Markdown ending in one newline) of validated rows sorted by :func:`sort_key`, with the
+    depth sensor table of the ``robust`` rows (:mod:`~hupbench.evaluation.leaderboard_robustness`)."""
     n_measured = sum(row["kind"] == "measured" for row in rows)
     tracks = [t for t in TRACKS if any(row_track(row) == t for row in rows)]
     out = [
@@ -225,6 +227,7 @@ def render_readme(rows: list[dict]) -> str:
     by_track = {track: [row for row in rows if row_track(row) == track] for track in tracks}
     for track in tracks:
         out += _track_section(track, by_track[track])
+    out += robustness_section(list(robust), rows)
     out += _meaning() + _plots() + ["## Row details", "", "By track, in the tables' order.", ""]
     for track in tracks:
         for row in by_track[track]:

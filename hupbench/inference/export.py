@@ -160,13 +160,26 @@ def contract_model(model: nn.Module, payload: dict[str, Any], source: str, confi
 
 
 def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outputs: tuple[str, ...] = BASE_OUTPUTS,
-                  image_statistics: ImageStatistics | None = None) -> dict[str, str]:
+                  image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None) -> dict[str, str]:
     """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`):
-    ``outputs`` those of the :class:`ContractModule` exported, ``image_statistics`` predict's calibration."""
+    ``outputs`` those of the :class:`ContractModule` exported, ``image_statistics`` predict's calibration,
+    ``depth_sensor`` the depth camera a depth model was trained on (:func:`trained_depth_sensor`)."""
     channels = payload["model_config"].get("input_channels", 3)
     modalities = next(name for name, count in INPUT_MODALITIES.items() if count == channels)
     return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
-                          payload["model_config"], run_name, git_commit, modalities, outputs, image_statistics)
+                          payload["model_config"], run_name, git_commit, modalities, outputs, image_statistics,
+                          depth_sensor)
+
+
+def trained_depth_sensor(payload: dict[str, Any], dataset: Path) -> str:
+    """The depth camera a depth model's training read: its ``data.reader.depth_sensor``, where that is "dataset" the
+    training dataset's own ("none" for its clean depth)."""
+    from hupbench.core.contract import read_manifest
+
+    asked = (((payload.get("config") or {}).get("data") or {}).get("reader") or {}).get("depth_sensor", "dataset")
+    if asked != "dataset":
+        return asked
+    return (read_manifest(dataset).get("depth_sensor") or {}).get("preset", "none")
 
 
 def export_onnx(module: ContractModule, path: str | Path, metadata: dict[str, str], opset: int = OPSET) -> Path:
@@ -316,7 +329,8 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     run_name = options.run_name if options.run_name is not None else default_run_name(recorded, options.checkpoint)
     calibration = calibrate_image_statistics(dataset, module.input_size, module.reads_depth)
     images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
-    metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration)
+    sensor = trained_depth_sensor(payload, dataset) if module.reads_depth else None
+    metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration, sensor)
 
     with OutputLock.for_file(out, "export"):
         clean_stale_tmp(out.parent, recursive=False)  # exports that were killed

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from hupbench.core.depth_sensor import NONE, PRESETS
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_int, is_whole
 from hupbench.inference.image_statistics import ImageStatistics
@@ -68,10 +69,12 @@ DEPTH_INPUT = {"units": "metres", "no_surface": 0.0, "clip_m": DEPTH_CLIP_M, "re
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
                    run_name: str, git_commit: str, input_modalities: str = "rgb",
                    outputs: tuple[str, ...] = BASE_OUTPUTS,
-                   image_statistics: ImageStatistics | None = None) -> dict[str, str]:
+                   image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None) -> dict[str, str]:
     """The ``metadata_props`` of an exported model, checked by :func:`read_metadata` (no time stamp: one
     checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels. ``outputs``: the
-    graph's outputs (:data:`OUTPUTS`); ``image_statistics``: the out-of-distribution calibration, or None."""
+    graph's outputs (:data:`OUTPUTS`); ``image_statistics``: the out-of-distribution calibration, or None;
+    ``depth_sensor``: for a model that reads depth, the depth camera it was trained on (``hupbench.depth_sensor``:
+    "none" for the clean z-buffer, or a preset of :mod:`hupbench.core.depth_sensor`)."""
     props = {
         META + "input_modalities": input_modalities,
         META + "onnx_schema": ONNX_SCHEMA,
@@ -85,6 +88,8 @@ def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges
     }
     if input_modalities == "rgb+depth":
         props[META + "depth_input"] = json.dumps(DEPTH_INPUT, sort_keys=True)
+    if depth_sensor is not None:
+        props[META + "depth_sensor"] = depth_sensor
     if tuple(outputs) != BASE_OUTPUTS:
         props[META + "outputs"] = json.dumps(list(outputs))
     if image_statistics is not None:
@@ -101,7 +106,8 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
         ``{"input_size": int, "K_input": (3, 3) float64, "keypoint_names": tuple of str, "skeleton_edges":
         tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str,
         "input_modalities": "rgb" or "rgb+depth", "outputs": tuple of str, "image_statistics":
-        :class:`ImageStatistics` or None}``.
+        :class:`ImageStatistics` or None, "depth_sensor": the depth camera a depth model was trained on, None where
+        the file does not say (exported before it was recorded)}``.
     """
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
@@ -154,7 +160,11 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
         raise BadValueError(f"{source}: metadata hupbench.outputs must list {list(BASE_OUTPUTS)} and then any of "
                             f"{list(OUTPUTS[2:])}, got {props[META + 'outputs'][:120]!r}")
     statistics = props.get(META + "image_statistics")
-    return {"input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names), "input_modalities": modalities,
+    sensor = props.get(META + "depth_sensor")
+    if sensor is not None and (modalities != "rgb+depth" or sensor not in (NONE, *PRESETS)):
+        raise BadValueError(f"{source}: metadata hupbench.depth_sensor is for a model that reads depth and one of "
+                            f"{', '.join((NONE, *PRESETS))}, got {sensor!r:.80} on an {modalities} model")
+    return {"depth_sensor": sensor, "input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names), "input_modalities": modalities,
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", ""),
             "outputs": tuple(outputs),

@@ -16,7 +16,10 @@ resized to the nearest pixel (a dataset's ``<split>/rgb`` and ``<split>/depth`` 
 A model that reads depth is refused without ``--depth``, an RGB model with it; an image whose depth map is
 missing, of another size, 0 everywhere, or whose median depth lies outside what the model was trained on
 (:meth:`hupbench.inference.image_statistics.ImageStatistics.check_depth`: a map in another unit) fails alone,
-naming the file.
+naming the file. Millimetre PNGs (Azure Kinect, HoloLens 2 research mode): ``--depth-scale-m 0.001``. The model file
+names the depth camera its training read (``hupbench.depth_sensor``: ``none``, the renderer's clean z-buffer, or a
+preset of :mod:`hupbench.core.depth_sensor`); predict says it, and warns of a depth map that camera would not give
+(no invalid pixel at all, the mark of a z-buffer, or depths beyond its range or wrap).
 
 Trust: ``keypoint_confidence`` (N,) in [0, 1] per image for a model with a per-keypoint confidence (HUPNet:
 its heatmap's peak mass, :data:`hupbench.inference.model_file.CONFIDENCE`), null for a regression model (HOPE-Net,
@@ -47,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from hupbench.core.depth_sensor import PRESETS, depth_input_warnings
 from hupbench.core.errors import BadTypeError, BadValueError, UserError
 from hupbench.core.input_checks import check_int, check_number
 from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
@@ -331,6 +335,10 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
                 _stderr(line)
     for item in skipped:
         log(f"hupbench predict: note: {item['path']}: {item['reason']}")
+    if model.reads_depth and model.depth_sensor is not None:
+        log(f"hupbench predict: note: {model.path.name} was trained on "
+            + ("the renderer's clean depth (no sensor model)" if model.depth_sensor not in PRESETS else
+               f"the depth of a {model.depth_sensor} camera (hupbench.core.depth_sensor)"))
     try:
         clean_stale_tmp(out_dir, recursive=False)
         # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
@@ -397,6 +405,9 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
                 depth = read_depth_png(record["depth"], (image.shape[1], image.shape[0]))
                 if model.image_statistics is not None:
                     model.image_statistics.check_depth(depth, options.depth_scale_m, record["depth"])
+                if model.depth_sensor in PRESETS:
+                    for warning in depth_input_warnings(depth * options.depth_scale_m, PRESETS[model.depth_sensor]):
+                        log(f"hupbench predict: warning: {record['depth']}: {warning}")
         except UserError as exc:  # a bad image fails alone: its record and the log say why
             record["error"] = str(exc)
             log(f"hupbench predict: error: {exc}")

@@ -39,7 +39,8 @@ class OnnxModel:
         model_config: the architecture's config ({} when the file has none). run_name, git_commit: provenance.
         sha256: hash of the file. input_modalities: "rgb", or "rgb+depth" for a model with a ``depth`` input.
         outputs: the graph's outputs (``hupbench.outputs``). image_statistics: the out-of-distribution
-            calibration, None for a file exported without it.
+            calibration, None for a file exported without it. depth_sensor: the depth camera a depth model was
+            trained on ("none": the clean z-buffer; a preset of :mod:`hupbench.core.depth_sensor`), None unknown.
     """
 
     path: Path
@@ -55,6 +56,7 @@ class OnnxModel:
     input_modalities: str = "rgb"
     outputs: tuple[str, ...] = BASE_OUTPUTS
     image_statistics: ImageStatistics | None = None
+    depth_sensor: str | None = None
 
     @property
     def reads_depth(self) -> bool:

@@ -176,3 +176,44 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     assert [part for part, _, _ in calls[:len(asked)]] == list(asked)    # the probe's fit first
     if asked == ("probe", "hand"):  # the hand's fit sees the probe the probe's fit left
         assert np.isclose(calls[1][2], calls[0][2] + 0.01, atol=1e-6)
+
+
+def test_the_model_file_names_its_training_depth_and_predict_warns_of_a_z_buffer(rgbd_model, tiny_dataset, tmp_path):
+    """Trained on the tiny dataset's clean depth, the file says "none"; the same graph saying it was trained on a
+    HoloLens 2's AHAT depth makes predict warn of each depth map without a hole (a z-buffer) and beyond its wrap."""
+    _, onnx_path, _ = rgbd_model
+    proto = onnx.load(str(onnx_path))
+    props = {p.key: p for p in proto.metadata_props}
+    assert props["hupbench.depth_sensor"].value == "none"
+    props["hupbench.depth_sensor"].value = "hololens2_ahat"
+    ahat = tmp_path / "ahat.onnx"
+    onnx.save(proto, str(ahat))
+    images, _ = frames(tiny_dataset, n=2)
+    depth = tmp_path / "depth"
+    depth.mkdir()
+    cv2.imwrite(str(depth / f"{images[0].stem}.png"), np.full((64, 64), 6000, np.uint16))  # 0.6 m, no hole
+    far = np.full((64, 64), 6000, np.uint16)
+    far[:16] = 13000  # a wall at 1.3 m behind: an AHAT camera reads it as 0.3 m
+    far[16:20] = 0
+    cv2.imwrite(str(depth / f"{images[1].stem}.png"), far)
+    lines = []
+    result = run_predict(PredictOptions(ahat, images, tmp_path / "out", depth_dir=depth, overlay=False),
+                         log=lines.append)
+    assert result["failed"] == 0  # warned, not refused
+    assert any("was trained on the depth of a hololens2_ahat camera" in line for line in lines)
+    holes = [line for line in lines if "no pixel of the depth map is 0" in line]
+    wrap = [line for line in lines if "beyond 1 m, which a hololens2_ahat depth camera does not give" in line]
+    assert len(holes) == 1 and images[0].stem in holes[0]
+    assert len(wrap) == 1 and images[1].stem in wrap[0]
+
+
+def test_depth_input_warnings_of_each_preset():
+    from hupbench.core.depth_sensor import PRESETS, depth_input_warnings
+
+    sensor_like = np.full((32, 32), 0.6)
+    sensor_like[0, :5] = 0.0
+    for sensor in PRESETS.values():
+        assert depth_input_warnings(sensor_like, sensor) == []
+        assert len(depth_input_warnings(np.full((32, 32), 0.6), sensor)) == 1
+    assert depth_input_warnings(np.where(sensor_like > 0, 2.0, 0.0), PRESETS["hololens2_ahat"])  # past its wrap
+    assert not depth_input_warnings(np.where(sensor_like > 0, 2.0, 0.0), PRESETS["azure_kinect_nfov"])  # in range
