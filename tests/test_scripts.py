@@ -216,6 +216,15 @@ def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys
     assert image is not None and image.shape[0] > 4 * 200
 
 
+def test_depth_sensor_picture(tiny_clinic, tmp_path, monkeypatch, capsys):
+    dataset, _ = tiny_clinic
+    out = run_script(SCRIPTS / "depth_sensor_picture.py", dataset, "--frames", "1", "--out", tmp_path / "sensor.png",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert out.strip() == str(tmp_path / "sensor.png")
+    image = cv2.imread(str(tmp_path / "sensor.png"))
+    assert image is not None and image.shape[1] > 2 * image.shape[0]  # one frame: RGB, 4 depths, the side view
+
+
 def test_fit_divergence(exported, tiny_dataset, monkeypatch, capsys):
     ckpt, _ = exported
     out = run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--frames", "4", "--hand-variant",
