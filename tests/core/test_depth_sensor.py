@@ -18,8 +18,9 @@ from hupbench.core.errors import BadValueError
 SIDE, FOCAL = 64, 120.0
 K = np.array([[FOCAL, 0.0, (SIDE - 1) / 2], [0.0, FOCAL, (SIDE - 1) / 2], [0.0, 0.0, 1.0]])
 DISTANCES_M = (0.4, 0.6, 1.0)
-#: frames per case: the per-frame offset's sigma is estimated to about 1 / sqrt(2 x 300), 4 %
-FRAMES = 300
+#: frames of the case that measures the per-frame offset's sigma (to about 1 / sqrt(2 x 300), 4 %), at OFFSET_Z_M;
+#: every other case measures per-pixel statistics over FEW_FRAMES
+FRAMES, OFFSET_Z_M, FEW_FRAMES = 300, 0.6, 80
 #: the issue's tolerance: within 10 % of the documented value
 REL_TOL = 0.10
 
@@ -92,12 +93,12 @@ def _frames(sensor, depth: np.ndarray, material: str, n: int = FRAMES) -> np.nda
     return np.stack([sensor_depth(depth, labels, K, sensor, LABELS, frame_rng(0, i, sensor.name)) for i in range(n)])
 
 
-def _statistics(sensor, depth, normals, material, inner) -> dict:
+def _statistics(sensor, depth, normals, material, inner, n: int = FEW_FRAMES) -> dict:
     """Over the pixels ``inner``: the random error (each pixel's spread over the frames, the frame's offset taken
     out, in units of the documented sigma: RMS over pixels), the per-frame offset's sigma and mean, and the invalid
     share, measured and documented. The random error is taken over time, as a sensor's is characterised: a depth
     pixel's footprint on a curved surface adds an error that is the same in every frame."""
-    frames = _frames(sensor, depth, material)
+    frames = _frames(sensor, depth, material, n)
     reading, sigma = documented_reading(sensor, depth, material)
     valid = (frames > 0) & inner
     residual = np.where(valid, frames - reading, np.nan)
@@ -120,14 +121,18 @@ def test_a_plane_of_skin_gives_the_documented_noise_offset_and_invalid_share(nam
     depth, normals = plane(z_m)
     inner = np.zeros(depth.shape, bool)
     inner[4:-4, 4:-4] = True
-    s = _statistics(sensor, depth, normals, "patient", inner)
+    n = FRAMES if z_m == OFFSET_Z_M else FEW_FRAMES
+    s = _statistics(sensor, depth, normals, "patient", inner, n)
     assert s["invalid"] == pytest.approx(s["invalid_documented"], rel=REL_TOL, abs=1e-3), s
     if s["invalid_documented"] > 0.99:  # out of range (the Azure Kinect's 0.5 m near limit): nothing to measure
         return
     assert s["noise_ratio"] == pytest.approx(1.0, rel=REL_TOL), s
-    assert s["offset_sigma_m"] == pytest.approx(sensor.bias_sigma_m, rel=REL_TOL), s
-    # the material's offset is in the documented reading: what is left averages to 0 over the frames
-    assert abs(s["offset_mean_m"]) < REL_TOL * sensor.bias_sigma_m + 4 * sensor.bias_sigma_m / np.sqrt(FRAMES), s
+    # the skin's offset is in the documented reading: what is left averages to 0 over the frames, within 10 % of the
+    # offset (30 mm on HoloLens 2) and 4 standard errors of the per-frame offset's mean
+    skin = sensor.material_bias_m.get("patient", 0.0)
+    assert abs(s["offset_mean_m"]) < REL_TOL * skin + 4 * sensor.bias_sigma_m / np.sqrt(n), s
+    if n == FRAMES:
+        assert s["offset_sigma_m"] == pytest.approx(sensor.bias_sigma_m, rel=REL_TOL), s
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -142,7 +147,7 @@ def test_a_sphere_of_dark_plastic_gives_the_documented_noise_and_invalid_share(n
     inner = cv2.erode((depth > 0).astype(np.uint8), disc).astype(bool)
     s = _statistics(sensor, depth, normals, "probe", inner)
     assert s["invalid"] == pytest.approx(s["invalid_documented"], rel=REL_TOL, abs=2e-3), s
-    if s["invalid_documented"] < 0.95:
+    if s["invalid_documented"] < 0.8:  # else too few valid readings per pixel for a spread over time
         assert s["noise_ratio"] == pytest.approx(1.0, rel=REL_TOL), s
 
 
