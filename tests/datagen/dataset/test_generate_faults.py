@@ -326,7 +326,8 @@ def in_small_tmpfs(mount, size, script):
 
 
 @pytest.mark.matrix
-@pytest.mark.parametrize("workers", [1, 2])
+# two workers (34 s, beside one worker's 24 s) run with the slow tests: CI keeps under 20 minutes
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_fault_generate_full_disk(tmp_path, grasps, workers):
     """A 96 KiB disk fills while the chunks are written: one line 'no space left on MOUNT writing FILE',
     exit 1, no manifest, no temporary file; with room (the same tmpfs made larger), the same command
