@@ -271,11 +271,13 @@ def parity_failures(diff: dict[str, float | None]) -> list[str]:
     return failed
 
 
-def calibrate_image_statistics(dataset: Path, input_size: int, reads_depth: bool = False) -> ImageStatistics:
+def calibrate_image_statistics(dataset: Path, input_size: int, reads_depth: bool = False,
+                               depth_folder: str = "depth") -> ImageStatistics:
     """Predict's out-of-distribution calibration (:func:`hupbench.inference.image_statistics.calibrate`) on the
     dataset's frames, read and resized exactly as predict reads an image: up to ``TRAIN_FRAMES`` training frames,
     the threshold from up to ``THRESHOLD_FRAMES`` validation frames (else test, else training frames); for a model
-    that ``reads_depth``, the median depths of the same training frames' depth maps."""
+    that ``reads_depth``, the median depths of the same training frames' depth maps (``depth_folder``: the clean
+    "depth", or the "sensor_depth" the model was trained on)."""
     from hupbench.data import read_manifest
     from hupbench.inference import image_statistics as stats
     from hupbench.inference.images import read_depth_png, read_image
@@ -296,7 +298,7 @@ def calibrate_image_statistics(dataset: Path, input_size: int, reads_depth: bool
     split = next(s for s in ("val", "test", "train") if counts.get(s, 0) > 0)
     depth = None
     if reads_depth:
-        depth = np.array([stats.depth_median_m(read_depth_png(dataset / "train" / "depth" / f"{path.stem}.png")
+        depth = np.array([stats.depth_median_m(read_depth_png(dataset / "train" / depth_folder / f"{path.stem}.png")
                                                * manifest["depth_scale_m"])
                           for path in chosen("train", stats.TRAIN_FRAMES)])
     return stats.calibrate(statistics("train", stats.TRAIN_FRAMES), statistics(split, stats.THRESHOLD_FRAMES), split,
@@ -314,6 +316,7 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     from tqdm import tqdm
 
     from hupbench.core.io import OutputLock, atomic_output, check_writable, clean_stale_tmp
+    from hupbench.core.contract import SENSOR_DEPTH, read_manifest
     from hupbench.checkpoint import load_model
 
     out = check_writable(options.out, "--out", file=True)
@@ -327,9 +330,11 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
         raise MissingFileError(f"{missing}; pass --dataset")
     recorded = (payload.get("config") or {}).get("run_name")
     run_name = options.run_name if options.run_name is not None else default_run_name(recorded, options.checkpoint)
-    calibration = calibrate_image_statistics(dataset, module.input_size, module.reads_depth)
-    images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
     sensor = trained_depth_sensor(payload, dataset) if module.reads_depth else None
+    stored = (read_manifest(dataset).get("depth_sensor") or {}).get("preset")
+    calibration = calibrate_image_statistics(dataset, module.input_size, module.reads_depth,
+                                             SENSOR_DEPTH if sensor is not None and sensor == stored else "depth")
+    images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
     metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration, sensor)
 
     with OutputLock.for_file(out, "export"):

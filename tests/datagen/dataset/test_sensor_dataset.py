@@ -106,3 +106,23 @@ def test_a_depth_png_of_another_dtype_in_sensor_depth_is_named_by_verify(tiny_cl
     cv2.imwrite(str(target), np.zeros((48, 48), np.uint8))
     result = verify(copy, workers=1, log=lambda *_: None)
     assert any(p["kind"] == "image_format" and SENSOR_DEPTH in p["file"] for p in result["problems"])
+
+
+def test_an_exported_depth_model_names_the_sensor_its_training_read(tiny_clinic, tmp_path):
+    """Trained on the clinic track's own depth ("dataset"), the model file says hololens2_ahat and its depth check
+    is calibrated on that sensor's depth; a run that read another preset or the clean depth says so."""
+    import onnx
+    import torch
+
+    from helpers.models import make_checkpoint
+    from hupbench.inference import export as E
+
+    root, _ = tiny_clinic
+    ckpt = make_checkpoint(tmp_path / "rgbd.pt", root, input_channels=4)
+    result = E.run_export(E.ExportOptions(ckpt, tmp_path / "rgbd.onnx", parity_frames=2), log=lambda *_: None)
+    props = {p.key: p.value for p in onnx.load(str(result["onnx"])).metadata_props}
+    assert props["hupbench.depth_sensor"] == "hololens2_ahat"
+    payload = torch.load(ckpt, map_location="cpu", weights_only=True)
+    for asked, named in (("none", "none"), ("azure_kinect_nfov", "azure_kinect_nfov"), ("dataset", "hololens2_ahat")):
+        payload["config"]["data"] = {"reader": {"depth_sensor": asked}}
+        assert E.trained_depth_sensor(payload, root) == named
