@@ -243,6 +243,7 @@ def kill(proc, until, poll_s=0.02):
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 22 s; the default set kills and resumes generate in test_generate.py and test_clinic.py
 def test_fault_generate_sigkill_once(tmp_path, grasps, capsys):
     """SIGKILL after a seeded random number of files written (any phase: start-up, chunks, annotations,
     manifest), then the same dataset again: the uninterrupted run's bytes, no temporary file."""

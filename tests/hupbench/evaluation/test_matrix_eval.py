@@ -222,6 +222,7 @@ RERUN_FREE_FIELDS = ("created_utc", "latency_ms_per_image")
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 57 s, the slowest of the default set; export's own kill-and-rerun (test_matrix_export.py) stays
 def test_fault_eval_sigkill_then_rerun(exported, tiny_dataset, tmp_path, capsys):
     """SIGKILL at a seeded random point of a checkpoint eval while it times latency (its temporary ONNX file
     beside the results being written or timed), then the same command: the results equal an uninterrupted
