@@ -196,3 +196,37 @@ def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
     a = np.where(locked, np.arctan2(R[..., 2, 1], R[..., 1, 1]), np.arctan2(-R[..., 1, 2], R[..., 2, 2]))
     c = np.where(locked, 0.0, np.arctan2(-R[..., 0, 1], R[..., 0, 0]))
     return np.stack([a, b, c], axis=-1)
+
+
+def proper_rotation(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kabsch on (N, 3, 3) Y^T X: the proper rotations R (N, 3, 3) minimising |Y - X R^T|, the singular values
+    (N, 3) and the reflection fix d (N,) of the SVD."""
+    u, s, vt = np.linalg.svd(cov)
+    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)         # (N,) reflection fix
+    u[:, :, 2] *= d[:, None]                                                     # U D
+    return u @ vt, s, d
+
+
+def rotation_onto(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) float64 proper rotations R turning each centred (N, K, 3) ``src`` onto its centred ``dst``
+    (minimising |dst_c - src_c R^T|, no scale: Kabsch, "A solution for the best rotation to relate two sets of
+    vectors", Acta Crystallographica A32, 1976)."""
+    x = np.asarray(src, np.float64) - np.asarray(src, np.float64).mean(axis=1, keepdims=True)
+    y = np.asarray(dst, np.float64) - np.asarray(dst, np.float64).mean(axis=1, keepdims=True)
+    return proper_rotation(np.einsum("nki,nkj->nij", y, x))[0]
+
+
+def fit_rigid_pose(points_obj_m: np.ndarray, points_cam_m: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) float64 T_cam_obj: the rotation and translation (Kabsch, :func:`rotation_onto`, no scale) that
+    best map object-frame points onto each frame's (N, K, 3) observed camera-frame points (metres, K >= 3 not
+    collinear) in the least-squares sense. ``points_obj_m``: (K, 3), the same known points for every frame, or
+    (N, K, 3), one set per frame (e.g. a prediction aligned onto the truth)."""
+    cam = np.asarray(points_cam_m, np.float64)
+    obj = np.broadcast_to(np.asarray(points_obj_m, np.float64), cam.shape)
+    assert cam.ndim == 3 and cam.shape[-1] == 3, (np.shape(points_obj_m), cam.shape)
+    rot = rotation_onto(obj, cam)                                                # (N, 3, 3)
+    T = np.tile(np.eye(4), (len(cam), 1, 1))
+    T[:, :3, :3] = rot
+    # t = mean(cam) - R mean(obj)
+    T[:, :3, 3] = cam.mean(axis=1) - np.einsum("nij,nj->ni", rot, obj.mean(axis=1))
+    return T

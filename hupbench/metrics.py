@@ -15,16 +15,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hupbench.core.geometry import proper_rotation
 from hupbench.core.keypoints import CORNER_BITS, CORNER_SLICE, HAND_SLICE, NUM_HAND, NUM_KEYPOINTS
 from hupbench.core.probe_symmetry import HALF_TURN_Z, symmetry_permutation
 
 __all__ = ["ADD_THRESHOLD_DIAMETER", "ALL_AVERAGING", "BOP_REFERENCE_WIDTH_PX", "MIDDLE_MCP_INDEX",
            "MSPD_THRESHOLDS_PX", "MSSD_THRESHOLDS_DIAMETER", "PCK_THRESHOLDS_MM", "PROBE_SYMMETRIES",
            "PROBE_SYMMETRY_ROTATIONS", "ROOT_INDEX", "SPREAD_AXES", "SPREAD_RATIO_WARN", "add_mm", "add_s_mm",
-           "average_recall", "bop_scores", "breakdown_mpjpe_mm", "collapsed_axes", "fit_rigid_pose", "keypoint_errors_mm",
+           "average_recall", "bop_scores", "breakdown_mpjpe_mm", "collapsed_axes", "keypoint_errors_mm",
            "mpjpe_mm", "mpjpe_split_mm", "mspd_px", "mspd_thresholds_px", "mssd_mm", "pa_mpjpe_mm",
            "pck_auc_from_errors", "pck_mm", "permute_keypoints", "pixel_error_px", "pixel_errors_px",
-           "probe_symmetric_errors_mm", "procrustes_align", "recall", "root_relative_mpjpe_mm", "rotation_onto",
+           "probe_symmetric_errors_mm", "procrustes_align", "recall", "root_relative_mpjpe_mm",
            "split_from_errors_mm", "spread_ratios", "symmetry_costs"]
 
 #: how "all" in :func:`mpjpe_split_mm` is averaged (written into the results JSON)
@@ -157,31 +158,13 @@ def procrustes_align(pred_m, gt_m):
         np.result_type(pred_m.dtype, np.float32), copy=False)
 
 
-def _proper_rotation(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Kabsch on (N, 3, 3) Y^T X: the proper rotations R (N, 3, 3) minimising |Y - X R^T|, the singular values
-    (N, 3) and the reflection fix d (N,) of the SVD."""
-    u, s, vt = np.linalg.svd(cov)
-    d = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)         # (N,) reflection fix
-    u[:, :, 2] *= d[:, None]                                                     # U D
-    return u @ vt, s, d
-
-
-def rotation_onto(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) float64 proper rotations R turning each centred (N, K, 3) ``src`` onto its centred ``dst``
-    (minimising |dst_c - src_c R^T|, no scale: Kabsch, "A solution for the best rotation to relate two sets of
-    vectors", Acta Crystallographica A32, 1976)."""
-    x = np.asarray(src, np.float64) - np.asarray(src, np.float64).mean(axis=1, keepdims=True)
-    y = np.asarray(dst, np.float64) - np.asarray(dst, np.float64).mean(axis=1, keepdims=True)
-    return _proper_rotation(np.einsum("nki,nkj->nij", y, x))[0]
-
-
 def _procrustes_np(p: np.ndarray, g: np.ndarray) -> np.ndarray:
     # one float64 numpy path for both backends, so numpy and torch give the same numbers bit for bit
     mu_p, mu_g = p.mean(axis=1, keepdims=True), g.mean(axis=1, keepdims=True)  # (N, 1, 3)
     x, y = p - mu_p, g - mu_g                                                   # (N, K, 3) centred
     var_p = (x ** 2).sum(axis=(1, 2)) / p.shape[1]                               # (N,)
     cov = np.einsum("nki,nkj->nij", y, x) / p.shape[1]                           # (N, 3, 3) = Y^T X / K
-    rot, s, d = _proper_rotation(cov)                                            # (N, 3, 3), (N, 3), (N,)
+    rot, s, d = proper_rotation(cov)                                            # (N, 3, 3), (N, 3), (N,)
     trace = s[:, 0] + s[:, 1] + d * s[:, 2]                                      # tr(S D)
     has_scale = var_p > PROCRUSTES_MIN_VARIANCE_M2
     scale = np.where(has_scale, trace / np.where(has_scale, var_p, 1.0), 0.0)   # (N,)
@@ -353,22 +336,6 @@ def probe_symmetric_errors_mm(pred_m, gt_m, permutations=PROBE_SYMMETRIES["half_
 # The object side of the BOP benchmark (Hodan et al., bop_toolkit_lib/pose_error.py and
 # scripts/eval_calc_scores.py), for one rigid object seen once per frame. A pose is a (N, 4, 4)
 # T_cam_obj mapping object-frame points (metres) into the OpenCV camera frame.
-
-
-def fit_rigid_pose(points_obj_m: np.ndarray, points_cam_m: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) float64 T_cam_obj: the rotation and translation (Kabsch, :func:`rotation_onto`, no scale) that
-    best map object-frame points onto each frame's (N, K, 3) observed camera-frame points (metres, K >= 3 not
-    collinear) in the least-squares sense. ``points_obj_m``: (K, 3), the same known points for every frame, or
-    (N, K, 3), one set per frame (e.g. a prediction aligned onto the truth)."""
-    cam = np.asarray(points_cam_m, np.float64)
-    obj = np.broadcast_to(np.asarray(points_obj_m, np.float64), cam.shape)
-    assert cam.ndim == 3 and cam.shape[-1] == 3, (np.shape(points_obj_m), cam.shape)
-    rot = rotation_onto(obj, cam)                                                # (N, 3, 3)
-    T = np.tile(np.eye(4), (len(cam), 1, 1))
-    T[:, :3, :3] = rot
-    # t = mean(cam) - R mean(obj)
-    T[:, :3, 3] = cam.mean(axis=1) - np.einsum("nij,nj->ni", rot, obj.mean(axis=1))
-    return T
 
 
 def _assert_poses(T_cam_pred, T_cam_true, points_obj_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ import numpy as np
 
 def rigid_align(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(N, K, 3) predictions moved by the best rotation and translation onto gt (Kabsch, no scale)."""
-    from hupbench.metrics import fit_rigid_pose
+    from hupbench.core.geometry import fit_rigid_pose
 
     T = fit_rigid_pose(pred, gt)                                                   # (N, 4, 4) pred -> gt
     return np.einsum("nij,nkj->nki", T[:, :3, :3], pred) + T[:, None, :3, 3]

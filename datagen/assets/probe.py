@@ -312,42 +312,6 @@ class Probe:
                                torch.zeros_like(sq_out))
         return value + dist_out
 
-    def signed_distance_and_gradient_torch(self, points_probe: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The grid's signed distance and its analytic gradient, without autograd (what a Gauss-Newton fit in
-        inference mode needs; :meth:`signed_distance_torch` is the differentiable one).
-
-        Args:
-            points_probe: (..., 3) float32 or float64 tensor, metres, probe frame.
-
-        Returns:
-            ((...) metres, negative inside; (..., 3) the gradient): trilinear inside the grid's box; outside it
-            the distance to the box is added and the gradient points away from the box.
-        """
-        values, lo, hi, shape = self._torch_grid(points_probe.device, points_probe.dtype)
-        clamped = torch.maximum(torch.minimum(points_probe, hi), lo)
-        u = (clamped - lo) / self.sdf_spacing
-        i0 = torch.minimum(torch.floor(u).to(torch.int64).clamp_min(0), shape - 2)
-        fx, fy, fz = (u - i0.to(u.dtype)).unbind(-1)
-        sy, sx = shape[2], shape[1] * shape[2]
-        base = i0[..., 0] * sx + i0[..., 1] * sy + i0[..., 2]
-        # along x, then y, then z; the derivative along each axis from the differences of the same lerps
-        ax, dx = {}, {}
-        for b in (0, 1):
-            for c in (0, 1):
-                v0, v1 = values[base + b * sy + c], values[base + sx + b * sy + c]
-                dx[b, c] = v1 - v0
-                ax[b, c] = v0 + fx * dx[b, c]
-        by = {c: ax[0, c] + fy * (ax[1, c] - ax[0, c]) for c in (0, 1)}
-        bdx = {c: dx[0, c] + fy * (dx[1, c] - dx[0, c]) for c in (0, 1)}
-        bdy = {c: ax[1, c] - ax[0, c] for c in (0, 1)}
-        value = by[0] + fz * (by[1] - by[0])
-        grad = torch.stack([bdx[0] + fz * (bdx[1] - bdx[0]), bdy[0] + fz * (bdy[1] - bdy[0]), by[1] - by[0]],
-                           dim=-1) / self.sdf_spacing
-        out = points_probe - clamped
-        dist_out = out.norm(dim=-1)
-        grad = torch.where((dist_out > 0)[..., None], out / dist_out.clamp_min(1e-12)[..., None], grad)
-        return value + dist_out, grad
-
 
 # --------------------------------------------------------------------------- build
 

@@ -298,7 +298,8 @@ def run_eval(options: EvalOptions, log: Callable[[str], None] = print) -> dict[s
                                          "--figures")
         manifest = read_manifest(options.dataset, options.split, needs="the benchmark needs")
         net = EvalModel(options.model)
-        check_fitted_probe(net.model_config, manifest.get("probe"), str(options.dataset / "manifest.json"))
+        check_fitted_probe(net.model_config, manifest.get("probe"), str(options.dataset / "manifest.json"),
+                           net.fit_probe)
         run_name = (options.out.stem if options.out is not None else
                     options.run_name if options.run_name is not None else net.run_name)
         out_path = options.out or check_writable(default_results_path(options.model, options.split), "--out",

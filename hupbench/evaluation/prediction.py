@@ -35,6 +35,8 @@ class EvalModel:
         model_config: the architecture's saved config. input_size: S, pixels. input_modalities: "rgb" or
             "rgb+depth". K_input: (3, 3) float64 intrinsics of the model input, pixels (the camera of the 3D
             output). run_name: the training run's name as a run name (:func:`hupbench.provenance.default_run_name`).
+        fit_probe: the probe the fits know (an ONNX file's :class:`hupbench.fits.known_probe.FitProbe`); None: the
+            default procedural probe (a checkpoint, or a file without one).
     """
 
     def __init__(self, path: Path) -> None:
@@ -54,6 +56,7 @@ class EvalModel:
             self.input_modalities = self.onnx.input_modalities
             self.K_input = self.onnx.K_input
             self.run_name = default_run_name(self.onnx.run_name, self.path)
+            self.fit_probe = self.onnx.fit_probe
             return
         model, payload = load_model(self.path)
         self.format, self.payload, self.onnx = "pytorch", payload, None
@@ -63,6 +66,7 @@ class EvalModel:
         self.input_modalities = self.module.input_modalities
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name((payload.get("config") or {}).get("run_name"), self.path)
+        self.fit_probe = None
 
     @property
     def fits(self) -> bool:
@@ -77,7 +81,7 @@ class EvalModel:
     def after_network(self, images: np.ndarray, outputs: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """What runs on the network's (points2d, points3d) outputs for (B, C, S, S) model images: the fits to the
         depth input the model asks for (:func:`hupbench.fits.after_network`), else nothing; float64."""
-        return after_network(self.model_config, *outputs, images, self.K_input)
+        return after_network(self.model_config, *outputs, images, self.K_input, fitted=self.fit_probe)
 
     def network(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """(B, C, S, S) float32 model images -> the network's points2d (B, 29, 2) normalised and points3d

@@ -10,6 +10,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
+from hupbench.core.geometry import fit_rigid_pose
 from hupbench.core.probe_symmetry import HALF_TURN_Z, object_diameter_m, symmetry_permutation
 from hupbench import metrics
 
@@ -49,7 +50,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
         (scores or None, a one-line summary or the reason for None).
     """
     box = np.asarray(probe.corners_probe, np.float64)                                        # (8, 3) probe frame
-    T_cam_true = metrics.fit_rigid_pose(box, true_corners_m)
+    T_cam_true = fit_rigid_pose(box, true_corners_m)
     fitted = box @ T_cam_true[:, :3, :3].transpose(0, 2, 1) + T_cam_true[:, None, :3, 3]
     misfit = float(np.linalg.norm(fitted - true_corners_m, axis=-1).max())
     if misfit > PROBE_BOX_FIT_TOL_M:
@@ -61,7 +62,7 @@ def probe_pose_scores(pred_corners_m: np.ndarray, true_corners_m: np.ndarray, K:
     except BadValueError:
         symmetry = "none"
     rotations = metrics.PROBE_SYMMETRY_ROTATIONS[symmetry]
-    T_cam_pred = metrics.fit_rigid_pose(box, pred_corners_m)
+    T_cam_pred = fit_rigid_pose(box, pred_corners_m)
     points = np.asarray(probe.mesh.vertices, np.float64)                                      # (V, 3) probe frame
     scores = metrics.bop_scores(
         metrics.add_mm(T_cam_pred, T_cam_true, points), metrics.add_s_mm(T_cam_pred, T_cam_true, points),

@@ -4,11 +4,13 @@ A model's saved config asks for the fits (``probe_fit: depth``, ``hand_fit: dept
 them on its output, in eval (:mod:`hupbench.evaluation.prediction`) and ``hupbench predict`` alike. The probe's fit
 (:mod:`hupbench.fits.probe_fit`) poses the procedural probe's surface; the hand's (:mod:`hupbench.fits.hand_fit`) fits a
 capsule hand and leaves that probe's surface out; both read the depth input through :mod:`hupbench.fits.depth_points`.
-Both know only the procedural probe: data made with another probe is refused by :func:`check_fitted_probe`.
+Both fit one probe (:class:`hupbench.fits.known_probe.FitProbe`: the model file's, else the default procedural probe):
+data made with another probe is refused by :func:`check_fitted_probe`.
 
-May import: ``hupbench.core``, ``hupbench.metrics``, ``hupbench.input_geometry``, torch and numpy, and the
-generator's probe and hand (``datagen.assets``, the shapes the fits fit); this module itself imports neither torch
-nor the generator (the predict path imports it): a fit imports them when it runs.
+Numpy only, no torch: ``hupbench predict`` runs the fits of an exported model where torch is not installed.
+May import: ``hupbench.core``, ``hupbench.input_geometry``, numpy, and the generator's probe and hand
+(``datagen.assets``, the shapes the fits fit) where the model file does not carry them: the default probe
+(:func:`hupbench.fits.known_probe.default_fit_probe`) is built by the generator when a fit first needs it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from hupbench.core.errors import BadValueError
+from hupbench.fits.known_probe import FitProbe
 from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
 
 __all__ = ["FITTED_PROBE", "HandFitSettings", "ProbeFitSettings", "after_network", "check_fitted_probe", "fits"]
@@ -32,30 +35,40 @@ def fits(model_config: dict) -> tuple[str, ...]:
     return tuple(part for part in ("probe", "hand") if model_config.get(f"{part}_fit", "none") == "depth")
 
 
-def check_fitted_probe(model_config: dict, probe_record: dict | None, source: str) -> None:
-    """Refuse data of another probe for a model that fits: the fits pose and leave out :data:`FITTED_PROBE` only.
+def check_fitted_probe(model_config: dict, probe_record: dict | None, source: str,
+                       fitted: FitProbe | None = None) -> None:
+    """Refuse data of another probe for a model that fits: the fits pose and leave out their own probe only.
 
     Args:
         model_config: the model's saved config (:func:`fits`).
         probe_record: the data's probe record (a manifest's ``probe``; None or absent: the procedural probe).
         source: the data's manifest, named in the error.
+        fitted: the probe the model's fits know (its model file's); None: :data:`FITTED_PROBE`.
 
     Raises:
         BadValueError: the model fits and the data's probe is another one.
     """
     record = FITTED_PROBE if probe_record is None else probe_record
+    known = FITTED_PROBE if fitted is None else fitted.record
     asked = fits(model_config)
-    if asked and record != FITTED_PROBE:
-        shown = record.get("path") or record.get("spec") or record.get("kind")
-        raise BadValueError(f"{source}: the data shows the probe {shown!r} ({record.get('kind')}), but the model's "
-                            f"{' and '.join(asked)} fit{'s' if len(asked) > 1 else ''} (probe_fit/hand_fit: depth) "
-                            f"{'know' if len(asked) > 1 else 'knows'} only the default procedural probe; use a model "
-                            "without the fits on this data")
+    if asked and record != known:
+        own = ("the default procedural probe" if known == FITTED_PROBE
+               else f"the probe {_shown(known)!r} ({known.get('kind')}) of its model file")
+        raise BadValueError(f"{source}: the data shows the probe {_shown(record)!r} ({record.get('kind')}), but the "
+                            f"model's {' and '.join(asked)} fit{'s' if len(asked) > 1 else ''} (probe_fit/hand_fit: "
+                            f"depth) {'know' if len(asked) > 1 else 'knows'} only {own}; use a model without the fits "
+                            "on this data")
+
+
+def _shown(record: dict) -> str:
+    """A probe record's name in a message: its mesh file, its spec, or its kind."""
+    return record.get("path") or record.get("spec") or record.get("kind")
 
 
 def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
                   K_input: np.ndarray, probe: ProbeFitSettings = ProbeFitSettings(),
-                  hand: HandFitSettings = HandFitSettings()) -> tuple[np.ndarray, np.ndarray]:
+                  hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The fits a model asks for (:func:`fits`) on its output: the probe's first, the hand's on the probe it left.
 
     Args:
@@ -65,17 +78,18 @@ def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray
         images: (B, C, S, S) float32 model images (C = 4 for a model that fits: RGB in [0, 1], depth in metres).
         K_input: (3, 3) intrinsics of the model input, pixels.
         probe, hand: the fits' settings (the defaults are what every model runs with).
+        fitted: the probe the fits know (the model file's); None: the default procedural probe.
 
     Returns:
         float64 (points2d (B, N, 2), points3d (B, N, 3)); the output itself where the model fits nothing.
     """
     asked = fits(model_config)
-    if "probe" in asked:  # torch is imported only for a model that fits
+    if "probe" in asked:
         from hupbench.fits.probe_fit import fit_probe
 
-        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe)
+        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe, fitted)
     if "hand" in asked:
         from hupbench.fits.hand_fit import fit_hand
 
-        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand)
+        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted)
     return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64)

@@ -1,41 +1,55 @@
 """The depth input as the fits read it: its pixels unprojected to camera-frame points, a fixed sample of those a fit
-uses, and fitted points projected back to the model input.
+uses, and fitted points projected back to the model input. Numpy only.
 
 Convention: the camera of the model input (``K_input``, pixels, OpenCV axes), depth in metres along its optical
-axis, 0 where the map has no surface.
+axis, 0 where the map has no surface (no depth: unknown, never far).
 """
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
-import torch
 
 from hupbench.input_geometry import pixels_to_normalized
 
-__all__ = ["MIN_PROJECTION_Z_M", "input_points2d", "sample_points", "unproject_depth"]
+__all__ = ["MIN_PROJECTION_Z_M", "input_points2d", "pixel_order", "sample_points", "unproject_depth"]
 
 #: points nearer the camera than this are projected as if at it, metres (a fit that moved a point behind the
 #: camera keeps finite 2D points)
 MIN_PROJECTION_Z_M = 1e-3
 
 
-def unproject_depth(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """(B, S * S, 3) float32 camera-frame points, metres, of every pixel of the depth maps ``depth`` (B, S, S) float32
-    metres, row by row; a pixel without a surface is the camera's centre (z = 0). ``K``: (3, 3) float32."""
+def unproject_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(B, S * S, 3) float64 camera-frame points, metres, of every pixel of the depth maps ``depth`` (B, S, S) metres,
+    row by row; a pixel without a surface is the camera's centre (z = 0). ``K``: (3, 3)."""
     B, S, _ = depth.shape
-    v, u = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
-    z = depth.reshape(B, -1)
-    return torch.stack([(u.reshape(-1) - K[0, 2]) / K[0, 0] * z, (v.reshape(-1) - K[1, 2]) / K[1, 1] * z, z], -1)
+    K = np.asarray(K, dtype=np.float64)
+    v, u = np.mgrid[0:S, 0:S].astype(np.float64)
+    z = np.asarray(depth, dtype=np.float64).reshape(B, -1)
+    return np.stack([(u.ravel() - K[0, 2]) / K[0, 0] * z, (v.ravel() - K[1, 2]) / K[1, 1] * z, z], -1)
 
 
-def sample_points(points: torch.Tensor, wanted: torch.Tensor, max_points: int) -> tuple[torch.Tensor, torch.Tensor]:
+@functools.lru_cache(maxsize=8)
+def pixel_order(count: int) -> np.ndarray:
+    """(count,) int64: the fixed pseudo-random order in which :func:`sample_points` takes a frame's points."""
+    order = np.random.default_rng(0).permutation(count)
+    order.flags.writeable = False
+    return order
+
+
+def sample_points(points: np.ndarray, wanted: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Up to ``max_points`` of the ``wanted`` (B, P) bool of ``points`` (B, P, 3), in a fixed pseudo-random order that
     is the same for every frame (a fit's result does not depend on the batch): (B, M, 3) points and their (B, M)
-    float32 weights (1 a wanted point, 0 padding), M = min(``max_points``, P)."""
-    order = torch.rand(points.shape[1], generator=torch.Generator().manual_seed(0))
-    keys = torch.where(wanted, order + 1.0, torch.zeros_like(order))
-    top = keys.topk(min(max_points, points.shape[1]), dim=1).indices
-    return torch.gather(points, 1, top[..., None].expand(-1, -1, 3)), torch.gather(wanted, 1, top).float()
+    float64 weights (1 a wanted point, 0 padding at the end), M = min(``max_points``, P)."""
+    B, P, _ = points.shape
+    M = min(max_points, P)
+    order = pixel_order(P)
+    chosen, weight = np.zeros((B, M, 3)), np.zeros((B, M))
+    for b in range(B):
+        take = order[wanted[b, order]][:M]
+        chosen[b, :len(take)], weight[b, :len(take)] = points[b, take], 1.0
+    return chosen, weight
 
 
 def input_points2d(points_cam: np.ndarray, K_input: np.ndarray, size: int) -> np.ndarray:

@@ -5,17 +5,19 @@ The depth input sees the hand's near surface; a hand of capsules around the pred
 that surface lies on it, places the hand the image shows. The model and its terms follow articulated ICP for hand
 tracking (Tagliasacchi et al., "Robust Articulated-ICP for Real-Time Hand Tracking", Computer Graphics Forum 34(5),
 2015: a hand of cylinders, the measured points' distances to it, a term against model parts the sensor would have
-seen where it saw something else, a pose prior), solved by Gauss-Newton (Nocedal and Wright, "Numerical Optimization", 2nd ed., 2006, sec. 10.3) with
-Jacobians by forward-mode automatic differentiation (``torch.func.jacfwd``).
+seen where it saw something else, a pose prior), solved by Gauss-Newton (Nocedal and Wright, "Numerical
+Optimization", 2nd ed., 2006, sec. 10.3) with analytic Jacobians: a joint's derivative by a rotation vector through
+SO(3)'s right Jacobian (Sola, Deray and Atchuthan, "A micro Lie theory for state estimation in robotics",
+arXiv:1812.01537, 2018, eq. 143), chained along each finger. Numpy only: ``hupbench predict`` runs it without torch.
 
 How, per frame, in the camera of the model input (``K_input``), with :class:`HandFitSettings` ``s``:
     1. The hand: a capsule along each finger bone (the generator's radii, :mod:`hupbench.datagen.assets.hand_anatomy`; a
        fingertip keypoint sits on the surface, so the last capsule stops one radius short of it) and the palm as
        capsules from the wrist to each finger's base (``s.palm_radius_m``) and across the knuckles
        (``s.knuckle_radius_m``).
-    2. The measured points: pixels with a surface, unprojected with their depth, within ``s.reach_m`` of the
-       network's capsules and more than ``s.probe_gap_m`` outside the probe posed by the output's 8 corners (their
-       box, Kabsch); ``s.max_points`` of them in a fixed pseudo-random order.
+    2. The measured points: pixels with a surface (depth 0 is unknown, never far), unprojected with their depth,
+       within ``s.reach_m`` of the network's capsules and more than ``s.probe_gap_m`` outside the probe posed by the
+       output's 8 corners (their box, Kabsch); ``s.max_points`` of them in a fixed pseudo-random order.
     3. ``s.iterations`` Gauss-Newton steps on 51 parameters: a rotation about the hand's centroid and a
        translation (6), and a rotation of each of the 15 finger bones about its proximal joint (45; the bone
        lengths stay the network's). The residuals: each point's distance to the surface of its nearest capsule
@@ -39,15 +41,14 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from hupbench.core import keypoints as kp
+from hupbench.core.geometry import fit_rigid_pose
 from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_points2d, sample_points, unproject_depth
-from hupbench.fits.probe_fit import probe_model
+from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import HandFitSettings
-from hupbench.metrics import fit_rigid_pose
 
-__all__ = ["HandFit", "HandFitSettings", "fit_hand"]
+__all__ = ["HandFit", "HandFitSettings", "fit_hand", "pose_and_jacobian"]
 
 #: rigid motion (6) and the 15 finger bones' turns (3 each)
 N_PARAMS = 6 + 15 * 3
@@ -64,10 +65,10 @@ class HandFit:
 
 @dataclass(frozen=True)
 class _Capsules:
-    start: torch.Tensor     # (C,) keypoint at one end
-    end: torch.Tensor       # (C,) keypoint at the other
-    radius: torch.Tensor    # (C,) metres
-    tip: torch.Tensor       # (C,) bool: the end is a fingertip keypoint on the surface
+    start: np.ndarray     # (C,) keypoint at one end
+    end: np.ndarray       # (C,) keypoint at the other
+    radius: np.ndarray    # (C,) metres
+    tip: np.ndarray       # (C,) bool: the end is a fingertip keypoint on the surface
 
 
 @functools.lru_cache(maxsize=4)
@@ -83,95 +84,199 @@ def _capsules(palm_radius_m: float, knuckle_radius_m: float) -> _Capsules:
         rows.append((0, base, palm_radius_m, False))
     knuckles = [kp.FINGER_START[f] for f in ("index", "middle", "ring", "little")]
     rows += [(a, b, knuckle_radius_m, False) for a, b in itertools.pairwise(knuckles)]
-    start, end, radius, tip = zip(*rows)
-    return _Capsules(torch.tensor(start), torch.tensor(end), torch.tensor(radius, dtype=torch.float32),
-                     torch.tensor(tip))
+    start, end, radius, tip = (np.array(c) for c in zip(*rows))
+    return _Capsules(start, end, radius.astype(np.float64), tip.astype(bool))
 
 
-def _ends(hand: torch.Tensor, caps: _Capsules) -> tuple[torch.Tensor, torch.Tensor]:
-    """The capsules' axis ends (..., C, 3) of hands (..., 21, 3)."""
-    a, b = hand[..., caps.start, :], hand[..., caps.end, :]
-    along = (b - a) / (b - a).norm(dim=-1, keepdim=True).clamp_min(1e-6)
-    return a, torch.where(caps.tip[:, None], b - along * caps.radius[:, None], b)
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices of vectors (..., 3) (unchecked: a fit's numbers may not be finite)."""
+    x, y, z = np.moveaxis(v, -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(*v.shape[:-1], 3, 3)
 
 
-def _segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Distance from points (..., 3) to segments a-b (..., 3), broadcast."""
+def _rodrigues_and_right_jacobian(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 3, 3) rotations of axis-angle vectors w (..., 3) and SO(3)'s right Jacobians there, with
+    d(R(w) x)/dw = -R(w) [x]x Jr(w); both smooth through 0 (Taylor terms below 1e-4 rad)."""
+    angle2 = (w * w).sum(-1)[..., None, None]
+    angle = np.sqrt(angle2)
+    small = angle < 1e-4
+    safe = np.where(small, 1.0, angle)
+    sin_a = np.where(small, 1.0 - angle2 / 6.0, np.sin(safe) / safe)                     # sin t / t
+    cos_a = np.where(small, 0.5 - angle2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)       # (1 - cos t) / t^2
+    cube = np.where(small, 1.0 / 6.0 - angle2 / 120.0, (safe - np.sin(safe)) / safe ** 3)   # (t - sin t) / t^3
+    W = _skew(w)
+    WW = W @ W
+    eye = np.eye(3)
+    return eye + sin_a * W + cos_a * WW, eye - cos_a * W + cube * WW
+
+
+#: each finger's first keypoint (the MCP joint; the CMC for the thumb), in :data:`kp.FINGERS` order
+_FINGER_BASE = np.array([kp.FINGER_START[f] for f in kp.FINGERS])
+
+
+def pose_and_jacobian(theta: np.ndarray, hand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hands (B, 21, 3) moved by their (B, 51) parameters (module docstring, step 3), and the joints' Jacobian
+    (B, 21, 3, 51) by the parameters."""
+    B = len(hand)
+    R0, J0 = _rodrigues_and_right_jacobian(theta[:, :3])
+    centre = hand.mean(1, keepdims=True)
+    moved = np.einsum("bij,bkj->bki", R0, hand - centre) + centre + theta[:, None, 3:6]
+    bones, bone_jr = _rodrigues_and_right_jacobian(theta[:, 6:].reshape(B, 5, 3, 3))
+    # d(R0 x)/d(rotation) = -R0 [x]x Jr(w0): linear in x, so a bone's is its two joints' difference
+    d_global = -R0[:, None] @ _skew(hand - centre) @ J0[:, None]                      # (B, 21, 3, 3)
+    out, jac = moved.copy(), np.zeros((B, kp.NUM_HAND, 3, N_PARAMS))
+    jac[:, :, :, :3], jac[:, :, :, 3:6] = d_global, np.eye(3)
+    fb = _FINGER_BASE
+    bone_jac = np.zeros((B, 5, 3, 3, 3, 3))        # finger, joint after bone k, xyz, bone j, its 3 parameters
+    turned, before = np.broadcast_to(np.eye(3), (B, 5, 3, 3)), []
+    for k in range(3):
+        before.append(turned)                                                 # T_{k-1}: the turns above bone k
+        turned = bones[:, :, k] @ turned                                      # T_k = B_k T_{k-1}
+        step = moved[:, fb + k + 1] - moved[:, fb + k]                        # v_k (B, 5, 3)
+        out[:, fb + k + 1] = out[:, fb + k] + (turned @ step[..., None])[..., 0]
+        jac[:, fb + k + 1, :, :6] = jac[:, fb + k, :, :6]
+        jac[:, fb + k + 1, :, :3] += turned @ (d_global[:, fb + k + 1] - d_global[:, fb + k])
+        if k:
+            bone_jac[:, :, k] = bone_jac[:, :, k - 1]
+        turned_step = -turned @ _skew(step)                                   # -T_k [v_k]x
+        for j in range(k + 1):                          # d(T_k v_k)/dw_j = -T_k [v_k]x T_{j-1}^T Jr_j
+            bone_jac[:, :, k, :, j] += turned_step @ before[j].swapaxes(-1, -2) @ bone_jr[:, :, j]
+    for i in range(5):
+        jac[:, fb[i] + 1:fb[i] + 4, :, 6 + 9 * i:15 + 9 * i] = bone_jac[:, i].reshape(B, 3, 3, 9)
+    return out, jac
+
+
+def _ends(hand: np.ndarray, caps: _Capsules, jac: np.ndarray | None = None):
+    """The capsules' axis ends (B, C, 3) of hands (B, 21, 3) and, given the joints' Jacobian (B, 21, 3, N), theirs
+    (B, C, 3, N)."""
+    a, b = hand[:, caps.start], hand[:, caps.end]
+    length = np.maximum(np.linalg.norm(b - a, axis=-1, keepdims=True), 1e-6)
+    along = (b - a) / length
+    shorten = caps.radius[:, None] * caps.tip[:, None]                  # r at a tip capsule, else 0
+    end = b - along * shorten
+    if jac is None:
+        return a, end
+    ja, jb = jac[:, caps.start], jac[:, caps.end]
+    across = (np.eye(3) - along[..., :, None] * along[..., None, :]) * (shorten / length)[..., None]  # (B, C, 3, 3)
+    return a, end, ja, jb - across @ (jb - ja)
+
+
+def _segment(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For points (..., 3) and segments a-b (..., 3), broadcast: the distance, the unit direction from the closest
+    point to the point (0 at distance 0), and the closest point's place t in [0, 1] along a-b."""
     ab, ap = b - a, points - a
-    t = ((ap * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)
-    return (ap - t[..., None] * ab).norm(dim=-1)
+    dot = lambda p, q: p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1] + p[..., 2] * q[..., 2]  # noqa: E731
+    t = np.clip(dot(ap, ab) / np.maximum(dot(ab, ab), 1e-12), 0.0, 1.0)
+    e = ap - t[..., None] * ab
+    d = np.sqrt(dot(e, e))
+    return d, e / np.where(d > 1e-12, d, np.inf)[..., None], t
 
 
-def _nearest(points: torch.Tensor, hand: torch.Tensor, caps: _Capsules) -> tuple[torch.Tensor, torch.Tensor]:
+def _nearest(points: np.ndarray, hand: np.ndarray, caps: _Capsules) -> tuple[np.ndarray, np.ndarray]:
     """Each point's (B, P) signed distance to the capsule hand and the index of its nearest capsule."""
     a, b = _ends(hand, caps)
-    d = _segment_distance(points[:, :, None], a[:, None], b[:, None]) - caps.radius
-    return d.min(dim=-1)
+    d = _segment(points[:, :, None], a[:, None], b[:, None])[0] - caps.radius
+    return d.min(axis=-1), d.argmin(axis=-1)
 
 
-def _rodrigues(w: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotations of axis-angle vectors (..., 3), smooth through 0 (differentiable there)."""
-    angle2 = (w * w).sum(-1)[..., None, None]
-    angle = torch.sqrt(angle2 + 1e-12)
-    x, y, z = w.unbind(-1)
-    zero = torch.zeros_like(x)
-    cross = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(*w.shape[:-1], 3, 3)
-    return torch.eye(3) + torch.sin(angle) / angle * cross + (1 - torch.cos(angle)) / (angle2 + 1e-12) * cross @ cross
+def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSettings, caps: _Capsules):
+    """Gauss-Newton's (B, 51, 51) J^T J and (B, 51) J^T r of the residuals (module docstring, step 3) at parameters
+    theta (B, 51): hands (B, 21, 3), points (B, P, 3) with weights (B, P) (those farther than ``trim`` from the
+    capsules left out), depth (B, S, S), K (3, 3)."""
+    B, C = len(theta), len(caps.radius)
+    joints, jac = pose_and_jacobian(theta, hand)
+    a, b, ja, jb = _ends(joints, caps, jac)
+    distance, nearest = _nearest(points, joints, caps)
+    weight = real * (np.abs(distance) < trim)
+    at = lambda x: np.take_along_axis(x, nearest[..., None], axis=1)  # noqa: E731
+    d, n, t = _segment(points, at(a), at(b))
+    r_surface = (d - caps.radius[nearest]) * weight
+    # a point's row of J is x^T G[c] for its capsule c, G = the capsule's two ends' Jacobians (6, 51) and x its
+    # distance's gradient by them (6): J^T J sums G^T (x x^T) G, so the x x^T are summed per capsule first
+    x = np.concatenate([-(1 - t)[..., None] * n, -t[..., None] * n], -1) * weight[..., None]      # (B, P, 6)
+    of_capsule = (nearest[:, None, :] == np.arange(C)[:, None]).astype(np.float64)               # (B, C, P)
+    moments = (of_capsule @ (x[..., :, None] * x[..., None, :]).reshape(B, -1, 36)).reshape(B, C, 6, 6)
+    pulls = of_capsule @ (x * r_surface[..., None])                                              # (B, C, 6)
 
-
-def _pose(theta: torch.Tensor, hand: torch.Tensor) -> torch.Tensor:
-    """One hand (21, 3) moved by its (51,) parameters (module docstring, step 3)."""
-    centre = hand.mean(0)
-    moved = (hand - centre) @ _rodrigues(theta[:3]).T + centre + theta[3:6]
-    bones = _rodrigues(theta[6:].reshape(5, 3, 3))
-    out = [moved[0]] + [None] * (kp.NUM_HAND - 1)
-    for i, finger in enumerate(kp.FINGERS):
-        base = kp.FINGER_START[finger]
-        out[base] = moved[base]
-        turned = torch.eye(3)
-        for k in range(3):
-            turned = bones[i, k] @ turned
-            out[base + k + 1] = out[base + k] + turned @ (moved[base + k + 1] - moved[base + k])
-    return torch.stack(out)
-
-
-def _residuals(theta, hand, points, weight, nearest, depth, K, s: HandFitSettings, caps: _Capsules):
-    """One frame's residuals (module docstring, step 3) for parameters (51,): hand (21, 3), points (P, 3) with
-    weights (P,) and nearest capsules (P,), depth (S, S), K (3, 3)."""
-    a, b = _ends(_pose(theta, hand), caps)
-    surface = (_segment_distance(points, a[nearest], b[nearest]) - caps.radius[nearest]) * weight
-    samples = a[:, None] + torch.linspace(0.0, 1.0, s.free_samples)[None, :, None] * (b - a)[:, None]   # (C, F, 3)
-    z = samples[..., 2].clamp_min(MIN_PROJECTION_Z_M)
+    # free space: samples along each capsule's axis seen in front of the measured surface
+    lam = np.linspace(0.0, 1.0, s.free_samples)[:, None]
+    samples = a[:, :, None] + lam * (b - a)[:, :, None]                                   # (B, C, F, 3)
+    z_raw = samples[..., 2]
+    z = np.maximum(z_raw, MIN_PROJECTION_Z_M)
     u = K[0, 0] * samples[..., 0] / z + K[0, 2]
     v = K[1, 1] * samples[..., 1] / z + K[1, 2]
     size = depth.shape[-1]
-    uc, vc = u.clamp(0.0, size - 1.001), v.clamp(0.0, size - 1.001)
-    u0, v0 = uc.detach().floor(), vc.detach().floor()
+    uc, vc = np.clip(u, 0.0, size - 1.001), np.clip(v, 0.0, size - 1.001)
+    u0, v0 = np.floor(uc), np.floor(vc)
     fu, fv = uc - u0, vc - v0
-    flat = depth.reshape(-1)
-    at = lambda dv, du: flat[((v0.long() + dv) * size + u0.long() + du).reshape(-1)].reshape(u.shape)
-    measured = (at(0, 0) * (1 - fu) * (1 - fv) + at(0, 1) * fu * (1 - fv) + at(1, 0) * (1 - fu) * fv
-                + at(1, 1) * fu * fv)
+    flat = depth.reshape(B, -1)
+    idx = (v0 * size + u0).astype(np.int64).reshape(B, -1)
+    pick = lambda dv, du: np.take_along_axis(flat, idx + dv * size + du, axis=1).reshape(u.shape)  # noqa: E731
+    d00, d01, d10, d11 = pick(0, 0), pick(0, 1), pick(1, 0), pick(1, 1)
+    measured = d00 * (1 - fu) * (1 - fv) + d01 * fu * (1 - fv) + d10 * (1 - fu) * fv + d11 * fu * fv
     inside = (u > 0) & (u < size - 1) & (v > 0) & (v < size - 1) & (measured > 0)
-    front = z - caps.radius[:, None]
-    free = torch.relu(measured - front - s.free_margin_m) * inside.float() * s.free_weight
-    return torch.cat([surface, free.reshape(-1), theta[6:] * s.bone_prior_m])
+    gap = measured - (z - caps.radius[:, None]) - s.free_margin_m
+    active = inside & (gap > 0)
+    r_free = np.where(active, gap, 0.0) * s.free_weight
+    dm_du = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) * ((u > 0) & (u < size - 1.001))
+    dm_dv = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) * ((v > 0) & (v < size - 1.001))
+    unclamped = z_raw > MIN_PROJECTION_Z_M
+    zeros = np.zeros_like(z)
+    du = np.stack([K[0, 0] / z, zeros, -K[0, 0] * samples[..., 0] / z ** 2 * unclamped], -1)
+    dv = np.stack([zeros, K[1, 1] / z, -K[1, 1] * samples[..., 1] / z ** 2 * unclamped], -1)
+    dz = np.stack([zeros, zeros, unclamped.astype(float)], -1)
+    grad = (dm_du[..., None] * du + dm_dv[..., None] * dv - dz) * (active * s.free_weight)[..., None]  # (B, C, F, 3)
+    x_free = np.concatenate([grad * (1 - lam), grad * lam], -1)                                  # (B, C, F, 6)
+    moments += x_free.swapaxes(-1, -2) @ x_free
+    pulls += (x_free * r_free[..., None]).sum(2)
+    G = np.concatenate([ja, jb], axis=2)                                                         # (B, C, 6, 51)
+    JTJ = (moments @ G).reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ G.reshape(B, -1, N_PARAMS)
+    JTr = (G.reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ pulls.reshape(B, -1, 1))[..., 0]
+
+    # each bone's turn, a prior towards the network's pose
+    JTJ[:, 6:, 6:] += s.bone_prior_m ** 2 * np.eye(N_PARAMS - 6)
+    JTr[:, 6:] += s.bone_prior_m ** 2 * theta[:, 6:]
+    return JTJ, JTr
 
 
-def _measured_points(depth: torch.Tensor, K: torch.Tensor, hand: torch.Tensor, probe_rotation: torch.Tensor,
-                     probe_translation: torch.Tensor, s: HandFitSettings, caps: _Capsules
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes,
-    and their (B, P) weights (1 real, 0 padding), P = ``s.max_points`` (module docstring, step 2)."""
+def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's solution of A x = y (B, N, N), (B, N) and whether it has one (finite; else x = 0)."""
+    try:
+        x = np.linalg.solve(A, y[..., None])[..., 0]
+    except np.linalg.LinAlgError:   # a singular frame: solve frame by frame
+        x = np.zeros_like(y)
+        for i in range(len(A)):
+            try:
+                x[i] = np.linalg.solve(A[i], y[i])
+            except np.linalg.LinAlgError:
+                x[i] = np.nan
+    ok = np.isfinite(x).all(axis=1)
+    return np.where(ok[:, None], x, 0.0), ok
+
+
+def _measured_points(depth: np.ndarray, K: np.ndarray, hand: np.ndarray, probe_pose: np.ndarray,
+                     s: HandFitSettings, caps: _Capsules, probe: FitProbe) -> tuple[np.ndarray, np.ndarray]:
+    """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes posed
+    by (B, 4, 4), and their (B, P) weights (1 real, 0 padding), P = ``s.max_points`` (module docstring, step 2)."""
     points = unproject_depth(depth, K)
-    near = (points[..., 2] > 0) & (_nearest(points, hand, caps)[0] < s.reach_m)
-    on_probe, _ = probe_model().probe.signed_distance_and_gradient_torch((points - probe_translation[:, None])
-                                                                            @ probe_rotation)
-    return sample_points(points, near & (on_probe > s.probe_gap_m), s.max_points)
+    # only pixels in the box around the joints can lie within reach of a capsule: the distances are taken there
+    margin = float(caps.radius.max()) + s.reach_m
+    lo, hi = hand.min(1, keepdims=True) - margin, hand.max(1, keepdims=True) + margin
+    near = (points[..., 2] > 0) & ((points > lo) & (points < hi)).all(-1)
+    for b, where in enumerate(near):
+        cand = np.flatnonzero(where)
+        if len(cand):
+            p = points[b, cand][None]
+            off_probe = probe.signed_distance_and_gradient(
+                (p[0] - probe_pose[b, :3, 3]) @ probe_pose[b, :3, :3])[0] > s.probe_gap_m
+            where[cand] = (_nearest(p, hand[b:b + 1], caps)[0][0] < s.reach_m) & off_probe
+    return sample_points(points, near, s.max_points)
 
 
 def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
-             settings: HandFitSettings = HandFitSettings()) -> tuple[np.ndarray, np.ndarray, HandFit]:
+             settings: HandFitSettings = HandFitSettings(), probe: FitProbe | None = None
+             ) -> tuple[np.ndarray, np.ndarray, HandFit]:
     """The hand joints of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -180,41 +285,32 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         images: (B, 4, S, S) float32 model images: RGB in [0, 1], then the depth channel (metres, 0 = none).
         K_input: (3, 3) intrinsics of the model input, pixels.
         settings: the fit's tuning values (:class:`HandFitSettings`).
+        probe: the probe whose surface is left out (None: the default procedural probe).
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 21 hand joints replaced, and :class:`HandFit`.
     """
-    from torch.func import jacfwd, vmap
-
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
-    s = settings
+    s, probe = settings, probe or default_fit_probe()
     caps = _capsules(s.palm_radius_m, s.knuckle_radius_m)
-    probe = fit_rigid_pose(probe_model().corners.double().numpy(), points3d[:, kp.CORNER_SLICE])   # (B, 4, 4)
-    with torch.inference_mode(False), torch.no_grad():
-        K = torch.as_tensor(np.asarray(K_input, dtype=np.float64), dtype=torch.float32)
-        depth = torch.as_tensor(images[:, 3], dtype=torch.float32)
-        hand = torch.as_tensor(np.asarray(points3d[:, kp.HAND_SLICE]), dtype=torch.float32)
-        probe = torch.as_tensor(probe, dtype=torch.float32)
-        points, real = _measured_points(depth, K, hand, probe[:, :3, :3], probe[:, :3, 3], s, caps)
-        B = len(images)
-        theta, solved = torch.zeros(B, N_PARAMS), torch.ones(B, dtype=torch.bool)
-        frames = (0, 0, 0, 0, 0, 0, None)
-        one_frame = functools.partial(_residuals, s=s, caps=caps)
-        residuals, jacobian = vmap(one_frame, in_dims=frames), vmap(jacfwd(one_frame), in_dims=frames)
-        for step in range(s.iterations):
-            distance, nearest = _nearest(points, vmap(_pose)(theta, hand), caps)
-            weight = real * (distance.abs() < s.trim_m[0 if step < s.iterations // 2 else 1]).float()
-            args = (hand, points, weight, nearest, depth, K)
-            r, J = residuals(theta, *args), jacobian(theta, *args)
-            JT = J.transpose(1, 2)
-            delta, info = torch.linalg.solve_ex(JT @ J + s.damping * torch.eye(N_PARAMS), -(JT @ r[..., None])[..., 0])
-            solved &= info == 0
-            theta = theta + torch.where(solved[:, None], delta, torch.zeros_like(delta))
-        fitted = vmap(_pose)(theta, hand).double().numpy()
-        count = real.sum(1).numpy().astype(np.int64)
-    use = (count >= s.min_points) & solved.numpy() & np.isfinite(fitted).all(axis=(1, 2))
-    fitted = np.where(use[:, None, None], fitted, np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64))
+    K = np.asarray(K_input, dtype=np.float64)
+    depth = np.asarray(images[:, 3], dtype=np.float64)
+    hand = np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64)
+    probe_pose = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
+    points, real = _measured_points(depth, K, hand, probe_pose, s, caps, probe)
+    B = len(images)
+    theta, solved = np.zeros((B, N_PARAMS)), np.ones(B, dtype=bool)
+    for step in range(s.iterations):
+        trim = s.trim_m[0 if step < s.iterations // 2 else 1]
+        JTJ, JTr = _normal_equations(theta, hand, points, real, trim, depth, K, s, caps)
+        delta, ok = _solve(JTJ + s.damping * np.eye(N_PARAMS), -JTr)
+        solved &= ok
+        theta = theta + np.where(solved[:, None], delta, 0.0)
+    fitted = pose_and_jacobian(theta, hand)[0]
+    count = real.sum(1).astype(np.int64)
+    use = (count >= s.min_points) & solved & np.isfinite(fitted).all(axis=(1, 2))
+    fitted = np.where(use[:, None, None], fitted, hand)
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[:, kp.HAND_SLICE] = fitted
     out2d[:, kp.HAND_SLICE] = np.where(use[:, None, None], input_points2d(fitted, K_input, images.shape[-1]),

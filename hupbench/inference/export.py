@@ -27,6 +27,8 @@ from torch import nn
 from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.input_checks import check_int
+from hupbench.fits import fits
+from hupbench.fits.known_probe import default_fit_probe
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, GRAPH_SHA256, graph_sha256, write_metadata
 from hupbench.inference.runtime import (
@@ -163,12 +165,14 @@ def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outpu
                   image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None) -> dict[str, str]:
     """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`):
     ``outputs`` those of the :class:`ContractModule` exported, ``image_statistics`` predict's calibration,
-    ``depth_sensor`` the depth camera a depth model was trained on (:func:`trained_depth_sensor`)."""
+    ``depth_sensor`` the depth camera a depth model was trained on (:func:`trained_depth_sensor`). A model that fits
+    carries the probe its fits know (:func:`hupbench.fits.known_probe.default_fit_probe`), so that predict needs
+    neither torch nor the generator to fit it."""
     channels = payload["model_config"].get("input_channels", 3)
     modalities = next(name for name, count in INPUT_MODALITIES.items() if count == channels)
     return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
                           payload["model_config"], run_name, git_commit, modalities, outputs, image_statistics,
-                          depth_sensor)
+                          depth_sensor, default_fit_probe() if fits(payload["model_config"]) else None)
 
 
 def trained_depth_sensor(payload: dict[str, Any], dataset: Path) -> str:

@@ -16,7 +16,10 @@ the nearest pixel like the image); outputs ``points2d`` (B, N, 2) normalised [-1
 Optional (a file without them still reads): ``hupbench.outputs`` (JSON list of the graph outputs,
 :data:`OUTPUTS`; ``["points2d", "points3d"]`` when absent), where ``confidence`` is (B, N) float32 in [0, 1]
 for a model with a per-keypoint confidence (:data:`CONFIDENCE`); and ``hupbench.image_statistics``, the
-calibration of predict's out-of-distribution check (:class:`hupbench.inference.image_statistics.ImageStatistics`).
+calibration of predict's out-of-distribution check (:class:`hupbench.inference.image_statistics.ImageStatistics`);
+and, for a model that fits its output to the depth input (:func:`hupbench.fits.fits`), ``hupbench.fit_probe``: the
+probe those fits know (:meth:`hupbench.fits.known_probe.FitProbe.to_json`; a file without it fits the default
+procedural probe).
 
 The metadata are tied to the graph they were written for: ``hupbench.graph_sha256`` (:data:`GRAPH_SHA256`) is
 the sha256 of the serialized graph (:func:`graph_sha256`), added by the exporter once the graph exists and
@@ -35,6 +38,7 @@ import numpy as np
 from hupbench.core.depth_sensor import NONE, PRESETS
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_int, is_whole
+from hupbench.fits.known_probe import FitProbe
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
@@ -69,12 +73,14 @@ DEPTH_INPUT = {"units": "metres", "no_surface": 0.0, "clip_m": DEPTH_CLIP_M, "re
 def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges, model_config: dict,
                    run_name: str, git_commit: str, input_modalities: str = "rgb",
                    outputs: tuple[str, ...] = BASE_OUTPUTS,
-                   image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None) -> dict[str, str]:
+                   image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None,
+                   fit_probe: FitProbe | None = None) -> dict[str, str]:
     """The ``metadata_props`` of an exported model, checked by :func:`read_metadata` (no time stamp: one
     checkpoint, one set of bytes). K_input: (3, 3) intrinsics at the model input, pixels. ``outputs``: the
     graph's outputs (:data:`OUTPUTS`); ``image_statistics``: the out-of-distribution calibration, or None;
     ``depth_sensor``: for a model that reads depth, the depth camera it was trained on (``hupbench.depth_sensor``:
-    "none" for the clean z-buffer, or a preset of :mod:`hupbench.core.depth_sensor`)."""
+    "none" for the clean z-buffer, or a preset of :mod:`hupbench.core.depth_sensor`); ``fit_probe``: for a model
+    that fits, the probe its fits know."""
     props = {
         META + "input_modalities": input_modalities,
         META + "onnx_schema": ONNX_SCHEMA,
@@ -94,6 +100,8 @@ def write_metadata(input_size: int, K_input: Any, keypoint_names, skeleton_edges
         props[META + "outputs"] = json.dumps(list(outputs))
     if image_statistics is not None:
         props[META + "image_statistics"] = image_statistics.to_json()
+    if fit_probe is not None:
+        props[META + "fit_probe"] = fit_probe.to_json()
     read_metadata(props, "the metadata being written")
     return props
 
@@ -107,7 +115,8 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
         tuple of (i, j), "model_config": dict ({} when absent), "run_name": str, "git_commit": str,
         "input_modalities": "rgb" or "rgb+depth", "outputs": tuple of str, "image_statistics":
         :class:`ImageStatistics` or None, "depth_sensor": the depth camera a depth model was trained on, None where
-        the file does not say (exported before it was recorded)}``.
+        the file does not say (exported before it was recorded), "fit_probe": the probe a fitting model's fits know,
+        :class:`hupbench.fits.known_probe.FitProbe`, None where the file does not carry one}``.
     """
     if META + "onnx_schema" not in props:
         raise BadValueError(f"{source} has no hupbench metadata (metadata_props 'hupbench.onnx_schema' is missing): "
@@ -164,7 +173,10 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     if sensor is not None and (modalities != "rgb+depth" or sensor not in (NONE, *PRESETS)):
         raise BadValueError(f"{source}: metadata hupbench.depth_sensor is for a model that reads depth and one of "
                             f"{', '.join((NONE, *PRESETS))}, got {sensor!r:.80} on an {modalities} model")
-    return {"depth_sensor": sensor, "input_size": input_size, "K_input": K_input, "keypoint_names": tuple(names), "input_modalities": modalities,
+    probe = props.get(META + "fit_probe")
+    probe = None if probe is None else FitProbe.from_json(probe, f"{source}: metadata hupbench.fit_probe")
+    return {"depth_sensor": sensor, "fit_probe": probe, "input_size": input_size, "K_input": K_input,
+            "keypoint_names": tuple(names), "input_modalities": modalities,
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", ""),
             "outputs": tuple(outputs),

@@ -303,7 +303,8 @@ def _open_checked(options: PredictOptions) -> tuple[OnnxModel, list[Path], list[
         if (dataset / "manifest.json").is_file():
             from hupbench.core.contract import read_manifest
 
-            check_fitted_probe(model.model_config, read_manifest(dataset).get("probe"), str(dataset / "manifest.json"))
+            check_fitted_probe(model.model_config, read_manifest(dataset).get("probe"), str(dataset / "manifest.json"),
+                               model.fit_probe)
     files, skipped = expand_inputs(options.inputs)
     if not files:
         raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "
@@ -423,7 +424,8 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
         points2d, points3d, confidence = run_onnx_with_confidence(model, images, depth)  # (B, C, S, S) -> (B, N, *)
         if fits(model.model_config):
             points2d, points3d = after_network(model.model_config, points2d, points3d,
-                                               np.concatenate([images, depth], axis=1), model.K_input)
+                                               np.concatenate([images, depth], axis=1), model.K_input,
+                                               fitted=model.fit_probe)
         K_user = options.K
         for b, (record, image, _, geometry, _) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):

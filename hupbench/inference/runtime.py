@@ -15,6 +15,7 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.io import file_sha256
+from hupbench.fits.known_probe import FitProbe
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, check_graph, check_io_shapes, read_metadata
 
@@ -41,6 +42,8 @@ class OnnxModel:
         outputs: the graph's outputs (``hupbench.outputs``). image_statistics: the out-of-distribution
             calibration, None for a file exported without it. depth_sensor: the depth camera a depth model was
             trained on ("none": the clean z-buffer; a preset of :mod:`hupbench.core.depth_sensor`), None unknown.
+        fit_probe: the probe a fitting model's fits know (:class:`hupbench.fits.known_probe.FitProbe`), None where
+            the file carries none (the fits then know the default procedural probe).
     """
 
     path: Path
@@ -57,6 +60,7 @@ class OnnxModel:
     outputs: tuple[str, ...] = BASE_OUTPUTS
     image_statistics: ImageStatistics | None = None
     depth_sensor: str | None = None
+    fit_probe: FitProbe | None = None
 
     @property
     def reads_depth(self) -> bool:

@@ -409,8 +409,7 @@ def test_spread_ratio_hand_computed_and_undefined():
 
 
 def test_rotation_onto_recovers_a_turn_and_stays_proper():
-    from hupbench.core.geometry import axis_angle_to_matrix
-    from hupbench.metrics import rotation_onto
+    from hupbench.core.geometry import axis_angle_to_matrix, rotation_onto
 
     rng = np.random.default_rng(3)
     src = rng.normal(size=(4, 8, 3))
@@ -444,13 +443,15 @@ K_256 = np.array([[480.0, 0.0, 128.0], [0.0, 480.0, 128.0], [0.0, 0.0, 1.0]])
 
 
 def test_fit_rigid_pose_recovers_the_pose_of_exact_points():
+    from hupbench.core.geometry import fit_rigid_pose
+
     T = _poses(5)
     _, box = _probe_frames()
     observed = box @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]
-    np.testing.assert_allclose(M.fit_rigid_pose(box, observed), T, atol=1e-12)
+    np.testing.assert_allclose(fit_rigid_pose(box, observed), T, atol=1e-12)
     # noise on the corners moves the fit less than the noise itself (least squares over 8 points)
     noisy = observed + np.random.default_rng(1).normal(0.0, 0.001, observed.shape)
-    fitted = M.fit_rigid_pose(box, noisy)
+    fitted = fit_rigid_pose(box, noisy)
     assert np.abs(fitted[:, :3, 3] - T[:, :3, 3]).max() < 0.002
     np.testing.assert_allclose(np.linalg.det(fitted[:, :3, :3]), 1.0)
 
@@ -458,12 +459,14 @@ def test_fit_rigid_pose_recovers_the_pose_of_exact_points():
 def test_fit_rigid_pose_takes_one_point_set_per_frame():
     """(N, K, 3) object points, a different set in each frame (a prediction aligned onto the truth): each frame's
     own pose, and the same answer as fitting each frame alone."""
+    from hupbench.core.geometry import fit_rigid_pose
+
     T = _poses(4)
     objects = np.random.default_rng(2).normal(0.0, 0.05, (4, 6, 3))
     observed = np.einsum("nij,nkj->nki", T[:, :3, :3], objects) + T[:, None, :3, 3]
-    np.testing.assert_allclose(M.fit_rigid_pose(objects, observed), T, atol=1e-12)
-    one_by_one = np.concatenate([M.fit_rigid_pose(objects[i], observed[i:i + 1]) for i in range(4)])
-    np.testing.assert_allclose(M.fit_rigid_pose(objects, observed), one_by_one, atol=1e-12)
+    np.testing.assert_allclose(fit_rigid_pose(objects, observed), T, atol=1e-12)
+    one_by_one = np.concatenate([fit_rigid_pose(objects[i], observed[i:i + 1]) for i in range(4)])
+    np.testing.assert_allclose(fit_rigid_pose(objects, observed), one_by_one, atol=1e-12)
 
 
 @pytest.mark.parametrize("n", [1, 70])   # 70 frames: more than one chunk

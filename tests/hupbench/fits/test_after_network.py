@@ -45,6 +45,22 @@ def test_another_probe_is_refused_for_a_model_that_fits_and_accepted_for_one_tha
     check_fitted_probe({"name": "hupnet"}, record, "DATASET/manifest.json")
 
 
+def test_a_model_file_s_own_probe_is_the_one_its_fits_accept():
+    """A model whose file carries a mesh probe fits that probe's data and refuses the default probe's."""
+    from dataclasses import replace as changed
+
+    from hupbench.fits.known_probe import default_fit_probe
+
+    own = changed(default_fit_probe(), record=MESH_PROBE)
+    check_fitted_probe({"probe_fit": "depth"}, MESH_PROBE, "DATASET/manifest.json", own)
+    with pytest.raises(BadValueError) as info:
+        check_fitted_probe({"probe_fit": "depth"}, None, "DATASET/manifest.json", own)
+    assert str(info.value) == ("DATASET/manifest.json: the data shows the probe 'procedural' (procedural), but the "
+                               "model's probe fit (probe_fit/hand_fit: depth) knows only the probe "
+                               "'/data/probes/linear.stl' (mesh) of its model file; use a model without the fits on "
+                               "this data")
+
+
 def test_settings_are_frozen_values_with_the_defaults_every_model_runs_with():
     with pytest.raises(FrozenInstanceError):
         HandFitSettings().free_weight = 0.0
@@ -59,8 +75,8 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     seen = []
 
     def stand_in(part):
-        def fit(points2d, points3d, images, K_input, settings):
-            seen.append((part, settings))
+        def fit(points2d, points3d, images, K_input, settings, probe):
+            seen.append((part, settings, probe))
             return points2d, points3d + 1.0, None
         return fit
 
@@ -69,7 +85,7 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     probe, hand = ProbeFitSettings(min_inliers=5), HandFitSettings(iterations=2)
     points2d, points3d = np.zeros((1, kp.NUM_KEYPOINTS, 2), np.float32), np.zeros((1, kp.NUM_KEYPOINTS, 3))
     out2d, out3d = after_network({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d,
-                                 np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe, hand)
-    assert seen == [("probe", probe), ("hand", hand)]
+                                 np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe, hand, fitted="the file's")
+    assert seen == [("probe", probe, "the file's"), ("hand", hand, "the file's")]
     assert out2d.dtype == out3d.dtype == np.float64 and (out3d == 2.0).all()
 

@@ -217,3 +217,50 @@ def test_depth_input_warnings_of_each_preset():
         assert len(depth_input_warnings(np.full((32, 32), 0.6), sensor)) == 1
     assert depth_input_warnings(np.where(sensor_like > 0, 2.0, 0.0), PRESETS["hololens2_ahat"])  # past its wrap
     assert not depth_input_warnings(np.where(sensor_like > 0, 2.0, 0.0), PRESETS["azure_kinect_nfov"])  # in range
+
+
+def test_predict_of_a_fitting_model_fits_without_torch(tiny_dataset, tmp_path):
+    """A model with both fits (probe_fit, hand_fit: depth) carries its probe in its file (hupbench.fit_probe), and
+    predict runs it, fits included, in a fresh interpreter that never imports torch: its poses are those of the fits
+    after the network, as eval computes them."""
+    import subprocess
+    import sys
+
+    from hupbench.fits import after_network
+    from hupbench.fits.known_probe import default_fit_probe
+    from hupbench.inference.runtime import load_onnx_model, run_onnx
+
+    # the layout it recalls (points3d_scale 1e-3: the untrained network adds a fraction of a millimetre) is the first
+    # frame's truth, so that both fits find their points there
+    with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
+        truth = ann["keypoints_3d_cam"][0]
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
+                           points3d_mean=truth.tolist(), points3d_scale=1e-3)
+    onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
+                                  log=lambda *_: None)["onnx"])
+    model = load_onnx_model(onnx_path)
+    assert model.fit_probe.record == default_fit_probe().record
+    assert np.array_equal(model.fit_probe.grid, default_fit_probe().grid)
+    images, depth_dir = frames(tiny_dataset, 3)
+    out = tmp_path / "out"
+    code = (
+        "import sys\n"
+        "from hupbench.cli import main\n"
+        f"rc = main(['predict', {str(onnx_path)!r}, *{[str(p) for p in images]!r}, '--depth', {str(depth_dir)!r}, "
+        f"'--out', {str(out)!r}, '--no-overlay'])\n"
+        "assert rc == 0, rc\n"
+        "heavy = sorted(m for m in sys.modules if m == 'torch' or m.startswith(('torch.', 'torchvision', 'kornia')))\n"
+        "print('IMPORTED', heavy)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "IMPORTED []" in proc.stdout, proc.stdout
+    records = json.loads((out / "predictions.json").read_text())["images"]
+    reader = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=64, input_modalities="rgb+depth"))
+    batch = np.stack([reader[i]["image"].numpy() for i in range(len(images))])
+    network = run_onnx(model, batch[:, :3], batch[:, 3:])
+    _, fitted = after_network(model.model_config, *network, batch, model.K_input, fitted=model.fit_probe)
+    moved = np.abs(fitted - network[1]).max(axis=2)[0] > 1e-4                          # the first frame's 29 points
+    assert moved[:21].any() and moved[21:].any(), "both fits move the recalled first frame's points"
+    for record, p3 in zip(records, fitted):
+        np.testing.assert_allclose(record["keypoints_3d_m"], p3, atol=1e-4)
