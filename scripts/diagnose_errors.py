@@ -99,6 +99,7 @@ def split_labels(args, reader, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 def main() -> None:
     from hupbench import metrics
+    from hupbench.core.geometry import fit_rigid_pose
     from hupbench.core import keypoints as kp
 
     args, net, reader, prediction = split_outputs(__doc__.splitlines()[0], batch=64)
@@ -125,7 +126,7 @@ def main() -> None:
     print(f"hand: wrist (keypoint 0) {wrist:.2f} mm absolute; hand MPJPE relative to the wrist "
           f"{metrics.root_relative_mpjpe_mm(pred, gt):.2f}, to the middle MCP (keypoint 9) "
           f"{metrics.root_relative_mpjpe_mm(pred, gt, root=metrics.MIDDLE_MCP_INDEX):.2f}")
-    R = metrics.fit_rigid_pose(gt[:, probe], pred[:, probe])[:, :3, :3]
+    R = fit_rigid_pose(gt[:, probe], pred[:, probe])[:, :3, :3]
     angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     axis = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
     axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)

@@ -13,7 +13,7 @@ Numpy only: ``hupbench predict`` runs it without torch.
 
 How, per frame, in the camera of the model input (``K_input``), with :class:`ProbeFitSettings` ``s``:
     1. The network's pose: the probe's box (:attr:`FitProbe.corners`) fitted to its
-       8 corners (Kabsch, :func:`hupbench.metrics.fit_rigid_pose`), R0, t0.
+       8 corners (Kabsch, :func:`hupbench.core.geometry.fit_rigid_pose`), R0, t0.
     2. The measured points: every pixel with a surface, unprojected with its depth, within the probe's half
        diagonal + ``s.reach_m`` of the network's box centre; ``s.max_points`` of them in a fixed pseudo-random
        order (fingers, palm and arm are among them: the trimmed fit is robust to them).
