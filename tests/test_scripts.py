@@ -265,6 +265,22 @@ def test_benchmark_train(tiny_dataset, monkeypatch, capsys):
     assert "jpeg:0" in out and "cache:0 / jpeg:0" in out
 
 
+def test_benchmark_latency(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """A model with both fits: every stage's line, batch 32 marked absent on 2 frames, predict's line."""
+    from helpers.models import make_checkpoint as checkpoint
+
+    ckpt = checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth")
+    out = run_script(BENCHMARKS / "latency.py", ckpt, tiny_dataset, "--frames", "2", "--threads", "1",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "fits: probe, hand; 1 threads;" in out and "torch CPU capability" in out
+    for stage in ("network, PyTorch", "network, onnxruntime", "probe fit", "hand fit", "PyTorch end to end (eval)",
+                  "onnxruntime end to end", "hupbench predict, files"):
+        line = next(line for line in out.splitlines() if line.startswith(stage))
+        figures = line[len(stage):].split("(")[0].split()
+        assert len(figures) == 2 and float(figures[0]) > 0, line
+        assert figures[1] == "-" or stage == "hupbench predict, files", line
+
+
 def test_benchmark_scale_training(tiny_dataset, monkeypatch, capsys):
     out = run_script(BENCHMARKS / "scale.py", "training", "--dataset", tiny_dataset, "--batch", "2", "--steps", "2",
                      "--threads", "1", "--processes", "1", monkeypatch=monkeypatch, capsys=capsys)
