@@ -67,6 +67,21 @@ def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, caps
         assert set(summary["probe_mm"]) == {"network", "fit"}
 
 
+def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """The defaults' line and a variant's, each with both fits' times; a bad variant is refused naming the field."""
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth")
+    out = run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--frames", "2", "--variant",
+                     "probe:hypotheses=4,coarse_points=64;hand:iterations=2", monkeypatch=monkeypatch, capsys=capsys)
+    lines = out.splitlines()
+    assert lines[1].startswith("network alone") and lines[2].startswith("defaults")
+    assert lines[3].startswith("probe hypotheses=4, coarse_points=64; hand iterations=2")
+    assert all("probe fit" in line and "hand fit" in line and "all " in line for line in lines[2:4])
+    with pytest.raises(SystemExit):
+        run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--variant", "probe:nope=1", monkeypatch=monkeypatch,
+                   capsys=capsys)
+    assert "'nope=1': expected NAME=NUMBER" in capsys.readouterr().err
+
+
 def test_the_fit_ablations_refuse_an_rgb_checkpoint(exported, tiny_dataset, monkeypatch, capsys):
     ckpt, _ = exported
     with pytest.raises(SystemExit, match="reads rgb; this script needs rgb\\+depth"):

@@ -23,8 +23,9 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        lengths stay the network's). The residuals: each point's distance to the surface of its nearest capsule
        (points farther than ``s.trim_m`` left out: the arm, the other objects; first half, second half of the
        steps); where a capsule's axis (``s.free_samples`` points on each) is seen in front of the measured
-       surface's depth by more than ``s.free_margin_m`` the capsule would be visible there, and it is pushed back
-       (``s.free_weight``); and each bone's rotation times ``s.bone_prior_m`` (metres per radian): a finger
+       surface's depth by more than ``s.free_margin_m`` (and at most ``s.free_band_m``: farther, the sensor saw
+       past the hand, onto the patient or the room, and pushing the capsule back would pull it there) the capsule
+       would be visible there, and it is pushed back (``s.free_weight``); and each bone's rotation times ``s.bone_prior_m`` (metres per radian): a finger
        without measured points, hidden by the probe or the palm, keeps the network's pose.
     4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
        motion), or a step whose equations could not be solved, or a fit that is not finite, the hand stays where
@@ -216,8 +217,9 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     d00, d01, d10, d11 = pick(0, 0), pick(0, 1), pick(1, 0), pick(1, 1)
     measured = d00 * (1 - fu) * (1 - fv) + d01 * fu * (1 - fv) + d10 * (1 - fu) * fv + d11 * fu * fv
     inside = (u > 0) & (u < size - 1) & (v > 0) & (v < size - 1) & (measured > 0)
-    gap = measured - (z - caps.radius[:, None]) - s.free_margin_m
-    active = inside & (gap > 0)
+    behind = measured - (z - caps.radius[:, None])           # how far the measured surface lies behind the front
+    gap = behind - s.free_margin_m
+    active = inside & (gap > 0) & (behind <= s.free_band_m)
     r_free = np.where(active, gap, 0.0) * s.free_weight
     dm_du = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) * ((u > 0) & (u < size - 1.001))
     dm_dv = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) * ((v > 0) & (v < size - 1.001))

@@ -70,7 +70,10 @@ class HandFitSettings:
         trim_m: points farther from the capsules are left out, metres: (first half, second half) of the steps.
         free_samples: points on each capsule's axis checked against the measured depth;
         free_margin_m: a sample this far in front of the measured surface would be seen there, metres;
-        free_weight: the weight of that free-space residual.
+        free_weight: the weight of that free-space residual;
+        free_band_m: a sample whose measured surface lies farther than this behind its capsule's front is left out,
+            metres (the sensor saw past the hand there: the patient, the room; pushing the capsule back would pull
+            it towards them).
         bone_prior_m: each bone's turn costs this many metres per radian (a finger without points stays put).
         damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
     """
@@ -86,5 +89,6 @@ class HandFitSettings:
     free_samples: int = 4
     free_margin_m: float = 0.004
     free_weight: float = 0.3
+    free_band_m: float = 0.04
     bone_prior_m: float = 0.05
     damping: float = 1e-6

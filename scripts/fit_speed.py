@@ -1,0 +1,103 @@
+"""What the fits' settings cost and give: a model's MPJPE (all, hand, probe) and each fit's time per frame at batch 1,
+with the fits' default settings and with variants, on the same network output of evenly spaced frames of a split.
+Tunes on val by default.
+
+``--variant probe:NAME=VALUE[,...]`` or ``hand:NAME=VALUE[,...]`` (repeatable, both in one variant joined by ``;``)
+changes fields of :class:`hupbench.fits.ProbeFitSettings` / :class:`hupbench.fits.HandFitSettings`, e.g.
+``--variant "probe:hypotheses=12,coarse_points=128;hand:iterations=6"``.
+
+Usage: python scripts/fit_speed.py CHECKPOINT DATASET [--split val] [--frames 240] [--variant SPEC ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _fields(settings_type) -> dict[str, type]:
+    return {f.name: type(getattr(settings_type(), f.name)) for f in dataclasses.fields(settings_type)}
+
+
+def _variant(text: str) -> dict[str, dict]:
+    """``"probe:hypotheses=12;hand:iterations=6"`` -> {"probe": {"hypotheses": 12}, "hand": {"iterations": 6}}, each
+    value typed as its field's default."""
+    from hupbench.fits import HandFitSettings, ProbeFitSettings
+
+    kinds = {"probe": ProbeFitSettings, "hand": HandFitSettings}
+    out: dict[str, dict] = {"probe": {}, "hand": {}}
+    for part in text.split(";"):
+        kind, _, items = part.partition(":")
+        if kind not in kinds or not items:
+            raise argparse.ArgumentTypeError(f"{part!r}: expected probe:NAME=VALUE[,...] or hand:NAME=VALUE[,...]")
+        fields = _fields(kinds[kind])
+        for item in items.split(","):
+            name, _, value = item.partition("=")
+            if name not in fields or fields[name] not in (int, float) or not value:
+                numeric = ", ".join(n for n, t in fields.items() if t in (int, float))
+                raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER, NAME one of {numeric}")
+            try:
+                out[kind][name] = fields[name](value)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{item!r}: {value!r} is not a {fields[name].__name__}") from None
+    return out
+
+
+def main() -> None:
+    from hupbench.core import keypoints as kp
+    from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
+    from hupbench.fits import HandFitSettings, ProbeFitSettings, fits
+    from hupbench.fits.hand_fit import fit_hand
+    from hupbench.fits.probe_fit import fit_probe
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("model", help="a hupbench checkpoint (.pt) whose model runs fits after the network")
+    parser.add_argument("dataset", help="a finished dataset folder")
+    parser.add_argument("--split", default="val", choices=("train", "val", "test"))
+    parser.add_argument("--frames", type=int, default=240, help="evenly spaced frames of the split (0: all)")
+    parser.add_argument("--variant", type=_variant, action="append", default=[], metavar="SPEC",
+                        help="also run the fits with these settings changed (repeatable)")
+    args = parser.parse_args()
+    net = EvalModel(Path(args.model))
+    asked = fits(net.model_config)
+    if not asked:
+        parser.error(f"{args.model} runs no fit after its network (model.probe_fit / model.hand_fit)")
+    reader = split_reader(Path(args.dataset), args.split, net)
+    rows = evenly_spaced(len(reader), args.frames)
+    p = predict_split(net, reader, 32, rows, with_fits=False, keep_images=True)
+    images = np.concatenate(p.images)
+
+    def errors(points3d: np.ndarray) -> str:
+        err = 1000.0 * np.linalg.norm(points3d - p.labels3d, axis=-1)
+        return (f"all {err.mean():6.2f} hand {err[:, kp.HAND_SLICE].mean():6.2f} "
+                f"probe {err[:, kp.CORNER_SLICE].mean():6.2f}")
+
+    print(f"{args.model} on {len(rows)} {args.split} frames; mm, ms per frame at batch 1")
+    print(f"{'network alone':48s} {errors(p.points3d)}")
+    for changes in [{"probe": {}, "hand": {}}] + args.variant:
+        probe = dataclasses.replace(ProbeFitSettings(), **changes["probe"])
+        hand = dataclasses.replace(HandFitSettings(), **changes["hand"])
+        out3d, spent = np.empty_like(p.points3d), {"probe": 0.0, "hand": 0.0}
+        for i in range(len(rows)):
+            points2d, points3d, frame = p.points2d[i:i + 1], p.points3d[i:i + 1], images[i:i + 1]
+            if "probe" in asked:
+                start = time.perf_counter()
+                points2d, points3d, _ = fit_probe(points2d, points3d, frame, net.K_input, probe)
+                spent["probe"] += time.perf_counter() - start
+            if "hand" in asked:
+                start = time.perf_counter()
+                points2d, points3d, _ = fit_hand(points2d, points3d, frame, net.K_input, hand)
+                spent["hand"] += time.perf_counter() - start
+            out3d[i] = points3d[0]
+        name = "; ".join(f"{kind} {', '.join(f'{k}={v:g}' for k, v in c.items())}" for kind, c in changes.items()
+                         if c) or "defaults"
+        times = ", ".join(f"{kind} fit {1000.0 * spent[kind] / len(rows):5.1f}" for kind in asked)
+        print(f"{name:48s} {errors(out3d)}; {times}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
