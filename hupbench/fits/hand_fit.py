@@ -25,8 +25,9 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        steps); where a capsule's axis (``s.free_samples`` points on each) is seen in front of the measured
        surface's depth by more than ``s.free_margin_m`` (and at most ``s.free_band_m``: farther, the sensor saw
        past the hand, onto the patient or the room, and pushing the capsule back would pull it there) the capsule
-       would be visible there, and it is pushed back (``s.free_weight``); and each bone's rotation times ``s.bone_prior_m`` (metres per radian): a finger
-       without measured points, hidden by the probe or the palm, keeps the network's pose.
+       would be visible there, and it is pushed back (``s.free_weight``); and each bone's rotation times
+       ``s.bone_prior_m`` (metres per radian): a finger without measured points, hidden by the probe or the palm,
+       keeps the network's pose.
     4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
        motion), or a step whose equations could not be solved, or a fit that is not finite, the hand stays where
        the network put it.

@@ -212,8 +212,8 @@ def test_hands_a_tenth_smaller_and_larger_are_fitted_as_well_as_the_default_with
 def test_a_wall_behind_the_hand_neither_pulls_it_back_nor_changes_the_fit(shift):
     """Every pixel without the hand sees a wall 1.2 m away (the clinic's room), and the network's hand is 12 mm off
     sideways, so capsules stray over the wall: the free-space term leaves samples whose surface lies beyond
-    free_band_m out, and the fit is the one without the wall (to 0.1 mm). Without that band (inf) the term pushes the hand
-    metres towards the wall, as it did on the clinic track."""
+    free_band_m out, and the fit is the one without the wall (to 0.1 mm). Without that band (inf) the term pushes
+    the hand metres towards the wall, as it did on the clinic track."""
     image, joints = scene(0.6)
     wall = image.copy()
     wall[3][wall[3] == 0] = 1.2
