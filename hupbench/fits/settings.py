@@ -2,7 +2,8 @@
 
 Plain dataclasses (no torch): :func:`hupbench.fits.after_network` takes them on the torch-free predict path. A
 variant is ``dataclasses.replace(HandFitSettings(), free_weight=0.0)``; the defaults are the values every model
-runs with.
+runs with, chosen on the val splits of the paper protocol and the clinic track (``scripts/fit_speed.py``,
+``scripts/fit_divergence.py``; docs/results.md gives the figures).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ class ProbeFitSettings:
     """How :func:`hupbench.fits.probe_fit.fit_probe` poses the probe (its module docstring names the steps).
 
     Attributes:
-        hypotheses: turns of the network's pose about the probe's long axis, evenly spaced (24: every 15 degrees).
+        hypotheses: turns of the network's pose about the probe's long axis, evenly spaced (12: every 30 degrees).
         iterations: Gauss-Newton steps per turn.
         max_points: measured points per frame; coarse_points: of them, for the first round over every turn.
         finalists: turns refined again on all the points.
@@ -34,10 +35,10 @@ class ProbeFitSettings:
         marker_seen: a site is unoccluded: this share of its window shows it.
     """
 
-    hypotheses: int = 24
-    iterations: int = 6
+    hypotheses: int = 12
+    iterations: int = 4
     max_points: int = 768
-    coarse_points: int = 384
+    coarse_points: int = 128
     finalists: int = 3
     reach_m: float = 0.03
     trim_m: tuple[float, float] = (0.015, 0.006)

@@ -66,7 +66,7 @@ def test_settings_are_frozen_values_with_the_defaults_every_model_runs_with():
         HandFitSettings().free_weight = 0.0
     variant = replace(HandFitSettings(), free_weight=0.0)
     assert variant.free_weight == 0.0 and HandFitSettings().free_weight == 0.3
-    assert ProbeFitSettings().hypotheses == 24 and ProbeFitSettings() == ProbeFitSettings()
+    assert ProbeFitSettings().hypotheses == 12 and ProbeFitSettings() == ProbeFitSettings()
 
 
 def test_after_network_passes_each_fit_its_settings(monkeypatch):
