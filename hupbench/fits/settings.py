@@ -85,7 +85,7 @@ class HandFitSettings:
     probe_gap_m: float = 0.004
     max_points: int = 512
     min_points: int = 30
-    iterations: int = 10
+    iterations: int = 8
     trim_m: tuple[float, float] = (0.008, 0.004)
     free_samples: int = 4
     free_margin_m: float = 0.004
