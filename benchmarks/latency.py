@@ -2,20 +2,23 @@
 fit after it, the whole of each runtime, and ``hupbench predict`` end to end, on real frames of a dataset.
 
 Each stage is timed on the same frames (the split's first ``--frames``, read at the model's input as eval reads
-them) with eval's warm-up and medians (:func:`hupbench.evaluation.latency.measure_latency_ms`); a fit is timed on the
-output of the stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load
-included, per image. eval's own latency runs on random images, where a fit finds no hand; these are the figures of
-frames it does find. Prints the CPU with the figures.
+them), batch by batch over all of them, ``--repeats`` times after one warm-up round: the median time of a batch per
+image (a fit's time depends on the frame: how many of its pixels it reads). A fit is timed on the output of the
+stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load included, per
+image. eval's own latency runs on random images, where a fit finds no hand; these are the figures of frames it
+does find. Prints the CPU with the figures.
 
-Usage: python benchmarks/latency.py CHECKPOINT DATASET [--split val] [--frames 32] [--threads 2]
+Usage: python benchmarks/latency.py CHECKPOINT DATASET [--split val] [--frames 32] [--repeats 3] [--threads 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import platform
+import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,20 +37,38 @@ def cpu_name() -> str:
     return f"{name}, torch CPU capability {torch.backends.cpu.get_cpu_capability()}"
 
 
+def per_image_ms(run: Callable[[np.ndarray], object], frames: np.ndarray, batch: int, repeats: int) -> float | None:
+    """The median over ``repeats`` rounds and the batches of ``frames`` (B, C, S, S) of ``run``'s time on a batch of
+    ``batch`` frames, per image, ms; one untimed round first. None when there are fewer frames than ``batch``."""
+    batches = [frames[i:i + batch] for i in range(0, len(frames) - batch + 1, batch)]
+    if not batches:
+        return None
+    for images in batches:
+        run(images)
+    times = []
+    for _ in range(repeats):
+        for images in batches:
+            start = time.perf_counter()
+            run(images)
+            times.append((time.perf_counter() - start) * 1000.0 / batch)
+    return statistics.median(times)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", type=Path, help="a model that fits (e.g. the recommended one's last.pt)")
     parser.add_argument("dataset", type=Path, help="a finished dataset folder")
     parser.add_argument("--split", default="val", choices=("train", "val", "test"))
     parser.add_argument("--frames", type=int, default=32, help="frames timed (batch 32 needs at least 32)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed rounds over the frames")
     parser.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
     args = parser.parse_args()
-    if args.frames < 1 or args.threads < 1:
-        parser.error("--frames and --threads must be positive")
+    if min(args.frames, args.repeats, args.threads) < 1:
+        parser.error("--frames, --repeats and --threads must be positive")
 
     import torch
 
-    from hupbench.evaluation.latency import LATENCY_RUNS, measure_latency_ms
+    from hupbench.evaluation.latency import LATENCY_RUNS
     from hupbench.evaluation.prediction import EvalModel, split_reader
     from hupbench.fits import fits
     from hupbench.fits.hand_fit import fit_hand
@@ -75,19 +96,32 @@ def main() -> None:
             "network, PyTorch": lambda x: net.network(torch.from_numpy(x)),
             "network, onnxruntime": lambda x: run_onnx(onnx, *split_model_images(x)),
         }
-        outputs = {b: net.network(torch.from_numpy(frames[:b])) for b in LATENCY_RUNS}
+        # a fit's input, for a batch of frames (a view of them: its place and length), is the stage before it's
+        # output, computed once, in the untimed round
+        outputs = {}
+
+        def once(kind: str, x: np.ndarray, compute: Callable[[], tuple]) -> tuple:
+            key = (kind, x.__array_interface__["data"][0], len(x))
+            if key not in outputs:
+                outputs[key] = compute()
+            return outputs[key]
+
+        def network(x):
+            return once("network", x, lambda: net.network(torch.from_numpy(x)))
+
+        def after_probe(x):
+            return once("probe", x, lambda: fit_probe(*network(x), x, K)[:2]) if "probe" in asked else network(x)
+
         if "probe" in asked:
-            stages["probe fit"] = lambda x: fit_probe(*outputs[len(x)], x, K)
-            outputs = {b: fit_probe(*o, frames[:b], K)[:2] for b, o in outputs.items()}
+            stages["probe fit"] = lambda x: fit_probe(*network(x), x, K)
         if "hand" in asked:
-            stages["hand fit"] = lambda x: fit_hand(*outputs[len(x)], x, K)
+            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K)
         stages["PyTorch end to end (eval)"] = lambda x: net.predict(torch.from_numpy(x))
         stages["onnxruntime end to end"] = lambda x: net.after_network(x, run_onnx(onnx, *split_model_images(x)))
         width = max(map(len, stages)) + 2
         print(f"{'stage':{width}s}" + "".join(f"{f'batch {b}':>14s}" for b in LATENCY_RUNS) + "   (ms per image)")
         for name, run in stages.items():
-            row = [measure_latency_ms(run, net.input_size, b, *LATENCY_RUNS[b], net.channels, frames[:b])
-                   if b <= count else None for b in LATENCY_RUNS]
+            row = [per_image_ms(run, frames, b, args.repeats) for b in LATENCY_RUNS]
             print(f"{name:{width}s}" + "".join(f"{v:14.2f}" if v is not None else f"{'-':>14s}" for v in row),
                   flush=True)
 

@@ -54,16 +54,13 @@ def model_cost(net: EvalModel) -> tuple[int, int]:
 
 
 def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch: int,
-                       warmup: int, repeats: int, channels: int = 3, images: np.ndarray | None = None) -> float:
-    """Median wall time per image of ``run`` on a (batch, C, S, S) float32 array of model images, milliseconds:
-    ``images`` where given (real frames), else random ones.
+                       warmup: int, repeats: int, channels: int = 3) -> float:
+    """Median wall time per image of ``run`` on a (batch, C, S, S) float32 array of model images, milliseconds.
 
     Warm-up: at least ``warmup`` runs and ``WARMUP_MIN_S`` seconds (at most ``WARMUP_MAX_RUNS`` runs);
     then the median of ``repeats`` timed runs, divided by ``batch``.
     """
-    if images is None:
-        images = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
-    assert images.shape == (batch, channels, input_size, input_size), images.shape
+    images = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
     start, runs = time.perf_counter(), 0
     while runs < warmup or (time.perf_counter() - start < WARMUP_MIN_S and runs < WARMUP_MAX_RUNS):
         run(images)
