@@ -24,6 +24,10 @@ MAX_DIFFS_SHOWN = 8
 #: config keys that may differ between a run and the run it resumes
 RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_dir", "threads", "data.num_workers",
                     "data.cache_dir", "label")
+#: config keys added after checkpoints were written, with the value that does what a run did before the key existed:
+#: a checkpoint without the key is of the same config as a run with that value (the depth camera issue's reader keys:
+#: the depth the dataset stores, no fresh noise)
+ADDED_KEYS = {"data.reader.depth_sensor": "dataset", "data.reader.fresh_sensor_noise": False}
 
 
 def resume_checkpoint(run: TrainRun) -> Checkpoint | None:
@@ -88,13 +92,16 @@ def new_run_override(run: TrainRun) -> str:
 
 
 def _config_diff(a: dict, b: dict, prefix: str = "") -> list[str]:
-    """``key: checkpoint A, now B`` for every dotted key whose value differs, but :data:`RESUME_FREE_KEYS`."""
+    """``key: checkpoint A, now B`` for every dotted key whose value differs, but :data:`RESUME_FREE_KEYS` and a key
+    of :data:`ADDED_KEYS` absent from the checkpoint's config and at its value now."""
     out = []
     for key in sorted(set(a) | set(b)):
         path = f"{prefix}{key}"
         if path in RESUME_FREE_KEYS:
             continue
         va, vb = a.get(key, "<absent>"), b.get(key, "<absent>")
+        if key not in a and path in ADDED_KEYS and vb == ADDED_KEYS[path]:
+            continue
         if isinstance(va, dict) and isinstance(vb, dict):
             out += _config_diff(va, vb, path + ".")
         elif va != vb:

@@ -274,6 +274,23 @@ def test_checkpoint_from_another_model_is_refused(tiny_dataset, tmp_path):
                            "train.max_steps=1", "train.resume=never"), log=lambda *_: None)
 
 
+def test_a_checkpoint_from_before_a_config_key_existed_resumes_at_that_key_s_old_behaviour():
+    """A checkpoint written before data.reader.depth_sensor and fresh_sensor_noise existed (its config lacks them)
+    is of the same config as a run with their values that do what runs did then; another value is a difference."""
+    from hupbench.training.resume import ADDED_KEYS, _config_diff
+
+    now = {"data": {"batch_size": 32, "reader": {"input_size": 128, "depth_sensor": "dataset",
+                                                 "fresh_sensor_noise": False}}}
+    before = {"data": {"batch_size": 32, "reader": {"input_size": 128}}}
+    assert set(ADDED_KEYS) == {"data.reader.depth_sensor", "data.reader.fresh_sensor_noise"}
+    assert _config_diff(before, now) == []
+    other = {"data": {"batch_size": 32, "reader": {"input_size": 128, "depth_sensor": "hololens2_ahat",
+                                                   "fresh_sensor_noise": False}}}
+    assert _config_diff(before, other) == ["data.reader.depth_sensor: checkpoint '<absent>', now 'hololens2_ahat'"]
+    assert _config_diff(now, before) == ["data.reader.depth_sensor: checkpoint 'dataset', now '<absent>'",
+                                         "data.reader.fresh_sensor_noise: checkpoint False, now '<absent>'"]
+
+
 MODEL_CONFIGS = sorted(p.stem for p in (REPO / "conf" / "model").glob("*.yaml"))
 
 
