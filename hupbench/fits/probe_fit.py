@@ -3,9 +3,10 @@ surface to the depth input, and its half turn read from the orientation marker.
 
 The depth input sees the probe's surface and the probe's shape is known (:class:`hupbench.fits.known_probe.FitProbe`:
 the generator's probe, or the one a model file carries, its signed distance), so a rigid fit of that shape to the
-measured points recovers the turn the image shows where a network recalls the turns of its training grasps. The fit is a point-to-surface ICP (Besl and McKay, "A method
-for registration of 3-D shapes", IEEE TPAMI 14(2), 1992; Chen and Medioni, "Object modelling by registration of
-multiple range images", Image and Vision Computing 10(3), 1992) on the probe's signed distance, solved by
+measured points recovers the turn the image shows where a network recalls the turns of its training grasps. The
+fit is a point-to-surface ICP (Besl and McKay, "A method for registration of 3-D shapes", IEEE TPAMI 14(2), 1992;
+Chen and Medioni, "Object modelling by registration of multiple range images", Image and Vision Computing 10(3),
+1992) on the probe's signed distance, solved by
 Gauss-Newton (Nocedal and Wright, "Numerical Optimization", 2nd ed., 2006, sec. 10.3), with trimmed residuals and
 several starting turns because the probe is nearly symmetric about its long axis.
 
