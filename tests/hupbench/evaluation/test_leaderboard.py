@@ -569,17 +569,21 @@ def split_intervals_of(row: dict) -> dict:
 
 def test_committed_rows_print_intervals_recomputed_from_their_breakdown():
     """The committed rows that predate intervals (schema < 5) print them recomputed from their breakdown, the rows
-    eval wrote since (the clinic track's) their own; the best paper-protocol row's probe and floor intervals."""
+    eval wrote since (the clinic track's, the best paper-protocol row's) their own; a recomputed row's probe and
+    floor intervals, and the best row's."""
     rows = {r["run_name"]: r for r in load_rows(COMMITTED / "results")}
+    older = rows["paper_hupnet_fit_cpu"]
+    assert older["intervals_from"] == "breakdown" and older["intervals"]["grasps"] == 2
+    assert interval_text(older["intervals"]["mpjpe_mm"]["probe"]) == "[7.7-29.5]"
+    assert interval_text(older["intervals"]["split_floor_mm"]["probe"]) == "[53.0-65.6]"
     best = rows["paper_hupnet_handfit_cpu"]
-    assert best["intervals_from"] == "breakdown" and best["intervals"]["grasps"] == 2
-    assert interval_text(best["intervals"]["mpjpe_mm"]["probe"]) == "[7.7-29.5]"
-    assert interval_text(best["intervals"]["split_floor_mm"]["probe"]) == "[53.0-65.6]"
+    assert best["intervals_from"] == "results" and best["intervals"]["grasps"] == 2
+    assert interval_text(best["intervals"]["mpjpe_mm"]["probe"]) == "[6.3-28.5]"
     for row in rows.values():
         recorded = json.loads((COMMITTED / "results" / f"{row['run_name']}.json").read_text())["schema_version"] >= 5
         expected = None if row["kind"] != "measured" else "results" if recorded else "breakdown"
         assert row["intervals_from"] == expected, row["run_name"]
     assert rows["clinic_hupnet_handfit_2k_cpu"]["intervals_from"] == "results"
     text = (COMMITTED / README).read_text()
-    line = next(line for line in table_lines(text) if "`bash scripts/paper_protocol.sh paper_hupnet_handfit_cpu`" in line)
+    line = next(line for line in table_lines(text) if "`bash scripts/paper_protocol.sh paper_hupnet_fit_cpu`" in line)
     assert line.split(" | ")[8:10] == ["18.62 [7.7-29.5]", "8.17 [6.5-9.9] / 59.30 [53.0-65.6] / 22.27 [19.3-25.2]"]
