@@ -35,13 +35,14 @@ class EvalModel:
         model_config: the architecture's saved config. input_size: S, pixels. input_modalities: "rgb" or
             "rgb+depth". K_input: (3, 3) float64 intrinsics of the model input, pixels (the camera of the 3D
             output). run_name: the training run's name as a run name (:func:`hupbench.provenance.default_run_name`).
-        fit_probe: the probe the fits know (an ONNX file's :class:`hupbench.fits.known_probe.FitProbe`); None: the
-            default procedural probe (a checkpoint, or a file without one).
+        fit_probe: the probe the fits know (:class:`hupbench.fits.known_probe.FitProbe`: an ONNX file's, a
+            checkpoint's training dataset's, :func:`hupbench.inference.export.trained_fit_probe`); None: the default
+            procedural probe (a file without one, a model without fits).
     """
 
     def __init__(self, path: Path) -> None:
         from hupbench.checkpoint import load_model
-        from hupbench.inference.export import check_keypoint_count, contract_model
+        from hupbench.inference.export import check_keypoint_count, contract_model, trained_fit_probe
         from hupbench.provenance import default_run_name
 
         self.path = Path(path)
@@ -66,7 +67,7 @@ class EvalModel:
         self.input_modalities = self.module.input_modalities
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name((payload.get("config") or {}).get("run_name"), self.path)
-        self.fit_probe = None
+        self.fit_probe = trained_fit_probe(payload)
 
     @property
     def fits(self) -> bool:

@@ -21,7 +21,7 @@ import numpy as np
 
 from hupbench.core.errors import BadValueError
 
-__all__ = ["FitProbe", "default_fit_probe"]
+__all__ = ["FitProbe", "dataset_fit_probe", "default_fit_probe"]
 
 #: the version of :meth:`FitProbe.to_json`'s layout
 _SCHEMA = 1
@@ -38,6 +38,7 @@ class FitProbe:
         corners: (8, 3) float64, the probe's box corners (keypoints 21-28), probe frame.
         marker: (3,) float64, the marker's centre, and marker_normal: (3,) its outward unit normal, probe frame.
         marker_channel: the marker colour's strongest channel (0 R, 1 G, 2 B).
+        has_marker: whether the probe carries the marker (a mesh probe may not: its half turn is the network's).
     """
 
     record: dict
@@ -48,6 +49,7 @@ class FitProbe:
     marker: np.ndarray
     marker_normal: np.ndarray
     marker_channel: int
+    has_marker: bool = True
 
     @property
     def upper(self) -> np.ndarray:
@@ -94,11 +96,11 @@ class FitProbe:
             centre = (mesh.triangles_center[marked] * area[:, None]).sum(0) / area.sum()
             normal = (mesh.face_normals[marked] * area[:, None]).sum(0)
             normal = normal / np.linalg.norm(normal)
-        else:  # a probe without a marker: a site that never shows the marker's colour
+        else:  # a probe without a marker (has_marker False: the site is never looked at)
             centre, normal = np.zeros(3), np.array([0.0, 0.0, -1.0])
         return cls(dict(probe.record), np.asarray(probe.sdf_grid, dtype=np.float32), np.array(probe.sdf_origin, float),
                    float(probe.sdf_spacing), np.array(probe.corners_probe, float), np.asarray(centre, float),
-                   np.asarray(normal, float), int(np.argmax(marker_rgb)))
+                   np.asarray(normal, float), int(np.argmax(marker_rgb)), bool(len(marked)))
 
     def to_json(self) -> str:
         """This probe as a JSON string (the grid float32, zlib-compressed, base64, with its sha256)."""
@@ -107,7 +109,8 @@ class FitProbe:
             "schema": _SCHEMA, "record": self.record, "shape": list(self.grid.shape),
             "origin": self.origin.tolist(), "spacing": self.spacing, "corners": self.corners.tolist(),
             "marker": self.marker.tolist(), "marker_normal": self.marker_normal.tolist(),
-            "marker_channel": self.marker_channel, "grid_sha256": hashlib.sha256(data).hexdigest(),
+            "marker_channel": self.marker_channel, "has_marker": self.has_marker,
+            "grid_sha256": hashlib.sha256(data).hexdigest(),
             "grid": base64.b64encode(zlib.compress(data, 6)).decode("ascii")}, sort_keys=True)
 
     @classmethod
@@ -122,10 +125,10 @@ class FitProbe:
             shape = tuple(int(n) for n in d["shape"])
             data = zlib.decompress(base64.b64decode(d["grid"], validate=True))
             fields = (d["schema"], d["record"], d["origin"], d["spacing"], d["corners"], d["marker"],
-                      d["marker_normal"], d["marker_channel"], d["grid_sha256"])
+                      d["marker_normal"], d["marker_channel"], d["has_marker"], d["grid_sha256"])
         except (ValueError, KeyError, TypeError, zlib.error) as exc:
             raise BadValueError(f"{source}: not a probe of the fits ({type(exc).__name__}: {exc})") from None
-        schema, record, origin, spacing, corners, marker, normal, channel, sha = fields
+        schema, record, origin, spacing, corners, marker, normal, channel, has_marker, sha = fields
         if schema != _SCHEMA:
             raise BadValueError(f"{source}: probe layout {schema!r}; this hupbench reads {_SCHEMA}")
         if hashlib.sha256(data).hexdigest() != sha or len(shape) != 3 or len(data) != 4 * int(np.prod(shape)):
@@ -133,10 +136,11 @@ class FitProbe:
                                 f"or its shape {list(shape)})")
         arrays = [np.asarray(a, dtype=np.float64) for a in (origin, corners, marker, normal)]
         if ([a.shape for a in arrays] != [(3,), (8, 3), (3,), (3,)] or not all(np.isfinite(a).all() for a in arrays)
-                or not isinstance(record, dict) or channel not in (0, 1, 2) or not float(spacing) > 0):
+                or not isinstance(record, dict) or channel not in (0, 1, 2) or not float(spacing) > 0
+                or not isinstance(has_marker, bool)):
             raise BadValueError(f"{source}: the probe's origin, corners, marker or spacing are not what the fits read")
         grid = np.frombuffer(data, dtype="<f4").reshape(shape).astype(np.float32)
-        return cls(record, grid, arrays[0], float(spacing), arrays[1], arrays[2], arrays[3], int(channel))
+        return cls(record, grid, arrays[0], float(spacing), arrays[1], arrays[2], arrays[3], int(channel), has_marker)
 
 
 @functools.lru_cache(maxsize=1)
@@ -146,3 +150,13 @@ def default_fit_probe() -> FitProbe:
     from hupbench.datagen.render.scene import PROBE_MARKER_RGB
 
     return FitProbe.of(build_probe(), PROBE_MARKER_RGB)
+
+
+def dataset_fit_probe(dataset) -> FitProbe:
+    """The probe a dataset folder was rendered with (its manifest's record; a mesh probe rebuilt from its
+    ``grasps.npz``), as the fits know it: what a model trained on that dataset fits."""
+    from hupbench.datagen.dataset.grasps_file import probe_of_dataset
+    from hupbench.datagen.render.scene import PROBE_MARKER_RGB
+
+    probe = probe_of_dataset(dataset)
+    return default_fit_probe() if probe.record == default_fit_probe().record else FitProbe.of(probe, PROBE_MARKER_RGB)

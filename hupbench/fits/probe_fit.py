@@ -168,9 +168,10 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s)
     turn = R0.transpose(0, 2, 1) @ RA                                             # the fit relative to the network
     network_a = np.abs(np.arctan2(turn[:, 1, 0], turn[:, 0, 0])) <= np.pi / 2
-    marker = np.maximum(lead_a, lead_b) > s.marker_chroma
-    absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen)
-    absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen)
+    # a probe without a marker: neither site decides, the network's turn does
+    marker = (np.maximum(lead_a, lead_b) > s.marker_chroma) & probe.has_marker
+    absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
+    absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
     choose_a = np.where(marker, lead_a >= lead_b, np.where(absent_a, False, np.where(absent_b, True, network_a)))
     decision = np.where(marker, 1, np.where(absent_a | absent_b, 2, 3))
     kept = inliers < s.min_inliers

@@ -28,7 +28,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.input_checks import check_int
 from hupbench.fits import fits
-from hupbench.fits.known_probe import default_fit_probe
+from hupbench.fits.known_probe import FitProbe, dataset_fit_probe, default_fit_probe
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, GRAPH_SHA256, graph_sha256, write_metadata
 from hupbench.inference.runtime import (
@@ -162,17 +162,31 @@ def contract_model(model: nn.Module, payload: dict[str, Any], source: str, confi
 
 
 def onnx_metadata(payload: dict[str, Any], run_name: str, git_commit: str, outputs: tuple[str, ...] = BASE_OUTPUTS,
-                  image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None) -> dict[str, str]:
+                  image_statistics: ImageStatistics | None = None, depth_sensor: str | None = None,
+                  fit_probe: FitProbe | None = None) -> dict[str, str]:
     """The metadata_props of the ONNX contract for a checkpoint's payload (:func:`model_file.write_metadata`):
     ``outputs`` those of the :class:`ContractModule` exported, ``image_statistics`` predict's calibration,
-    ``depth_sensor`` the depth camera a depth model was trained on (:func:`trained_depth_sensor`). A model that fits
-    carries the probe its fits know (:func:`hupbench.fits.known_probe.default_fit_probe`), so that predict needs
-    neither torch nor the generator to fit it."""
+    ``depth_sensor`` the depth camera a depth model was trained on (:func:`trained_depth_sensor`), ``fit_probe`` the
+    probe a fitting model's fits know (:func:`trained_fit_probe`), so that predict needs neither torch nor the
+    generator to fit it."""
     channels = payload["model_config"].get("input_channels", 3)
     modalities = next(name for name, count in INPUT_MODALITIES.items() if count == channels)
     return write_metadata(payload["input_size"], payload["K_input"], kp.KEYPOINT_NAMES, kp.SKELETON_EDGES,
                           payload["model_config"], run_name, git_commit, modalities, outputs, image_statistics,
-                          depth_sensor, default_fit_probe() if fits(payload["model_config"]) else None)
+                          depth_sensor, fit_probe)
+
+
+def trained_fit_probe(payload: dict[str, Any], dataset: Path | None = None) -> FitProbe | None:
+    """The probe a fitting model's fits know: that of the dataset it was trained on (the one its checkpoint records,
+    else ``dataset``: where it was moved to; :func:`hupbench.fits.known_probe.dataset_fit_probe`), the default
+    procedural probe where neither is here; None for a model that fits nothing."""
+    if not fits(payload["model_config"]):
+        return None
+    recorded = (payload.get("dataset") or {}).get("path")
+    for trained_on in ([Path(recorded)] if recorded else []) + ([Path(dataset)] if dataset is not None else []):
+        if (trained_on / "manifest.json").is_file():
+            return dataset_fit_probe(trained_on)
+    return default_fit_probe()
 
 
 def trained_depth_sensor(payload: dict[str, Any], dataset: Path) -> str:
@@ -339,7 +353,8 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
     calibration = calibrate_image_statistics(dataset, module.input_size, module.reads_depth,
                                              SENSOR_DEPTH if sensor is not None and sensor == stored else "depth")
     images = _parity_images(dataset, module.input_size, options.parity_frames, module.input_modalities)
-    metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration, sensor)
+    metadata = onnx_metadata(payload, run_name, git_commit(), module.outputs, calibration, sensor,
+                             trained_fit_probe(payload, dataset))
 
     with OutputLock.for_file(out, "export"):
         clean_stale_tmp(out.parent, recursive=False)  # exports that were killed
