@@ -2,15 +2,16 @@
 
 A model's saved config asks for the fits (``probe_fit: depth``, ``hand_fit: depth``); :func:`after_network` runs
 them on its output, in eval (:mod:`hupbench.evaluation.prediction`) and ``hupbench predict`` alike. The probe's fit
-(:mod:`hupbench.fits.probe_fit`) poses the procedural probe's surface; the hand's (:mod:`hupbench.fits.hand_fit`) fits a
-capsule hand and leaves that probe's surface out; both read the depth input through :mod:`hupbench.fits.depth_points`.
-Both fit one probe (:class:`hupbench.fits.known_probe.FitProbe`: the model file's, else the default procedural probe):
-data made with another probe is refused by :func:`check_fitted_probe`.
+(:mod:`hupbench.fits.probe_fit`) poses the probe's surface; the hand's (:mod:`hupbench.fits.hand_fit`) fits a capsule
+hand and leaves that probe's surface out; both read the depth input through :mod:`hupbench.fits.depth_points`. Both
+fit one probe (:class:`hupbench.fits.known_probe.FitProbe`): the one of the dataset the model was trained on, which
+its model file carries, else the default procedural probe; data made with another probe is refused by
+:func:`check_fitted_probe`.
 
 Numpy only, no torch: ``hupbench predict`` runs the fits of an exported model where torch is not installed.
 May import: ``hupbench.core``, ``hupbench.input_geometry``, numpy, and the generator's probe and hand
-(``datagen.assets``, the shapes the fits fit) where the model file does not carry them: the default probe
-(:func:`hupbench.fits.known_probe.default_fit_probe`) is built by the generator when a fit first needs it.
+(``datagen.assets``, the shapes the fits fit; ``datagen.dataset`` for a training dataset's probe) where the model
+file does not carry them: they are built by the generator when a fit first needs them.
 """
 
 from __future__ import annotations
