@@ -19,22 +19,29 @@ from pathlib import Path
 import numpy as np
 
 
-def _variant(text: str) -> dict:
-    """``"free_weight=0,iterations=5"`` -> {"free_weight": 0.0, "iterations": 5}, typed as the field's default."""
-    from hupbench.fits import HandFitSettings
-
-    fields = {f.name: type(getattr(HandFitSettings(), f.name)) for f in dataclasses.fields(HandFitSettings)}
+def settings_changes(text: str, settings_type) -> dict:
+    """``"free_weight=0,iterations=5"`` -> {"free_weight": 0.0, "iterations": 5}: numeric fields of the frozen
+    settings dataclass ``settings_type``, each typed as its default (argparse's error otherwise)."""
+    fields = {f.name: type(getattr(settings_type(), f.name)) for f in dataclasses.fields(settings_type)}
     changes = {}
     for item in text.split(","):
         name, _, value = item.partition("=")
         if name not in fields or fields[name] not in (int, float) or not value:
             numeric = ", ".join(n for n, t in fields.items() if t in (int, float))
-            raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER, NAME one of HandFitSettings' {numeric}")
+            raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER, NAME one of "
+                                             f"{settings_type.__name__}' {numeric}")
         try:
             changes[name] = fields[name](value)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{item!r}: {value!r} is not a {fields[name].__name__}") from None
     return changes
+
+
+def _variant(text: str) -> dict:
+    """A ``--hand-variant``: :func:`settings_changes` of :class:`hupbench.fits.HandFitSettings`."""
+    from hupbench.fits import HandFitSettings
+
+    return settings_changes(text, HandFitSettings)
 
 
 def main() -> None:

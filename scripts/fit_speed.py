@@ -19,13 +19,11 @@ from pathlib import Path
 import numpy as np
 
 
-def _fields(settings_type) -> dict[str, type]:
-    return {f.name: type(getattr(settings_type(), f.name)) for f in dataclasses.fields(settings_type)}
-
-
 def _variant(text: str) -> dict[str, dict]:
     """``"probe:hypotheses=12;hand:iterations=6"`` -> {"probe": {"hypotheses": 12}, "hand": {"iterations": 6}}, each
-    value typed as its field's default."""
+    value typed as its field's default (:func:`fit_divergence.settings_changes`)."""
+    from fit_divergence import settings_changes
+
     from hupbench.fits import HandFitSettings, ProbeFitSettings
 
     kinds = {"probe": ProbeFitSettings, "hand": HandFitSettings}
@@ -34,16 +32,7 @@ def _variant(text: str) -> dict[str, dict]:
         kind, _, items = part.partition(":")
         if kind not in kinds or not items:
             raise argparse.ArgumentTypeError(f"{part!r}: expected probe:NAME=VALUE[,...] or hand:NAME=VALUE[,...]")
-        fields = _fields(kinds[kind])
-        for item in items.split(","):
-            name, _, value = item.partition("=")
-            if name not in fields or fields[name] not in (int, float) or not value:
-                numeric = ", ".join(n for n, t in fields.items() if t in (int, float))
-                raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER, NAME one of {numeric}")
-            try:
-                out[kind][name] = fields[name](value)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"{item!r}: {value!r} is not a {fields[name].__name__}") from None
+        out[kind] |= settings_changes(items, kinds[kind])
     return out
 
 
