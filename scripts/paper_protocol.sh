@@ -26,6 +26,8 @@ print(tracks[0] if tracks else '')")
 [ -n "$track" ] || { echo "data.root $dataset of $experiment is the out_dir of no track in conf/track/" >&2; exit 1; }
 run_name=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).run_name)")
 label=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).label or '')")
+# a depth model is evaluated on the depth its training read (data.reader.depth_sensor; "dataset" is eval's default)
+sensor=$(python3 -c "from hupbench.config import compose; print(compose('train', ['+experiment=$experiment']).data.reader.depth_sensor)")
 run_dir=hupbench_out/runs/$run_name
 
 [ -f "$dataset/manifest.json" ] || hupbench generate "+track=$track" progress=false
@@ -50,7 +52,7 @@ fi
 cp "$run_dir/metrics.jsonl" "leaderboard/logs/$run_name.jsonl"
 hupbench export "$run_dir/checkpoints/last.pt" --out "$run_dir/$run_name.onnx" --dataset "$dataset"
 hupbench eval "$run_dir/checkpoints/last.pt" "$dataset" --split test --run-name "$run_name" \
-    --out "leaderboard/results/$run_name.json" \
+    --out "leaderboard/results/$run_name.json" --depth-sensor "$sensor" \
     --training-command "bash scripts/paper_protocol.sh $experiment" --training-log "logs/$run_name.jsonl" \
     ${label:+--label "$label"}
 hupbench leaderboard
