@@ -69,13 +69,14 @@ def main() -> None:
     import torch
 
     from hupbench.evaluation.latency import LATENCY_RUNS
-    from hupbench.evaluation.prediction import EvalModel, split_reader
+    from hupbench.core.contract import SEGMENT_CLASSES
+    from hupbench.evaluation.prediction import EvalModel, onnx_network_output, split_reader
     from hupbench.fits import fits
     from hupbench.fits.hand_fit import fit_hand
     from hupbench.fits.probe_fit import fit_probe
     from hupbench.inference.export import ExportOptions, run_export
     from hupbench.inference.predict import PredictOptions, run_predict
-    from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+    from hupbench.inference.runtime import load_onnx_model
 
     torch.set_num_threads(args.threads)
     net = EvalModel(args.checkpoint)
@@ -83,7 +84,7 @@ def main() -> None:
     reader = split_reader(args.dataset, args.split, net)
     count = min(args.frames, len(reader))
     frames = np.stack([reader[i]["image"].numpy() for i in range(count)])
-    K = net.K_input
+    K, probe = net.K_input, net.fit_probe
     print(f"{args.checkpoint} on {count} {args.split} frames of {args.dataset}, input {net.input_size} px "
           f"{net.input_modalities}, fits: {', '.join(asked) or 'none'}; {args.threads} threads; {cpu_name()}")
 
@@ -94,7 +95,7 @@ def main() -> None:
         onnx = load_onnx_model(onnx_path, args.threads)
         stages = {
             "network, PyTorch": lambda x: net.network(torch.from_numpy(x)),
-            "network, onnxruntime": lambda x: run_onnx(onnx, *split_model_images(x)),
+            "network, onnxruntime": lambda x: onnx_network_output(onnx, x),
         }
         # a fit's input, for a batch of frames (a view of them: its place and length), is the stage before it's
         # output, computed once, in the untimed round
@@ -110,14 +111,19 @@ def main() -> None:
             return once("network", x, lambda: net.network(torch.from_numpy(x)))
 
         def after_probe(x):
-            return once("probe", x, lambda: fit_probe(*network(x), x, K)[:2]) if "probe" in asked else network(x)
+            return once("probe", x, lambda: fit_probe(*network(x)[:2], x, K, probe=probe, pixels=own(x, "probe"))[:2]
+                        ) if "probe" in asked else network(x)[:2]
+
+        def own(x, part: str):
+            segmentation = network(x).segmentation
+            return None if segmentation is None else segmentation == SEGMENT_CLASSES.index(part)
 
         if "probe" in asked:
-            stages["probe fit"] = lambda x: fit_probe(*network(x), x, K)
+            stages["probe fit"] = lambda x: fit_probe(*network(x)[:2], x, K, probe=probe, pixels=own(x, "probe"))
         if "hand" in asked:
-            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K)
+            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K, probe=probe, pixels=own(x, "hand"))
         stages["PyTorch end to end (eval)"] = lambda x: net.predict(torch.from_numpy(x))
-        stages["onnxruntime end to end"] = lambda x: net.after_network(x, run_onnx(onnx, *split_model_images(x)))
+        stages["onnxruntime end to end"] = lambda x: net.after_network(x, onnx_network_output(onnx, x))
         width = max(map(len, stages)) + 2
         print(f"{'stage':{width}s}" + "".join(f"{f'batch {b}':>14s}" for b in LATENCY_RUNS) + "   (ms per image)")
         for name, run in stages.items():

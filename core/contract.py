@@ -114,6 +114,20 @@ def annotation_fields(track: str) -> dict[str, tuple[type, tuple[int, ...]]]:
 def seg_labels(track: str) -> dict[str, int]:
     """The mask's labels of a track's datasets."""
     return dict(CLINIC_SEG_LABELS) if track == CLINIC else dict(SEG_LABELS)
+
+
+#: the classes a segmenting model predicts per pixel (class i is ``SEGMENT_CLASSES[i]``): what the fits need to tell
+#: apart; the arm, the patient and the room are all "other"
+SEGMENT_CLASSES = ("other", "hand", "probe")
+
+
+def segment_classes(seg: np.ndarray, labels: dict[str, int]) -> np.ndarray:
+    """A stored seg map (any shape, uint8, ``labels`` a manifest's ``seg_labels``) as ``SEGMENT_CLASSES`` indices,
+    uint8: 1 the hand, 2 the probe, 0 everything else."""
+    classes = np.zeros(np.shape(seg), dtype=np.uint8)
+    for index, name in enumerate(SEGMENT_CLASSES[1:], start=1):
+        classes[np.asarray(seg) == labels[name]] = index
+    return classes
 #: arrays whose values must be finite
 FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
 

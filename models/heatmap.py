@@ -58,6 +58,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from hupbench.core.contract import SEGMENT_CLASSES
 from hupbench.core.input_checks import check_choice, check_int, check_number
 from hupbench.models.model_config import ModelConfig, check_camera
 from hupbench.models.hopenet import normalized_intrinsics, unproject_normalized
@@ -65,6 +66,9 @@ from hupbench.models.prior import PointPrior
 from hupbench.models.resnet import check_backbone, resnet
 
 __all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "heatmap_confidence", "soft_argmax"]
+
+#: channels of the canvas features the segmentation head upsamples to the input (:attr:`HUPNetConfig.segmentation`)
+SEG_FEATURES = 8
 
 
 class HUPNetOutput(NamedTuple):
@@ -77,12 +81,15 @@ class HUPNetOutput(NamedTuple):
         points2d_init: (B, N, 2) the heatmaps' own 2D points where the probe head replaces the corners', else None.
         confidence: (B, N) float32 in [0, 1], in eval mode, each keypoint's :func:`heatmap_confidence` (for the probe head's
             corners, their heatmaps'); no gradient flows through it.
+        segmentation: (B, 3, S, S) float logits of each input pixel's class (``SEGMENT_CLASSES``: other, hand,
+            probe) for a model with ``segmentation``, else None.
     """
 
     points2d: torch.Tensor
     points3d: torch.Tensor
     points2d_init: torch.Tensor | None = None
     confidence: torch.Tensor | None = None
+    segmentation: torch.Tensor | None = None
 
 
 def soft_argmax(logits: torch.Tensor, grid_x: torch.Tensor, grid_y: torch.Tensor,
@@ -154,6 +161,10 @@ class HUPNetConfig(ModelConfig):
             (0: none; needs probe_head "rigid"). probe_crop_backbone: the crop's ResNet.
         heatmap_stride: backbone pixels per heatmap cell, 8 (the pyramid down to the stride-8 stage) or 4 (one
             level further, from the first stage: four times the cells, finer 2D where a finger is a few pixels).
+        segmentation: a head that labels each input pixel other, hand or probe (``SEGMENT_CLASSES``), for the fits
+            to take only their own object's depth: the heatmap canvas's features, upsampled to the input and
+            joined with the input image, through a 3 x 3 and a 1 x 1 convolution (trained on the dataset's seg
+            maps, ``loss.w_seg``).
     """
 
     name: ClassVar[str] = "hupnet"
@@ -169,6 +180,7 @@ class HUPNetConfig(ModelConfig):
     probe_crop_px: int = 0
     probe_crop_backbone: str = "resnet10"
     heatmap_stride: int = 8
+    segmentation: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -239,6 +251,10 @@ class HUPNet(nn.Module):
         for head in heads:
             nn.init.normal_(head.weight, std=1e-3)
             nn.init.zeros_(head.bias)
+        if config.segmentation:
+            self.seg_features = nn.Conv2d(D, SEG_FEATURES, 1)
+            self.seg_head = nn.Sequential(nn.Conv2d(SEG_FEATURES + config.input_channels, 2 * SEG_FEATURES, 3, padding=1),
+                                          nn.ReLU(inplace=True), nn.Conv2d(2 * SEG_FEATURES, len(SEGMENT_CLASSES), 1))
         self.prior3d = PointPrior(config.n_keypoints, config.points3d_mean, config.points3d_scale)
         self.register_buffer("intrinsics", normalized_intrinsics(config.K_input, input_size))
         if config.probe_head == "rigid":
@@ -318,6 +334,7 @@ class HUPNet(nn.Module):
             depth = (self.prior3d.mean[:, 2].to(relative.dtype)
                      + (root.to(relative.dtype) + relative) * self.prior3d.scale)
         points3d = unproject_normalized(points2d, depth, self.intrinsics)
+        segmentation = self._segmentation(p, images) if self.config.segmentation else None
         if self.config.probe_head == "rigid":
             pooled = torch.flatten(self.backbone.avgpool(c5), 1)
             rigid2d, rigid3d = self._rigid_probe(p, pooled, points3d[:, -N_CORNERS:], images, points2d[:, -N_CORNERS:])
@@ -325,8 +342,17 @@ class HUPNet(nn.Module):
             points2d = torch.cat([points2d[:, :-N_CORNERS], rigid2d.to(points2d.dtype)], dim=1)
             points3d = torch.cat([points3d[:, :-N_CORNERS], rigid3d.to(points3d.dtype)], dim=1)
             return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), heatmap2d.to(images.dtype),
-                                confidence)
-        return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), confidence=confidence)
+                                confidence, segmentation)
+        return HUPNetOutput(points2d.to(images.dtype), points3d.to(images.dtype), confidence=confidence,
+                            segmentation=segmentation)
+
+    def _segmentation(self, p: torch.Tensor, images: torch.Tensor) -> torch.Tensor:
+        """(B, 3, S, S) float32 class logits of each input pixel from the canvas features ``p`` (B, D, H, W) (the
+        image's cells, without the margin, upsampled bilinearly to the input) and the input images."""
+        m, cells = self.margin_cells, p.shape[-1] - 2 * self.margin_cells
+        features = self.seg_features(p[:, :, m:m + cells, m:m + cells])
+        features = F.interpolate(features, size=images.shape[-2:], mode="bilinear", align_corners=False)
+        return self.seg_head(torch.cat([features, images.to(features.dtype)], dim=1)).float()
 
     def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor, corners3d: torch.Tensor, images: torch.Tensor,
                      corners2d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

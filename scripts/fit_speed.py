@@ -6,7 +6,13 @@ Tunes on val by default.
 changes fields of :class:`hupbench.fits.ProbeFitSettings` / :class:`hupbench.fits.HandFitSettings`, e.g.
 ``--variant "probe:hypotheses=12,coarse_points=128;hand:iterations=6"``.
 
-Usage: python scripts/fit_speed.py CHECKPOINT DATASET [--split val] [--frames 240] [--variant SPEC ...]
+A model with a segmentation head runs each setting with its own segmentation (as eval does) and without any; others
+without. ``--true-masks`` also runs each setting with every fit reading only its own object's pixels of the
+dataset's seg maps (the probe's, the hand's): what a perfect segmentation would give the fits, an upper bound for
+diagnosis, never a model's number (a model reads no label).
+
+Usage: python scripts/fit_speed.py CHECKPOINT DATASET [--split val] [--frames 240] [--depth-sensor dataset]
+       [--variant SPEC ...] [--true-masks]
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 
 def _variant(text: str) -> dict[str, dict]:
@@ -38,6 +45,8 @@ def _variant(text: str) -> dict[str, dict]:
 
 def main() -> None:
     from hupbench.core import keypoints as kp
+    from hupbench.core.contract import SEGMENT_CLASSES
+    from hupbench.data.reader import DEPTH_SENSORS
     from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
     from hupbench.fits import HandFitSettings, ProbeFitSettings, fits
     from hupbench.fits.hand_fit import fit_hand
@@ -51,15 +60,26 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=240, help="evenly spaced frames of the split (0: all)")
     parser.add_argument("--variant", type=_variant, action="append", default=[], metavar="SPEC",
                         help="also run the fits with these settings changed (repeatable)")
+    parser.add_argument("--depth-sensor", default="dataset", choices=DEPTH_SENSORS,
+                        help="the depth the model reads (hupbench eval's --depth-sensor)")
+    parser.add_argument("--true-masks", action="store_true",
+                        help="also run each setting on the dataset's seg maps (module docstring)")
     args = parser.parse_args()
     net = EvalModel(Path(args.model))
     asked = fits(net.model_config)
     if not asked:
         parser.error(f"{args.model} runs no fit after its network (model.probe_fit / model.hand_fit)")
-    reader = split_reader(Path(args.dataset), args.split, net)
+    reader = split_reader(Path(args.dataset), args.split, net, args.depth_sensor)
     rows = evenly_spaced(len(reader), args.frames)
     p = predict_split(net, reader, 32, rows, with_fits=False, keep_images=True)
     images = np.concatenate(p.images)
+    # the masks each run gives the fits: the model's own segmentation (what eval does) where it has a head, and then
+    # none (its ablation); the dataset's seg maps with --true-masks
+    masks = {"segmentation": np.concatenate([net.network(torch.from_numpy(b)).segmentation for b in p.images])
+             } if net.model_config.get("segmentation") else {}
+    masks["no masks"] = None
+    if args.true_masks:
+        masks["true masks"] = np.stack([reader.seg_frame(int(r)) for r in rows])
     default_fit_probe()   # built once per process (seconds): not a fit's time
 
     def errors(points3d: np.ndarray) -> str:
@@ -67,28 +87,33 @@ def main() -> None:
         return (f"all {err.mean():6.2f} hand {err[:, kp.HAND_SLICE].mean():6.2f} "
                 f"probe {err[:, kp.CORNER_SLICE].mean():6.2f}")
 
-    print(f"{args.model} on {len(rows)} {args.split} frames; mm, ms per frame at batch 1")
+    print(f"{args.model} on {len(rows)} {args.split} frames, depth {reader.depth_source}; mm, ms per frame at batch 1")
     print(f"{'network alone':48s} {errors(p.points3d)}")
-    for changes in [{"probe": {}, "hand": {}}] + args.variant:
+    settings = [{"probe": {}, "hand": {}}] + args.variant
+    for mask_name, (changes, mask) in ((m, (c, masks[m])) for m in masks for c in settings):
         probe = dataclasses.replace(ProbeFitSettings(), **changes["probe"])
         hand = dataclasses.replace(HandFitSettings(), **changes["hand"])
         out3d, spent = np.empty_like(p.points3d), {"probe": 0.0, "hand": 0.0}
         for i in range(len(rows)):
             points2d, points3d, frame = p.points2d[i:i + 1], p.points3d[i:i + 1], images[i:i + 1]
+            own = {part: None if mask is None else mask[i:i + 1] == SEGMENT_CLASSES.index(part)
+                   for part in ("probe", "hand")}
             if "probe" in asked:
                 start = time.perf_counter()
-                points2d, points3d, _ = fit_probe(points2d, points3d, frame, net.K_input, probe)
+                points2d, points3d, _ = fit_probe(points2d, points3d, frame, net.K_input, probe, net.fit_probe,
+                                                  pixels=own["probe"])
                 spent["probe"] += time.perf_counter() - start
             if "hand" in asked:
                 start = time.perf_counter()
-                points2d, points3d, _ = fit_hand(points2d, points3d, frame, net.K_input, hand)
+                points2d, points3d, _ = fit_hand(points2d, points3d, frame, net.K_input, hand, net.fit_probe,
+                                                 pixels=own["hand"])
                 spent["hand"] += time.perf_counter() - start
             out3d[i] = points3d[0]
         name = "; ".join(f"{kind} {', '.join(f'{k}={v:g}' for k, v in c.items())}" for kind, c in changes.items()
                          if c) or "defaults"
+        name += f" ({mask_name})"
         times = ", ".join(f"{kind} fit {1000.0 * spent[kind] / len(rows):5.1f}" for kind in asked)
         print(f"{name:48s} {errors(out3d)}; {times}", flush=True)
-
 
 if __name__ == "__main__":
     main()

@@ -71,11 +71,13 @@ def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
     """The defaults' line and a variant's, each with both fits' times; a bad variant is refused naming the field."""
     ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth")
     out = run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--frames", "2", "--variant",
-                     "probe:hypotheses=4,coarse_points=64;hand:iterations=2", monkeypatch=monkeypatch, capsys=capsys)
+                     "probe:hypotheses=4,coarse_points=64;hand:iterations=2", "--true-masks", monkeypatch=monkeypatch,
+                     capsys=capsys)
     lines = out.splitlines()
-    assert lines[1].startswith("network alone") and lines[2].startswith("defaults")
-    assert lines[3].startswith("probe hypotheses=4, coarse_points=64; hand iterations=2")
-    assert all("probe fit" in line and "hand fit" in line and "all " in line for line in lines[2:4])
+    assert lines[1].startswith("network alone") and lines[2].startswith("defaults (no masks)")
+    assert lines[3].startswith("probe hypotheses=4, coarse_points=64; hand iterations=2 (no masks)")
+    assert lines[4].startswith("defaults (true masks)") and len(lines) == 6
+    assert all("probe fit" in line and "hand fit" in line and "all " in line for line in lines[2:])
     with pytest.raises(SystemExit):
         run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--variant", "probe:nope=1", monkeypatch=monkeypatch,
                    capsys=capsys)

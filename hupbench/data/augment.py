@@ -40,9 +40,10 @@ class BatchAugment:
     Call with a batch of :class:`hupbench.data.loaders.FrameBatches` on the device and the epoch: "image"
     becomes the (B, C, S, S) float32 model images (a "depth" entry becomes their fourth channel: turned to the
     nearest pixel with 0, no surface, beyond the border, and not jittered), the keypoints and "visible" turn
-    with it. Draws depend only on
-    (seed, epoch, item index), so a run and its resume see the same augmentation in any batch composition
-    (but the jitter's operation order, drawn from the batch's first item).
+    with it. A "seg" entry, (B, S, S) ``SEGMENT_CLASSES`` indices, turns as the depth does (nearest pixel, class 0
+    "other" beyond the border), is never jittered, and comes back (B, S, S) int64 on the device. Draws depend
+    only on (seed, epoch, item index), so a run and its resume see the same augmentation in any batch
+    composition (but the jitter's operation order, drawn from the batch's first item).
     """
 
     def __init__(self, config) -> None:
@@ -68,6 +69,8 @@ class BatchAugment:
         images = model_images(batch["image"], batch["image"].device, depth=out.pop("depth", None))
         rgb, depth = images[:, :3], images[:, 3:]
         device = images.device
+        seg = out.pop("seg", None)
+        seg = None if seg is None else seg.to(device, torch.int64, non_blocking=True)            # (B, S, S)
         indices = batch["index"].cpu().numpy()
         angles, factors = self.draws(indices, epoch)
         if self.rotate_deg > 0:
@@ -81,6 +84,9 @@ class BatchAugment:
             if depth.shape[1]:
                 depth = kornia.geometry.transform.warp_affine(depth, affine, (size, size), mode="nearest",
                                                               padding_mode="zeros", align_corners=True)
+            if seg is not None:  # class indices are exact in float32; zeros padding is class 0, "other"
+                seg = kornia.geometry.transform.warp_affine(seg[:, None].float(), affine, (size, size), mode="nearest",
+                                                            padding_mode="zeros", align_corners=True)[:, 0].long()
             uv = apply_affine(maps, batch["keypoints_2d_px"].cpu().numpy())                     # (B, 29, 2)
             points = batch["keypoints_3d"].cpu().double().numpy() @ camera_rotation(angles).transpose(0, 2, 1)
             turned = {"keypoints_3d": points, "keypoints_2d_px": uv, "keypoints_2d": pixels_to_normalized(uv, size)}
@@ -90,6 +96,8 @@ class BatchAugment:
             rgb = self._jitter(rgb, torch.from_numpy(factors).to(device, rgb.dtype),
                                np.random.default_rng([self.seed, int(epoch), int(indices[0]), 2]).permutation(4))
         out["image"] = torch.cat([rgb, depth], dim=1) if depth.shape[1] else rgb
+        if seg is not None:
+            out["seg"] = seg
         return out
 
     @staticmethod

@@ -1,12 +1,14 @@
 """The frame cache: every frame of a split decoded and resized once into a memory-mapped (N, S, S, 3) uint8
 file, ``<cache_dir>/<split>_<S>px.npy``, so that a training batch is a gather instead of N JPEG decodes; for a
-model that reads depth, its depth maps likewise into (N, S, S) uint16 ``<split>_<S>px_depth.npy``.
+model that reads depth, its depth maps likewise into (N, S, S) uint16 ``<split>_<S>px_depth.npy``, and for one
+that learns segmentation, its per-pixel classes into (N, S, S) uint8 ``<split>_<S>px_seg.npy``.
 
 The file is built under a temporary name with a progress bar and renamed when whole; its key file
 ``<split>_<S>px.json`` is written last and checked on every open. The key holds what the frames depend
 on: the size and modification time of every frame file (in row order), the input size, the stored image
-size, the resize and the file layout. A cache whose key differs is rebuilt, so a frame replaced or
-damaged after the build is read again (and a damaged one refused, naming it).
+size, the resize and the file layout, and for depth its source, for seg the class mapping. A cache whose key
+differs is rebuilt, so a frame replaced or damaged after the build is read again (and a damaged one refused,
+naming it).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from hupbench.core.contract import SEGMENT_CLASSES
 from hupbench.core.io import atomic_output, clean_stale_tmp, write_json, writing
 
 
@@ -33,13 +36,24 @@ _BUILD_CHUNK, _BUILD_THREADS = 64, 2
 
 
 #: what each cached modality holds: (the dataset's per-row reader, dtype, trailing shape after (N, S, S))
-_MODALITIES = {"rgb": ("frame", np.uint8, (3,)), "depth": ("depth_frame", np.uint16, ())}
+_MODALITIES = {"rgb": ("frame", np.uint8, (3,)), "depth": ("depth_frame", np.uint16, ()),
+               "seg": ("seg_frame", np.uint8, ())}
 
 
 def cache_paths(cache_dir, split: str, input_size: int, modality: str = "rgb") -> tuple[Path, Path]:
-    """(frames .npy, key .json) of one split at one input size, for its RGB frames or its "depth" maps."""
+    """(frames .npy, key .json) of one split at one input size, for its RGB frames or its "depth" or "seg" maps."""
     stem = f"{split}_{input_size}px" + ("" if modality == "rgb" else f"_{modality}")
     return Path(cache_dir) / f"{stem}.npy", Path(cache_dir) / f"{stem}.json"
+
+
+def _sources(dataset, modality: str) -> tuple[tuple[str, ...], dict]:
+    """(the modalities whose files a row of the ``modality`` cache reads, what else its rows depend on)."""
+    if modality == "rgb":
+        return ("rgb",), {}
+    if modality == "depth":
+        return dataset.depth_files, {"depth_source": dataset.depth_source, "sensor": (
+            None if dataset.sensor is None else dataset.sensor.parameters())}
+    return ("seg",), {"classes": list(SEGMENT_CLASSES), "seg_labels": dataset.manifest["seg_labels"]}
 
 
 def cache_key(dataset, modality: str = "rgb") -> dict:
@@ -50,7 +64,7 @@ def cache_key(dataset, modality: str = "rgb") -> dict:
     rebuild it causes then names it.
     """
     stamps = hashlib.sha256()
-    files = ("rgb",) if modality == "rgb" else dataset.depth_files
+    files, source = _sources(dataset, modality)
     for row in range(len(dataset)):
         for path in (dataset.path(row, m) for m in files):
             name = path.name if modality == "rgb" else f"{path.parent.name}/{path.name}"
@@ -59,8 +73,6 @@ def cache_key(dataset, modality: str = "rgb") -> dict:
                 stamps.update(f"{name} {stat.st_size} {stat.st_mtime_ns}\n".encode())
             except FileNotFoundError:
                 stamps.update(f"{name} missing\n".encode())
-    source = {} if modality == "rgb" else {"depth_source": dataset.depth_source, "sensor": (
-        None if dataset.sensor is None else dataset.sensor.parameters())}
     return {"format": CACHE_FORMAT, **source, "split": dataset.split, "modality": modality,
             "input_size": dataset.config.input_size, "image_size": dataset.manifest["image_size"],
             "resize": RESIZE if modality == "rgb" else "cv2.INTER_NEAREST",
@@ -80,8 +92,8 @@ def _reserve(path: Path) -> None:
 
 def open_frame_cache(dataset, cache_dir=None, progress: bool = True, log=print, modality: str = "rgb") -> np.ndarray:
     """(N, S, S, 3) uint8 RGB read-only memory map whose row i is ``dataset.frame(i)`` (for ``modality="depth"``,
-    (N, S, S) uint16 rows of ``dataset.depth_frame(i)``), built (or rebuilt when stale, said to ``log``) first in
-    ``cache_dir`` (default ``<dataset root>/cache``)."""
+    (N, S, S) uint16 rows of ``dataset.depth_frame(i)``; for "seg", (N, S, S) uint8 rows of ``dataset.seg_frame(i)``),
+    built (or rebuilt when stale, said to ``log``) first in ``cache_dir`` (default ``<dataset root>/cache``)."""
     cache_dir = dataset.root / "cache" if cache_dir is None else Path(cache_dir)
     size, split = dataset.config.input_size, dataset.split
     reader_name, dtype, tail = _MODALITIES[modality]

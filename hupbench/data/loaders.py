@@ -100,15 +100,19 @@ class FrameBatches(torch.utils.data.Dataset):
         depths: (N, S, S) uint16, the split's depth cache, for a model that reads depth (None decodes each map).
         fresh: the sensor's noise is drawn afresh per epoch (``data.reader.fresh_sensor_noise``): index
             ``i + e * N`` is row i of epoch e (:class:`EpochSampler` with ``tag_epoch``), whose depth is draw e + 1.
+        segs: (N, S, S) uint8, the split's seg cache (None reads each map when ``with_seg``).
+        with_seg: batches carry per-pixel segmentation labels, for a model that learns segmentation.
 
     Batches: "image" (B, S, S, 3) uint8 RGB, with depth "depth" (B, S, S) float32 metres (the model's depth
-    channel), "index" (B,) int64 (the row in the split: the augmentation key), and rows of every label of
-    ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
+    channel), with ``with_seg`` "seg" (B, S, S) int64 ``SEGMENT_CLASSES`` indices on the same pixels
+    (:meth:`HUPDataset.seg_frame`), "index" (B,) int64 (the row in the split: the augmentation key), and rows of
+    every label of ``HUPDataset.labels``. ``ann`` is the split's annotation arrays.
     """
 
     def __init__(self, dataset: HUPDataset, frames: np.ndarray | None = None, depths: np.ndarray | None = None,
-                 fresh: bool = False) -> None:
+                 fresh: bool = False, segs: np.ndarray | None = None, with_seg: bool = False) -> None:
         self.dataset, self.ann, self.frames, self.depths, self.fresh = dataset, dataset.ann, frames, depths, fresh
+        self.segs, self.with_seg = segs, with_seg
 
     def __len__(self) -> int:
         return len(self.ann["frame_id"])
@@ -126,6 +130,9 @@ class FrameBatches(torch.utils.data.Dataset):
             else:
                 depth = self._gather(self.depths, self.dataset.depth_frame, order)
             batch["depth"] = self.dataset.depth_metres(depth)
+        if self.with_seg:
+            seg = self._gather(self.segs, self.dataset.seg_frame, order)                      # (B, S, S) uint8
+            batch["seg"] = torch.from_numpy(seg.astype(np.int64))
         return batch
 
     @staticmethod
@@ -168,13 +175,16 @@ def _bounded_threads(_worker_id: int) -> None:
 
 
 def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, progress: bool = True,
-               log=print) -> TrainData:
+               log=print, with_seg: bool = False) -> TrainData:
     """The training and validation data of a run, this process's share of them.
 
     Args:
         data: the run's data node. seed: the run's seed (the epochs' frame order, the batch-norm frames).
         bn_frames: training frames of the batch-norm re-estimation (``train.bn_recompute_frames``; 0: none).
         place: this process among the run's. progress: a bar while a frame cache is built (rank 0 only).
+        log: where a stale cache's rebuild is said.
+        with_seg: training and validation batches carry "seg" labels (:class:`FrameBatches`), for a model that
+            learns segmentation; the dataset must have seg maps (with ``data.pipeline: cache``, cached too).
 
     Validation and batch-norm batches are un-augmented; ``TrainData.augment`` turns training batches on
     ``place.device``.
@@ -184,16 +194,22 @@ def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, pr
     K = splits[0].ann["K"]
     if reader.rotate_deg > 0 and not np.allclose(K[:, 0, 0], K[:, 1, 1]):
         raise BadValueError(f"in-plane rotation needs square pixels (fx == fy), got fx={K[0, 0, 0]}, fy={K[0, 1, 1]}")
+    lacking = [split.split for split in splits if "seg" not in split.manifest["modalities"]] if with_seg else []
+    if lacking:
+        raise BadValueError(f"{data.root} has no seg maps for the {' and '.join(lacking)} split (modalities lack "
+                            "seg); a model that learns segmentation needs them")
     show = progress and place.is_main
+    wanted = {"rgb": True, "depth": reader.depth, "seg": with_seg}
 
     def cached(split: HUPDataset, modality: str) -> np.ndarray | None:
-        wanted = data.pipeline == "cache" and (modality == "rgb" or reader.depth)
-        return open_frame_cache(split, data.cache_dir, show, log, modality) if wanted else None
+        use = data.pipeline == "cache" and wanted[modality]
+        return open_frame_cache(split, data.cache_dir, show, log, modality) if use else None
 
     fresh = reader.fresh_sensor_noise  # training depth drawn per epoch: no cache of it
     train_set = FrameBatches(splits[0], cached(splits[0], "rgb"), None if fresh else cached(splits[0], "depth"),
-                             fresh=fresh)
-    val_set = FrameBatches(splits[1], cached(splits[1], "rgb"), cached(splits[1], "depth"))
+                             fresh=fresh, segs=cached(splits[0], "seg"), with_seg=with_seg)
+    val_set = FrameBatches(splits[1], cached(splits[1], "rgb"), cached(splits[1], "depth"),
+                           segs=cached(splits[1], "seg"), with_seg=with_seg)
     workers = data.num_workers
     loader_args = {"batch_size": data.batch_size, "num_workers": workers, "collate_fn": _stacked,
                    "pin_memory": place.device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,

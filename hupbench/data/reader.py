@@ -5,8 +5,9 @@ Convention:
     3D keypoints: metres, OpenCV camera frame. 2D keypoints: pixels of the input image (pixel centres at
     integers) in ``keypoints_2d_px`` and normalised to [-1, 1] across it (:mod:`hupbench.input_geometry`)
     in ``keypoints_2d``. Frames: (S, S, 3) uint8 RGB, and with ``input_modalities: rgb+depth`` (S, S) uint16
-    depth in the dataset's unit (a depth sensor's, ``data.reader.depth_sensor``); model images: (C, S, S) float32, RGB in [0, 1] then, for C = 4, the depth
-    channel in metres (:func:`hupbench.input_geometry.depth_channel`).
+    depth in the dataset's unit (a depth sensor's, ``data.reader.depth_sensor``); segmentation labels: (S, S) uint8
+    ``SEGMENT_CLASSES`` indices on the depth's pixels; model images: (C, S, S) float32, RGB in [0, 1] then, for
+    C = 4, the depth channel in metres (:func:`hupbench.input_geometry.depth_channel`).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 
 from hupbench.core.camera import resize_intrinsics, resize_points
-from hupbench.core.contract import SENSOR_DEPTH, frame_path, read_annotations, read_manifest
+from hupbench.core.contract import SENSOR_DEPTH, frame_path, read_annotations, read_manifest, segment_classes
 from hupbench.core.depth_sensor import NONE, PRESETS, SensorPreset, stored_sensor_depth
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_bool, check_choice, check_int, check_number
@@ -234,6 +235,14 @@ class HUPDataset(torch.utils.data.Dataset):
         else:
             depth = read_depth(self.path(index, self.depth_files[0]), size)
         return pad_and_resize(depth, self.config.input_size, interpolation=cv2.INTER_NEAREST)[0]
+
+    def seg_frame(self, index: int) -> np.ndarray:
+        """(S, S) uint8 ``SEGMENT_CLASSES`` indices (:func:`hupbench.core.contract.segment_classes`): row ``index``'s
+        seg map (checked by :func:`read_seg`) resized to the nearest pixel as :meth:`depth_frame`, so that a label
+        pixel lies on its depth pixel."""
+        seg = read_seg(self.path(index, "seg"), self.manifest["image_size"])
+        classes = segment_classes(seg, self.manifest["seg_labels"])
+        return pad_and_resize(classes, self.config.input_size, interpolation=cv2.INTER_NEAREST)[0]
 
     def depth_metres(self, depth: np.ndarray) -> torch.Tensor:
         """Stored depth (uint16, any shape) as the model's depth channel (float32 metres, clipped)."""

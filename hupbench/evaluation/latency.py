@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from hupbench.evaluation.prediction import EvalModel
-from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.evaluation.prediction import EvalModel, onnx_network_output
+from hupbench.inference.runtime import load_onnx_model
 
 __all__ = ["LATENCY_RUNS", "count_flops", "measure_latency_ms", "measured_latency", "model_cost"]
 
@@ -102,7 +102,7 @@ def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool,
         onnx_model = load_onnx_model(onnx_path, torch.get_num_threads())
 
         def run_onnx_and_after(images):
-            outputs = run_onnx(onnx_model, *split_model_images(images))
+            outputs = onnx_network_output(onnx_model, images)
             if after is not None:
                 after(images, outputs)
         for batch, (warmup, repeats) in LATENCY_RUNS.items():

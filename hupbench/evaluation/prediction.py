@@ -12,16 +12,28 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from hupbench.core.errors import BadValueError, RunFailedError
 from hupbench.fits import after_network, fits
-from hupbench.inference.runtime import load_onnx_model, run_onnx, split_model_images
+from hupbench.inference.runtime import load_onnx_model, run_onnx_outputs, split_model_images
 from hupbench.input_geometry import INPUT_MODALITIES
 
-__all__ = ["EvalModel", "SplitPrediction", "evenly_spaced", "predict_split", "split_reader"]
+__all__ = ["EvalModel", "NetworkOutput", "SplitPrediction", "evenly_spaced", "onnx_network_output", "predict_split",
+           "split_reader"]
+
+
+class NetworkOutput(NamedTuple):
+    """What a model's network gives for a batch, float64 numpy: ``points2d`` (B, 29, 2) normalised, ``points3d``
+    (B, 29, 3) metres (camera of ``K_input``), and for a model with a segmentation head each input pixel's class
+    ``segmentation`` (B, S, S) int64 (:data:`hupbench.core.contract.SEGMENT_CLASSES`), else None."""
+
+    points2d: np.ndarray
+    points3d: np.ndarray
+    segmentation: np.ndarray | None = None
 
 
 class EvalModel:
@@ -79,24 +91,36 @@ class EvalModel:
         """C, channels of the model images (3 RGB, 4 with depth)."""
         return INPUT_MODALITIES[self.input_modalities]
 
-    def after_network(self, images: np.ndarray, outputs: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """What runs on the network's (points2d, points3d) outputs for (B, C, S, S) model images: the fits to the
-        depth input the model asks for (:func:`hupbench.fits.after_network`), else nothing; float64."""
-        return after_network(self.model_config, *outputs, images, self.K_input, fitted=self.fit_probe)
+    def after_network(self, images: np.ndarray, outputs: NetworkOutput) -> tuple[np.ndarray, np.ndarray]:
+        """What runs on the network's outputs for (B, C, S, S) model images: the fits to the depth input the model
+        asks for (:func:`hupbench.fits.after_network`, reading its segmentation where it has one), else nothing;
+        (points2d, points3d) float64."""
+        return after_network(self.model_config, outputs.points2d, outputs.points3d, images, self.K_input,
+                             fitted=self.fit_probe, segmentation=outputs.segmentation)
 
-    def network(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-        """(B, C, S, S) float32 model images -> the network's points2d (B, 29, 2) normalised and points3d
-        (B, 29, 3) metres (camera of ``K_input``), float64 numpy, without the fits."""
-        if self.module is not None:
-            with torch.inference_mode():
-                points2d, points3d = self.module(images)
-            return points2d.double().numpy(), points3d.double().numpy()
-        points2d, points3d = run_onnx(self.onnx, *split_model_images(images.numpy()))
-        return points2d.astype(np.float64), points3d.astype(np.float64)
+    def network(self, images: torch.Tensor) -> NetworkOutput:
+        """(B, C, S, S) float32 model images -> the network's :class:`NetworkOutput`, without the fits."""
+        if self.module is None:
+            return onnx_network_output(self.onnx, images.numpy())
+        with torch.inference_mode():
+            out = dict(zip(self.module.outputs, self.module(images)))
+        return _network_output({name: value.numpy() for name, value in out.items()})
 
     def predict(self, images: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`network`'s output, and the fits to the depth input after it where the model asks for them."""
         return self.after_network(images.numpy(), self.network(images))
+
+
+def onnx_network_output(model, images: np.ndarray) -> NetworkOutput:
+    """The :class:`NetworkOutput` of an :class:`hupbench.inference.runtime.OnnxModel` on (B, C, S, S) float32 model
+    images."""
+    return _network_output(run_onnx_outputs(model, *split_model_images(images)))
+
+
+def _network_output(out: dict[str, np.ndarray]) -> NetworkOutput:
+    segmentation = out.get("segmentation")
+    return NetworkOutput(out["points2d"].astype(np.float64), out["points3d"].astype(np.float64),
+                         None if segmentation is None else segmentation.astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -164,7 +188,7 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        p2, p3 = net.predict(batch["image"]) if with_fits else net.network(batch["image"])
+        p2, p3 = net.predict(batch["image"]) if with_fits else net.network(batch["image"])[:2]
         pred2d.append(p2)
         pred3d.append(p3)
         gt2d.append(batch["keypoints_2d"].double().numpy())

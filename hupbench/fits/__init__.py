@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hupbench.core.contract import SEGMENT_CLASSES
 from hupbench.core.errors import BadValueError
 from hupbench.fits.known_probe import FitProbe
 from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
@@ -68,8 +69,8 @@ def _shown(record: dict) -> str:
 
 def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
                   K_input: np.ndarray, probe: ProbeFitSettings = ProbeFitSettings(),
-                  hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None,
+                  segmentation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The fits a model asks for (:func:`fits`) on its output: the probe's first, the hand's on the probe it left.
 
     Args:
@@ -80,17 +81,25 @@ def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray
         K_input: (3, 3) intrinsics of the model input, pixels.
         probe, hand: the fits' settings (the defaults are what every model runs with).
         fitted: the probe the fits know (the model file's); None: the default procedural probe.
+        segmentation: (B, S, S) int, the model's class of each input pixel (:data:`hupbench.core.contract.
+            SEGMENT_CLASSES`): the probe's fit takes only the depth of probe pixels, the hand's only that of hand
+            pixels (the patient's skin, the arm and the room are neither's). None (a model without the head): every
+            pixel near the object, as each fit's docstring says.
 
     Returns:
         float64 (points2d (B, N, 2), points3d (B, N, 3)); the output itself where the model fits nothing.
     """
     asked = fits(model_config)
+
+    def _own(part: str) -> np.ndarray | None:
+        return None if segmentation is None else np.asarray(segmentation) == SEGMENT_CLASSES.index(part)
+
     if "probe" in asked:
         from hupbench.fits.probe_fit import fit_probe
 
-        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe, fitted)
+        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe, fitted, pixels=_own("probe"))
     if "hand" in asked:
         from hupbench.fits.hand_fit import fit_hand
 
-        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted)
+        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted, pixels=_own("hand"))
     return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64)

@@ -17,7 +17,8 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        (``s.knuckle_radius_m``).
     2. The measured points: pixels with a surface (depth 0 is unknown, never far), unprojected with their depth,
        within ``s.reach_m`` of the network's capsules and more than ``s.probe_gap_m`` outside the probe posed by the
-       output's 8 corners (their box, Kabsch); ``s.max_points`` of them in a fixed pseudo-random order.
+       output's 8 corners (their box, Kabsch), and, given a segmentation, among its hand pixels; ``s.max_points`` of
+       them in a fixed pseudo-random order.
     3. ``s.iterations`` Gauss-Newton steps on 51 parameters: a rotation about the hand's centroid and a
        translation (6), and a rotation of each of the 15 finger bones about its proximal joint (45; the bone
        lengths stay the network's). The residuals: each point's distance to the surface of its nearest capsule
@@ -259,14 +260,18 @@ def _solve(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _measured_points(depth: np.ndarray, K: np.ndarray, hand: np.ndarray, probe_pose: np.ndarray,
-                     s: HandFitSettings, caps: _Capsules, probe: FitProbe) -> tuple[np.ndarray, np.ndarray]:
-    """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3) and off the probes posed
-    by (B, 4, 4), and their (B, P) weights (1 real, 0 padding), P = ``s.max_points`` (module docstring, step 2)."""
+                     s: HandFitSettings, caps: _Capsules, probe: FitProbe, pixels: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3), off the probes posed
+    by (B, 4, 4) and among ``pixels`` (B, S, S) bool where given, and their (B, P) weights (1 real, 0 padding),
+    P = ``s.max_points`` (module docstring, step 2)."""
     points = unproject_depth(depth, K)
     # only pixels in the box around the joints can lie within reach of a capsule: the distances are taken there
     margin = float(caps.radius.max()) + s.reach_m
     lo, hi = hand.min(1, keepdims=True) - margin, hand.max(1, keepdims=True) + margin
     near = (points[..., 2] > 0) & ((points > lo) & (points < hi)).all(-1)
+    if pixels is not None:
+        near &= np.asarray(pixels, dtype=bool).reshape(len(depth), -1)
     for b, where in enumerate(near):
         cand = np.flatnonzero(where)
         if len(cand):
@@ -278,8 +283,8 @@ def _measured_points(depth: np.ndarray, K: np.ndarray, hand: np.ndarray, probe_p
 
 
 def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
-             settings: HandFitSettings = HandFitSettings(), probe: FitProbe | None = None
-             ) -> tuple[np.ndarray, np.ndarray, HandFit]:
+             settings: HandFitSettings = HandFitSettings(), probe: FitProbe | None = None,
+             pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, HandFit]:
     """The hand joints of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -289,6 +294,8 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         K_input: (3, 3) intrinsics of the model input, pixels.
         settings: the fit's tuning values (:class:`HandFitSettings`).
         probe: the probe whose surface is left out (None: the default procedural probe).
+        pixels: (B, S, S) bool, the pixels that may be the hand's (a segmentation's, :func:`hupbench.fits.
+            after_network`); a measured point elsewhere (the probe, the patient's skin) is left out. None: any pixel.
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 21 hand joints replaced, and :class:`HandFit`.
@@ -301,7 +308,7 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
     depth = np.asarray(images[:, 3], dtype=np.float64)
     hand = np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64)
     probe_pose = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
-    points, real = _measured_points(depth, K, hand, probe_pose, s, caps, probe)
+    points, real = _measured_points(depth, K, hand, probe_pose, s, caps, probe, pixels)
     B = len(images)
     theta, solved = np.zeros((B, N_PARAMS)), np.ones(B, dtype=bool)
     for step in range(s.iterations):

@@ -16,8 +16,9 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
     1. The network's pose: the probe's box (:attr:`FitProbe.corners`) fitted to its
        8 corners (Kabsch, :func:`hupbench.core.geometry.fit_rigid_pose`), R0, t0.
     2. The measured points: every pixel with a surface, unprojected with its depth, within the probe's half
-       diagonal + ``s.reach_m`` of the network's box centre; ``s.max_points`` of them in a fixed pseudo-random
-       order (fingers, palm and arm are among them: the trimmed fit is robust to them).
+       diagonal + ``s.reach_m`` of the network's box centre (and, given a segmentation, among its probe pixels);
+       ``s.max_points`` of them in a fixed pseudo-random order (without a segmentation fingers, palm, arm and skin
+       are among them: the trimmed fit is robust to a few of them).
     3. ``s.hypotheses`` turns of that pose about the probe's long axis (+z), each refined by ``s.iterations``
        Gauss-Newton steps of the points' signed distance to the probe (points farther than ``s.trim_m`` from
        the surface are left out: the hand) on ``s.coarse_points`` of the points, the best ``s.finalists`` again
@@ -118,8 +119,8 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
 
 
 def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
-              settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None
-              ) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
+              settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None,
+              pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
     """The probe's corners of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -129,6 +130,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         K_input: (3, 3) intrinsics of the model input, pixels.
         settings: the fit's tuning values (:class:`ProbeFitSettings`).
         probe: the probe to fit (None: the default procedural probe, :func:`default_fit_probe`).
+        pixels: (B, S, S) bool, the pixels that may be the probe's (a segmentation's, :func:`hupbench.fits.
+            after_network`); a measured point elsewhere (the hand, the patient's skin) is left out. None: any pixel.
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 8 corners replaced where the fit holds,
@@ -147,6 +150,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     centre = box_centre @ R0.transpose(0, 2, 1) + t0                              # (B, 3)
     points = unproject_depth(depth, K)
     near = (points[..., 2] > 0) & (np.linalg.norm(points - centre[:, None], axis=-1) < reach)
+    if pixels is not None:
+        near &= np.asarray(pixels, dtype=bool).reshape(B, -1)
     points, weight = sample_points(points, near, s.max_points)
 
     # every turn refined on a few points, the best again on all of them

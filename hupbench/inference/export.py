@@ -33,7 +33,7 @@ from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, CONFIDENCE, GRAPH_SHA256, graph_sha256, write_metadata
 from hupbench.inference.runtime import (
     load_onnx_model,
-    run_onnx_with_confidence,
+    run_onnx_outputs,
     split_model_images,
 )
 from hupbench.input_geometry import INPUT_MODALITIES, pixels_to_normalized
@@ -56,6 +56,9 @@ EXPORT_DEPTH_CLAMP_M = 1e-3
 PARITY_FRAMES = 8
 #: largest allowed |onnxruntime - PyTorch| of the per-keypoint confidence (in [0, 1])
 PARITY_MAX_CONFIDENCE = 1e-3
+#: largest allowed share of input pixels whose segmentation class differs between onnxruntime and PyTorch (a pixel
+#: at a near-tie of two classes' logits may flip)
+PARITY_MAX_SEGMENTATION = 1e-3
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,8 @@ class ContractModule(nn.Module):
     points3d), for an S = ``input_size`` pixel input with (3, 3) intrinsics ``K_input``. Without a 2D head,
     points2d is the projection of points3d with K_input (depth clamped to >= ``EXPORT_DEPTH_CLAMP_M``).
     With ``confidence`` and a model that has one (:data:`hupbench.inference.model_file.CONFIDENCE`), a third
-    output: its ``confidence`` (B, N) (the exported file's; eval reads the first two)."""
+    output: its ``confidence`` (B, N) (the exported file's); a model with a segmentation head adds its pixels'
+    classes, ``segmentation`` (B, S, S) int64, last (the fits read it)."""
 
     def __init__(self, model: nn.Module, K_input, input_size: int, confidence: bool = False) -> None:
         super().__init__()
@@ -113,6 +117,7 @@ class ContractModule(nn.Module):
         self.model = model
         self.input_size = input_size
         self.with_confidence = confidence and getattr(getattr(model, "config", None), "name", None) in CONFIDENCE
+        self.with_segmentation = bool(getattr(getattr(model, "config", None), "segmentation", False))
         channels = getattr(getattr(model, "config", None), "input_channels", INPUT_MODALITIES["rgb"])
         self.reads_depth = channels == INPUT_MODALITIES["rgb+depth"]
         # fx, fy, cx, cy as a buffer: device-agnostic and baked into the ONNX graph as a constant
@@ -125,12 +130,14 @@ class ContractModule(nn.Module):
     @property
     def outputs(self) -> tuple[str, ...]:
         """The graph outputs, in the order :meth:`forward` returns them."""
-        return (*BASE_OUTPUTS, "confidence") if self.with_confidence else BASE_OUTPUTS
+        return (*BASE_OUTPUTS, *(("confidence",) if self.with_confidence else ()),
+                *(("segmentation",) if self.with_segmentation else ()))
 
     def forward(self, image: torch.Tensor, depth: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:
         """image (B, 3, S, S) RGB in [0, 1]; depth (B, 1, S, S) metres for a model that reads it (the model's input
-        is the two side by side); or one (B, C, S, S) model image. Returns (points2d, points3d) and, with
-        ``with_confidence``, confidence (B, N)."""
+        is the two side by side); or one (B, C, S, S) model image. Returns (points2d, points3d), then, with
+        ``with_confidence``, confidence (B, N), and with ``with_segmentation`` (a model with a segmentation head),
+        each pixel's class (B, S, S) int64: :attr:`outputs`."""
         out = self.model(image if depth is None else torch.cat([image, depth], dim=1))
         points3d = out.points3d
         points2d = getattr(out, "points2d", None)
@@ -140,9 +147,9 @@ class ContractModule(nn.Module):
             u = fx * points3d[..., 0] / z + cx                                   # (B, N) pixels
             v = fy * points3d[..., 1] / z + cy
             points2d = pixels_to_normalized(torch.stack([u, v], dim=-1), self.input_size)
-        if self.with_confidence:
-            return points2d, points3d, out.confidence
-        return points2d, points3d
+        extra = (out.confidence,) if self.with_confidence else ()
+        extra += (out.segmentation.argmax(dim=1),) if self.with_segmentation else ()
+        return points2d, points3d, *extra
 
 
 def check_keypoint_count(n: int, source: str) -> None:
@@ -258,19 +265,21 @@ def _parity_images(dataset: Path, input_size: int, frames: int, modalities: str 
 
 def parity(module: ContractModule, onnx_path: str | Path, images: torch.Tensor) -> dict[str, float | None]:
     """Max |onnxruntime - PyTorch| of the outputs on model ``images`` (B, C, S, S): {"points3d_mm",
-    "points2d_norm", "points2d_px" (input-image pixels), "confidence" (None without that output), "frames"}; NaN
-    where an output is not finite (:func:`parity_failures` judges them)."""
+    "points2d_norm", "points2d_px" (input-image pixels), "confidence" (None without that output), "segmentation"
+    (the share of pixels whose class differs; None without that output), "frames"}; NaN where an output is not
+    finite (:func:`parity_failures` judges them)."""
     with torch.inference_mode():
-        ref = module(images)
-    got = run_onnx_with_confidence(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
+        ref = dict(zip(module.outputs, module(images)))
+    got = run_onnx_outputs(load_onnx_model(onnx_path), *split_model_images(images.numpy()))
 
     def gap(a: np.ndarray, b: torch.Tensor) -> float:
         return float(np.max(np.abs(a.astype(np.float64) - b.numpy().astype(np.float64))))
 
-    d3, d2 = gap(got[1], ref[1]) * 1000.0, gap(got[0], ref[0])
-    dc = gap(got[2], ref[2]) if module.with_confidence else None
+    d3, d2 = gap(got["points3d"], ref["points3d"]) * 1000.0, gap(got["points2d"], ref["points2d"])
+    dc = gap(got["confidence"], ref["confidence"]) if module.with_confidence else None
+    ds = float(np.mean(got["segmentation"] != ref["segmentation"].numpy())) if module.with_segmentation else None
     return {"points3d_mm": d3, "points2d_norm": d2, "points2d_px": d2 * module.input_size / 2.0, "confidence": dc,
-            "frames": int(images.shape[0])}
+            "segmentation": ds, "frames": int(images.shape[0])}
 
 
 def parity_failures(diff: dict[str, float | None]) -> list[str]:
@@ -286,6 +295,9 @@ def parity_failures(diff: dict[str, float | None]) -> list[str]:
     if diff["confidence"] is not None and diff["confidence"] > PARITY_MAX_CONFIDENCE:
         failed.append(f"the keypoint confidence differs by up to {diff['confidence']:.2e} (> "
                       f"{PARITY_MAX_CONFIDENCE:g}) between onnxruntime and PyTorch")
+    if (diff.get("segmentation") or 0.0) > PARITY_MAX_SEGMENTATION:
+        failed.append(f"the segmentation's class differs on {100 * diff['segmentation']:.2f} % of pixels (> "
+                      f"{100 * PARITY_MAX_SEGMENTATION:g} %) between onnxruntime and PyTorch")
     return failed
 
 
@@ -371,7 +383,9 @@ def run_export(options: ExportOptions, log=print) -> dict[str, Any]:
             bar.close()
             log(f"parity on {diff['frames']} real images of {dataset}: max |ORT - PyTorch| points3d "
                 f"{diff['points3d_mm']:.2e} mm, points2d {diff['points2d_norm']:.2e} (normalised) = "
-                f"{diff['points2d_px']:.2e} px of the {module.input_size} px input")
+                f"{diff['points2d_px']:.2e} px of the {module.input_size} px input"
+                + ("" if diff["segmentation"] is None else
+                   f", segmentation class on {100 * diff['segmentation']:.3f} % of pixels"))
             failed = parity_failures(diff)
             if failed:
                 raise RunFailedError(f"ONNX parity check failed: {'; '.join(failed)}; nothing written to {out}")

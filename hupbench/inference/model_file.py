@@ -15,7 +15,9 @@ the nearest pixel like the image); outputs ``points2d`` (B, N, 2) normalised [-1
 
 Optional (a file without them still reads): ``hupbench.outputs`` (JSON list of the graph outputs,
 :data:`OUTPUTS`; ``["points2d", "points3d"]`` when absent), where ``confidence`` is (B, N) float32 in [0, 1]
-for a model with a per-keypoint confidence (:data:`CONFIDENCE`); and ``hupbench.image_statistics``, the
+for a model with a per-keypoint confidence (:data:`CONFIDENCE`) and ``segmentation`` (B, S, S) int64 each input
+pixel's class (:data:`hupbench.core.contract.SEGMENT_CLASSES`: other, hand, probe) for a model with a segmentation
+head (the fits read it); and ``hupbench.image_statistics``, the
 calibration of predict's out-of-distribution check (:class:`hupbench.inference.image_statistics.ImageStatistics`);
 and, for a model that fits its output to the depth input (:func:`hupbench.fits.fits`), ``hupbench.fit_probe``: the
 probe those fits know (:meth:`hupbench.fits.known_probe.FitProbe.to_json`; a file without it fits the default
@@ -56,7 +58,7 @@ _GRAPH_FIELD = 7
 #: graph outputs and the width of their last axis, in the order they are checked
 OUTPUT_WIDTHS = {"points3d": 3, "points2d": 2}
 #: the outputs a file may declare in ``hupbench.outputs`` (the first two always), and the default
-OUTPUTS = ("points2d", "points3d", "confidence")
+OUTPUTS = ("points2d", "points3d", "confidence", "segmentation")
 BASE_OUTPUTS = ("points2d", "points3d")
 #: what the ``confidence`` output means, by model name (``hupbench.model_config["name"]``); a model without a
 #: per-keypoint score of its own has no entry (why: :data:`NO_CONFIDENCE`)
@@ -207,6 +209,11 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
             raise BadValueError(f"{source}: hupbench.outputs declares 'confidence' but the graph has no such output "
                                 f"(outputs {sorted(outputs)})")
         expected["confidence"] = ([num_keypoints], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
+    if "segmentation" in declared_outputs:
+        if "segmentation" not in outputs:
+            raise BadValueError(f"{source}: hupbench.outputs declares 'segmentation' but the graph has no such output "
+                                f"(outputs {sorted(outputs)})")
+        expected["segmentation"] = ([input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")
     for name, (tail, why) in expected.items():
         dims = list(inputs.get(name, outputs.get(name)) or [])
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):

@@ -74,7 +74,7 @@ from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.runtime import (
     OnnxModel,
     load_onnx_model,
-    run_onnx_with_confidence,
+    run_onnx_outputs,
 )
 from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
 
@@ -421,11 +421,12 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
     if loaded:
         depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
         images = np.stack([item[2] for item in loaded])
-        points2d, points3d, confidence = run_onnx_with_confidence(model, images, depth)  # (B, C, S, S) -> (B, N, *)
+        outputs = run_onnx_outputs(model, images, depth)  # (B, C, S, S) -> (B, N, *)
+        points2d, points3d, confidence = outputs["points2d"], outputs["points3d"], outputs.get("confidence")
         if fits(model.model_config):
             points2d, points3d = after_network(model.model_config, points2d, points3d,
                                                np.concatenate([images, depth], axis=1), model.K_input,
-                                               fitted=model.fit_probe)
+                                               fitted=model.fit_probe, segmentation=outputs.get("segmentation"))
         K_user = options.K
         for b, (record, image, _, geometry, _) in enumerate(loaded):
             if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):

@@ -19,7 +19,8 @@ from hupbench.fits.known_probe import FitProbe
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, check_graph, check_io_shapes, read_metadata
 
-__all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "run_onnx_with_confidence", "split_model_images"]
+__all__ = ["OnnxModel", "load_onnx_model", "run_onnx", "run_onnx_outputs", "run_onnx_with_confidence",
+           "split_model_images"]
 
 # onnxruntime raises its own exception types (not RuntimeError) for unreadable, invalid or failing models
 _LOAD_ERRORS = (ort_errors.Fail, ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.InvalidArgument,
@@ -138,6 +139,12 @@ def run_onnx_with_confidence(model: OnnxModel, images: np.ndarray,
     return points2d, points3d, confidence
 
 
+def run_onnx_outputs(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Every output the file declares (``hupbench.outputs``: points2d, points3d, then confidence (B, N) float32 and
+    segmentation (B, S, S) int64 where it has them), by name, for :func:`run_onnx`'s inputs."""
+    return dict(zip(model.outputs, _run(model, images, depth, tuple(model.outputs))))
+
+
 def _run(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None, names: tuple[str, ...]) -> list[np.ndarray]:
     """The named outputs of one run (:func:`run_onnx`), points2d and points3d first, their shapes checked."""
     S = model.input_size
@@ -157,7 +164,7 @@ def _run(model: OnnxModel, images: np.ndarray, depth: np.ndarray | None, names: 
                              f"the input size its metadata declare ({S} px): {type(exc).__name__}: "
                              f"{_reason(exc, 240)}") from None
     n, b = len(model.keypoint_names), images.shape[0]
-    expected = {"points2d": (b, n, 2), "points3d": (b, n, 3), "confidence": (b, n)}
+    expected = {"points2d": (b, n, 2), "points3d": (b, n, 3), "confidence": (b, n), "segmentation": (b, S, S)}
     shapes = [tuple(output.shape) for output in outputs]
     if shapes != [expected[name] for name in names]:
         raise RunFailedError(f"{model.path}: outputs {', '.join(names)} must be "

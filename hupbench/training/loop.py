@@ -162,7 +162,8 @@ class Session:
         """Build the run's pieces (or restore them from ``resumed``), write run.json, open the logs, say what
         is trained, and validate the model as it starts (a resumed run keeps its first validation)."""
         folder, device, root = run.folder, place.device, Path(run.data.root)
-        data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, place, run.train.progress, console.line)
+        data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, place, run.train.progress, console.line,
+                          with_seg=getattr(run.model, "segmentation", False))
         # the stored images' K at the model's input size: the camera the 3D output is trained for
         K_input = resize_intrinsics(data.train_set.ann["K"][0], run.data.reader.input_size / manifest["image_size"][0])
         model = build_run_model(run, data, K_input, resumed)
@@ -309,7 +310,7 @@ def train_step(model, optimizer, batch: dict, epoch: int, data: TrainData, run: 
     terms (no device sync)."""
     batch = data.augment({name: value.to(device, non_blocking=True) for name, value in batch.items()}, epoch)
     images = model_images(batch["image"], device, run.channels_last)
-    targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d")}
+    targets = {k: batch[k].to(device, non_blocking=True) for k in ("keypoints_2d", "keypoints_3d", "seg") if k in batch}
     with torch.autocast(**autocast):
         output = model(images)
     loss, terms = loss_terms(output, targets, run.loss)

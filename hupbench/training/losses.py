@@ -1,4 +1,5 @@
-"""The training loss: HOPE-Net's weighted MSE terms (2D init, 2D, 3D), probe-symmetry aware."""
+"""The training loss: HOPE-Net's weighted MSE terms (2D init, 2D, 3D), probe-symmetry aware, and a segmenting
+model's per-pixel cross-entropy."""
 
 from __future__ import annotations
 
@@ -22,8 +23,11 @@ def loss_terms(output, batch: dict, weights: LossConfig) -> tuple[torch.Tensor, 
     no gradient.
 
     Args:
-        output: HOPENetOutput or RegressorOutput (points2d may be None); 2D (B, 29, 2) normalised, 3D
-            (B, 29, 3) metres. batch: "keypoints_2d" and "keypoints_3d" likewise, camera frame.
+        output: HOPENetOutput, RegressorOutput or HUPNetOutput (points2d may be None); 2D (B, 29, 2) normalised, 3D
+            (B, 29, 3) metres. batch: "keypoints_2d" and "keypoints_3d" likewise, camera frame, and for a model
+            with a ``segmentation`` output (B, 3, S, S) logits, "seg" (B, S, S) int64 class indices
+            (:data:`hupbench.core.contract.SEGMENT_CLASSES`): the term "loss_seg", their cross-entropy, weighs
+            ``w_seg``.
         weights: the ``loss`` node (the 3D loss is measured in units of ``unit_3d_m`` metres).
 
     Returns:
@@ -52,6 +56,9 @@ def loss_terms(output, batch: dict, weights: LossConfig) -> tuple[torch.Tensor, 
     if output.points2d is not None:
         terms["loss_2d"] = torch.nn.functional.mse_loss(output.points2d.float(), target_2d)
         total = total + weights.w2d * terms["loss_2d"]
+    if getattr(output, "segmentation", None) is not None:
+        terms["loss_seg"] = torch.nn.functional.cross_entropy(output.segmentation.float(), batch["seg"])
+        total = total + weights.w_seg * terms["loss_seg"]
     logged = {name: value.detach() for name, value in terms.items()}
     if choice is not None:
         logged["probe_half_turned"] = (choice != 0).float().mean()

@@ -26,8 +26,8 @@ RESUME_FREE_KEYS = ("train.resume", "train.progress", "train.stop_after", "run_d
                     "data.cache_dir", "label")
 #: config keys added after checkpoints were written, with the value that does what a run did before the key existed:
 #: a checkpoint without the key is of the same config as a run with that value (the depth camera issue's reader keys:
-#: the depth the dataset stores, no fresh noise)
-ADDED_KEYS = {"data.reader.depth_sensor": "dataset", "data.reader.fresh_sensor_noise": False}
+#: the depth the dataset stores, no fresh noise; the segmentation loss's weight, which a model without the head ignores)
+ADDED_KEYS = {"data.reader.depth_sensor": "dataset", "data.reader.fresh_sensor_noise": False, "loss.w_seg": 1.0}
 
 
 def resume_checkpoint(run: TrainRun) -> Checkpoint | None:

@@ -64,9 +64,10 @@ class LossConfig:
     w3d: float = 1.0
     unit_3d_m: float = 0.01
     probe_symmetry: str = "none"
+    w_seg: float = 1.0
 
     def __post_init__(self) -> None:
-        for weight in ("w2d_init", "w2d", "w3d"):
+        for weight in ("w2d_init", "w2d", "w3d", "w_seg"):
             check_number(getattr(self, weight), f"loss.{weight}", 0.0)
         check_number(self.unit_3d_m, "loss.unit_3d_m", 0.0, low_open=True)
         check_choice(self.probe_symmetry, "loss.probe_symmetry", sorted(PROBE_SYMMETRIES))

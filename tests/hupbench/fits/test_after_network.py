@@ -75,7 +75,7 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     seen = []
 
     def stand_in(part):
-        def fit(points2d, points3d, images, K_input, settings, probe):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels):
             seen.append((part, settings, probe))
             return points2d, points3d + 1.0, None
         return fit

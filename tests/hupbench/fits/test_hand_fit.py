@@ -152,7 +152,7 @@ def test_the_probe_s_points_are_left_out():
     pose[:3, :3], pose[:3, 3] = R, t
     points, real = F._measured_points(image[3][None].astype(np.float64), K, joints[None], pose[None], settings,
                                       F._capsules(settings.palm_radius_m, settings.knuckle_radius_m),
-                                      default_fit_probe())
+                                      default_fit_probe(), None)
     used = points[0][real[0] > 0]
     to_probe = build_probe().mesh.nearest.signed_distance((used - t) @ R)       # trimesh: positive inside
     assert len(used) == settings.max_points and (-to_probe).min() > settings.probe_gap_m - 5e-4

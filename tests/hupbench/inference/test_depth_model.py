@@ -150,7 +150,7 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     calls = []
 
     def stand_in(part, where, by):
-        def fit(points2d, points3d, images, K_input, settings, probe):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None):
             calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
             moved = np.array(points3d, dtype=np.float64)
             moved[:, where] += by
