@@ -89,6 +89,11 @@ def main() -> None:
 
     print(f"{args.model} on {len(rows)} {args.split} frames, depth {reader.depth_source}; mm, ms per frame at batch 1")
     print(f"{'network alone':48s} {errors(p.points3d)}")
+    if "segmentation" in masks and "true masks" in masks:   # the head's agreement with the seg maps, per class
+        got, true = masks["segmentation"], masks["true masks"]
+        print("segmentation IoU " + ", ".join(
+            f"{name} {np.sum((got == c) & (true == c)) / max(np.sum((got == c) | (true == c)), 1):.3f}"
+            for c, name in enumerate(SEGMENT_CLASSES)))
     settings = [{"probe": {}, "hand": {}}] + args.variant
     for mask_name, (changes, mask) in ((m, (c, masks[m])) for m in masks for c in settings):
         probe = dataclasses.replace(ProbeFitSettings(), **changes["probe"])

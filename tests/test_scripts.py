@@ -78,6 +78,17 @@ def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
     assert lines[3].startswith("probe hypotheses=4, coarse_points=64; hand iterations=2 (no masks)")
     assert lines[4].startswith("defaults (true masks)") and len(lines) == 6
     assert all("probe fit" in line and "hand fit" in line and "all " in line for line in lines[2:])
+    # a segmenting model: its head's IoU, and the fits with its segmentation, without any, and with the seg maps
+    from hupbench.data import HUPDataset, ReaderConfig
+
+    K = HUPDataset(tiny_dataset, "test", ReaderConfig(input_size=INPUT_SIZE))[0]["K"].double().numpy()
+    seg = make_checkpoint(tmp_path / "seg.pt", tiny_dataset, name="hupnet", backbone="resnet10", input_channels=4,
+                          depth_anchor=True, segmentation=True, probe_fit="depth", hand_fit="depth", K_input=K.tolist(),
+                          input_size=INPUT_SIZE)
+    lines = run_script(SCRIPTS / "fit_speed.py", seg, tiny_dataset, "--frames", "2", "--true-masks",
+                       monkeypatch=monkeypatch, capsys=capsys).splitlines()
+    assert lines[2].startswith("segmentation IoU other ") and " probe " in lines[2]
+    assert [line.split(" (")[1].split(")")[0] for line in lines[3:]] == ["segmentation", "no masks", "true masks"]
     with pytest.raises(SystemExit):
         run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--variant", "probe:nope=1", monkeypatch=monkeypatch,
                    capsys=capsys)
