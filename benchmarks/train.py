@@ -45,7 +45,8 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     device = torch.device(args.device)
     autocast = autocast_args(resolve_precision(run.precision, device), device)
     t0 = time.perf_counter()
-    data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, Placement(1, 0, device), run.train.progress)
+    data = setup_data(run.data, run.seed, run.train.bn_recompute_frames, Placement(1, 0, device), run.train.progress,
+                      with_seg=getattr(run.model, "segmentation", False))
     setup_s = time.perf_counter() - t0
     K = data.train_set.ann["K"][0]
     model = build_run_model(run, data, K).to(device)

@@ -67,7 +67,8 @@ def main() -> None:
     for changes in [{}] + args.hand_variant:
         name = "network + fits" + "".join(f", hand fit {k}={v:g}" for k, v in changes.items())
         settings = dataclasses.replace(HandFitSettings(), **changes)
-        outputs[name] = after_network(net.model_config, p.points2d, p.points3d, images, net.K_input, hand=settings)[1]
+        outputs[name] = after_network(net.model_config, p.points2d, p.points3d, images, net.K_input, hand=settings,
+                                      fitted=net.fit_probe, segmentation=p.segmentation)[1]
     hand = {}
     for name, points3d in outputs.items():
         err_mm = 1000.0 * np.linalg.norm(points3d - p.labels3d, axis=-1)

@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 
 def _variant(text: str) -> dict[str, dict]:
@@ -75,8 +74,7 @@ def main() -> None:
     images = np.concatenate(p.images)
     # the masks each run gives the fits: the model's own segmentation (what eval does) where it has a head, and then
     # none (its ablation); the dataset's seg maps with --true-masks
-    masks = {"segmentation": np.concatenate([net.network(torch.from_numpy(b)).segmentation for b in p.images])
-             } if net.model_config.get("segmentation") else {}
+    masks = {} if p.segmentation is None else {"segmentation": p.segmentation}
     masks["no masks"] = None
     if args.true_masks:
         masks["true masks"] = np.stack([reader.seg_frame(int(r)) for r in rows])

@@ -7,6 +7,8 @@ the fit's time per frame. The probe's fit runs first, as in eval.
 The checkpoint must read depth (data.reader.input_modalities=rgb+depth); whether its config asks for the fits does
 not matter here: both are measured. The fit's weights were chosen with ``--split val``; quote the test split once,
 with its floor (printed from the manifest).
+The fits here take every pixel near their object: a segmenting model's (model.segmentation) own masks are not
+used (scripts/fit_speed.py runs its fits with them, without them and with the seg maps).
 
 Usage: python scripts/hand_fit_ablation.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 32]
 """

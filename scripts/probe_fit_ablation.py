@@ -4,6 +4,8 @@ per grasp, how each frame's half turn was decided and the error of each kind, an
 
 The checkpoint must read depth (data.reader.input_modalities=rgb+depth); whether its config asks for the fit does
 not matter here: both are measured. Quote it with the split's floor (printed from the manifest).
+The fits here take every pixel near their object: a segmenting model's (model.segmentation) own masks are not
+used (scripts/fit_speed.py runs its fits with them, without them and with the seg maps).
 
 Usage: python scripts/probe_fit_ablation.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 32]
 """

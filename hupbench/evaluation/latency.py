@@ -133,7 +133,7 @@ def measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progres
 
     def export():
         try:
-            export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit()))
+            export_onnx(net.module, onnx_path, onnx_metadata(net.payload, run_name, git_commit(), net.module.outputs))
         except OSError as exc:
             raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
 

@@ -134,6 +134,8 @@ class SplitPrediction:
         labels2d, labels3d: the same of the labels, as the reader gives them at the model input.
         images: the (B, C, S, S) float32 model images of each batch, in order, when asked for; else None.
         seconds: wall time of the pass.
+        segmentation: with the images, a segmenting model's (F, S, S) int64 classes of each input pixel (what its
+            fits read, :class:`NetworkOutput`); else None.
     """
 
     rows: np.ndarray
@@ -143,6 +145,7 @@ class SplitPrediction:
     labels3d: np.ndarray
     images: list[np.ndarray] | None
     seconds: float
+    segmentation: np.ndarray | None = None
 
 
 def split_reader(dataset: Path, split: str, net: EvalModel, depth_sensor: str = "dataset"):
@@ -170,7 +173,8 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
         net: the model. reader: the split's reader (:func:`split_reader`). batch_size: frames per forward pass.
         rows: indices of the frames to run (default: all, in order).
         with_fits: run the fits after the network where the model asks for them (eval); False: the network alone.
-        keep_images: keep each batch's model images in the result (for fits run afterwards).
+        keep_images: keep each batch's model images (and a segmenting model's segmentation) in the result (for
+            fits run afterwards).
         progress: a progress bar on a terminal. log: receives one line with the pass's time, when given.
 
     Returns:
@@ -184,17 +188,20 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     rows = np.arange(len(reader)) if rows is None else np.asarray(rows, dtype=np.int64)
     frames = torch.utils.data.Subset(reader, rows.tolist())
     loader = torch.utils.data.DataLoader(frames, batch_size=batch_size, shuffle=False, num_workers=0)
-    pred2d, pred3d, gt2d, gt3d, images = [], [], [], [], []
+    pred2d, pred3d, gt2d, gt3d, images, segmentation = [], [], [], [], [], []
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        p2, p3 = net.predict(batch["image"]) if with_fits else net.network(batch["image"])[:2]
+        out = net.network(batch["image"])
+        p2, p3 = net.after_network(batch["image"].numpy(), out) if with_fits else out[:2]
         pred2d.append(p2)
         pred3d.append(p3)
         gt2d.append(batch["keypoints_2d"].double().numpy())
         gt3d.append(batch["keypoints_3d"].double().numpy())
         if keep_images:
             images.append(batch["image"].numpy())
+            if out.segmentation is not None:
+                segmentation.append(out.segmentation)
     pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
     seconds = time.perf_counter() - start
     if log is not None:
@@ -202,4 +209,5 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
     if bad.any():
         raise RunFailedError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
-    return SplitPrediction(rows, pred2d, pred3d, gt2d, gt3d, images if keep_images else None, seconds)
+    return SplitPrediction(rows, pred2d, pred3d, gt2d, gt3d, images if keep_images else None, seconds,
+                           np.concatenate(segmentation) if segmentation else None)

@@ -110,3 +110,15 @@ def test_the_exported_segmentation_matches_pytorch_and_reaches_the_fits(segmenti
     for part, pixels in seen:
         assert pixels.shape == (3, 64, 64)
         assert np.mean(pixels != (torch_seg == SEGMENT_CLASSES.index(part))) <= E.PARITY_MAX_SEGMENTATION
+
+
+def test_eval_of_a_segmenting_checkpoint_times_it_with_its_segmentation(segmenting, tiny_dataset, tmp_path, capsys):
+    """eval's latency exports the checkpoint with every output it has (the segmentation too) and times it."""
+    from helpers.cli import run_cli
+
+    checkpoint, _ = segmenting
+    out = tmp_path / "results.json"
+    answer = run_cli(capsys, "eval", checkpoint, tiny_dataset, "--split", "test", "--out", out)
+    assert answer.rc == 0, answer.err
+    latency = json.loads(out.read_text())["latency_ms_per_image"]
+    assert latency["onnxruntime"]["batch1"] > 0 and latency["pytorch"]["batch1"] > 0
