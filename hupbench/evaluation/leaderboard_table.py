@@ -14,6 +14,7 @@ import re
 from collections.abc import Sequence
 
 from hupbench.core.contract import UNSEEN_GRASPS
+from hupbench.core.depth_sensor import PRESETS
 from hupbench.evaluation.intervals import PARTS, interval_text, intervals_block
 
 MISSING = "—"
@@ -146,10 +147,18 @@ def row_track(row: dict) -> str:
     return row["track"] or PAPER_TRACK
 
 
+def row_label(row: dict) -> str:
+    """The row's model label, with the depth camera it read where that is a sensor's (``dataset.depth_sensor`` a
+    preset of :mod:`hupbench.core.depth_sensor`), not the clean z-buffer: two rows of one model on one dataset
+    differ by it."""
+    sensor = row["dataset"].get("depth_sensor")
+    return row["model"]["label"] + (f", {sensor} depth" if sensor in PRESETS else "")
+
+
 def plot_label(row: dict) -> str:
-    """The row's model label in the plots, with its track when it is not the paper's."""
+    """The row's model label in the plots (:func:`row_label`), with its track when it is not the paper's."""
     track = row_track(row)
-    return row["model"]["label"] + ("" if track == PAPER_TRACK else f", {TRACK_TITLES[track][0].lower()}")
+    return row_label(row) + ("" if track == PAPER_TRACK else f", {TRACK_TITLES[track][0].lower()}")
 
 
 def spread_cell(row: dict) -> str:
@@ -171,7 +180,7 @@ def table_row(row: dict) -> list[str]:
         train_cell = format_duration(training["wall_s"]) + (f", {training['hardware']}" if training["hardware"] else "")
     latency = row["latency_ms_per_image"]
     return [
-        text_cell(model["label"]),
+        text_cell(row_label(row)),
         "measured" if row["kind"] == "measured" else "reported in paper",
         text_cell(row["dataset"]["name"]),
         sha_cell(row["dataset"]["grasps_sha256"]),

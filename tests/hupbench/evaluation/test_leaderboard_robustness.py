@@ -78,3 +78,17 @@ def test_one_model_under_one_sensor_twice_is_refused(tmp_path):
     root = board(tmp_path, robustness_row("hololens2_ahat"), twin)
     with pytest.raises(BadValueError, match="under hololens2_ahat twice"):
         run_leaderboard(root)
+
+
+@pytest.mark.parametrize("sensor, suffix", [("hololens2_ahat", ", hololens2_ahat depth"), ("none", ""), (None, "")])
+def test_a_row_that_read_a_sensor_s_depth_says_so_in_its_label(sensor, suffix):
+    """Two rows of one model on one dataset, one on the clean z-buffer and one through a depth camera, are told apart
+    by their label in the tables and the plots."""
+    from hupbench.evaluation.leaderboard_table import plot_label, row_label, table_row
+
+    row = robustness_row(sensor or "none")
+    if sensor is None:
+        row["dataset"].pop("depth_sensor")
+    assert row_label(row) == row["model"]["label"] + suffix
+    assert table_row(row)[0] == row["model"]["label"] + suffix
+    assert plot_label(row).startswith(row["model"]["label"] + suffix + ", ")   # the clinic track's name after it
