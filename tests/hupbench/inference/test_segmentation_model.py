@@ -49,6 +49,7 @@ def test_the_segmentation_loss_is_the_pixels_cross_entropy():
     assert float(total) == pytest.approx(2.0 * expected, rel=1e-6)
 
 
+@pytest.mark.slow  # 40 s here; the default set checks the term (above), the seg batches (test_seg_labels.py) and the head
 def test_the_segmentation_loss_falls_with_training(tiny_dataset, tmp_path):
     """hupnet_seg trained STEPS steps of 4 frames on the tiny dataset by the real loop: the seg maps reach the loss
     through the frame cache and the augmentation, and the term falls."""
