@@ -153,7 +153,8 @@ def is_leaderboard_row(out: Path) -> bool:
 def model_label(model_config: dict, input_size: int) -> str:
     """Human label naming the model, backbone, input size, a depth input and HUPNet's heads, e.g. "HOPE-Net
     (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)", "HUPNet (ResNet-18,
-    128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)"."""
+    128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)", "HUPNet (ResNet-18, 128 px, RGB-D,
+    depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -172,6 +173,8 @@ def model_label(model_config: dict, input_size: int) -> str:
     if model_config.get("probe_head") == "rigid":
         parts.append("rigid probe" + (f", {model_config['probe_crop_px']} px probe crop"
                                       if model_config.get("probe_crop_px") else ""))
+    if model_config.get("segmentation"):
+        parts.append("segmentation")
     parts += [f"{part} fitted to depth" for part in fits(model_config)]
     return f"{name} ({', '.join(parts)})"
 

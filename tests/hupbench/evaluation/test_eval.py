@@ -515,6 +515,9 @@ def test_model_label_names_what_the_model_reads_and_its_heads():
                         "heatmap_stride": 4, "probe_fit": "depth", "hand_fit": "depth"}, 128) == \
         "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth, hand fitted " \
         "to depth)"
+    assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
+                        "segmentation": True, "probe_fit": "depth", "hand_fit": "depth"}, 128) == \
+        "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"
 
 
 def test_eval_without_out_writes_beside_the_model_not_the_leaderboard(exported, tiny_dataset, tmp_path, monkeypatch,
