@@ -275,20 +275,24 @@ def test_checkpoint_from_another_model_is_refused(tiny_dataset, tmp_path):
 
 
 def test_a_checkpoint_from_before_a_config_key_existed_resumes_at_that_key_s_old_behaviour():
-    """A checkpoint written before data.reader.depth_sensor and fresh_sensor_noise existed (its config lacks them)
-    is of the same config as a run with their values that do what runs did then; another value is a difference."""
+    """A checkpoint written before data.reader.depth_sensor, fresh_sensor_noise and loss.w_seg existed (its config
+    lacks them) is of the same config as a run with their values that do what runs did then; another value is a
+    difference."""
     from hupbench.training.resume import ADDED_KEYS, _config_diff
 
     now = {"data": {"batch_size": 32, "reader": {"input_size": 128, "depth_sensor": "dataset",
-                                                 "fresh_sensor_noise": False}}}
-    before = {"data": {"batch_size": 32, "reader": {"input_size": 128}}}
-    assert set(ADDED_KEYS) == {"data.reader.depth_sensor", "data.reader.fresh_sensor_noise"}
+                                                 "fresh_sensor_noise": False}}, "loss": {"w3d": 1.0, "w_seg": 1.0}}
+    before = {"data": {"batch_size": 32, "reader": {"input_size": 128}}, "loss": {"w3d": 1.0}}
+    assert set(ADDED_KEYS) == {"data.reader.depth_sensor", "data.reader.fresh_sensor_noise", "loss.w_seg"}
     assert _config_diff(before, now) == []
+    assert _config_diff(before, {**now, "loss": {"w3d": 1.0, "w_seg": 0.5}}) == [
+        "loss.w_seg: checkpoint '<absent>', now 0.5"]
     other = {"data": {"batch_size": 32, "reader": {"input_size": 128, "depth_sensor": "hololens2_ahat",
-                                                   "fresh_sensor_noise": False}}}
+                                                   "fresh_sensor_noise": False}}, "loss": {"w3d": 1.0}}
     assert _config_diff(before, other) == ["data.reader.depth_sensor: checkpoint '<absent>', now 'hololens2_ahat'"]
     assert _config_diff(now, before) == ["data.reader.depth_sensor: checkpoint 'dataset', now '<absent>'",
-                                         "data.reader.fresh_sensor_noise: checkpoint False, now '<absent>'"]
+                                         "data.reader.fresh_sensor_noise: checkpoint False, now '<absent>'",
+                                         "loss.w_seg: checkpoint 1.0, now '<absent>'"]
 
 
 MODEL_CONFIGS = sorted(p.stem for p in (REPO / "conf" / "model").glob("*.yaml"))
