@@ -134,8 +134,8 @@ class SplitPrediction:
         labels2d, labels3d: the same of the labels, as the reader gives them at the model input.
         images: the (B, C, S, S) float32 model images of each batch, in order, when asked for; else None.
         seconds: wall time of the pass.
-        segmentation: with the images, a segmenting model's (F, S, S) int64 classes of each input pixel (what its
-            fits read, :class:`NetworkOutput`); else None.
+        segmentation: with the images of the network alone (``with_fits`` False), a segmenting model's (F, S, S)
+            int64 classes of each input pixel (what its fits read, :class:`NetworkOutput`); else None.
     """
 
     rows: np.ndarray
@@ -192,15 +192,15 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        out = net.network(batch["image"])
-        p2, p3 = net.after_network(batch["image"].numpy(), out) if with_fits else out[:2]
+        out = None if with_fits else net.network(batch["image"])
+        p2, p3 = net.predict(batch["image"]) if with_fits else out[:2]
         pred2d.append(p2)
         pred3d.append(p3)
         gt2d.append(batch["keypoints_2d"].double().numpy())
         gt3d.append(batch["keypoints_3d"].double().numpy())
         if keep_images:
             images.append(batch["image"].numpy())
-            if out.segmentation is not None:
+            if out is not None and out.segmentation is not None:
                 segmentation.append(out.segmentation)
     pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
     seconds = time.perf_counter() - start
