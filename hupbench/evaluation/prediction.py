@@ -192,16 +192,18 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        out = None if with_fits else net.network(batch["image"])
-        p2, p3 = net.predict(batch["image"]) if with_fits else out[:2]
+        if with_fits:
+            (p2, p3), seg = net.predict(batch["image"]), None
+        else:
+            p2, p3, seg = net.network(batch["image"])
         pred2d.append(p2)
         pred3d.append(p3)
         gt2d.append(batch["keypoints_2d"].double().numpy())
         gt3d.append(batch["keypoints_3d"].double().numpy())
         if keep_images:
             images.append(batch["image"].numpy())
-            if out is not None and out.segmentation is not None:
-                segmentation.append(out.segmentation)
+            if seg is not None:
+                segmentation.append(seg)
     pred2d, pred3d, gt2d, gt3d = (np.concatenate(a) for a in (pred2d, pred3d, gt2d, gt3d))
     seconds = time.perf_counter() - start
     if log is not None:

@@ -204,16 +204,13 @@ def check_io_shapes(inputs: dict[str, list], outputs: dict[str, list], input_siz
         if name not in outputs:
             raise BadValueError(f"{source}: the graph has no output {name!r} (outputs {sorted(outputs)})")
         expected[name] = ([num_keypoints, width], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
-    if "confidence" in declared_outputs:
-        if "confidence" not in outputs:
-            raise BadValueError(f"{source}: hupbench.outputs declares 'confidence' but the graph has no such output "
+    optional = {"confidence": ([num_keypoints], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names"),
+                "segmentation": ([input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")}
+    for name in (n for n in optional if n in declared_outputs):
+        if name not in outputs:
+            raise BadValueError(f"{source}: hupbench.outputs declares {name!r} but the graph has no such output "
                                 f"(outputs {sorted(outputs)})")
-        expected["confidence"] = ([num_keypoints], f" for the {num_keypoints} keypoint names of hupbench.keypoint_names")
-    if "segmentation" in declared_outputs:
-        if "segmentation" not in outputs:
-            raise BadValueError(f"{source}: hupbench.outputs declares 'segmentation' but the graph has no such output "
-                                f"(outputs {sorted(outputs)})")
-        expected["segmentation"] = ([input_size, input_size], f" for the metadata's hupbench.input_size {input_size}")
+        expected[name] = optional[name]
     for name, (tail, why) in expected.items():
         dims = list(inputs.get(name, outputs.get(name)) or [])
         if len(dims) != 1 + len(tail) or any(isinstance(d, int) and d != t for d, t in zip(dims[1:], tail)):

@@ -109,8 +109,8 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
     model = OnnxModel(path=path, session=session, sha256=file_sha256(path), **meta)
     # one blank image: a graph made for another input size under edited metadata fails here, before any work
     S = model.input_size
-    run_onnx_with_confidence(model, np.zeros((1, 3, S, S), np.float32),
-                             np.zeros((1, 1, S, S), np.float32) if model.reads_depth else None)
+    run_onnx_outputs(model, np.zeros((1, 3, S, S), np.float32),
+                     np.zeros((1, 1, S, S), np.float32) if model.reads_depth else None)
     return model
 
 
