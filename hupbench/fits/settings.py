@@ -76,6 +76,7 @@ class HandFitSettings:
             metres (the sensor saw past the hand there: the patient, the room; pushing the capsule back would pull
             it towards them).
         bone_prior_m: each bone's turn costs this many metres per radian (a finger without points stays put).
+        wrist_weight: the network's wrist holds the fitted wrist: the residual of their distance (metres) times this.
         damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
     """
 
@@ -92,4 +93,5 @@ class HandFitSettings:
     free_weight: float = 0.3
     free_band_m: float = 0.04
     bone_prior_m: float = 0.05
+    wrist_weight: float = 3.0
     damping: float = 1e-6
