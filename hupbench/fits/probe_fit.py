@@ -27,7 +27,9 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        surface can be. The best is the pose up to the probe's half turn: its shape is mirror-symmetric but
        for the marker.
     4. The half turn: at the marker's site of each of the two poses (the pose and its half turn), the pixel
-       window where the measured depth agrees with the site's (``s.marker_depth_m``) is looked at. A site
+       window where the measured depth agrees with the site's (``s.marker_depth_m``), and, given a segmentation,
+       its probe pixels without depth (a time-of-flight camera returns none from much of the dark plastic), is
+       looked at. A site
        whose pixels have the marker's colour (its strongest channel ahead of the others by
        ``s.marker_chroma``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
        loses ("no marker"); else the network's own turn decides ("network").
@@ -92,9 +94,11 @@ def _refine(probe: FitProbe, p: np.ndarray, w_real: np.ndarray, R: np.ndarray, t
 
 
 def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-                 K: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 K: np.ndarray, s: ProbeFitSettings, pixels: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For poses (B, 3, 3), (B, 3): (facing, seen, chroma), each (B,): the site's normal towards the camera
-    (cosine), the share of its pixel window whose depth shows it, the marker colour's lead there."""
+    (cosine), the share of its pixel window that shows it (its depth agrees with the site's; or, given the probe's
+    ``pixels`` (B, S, S) bool, it has no depth and is the probe's), the marker colour's lead there."""
     B, _, S, _ = rgb.shape
     site = rotation @ probe.marker + translation                                  # (B, 3)
     normal = rotation @ probe.marker_normal
@@ -112,6 +116,8 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     window_depth = depth[index, rows[:, :, None], cols[:, None, :]]               # (B, W, W)
     window_rgb = rgb.transpose(0, 2, 3, 1)[index, rows[:, :, None], cols[:, None, :]]  # (B, W, W, 3)
     shows = np.abs(window_depth - site[:, 2, None, None]) < s.marker_depth_m
+    if pixels is not None:   # a sensor without depth on the probe's dark plastic: its pixels show the probe
+        shows |= (window_depth <= 0) & pixels[index, rows[:, :, None], cols[:, None, :]]
     c = probe.marker_channel
     others = np.concatenate([window_rgb[..., :c], window_rgb[..., c + 1:]], axis=-1).max(-1)
     lead = np.where(shows, window_rgb[..., c] - others, -1.0)
@@ -169,8 +175,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     RA, tA, inliers = R[pick], t[pick], inliers[pick].astype(np.int64)
     RB = RA @ _turn_z(np.pi)
 
-    facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s)
-    facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s)
+    own = None if pixels is None else np.asarray(pixels, dtype=bool)
+    facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
+    facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
     turn = R0.transpose(0, 2, 1) @ RA                                             # the fit relative to the network
     network_a = np.abs(np.arctan2(turn[:, 1, 0], turn[:, 0, 0])) <= np.pi / 2
     # a probe without a marker: neither site decides, the network's turn does

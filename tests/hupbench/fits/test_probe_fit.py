@@ -117,6 +117,30 @@ def test_the_fit_finds_the_pose_the_depth_shows(turn):
     np.testing.assert_array_equal(out2d[:kp.NUM_HAND], points2d[0, :kp.NUM_HAND])
 
 
+def test_where_the_sensor_sees_no_depth_on_the_marker_the_segmentation_shows_it():
+    """A time-of-flight camera returns no depth from much of the probe's dark plastic: here three pixels in four of
+    the probe, and the marker with 2 pixels around it, have none. The marker's window then has no depth to show the
+    site, and the network's (wrong) half turn decides; given the probe's pixels (a segmentation), those without
+    depth show the probe, and the marker's colour decides the half turn."""
+    R, t = MARKER_IN_VIEW
+    image = render(R, t, finger=False)
+    probe_pixels = image[3] > 0
+    marker = (np.abs(image[:3] - np.asarray(PROBE_MARKER_RGB, np.float32)[:, None, None]).max(0) < 1e-3) & probe_pixels
+    assert marker.sum() > 4
+    v, u = np.mgrid[0:S, 0:S]
+    near_marker = np.zeros_like(marker)
+    for dv in range(-2, 3):
+        for du in range(-2, 3):
+            near_marker |= np.roll(marker, (dv, du), axis=(0, 1))
+    image[3][((u % 2 == 1) | (v % 2 == 1)) | near_marker] = 0.0
+    assert 30 < (image[3] > 0).sum() < 0.3 * probe_pixels.sum()
+    points2d, points3d = network_output(R, t, np.pi, shift=(0.004, -0.003, 0.004))
+    blind = F.fit_probe(points2d, points3d, image[None], K)
+    seen = F.fit_probe(points2d, points3d, image[None], K, pixels=probe_pixels[None])
+    assert F.DECISIONS[blind[2].decision[0]] == "network" and error_mm(blind[1][0], R, t) > 50
+    assert F.DECISIONS[seen[2].decision[0]] == "marker" and error_mm(seen[1][0], R, t) < 3.0
+
+
 def test_a_marker_site_in_view_without_the_colour_means_the_other_turn():
     R, t = MARKER_IN_VIEW
     points2d, points3d = network_output(R, t)        # the network right, the marker painted over
