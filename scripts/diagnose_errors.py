@@ -14,12 +14,14 @@ Per test grasp, the probe's turn: the rotation between the box fitted to the pre
 box (median angle, the share of frames turned 60-150 degrees, and how much of the turn is about the probe's
 long axis: the mean |cosine| between the rotation's axis and it), beside the centroid's error.
 
-Usage: python scripts/diagnose_errors.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 64]
+Usage: python scripts/diagnose_errors.py CHECKPOINT DATASET [--split val] [--frames 960] [--batch 64]
+       [--depth-sensor dataset]
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -45,25 +47,32 @@ def decompose(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
             "xy": float(np.linalg.norm(pred[..., :2] - gt[..., :2], axis=-1).mean() * 1000.0)}
 
 
-def split_outputs(description: str, batch: int, modalities: str | None = None, keep_images: bool = False):
-    """The command line CHECKPOINT DATASET [--split] [--frames] [--batch] of these scripts, parsed, and the
-    checkpoint's network (no fits) run on evenly spaced frames of the split by eval's
+def split_outputs(description: str, batch: int, modalities: str | None = None, keep_images: bool = False,
+                  options: Callable[[argparse.ArgumentParser], None] | None = None):
+    """The command line CHECKPOINT DATASET [--split val] [--frames] [--batch] [--depth-sensor] of these scripts,
+    parsed, and the checkpoint's network (no fits) run on evenly spaced frames of the split by eval's
     :func:`hupbench.evaluation.prediction.predict_split`: (args, net, reader, prediction). ``modalities``: the input
     the script needs (an error naming it when the checkpoint reads another); None: what the checkpoint reads;
-    ``keep_images``: keep the model images (for fits run afterwards)."""
+    ``keep_images``: keep the model images (and a segmenting model's segmentation, for fits run afterwards);
+    ``options``: adds a script's own options to the parser. They diagnose on val unless told ``--split test``."""
+    from hupbench.data.reader import DEPTH_SENSORS
     from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
 
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("checkpoint")
     parser.add_argument("dataset")
-    parser.add_argument("--split", default="test")
+    parser.add_argument("--split", default="val", choices=("train", "val", "test"))
     parser.add_argument("--frames", type=int, default=960, help="evenly spaced frames of the split (0: all)")
     parser.add_argument("--batch", type=int, default=batch)
+    parser.add_argument("--depth-sensor", default="dataset", choices=DEPTH_SENSORS,
+                        help="the depth a depth-reading model reads (data.reader.depth_sensor)")
+    if options is not None:
+        options(parser)
     args = parser.parse_args()
     net = EvalModel(Path(args.checkpoint))
     if modalities is not None and net.input_modalities != modalities:
         raise SystemExit(f"{args.checkpoint} reads {net.input_modalities}; this script needs {modalities}")
-    reader = split_reader(Path(args.dataset), args.split, net)
+    reader = split_reader(Path(args.dataset), args.split, net, args.depth_sensor)
     rows = evenly_spaced(len(reader), args.frames)
     return args, net, reader, predict_split(net, reader, args.batch, rows, with_fits=False, keep_images=keep_images)
 

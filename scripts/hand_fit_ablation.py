@@ -10,7 +10,8 @@ with its floor (printed from the manifest).
 The fits here take every pixel near their object: a segmenting model's (model.segmentation) own masks are not
 used (scripts/fit_speed.py runs its fits with them, without them and with the seg maps).
 
-Usage: python scripts/hand_fit_ablation.py CHECKPOINT DATASET [--split test] [--frames 960] [--batch 32]
+Usage: python scripts/hand_fit_ablation.py CHECKPOINT DATASET [--split val] [--frames 960] [--batch 32]
+       [--depth-sensor dataset]
 """
 
 from __future__ import annotations

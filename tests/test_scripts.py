@@ -56,7 +56,8 @@ def test_diagnose_errors(exported, tiny_dataset, monkeypatch, capsys):
 def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, capsys):
     import json
 
-    out = run_script(SCRIPTS / script, depth_checkpoint, tiny_dataset, "--frames", "2", "--batch", "2",
+    more = ("--from-truth",) if script == "probe_fit_ablation.py" else ()
+    out = run_script(SCRIPTS / script, depth_checkpoint, tiny_dataset, "--frames", "2", "--batch", "2", *more,
                      monkeypatch=monkeypatch, capsys=capsys)
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["frames"] == 2
@@ -64,7 +65,8 @@ def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, caps
         assert set(summary["hand_mm"]) == {"network", "fit", "fit, rigid hand", "fit, no free space",
                                            "fit from the truth"}
     else:
-        assert set(summary["probe_mm"]) == {"network", "fit"}
+        assert set(summary["probe_mm"]) == {"network", "fit", "fit from the truth"}
+        assert " val: " in out and "depth dataset" in out
 
 
 def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
