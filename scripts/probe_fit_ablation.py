@@ -28,10 +28,10 @@ import torch
 def rotation_deg(pred: np.ndarray, truth: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """(F,) degrees between the probe boxes (``corners``, probe frame) fitted to the predicted and the true corners
     (F, 8, 3)."""
-    from hupbench.core.geometry import fit_rigid_pose
+    from hupbench.core.geometry import fit_rigid_pose, matrix_to_axis_angle
 
     relative = fit_rigid_pose(corners, pred)[:, :3, :3].transpose(0, 2, 1) @ fit_rigid_pose(corners, truth)[:, :3, :3]
-    return np.degrees(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    return np.degrees(np.linalg.norm(matrix_to_axis_angle(relative), axis=-1))   # stable near the half turn
 
 
 def main() -> None:

@@ -28,9 +28,9 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        past the hand, onto the patient or the room, and pushing the capsule back would pull it there) the capsule
        would be visible there, and it is pushed back (``s.free_weight``); and each bone's rotation times
        ``s.bone_prior_m`` (metres per radian): a finger without measured points, hidden by the probe or the palm,
-       keeps the network's pose; and the fitted wrist's distance from the network's times ``s.wrist_weight`` (the
-       depth shows the back of the hand and the forearm around the wrist joint, which pull it off: on the paper
-       protocol's val split the fitted wrist was 8.6 mm off where the network's was 5.2).
+       keeps the network's pose; and the fitted wrist's distance from the network's times ``s.wrist_weight`` (started
+       from the true joints the capsule hand's wrist drifts 5 mm; on 48 frames of the paper protocol's val split the
+       fitted wrist was 8.6 mm off where the network's was 5.2).
     4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
        motion), or a step whose equations could not be solved, or a fit that is not finite, the hand stays where
        the network put it.
@@ -185,7 +185,7 @@ def _nearest(points: np.ndarray, hand: np.ndarray, caps: _Capsules) -> tuple[np.
 
     Every point against every capsule (B, P, C) from two batched products, p.a and p.(b - a): with q = p - a and
     t = clip(q.ab / ab.ab), the squared distance is q.q - 2 t q.ab + t^2 ab.ab (what :func:`_segment` computes
-    point by point, a fifth of the time at 512 points and 20 capsules; in float64 the cancellation costs under a
+    point by point, a quarter of the time at 512 points and 20 capsules; in float64 the cancellation costs under a
     nanometre at the hand's scale)."""
     a, b = _ends(hand, caps)
     ab = b - a                                                                     # (B, C, 3)
@@ -256,8 +256,7 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     # each bone's turn, a prior towards the network's pose
     JTJ[:, 6:, 6:] += s.bone_prior_m ** 2 * np.eye(N_PARAMS - 6)
     JTr[:, 6:] += s.bone_prior_m ** 2 * theta[:, 6:]
-    # the network's wrist, a measurement of the joint the depth does not see (the back of the hand and the forearm
-    # around it are what the depth shows)
+    # the network's wrist, held: the capsule hand's own wrist drifts from the true one (module docstring, step 3)
     wrist = jac[:, _WRIST] * s.wrist_weight                                                  # (B, 3, 51)
     JTJ += wrist.swapaxes(-1, -2) @ wrist
     JTr += (wrist.swapaxes(-1, -2) @ ((joints[:, _WRIST] - hand[:, _WRIST]) * s.wrist_weight)[..., None])[..., 0]

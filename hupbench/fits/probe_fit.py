@@ -156,8 +156,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     centre = box_centre @ R0.transpose(0, 2, 1) + t0                              # (B, 3)
     points = unproject_depth(depth, K)
     near = (points[..., 2] > 0) & (np.linalg.norm(points - centre[:, None], axis=-1) < reach)
-    if pixels is not None:
-        near &= np.asarray(pixels, dtype=bool).reshape(B, -1)
+    own = None if pixels is None else np.asarray(pixels, dtype=bool)
+    if own is not None:
+        near &= own.reshape(B, -1)
     points, weight = sample_points(points, near, s.max_points)
 
     # every turn refined on a few points, the best again on all of them
@@ -175,7 +176,6 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     RA, tA, inliers = R[pick], t[pick], inliers[pick].astype(np.int64)
     RB = RA @ _turn_z(np.pi)
 
-    own = None if pixels is None else np.asarray(pixels, dtype=bool)
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
     facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
     turn = R0.transpose(0, 2, 1) @ RA                                             # the fit relative to the network
