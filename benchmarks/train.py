@@ -11,9 +11,11 @@ that waits and compute are told apart).
 Usage:
     python benchmarks/train.py DATASET [--model hopenet_r10_128] [--device cpu|cuda] [--batch 32]
         [--steps 40] [--warmup 5] [--threads 2] [--compile]
-        [--pipelines jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16]
-    Each pipeline item is PIPELINE:WORKERS[:cl][:bf16]: loader workers, channels_last, bf16 autocast;
-    the first item is the reference the others are compared with.
+        [--pipelines jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16] [--set KEY=VALUE ...]
+    Each pipeline item is PIPELINE:WORKERS[:cl][:bf16][:depth]: loader workers, channels_last, bf16 autocast,
+    the depth input beside the RGB (data.reader.input_modalities=rgb+depth); the first item is the reference
+    the others are compared with. --set adds a train config override to every item (e.g.
+    data.reader.depth_sensor=hololens2_ahat, the depth camera a clinic experiment reads).
 
 The frame cache is built before timing (its one-off cost is printed separately). A train split smaller than
 (warm-up + steps) x batch frames is cycled epoch after epoch, as training does. The first line names the CPU,
@@ -28,7 +30,7 @@ import time
 
 
 def measure(dataset: str, model_name: str, pipeline: str, workers: int, precision: str, channels_last: bool,
-            args) -> dict:
+            depth: bool, args) -> dict:
     import torch
 
     from hupbench.config import compose
@@ -40,7 +42,8 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     cfg = compose("train", [f"model={model_name}", f"data.root={dataset}", f"data.pipeline={pipeline}",
                             f"data.num_workers={workers}", f"data.batch_size={args.batch}", f"device={args.device}",
                             f"precision={precision}", f"channels_last={str(channels_last).lower()}",
-                            "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true"])
+                            "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true",
+                            *(["data.reader.input_modalities=rgb+depth"] if depth else []), *args.set])
     run = train_config(cfg)
     device = torch.device(args.device)
     autocast = autocast_args(resolve_precision(run.precision, device), device)
@@ -96,7 +99,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads of the training process")
     parser.add_argument("--compile", action="store_true", help="torch.compile the training model")
     parser.add_argument("--pipelines", default="jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16",
-                        help="comma-separated PIPELINE:WORKERS[:cl][:bf16] (cl: channels_last; bf16: autocast)")
+                        help="comma-separated PIPELINE:WORKERS[:cl][:bf16][:depth] (cl: channels_last; bf16: "
+                             "autocast; depth: RGB and depth in)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a train config override for every item (repeatable)")
     args = parser.parse_args()
 
     import torch
@@ -113,13 +119,13 @@ def main() -> None:
     rows = []
     for item in args.pipelines.split(","):
         pipeline, workers, *flags = item.split(":")
-        unknown = set(flags) - {"cl", "bf16"}
+        unknown = set(flags) - {"cl", "bf16", "depth"}
         if unknown:
-            raise SystemExit(f"unknown flags {sorted(unknown)} in {item!r}; known: cl, bf16")
+            raise SystemExit(f"unknown flags {sorted(unknown)} in {item!r}; known: cl, bf16, depth")
         result = measure(args.dataset, args.model, pipeline, int(workers), "bf16" if "bf16" in flags else "fp32",
-                         "cl" in flags, args)
+                         "cl" in flags, "depth" in flags, args)
         rows.append((item, result))
-        print(f"  {item:10s} setup {result['setup_s']:6.1f} s | median step {result['median_img_s']:7.1f} img/s | "
+        print(f"  {item:16s} setup {result['setup_s']:6.1f} s | median step {result['median_img_s']:7.1f} img/s | "
               f"end to end {result['end_to_end_img_s']:7.1f} img/s | waiting for data {100 * result['wait_share']:5.1f} %",
               flush=True)
     if len(rows) > 1:
