@@ -242,7 +242,8 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
 
     quiet = lambda *_: None  # noqa: E731 - the stages' own chatter is summarised by the stage lines
     work, run = stages.work, stages.train
-    out: dict = {}
+    # a model that reads depth predicts from an image and its depth map (predict's --depth)
+    out: dict = {"reads_depth": run.data.reader.depth}
     t0 = stage(1, "grasps", f"synthesise, score and select {stages.grasps.generate.n_select} grasps "
                             f"({'under a minute' if stages.fast else 'a few minutes'} on 2 cores; nothing is printed "
                             "until it ends)")
@@ -300,8 +301,11 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
         return out
 
     t0 = stage(7, "predict", "keypoints for a rendered test image, onnxruntime only")
-    image = _first_test_image(Path(out["dataset"]))
-    predicted = run_predict(PredictOptions(out["onnx"], [image], out_dir=work / "predict"), log=quiet)
+    image, depth_dir, depth_scale_m = _first_test_image(Path(out["dataset"]))
+    # a model that reads depth takes the frame's depth map (the dataset's PNG, named by the image's stem) with it
+    predicted = run_predict(PredictOptions(out["onnx"], [image], out_dir=work / "predict",
+                                           depth_dir=depth_dir if out["reads_depth"] else None,
+                                           depth_scale_m=depth_scale_m), log=quiet)
     if predicted["failed"]:
         raise RunFailedError(f"predict failed on {image}: {predicted['records'][0].get('error')}")
     out["predictions"] = str(predicted["json"])
@@ -310,12 +314,14 @@ def _pipeline(stages: _Stages, stage, done, log) -> dict:
     return out
 
 
-def _first_test_image(dataset: Path) -> Path:
+def _first_test_image(dataset: Path) -> tuple[Path, Path, float]:
+    """The first test frame's RGB file, the test split's depth folder and its metres per depth unit."""
     from hupbench.core.contract import frame_path, read_annotations, read_manifest
 
     manifest = read_manifest(dataset, "test")
     frame_id = int(read_annotations(dataset, "test", (), manifest)["frame_id"][0])
-    return frame_path(dataset, "test", "rgb", frame_id, manifest["rgb_format"])
+    return (frame_path(dataset, "test", "rgb", frame_id, manifest["rgb_format"]),
+            frame_path(dataset, "test", "depth", frame_id).parent, float(manifest["depth_scale_m"]))
 
 
 def split_words(splits: dict) -> str:
@@ -383,9 +389,15 @@ def next_lines(result: dict) -> list[str]:
     onnx = result.get("onnx", "model.onnx")
     checkpoint = result.get("checkpoint", "hupbench_out/runs/RUN/checkpoints/last.pt")
     run_dir = result.get("run_dir", "hupbench_out/runs/RUN")
+    if result.get("reads_depth"):
+        # the model reads a depth map beside each image: the test split's frames have theirs
+        predict = (f"  predict on the test frames:  hupbench predict {onnx} {Path(dataset) / 'test' / 'rgb'} --depth "
+                   f"{Path(dataset) / 'test' / 'depth'} --out predictions   (yours: --depth, a PNG per image)")
+    else:
+        predict = f"  predict on your own images:  hupbench predict {onnx} my_photos/ --out predictions"
     return [
         "next:",
-        f"  predict on your own images:  hupbench predict {onnx} my_photos/ --out predictions",
+        predict,
         f"  look at the dataset:         hupbench verify {dataset} --sample-sheet sample_sheet.png",
         f"  training curves:             tensorboard --logdir {Path(run_dir) / 'tb'}",
         f"  evaluate with figures:       hupbench eval {checkpoint} {dataset} --figures",

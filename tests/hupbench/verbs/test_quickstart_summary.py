@@ -1,5 +1,7 @@
 """The quickstart's closing summary: folders explained, every picture listed, the split in words, next commands."""
 
+from pathlib import Path
+
 from hupbench.verbs.quickstart import split_words, summary_lines
 
 
@@ -61,3 +63,14 @@ def test_summary_prints_the_test_error_beside_the_split_floor(tmp_path):
     floor = lines.index("test split's floor (the nearest training grasp under the true camera, what recalling training "
                         "grasps scores): all 22.3 mm, hand 8.2 mm, probe 59.3 mm")
     assert lines[floor - 1].startswith("test MPJPE: ")
+
+
+def test_the_next_predict_command_of_a_depth_model_passes_the_depth(tmp_path):
+    """A model that reads depth refuses images without their depth maps: the next-step command gives it the
+    quickstart's own test frames and their depth folder, which predict reads as they are."""
+    result = _result(tmp_path) | {"reads_depth": True}
+    text = "\n".join(summary_lines(result))
+    dataset = Path(result["dataset"])
+    assert (f"hupbench predict {result['onnx']} {dataset / 'test' / 'rgb'} --depth {dataset / 'test' / 'depth'} "
+            "--out predictions") in text
+    assert "my_photos/" not in text
