@@ -592,3 +592,22 @@ def test_the_dataset_is_recorded_by_name_and_hashes_and_its_grasps_hash_printed(
     assert str(tiny_dataset.parent) not in json.dumps(load_results(tmp_path / "r.json"))
     assert f"grasps sha256 {record['grasps_sha256']}" in "\n".join(lines)
     assert re.search(rf"dataset grasps sha256\s+{record['grasps_sha256']}", answer["table"])
+
+
+def test_the_pytorch_network_runs_channels_last_with_the_checkpoints_outputs(exported):
+    """eval's PyTorch network runs in channels_last (faster at batch 1); what it outputs is the checkpoint's model's
+    in the default layout."""
+    from hupbench.checkpoint import load_model
+    from hupbench.evaluation.prediction import EvalModel
+    from hupbench.inference.export import contract_model
+
+    ckpt, _ = exported
+    net = EvalModel(ckpt)
+    model, payload = load_model(ckpt)
+    plain = contract_model(model, payload, str(ckpt))
+    images = torch.rand(3, net.channels, net.input_size, net.input_size, generator=torch.Generator().manual_seed(0))
+    out = net.network(images)
+    with torch.inference_mode():
+        ref = dict(zip(plain.outputs, plain(images)))
+    np.testing.assert_allclose(out.points3d, ref["points3d"].double().numpy(), atol=1e-6)
+    np.testing.assert_allclose(out.points2d, ref["points2d"].double().numpy(), atol=1e-6)
