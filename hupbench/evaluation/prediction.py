@@ -73,8 +73,8 @@ class EvalModel:
             return
         model, payload = load_model(self.path)
         self.format, self.payload, self.onnx = "pytorch", payload, None
-        # channels_last, as training runs: at batch 1 the network takes 0.81x the time in the default layout (paired,
-        # 32 paper val frames of paper_hupnet_seg_cpu, 2 threads of a 2-core AMD EPYC), with the same outputs
+        # channels_last, as training runs: the same outputs, and at batch 1 1.64x onnxruntime's time against 2.24x in
+        # the default layout (benchmarks/latency.py on paper_hupnet_seg_cpu, 2-core AMD EPYC; README "The leaderboard")
         self.module = contract_model(model, payload, str(path)).to(memory_format=torch.channels_last)
         self.model_config = dict(payload["model_config"])
         self.input_size = self.module.input_size

@@ -105,8 +105,9 @@ def test_a_hand_moved_turned_and_bent_comes_back(curl):
 
 @pytest.mark.parametrize("curl", [0.2, 0.5, 0.8])
 def test_the_network_s_wrist_holds_the_fitted_wrist(curl):
-    """From the true joints the capsule hand's wrist drifts 5 mm off the mesh's (measured here, without the hold). The network's wrist (here the true one) holds it (wrist_weight), and so the whole hand fits better, from the
-    true joints and from a hand turned about the wrist with a finger bent."""
+    """From the true joints the capsule hand's wrist drifts 5 mm off the mesh's (measured here, without the hold). The
+    network's wrist (here the true one) holds it (wrist_weight), and so the whole hand fits better, from the true
+    joints and from a hand turned about the wrist with a finger bent."""
     image, joints = scene(curl)
     wrist = lambda out: np.linalg.norm(out[0, 0] - joints[0]) * 1000  # noqa: E731
     free = F.fit_hand(*network_output(joints), image[None], K, NO_WRIST)[1]

@@ -11,14 +11,15 @@ import pytest
 from hupbench.config import compose
 from hupbench.verbs.quickstart import run_quickstart, summary_lines
 
-DEPTH_MODEL = ["model=hupnet_seg", "loss.probe_symmetry=half_turn", "data.reader.input_size=64", "data.batch_size=4",
-               "data.num_workers=0", "data.val_frames=null", "train.max_steps=4", "train.val_every=2",
-               "train.ckpt_every=2", "threads=2", "precision=fp32"]
+#: the model that reads depth, in place of the fast run's own model entry
+DEPTH_MODEL = ["model=hupnet_seg", "loss.probe_symmetry=half_turn"]
 
 
 @pytest.mark.slow
 def test_a_depth_model_runs_every_stage_and_predicts_with_its_depth(tmp_path):
-    overrides = ",".join(f"'{o}'" for o in DEPTH_MODEL)
+    # the fast run's training list as packaged (64 px, its steps and batch), its model swapped
+    train = [o for o in compose("quickstart").fast_overrides.train if not o.startswith("model=")] + DEPTH_MODEL
+    overrides = ",".join(f"'{o}'" for o in train)
     cfg = compose("quickstart", [f"out_dir={tmp_path}", "fast=true", f"fast_overrides.train=[{overrides}]"])
     result = run_quickstart(cfg, log=lambda *_: None)
     work = tmp_path / "fast"
