@@ -129,7 +129,10 @@ def test_depth_errors_name_the_file(rgbd_model, exported, tiny_dataset, tmp_path
     assert answer.rc == 1 and "single-channel 16-bit, got uint8" in records[0]["error"]
 
 
-@pytest.mark.parametrize("asked", [("probe",), ("hand",), ("probe", "hand")])
+# one fit alone (10 s each here) runs with the slow tests: both fits together check each one's use and their order,
+# and CI keeps under 20 minutes
+@pytest.mark.parametrize("asked", [pytest.param(("probe",), marks=pytest.mark.slow),
+                                   pytest.param(("hand",), marks=pytest.mark.slow), ("probe", "hand")])
 def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp_path, monkeypatch, asked):
     """probe_fit / hand_fit: depth travel in the checkpoint and the ONNX metadata, and eval (either format) and
     predict run hupbench.fits.probe_fit and hand after the network, the probe's first, on its output and
