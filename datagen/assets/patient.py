@@ -34,7 +34,7 @@ import trimesh
 from hupbench.core.input_checks import check_int, check_interval, check_number
 
 __all__ = ["PLACEMENT_FIELDS", "PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
-           "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb"]
+           "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb", "sphere_centre"]
 
 #: the radii a config may ask for: below 0.1 m the bump is no longer star-shaped from the body's core
 #: (its mesh, :func:`body_mesh`, is cast from there); above 0.5 m it overhangs the bed
@@ -117,7 +117,7 @@ class PatientPlacement:
 # --------------------------------------------------------------------------- the body's shape
 
 
-def _sphere_centre(radius_m: float) -> np.ndarray:
+def sphere_centre(radius_m: float) -> np.ndarray:
     """(3,) the abdomen sphere's centre in the body frame: its apex at ``APEX_HEIGHT_M`` above the bed."""
     return np.array([0.0, 0.0, APEX_HEIGHT_M - radius_m])
 
@@ -155,7 +155,7 @@ def body_sdf_local(radius_m: float, points_body: np.ndarray) -> np.ndarray:
         (N,) float64, metres, negative inside. Exact on and around the abdomen's cap (where the torso is
         more than ``BLEND_M`` farther than the sphere); elsewhere first-order accurate near the surface.
     """
-    to_centre = points_body - _sphere_centre(radius_m)
+    to_centre = points_body - sphere_centre(radius_m)
     length = np.maximum(np.linalg.norm(to_centre, axis=-1), 1e-12)
     sphere, sphere_gradient = length - radius_m, to_centre / length[:, None]
     torso, torso_gradient = _ellipsoid_sdf(points_body)
@@ -276,7 +276,7 @@ def _draw_pose(spec: PatientSpec, rng: np.random.Generator) -> tuple[float, np.n
     normal_body = _cap_direction(rng, math.radians(CONTACT_MAX_POLAR_DEG))
     normal_world = _cap_direction(rng, math.radians(spec.max_tilt_deg))  # the skin's outward normal: +z tilted
     R_world_body = _frame(normal_world, rng.uniform(0.0, 2.0 * math.pi)) @ _frame(normal_body, 0.0).T
-    return radius, R_world_body, _sphere_centre(radius) + radius * normal_body
+    return radius, R_world_body, sphere_centre(radius) + radius * normal_body
 
 
 def _pressed(radius: float, R_world_body: np.ndarray, contact_body: np.ndarray, lens_world: np.ndarray,
@@ -286,7 +286,7 @@ def _pressed(radius: float, R_world_body: np.ndarray, contact_body: np.ndarray, 
     The body starts with its contact point on the lens apex and moves along the contact's normal; a
     step of s changes the lens's signed distances by about -s there, so a few Newton steps converge.
     """
-    normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
+    normal_world = R_world_body @ (contact_body - sphere_centre(radius)) / radius
     T = np.eye(4)
     T[:3, :3] = R_world_body
     T[:3, 3] = -R_world_body @ contact_body
@@ -333,7 +333,7 @@ def place_patient(spec: PatientSpec, probe, hand_vertices_world: np.ndarray, arm
         penetration = float(depth.max(initial=0.0))
         if penetration <= spec.max_penetration_m:
             lens_skin = float(body_sdf_local(radius, (lens_world - T[:3, 3]) @ R_world_body).min())
-            normal_world = R_world_body @ (contact_body - _sphere_centre(radius)) / radius
+            normal_world = R_world_body @ (contact_body - sphere_centre(radius)) / radius
             return PatientPlacement(T, radius, R_world_body[:, 2].copy(), normal_world, lens_skin, penetration)
     return None
 
