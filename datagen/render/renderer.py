@@ -181,6 +181,18 @@ class Renderer:
             self._part_nodes[part.name] = node
             self._labels[node] = (part.label,) * 3
 
+    def move_part(self, name: str, T_world_given: np.ndarray) -> None:
+        """Move a part rigidly without re-uploading its mesh (a patient under a moving probe, frame by frame).
+
+        Args:
+            name: the part's name.
+            T_world_given: (4, 4) float, rigid: where the coordinates its mesh was given in (``MeshPart.mesh``,
+                world frame at :meth:`set_parts`) now lie in the world; the identity puts it back.
+        """
+        T = np.asarray(T_world_given, dtype=np.float64)
+        assert T.shape == (4, 4) and np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]), T
+        self._scene.set_pose(self._part_nodes[name], T)
+
     def set_color(self, name: str, color: Sequence[float]) -> None:
         """Change a part's base colour without re-uploading its mesh."""
         for primitive in self._part_nodes[name].mesh.primitives:

@@ -204,3 +204,32 @@ def test_alpha_output_is_transparent_on_the_background(renderer):
     background = cv2.erode((out["seg"] == 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     np.testing.assert_array_equal(out["rgb"][..., 3][background], 0)
     assert (out["rgb"][..., 3][out["seg"] == 1] == 255).mean() > 0.95
+
+
+def test_a_moved_part_renders_as_its_mesh_moved(renderer):
+    """move_part(T) draws what set_parts of the mesh transformed by T draws (depth and labels), and the identity
+    puts it back; the other parts stay where they were."""
+    from hupbench.core.geometry import axis_angle_to_matrix
+
+    box = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    floor = trimesh.creation.box(extents=(0.6, 0.6, 0.02))
+    floor.apply_translation([0.0, 0.0, -0.1])
+    T = np.eye(4)
+    T[:3, :3] = axis_angle_to_matrix(np.array([0.2, -0.3, 0.5]))
+    T[:3, 3] = [0.03, -0.02, 0.01]
+    camera = _camera_down_z(0.7)
+    parts = [MeshPart("box", box, SEG_LABELS["probe"]), MeshPart("floor", floor, SEG_LABELS["background"])]
+    renderer.set_parts(parts)
+    before = renderer.render(camera, ("depth", "seg"))
+    renderer.move_part("box", T)
+    moved = renderer.render(camera, ("depth", "seg"))
+    renderer.set_parts([MeshPart("box", box.copy().apply_transform(T), SEG_LABELS["probe"]), parts[1]])
+    want = renderer.render(camera, ("depth", "seg"))
+    np.testing.assert_allclose(moved["depth"], want["depth"], atol=1e-5)
+    assert (moved["seg"] != want["seg"]).mean() < 1e-3
+    assert (moved["seg"] != before["seg"]).mean() > 0.01  # it did move
+    renderer.set_parts(parts)
+    renderer.move_part("box", T)
+    renderer.move_part("box", np.eye(4))
+    back = renderer.render(camera, ("depth", "seg"))
+    np.testing.assert_array_equal(back["depth"], before["depth"])
