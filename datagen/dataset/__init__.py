@@ -5,7 +5,8 @@ and resumes a dataset (``writer``: the dataset spec, frame layout and protocol, 
 of frames rendered in worker processes, locks and resume), the Ray launcher (``ray_launcher``, handed a chunk-renderer
 factory), and what is done with a dataset on disk: its re-check (``verify``, ``verify_frames``, ``verify_images``,
 ``sample_sheet``), the import of the published HUP-3D layout (``import_hup3d``) and the export to BOP and COCO
-(``export_bop_coco``); and a scan over time, the probe's moves on the skin for clips of frames (``scan_motion``).
+(``export_bop_coco``); and a scan over time for clips of frames: the probe's moves on the skin (``scan_motion``)
+and the wearer's head (``head_motion``).
 
 The contract between the generator and every reader (paths, dtypes, the manifest and annotation readers) is
 the core's (``hupbench.core.contract``).
