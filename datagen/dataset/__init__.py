@@ -6,7 +6,7 @@ of frames rendered in worker processes, locks and resume), the Ray launcher (``r
 factory), and what is done with a dataset on disk: its re-check (``verify``, ``verify_frames``, ``verify_images``,
 ``sample_sheet``), the import of the published HUP-3D layout (``import_hup3d``) and the export to BOP and COCO
 (``export_bop_coco``); and a scan over time for clips of frames: the probe's moves on the skin (``scan_motion``)
-and the wearer's head (``head_motion``).
+and the wearer's head (``head_motion``), joined on the clinic world into a clip's cameras and labels (``clips``).
 
 The contract between the generator and every reader (paths, dtypes, the manifest and annotation readers) is
 the core's (``hupbench.core.contract``).
