@@ -172,35 +172,16 @@ class ChunkRenderer:
         Returns:
             The chunk's encoded image files and annotation rows.
         """
-        from hupbench.datagen.assets.backgrounds import composite
-
-        spec, grasps, renderer, world = self.spec, self.grasps, self.renderer, self.world
+        spec, grasps, world = self.spec, self.grasps, self.world
         rows, files = [], []
         for index in frames:
             cam = frame_camera(spec, grasps, layout, index, world)
             g = cam["grasp"]
-            if self._grasp_loaded != g:
-                grasp = Grasp(grasps.hand_pose[g], grasps.hand_trans[g])
-                if world is None:
-                    renderer.set_parts(scene_parts(grasp, probe=grasps.probe))
-                else:
-                    renderer.set_parts(scene_parts(grasp, models_of(grasps.hand_spec(g)), probe=grasps.probe)
-                                       + world.parts(g))
-                self._grasp_loaded = g
+            self._load_grasp(g)
             view = self._view(cam)
             light = lamp(spec, index)
             if "rgb" in spec.modalities:
-                renderer.set_color("hand", GLOVE_RGB[cam["glove"]])
-                if world is not None:
-                    for name, rgb in world.colours(g, cam["background"]).items():
-                        renderer.set_color(name, rgb)
-                T_world_cam = invert_transform(cam["T_cam_world"])
-                position_world = transform_points(T_world_cam, light["position_cam"][None])[0]
-                settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[PointLight(
-                    position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
-                rgba = renderer.render(cam["T_cam_world"], ("rgb",), settings, alpha=True)["rgb"]
-                background = self.backgrounds.image(cam["background"], spec.width, spec.height)
-                rgb = composite(rgba, background)
+                rgb = self._colour(g, cam["T_cam_world"], cam["background"], cam["glove"], light)
                 ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
                 params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
                 files.append(("rgb", index, encode_image(ext, rgb[..., ::-1], params)))
@@ -221,6 +202,71 @@ class ChunkRenderer:
                 **({} if world is None else world.rows(g, cam["background"], cam["view"])),
             })
         return ChunkOutput(chunk, split, files, _stack_rows(rows, annotation_fields(spec.track)))
+
+    def _colour(self, g: int, T_cam_world: np.ndarray, background: int, glove: int, light: dict) -> np.ndarray:
+        """(H, W, 3) uint8 RGB of the loaded grasp ``g`` from one camera: the glove's and (clinic) the room's and
+        skin's colours, the frame's lamp, composited over the background image."""
+        from hupbench.datagen.assets.backgrounds import composite
+
+        renderer, spec = self.renderer, self.spec
+        renderer.set_color("hand", GLOVE_RGB[glove])
+        if self.world is not None:
+            for name, rgb in self.world.colours(g, background).items():
+                renderer.set_color(name, rgb)
+        position_world = transform_points(invert_transform(T_cam_world), light["position_cam"][None])[0]
+        settings = RenderSettings(background_rgb=(1.0, 1.0, 1.0), ambient=0.3, lights=[PointLight(
+            position_world, tuple(light["color"]), float(light["energy_w"]) * LAMP_INTENSITY_PER_WATT)])
+        rgba = renderer.render(T_cam_world, ("rgb",), settings, alpha=True)["rgb"]
+        return composite(rgba, self.backgrounds.image(background, spec.width, spec.height))
+
+    def _load_grasp(self, g: int) -> None:
+        """The grasp's hand, probe and (clinic) patient and room as the renderer's parts, unless loaded."""
+        if self._grasp_loaded != g:
+            grasps, world = self.grasps, self.world
+            grasp = Grasp(grasps.hand_pose[g], grasps.hand_trans[g])
+            if world is None:
+                self.renderer.set_parts(scene_parts(grasp, probe=grasps.probe))
+            else:
+                self.renderer.set_parts(scene_parts(grasp, models_of(grasps.hand_spec(g)), probe=grasps.probe)
+                                        + world.parts(g))
+            self._grasp_loaded = g
+
+    def render_clip(self, g: int, clip: dict, background: int, glove: int, light: dict) -> list[dict]:
+        """Render every frame of one clip of grasp ``g`` on the clinic track (nothing is encoded or written).
+
+        The patient and the room move with the clip's body pose; the hand and the probe stay where the grasp puts
+        them (the world is the probe frame); one lamp lights the whole clip.
+
+        Args:
+            g: the grasp. clip: :func:`hupbench.datagen.dataset.clips.clip_geometry`'s dict.
+            background, glove: the clip's background (room palette and skin tone) and glove.
+            light: the clip's lamp (:func:`hupbench.datagen.dataset.spec.lamp`'s dict).
+
+        Returns:
+            Per frame {"rgb": (H, W, 3) uint8 when the spec stores RGB; "depth": (H, W) float32 metres; "seg":
+            (H, W) uint8; "visible": (29,) bool}.
+        """
+        assert self.world is not None, "clips are rendered on the clinic track's world"
+        self._load_grasp(g)
+        moving = list(self.world.colours(g, background))  # the patient and the room's parts
+        T_world_body0 = self.world.placements[g].T_world_body
+        frames = []
+        try:
+            for f, T_cam_world in enumerate(clip["T_cam_world"]):
+                T_move = clip["T_world_body"][f] @ invert_transform(T_world_body0)
+                for name in moving:
+                    self.renderer.move_part(name, T_move)
+                labels = self.renderer.render(T_cam_world, ("depth", "seg"))
+                cam = {"keypoints_cam": clip["keypoints_cam"][f], "keypoints_2d": clip["keypoints_2d"][f]}
+                frame = {"depth": labels["depth"], "seg": labels["seg"],
+                         "visible": stored_visibility(cam, labels["depth"], labels["seg"])}
+                if "rgb" in self.spec.modalities:
+                    frame["rgb"] = self._colour(g, T_cam_world, background, glove, light)
+                frames.append(frame)
+        finally:
+            for name in moving:
+                self.renderer.move_part(name, np.eye(4))
+        return frames
 
     def _view(self, cam: dict) -> dict:
         """What the frames of one view of the loaded grasp share: the label pass's depth and labels,

@@ -15,6 +15,7 @@ from hupbench.datagen.dataset import clips
 from hupbench.datagen.dataset.clinic import HEAD_CLEARANCE_M, ClinicWorld
 from hupbench.datagen.dataset.clips import clip_geometry
 from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, GraspSet
+from hupbench.datagen.dataset.head import HeadSpec
 from hupbench.datagen.dataset.head_motion import HeadMotionSpec
 from hupbench.datagen.dataset.scan_motion import ScanMotionSpec
 
@@ -75,3 +76,69 @@ def test_a_head_that_cannot_stay_clear_is_one_line(world, monkeypatch):
     monkeypatch.setattr(clips, "HEAD_CLEARANCE_M", 10.0)
     with pytest.raises(RunFailedError, match=r"clip of grasp 0, camera 0: 20 heads in a row came within 10 m"):
         clip_geometry(world, 0, 0, ScanMotionSpec(), HeadMotionSpec(), np.random.default_rng(0))
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """A 2-second clip of clinic grasp 23 rendered at 64 x 64 px (the tiny clinic spec, scaled)."""
+    from helpers.datasets import clinic_spec
+
+    from hupbench.datagen.dataset.chunks import ChunkRenderer
+    from hupbench.datagen.dataset.spec import lamp
+
+    spec = clinic_spec(width=64, height=64, fx=120.0, fy=120.0, cx=32.0, cy=32.0, head=HeadSpec(views_per_grasp=3))
+    chunks = ChunkRenderer(spec, str(CLINIC_GRASPS), None, None)
+    clip = clip_geometry(chunks.world, 23, 1, ScanMotionSpec(duration_s=(2.0, 2.0)), HeadMotionSpec(),
+                         np.random.default_rng(11))
+    frames = chunks.render_clip(23, clip, 1, 0, lamp(spec, 0))
+    return chunks, clip, frames
+
+
+def test_a_rendered_clip_shows_the_patient_where_each_frame_puts_it(rendered):
+    """Every frame: depth in every pixel, the patient's pixels on the body moved to the frame's pose (verify's own
+    check), not on the first frame's body where it has moved; frame 0 by the same check on the grasp's pose."""
+    from hupbench.datagen.dataset.verify_frames import depth_holes_problem, patient_depth_problem
+
+    chunks, clip, frames = rendered
+    placement = chunks.world.placements[23]
+    assert len(frames) == len(clip["time_s"]) == 61
+    moved_far = []
+    for f, frame in enumerate(frames):
+        assert frame["rgb"].shape == (64, 64, 3) and frame["rgb"].dtype == np.uint8
+        assert depth_holes_problem(frame["depth"]) is None, f
+        row = {"K": chunks.spec.intrinsics.K, "T_cam_world": clip["T_cam_world"][f]}
+        moved = PatientPlacement(clip["T_world_body"][f], placement.radius_m, placement.vertical_world,
+                                 placement.normal_world, 0.0, 0.0)
+        assert patient_depth_problem(row, frame["depth"], frame["seg"], moved) is None, f
+        shift_mm = 1000 * np.linalg.norm(clip["motion"].centre_body_m[f] - clip["motion"].centre_body_m[0])
+        if shift_mm > 15:
+            moved_far.append(patient_depth_problem(row, frame["depth"], frame["seg"], placement))
+    assert moved_far and all(problem is not None for problem in moved_far)
+
+
+def test_a_rendered_clip_frame_equals_the_scene_built_at_its_pose(rendered):
+    """The last frame's depth and labels against a renderer given the patient's and room's meshes built at that
+    frame's placement."""
+    from hupbench.datagen.assets.patient import body_mesh
+    from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
+    from hupbench.datagen.render.renderer import MeshPart
+    from hupbench.datagen.assets.room import room_meshes
+    from hupbench.core.contract import CLINIC_SEG_LABELS, SEG_LABELS
+    from hupbench.datagen.dataset.clinic import ROOM_ROUGHNESS, SKIN_ROUGHNESS
+    from hupbench.datagen.assets.patient import SKIN_RGB
+
+    chunks, clip, frames = rendered
+    grasps, placement, f = chunks.grasps, chunks.world.placements[23], len(frames) - 1
+    moved = PatientPlacement(clip["T_world_body"][f], placement.radius_m, placement.vertical_world,
+                             placement.normal_world, 0.0, 0.0)
+    parts = scene_parts(Grasp(grasps.hand_pose[23], grasps.hand_trans[23]), models_of(grasps.hand_spec(23)),
+                        probe=grasps.probe)
+    parts += [MeshPart("patient", body_mesh(moved), CLINIC_SEG_LABELS["patient"], SKIN_RGB[0],
+                       roughness=SKIN_ROUGHNESS)]
+    parts += [MeshPart(name, mesh, SEG_LABELS["background"], tuple(rgb), roughness=ROOM_ROUGHNESS)
+              for name, mesh, rgb in room_meshes(moved, 0)]
+    chunks.renderer.set_parts(parts)
+    chunks._grasp_loaded = None
+    want = chunks.renderer.render(clip["T_cam_world"][f], ("depth", "seg"))
+    near = np.abs(frames[f]["depth"] - want["depth"]) < 1e-4
+    assert near.mean() > 0.995 and (frames[f]["seg"] == want["seg"]).mean() > 0.995
