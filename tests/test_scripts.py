@@ -191,6 +191,7 @@ def test_render_frames(tiny_dataset, tmp_path, monkeypatch, capsys):
     assert "frame      5: mean |difference| 0.0 levels" in out and (tmp_path / "same.png").is_file()
 
 
+@pytest.mark.slow  # a docs picture's script (15 s here): CI keeps under 20 minutes
 def test_custom_probe_picture(tmp_path, monkeypatch, capsys):
     out = run_script(SCRIPTS / "custom_probe_picture.py", "--work", tmp_path / "work", "--out", tmp_path / "p.png",
                      "--smoke", monkeypatch=monkeypatch, capsys=capsys)
@@ -276,6 +277,7 @@ def test_benchmark_grasps(monkeypatch, capsys):
     assert sum(line.split()[0] in ("heuristic", "random") for line in out.splitlines()[2:]) == 4
 
 
+@pytest.mark.slow  # a benchmark's smoke run (10 s here): CI keeps under 20 minutes
 def test_benchmark_probe_mesh(monkeypatch, capsys):
     out = run_script(BENCHMARKS / "probe_mesh.py", "--subdivisions", "0", monkeypatch=monkeypatch, capsys=capsys)
     rows = [line.split() for line in out.splitlines()[2:]]
