@@ -20,7 +20,7 @@ VERBS = {
     "eval": "evaluate a checkpoint or ONNX model on a dataset split: metrics, breakdowns, latency; results JSON",
     "export": "export a checkpoint to ONNX (opset 18, dynamic batch) with a parity check against PyTorch",
     "leaderboard": "rebuild leaderboard/README.md and its plots from leaderboard/results/*.json",
-    "predict": "2D + 3D keypoints for new images with an exported .onnx model: JSON and overlay PNGs (no torch)",
+    "predict": "2D + 3D keypoints for new images or videos with an exported .onnx model: JSON and overlays (no torch)",
     "export-dataset": "write a dataset in the BOP format (the probe as the object) or as COCO keypoints (hand, probe)",
     "import-hup3d": "convert the published HUP-3D dataset (meta pickles, 8-bit depth, 3-channel masks) into a dataset",
 }
@@ -260,14 +260,17 @@ def _predict(args: list[str]) -> int:
 
     parser = argparse.ArgumentParser(
         prog="hupbench predict", formatter_class=_DefaultsHelp,
-        description="2D and 3D keypoints for PNG/JPEG images with onnxruntime.",
+        description="2D and 3D keypoints for PNG/JPEG images and for videos, frame by frame, with onnxruntime.",
         epilog="examples:\n"
                "  hupbench predict RUN/checkpoints/last.onnx my_photos/ --out /tmp/predictions\n"
+               "  hupbench predict RUN/checkpoints/last.onnx scan.mp4    # every frame, and scan_overlay.mp4\n"
                "  hupbench predict RUN/checkpoints/last.onnx hupbench_out/dataset/test/rgb/000000.jpg \\\n"
                "      --depth hupbench_out/dataset/test/depth    # a model that reads depth (model=hupnet_handfit)")
     parser.add_argument("model", metavar="MODEL.onnx", help="a model written by `hupbench export`")
-    parser.add_argument("inputs", nargs="+", metavar="IMAGE_OR_DIR", help="image files and/or folders of images")
-    parser.add_argument("--out", default="predictions", help="output folder (predictions.json, *_overlay.png)")
+    parser.add_argument("inputs", nargs="+", metavar="IMAGE_VIDEO_OR_DIR",
+                        help="image files, video files (.mp4, .avi, .mov, .mkv, .webm) and/or folders of them")
+    parser.add_argument("--out", default="predictions",
+                        help="output folder (predictions.json, *_overlay.png, *_overlay.mp4)")
     parser.add_argument("--K", metavar="fx,fy,cx,cy", help="intrinsics of the original images, pixels "
                         "(default: the training camera scaled to each image)")
     parser.add_argument("--depth", metavar="DIR", help="for a model that reads depth: a 16-bit depth PNG per image, "
@@ -281,9 +284,12 @@ def _predict(args: list[str]) -> int:
     result = run_predict(PredictOptions(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay,
                                         batch_size=ns.batch_size, progress=True, depth_dir=ns.depth,
                                         depth_scale_m=ns.depth_scale_m))
-    print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed; "
-          f"{result['json']}" + (f" and {len(result['overlays'])} overlay PNG(s)" if result["overlays"] else ""))
-    return 1 if result["failed"] else 0
+    bad_videos = sum(not v["ok"] for v in result["videos"])
+    print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed"
+          + (f" (video frames among them; {bad_videos} of {len(result['videos'])} video(s) unread or cut short)"
+             if result["videos"] else "")
+          + f"; {result['json']}" + (f" and {len(result['overlays'])} overlay(s)" if result["overlays"] else ""))
+    return 1 if result["failed"] or bad_videos else 0
 
 
 def _eval(args: list[str]) -> int:

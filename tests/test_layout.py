@@ -156,6 +156,7 @@ NEVER = {
 #: the torch-free inference path (predict runs where torch is not installed)
 TORCH_FREE = ("hupbench.inference.predict", "hupbench.inference.images", "hupbench.inference.overlay",
               "hupbench.inference.model_file", "hupbench.inference.runtime", "hupbench.inference.tracking",
+              "hupbench.inference.video",
               "hupbench.error_lines", "hupbench.cli")
 #: datagen's shared modules at the top import no datagen subpackage
 SHARED_TOP = ("hupbench.datagen.mesh_distance",)

@@ -26,6 +26,8 @@ import numpy as np
 from hupbench.core.errors import BadValueError, MissingFileError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: file names ``hupbench predict`` reads as videos, frame by frame (:mod:`hupbench.inference.video`)
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm")
 PAD_VALUE = 0.5  # mid-grey in [0, 1], for the square padding and under transparent pixels
 MIN_IMAGE_SIDE = 16  # pixels, shorter side: below it a hand is a few pixels, its 21 joints indistinguishable
 MAX_IMAGE_SIDE = 8192  # pixels, longer side: a 48-megapixel phone photo (8000 x 6000) passes
@@ -220,8 +222,9 @@ def to_uint8(image_rgb: np.ndarray) -> np.ndarray:
 def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[str, str]]]:
     """The files to process, and ``{"path", "reason"}`` for the folder entries left out.
 
-    A folder expands to its files with an image suffix (any case; sorted by name, not recursive); a path
-    named explicitly, missing or not, is always processed and fails on its own if it is no image.
+    A folder expands to its files with an image or video suffix (any case; sorted by name, not recursive): a
+    folder of a video's frames, named in their order, is read in that order. A path named explicitly, missing or
+    not, is always processed and fails on its own if it is no image (or, by its suffix, no video).
     """
     files: list[Path] = []
     skipped: list[dict[str, str]] = []
@@ -231,10 +234,11 @@ def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[s
             files.append(path)
             continue
         for entry in sorted(path.iterdir(), key=lambda p: p.name):
-            if entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
+            if entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES + VIDEO_SUFFIXES:
                 files.append(entry)
             elif entry.is_dir():
                 skipped.append({"path": str(entry), "reason": "a directory (directories are not searched recursively)"})
             else:
-                skipped.append({"path": str(entry), "reason": f"not an image file name ({', '.join(IMAGE_SUFFIXES)})"})
+                skipped.append({"path": str(entry), "reason": "not an image or video file name "
+                                f"({', '.join(IMAGE_SUFFIXES + VIDEO_SUFFIXES)})"})
     return files, skipped

@@ -28,6 +28,13 @@ the out-of-distribution check of :mod:`hupbench.inference.image_statistics` (dis
 calibrated at export on the training frames; a flagged image gets one warning line, and its overlay a red
 banner. A model file without the calibration has ``ood`` null and the document says so.
 
+Videos: a video file (``.mp4``, ``.avi``, ``.mov``, ``.mkv``, ``.webm``) is read frame by frame
+(:mod:`hupbench.inference.video`), each frame a record with its ``frame`` index and ``time_s``, in order, and its
+overlays go into ``<stem>_overlay.mp4`` at the video's frame rate. ``predictions.json`` lists each video (path, fps,
+frames decoded and declared, ok, error, overlay). A video OpenCV cannot open fails alone in one line; one that ends
+before the frames its header declares keeps the frames that decode, and one line says what is missing. A video has no
+depth maps: a model that reads depth takes a video's frames as images with ``--depth``.
+
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
 (N, 3) metres in the camera frame of that K, ``keypoint_confidence`` and ``ood``; and ``<stem>_overlay.png`` per
@@ -59,6 +66,7 @@ from hupbench.inference.image_statistics import image_statistics
 from hupbench.inference.images import (
     IMAGE_SUFFIXES,
     PAD_VALUE,
+    VIDEO_SUFFIXES,
     expand_inputs,
     read_depth_png,
     read_image,
@@ -71,6 +79,7 @@ from hupbench.inference.model_file import (
     check_intrinsics,
 )
 from hupbench.inference.overlay import draw_prediction
+from hupbench.inference.video import OverlayVideo, VideoFrames, is_video
 from hupbench.inference.runtime import (
     OnnxModel,
     load_onnx_model,
@@ -78,7 +87,7 @@ from hupbench.inference.runtime import (
 )
 from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
 
-SCHEMA_VERSION = 2  # 2: keypoint_confidence and ood
+SCHEMA_VERSION = 3  # 2: keypoint_confidence and ood; 3: videos, and each record's frame and time_s
 DEFAULT_BATCH_SIZE = 16
 #: metres per unit of a depth PNG unless ``--depth-scale-m`` says otherwise: the dataset's (0.1 mm)
 DEFAULT_DEPTH_SCALE_M = 1e-4
@@ -307,9 +316,13 @@ def _open_checked(options: PredictOptions) -> tuple[OnnxModel, list[Path], list[
                                model.fit_probe)
     files, skipped = expand_inputs(options.inputs)
     if not files:
-        raise BadValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in "
+        raise BadValueError(f"no image or video files ({', '.join(IMAGE_SUFFIXES + VIDEO_SUFFIXES)}) in "
                             f"{', '.join(str(i) for i in options.inputs)}"
                             + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
+    videos = [f for f in files if is_video(f)]
+    if videos and model.reads_depth:
+        raise BadValueError(f"{videos[0]} is a video, which holds no depth maps, and {model.path} reads RGB and depth: "
+                            "give its frames as images in a folder, with their depth maps in --depth DIR")
     return model, files, skipped
 
 
@@ -321,6 +334,7 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
     out_dir = options.out_dir
     names = list(model.keypoint_names)
     records: list[dict[str, Any]] = []
+    videos: list[dict[str, Any]] = []
     overlays: list[Path] = []
     used_stems: set[str] = set()
     finished = False
@@ -345,13 +359,23 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
         # the folder's predictions.json must describe the overlays beside it: an earlier run's goes
         # now, and this run's is written last
         (out_dir / "predictions.json").unlink(missing_ok=True)
-        for start in range(0, len(files), options.batch_size):
-            chunk = [_empty_record(path, names, model.run_name) for path in files[start:start + options.batch_size]]
-            _predict_batch(model, chunk, options, out_dir if options.overlay else None, used_stems, overlays, log)
-            records.extend(chunk)
-            bar.update(len(chunk))
+        overlay_dir = out_dir if options.overlay else None
+        stills: list[Path] = []
+        for path in [*files, None]:  # the image files in runs between videos, in the inputs' order
+            if path is not None and not is_video(path):
+                stills.append(path)
+                continue
+            for start in range(0, len(stills), options.batch_size):
+                chunk = [_empty_record(p, names, model.run_name) for p in stills[start:start + options.batch_size]]
+                _predict_batch(model, chunk, options, overlay_dir, used_stems, overlays, log)
+                records.extend(chunk)
+                bar.update(len(chunk))
+            stills = []
+            if path is not None:
+                videos.append(_predict_video(model, path, options, overlay_dir, used_stems, overlays, records, log))
+                bar.update(1)
         json_path = write_bytes(out_dir / "predictions.json",
-                                (_compact_json(_document(model, records, skipped)) + "\n").encode())
+                                (_compact_json(_document(model, records, videos, skipped)) + "\n").encode())
         finished = True
     finally:
         bar.close()
@@ -360,12 +384,13 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
                 with contextlib.suppress(OSError):  # the error that stopped the run is the one to report
                     path.unlink(missing_ok=True)
     failed = sum(not r["ok"] for r in records)
-    flagged = [r["path"] for r in records if r["ood"] is not None and r["ood"]["flagged"]]
+    flagged = [_where(r) for r in records if r["ood"] is not None and r["ood"]["flagged"]]
     return {"json": json_path, "images": len(records), "ok": len(records) - failed, "failed": failed,
-            "overlays": overlays, "skipped": skipped, "flagged": flagged, "records": records}
+            "overlays": overlays, "skipped": skipped, "flagged": flagged, "records": records, "videos": videos}
 
 
-def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dict[str, str]]) -> dict[str, Any]:
+def _document(model: OnnxModel, records: list[dict[str, Any]], videos: list[dict[str, Any]],
+              skipped: list[dict[str, str]]) -> dict[str, Any]:
     """The content of ``predictions.json``."""
     failed = sum(not r["ok"] for r in records)
     return {
@@ -385,17 +410,17 @@ def _document(model: OnnxModel, records: list[dict[str, Any]], skipped: list[dic
                       if model.image_statistics is not None else {"available": False, "reason": NO_CALIBRATION}),
         "counts": {"images": len(records), "ok": len(records) - failed, "failed": failed},
         "skipped": skipped,
+        "videos": videos,
         "images": records,
     }
 
 
 def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], options: PredictOptions,
                    overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log) -> None:
-    """Read, predict and record one batch of images in place: a bad image's record gets its error (and
+    """Read, predict and record one batch of image files in place: a bad image's record gets its error (and
     the log a line), a good one its keypoints and, with ``overlay_dir``, its overlay (appended to
     ``overlays``)."""
-    names = list(model.keypoint_names)
-    loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray, InputGeometry, np.ndarray | None]] = []
+    loaded = []
     for record in chunk_records:
         notes: list[str] = []
         try:
@@ -415,55 +440,144 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
             continue
         for note in notes:
             log(f"hupbench predict: note: {record['path']}: {note}")
+        loaded.append((record, image, depth))
+
+    def overlay(record: dict[str, Any], drawn: np.ndarray) -> None:
+        stem = _unique_stem(Path(record["path"]).stem, used_stems)
+        overlays.append(write_png(overlay_dir / f"{stem}_overlay.png", drawn))
+        record["overlay"] = str(overlays[-1])
+
+    _predict_loaded(model, loaded, options, overlay if overlay_dir is not None else None, log)
+
+
+def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray | None]],
+                    options: PredictOptions, overlay: Callable[[dict[str, Any], np.ndarray], None] | None,
+                    log) -> None:
+    """Predict read images (each (record, (H, W, 3) float RGB in [0, 1], depth map or None)) in one onnxruntime
+    call and fill their records; ``overlay(record, drawn RGB uint8)`` takes each drawn prediction (None: none
+    drawn)."""
+    if not loaded:
+        return
+    names = list(model.keypoint_names)
+    prepared = []
+    for record, image, depth in loaded:
         model_input, geometry = preprocess(image, model.input_size)
         depth_input = None if depth is None else preprocess_depth(depth, options.depth_scale_m, model.input_size)
-        loaded.append((record, image, model_input, geometry, depth_input))
-    if loaded:
-        depth = np.stack([item[4] for item in loaded]) if model.reads_depth else None
-        images = np.stack([item[2] for item in loaded])
-        outputs = run_onnx_outputs(model, images, depth)  # (B, C, S, S) -> (B, N, *)
-        points2d, points3d, confidence = outputs["points2d"], outputs["points3d"], outputs.get("confidence")
-        if fits(model.model_config):
-            points2d, points3d = after_network(model.model_config, points2d, points3d,
-                                               np.concatenate([images, depth], axis=1), model.K_input,
-                                               fitted=model.fit_probe, segmentation=outputs.get("segmentation"))
-        K_user = options.K
-        for b, (record, image, _, geometry, _) in enumerate(loaded):
-            if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
-                record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
-                log(f"hupbench predict: error: {record['error']}")
-                continue
-            result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user, model.reads_depth)
-            ood = None
-            if model.image_statistics is not None:
-                distance = float(model.image_statistics.distance(image_statistics(image, model.input_size)[None])[0])
-                ood = {"distance": round(distance, _DECIMALS_SCORE), "flagged": distance > model.image_statistics.threshold,
-                       "threshold": round(model.image_statistics.threshold, _DECIMALS_SCORE)}
-                if ood["flagged"]:
-                    log(f"hupbench predict: warning: {record['path']} looks unlike the training images (image-statistics "
-                        f"distance {distance:.2f} > {model.image_statistics.threshold:.2f}, percentile "
-                        f"{model.image_statistics.percentile:g} of "
-                        "the calibration frames): its keypoints are likely wrong")
-            record.update(
-                ok=True, image_size={"width": geometry.width, "height": geometry.height},
-                camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
-                K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
-                keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
-                keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
-                keypoint_confidence=None if confidence is None else _plain(confidence[b], _DECIMALS_SCORE), ood=ood,
-            )
-            if overlay_dir is not None:
-                stem = _unique_stem(Path(record["path"]).stem, used_stems)
-                drawn = draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges,
-                                        None if confidence is None else confidence[b],
-                                        "unlike the training images" if ood is not None and ood["flagged"] else None)
-                overlays.append(write_png(overlay_dir / f"{stem}_overlay.png", drawn))
-                record["overlay"] = str(overlays[-1])
+        prepared.append((record, image, model_input, geometry, depth_input))
+    depth = np.stack([item[4] for item in prepared]) if model.reads_depth else None
+    images = np.stack([item[2] for item in prepared])
+    outputs = run_onnx_outputs(model, images, depth)  # (B, C, S, S) -> (B, N, *)
+    points2d, points3d, confidence = outputs["points2d"], outputs["points3d"], outputs.get("confidence")
+    if fits(model.model_config):
+        points2d, points3d = after_network(model.model_config, points2d, points3d,
+                                           np.concatenate([images, depth], axis=1), model.K_input,
+                                           fitted=model.fit_probe, segmentation=outputs.get("segmentation"))
+    K_user = options.K
+    for b, (record, image, _, geometry, _) in enumerate(prepared):
+        if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
+            record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
+            log(f"hupbench predict: error: {record['error']}")
+            continue
+        result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user, model.reads_depth)
+        ood = None
+        if model.image_statistics is not None:
+            distance = float(model.image_statistics.distance(image_statistics(image, model.input_size)[None])[0])
+            ood = {"distance": round(distance, _DECIMALS_SCORE), "flagged": distance > model.image_statistics.threshold,
+                   "threshold": round(model.image_statistics.threshold, _DECIMALS_SCORE)}
+            if ood["flagged"]:
+                log(f"hupbench predict: warning: {_where(record)} looks unlike the training images (image-statistics "
+                    f"distance {distance:.2f} > {model.image_statistics.threshold:.2f}, percentile "
+                    f"{model.image_statistics.percentile:g} of "
+                    "the calibration frames): its keypoints are likely wrong")
+        record.update(
+            ok=True, image_size={"width": geometry.width, "height": geometry.height},
+            camera=result["camera"], K=_plain(result["K"], _DECIMALS_K),
+            K_model_input=_plain(result["K_model_input"], _DECIMALS_K), input_geometry=geometry.as_dict(),
+            keypoints_2d_px=_plain(result["keypoints_2d_px"], _DECIMALS_PX),
+            keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
+            keypoint_confidence=None if confidence is None else _plain(confidence[b], _DECIMALS_SCORE), ood=ood,
+        )
+        if overlay is not None:
+            overlay(record, draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges,
+                                            None if confidence is None else confidence[b],
+                                            "unlike the training images" if ood is not None and ood["flagged"]
+                                            else None))
+
+
+def _where(record: dict[str, Any]) -> str:
+    """An input as the log names it: its path, and a video frame's index."""
+    return record["path"] if record["frame"] is None else f"{record['path']} frame {record['frame']}"
+
+
+def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overlay_dir: Path | None,
+                   used_stems: set[str], overlays: list[Path], records: list[dict[str, Any]], log) -> dict[str, Any]:
+    """Predict every frame of one video in order (:mod:`hupbench.inference.video`): a record per frame appended to
+    ``records`` (its ``frame`` and ``time_s``), with ``overlay_dir`` the overlay video ``<stem>_overlay.mp4`` at
+    the video's rate (a frame whose prediction failed shows without keypoints). A video that cannot be read
+    fails alone, one line naming it; a truncated one keeps the frames that decode and says what is missing.
+
+    Returns:
+        The video's entry of ``predictions.json``: path, fps, frames (decoded), frames_declared, ok, error,
+        overlay.
+    """
+    names = list(model.keypoint_names)
+    summary = {"path": str(path), "fps": None, "frames": 0, "frames_declared": None, "ok": False, "error": None,
+               "overlay": None}
+    try:
+        frames = VideoFrames(path)
+    except UserError as exc:
+        summary["error"] = str(exc)
+        log(f"hupbench predict: error: {exc}")
+        return summary
+    summary.update(fps=frames.fps, frames_declared=frames.declared_frames or None)
+    writer = None
+    if overlay_dir is not None:
+        stem = _unique_stem(f"{path.stem}", used_stems)
+        writer = OverlayVideo(overlay_dir / f"{stem}_overlay.mp4", frames.fps, (frames.width, frames.height))
+    try:
+        batch: list[tuple[dict[str, Any], np.ndarray, None]] = []
+
+        def flush() -> None:
+            drawn: dict[int, np.ndarray] = {}
+            _predict_loaded(model, batch, options, (lambda record, image: drawn.__setitem__(record["frame"], image))
+                            if writer is not None else None, log)
+            for record, image, _ in batch:
+                if writer is not None:
+                    writer.write(drawn.get(record["frame"], to_uint8(image)))
+                records.append(record)
+            batch.clear()
+
+        for index, time_s, image in frames:
+            record = _empty_record(path, names, model.run_name)
+            record.update(frame=index, time_s=round(time_s, _DECIMALS_M))
+            batch.append((record, image, None))
+            if len(batch) == options.batch_size:
+                flush()
+        flush()
+        if writer is not None and frames.decoded:
+            overlays.append(writer.close())
+            summary["overlay"] = str(overlays[-1])
+            for record in records[-frames.decoded:]:
+                record["overlay"] = summary["overlay"]
+        elif writer is not None:
+            writer.discard()
+    except BaseException:
+        if writer is not None:
+            writer.discard()
+        raise
+    summary["frames"] = frames.decoded
+    problem = frames.truncated
+    if problem is not None:
+        summary["error"] = f"{path}: {problem}"
+        log(f"hupbench predict: error: {summary['error']}")
+    summary["ok"] = problem is None
+    return summary
 
 
 def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]:
     """The JSON record of one input before (or without) a prediction: every key present, values null."""
-    return {"path": str(path), "depth": None, "ok": False, "error": None, "image_size": None, "camera": None, "K": None,
+    return {"path": str(path), "frame": None, "time_s": None, "depth": None, "ok": False, "error": None,
+            "image_size": None, "camera": None, "K": None,
             "K_model_input": None, "input_geometry": None, "keypoint_names": names, "keypoints_2d_px": None,
             "keypoints_3d_m": None, "keypoint_confidence": None, "ood": None, "run_name": run_name, "overlay": None}
 

@@ -219,7 +219,7 @@ REFUSED = {
     "model-torch-checkpoint": (lambda t, m, g: (torch_checkpoint(t / "last.pt"), [g], []),
                                ("last.pt", "PyTorch checkpoint", "hupbench export")),
     "folder-without-images": (lambda t, m, g: (m, [write(t / "docs" / "notes.txt", b"x").parent], []),
-                              ("no image files", "docs")),
+                              ("no image or video files", "docs")),
     "K-letters": (lambda t, m, g: (m, [g], ["--K", "a,b"]), ("--K", "four numbers")),
     "K-three-values": (lambda t, m, g: (m, [g], ["--K", "480,480,320"]), ("--K", "four numbers")),
     "K-huge": (lambda t, m, g: (m, [g], ["--K", "1e308,1e308,320,240"]), ("--K", "fx", "1e+06")),

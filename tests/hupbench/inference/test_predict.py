@@ -318,7 +318,7 @@ def test_predict_grey_image_known_answer(predicted):
 
 def test_predict_json_content_and_assumed_camera(predicted):
     doc = predicted["doc"]
-    assert doc["schema_version"] == 2 and doc["model"]["run_name"] == "dot-run"
+    assert doc["schema_version"] == 3 and doc["model"]["run_name"] == "dot-run" and doc["videos"] == []
     assert doc["counts"] == {"images": 9, "ok": 6, "failed": 3}
     # a file exported before the confidence output and the calibration existed: both null, and said why
     assert doc["keypoint_confidence"]["available"] is False and doc["ood_check"]["available"] is False
@@ -392,11 +392,12 @@ def test_predict_directory_and_stem_collisions(dot_model, image_set, tmp_path):
     result = predict(dot_model, [d], tmp_path / "out", log=messages.append)
     assert [Path(r["path"]).name for r in result["records"]] == ["x.JPG", "x.png"]
     assert result["failed"] == 0 and [p.name for p in result["overlays"]] == ["x_overlay.png", "x_2_overlay.png"]
-    assert result["skipped"] == [{"path": str(d / "notes.txt"), "reason": "not an image file name (.png, .jpg, .jpeg)"}]
+    assert result["skipped"] == [{"path": str(d / "notes.txt"), "reason": "not an image or video file name "
+                                  "(.png, .jpg, .jpeg, .mp4, .avi, .mov, .mkv, .webm)"}]
     assert any("note:" in m and "notes.txt" in m for m in messages)
     (d / "x.png").unlink()
     (d / "x.JPG").unlink()
-    with pytest.raises(ValueError, match="no image files"):
+    with pytest.raises(ValueError, match="no image or video files"):
         predict(dot_model, [d], tmp_path / "out2", log=messages.append)
 
 
