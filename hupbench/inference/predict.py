@@ -475,7 +475,7 @@ def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndar
     K_user = options.K
     for b, (record, image, _, geometry, _) in enumerate(prepared):
         if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
-            record["error"] = f"{record['path']}: the model's output is not finite (NaN or inf)"
+            record["error"] = f"{_where(record)}: the model's output is not finite (NaN or inf)"
             log(f"hupbench predict: error: {record['error']}")
             continue
         result = keypoints_for_image(points2d[b], points3d[b], geometry, model.K_input, K_user, model.reads_depth)
