@@ -83,6 +83,8 @@ def wait_for(predicate, timeout_s, what):
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 27 s here; test_die_with_parent_prctl_and_watchdog keeps both mechanisms in the default set, and
+# CI under 20 minutes
 def test_fault_generate_workers_die_with_parent(tmp_path, grasps, capsys):
     """SIGKILL of generate's main process: its worker processes exit within 2 s and write nothing after.
     While it runs, a second generate on its folder is refused, naming it."""

@@ -269,6 +269,8 @@ def test_fault_eval_stale_tmp_removed(exported, tiny_dataset, tmp_path, capsys):
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 26 s here; predict's and train's two-runs cases keep the output lock in the default set, and CI
+# under 20 minutes
 def test_fault_eval_two_runs_at_once(exported, tiny_dataset, tmp_path, capsys):
     """A second eval writing the results file of a running one (measured before: both exited 0 and the
     later one's results replaced the other's): refused with one line naming the running one; the first

@@ -138,6 +138,8 @@ def test_fault_export_disk_full(exported, tmp_path):
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 31 s here; generate's, train's and the leaderboard's SIGKILL cases keep atomic writes after a
+# kill in the default set, and CI under 20 minutes
 def test_fault_export_sigkill_then_rerun(exported, tmp_path):
     """SIGKILL at a seeded random point of an export (its temporary file being written or checked for parity),
     then the same command: the same bytes as an uninterrupted export (its metadata has no time stamp), and
@@ -173,6 +175,8 @@ def test_fault_export_stale_tmp_removed(exported, tmp_path, capsys):
 
 
 @pytest.mark.matrix
+@pytest.mark.slow  # 18 s here; predict's and train's two-runs cases keep the output lock in the default set, and CI
+# under 20 minutes
 def test_fault_export_two_runs_at_once(exported, tmp_path, capsys):
     """A second export to the .onnx file a running one writes (measured before: both exited 0, each renaming
     its own file over the other's): refused with one line naming the running one; the first completes."""
