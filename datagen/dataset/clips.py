@@ -22,7 +22,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.camera import project_points
 from hupbench.core.errors import RunFailedError
 from hupbench.core.geometry import invert_transform, transform_points
-from hupbench.datagen.assets.patient import PatientPlacement, body_sdf
+from hupbench.datagen.assets.patient import body_sdf_local
 from hupbench.datagen.dataset.clinic import HEAD_CLEARANCE_M, ClinicWorld
 from hupbench.datagen.dataset.head_motion import HeadMotionSpec, head_track
 from hupbench.datagen.dataset.scan_motion import ScanMotion, ScanMotionSpec, scan_motion
@@ -32,11 +32,6 @@ __all__ = ["HEAD_DRAWS", "clip_geometry"]
 #: draws of a clip's head before the clip is given up
 HEAD_DRAWS = 20
 _LOOK_AT = kp.KEYPOINT_NAMES.index("middle_mcp")
-
-
-def _placed(placement: PatientPlacement, T_world_body: np.ndarray) -> PatientPlacement:
-    return PatientPlacement(T_world_body, placement.radius_m, placement.vertical_world, placement.normal_world,
-                            placement.lens_skin_m, placement.penetration_m)
 
 
 def clip_geometry(world: ClinicWorld, g: int, view: int, scan: ScanMotionSpec, head: HeadMotionSpec,
@@ -67,9 +62,7 @@ def clip_geometry(world: ClinicWorld, g: int, view: int, scan: ScanMotionSpec, h
     for _ in range(HEAD_DRAWS):
         T_cam_body = head_track(T_cam_body0, target_body, motion.time_s, head, rng)
         T_cam_world = T_cam_body @ T_body_world
-        centres_world = invert_transform(T_cam_world)[:, :3, 3]
-        clear = min(float(body_sdf(_placed(placement, T), c[None])[0])
-                    for T, c in zip(motion.T_world_body, centres_world))
+        clear = float(body_sdf_local(placement.radius_m, invert_transform(T_cam_body)[:, :3, 3]).min())
         keypoints_cam = transform_points(T_cam_world, keypoints_world[None])  # (F, 29, 3)
         uv = project_points(keypoints_cam[:, _LOOK_AT], intrinsics.K)
         inside = bool(np.all((uv >= 0) & (uv <= [intrinsics.width - 1, intrinsics.height - 1])))

@@ -5,7 +5,8 @@ it moves, a little late. :func:`head_track` moves a clip's first camera (one of
 :func:`hupbench.datagen.dataset.head.head_cameras`) over the clip's frames:
 
 1. **Sway.** The camera's centre drifts from where it starts by a smooth random offset on each axis of the
-   room, a sum of sinusoids in ``band_hz`` with a standard deviation of ``drift_m`` per axis.
+   room, a sum of sinusoids in ``band_hz`` (:func:`hupbench.datagen.dataset.scan_motion.band_noise`) with a
+   standard deviation of ``drift_m`` per axis.
 2. **Following.** The gaze follows keypoint 9 (the middle finger's MCP, where the first camera looks) with a
    first-order lag of time constant ``follow_s``: the head turns by the smallest rotation that takes the first
    frame's line of sight to the lagged target onto the current one, so the roll and the target's place in the
@@ -31,12 +32,9 @@ import numpy as np
 
 from hupbench.core.geometry import axis_angle_to_matrix, invert_transform
 from hupbench.core.input_checks import check_interval, check_number
+from hupbench.datagen.dataset.scan_motion import band_noise
 
 __all__ = ["HeadMotionSpec", "head_track"]
-
-#: sinusoids per axis in the sway and in the own turns
-SINUSOIDS = 3
-
 
 @dataclass(frozen=True)
 class HeadMotionSpec:
@@ -61,20 +59,6 @@ class HeadMotionSpec:
                                                           low_open=True))
         object.__setattr__(self, "band_hz", check_interval(self.band_hz, "dataset.head_motion.band_hz", 0.01, 5.0,
                                                            unit="Hz"))
-
-
-def _smooth_noise(rng: np.random.Generator, time_s: np.ndarray, band_hz: tuple, axes: int = 3) -> np.ndarray:
-    """(F, axes) sums of sinusoids in ``band_hz``, 0 at the first time, standard deviation 1 per axis (of the
-    sinusoids over all time)."""
-    out = np.zeros((len(time_s), axes))
-    for a in range(axes):
-        omega = 2.0 * math.pi * rng.uniform(*band_hz, SINUSOIDS)
-        phase = rng.uniform(0.0, 2.0 * math.pi, SINUSOIDS)
-        amplitude = rng.uniform(0.5, 1.0, SINUSOIDS)
-        wave = amplitude[:, None] * (np.sin(omega[:, None] * (time_s - time_s[0]) + phase[:, None])
-                                     - np.sin(phase[:, None]))
-        out[:, a] = wave.sum(axis=0) / math.sqrt(0.5 * float(np.sum(amplitude ** 2)))
-    return out
 
 
 def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -103,8 +87,8 @@ def head_track(T_cam_body0: np.ndarray, target_body: np.ndarray, time_s: np.ndar
     target_body = np.asarray(target_body, dtype=np.float64)
     assert target_body.ndim == 2 and target_body.shape == (len(time_s), 3), target_body.shape
     T_body_cam0 = invert_transform(np.asarray(T_cam_body0, dtype=np.float64))
-    centre = T_body_cam0[:3, 3] + spec.drift_m * _smooth_noise(rng, time_s, spec.band_hz)  # (F, 3)
-    own = np.radians(spec.turn_deg) * _smooth_noise(rng, time_s, spec.band_hz)  # (F, 3) camera axes
+    centre = T_body_cam0[:3, 3] + spec.drift_m * band_noise(rng, time_s, spec.band_hz, 3)  # (F, 3)
+    own = np.radians(spec.turn_deg) * band_noise(rng, time_s, spec.band_hz, 3)  # (F, 3) camera axes
     # the gaze's lagged target: first-order smoothing at the frames' own time steps
     gaze = np.empty_like(target_body)
     gaze[0] = target_body[0]

@@ -47,7 +47,7 @@ from hupbench.core.input_checks import check_interval, check_number
 from hupbench.core.motion_metrics import KINEMATICS_KEYS, point_kinematics, time_derivatives
 from hupbench.datagen.assets.patient import PatientPlacement, body_sdf_local, sphere_centre
 
-__all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "draw_kinematics",
+__all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "band_noise", "draw_kinematics",
            "scan_motion"]
 
 #: the probe's mean speed (mm/s), acceleration (mm/s^2) and jerk (mm/s^3) during obstetric anomaly scans, mean
@@ -65,7 +65,7 @@ SKILL_KINEMATICS = {
 #: sits at the figures' ratio of acceleration to speed (170 / 12.9 and 329 / 24.6 mm/s^2 per mm/s, 13 rad/s:
 #: 2.1 Hz) and above: slower corrections would need more speed than the figures have for their acceleration
 BANDS_HZ = ((0.05, 0.3), (2.0, 4.0), (8.0, 12.0))
-#: sinusoids per channel and band
+#: sinusoids per channel and band (:func:`band_noise`)
 SINUSOIDS = 3
 #: the motion is sampled at this many times the clip's frame rate to measure its kinematics
 OVERSAMPLE = 8
@@ -156,19 +156,26 @@ def draw_kinematics(rng: np.random.Generator) -> tuple[float, dict]:
     return skill, out
 
 
+def band_noise(rng: np.random.Generator, time_s: np.ndarray, band_hz: tuple, axes: int) -> np.ndarray:
+    """(F, axes) smooth random signals: per axis a sum of :data:`SINUSOIDS` sinusoids of frequencies, phases and
+    amplitudes drawn uniformly (in ``band_hz``, [0, 2 pi), [0.5, 1]), 0 at the first time, standard deviation 1 (of
+    the sinusoids over all time)."""
+    out = np.zeros((len(time_s), axes))
+    for a in range(axes):
+        omega = 2.0 * math.pi * rng.uniform(*band_hz, SINUSOIDS)
+        phase = rng.uniform(0.0, 2.0 * math.pi, SINUSOIDS)
+        amplitude = rng.uniform(0.5, 1.0, SINUSOIDS)
+        wave = amplitude[:, None] * (np.sin(omega[:, None] * (time_s - time_s[0]) + phase[:, None])
+                                     - np.sin(phase[:, None]))
+        out[:, a] = wave.sum(axis=0) / math.sqrt(0.5 * float(np.sum(amplitude ** 2)))
+    return out
+
+
 def _signals(rng: np.random.Generator, t: np.ndarray, tilt_share: float, lever_m: float) -> np.ndarray:
     """(3 bands, 4 channels, N) the channels' unit-gain signals: metres of arc for the sweeps, radians for the
     tilts (a metre at the probe's centre over ``lever_m``), split between them by ``tilt_share``."""
-    out = np.zeros((len(BANDS_HZ), len(CHANNELS), len(t)))
     weight = np.array([1.0 - tilt_share, 1.0 - tilt_share, tilt_share / lever_m, tilt_share / lever_m])
-    for b, (low, high) in enumerate(BANDS_HZ):
-        for c in range(len(CHANNELS)):
-            omega = 2.0 * math.pi * rng.uniform(low, high, SINUSOIDS)
-            phase = rng.uniform(0.0, 2.0 * math.pi, SINUSOIDS)
-            amplitude = rng.uniform(0.5, 1.0, SINUSOIDS)
-            wave = (amplitude[:, None] * (np.sin(omega[:, None] * t + phase[:, None]) - np.sin(phase[:, None])))
-            out[b, c] = weight[c] * wave.sum(axis=0) / math.sqrt(0.5 * float(np.sum(amplitude ** 2)))
-    return out
+    return np.stack([weight[:, None] * band_noise(rng, t, band, len(CHANNELS)).T for band in BANDS_HZ])
 
 
 class _Skin:
@@ -261,11 +268,11 @@ def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: n
             for _ in range(CALIBRATION_ROUNDS):
                 T = skin.poses(np.einsum("b,bcn->cn", gains, signals), press)
                 got = np.array(list(point_kinematics(skin.centres(T), rate).values()))
-                if np.all(np.abs(got / want - 1.0) < CALIBRATION_RTOL):
+                met = bool(np.all(np.abs(got / want - 1.0) < CALIBRATION_RTOL))
+                if met:
                     break
                 gains = gains * (want / got)
         tilt = np.degrees(np.abs(np.einsum("b,bcn->cn", gains, signals)[2:])).max()
-        met = bool(np.all(np.abs(got / want - 1.0) < CALIBRATION_RTOL))
         if met and tilt <= spec.max_tilt_deg:
             break
     else:

@@ -532,15 +532,18 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
     summary.update(fps=frames.fps, frames_declared=frames.declared_frames or None)
     writer = None
     if overlay_dir is not None:
-        stem = _unique_stem(f"{path.stem}", used_stems)
+        stem = _unique_stem(path.stem, used_stems)
         writer = OverlayVideo(overlay_dir / f"{stem}_overlay.mp4", frames.fps, (frames.width, frames.height))
     try:
         batch: list[tuple[dict[str, Any], np.ndarray, None]] = []
 
         def flush() -> None:
             drawn: dict[int, np.ndarray] = {}
-            _predict_loaded(model, batch, options, (lambda record, image: drawn.__setitem__(record["frame"], image))
-                            if writer is not None else None, log)
+
+            def keep(record: dict[str, Any], image: np.ndarray) -> None:
+                drawn[record["frame"]] = image
+
+            _predict_loaded(model, batch, options, keep if writer is not None else None, log)
             for record, image, _ in batch:
                 if writer is not None:
                     writer.write(drawn.get(record["frame"], to_uint8(image)))
