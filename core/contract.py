@@ -99,6 +99,22 @@ CLINIC_ANNOTATION_FIELDS: dict[str, tuple[type, tuple[int, ...]]] = {
 }
 
 
+#: what a dataset of clips (a clinic dataset whose manifest has a "sequence" record: ``hupbench generate
+#: +track=clinic_sequences``) holds beyond the clinic track's: the clip (numbered across the dataset, in its
+#: grasp's order), the frame's place in it and its time from the clip's start (seconds), and the patient's body
+#: frame in the world (probe) frame, which moves as the probe scans. On these frames ``theta``, ``phi``,
+#: ``z_ego``, ``roll_deg`` and ``aim_px`` are measured on the frame's camera (``roll_deg``: the room's vertical's
+#: angle in the image), ``view_id`` is the head camera the clip started at
+SEQUENCE_ANNOTATION_FIELDS: dict[str, tuple[type, tuple[int, ...]]] = {
+    "clip_id": (np.int64, ()),
+    "frame_in_clip": (np.int64, ()),
+    "time_s": (np.float64, ()),
+    "T_world_body": (np.float64, (4, 4)),
+}
+#: the manifest's record of a dataset of clips
+SEQUENCE = "sequence"
+
+
 def track_of(manifest: dict) -> str:
     """A manifest's track (``protocol.track``; datasets that predate the record are the paper protocol's)."""
     protocol = manifest.get("protocol")
@@ -106,9 +122,16 @@ def track_of(manifest: dict) -> str:
     return track if track in TRACKS else UNSEEN_GRASPS
 
 
-def annotation_fields(track: str) -> dict[str, tuple[type, tuple[int, ...]]]:
-    """The annotation arrays of a track's datasets: name -> (dtype, row shape)."""
-    return {**ANNOTATION_FIELDS, **CLINIC_ANNOTATION_FIELDS} if track == CLINIC else dict(ANNOTATION_FIELDS)
+def is_sequence(manifest: dict) -> bool:
+    """Whether a manifest's dataset is made of clips (it has a "sequence" record)."""
+    return isinstance(manifest.get(SEQUENCE), dict)
+
+
+def annotation_fields(track: str, sequence: bool = False) -> dict[str, tuple[type, tuple[int, ...]]]:
+    """The annotation arrays of a track's datasets, of clips when ``sequence``: name -> (dtype, row shape)."""
+    if track != CLINIC:
+        return dict(ANNOTATION_FIELDS)
+    return {**ANNOTATION_FIELDS, **CLINIC_ANNOTATION_FIELDS, **(SEQUENCE_ANNOTATION_FIELDS if sequence else {})}
 
 
 def seg_labels(track: str) -> dict[str, int]:
@@ -129,7 +152,8 @@ def segment_classes(seg: np.ndarray, labels: dict[str, int]) -> np.ndarray:
         classes[np.asarray(seg) == labels[name]] = index
     return classes
 #: arrays whose values must be finite
-FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego")
+FINITE_FIELDS = ("keypoints_3d_cam", "keypoints_2d", "K", "T_cam_world", "theta", "phi", "z_ego", "time_s",
+                 "T_world_body")
 
 
 class DamagedFileError(BadValueError):
@@ -268,7 +292,7 @@ def read_annotations(root: str | Path, split: str, keys: Iterable[str] | None = 
         manifest = read_manifest(root)
     # the split and the keys come from code (a user's split went through read_manifest)
     assert split in SPLITS, split
-    fields = annotation_fields(track_of(manifest))
+    fields = annotation_fields(track_of(manifest), is_sequence(manifest))
     keys = list(fields) if keys is None else list(dict.fromkeys(["frame_id", *keys]))
     assert set(keys) <= set(fields), keys
     path = annotations_path(root, split)

@@ -14,6 +14,7 @@ Convention:
 from __future__ import annotations
 
 import ctypes
+import json
 import os
 import pickle
 import signal
@@ -118,12 +119,15 @@ class ChunkOutput:
         chunk: chunk index. split: the split its grasp belongs to.
         files: (modality, frame_id, encoded bytes) per image file, in frame order.
         rows: annotation rows, ``ANNOTATION_DTYPES`` keys, each (chunk_size, ...).
+        clip: on a dataset of clips, the chunk's clip's record (:func:`hupbench.datagen.dataset.clips.clip_record`
+            with "clip_id" and "grasp_index"), written beside its rows for the manifest; None otherwise.
     """
 
     chunk: int
     split: str
     files: list[tuple[str, int, bytes]]
     rows: dict[str, np.ndarray]
+    clip: dict | None = None
 
 
 class ChunkRenderer:
@@ -172,6 +176,8 @@ class ChunkRenderer:
         Returns:
             The chunk's encoded image files and annotation rows.
         """
+        if self.spec.sequence:
+            return self._render_clip_chunk(chunk, split, frames, layout)
         spec, grasps, world = self.spec, self.grasps, self.world
         rows, files = [], []
         for index in frames:
@@ -181,27 +187,82 @@ class ChunkRenderer:
             view = self._view(cam)
             light = lamp(spec, index)
             if "rgb" in spec.modalities:
-                rgb = self._colour(g, cam["T_cam_world"], cam["background"], cam["glove"], light)
-                ext = ".jpg" if spec.rgb_format == "jpg" else ".png"
-                params = [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality] if ext == ".jpg" else []
-                files.append(("rgb", index, encode_image(ext, rgb[..., ::-1], params)))
+                files.append(("rgb", index, self._encode_rgb(
+                    self._colour(g, cam["T_cam_world"], cam["background"], cam["glove"], light))))
             files.extend((modality, index, data) for modality, data in view["files"])
             if spec.sensor is not None:
-                sensor = stored_sensor_depth(view["depth"], view["seg"], spec.intrinsics.K, spec.sensor,
-                                             seg_labels(spec.track), DEPTH_SCALE_M, spec.seed, index)
-                files.append((SENSOR_DEPTH, index, encode_image(".png", sensor)))
-            rows.append({
-                "frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
-                "visible": view["visible"],
-                "K": spec.intrinsics.K, "T_cam_world": cam["T_cam_world"], "grasp_id": grasps.grasp_id[g],
-                "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"], "phi": cam["phi"],
-                "z_ego": cam["z_ego"], "background_id": cam["background"], "glove_id": cam["glove"],
-                "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
-                "light_position_cam": light["position_cam"], "light_color": light["color"],
-                "light_energy_w": light["energy_w"],
-                **({} if world is None else world.rows(g, cam["background"], cam["view"])),
-            })
+                files.append(self._sensor_file(index, view["depth"], view["seg"]))
+            rows.append(self._row(index, cam, view["visible"], light)
+                        | ({} if world is None else world.rows(g, cam["background"], cam["view"])))
         return ChunkOutput(chunk, split, files, _stack_rows(rows, annotation_fields(spec.track)))
+
+    def _render_clip_chunk(self, chunk: int, split: str, frames: tuple[int, ...], layout: Layout) -> ChunkOutput:
+        """:meth:`render` on a dataset of clips, whose chunk is one clip (grasp, clip): every frame rendered at its
+        own camera and patient pose, the clip's lamp that of its first frame."""
+        from hupbench.datagen.dataset.clips import clip_cameras, clip_record, draw_clip
+
+        spec, world = self.spec, self.world
+        g, c = layout.tuple(frames[0])[:2]
+        assert len(frames) == layout.n_views and frames[0] % layout.n_views == 0, (chunk, frames[0], len(frames))
+        clip = draw_clip(world, g, c)
+        light = lamp(spec, frames[0])
+        measured = clip_cameras(world, g, clip)
+        clip_id = g * layout.n_z + c
+        rows, files = [], []
+        for f, (index, frame) in enumerate(zip(frames, self.render_clip(g, clip, clip["background"], clip["glove"],
+                                                                         light))):
+            if "rgb" in spec.modalities:
+                files.append(("rgb", index, self._encode_rgb(frame["rgb"])))
+            label_files, depth = self._label_files(frame["depth"], frame["seg"])
+            files.extend((modality, index, data) for modality, data in label_files)
+            if spec.sensor is not None:
+                files.append(self._sensor_file(index, depth, frame["seg"]))
+            cam = {"grasp": g, "background": clip["background"], "glove": clip["glove"], "view_id": c,
+                   "T_cam_world": clip["T_cam_world"][f], "keypoints_cam": clip["keypoints_cam"][f],
+                   "keypoints_2d": clip["keypoints_2d"][f], **{key: measured[key][f] for key in ("theta", "phi",
+                                                                                              "z_ego")}}
+            rows.append(self._row(index, cam, frame["visible"], light) | world.rows(g, clip["background"], c)
+                        | {"roll_deg": measured["roll_deg"][f], "aim_px": measured["aim_px"][f], "clip_id": clip_id,
+                           "frame_in_clip": f, "time_s": clip["time_s"][f], "T_world_body": clip["T_world_body"][f]})
+        record = {"clip_id": clip_id, "grasp_index": g, **clip_record(clip, spec.scan.fps)}
+        return ChunkOutput(chunk, split, files, _stack_rows(rows, annotation_fields(spec.track, sequence=True)),
+                           clip=record)
+
+    def _row(self, index: int, cam: dict, visible: np.ndarray, light: dict) -> dict:
+        """A frame's annotation values of every track (:data:`hupbench.core.contract.ANNOTATION_FIELDS`) from its
+        camera (:func:`frame_camera`'s keys), its keypoints' visibility and its lamp."""
+        grasps, g = self.grasps, cam["grasp"]
+        return {"frame_id": index, "keypoints_3d_cam": cam["keypoints_cam"], "keypoints_2d": cam["keypoints_2d"],
+                "visible": visible, "K": self.spec.intrinsics.K, "T_cam_world": cam["T_cam_world"],
+                "grasp_id": grasps.grasp_id[g], "grasp_index": g, "view_id": cam["view_id"], "theta": cam["theta"],
+                "phi": cam["phi"], "z_ego": cam["z_ego"], "background_id": cam["background"],
+                "glove_id": cam["glove"], "hand_pose": grasps.hand_pose[g], "hand_trans": grasps.hand_trans[g],
+                "light_position_cam": light["position_cam"], "light_color": light["color"],
+                "light_energy_w": light["energy_w"]}
+
+    def _encode_rgb(self, rgb: np.ndarray) -> bytes:
+        """An (H, W, 3) uint8 RGB image encoded in the spec's format."""
+        ext = ".jpg" if self.spec.rgb_format == "jpg" else ".png"
+        params = [cv2.IMWRITE_JPEG_QUALITY, self.spec.jpeg_quality] if ext == ".jpg" else []
+        return encode_image(ext, rgb[..., ::-1], params)
+
+    def _label_files(self, depth_m: np.ndarray, seg: np.ndarray) -> tuple[list[tuple[str, bytes]], np.ndarray]:
+        """The label pass's files as the spec asks ((modality, encoded bytes) of depth and seg) and the depth as
+        stored: uint16 in ``DEPTH_SCALE_M`` units."""
+        depth = np.round(depth_m / DEPTH_SCALE_M).astype(np.uint16)
+        files = []
+        if "depth" in self.spec.modalities:
+            files.append(("depth", encode_image(".png", depth)))
+        if "seg" in self.spec.modalities:
+            files.append(("seg", encode_image(".png", seg)))
+        return files, depth
+
+    def _sensor_file(self, index: int, depth: np.ndarray, seg: np.ndarray) -> tuple[str, int, bytes]:
+        """Frame ``index``'s depth camera measurement of its stored depth and labels, encoded."""
+        spec = self.spec
+        sensor = stored_sensor_depth(depth, seg, spec.intrinsics.K, spec.sensor, seg_labels(spec.track),
+                                     DEPTH_SCALE_M, spec.seed, index)
+        return SENSOR_DEPTH, index, encode_image(".png", sensor)
 
     def _colour(self, g: int, T_cam_world: np.ndarray, background: int, glove: int, light: dict) -> np.ndarray:
         """(H, W, 3) uint8 RGB of the loaded grasp ``g`` from one camera: the glove's and (clinic) the room's and
@@ -276,12 +337,7 @@ class ChunkRenderer:
         if key not in self._views:
             self._views = {k: v for k, v in self._views.items() if k[:2] == key[:2]}
             labels = self.renderer.render(cam["T_cam_world"], ("depth", "seg"))
-            files = []
-            depth = np.round(labels["depth"] / DEPTH_SCALE_M).astype(np.uint16)
-            if "depth" in self.spec.modalities:
-                files.append(("depth", encode_image(".png", depth)))
-            if "seg" in self.spec.modalities:
-                files.append(("seg", encode_image(".png", labels["seg"])))
+            files, depth = self._label_files(labels["depth"], labels["seg"])
             self._views[key] = {"files": files, "visible": stored_visibility(cam, labels["depth"], labels["seg"]),
                                 "depth": depth, "seg": labels["seg"]}
         return self._views[key]
@@ -297,9 +353,13 @@ def write_chunk(root: Path, output: ChunkOutput, rgb_format: str) -> int:
     """
     for modality, frame_id, data in output.files:
         write_bytes(frame_path(root, output.split, modality, frame_id, rgb_format), data)
-    save_npz(_chunk_path(root, output.split, output.chunk), output.rows)
+    clip = {} if output.clip is None else {CLIP_RECORD: np.array(json.dumps(output.clip))}
+    save_npz(_chunk_path(root, output.split, output.chunk), output.rows | clip)
     return len(output.rows["frame_id"])
 
+
+#: the array of a chunk's rows file holding its clip's record (JSON), beside the annotation arrays
+CLIP_RECORD = "clip_record"
 
 # the local launcher's per-process state: one ChunkRenderer per worker process
 _worker: dict = {}
@@ -378,6 +438,12 @@ def _render_chunk_in_worker(args) -> tuple[int, int]:
 def _stack_rows(rows: list[dict], fields: dict) -> dict[str, np.ndarray]:
     """The rows' arrays of ``fields`` (:func:`hupbench.core.contract.annotation_fields`), stacked in their dtypes."""
     return {k: np.stack([np.asarray(r[k]) for r in rows]).astype(dtype) for k, (dtype, _) in fields.items()}
+
+
+def read_clip_record(root: Path, split: str, chunk: int) -> dict:
+    """The clip record :func:`write_chunk` wrote beside a chunk's rows (a dataset of clips)."""
+    with np.load(_chunk_path(root, split, chunk)) as data:
+        return json.loads(str(data[CLIP_RECORD]))
 
 
 def _chunk_path(root: Path, split: str, chunk: int) -> Path:

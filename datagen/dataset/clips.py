@@ -24,13 +24,16 @@ from hupbench.core.errors import RunFailedError
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.datagen.assets.patient import body_sdf_local
 from hupbench.datagen.dataset.clinic import HEAD_CLEARANCE_M, ClinicWorld
+from hupbench.datagen.dataset.head import horizontal_axes
 from hupbench.datagen.dataset.head_motion import HeadMotionSpec, head_track
 from hupbench.datagen.dataset.scan_motion import ScanMotion, ScanMotionSpec, scan_motion
 
-__all__ = ["HEAD_DRAWS", "clip_geometry"]
+__all__ = ["CLIP_STREAM", "HEAD_DRAWS", "clip_cameras", "clip_geometry", "clip_record", "draw_clip", "head_steps"]
 
 #: draws of a clip's head before the clip is given up
 HEAD_DRAWS = 20
+#: the seed stream of a clip's draws (with the dataset seed, the grasp and the clip)
+CLIP_STREAM = 103
 _LOOK_AT = kp.KEYPOINT_NAMES.index("middle_mcp")
 
 
@@ -76,3 +79,72 @@ def clip_geometry(world: ClinicWorld, g: int, view: int, scan: ScanMotionSpec, h
     return {"time_s": motion.time_s, "T_cam_world": T_cam_world, "T_world_body": motion.T_world_body,
             "keypoints_cam": keypoints_cam, "keypoints_2d": project_points(keypoints_cam, intrinsics.K),
             "motion": motion}
+
+
+def draw_clip(world: ClinicWorld, g: int, clip: int) -> dict:
+    """Clip ``clip`` of grasp ``g`` of a dataset of clips (``world.spec.scan`` and ``head_motion`` set): it starts at
+    the grasp's head camera ``clip``; its room (background) and glove are drawn with it, from a generator seeded with
+    (dataset seed, :data:`CLIP_STREAM`, grasp, clip), so a clip is a pure function of the config and the grasps.
+
+    Returns:
+        :func:`clip_geometry`'s dict with "background" and "glove" (ints).
+    """
+    spec = world.spec
+    assert spec.scan is not None and spec.head_motion is not None
+    rng = np.random.default_rng([spec.seed, CLIP_STREAM, g, clip])
+    background, glove = int(rng.integers(spec.n_backgrounds)), int(rng.integers(spec.n_gloves))
+    return clip_geometry(world, g, clip, spec.scan, spec.head_motion, rng) | {"background": background, "glove": glove}
+
+
+def clip_cameras(world: ClinicWorld, g: int, clip: dict) -> dict[str, np.ndarray]:
+    """Each frame's camera as the clinic annotations record it, measured on the frame's pose.
+
+    ``theta`` is the camera's angle from the room's vertical seen from keypoint 9 and ``phi`` its azimuth about
+    it, on the room's horizontal axes of the grasp's placement moving with the room (so the first frame's are the
+    drawn camera's), ``z_ego`` its distance to keypoint 9, ``aim_px`` where keypoint 9 projects, ``roll_deg`` the
+    angle of the room's vertical in the image from the image's up (positive: turned as a positive head roll turns
+    it; the drawn camera's own roll differs by what the aim's turn adds).
+
+    Args:
+        world: the clinic world. g: the grasp. clip: :func:`clip_geometry`'s dict.
+
+    Returns:
+        {"theta", "phi" (F,) radians; "z_ego" (F,) metres; "roll_deg" (F,) degrees; "aim_px" (F, 2) pixels}.
+    """
+    placement = world.placements[g]
+    h0, h1, up = horizontal_axes(placement.vertical_world)
+    # the room's axes in each frame's world: they move with the body
+    R_move = clip["T_world_body"][:, :3, :3] @ placement.T_world_body[:3, :3].T  # (F, 3, 3)
+    h0, h1, up = (R_move @ axis for axis in (h0, h1, up))  # (F, 3) each
+    target_cam = clip["keypoints_cam"][:, _LOOK_AT]  # (F, 3)
+    z_ego = np.linalg.norm(target_cam, axis=1)
+    R = clip["T_cam_world"][:, :3, :3]
+    direction = -np.einsum("fji,fj->fi", R, target_cam) / z_ego[:, None]  # (F, 3) keypoint 9 -> camera, world
+    theta = np.arccos(np.clip(np.einsum("fi,fi->f", direction, up), -1.0, 1.0))
+    phi = np.mod(np.arctan2(np.einsum("fi,fi->f", direction, h1), np.einsum("fi,fi->f", direction, h0)),
+                 2.0 * np.pi)
+    up_cam = np.einsum("fij,fj->fi", R, up)
+    roll_deg = np.degrees(np.arctan2(-up_cam[:, 0], -up_cam[:, 1]))
+    return {"theta": theta, "phi": phi, "z_ego": z_ego, "roll_deg": roll_deg, "aim_px": clip["keypoints_2d"][:, _LOOK_AT]}
+
+
+def head_steps(T_cam_world: np.ndarray, T_world_body: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The head's frame-to-frame motion relative to the room: (F - 1,) the camera centre's speed, mm/s, and (F - 1,)
+    its turn rate, degrees/s, over each frame interval (at ``fps``)."""
+    T_cam_body = T_cam_world @ T_world_body
+    centres = invert_transform(T_cam_body)[:, :3, 3]
+    speed = 1e3 * fps * np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    R = T_cam_body[:, :3, :3]
+    cos = (np.einsum("fij,fij->f", R[1:], R[:-1]) - 1.0) / 2.0  # trace(R_{f+1} R_f^T) = 1 + 2 cos(angle)
+    return speed, fps * np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def clip_record(clip: dict, fps: float) -> dict:
+    """A clip's manifest record of its motion: the skill drawn; the probe's drawn and measured mean speed,
+    acceleration and jerk and their maxima ("bounds": no frame-to-frame change of its centre exceeds them); the
+    head's top speed and turn rate between frames ("head_bounds"); its room and glove."""
+    motion = clip["motion"]
+    speed, turn = head_steps(clip["T_cam_world"], clip["T_world_body"], fps)
+    return {"background_id": clip["background"], "glove_id": clip["glove"], "skill": motion.skill,
+            "target": dict(motion.target), "kinematics": dict(motion.kinematics), "bounds": dict(motion.bounds),
+            "head_bounds": {"speed_mm_per_s": float(speed.max()), "turn_deg_per_s": float(turn.max())}}

@@ -47,8 +47,8 @@ from hupbench.core.input_checks import check_interval, check_number
 from hupbench.core.motion_metrics import KINEMATICS_KEYS, point_kinematics, time_derivatives
 from hupbench.datagen.assets.patient import PatientPlacement, body_sdf_local, sphere_centre
 
-__all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "band_noise", "draw_kinematics",
-           "scan_motion"]
+__all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "band_noise", "clip_frames",
+           "draw_kinematics", "scan_motion"]
 
 #: the probe's mean speed (mm/s), acceleration (mm/s^2) and jerk (mm/s^3) during obstetric anomaly scans, mean
 #: and standard deviation over operators, of consultants and of fellows (Le Lous et al. 2024, probe motion
@@ -133,6 +133,11 @@ class ScanMotion:
     target: dict
     kinematics: dict
     bounds: dict
+
+
+def clip_frames(duration_s: float, fps: float) -> int:
+    """The frames of a clip of ``duration_s`` seconds at ``fps``: its start and end both included."""
+    return int(round(duration_s * fps)) + 1
 
 
 def draw_kinematics(rng: np.random.Generator) -> tuple[float, dict]:
@@ -254,7 +259,7 @@ def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: n
     skin = _Skin(placement, lens, centre_probe, spec.press_m)
     lever = float(np.linalg.norm(centre_probe))
     duration = float(rng.uniform(*spec.duration_s))
-    frames = int(round(duration * spec.fps)) + 1
+    frames = clip_frames(duration, spec.fps)
     rate = spec.fps * OVERSAMPLE
     t = np.arange((frames - 1) * OVERSAMPLE + 1) / rate
     for _ in range(DRAWS):

@@ -25,6 +25,8 @@ from hupbench.core.input_checks import check_int, is_whole
 from hupbench.datagen.assets.backgrounds import MIN_SIZE_PX
 from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
 from hupbench.datagen.dataset.head import HeadSpec
+from hupbench.datagen.dataset.head_motion import HeadMotionSpec
+from hupbench.datagen.dataset.scan_motion import ScanMotionSpec, clip_frames
 from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions, viewpoints
 from hupbench.datagen.render.renderer import MODALITIES, check_modalities
 
@@ -108,6 +110,12 @@ class DatasetSpec:
             patient placement, seen by ``head``'s cameras instead of the sphere's).
         head: on the "clinic" track, where the cameras can be (:class:`hupbench.datagen.dataset.head.HeadSpec`);
             None on the others, whose cameras are the sphere's at ``z_ego_m``.
+        scan, head_motion: set (both) for a dataset of clips on the clinic track (``hupbench generate
+            +track=clinic_sequences``): how the probe moves on the skin
+            (:class:`hupbench.datagen.dataset.scan_motion.ScanMotionSpec`, one clip length: every clip has
+            :attr:`frames_per_clip` frames) and how the wearer's head moves
+            (:class:`hupbench.datagen.dataset.head_motion.HeadMotionSpec`); each of a grasp's
+            ``head.views_per_grasp`` cameras starts one clip. None (both) for single frames.
         view_stride: on the "unseen_views" track, of every ``view_stride`` consecutive views of the
             sphere one goes to test and one to val (:func:`split_of_views`).
         modalities: which of rgb, depth, seg to write.
@@ -149,6 +157,8 @@ class DatasetSpec:
     n_backgrounds: int = 8
     n_gloves: int = 2
     head: HeadSpec | None = None
+    scan: ScanMotionSpec | None = None
+    head_motion: HeadMotionSpec | None = None
     intrinsics: Intrinsics = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -164,6 +174,15 @@ class DatasetSpec:
             raise BadValueError("dataset.head places the clinic track's cameras and only theirs: "
                                 + ("set it (`hupbench generate +track=clinic` does)" if self.track == CLINIC else
                                    f"set dataset.head=null on the {self.track} track, or dataset.track=clinic"))
+        if (self.scan is None) != (self.head_motion is None) or (self.scan is not None and self.track != CLINIC):
+            raise BadValueError("dataset.scan and dataset.head_motion make clips on the clinic track, both or neither: "
+                                "`hupbench generate +track=clinic_sequences` sets both, got "
+                                f"scan={'set' if self.scan is not None else 'null'}, head_motion="
+                                f"{'set' if self.head_motion is not None else 'null'} on the {self.track} track")
+        if self.scan is not None and self.scan.duration_s[0] != self.scan.duration_s[1]:
+            raise BadValueError("dataset.scan.duration_s must be one clip length on a dataset of clips, [d, d] (each "
+                                "clip has the same frames, so a frame's index places it in its clip), got "
+                                f"{list(self.scan.duration_s)}")
         if self.track == UNSEEN_VIEWS:
             if self.splits is not None:
                 raise BadValueError("dataset.splits counts grasps per split on the unseen_grasps track; the unseen_views "
@@ -227,6 +246,17 @@ class DatasetSpec:
     def distances_m(self) -> tuple[float, ...]:
         """The camera distances to the look-at point, metres: ``z_ego_m``, or the head's range on the clinic track."""
         return tuple(self.head.distance_m) if self.head is not None else self.z_ego_m
+
+    @property
+    def sequence(self) -> bool:
+        """Whether the dataset is made of clips (``scan`` and ``head_motion`` set)."""
+        return self.scan is not None
+
+    @property
+    def frames_per_clip(self) -> int:
+        """Frames of each clip, both ends included (:func:`hupbench.datagen.dataset.scan_motion.scan_motion`)."""
+        assert self.scan is not None
+        return clip_frames(self.scan.duration_s[0], self.scan.fps)
 
     @property
     def n_views(self) -> int:
@@ -348,9 +378,14 @@ class FramePlan:
 
 def frame_plan(spec: DatasetSpec, n_grasps: int) -> FramePlan:
     """The :class:`FramePlan` of ``spec`` rendered from ``n_grasps`` grasps."""
-    n_z = 1 if spec.track == CLINIC else len(spec.z_ego_m)  # a clinic camera draws its own distance
-    layout = Layout(n_grasps, n_z, spec.n_backgrounds, spec.n_gloves, spec.n_views)
-    grasps, views = split_of_grasps(spec, n_grasps), split_of_views(spec, spec.n_views)
+    if spec.sequence:
+        # a dataset of clips: (grasp, clip, -, -, frame), a clip per head camera; its room and glove are drawn
+        # per clip (:func:`hupbench.datagen.dataset.clips.clip_scene`), so a chunk is one clip
+        layout = Layout(n_grasps, spec.n_views, 1, 1, spec.frames_per_clip)
+    else:
+        n_z = 1 if spec.track == CLINIC else len(spec.z_ego_m)  # a clinic camera draws its own distance
+        layout = Layout(n_grasps, n_z, spec.n_backgrounds, spec.n_gloves, spec.n_views)
+    grasps, views = split_of_grasps(spec, n_grasps), split_of_views(spec, layout.n_views)
     return FramePlan(layout, grasps, views, chunk_plan(layout, grasps, views))
 
 

@@ -59,13 +59,19 @@ verify reads through :mod:`hupbench.core.contract`. Two kinds of answer:
                         subject's in grasps.npz
   ``patient_depth``     (clinic track) pixels the mask calls patient, unprojected with their depth, off
                         the body's surface by more than max(3 mm, 1.5 pixel footprints)
+  ``clip_continuity``   (a dataset of clips) a clip not whole, in order and in time, or whose labels jump:
+                        the probe's centre or the head moves between frames beyond the clip's own
+                        kinematic bounds (:mod:`hupbench.datagen.dataset.verify_sequence`)
 
 On the clinic track (manifest ``protocol.track``; :mod:`hupbench.datagen.dataset.verify_clinic`) the room
 behind has depth and label 0 and hides the background image, each grasp has its own hand and patient
 (grasps.npz) and the head turns keypoint 9 off the optical axis. There ``pose_mismatch`` rebuilds the keypoints
 on each grasp's own hand; ``look_at`` checks that the look-at keypoint projects at the frame's ``aim_px``, z_ego
 from the camera centre; ``mask_depth`` is a pixel without depth; ``empty_frame`` a mask without hand, forearm
-or probe; the RGB image is not compared with a background image; seg labels include ``patient`` (4).
+or probe; the RGB image is not compared with a background image; seg labels include ``patient`` (4). On a dataset
+of clips (manifest "sequence") the patient moves under the probe: ``lens_skin``, ``camera_in_patient`` and
+``patient_depth`` take each frame's body pose (``T_world_body``), ``lens_skin`` checks every frame (the contact kept
+throughout, one problem per clip).
 
 The checks that need no image: :mod:`hupbench.datagen.dataset.verify_annotations`; how the per-frame checks
 work: :mod:`hupbench.datagen.dataset.verify_frames`.
@@ -90,6 +96,7 @@ from hupbench.core.contract import (
     DamagedFileError,
     annotations_path,
     check_manifest,
+    is_sequence,
     read_annotations,
     read_manifest,
     seg_labels,
@@ -114,7 +121,8 @@ from hupbench.core.depth_sensor import SensorPreset
 KINDS = ("count_mismatch", "missing_file", "damaged_file", "bad_annotations", "frame_ids", "manifest_mismatch",
          "undecodable_file", "image_format", "reprojection", "pose_mismatch", "look_at", "visible_not_on_hand",
          "marked_invisible", "empty_frame", "probe_depth", "image_shift", "mask_depth", "split_floors", "rgb_mismatch",
-         "rgb_channels", "grasps_file", "lens_skin", "camera_in_patient", "hand_size", "patient_depth", "sensor_depth")
+         "rgb_channels", "grasps_file", "lens_skin", "camera_in_patient", "hand_size", "patient_depth", "sensor_depth",
+         "clip_continuity")
 #: what verify leaves out on a dataset converted from another format (manifest "imported"), and why
 IMPORTED_SKIPS = (
     ("pose_mismatch: the stored hand pose is the source's MANO parameters and the probe its own mesh; hupbench's "
@@ -284,8 +292,14 @@ def _check_geometry(ann: dict, split: str, manifest: dict, probe, world) -> list
     if track_of(manifest) == CLINIC:
         from hupbench.datagen.dataset.verify_clinic import check_clinic_annotations, hand_spec_of
 
-        return check_geometry(ann, split, stored_pose=world is not None, probe=probe, hand_spec=hand_spec_of(world)) \
+        problems = check_geometry(ann, split, stored_pose=world is not None, probe=probe,
+                                  hand_spec=hand_spec_of(world)) \
             + check_clinic_annotations(ann, split, manifest["protocol"]["look_at"], world, probe)
+        if is_sequence(manifest):
+            from hupbench.datagen.dataset.verify_sequence import check_clips
+
+            problems += check_clips(ann, split, manifest)
+        return problems
     problems = check_geometry(ann, split, stored_pose=manifest.get("imported") is None, probe=probe)
     # datasets made before the manifest recorded a protocol have no look-at to check
     if "protocol" in manifest:
@@ -390,7 +404,7 @@ def verify(root, workers: int = 2, log=print, progress: bool | None = None) -> d
         problems += _check_geometry(ann, split, manifest, probe, world)
         partners = _glove_partners(ann) if gloves is not None and len(gloves) > 1 else {}
         for i in range(len(ann["frame_id"])):
-            row = {k: ann[k][i] for k in FRAME_KEYS}
+            row = {k: ann[k][i] for k in FRAME_KEYS + (("T_world_body",) if is_sequence(manifest) else ())}
             p = partners.get(i)
             row["partner"] = None if p is None else {k: ann[k][p] for k in ("frame_id", "glove_id", "light_color")}
             jobs.append((split, row))

@@ -16,8 +16,10 @@ import numpy as np
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
-from hupbench.core.contract import ANNOTATIONS, CLINIC, MANIFEST, SPLITS, STORED_MODALITIES, seg_labels, track_of
+from hupbench.core.contract import (ANNOTATIONS, CLINIC, MANIFEST, SEQUENCE, SPLITS, STORED_MODALITIES, seg_labels,
+                                    track_of)
 from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import is_number, is_whole
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.io import file_sha256
 from hupbench.datagen.dataset.floors import split_floors
@@ -58,6 +60,14 @@ def check_manifest_extras(manifest: dict, root: Path) -> None:
     if imported is not None and (isinstance(error, bool) or not isinstance(error, (int, float))
                                  or not math.isfinite(error) or error < 0):
         raise BadValueError(f"{path}: imported.depth.error_max_m must be a number >= 0 (metres), got {error!r}")
+    if SEQUENCE in manifest:
+        record = manifest[SEQUENCE]
+        fields = (record.get("fps"), record.get("frames_per_clip"), record.get("clips")) if isinstance(record, dict) \
+            else (None, None, None)
+        if track_of(manifest) != CLINIC or not (is_number(fields[0]) and fields[0] > 0 and is_whole(fields[1])
+                                                and fields[1] > 0 and isinstance(fields[2], list)):
+            raise BadValueError(f"{path}: {SEQUENCE} must be a clinic dataset's record of its clips with fps > 0, "
+                                f"frames_per_clip > 0 and a list of clips, got {str(record)[:200]!r}")
     gloves = manifest.get("gloves_rgb")
     if gloves is not None:
         try:

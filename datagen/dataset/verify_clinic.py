@@ -24,7 +24,8 @@ Convention:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,8 @@ class ClinicGrasps:
     Attributes:
         grasps: the :class:`hupbench.datagen.dataset.grasps_file.GraspSet` (each grasp's hand: ``hand_spec(g)``;
             its subject's measures: ``subjects``).
-        placements: each grasp's patient placement, grasps-file order.
+        placements: each grasp's patient placement, grasps-file order (on a dataset of clips, its clips' first
+            frame's: :func:`frame_placement` gives each frame's).
         contact: {grasp index: (lens height m, deepest probe vertex m, hand / forearm penetration m)}, filled
             by :func:`check_lens_skin` (each grasp measured once).
     """
@@ -62,6 +64,8 @@ class ClinicGrasps:
     grasps: object
     placements: list[PatientPlacement]
     contact: dict
+    #: {grasp index: (lens vertices, probe vertices, hand and forearm vertices)}, world frame, metres
+    vertices: dict = field(default_factory=dict)
 
 
 def read_clinic_grasps(root: Path) -> tuple[ClinicGrasps | None, str | None]:
@@ -122,12 +126,29 @@ def _body_frame_height(placement: PatientPlacement, points_world: np.ndarray) ->
     return ((np.asarray(points_world) - T[:3, 3]) @ T[:3, :3])[:, 2]
 
 
+def frame_placement(world: ClinicGrasps, g: int, T_world_body: np.ndarray | None = None) -> PatientPlacement:
+    """Grasp ``g``'s patient placement, moved to a frame's body pose ``T_world_body`` ((4, 4), a dataset of clips'
+    annotation; None: the grasp's own pose)."""
+    placement = world.placements[g]
+    if T_world_body is None:
+        return placement
+    T = np.asarray(T_world_body, dtype=np.float64)
+    R = T[:3, :3] @ placement.T_world_body[:3, :3].T  # the body's turn since the grasp's pose, world frame
+    return dataclasses.replace(placement, T_world_body=T, vertical_world=R @ placement.vertical_world,
+                               normal_world=R @ placement.normal_world)
+
+
+def _placement_of_row(ann: dict, i: int, world: ClinicGrasps) -> PatientPlacement:
+    """Row ``i``'s patient placement: its grasp's, at the row's body pose on a dataset of clips."""
+    return frame_placement(world, int(ann["grasp_index"][i]), ann["T_world_body"][i] if "T_world_body" in ann else None)
+
+
 def check_cameras(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
-    """Each camera centre outside its grasp's patient (``body_sdf`` > 0) and above the bed plane."""
+    """Each camera centre outside its frame's patient (``body_sdf`` > 0) and above the bed plane."""
     problems = []
     centres = invert_transform(ann["T_cam_world"])[:, :3, 3]  # (N, 3) world
     for i in np.flatnonzero(_known(ann, world)):
-        placement = world.placements[int(ann["grasp_index"][i])]
+        placement = _placement_of_row(ann, i, world)
         sdf = float(body_sdf(placement, centres[i][None])[0])
         height = float(_body_frame_height(placement, centres[i][None])[0])
         if not (sdf > 0 and height > 0):
@@ -138,51 +159,82 @@ def check_cameras(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
     return problems
 
 
-def grasp_contact(world: ClinicGrasps, g: int, probe) -> tuple[float, float, float]:
-    """Grasp ``g``'s lens against its patient, as rendered.
-
-    The hand and forearm are built as the renderer builds them
-    (:func:`hupbench.datagen.render.scene.scene_parts` with the grasp's hand, ``GraspSet.hand_spec``).
-
-    Returns:
-        (the lens's deepest vertex's signed distance to the skin, the deepest probe vertex's, the deepest hand or
-        forearm vertex's depth inside the body or below the bed's top, >= 0), metres.
-    """
+def _grasp_vertices(world: ClinicGrasps, g: int, probe) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grasp ``g``'s (lens vertices, probe vertices, hand and forearm vertices), world frame, metres: the hand and
+    forearm built as the renderer builds them (:func:`hupbench.datagen.render.scene.scene_parts` with the grasp's
+    hand, ``GraspSet.hand_spec``). Kept per grasp."""
     from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
 
-    if g not in world.contact:
-        grasps, placement = world.grasps, world.placements[g]
+    if g not in world.vertices:
+        grasps = world.grasps
         parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
                                                       models_of(grasps.hand_spec(g)), probe=probe)}
         vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
         lens = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
         body = np.concatenate([np.asarray(parts["hand"].vertices), np.asarray(parts["arm"].vertices)])
-        depth = np.maximum(-body_sdf(placement, body), -_body_frame_height(placement, body))
-        world.contact[g] = (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
-                            max(0.0, float(depth.max())))
+        world.vertices[g] = (lens, vertices, body)
+    return world.vertices[g]
+
+
+def contact(world: ClinicGrasps, g: int, probe, placement: PatientPlacement) -> tuple[float, float, float]:
+    """Grasp ``g``'s lens against the patient at ``placement``, as rendered.
+
+    Returns:
+        (the lens's deepest vertex's signed distance to the skin, the deepest probe vertex's, the deepest hand or
+        forearm vertex's depth inside the body or below the bed's top, >= 0), metres.
+    """
+    lens, vertices, body = _grasp_vertices(world, g, probe)
+    depth = np.maximum(-body_sdf(placement, body), -_body_frame_height(placement, body))
+    return (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
+            max(0.0, float(depth.max())))
+
+
+def grasp_contact(world: ClinicGrasps, g: int, probe) -> tuple[float, float, float]:
+    """:func:`contact` at grasp ``g``'s own placement, measured once."""
+    if g not in world.contact:
+        world.contact[g] = contact(world, g, probe, world.placements[g])
     return world.contact[g]
+
+
+def _contact_problem(lens_m: float, probe_m: float, hand_m: float) -> str | None:
+    """What is wrong with a :func:`contact` measure, None when the lens rests on the skin and nothing sinks in."""
+    why = []
+    if lens_m > LENS_ABOVE_SKIN_M:
+        why.append(f"the lens floats {1000 * lens_m:.2f} mm above the skin (at most {1000 * LENS_ABOVE_SKIN_M:g})")
+    if probe_m < -PROBE_MAX_DEPTH_M:
+        why.append(f"the probe sinks {-1000 * probe_m:.2f} mm into the skin (at most {1000 * PROBE_MAX_DEPTH_M:g})")
+    if hand_m > BODY_PENETRATION_M:
+        why.append(f"a hand or forearm vertex lies {1000 * hand_m:.2f} mm inside the body or the bed (at most "
+                   f"{1000 * BODY_PENETRATION_M:g})")
+    return "; ".join(why) or None
 
 
 def check_lens_skin(ann: dict, split: str, world: ClinicGrasps, probe) -> list[dict]:
     """Per grasp of the split: the lens on the skin, the probe no deeper than ``PROBE_MAX_DEPTH_M``, the hand and
-    forearm no deeper than :data:`BODY_PENETRATION_M`; one problem per failing grasp, naming its frames."""
+    forearm no deeper than :data:`BODY_PENETRATION_M`; one problem per failing grasp, naming its frames. On a
+    dataset of clips the same in every frame, at the frame's body pose: one problem per failing clip, naming its
+    first failing frame and how many fail (the contact kept throughout)."""
     problems = []
     known = _known(ann, world)
+    if "T_world_body" in ann:
+        for clip in np.unique(ann["clip_id"][known]).tolist():
+            rows = np.flatnonzero(known & (ann["clip_id"] == clip))
+            failing = [(i, why) for i in rows for why in [_contact_problem(*contact(
+                world, int(ann["grasp_index"][i]), probe, _placement_of_row(ann, i, world)))] if why]
+            if failing:
+                i, why = failing[0]
+                problems.append(_problem(split, ann["frame_id"][i], "lens_skin",
+                                         f"clip {clip} (grasp index {int(ann['grasp_index'][i])}): {len(failing)} of "
+                                         f"its {len(rows)} frames lose the contact, first frame "
+                                         f"{int(ann['frame_id'][i]):06d}: {why}", f"{split}/{ANNOTATIONS}"))
+        return problems
     for g in np.unique(ann["grasp_index"][known]).tolist():
-        lens_m, probe_m, hand_m = grasp_contact(world, g, probe)
-        why = []
-        if lens_m > LENS_ABOVE_SKIN_M:
-            why.append(f"the lens floats {1000 * lens_m:.2f} mm above the skin (at most {1000 * LENS_ABOVE_SKIN_M:g})")
-        if probe_m < -PROBE_MAX_DEPTH_M:
-            why.append(f"the probe sinks {-1000 * probe_m:.2f} mm into the skin (at most {1000 * PROBE_MAX_DEPTH_M:g})")
-        if hand_m > BODY_PENETRATION_M:
-            why.append(f"a hand or forearm vertex lies {1000 * hand_m:.2f} mm inside the body or the bed (at most "
-                       f"{1000 * BODY_PENETRATION_M:g})")
+        why = _contact_problem(*grasp_contact(world, g, probe))
         if why:
             frames = ann["frame_id"][known & (ann["grasp_index"] == g)]
             problems.append(_problem(split, frames[0], "lens_skin",
-                                     f"grasp index {g} ({len(frames)} frames, first {int(frames[0]):06d}): "
-                                     + "; ".join(why), "grasps.npz"))
+                                     f"grasp index {g} ({len(frames)} frames, first {int(frames[0]):06d}): {why}",
+                                     "grasps.npz"))
     return problems
 
 

@@ -247,8 +247,10 @@ def _check_clinic_depth(row: dict, images: dict, names: dict, split: str, world)
         problems.append(_problem(split, frame_id, "mask_depth", holes, names["depth"]))
     g = int(row["grasp_index"])
     if "seg" in images and world is not None and 0 <= g < len(world.placements):
+        from hupbench.datagen.dataset.verify_clinic import frame_placement
+
         off = patient_depth_problem(row, images["depth"].astype(np.float64) * _CONTEXT["manifest"]["depth_scale_m"],
-                                    images["seg"], world.placements[g])
+                                    images["seg"], frame_placement(world, g, row.get("T_world_body")))
         if off:
             problems.append(_problem(split, frame_id, "patient_depth", off, f"{names['depth']} + {names['seg']}"))
     return problems

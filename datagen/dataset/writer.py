@@ -39,8 +39,8 @@ import numpy as np
 
 from hupbench.datagen.assets.backgrounds import BackgroundSet
 from hupbench.datagen.assets.probe_mesh import ProbeSource
-from hupbench.core.contract import (CLINIC, DEPTH_SCALE_M, SCHEMA_VERSION, SPLITS, annotation_fields, frame_path,
-                                      read_annotations, read_manifest, seg_labels)
+from hupbench.core.contract import (CLINIC, DEPTH_SCALE_M, SCHEMA_VERSION, SEQUENCE, SPLITS, annotation_fields,
+                                      frame_path, read_annotations, read_manifest, seg_labels)
 from hupbench.datagen.dataset.grasps_file import (CLINIC_GRASPS, DEFAULT_GRASPS, GraspSet, read_grasps,
                                                   read_grasps_probe_record, rendered_with, subjects_record)
 from hupbench.datagen.dataset.clinic import check_clinic_grasps
@@ -58,7 +58,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.input_checks import check_int
 from hupbench.core.errors import BadValueError
 from hupbench.datagen.dataset.chunks import (ChunkOutput, _WorkerDiskFull, _chunk_path, _render_chunk,
-                                             _render_chunk_in_worker, _worker_init, write_chunk)
+                                             _render_chunk_in_worker, _worker_init, read_clip_record, write_chunk)
 
 #: the keys of a generate config that do not change a frame (left out of its hash)
 RUN_ONLY_KEYS = ("workers", "shard", "out_dir", "progress", "launcher", "ray", "_provenance", "_target_")
@@ -502,12 +502,16 @@ class DatasetWriter:
     def _finalise(self) -> dict:
         """Merge the chunk rows per split, then write the manifest (last); returns the frames per split."""
         out_dir, chunks = self.out_dir, self.plan.chunks
-        counts, merged_splits, fields = {}, {}, annotation_fields(self.run.dataset.track)
+        spec = self.run.dataset
+        counts, merged_splits, fields = {}, {}, annotation_fields(spec.track, spec.sequence)
+        clips = []
         for split in SPLITS:
             parts = []
             for c in (c for c, (chunk_split, _) in enumerate(chunks) if chunk_split == split):
                 with np.load(_chunk_path(out_dir, split, c)) as data:
-                    parts.append({key: data[key] for key in data.files})
+                    parts.append({key: data[key] for key in fields})
+                if spec.sequence:
+                    clips.append({**read_clip_record(out_dir, split, c), "split": split})
             merged = {key: np.concatenate([p[key] for p in parts]) for key in fields} if parts else \
                 {key: np.zeros((0,), dtype=dt) for key, (dt, _) in fields.items()}
             counts[split] = int(len(merged["frame_id"]))
@@ -515,12 +519,13 @@ class DatasetWriter:
             if counts[split]:
                 save_npz(out_dir / split / "annotations.npz", merged)
         floors = split_floors(merged_splits, self.run.dataset.track) if counts["train"] else {}
-        write_json(out_dir / "manifest.json", self._manifest(counts, floors))
+        write_json(out_dir / "manifest.json", self._manifest(counts, floors, sorted(clips, key=lambda r: r["clip_id"])))
         _remove_scaffolding(out_dir)
         return counts
 
-    def _manifest(self, counts: dict[str, int], floors: dict) -> dict:
-        """The manifest of the finished dataset (the fields :func:`hupbench.core.contract.read_manifest` reads)."""
+    def _manifest(self, counts: dict[str, int], floors: dict, clips: list[dict]) -> dict:
+        """The manifest of the finished dataset (the fields :func:`hupbench.core.contract.read_manifest` reads);
+        ``clips`` are a dataset of clips' records (:func:`hupbench.datagen.dataset.clips.clip_record`)."""
         spec, plan, grasps = self.run.dataset, self.plan, self.grasps
         return {
             "schema_version": SCHEMA_VERSION,
@@ -535,9 +540,7 @@ class DatasetWriter:
                                     for i, e in zip(grasps.grasp_id, grasps.probe_euler_deg)},
             # the dataset's copy of the grasps it was rendered from
             "grasps_sha256": file_sha256(self.out_dir / "grasps.npz"),
-            "layout": {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(plan.layout.shape),
-                       "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
-                       "chunk_size": plan.layout.chunk_size},
+            "layout": _layout_record(spec, plan),
             "image_size": [spec.width, spec.height],
             "K": spec.intrinsics.K.tolist(),
             "modalities": list(spec.stored_modalities), **spec.sensor_record(),
@@ -556,6 +559,7 @@ class DatasetWriter:
             # the probe the frames show (hupbench.datagen.dataset.grasps_file.probe_of_dataset rebuilds it)
             "probe": grasps.probe.record,
             **({} if spec.track != CLINIC else {"subjects": subjects_record(grasps)}),
+            **({} if not spec.sequence else {SEQUENCE: sequence_record(spec, clips)}),
         }
 
     def _cameras(self) -> dict:
@@ -575,6 +579,27 @@ class DatasetWriter:
                                "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
                                "split_view_ids": {split: view_ids[positions].tolist()
                                                   for split, positions in plan.views.items()}}}
+
+
+def _layout_record(spec: DatasetSpec, plan) -> dict:
+    """The manifest's "layout": the frame index's mixed radix (a dataset of clips names its axes as it uses them)."""
+    if spec.sequence:
+        return {"order": ["grasp", "clip", "-", "-", "frame"], "shape": list(plan.layout.shape),
+                "index": "i = (grasp * clips_per_grasp + clip) * frames_per_clip + frame (a clip draws its room and "
+                         "glove: the annotations hold them)", "chunk_size": plan.layout.chunk_size}
+    return {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(plan.layout.shape),
+            "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
+            "chunk_size": plan.layout.chunk_size}
+
+
+def sequence_record(spec: DatasetSpec, clips: list[dict]) -> dict:
+    """The manifest's "sequence" record of a dataset of clips: the clips' rate and length, how the probe and the
+    head move, and each clip's record (its split, grasp, room, glove, skill and the probe's kinematics: drawn,
+    measured and their bounds, mm/s^n)."""
+    return {"fps": spec.scan.fps, "frames_per_clip": spec.frames_per_clip, "clips_per_grasp": spec.n_views,
+            "scan": asdict(spec.scan), "head_motion": asdict(spec.head_motion),
+            "kinematics_source": "Le Lous et al. 2024 (hupbench.datagen.dataset.scan_motion.SKILL_KINEMATICS)",
+            "clips": clips}
 
 
 def _has_bytes(path: Path) -> bool:
