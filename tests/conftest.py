@@ -42,3 +42,19 @@ def tiny_clinic(tmp_path_factory):
     grasps = first_grasps(CLINIC_GRASPS, sum(CLINIC_SPLITS.values()), root / "grasps.npz")
     assert generate_clinic(root / "dataset", grasps)["complete"]
     return root / "dataset", grasps
+
+
+@pytest.fixture(scope="session")
+def tiny_clips(tmp_path_factory):
+    """A finished 48 x 48 dataset of clips (helpers.datasets.sequence_spec) of the first 4 shipped clinic grasps:
+    4 grasps x 2 clips x 11 frames = 88 frames. Read only."""
+    from helpers.datasets import CLINIC_SPLITS, sequence_spec
+    from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, first_grasps
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
+
+    root = tmp_path_factory.mktemp("clips")
+    grasps = first_grasps(CLINIC_GRASPS, sum(CLINIC_SPLITS.values()), root / "grasps.npz")
+    result = generate(GenerateRun(sequence_spec(), str(root / "dataset"), str(grasps), progress=False),
+                      {"test": "tiny_clips"}, log=lambda *_: None)
+    assert result["complete"]
+    return root / "dataset"

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from hupbench import metrics
+from hupbench.core.contract import is_sequence
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_choice, check_int
 from hupbench.core.processes import check_threads
@@ -236,6 +237,8 @@ def format_table(results: dict) -> str:
     floor_pose = m.get("split_floor_probe_pose")
     if floor_pose is not None:
         rows += probe_pose_rows("split floor probe", floor_pose, f)
+    if results.get("sequence") is not None:
+        rows += sequence_rows(results["sequence"])
     for axis, buckets in results["breakdowns"].items():
         for label, b in buckets.items():
             rows.append((f"  {axis}: {label}", (f"{f(b['mpjpe_mm']['all'])} mm all, {f(b['mpjpe_mm']['hand'])} hand, "
@@ -334,6 +337,52 @@ def _figures(figures_dir: Path, results: dict, outputs: dict) -> dict[str, Path]
         outputs["errors"])
 
 
+def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, pred3d: np.ndarray, gt3d: np.ndarray,
+              log) -> dict:
+    """The ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`) of a split of clips: the
+    tracking filter chosen on the validation split (the model run over it too; on val itself when it is the split
+    evaluated), then the split scored with and without it."""
+    from hupbench.core.contract import SEQUENCE, read_annotations
+    from hupbench.evaluation.sequence_metrics import choose_filter, sequence_block
+
+    keys = ("clip_id", "frame_in_clip", "time_s", "grasp_id")
+    fps = float(manifest[SEQUENCE]["fps"])
+    fields = read_annotations(options.dataset, options.split, keys, manifest)
+    if options.split == "val":
+        val_pred, val_gt, val_fields = pred3d, gt3d, fields
+    else:
+        if not manifest["counts"].get("val"):
+            raise BadValueError(f"{options.dataset} has no val split: tracking's filter is chosen on it")
+        reader = split_reader(options.dataset, "val", net, options.depth_sensor)
+        val = predict_split(net, reader, options.batch_size, progress=options.progress, log=log)
+        val_pred, val_gt = val.points3d, val.labels3d
+        val_fields = read_annotations(options.dataset, "val", keys, manifest)
+    choice = choose_filter(val_pred, val_gt, val_fields, fps)
+    block = sequence_block(pred3d, gt3d, fields, fps, choice, "val", options.interval_resamples,
+                           options.interval_seed)
+    for name, text in sequence_rows(block):
+        log(f"{options.split} {name}: {text}")
+    return block
+
+
+def sequence_rows(block: dict) -> list[tuple[str, str]]:
+    """Table rows of a ``sequence`` block: the filter, then each metric untracked -> tracked with intervals and the
+    paired interval of the difference."""
+    settings = block["filter"]["settings"]
+    rows = [("tracking", "none kept the MPJPE on " + block["filter"]["chosen_on"] if settings is None else
+             f"1-euro, min cut-off {settings['min_cutoff_hz']:g} Hz, beta {settings['beta']:g}, chosen on "
+             f"{block['filter']['chosen_on']}; {block['filter_ms_per_frame']:.3f} ms/frame; {block['clips']} clips "
+             f"at {block['fps']:g} frames/s")]
+    intervals = block["intervals"]
+    for key, value in block["untracked"].items():
+        rows.append((f"{key}, untracked -> tracked",
+                     f"{value:.2f} {interval_text(intervals['untracked'][key])} -> {block['tracked'][key]:.2f} "
+                     f"{interval_text(intervals['tracked'][key])}, difference "
+                     f"{interval_text(intervals['tracked_minus_untracked'][key], '95 % CI ')}"))
+    rows.append(("truth", ", ".join(f"{k} {v:.2f}" for k, v in block["truth"].items())))
+    return rows
+
+
 def _dataset_record(dataset: Path, manifest: dict, split: str, frames: int, theta_vol_by_grasp, log) -> dict:
     """The ``dataset`` block of a results file: the dataset by name and by the sha256 of its manifest and of its
     grasps file (the manifest's ``grasps_sha256``, None for a dataset made before it was recorded), never by a path
@@ -401,6 +450,8 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
                                            options.interval_seed)
     for name, text in _mpjpe_rows(results, lambda v: f"{v:.2f}"):
         log(f"{split} {name}: {text}")
+    if is_sequence(manifest):
+        results["sequence"] = _sequence(options, net, manifest, pred3d, gt3d, log)
     if options.latency:
         results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress)
     results["device"] = hardware_description(torch.device("cpu"))

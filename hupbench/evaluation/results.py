@@ -68,6 +68,9 @@ _TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metri
                 "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
 _TOP_KEYS_V3 = _TOP_KEYS_V2 + ("track", "split_floor")
 _TOP_KEYS = _TOP_KEYS_V3 + ("intervals",)
+#: a split of clips' block (optional: only a dataset of clips has one)
+_SEQUENCE_KEYS = ("fps", "clips", "frames_per_clip", "filter", "untracked", "tracked", "truth", "intervals",
+                  "filter_ms_per_frame")
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
 _DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
 _DATASET_KEYS_V3 = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
@@ -437,7 +440,8 @@ def validate_results(d: dict) -> dict:
         _fail(("schema_version",), f"{SCHEMA_VERSION} (the version this hupbench writes) or one of "
                                    f"{list(READABLE_VERSIONS[:-1])} (read and upgraded)", version)
     _keys(d, (), _TOP_KEYS if version >= INTERVALS_VERSION else
-          _TOP_KEYS_V3 if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2)
+          _TOP_KEYS_V3 if version >= GRASP_FIELDS_VERSION else _TOP_KEYS_V2,
+          optional=("sequence",) if version >= INTERVALS_VERSION else ())
     _choice(d, ("kind",), KINDS, nullable=False)
     token = _LIMITS.set(MEASURED_LIMITS if d["kind"] == "measured" else LIMITS)
     try:
@@ -507,7 +511,41 @@ def _validate_row(d: dict, version: int) -> dict:
         _validate_grasp_fields(d)
     if version >= INTERVALS_VERSION:
         _validate_intervals(d)
+    if "sequence" in d:
+        _validate_sequence(d["sequence"])
     return d
+
+
+def _validate_sequence(block) -> None:
+    """A split of clips' ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`)."""
+    from hupbench.evaluation.sequence_metrics import SCORES
+
+    parts = ("sequence",)
+    _keys(block, parts, _SEQUENCE_KEYS)
+    for key in ("fps", "filter_ms_per_frame"):
+        _number(block, parts + (key,), nullable=False)
+    for key in ("clips", "frames_per_clip"):
+        _integer(block, parts + (key,), nullable=False, low=1)
+    _keys(block["filter"], parts + ("filter",), ("name", "settings", "chosen_on", "grid", "criterion"))
+    settings = block["filter"]["settings"]
+    if settings is not None:
+        _keys(settings, parts + ("filter", "settings"), ("min_cutoff_hz", "beta"))
+        for key in ("min_cutoff_hz", "beta"):
+            _number(settings, parts + ("filter", "settings", key), nullable=False)
+    for variant in ("untracked", "tracked"):
+        _keys(block[variant], parts + (variant,), SCORES)
+        for key in SCORES:
+            _number(block[variant], parts + (variant, key), nullable=False)
+    intervals = block["intervals"]
+    _keys(intervals, parts + ("intervals",), ("method", "confidence", "resamples", "seed", "grasps", "untracked",
+                                              "tracked", "tracked_minus_untracked"))
+    for variant in ("untracked", "tracked", "tracked_minus_untracked"):
+        _keys(intervals[variant], parts + ("intervals", variant), SCORES)
+        for key in SCORES:
+            bounds = intervals[variant][key]
+            if not (isinstance(bounds, list) and len(bounds) == 2 and all(is_number(v) for v in bounds)
+                    and bounds[0] <= bounds[1]):
+                _fail(parts + ("intervals", variant, key), "[low, high] numbers, low <= high", bounds)
 
 
 def blank_results(kind: str, run_name: str) -> dict:

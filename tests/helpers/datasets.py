@@ -62,6 +62,21 @@ def generate_clinic(out, grasps, **changes):
                     log=lambda *_: None)
 
 
+#: a tiny dataset of clips (:func:`sequence_spec`): clips per grasp, their frame rate and frames (1 s)
+CLIPS_PER_GRASP, CLIP_FPS, CLIP_FRAMES = 2, 10.0, 11
+
+
+def sequence_spec(**changes):
+    """A tiny dataset of clips: :func:`clinic_spec` with 2 clips per grasp of 1 s at 10 frames/s."""
+    from hupbench.datagen.dataset.head import HeadSpec
+    from hupbench.datagen.dataset.head_motion import HeadMotionSpec
+    from hupbench.datagen.dataset.scan_motion import ScanMotionSpec
+
+    return clinic_spec(**{"head": HeadSpec(views_per_grasp=CLIPS_PER_GRASP),
+                          "scan": ScanMotionSpec(duration_s=(1.0, 1.0), fps=CLIP_FPS), "head_motion": HeadMotionSpec()}
+                       | changes)
+
+
 def kill_after_first_chunk(code: str, out, timeout_s: float = 300.0) -> None:
     """Run ``code`` (a generation into ``out``) in a new Python process and SIGKILL it as soon as its first chunk is
     complete, while later chunks are being written (pathlib's glob also matches the hidden temporary file a chunk is

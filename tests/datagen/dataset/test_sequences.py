@@ -12,39 +12,23 @@ import numpy as np
 import pytest
 from hydra.utils import instantiate
 
-from helpers.datasets import CLINIC_SPLITS, clinic_spec
+from helpers.datasets import CLINIC_SPLITS, CLIP_FPS, CLIP_FRAMES, CLIPS_PER_GRASP, clinic_spec, sequence_spec
 from hupbench.config import compose
 from hupbench.core.contract import SEQUENCE, SEQUENCE_ANNOTATION_FIELDS, read_annotations, read_manifest
 from hupbench.core.errors import BadValueError
 from hupbench.core.io import save_npz
-from hupbench.datagen.dataset.head import HeadSpec
 from hupbench.datagen.dataset.head_motion import HeadMotionSpec
 from hupbench.datagen.dataset.scan_motion import ScanMotionSpec
 from hupbench.datagen.dataset.spec import DatasetSpec
 from hupbench.datagen.dataset.verify import verify
 from hupbench.datagen.dataset.verify_sequence import check_clips
 
-#: 4 grasps x 2 clips x 11 frames (1 s at 10 frames/s)
-CLIPS_PER_GRASP, FPS, FRAMES = 2, 10.0, 11
-
-
-def sequence_spec(**changes):
-    return clinic_spec(head=HeadSpec(views_per_grasp=CLIPS_PER_GRASP),
-                       scan=ScanMotionSpec(duration_s=(1.0, 1.0), fps=FPS), head_motion=HeadMotionSpec(), **changes)
+FPS, FRAMES = CLIP_FPS, CLIP_FRAMES
 
 
 @pytest.fixture(scope="module")
-def clips_dataset(tmp_path_factory):
-    """A finished 48 x 48 dataset of clips of the first 4 shipped clinic grasps: 88 frames. Read only."""
-    from hupbench.datagen.dataset.grasps_file import CLINIC_GRASPS, first_grasps
-    from hupbench.datagen.dataset.writer import GenerateRun, generate
-
-    root = tmp_path_factory.mktemp("clips")
-    grasps = first_grasps(CLINIC_GRASPS, sum(CLINIC_SPLITS.values()), root / "grasps.npz")
-    result = generate(GenerateRun(sequence_spec(), str(root / "dataset"), str(grasps), progress=False),
-                      {"test": "clips"}, log=lambda *_: None)
-    assert result["complete"]
-    return root / "dataset"
+def clips_dataset(tiny_clips):
+    return tiny_clips
 
 
 def test_the_track_composes_and_refuses_half_a_sequence():

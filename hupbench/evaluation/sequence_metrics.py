@@ -1,0 +1,177 @@
+"""A split of clips scored as motion (a dataset of ``hupbench generate +track=clinic_sequences``): per clip the
+MPJPE, the acceleration error, the jitter and the probe's speed, acceleration and jerk, of the per-frame predictions
+and of the tracked ones, with intervals over the evaluated grasps.
+
+Tracking is what a video's frames allow and a single image does not: a temporal filter carrying state from frame to
+frame. Here it is the 1-euro filter (:class:`hupbench.inference.tracking.OneEuroFilter`) over each clip's predicted
+camera-frame keypoints in time order, reset at the clip's start, as ``hupbench predict --track`` runs it over a
+video. Its settings are chosen on the validation split (:func:`choose_filter`): of :data:`FILTER_GRID`, the one with
+the lowest acceleration error among those whose MPJPE is not above the per-frame prediction's (no setting: no
+filter). A test split is scored with the settings its validation split chose.
+
+The metrics (:mod:`hupbench.core.motion_metrics`), each the mean over clips (every clip has the same frames):
+
+* ``mpjpe_mm`` all / hand / probe, as the single-frame benchmark's;
+* ``acceleration_error_mm_per_frame2``: the predicted minus the true second difference, all 29 keypoints;
+* ``jitter_mm_per_s3``: the prediction's own third difference (the truth's is beside it under ``truth``);
+* ``probe_kinematics_error``: per clip, the probe centre's (keypoints 21-28) mean speed, acceleration and jerk from
+  the predicted track minus the true track's, absolute, mm/s^n: how well a skill-assessment figure would be
+  measured from the predictions (Le Lous et al. 2024 measured 12.9 against 24.6 mm/s, consultants and fellows);
+  both tracks in the camera frame, which moves with the head: the model sees no head pose.
+
+Intervals are the percentile bootstrap over the evaluated grasps (:mod:`hupbench.evaluation.intervals`; a grasp's
+value the mean of its clips), one set of draws for every metric; ``tracked_minus_untracked`` holds the paired
+intervals of the differences, the evidence that tracking lowers one number and not another.
+
+Convention:
+    Keypoints (N, 29, 3) float, metres, camera frame, rows of a split in frame order (a clip's frames consecutive);
+    clips and grasps by the annotations' ``clip_id`` and ``grasp_id``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from hupbench.core import keypoints as kp
+from hupbench.core.motion_metrics import (KINEMATICS_KEYS, acceleration_error_mm_per_frame2, jitter_mm_per_s3,
+                                          point_kinematics)
+from hupbench.evaluation.intervals import CONFIDENCE, METHOD, grasp_interval_of_grasps
+from hupbench.inference.tracking import OneEuroFilter
+
+__all__ = ["FILTER_GRID", "choose_filter", "clip_rows", "clip_scores", "sequence_block", "tracked"]
+
+#: the 1-euro settings :func:`choose_filter` tries: cut-off at rest (Hz) and its rise with speed (Hz per m/s of a
+#: keypoint; a probe moves at 0.01-0.03 m/s, a head-worn camera's view of it faster)
+FILTER_GRID = {"min_cutoff_hz": (0.25, 0.5, 1.0, 2.0, 4.0, 8.0), "beta": (0.0, 1.0, 3.0, 10.0, 30.0, 100.0)}
+#: the per-clip metrics, in results order (:func:`clip_scores`)
+SCORES = ("mpjpe_all_mm", "mpjpe_hand_mm", "mpjpe_probe_mm", "acceleration_error_mm_per_frame2", "jitter_mm_per_s3",
+          *(f"probe_{key}_error" for key in KINEMATICS_KEYS))
+
+
+def clip_rows(fields: dict) -> list[np.ndarray]:
+    """The row indices of each clip of a split, in time order (``frame_in_clip``), clips by increasing id.
+
+    Args:
+        fields: the split's annotations with "clip_id" and "frame_in_clip" (rows in frame order).
+    """
+    out = []
+    for clip in np.unique(fields["clip_id"]):
+        rows = np.flatnonzero(fields["clip_id"] == clip)
+        out.append(rows[np.argsort(fields["frame_in_clip"][rows], kind="stable")])
+    return out
+
+
+def tracked(points: np.ndarray, fields: dict, clips: list[np.ndarray], settings: dict | None) -> np.ndarray:
+    """(N, ...) float64: each clip's ``points`` through a fresh :class:`OneEuroFilter` of ``settings`` in time order
+    (``fields["time_s"]``); ``settings`` None: the points unchanged."""
+    out = np.asarray(points, np.float64).copy()
+    if settings is None:
+        return out
+    for rows in clips:
+        smoother = OneEuroFilter(**settings)
+        for i in rows:
+            out[i] = smoother(points[i], float(fields["time_s"][i]))
+    return out
+
+
+def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], fps: float) -> dict[str, np.ndarray]:
+    """Each clip's metrics (:data:`SCORES`, and ``truth_jitter_mm_per_s3`` and ``truth_probe_<kinematics>``), (C,)
+    float64 each, from predicted and true camera-frame keypoints."""
+    out = {key: [] for key in SCORES + ("truth_jitter_mm_per_s3",) + tuple(f"truth_probe_{k}" for k in KINEMATICS_KEYS)}
+    for rows in clips:
+        pred, gt = pred3d[rows], gt3d[rows]
+        error = 1e3 * np.linalg.norm(pred - gt, axis=-1)  # (F, 29) mm
+        out["mpjpe_all_mm"].append(error.mean())
+        out["mpjpe_hand_mm"].append(error[:, :kp.NUM_HAND].mean())
+        out["mpjpe_probe_mm"].append(error[:, kp.NUM_HAND:].mean())
+        out["acceleration_error_mm_per_frame2"].append(acceleration_error_mm_per_frame2(pred, gt))
+        out["jitter_mm_per_s3"].append(jitter_mm_per_s3(pred, fps))
+        out["truth_jitter_mm_per_s3"].append(jitter_mm_per_s3(gt, fps))
+        predicted = point_kinematics(pred[:, kp.NUM_HAND:].mean(axis=1), fps)
+        true = point_kinematics(gt[:, kp.NUM_HAND:].mean(axis=1), fps)
+        for key in KINEMATICS_KEYS:
+            out[f"probe_{key}_error"].append(abs(predicted[key] - true[key]))
+            out[f"truth_probe_{key}"].append(true[key])
+    return {key: np.asarray(values, np.float64) for key, values in out.items()}
+
+
+def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float) -> dict:
+    """The 1-euro settings of :data:`FILTER_GRID` with the lowest mean acceleration error over the clips among those
+    whose mean MPJPE (all) is not above the untracked prediction's; call it on the validation split.
+
+    Returns:
+        {"settings": {"min_cutoff_hz", "beta"} or None (no setting kept the MPJPE: no filter), "untracked":
+        {"mpjpe_all_mm", "acceleration_error_mm_per_frame2"}, "tried": [{"min_cutoff_hz", "beta", "mpjpe_all_mm",
+        "acceleration_error_mm_per_frame2"}, ...]}, all means over the split's clips.
+    """
+    clips = clip_rows(fields)
+
+    def score(points: np.ndarray) -> dict:
+        scores = clip_scores(points, gt3d, clips, fps)
+        return {key: float(scores[key].mean()) for key in ("mpjpe_all_mm", "acceleration_error_mm_per_frame2")}
+
+    untracked = score(pred3d)
+    tried = []
+    for cutoff in FILTER_GRID["min_cutoff_hz"]:
+        for beta in FILTER_GRID["beta"]:
+            settings = {"min_cutoff_hz": cutoff, "beta": beta}
+            tried.append(settings | score(tracked(pred3d, fields, clips, settings)))
+    kept = [t for t in tried if t["mpjpe_all_mm"] <= untracked["mpjpe_all_mm"]]
+    best = min(kept, key=lambda t: t["acceleration_error_mm_per_frame2"], default=None)
+    settings = None if best is None else {"min_cutoff_hz": best["min_cutoff_hz"], "beta": best["beta"]}
+    return {"settings": settings, "untracked": untracked, "tried": tried}
+
+
+def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float, choice: dict, chosen_on: str,
+                   resamples: int, seed: int) -> dict:
+    """The ``sequence`` block of a results file.
+
+    Args:
+        pred3d, gt3d: (N, 29, 3) metres, the split's per-frame predictions and labels.
+        fields: the split's annotations ("clip_id", "frame_in_clip", "time_s", "grasp_id").
+        fps: the clips' frame rate. choice: :func:`choose_filter`'s answer. chosen_on: the split it was made on.
+        resamples, seed: the bootstrap's.
+
+    Returns:
+        {"fps", "clips", "frames_per_clip", "filter": {"name", "settings", "chosen_on", "grid", "criterion"},
+        "untracked", "tracked", "truth": {metric: mean over clips}, "intervals": {"method", "confidence",
+        "resamples", "seed", "grasps", "untracked", "tracked", "tracked_minus_untracked": {metric: [low, high]}},
+        "filter_ms_per_frame": the filter's own time per frame}.
+    """
+    clips = clip_rows(fields)
+    settings = choice["settings"]
+    start = time.perf_counter()
+    smoothed = tracked(pred3d, fields, clips, settings)
+    filter_ms = 1e3 * (time.perf_counter() - start) / len(pred3d)
+    untracked, tracked_scores = clip_scores(pred3d, gt3d, clips, fps), clip_scores(smoothed, gt3d, clips, fps)
+    grasp_of_clip = np.array([int(fields["grasp_id"][rows[0]]) for rows in clips])
+    grasps = np.unique(grasp_of_clip)
+    frames = np.array([sum(len(clips[c]) for c in np.flatnonzero(grasp_of_clip == g)) for g in grasps], np.int64)
+
+    def interval(values: np.ndarray) -> list[float]:
+        per_grasp = np.array([values[grasp_of_clip == g].mean() for g in grasps])
+        found = grasp_interval_of_grasps(per_grasp, frames, resamples, seed)
+        return [found["low"], found["high"]]
+
+    def means(scores: dict, keys) -> dict:
+        return {key: float(scores[key].mean()) for key in keys}
+
+    truth_keys = [k for k in untracked if k.startswith("truth_")]
+    return {
+        "fps": float(fps), "clips": len(clips), "frames_per_clip": int(max(len(r) for r in clips)),
+        "filter": {"name": "1-euro (hupbench.inference.tracking.OneEuroFilter)", "settings": settings,
+                   "chosen_on": chosen_on, "grid": {k: list(v) for k, v in FILTER_GRID.items()},
+                   "criterion": "lowest acceleration error among the settings whose MPJPE (all) is not above the "
+                                "untracked prediction's"},
+        "untracked": means(untracked, SCORES), "tracked": means(tracked_scores, SCORES),
+        "truth": {key[len("truth_"):]: float(untracked[key].mean()) for key in truth_keys},
+        "intervals": {"method": METHOD + " (a grasp's value the mean of its clips)", "confidence": CONFIDENCE,
+                      "resamples": int(resamples), "seed": int(seed), "grasps": len(grasps),
+                      "untracked": {key: interval(untracked[key]) for key in SCORES},
+                      "tracked": {key: interval(tracked_scores[key]) for key in SCORES},
+                      "tracked_minus_untracked": {key: interval(tracked_scores[key] - untracked[key])
+                                                  for key in SCORES}},
+        "filter_ms_per_frame": float(filter_ms),
+    }

@@ -1,0 +1,88 @@
+"""A split of clips scored as motion: clips in time order, the filter chosen on the tuning split by its criterion,
+tracking that lowers a noisy prediction's acceleration error without raising its MPJPE (with the paired interval
+of the difference below 0), and no filter where every setting would raise the MPJPE."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hupbench.evaluation.results import _validate_sequence
+from hupbench.evaluation.sequence_metrics import SCORES, choose_filter, clip_rows, clip_scores, sequence_block, tracked
+
+FPS, FRAMES, CLIPS_PER_GRASP, GRASPS = 30.0, 60, 2, 3
+
+
+def _clips(seed: int):
+    """A split of GRASPS x CLIPS_PER_GRASP clips of slowly moving keypoints (a few cm/s, as a probe on the skin),
+    and (N, 29, 3) predictions = truth + 3 mm white noise per axis."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(FRAMES) / FPS
+    truth, fields = [], {"clip_id": [], "frame_in_clip": [], "time_s": [], "grasp_id": []}
+    for clip in range(GRASPS * CLIPS_PER_GRASP):
+        base = rng.uniform(-0.1, 0.1, (29, 3)) + [0.0, 0.0, 0.5]
+        omega, amplitude = rng.uniform(0.5, 2.0, 3), rng.uniform(0.005, 0.02, 3)
+        truth.append(base[None] + (amplitude * np.sin(omega * t[:, None]))[:, None, :])
+        fields["clip_id"] += [clip] * FRAMES
+        fields["frame_in_clip"] += list(range(FRAMES))
+        fields["time_s"] += list(t)
+        fields["grasp_id"] += [100 + clip // CLIPS_PER_GRASP] * FRAMES
+    gt = np.concatenate(truth)
+    fields = {k: np.asarray(v) for k, v in fields.items()}
+    return gt + rng.normal(0.0, 0.003, gt.shape), gt, fields
+
+
+def test_clip_rows_follow_time_not_row_order():
+    fields = {"clip_id": np.array([4, 4, 2, 4, 2]), "frame_in_clip": np.array([2, 0, 1, 1, 0])}
+    rows = clip_rows(fields)
+    assert [r.tolist() for r in rows] == [[4, 2], [1, 3, 0]]
+
+
+def test_the_truth_scores_zero_and_a_filter_is_fresh_per_clip():
+    pred, gt, fields = _clips(0)
+    clips = clip_rows(fields)
+    scores = clip_scores(gt, gt, clips, FPS)
+    for key in SCORES:
+        if key != "jitter_mm_per_s3":
+            assert np.all(scores[key] == 0.0), key
+    np.testing.assert_allclose(scores["jitter_mm_per_s3"], scores["truth_jitter_mm_per_s3"])
+    # each clip's first frame passes the filter unchanged: its state does not leak from the clip before
+    smoothed = tracked(pred, fields, clips, {"min_cutoff_hz": 0.5, "beta": 0.0})
+    firsts = [r[0] for r in clips]
+    np.testing.assert_array_equal(smoothed[firsts], pred[firsts])
+    assert np.abs(smoothed[clips[0][1:]] - pred[clips[0][1:]]).max() > 1e-4
+
+
+def test_tracking_chosen_on_val_lowers_the_acceleration_error_on_test_without_raising_mpjpe():
+    val_pred, val_gt, val_fields = _clips(1)
+    choice = choose_filter(val_pred, val_gt, val_fields, FPS)
+    assert choice["settings"] is not None
+    kept = [t for t in choice["tried"] if t["mpjpe_all_mm"] <= choice["untracked"]["mpjpe_all_mm"]]
+    best = min(t["acceleration_error_mm_per_frame2"] for t in kept)
+    chosen = [t for t in choice["tried"] if t["min_cutoff_hz"] == choice["settings"]["min_cutoff_hz"]
+              and t["beta"] == choice["settings"]["beta"]]
+    assert chosen[0]["acceleration_error_mm_per_frame2"] == best
+    pred, gt, fields = _clips(2)
+    block = sequence_block(pred, gt, fields, FPS, choice, "val", 2000, 0)
+    _validate_sequence(block)
+    assert block["clips"] == GRASPS * CLIPS_PER_GRASP and block["intervals"]["grasps"] == GRASPS
+    untracked, tracked_ = block["untracked"], block["tracked"]
+    assert tracked_["acceleration_error_mm_per_frame2"] < 0.5 * untracked["acceleration_error_mm_per_frame2"]
+    assert tracked_["jitter_mm_per_s3"] < 0.5 * untracked["jitter_mm_per_s3"]
+    assert tracked_["mpjpe_all_mm"] <= untracked["mpjpe_all_mm"]
+    assert block["intervals"]["tracked_minus_untracked"]["acceleration_error_mm_per_frame2"][1] < 0
+    # the noise is white: the per-frame prediction's acceleration error is the noise's second difference,
+    # sqrt(6) x 3 mm per axis, its mean norm sqrt(8 / pi) x that
+    assert untracked["acceleration_error_mm_per_frame2"] == pytest.approx(np.sqrt(8 / np.pi) * np.sqrt(6) * 3.0,
+                                                                          rel=0.05)
+    # the probe's speed measured from the noisy track is far off; tracked, closer
+    assert tracked_["probe_speed_mm_per_s_error"] < untracked["probe_speed_mm_per_s_error"]
+
+
+def test_no_filter_where_every_setting_raises_the_mpjpe():
+    """A prediction equal to the truth: any filter lags behind it, so none is kept and tracking changes nothing."""
+    _, gt, fields = _clips(3)
+    choice = choose_filter(gt, gt, fields, FPS)
+    assert choice["settings"] is None
+    block = sequence_block(gt, gt, fields, FPS, choice, "val", 100, 0)
+    assert block["tracked"] == block["untracked"]
