@@ -280,10 +280,13 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--no-overlay", action="store_true", help="write the JSON only")
     parser.add_argument("--batch-size", type=_count(1), default=DEFAULT_BATCH_SIZE,
                         help="images per onnxruntime call")
+    parser.add_argument("--track", metavar="MIN_CUTOFF_HZ,BETA",
+                        help="track a video's frames with the 1-euro filter of these settings (the ones `hupbench "
+                             "eval` chose on a split of clips, its 'tracking' line); default: each frame alone")
     ns = parser.parse_args(args)
     result = run_predict(PredictOptions(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay,
                                         batch_size=ns.batch_size, progress=True, depth_dir=ns.depth,
-                                        depth_scale_m=ns.depth_scale_m))
+                                        depth_scale_m=ns.depth_scale_m, track=ns.track))
     bad_videos = sum(not v["ok"] for v in result["videos"])
     print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed"
           + (f" (video frames among them; {bad_videos} of {len(result['videos'])} video(s) unread or cut short)"

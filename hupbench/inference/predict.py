@@ -33,7 +33,11 @@ Videos: a video file (``.mp4``, ``.avi``, ``.mov``, ``.mkv``, ``.webm``) is read
 overlays go into ``<stem>_overlay.mp4`` at the video's frame rate. ``predictions.json`` lists each video (path, fps,
 frames decoded and declared, ok, error, overlay). A video OpenCV cannot open fails alone in one line; one that ends
 before the frames its header declares keeps the frames that decode, and one line says what is missing. A video has no
-depth maps: a model that reads depth takes a video's frames as images with ``--depth``.
+depth maps: a model that reads depth takes a video's frames as images with ``--depth``. With ``--track
+MIN_CUTOFF_HZ,BETA`` a video's frames are tracked: each frame's 3D keypoints go through a 1-euro filter
+(:mod:`hupbench.inference.tracking`) carrying its state from the frames before, its 2D are their projection, and the
+record keeps the per-frame prediction under ``untracked`` and the settings under ``tracking``; the overlay video
+shows the tracked keypoints. ``hupbench eval`` on a split of clips chooses the settings on its validation split.
 
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
@@ -57,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from hupbench.core.camera import project_points
 from hupbench.core.depth_sensor import PRESETS, depth_input_warnings
 from hupbench.core.errors import BadTypeError, BadValueError, UserError
 from hupbench.core.input_checks import check_int, check_number
@@ -80,6 +85,7 @@ from hupbench.inference.model_file import (
 )
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.video import OverlayVideo, VideoFrames, is_video
+from hupbench.inference.tracking import OneEuroFilter
 from hupbench.inference.runtime import (
     OnnxModel,
     load_onnx_model,
@@ -87,7 +93,7 @@ from hupbench.inference.runtime import (
 )
 from hupbench.input_geometry import InputGeometry, depth_channel, pad_and_resize
 
-SCHEMA_VERSION = 3  # 2: keypoint_confidence and ood; 3: videos, and each record's frame and time_s
+SCHEMA_VERSION = 4  # 2: keypoint_confidence and ood; 3: videos, and each record's frame and time_s; 4: tracking
 DEFAULT_BATCH_SIZE = 16
 #: metres per unit of a depth PNG unless ``--depth-scale-m`` says otherwise: the dataset's (0.1 mm)
 DEFAULT_DEPTH_SCALE_M = 1e-4
@@ -125,6 +131,9 @@ class PredictOptions:
         progress: a progress bar with ETA on stderr for runs longer than 2 s.
         depth_dir: the depth maps of a model that reads depth, ``<image stem>.png`` each (module docstring).
         depth_scale_m: metres per unit of those PNGs, in (0, 1].
+        track: a video's frames tracked with the 1-euro filter of these settings, ``"min_cutoff_hz,beta"`` (what
+            ``hupbench eval`` chose on a split of clips) or {"min_cutoff_hz", "beta"}; None: each frame alone.
+            Images are never tracked.
     """
 
     model: Path
@@ -136,8 +145,11 @@ class PredictOptions:
     progress: bool = False
     depth_dir: Path | None = None
     depth_scale_m: float = DEFAULT_DEPTH_SCALE_M
+    track: Any = None
 
     def __post_init__(self) -> None:
+        if self.track is not None:
+            object.__setattr__(self, "track", parse_track(self.track))
         if isinstance(self.inputs, (str, Path)):
             raise BadTypeError("inputs must be a list of paths, got a single path")
         check_int(self.batch_size, "batch_size (--batch-size)", low=1)
@@ -162,6 +174,24 @@ class PredictOptions:
 
 
 # ---------------------------------------------------------------- camera
+
+
+def parse_track(value: Any) -> dict[str, float]:
+    """``--track`` as the 1-euro filter's settings: ``"min_cutoff_hz,beta"`` or a dict of both, a cut-off > 0 Hz
+    and a beta >= 0."""
+    if isinstance(value, str):
+        parts = value.split(",")
+        try:
+            numbers = [float(v) for v in parts] if len(parts) == 2 else None
+        except ValueError:
+            numbers = None
+        if numbers is None:
+            raise BadValueError(f"--track must be two numbers min_cutoff_hz,beta (e.g. 1,10), got {value!r}")
+        value = dict(zip(("min_cutoff_hz", "beta"), numbers))
+    if not isinstance(value, dict) or set(value) != {"min_cutoff_hz", "beta"}:
+        raise BadValueError(f"--track must give min_cutoff_hz and beta, got {value!r}")
+    return {"min_cutoff_hz": check_number(value["min_cutoff_hz"], "--track's min_cutoff_hz", 0.0, low_open=True),
+            "beta": check_number(value["beta"], "--track's beta", 0.0)}
 
 
 def parse_intrinsics(text: str) -> np.ndarray:
@@ -534,6 +564,7 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
     if overlay_dir is not None:
         stem = _unique_stem(path.stem, used_stems)
         writer = OverlayVideo(overlay_dir / f"{stem}_overlay.mp4", frames.fps, (frames.width, frames.height))
+    tracker = None if options.track is None else OneEuroFilter(**options.track)
     try:
         batch: list[tuple[dict[str, Any], np.ndarray, None]] = []
 
@@ -543,8 +574,12 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
             def keep(record: dict[str, Any], image: np.ndarray) -> None:
                 drawn[record["frame"]] = image
 
-            _predict_loaded(model, batch, options, keep if writer is not None else None, log)
+            _predict_loaded(model, batch, options, keep if writer is not None and tracker is None else None, log)
             for record, image, _ in batch:
+                if tracker is not None and record["ok"]:
+                    _track(record, tracker, options.track)
+                    if writer is not None:
+                        drawn[record["frame"]] = _draw_record(model, record, image)
                 if writer is not None:
                     writer.write(drawn.get(record["frame"], to_uint8(image)))
                 records.append(record)
@@ -575,6 +610,28 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
         log(f"hupbench predict: error: {summary['error']}")
     summary["ok"] = problem is None
     return summary
+
+
+def _track(record: dict[str, Any], tracker: OneEuroFilter, settings: dict[str, float]) -> None:
+    """A video frame's record tracked in place: its 3D keypoints through the video's filter (state carried from the
+    frames before), its 2D the tracked points' projection with the frame's K; the per-frame prediction kept under
+    "untracked", the settings under "tracking"."""
+    points = tracker(np.asarray(record["keypoints_3d_m"], np.float64), record["time_s"])
+    record["untracked"] = {"keypoints_2d_px": record["keypoints_2d_px"], "keypoints_3d_m": record["keypoints_3d_m"]}
+    record["tracking"] = {"filter": "1-euro", **settings}
+    record["keypoints_3d_m"] = _plain(points, _DECIMALS_M)
+    record["keypoints_2d_px"] = _plain(project_points(points, np.asarray(record["K"], np.float64), behind="nan"),
+                                       _DECIMALS_PX)
+
+
+def _draw_record(model: OnnxModel, record: dict[str, Any], image: np.ndarray) -> np.ndarray:
+    """The overlay of a record's keypoints (as recorded) on its image."""
+    confidence = record["keypoint_confidence"]
+    ood = record["ood"]
+    return draw_prediction(to_uint8(image), np.asarray(record["keypoints_2d_px"], np.float64),
+                           list(model.keypoint_names), model.skeleton_edges,
+                           None if confidence is None else np.asarray(confidence, np.float64),
+                           "unlike the training images" if ood is not None and ood["flagged"] else None)
 
 
 def _empty_record(path: Path, names: list[str], run_name: str) -> dict[str, Any]:

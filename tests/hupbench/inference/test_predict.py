@@ -318,7 +318,7 @@ def test_predict_grey_image_known_answer(predicted):
 
 def test_predict_json_content_and_assumed_camera(predicted):
     doc = predicted["doc"]
-    assert doc["schema_version"] == 3 and doc["model"]["run_name"] == "dot-run" and doc["videos"] == []
+    assert doc["schema_version"] == 4 and doc["model"]["run_name"] == "dot-run" and doc["videos"] == []
     assert doc["counts"] == {"images": 9, "ok": 6, "failed": 3}
     # a file exported before the confidence output and the calibration existed: both null, and said why
     assert doc["keypoint_confidence"]["available"] is False and doc["ood_check"]["available"] is False

@@ -111,3 +111,36 @@ def test_a_model_that_reads_depth_refuses_a_video(tmp_path):
     (tmp_path / "depth").mkdir()
     with pytest.raises(BadValueError, match="scan.mkv is a video, which holds no depth maps"):
         run_predict(PredictOptions(model, [video], tmp_path / "out", depth_dir=tmp_path / "depth"))
+
+
+def test_tracking_carries_the_filter_from_frame_to_frame(dot_model, tmp_path):
+    """--track: each frame's 3D keypoints are the 1-euro filter of the per-frame predictions so far (kept under
+    "untracked"), its 2D their projection; the first frame passes as it is; a still image is not tracked."""
+    from hupbench.inference.predict import parse_track
+    from hupbench.inference.tracking import OneEuroFilter
+
+    video = write_video(tmp_path / "scan.mkv")
+    still = tmp_path / "still.png"
+    cv2.imwrite(str(still), np.zeros((H, W, 3), np.uint8))
+    settings = {"min_cutoff_hz": 0.5, "beta": 0.0}
+    run_predict(PredictOptions(dot_model, [video, still], tmp_path / "out", batch_size=3, track="0.5,0"),
+                log=lambda line: None)
+    document = json.loads((tmp_path / "out" / "predictions.json").read_text())
+    frames = [r for r in document["images"] if r["path"] == str(video)]
+    assert all(r["tracking"] == {"filter": "1-euro", **settings} for r in frames)
+    smoother = OneEuroFilter(**settings)
+    for record in frames:
+        want = smoother(np.array(record["untracked"]["keypoints_3d_m"]), record["time_s"])
+        np.testing.assert_allclose(record["keypoints_3d_m"], want, atol=1e-6)
+        K = np.array(record["K"])
+        uv = want[:, :2] / want[:, 2:] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+        np.testing.assert_allclose(record["keypoints_2d_px"], uv, atol=2e-3)
+    assert frames[0]["keypoints_3d_m"] == frames[0]["untracked"]["keypoints_3d_m"]
+    # the dot moves: the filter lags behind it
+    assert np.abs(np.array(frames[-1]["keypoints_3d_m"]) - frames[-1]["untracked"]["keypoints_3d_m"]).max() > 1e-4
+    (image,) = [r for r in document["images"] if r["path"] == str(still)]
+    assert "tracking" not in image and "untracked" not in image
+    assert parse_track({"min_cutoff_hz": 2, "beta": 1}) == {"min_cutoff_hz": 2.0, "beta": 1.0}
+    for bad in ("1", "a,b", "0,1", "1,-1"):
+        with pytest.raises(BadValueError, match="--track"):
+            PredictOptions(dot_model, [video], tmp_path / "bad", track=bad)
