@@ -6,9 +6,12 @@ same run and on the same machine, the clinic track: the first ``--clinic-grasps`
 (default: the shipped clinic grasps) with their subjects' hands, patients and rooms, the same backgrounds and
 gloves, and 33 head cameras each (the full track's frames per grasp and background). Each is rendered with 1 and 2
 worker processes into temporary folders; the script prints frames per second, the projected wall time of a full
-track (31,680 frames; meaningful at the default 256 px) and the clinic track's rate as a share of the paper's.
+track (31,680 frames; meaningful at the default 256 px) and the clinic track's rate as a share of the paper's. With
+``--sequences`` (and ``--clinic``), also the clinic track in motion (conf/track/clinic_sequences.yaml: the same
+grasps, 2 clips of 151 frames each, every frame rendered at its own camera and patient pose), its full track's
+18,120 frames projected.
 
-Usage: python benchmarks/generate.py [GRASPS_NPZ] [--clinic [CLINIC_GRASPS_NPZ]] [--clinic-grasps 6]
+Usage: python benchmarks/generate.py [GRASPS_NPZ] [--clinic [CLINIC_GRASPS_NPZ]] [--clinic-grasps 6] [--sequences]
        [--backgrounds 4] [--workers 1 2] [--size 256] [--r-circ-m 0.15]
 """
 
@@ -20,6 +23,8 @@ import time
 from pathlib import Path
 
 FULL_DATASET_FRAMES = 31680
+#: the clinic_sequences track's frames: 60 grasps x 2 clips x 151 frames
+SEQUENCE_FRAMES = 18120
 #: the clinic track's cameras per grasp (conf/track/clinic.yaml)
 CLINIC_VIEWS = 33
 
@@ -42,6 +47,8 @@ def main() -> None:
     parser.add_argument("--clinic", nargs="?", const=str(CLINIC_GRASPS), default=None,
                         help="also the clinic track, from this clinic grasps.npz (default: the shipped one)")
     parser.add_argument("--clinic-grasps", type=int, default=6, help="clinic grasps rendered (33 cameras each)")
+    parser.add_argument("--sequences", action="store_true",
+                        help="with --clinic: also the clinic_sequences track of the same grasps")
     parser.add_argument("--backgrounds", type=int, default=4)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--size", type=int, default=256, help="image side, pixels (intrinsics scale with it)")
@@ -61,6 +68,19 @@ def main() -> None:
         tracks["clinic"] = (DatasetSpec(track="clinic", splits={"train": args.clinic_grasps, "val": 0, "test": 0},
                                         head=HeadSpec(views_per_grasp=CLINIC_VIEWS), **camera), Path(args.clinic),
                             args.clinic_grasps)
+    if args.sequences:
+        if args.clinic is None:
+            parser.error("--sequences renders the clinic grasps: give --clinic too")
+        from dataclasses import replace
+
+        from hydra.utils import instantiate
+
+        from hupbench.config import compose
+
+        track = instantiate(compose("generate", ["+track=clinic_sequences"]).dataset)
+        tracks["clinic_sequences"] = (replace(track, splits={"train": args.clinic_grasps, "val": 0, "test": 0},
+                                              **camera), Path(args.clinic), args.clinic_grasps)
+    full = {"clinic_sequences": SEQUENCE_FRAMES}
     rates: dict[tuple[str, int], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for track, (spec, source, n) in tracks.items():
@@ -69,12 +89,13 @@ def main() -> None:
                 frames, wall = _rate(spec, grasps, Path(tmp) / f"{track}_w{workers}", workers)
                 rates[track, workers] = rate = frames / wall
                 print(f"{track} workers {workers}: {frames} frames in {wall:.1f} s = {rate:.1f} frames/s "
-                      f"end to end (incl. worker start-up); full track {FULL_DATASET_FRAMES} frames: "
-                      f"{FULL_DATASET_FRAMES / rate / 60:.1f} min", flush=True)
+                      f"end to end (incl. worker start-up); full track {full.get(track, FULL_DATASET_FRAMES)} frames: "
+                      f"{full.get(track, FULL_DATASET_FRAMES) / rate / 60:.1f} min", flush=True)
     for workers in args.workers:
-        if ("clinic", workers) in rates:
-            print(f"workers {workers}: the clinic track renders at "
-                  f"{100 * rates['clinic', workers] / rates['paper', workers]:.0f} % of the paper protocol's rate")
+        for track in ("clinic", "clinic_sequences"):
+            if (track, workers) in rates:
+                print(f"workers {workers}: the {track} track renders at "
+                      f"{100 * rates[track, workers] / rates['paper', workers]:.0f} % of the paper protocol's rate")
 
 
 if __name__ == "__main__":

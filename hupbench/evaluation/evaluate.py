@@ -343,9 +343,9 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, pred3d: np.n
     tracking filter chosen on the validation split (the model run over it too; on val itself when it is the split
     evaluated), then the split scored with and without it."""
     from hupbench.core.contract import SEQUENCE, read_annotations
-    from hupbench.evaluation.sequence_metrics import choose_filter, sequence_block
+    from hupbench.evaluation.sequence_metrics import FIELDS, choose_filter, sequence_block
 
-    keys = ("clip_id", "frame_in_clip", "time_s", "grasp_id")
+    keys = FIELDS
     fps = float(manifest[SEQUENCE]["fps"])
     fields = read_annotations(options.dataset, options.split, keys, manifest)
     if options.split == "val":

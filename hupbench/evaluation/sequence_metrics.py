@@ -14,10 +14,13 @@ The metrics (:mod:`hupbench.core.motion_metrics`), each the mean over clips (eve
 * ``mpjpe_mm`` all / hand / probe, as the single-frame benchmark's;
 * ``acceleration_error_mm_per_frame2``: the predicted minus the true second difference, all 29 keypoints;
 * ``jitter_mm_per_s3``: the prediction's own third difference (the truth's is beside it under ``truth``);
-* ``probe_kinematics_error``: per clip, the probe centre's (keypoints 21-28) mean speed, acceleration and jerk from
-  the predicted track minus the true track's, absolute, mm/s^n: how well a skill-assessment figure would be
-  measured from the predictions (Le Lous et al. 2024 measured 12.9 against 24.6 mm/s, consultants and fellows);
-  both tracks in the camera frame, which moves with the head: the model sees no head pose.
+* ``probe_<kinematics>_error``: per clip, the probe centre's (keypoints 21-28) mean speed, acceleration and jerk from
+  the predicted track minus the true track's, absolute, mm/s^n, both in the camera frame, which moves with the head;
+* ``probe_room_<kinematics>_error``: the same in the room (the patient's bed), each frame's prediction taken there
+  with the camera's pose in the room, as a headset's own head tracking gives it (a HoloLens 2 reports its pose in a
+  world-locked frame): the skill-assessment figures (Le Lous et al. 2024 measured 12.9 against 24.6 mm/s,
+  consultants and fellows), which the head's motion swamps in the camera frame. The network and the fits never read
+  that pose.
 
 Intervals are the percentile bootstrap over the evaluated grasps (:mod:`hupbench.evaluation.intervals`; a grasp's
 value the mean of its clips), one set of draws for every metric; ``tracked_minus_untracked`` holds the paired
@@ -35,19 +38,29 @@ import time
 import numpy as np
 
 from hupbench.core import keypoints as kp
+from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.motion_metrics import (KINEMATICS_KEYS, acceleration_error_mm_per_frame2, jitter_mm_per_s3,
                                           point_kinematics)
 from hupbench.evaluation.intervals import CONFIDENCE, METHOD, grasp_interval_of_grasps
 from hupbench.inference.tracking import OneEuroFilter
 
-__all__ = ["FILTER_GRID", "choose_filter", "clip_rows", "clip_scores", "sequence_block", "tracked"]
+__all__ = ["FIELDS", "FILTER_GRID", "choose_filter", "clip_rows", "clip_scores", "room_poses", "sequence_block",
+           "tracked"]
 
 #: the 1-euro settings :func:`choose_filter` tries: cut-off at rest (Hz) and its rise with speed (Hz per m/s of a
 #: keypoint; a probe moves at 0.01-0.03 m/s, a head-worn camera's view of it faster)
 FILTER_GRID = {"min_cutoff_hz": (0.25, 0.5, 1.0, 2.0, 4.0, 8.0), "beta": (0.0, 1.0, 3.0, 10.0, 30.0, 100.0)}
+#: the annotations the metrics read
+FIELDS = ("clip_id", "frame_in_clip", "time_s", "grasp_id", "T_cam_world", "T_world_body")
 #: the per-clip metrics, in results order (:func:`clip_scores`)
 SCORES = ("mpjpe_all_mm", "mpjpe_hand_mm", "mpjpe_probe_mm", "acceleration_error_mm_per_frame2", "jitter_mm_per_s3",
-          *(f"probe_{key}_error" for key in KINEMATICS_KEYS))
+          *(f"probe_{key}_error" for key in KINEMATICS_KEYS), *(f"probe_room_{key}_error" for key in KINEMATICS_KEYS))
+
+
+def room_poses(fields: dict) -> np.ndarray:
+    """(N, 4, 4) each frame's camera in the room (the patient's body frame): ``inv(T_world_body) inv(T_cam_world)``,
+    what a headset's head tracking reports."""
+    return invert_transform(fields["T_world_body"]) @ invert_transform(fields["T_cam_world"])
 
 
 def clip_rows(fields: dict) -> list[np.ndarray]:
@@ -76,10 +89,14 @@ def tracked(points: np.ndarray, fields: dict, clips: list[np.ndarray], settings:
     return out
 
 
-def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], fps: float) -> dict[str, np.ndarray]:
-    """Each clip's metrics (:data:`SCORES`, and ``truth_jitter_mm_per_s3`` and ``truth_probe_<kinematics>``), (C,)
-    float64 each, from predicted and true camera-frame keypoints."""
-    out = {key: [] for key in SCORES + ("truth_jitter_mm_per_s3",) + tuple(f"truth_probe_{k}" for k in KINEMATICS_KEYS)}
+def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], fps: float,
+                T_room_cam: np.ndarray) -> dict[str, np.ndarray]:
+    """Each clip's metrics (:data:`SCORES`, and ``truth_jitter_mm_per_s3`` and ``truth_probe_[room_]<kinematics>``),
+    (C,) float64 each, from predicted and true camera-frame keypoints; ``T_room_cam`` (N, 4, 4) each frame's camera
+    in the room."""
+    keys = SCORES + ("truth_jitter_mm_per_s3",) + tuple(f"truth_probe_{frame}{k}" for frame in ("", "room_")
+                                                         for k in KINEMATICS_KEYS)
+    out = {key: [] for key in keys}
     for rows in clips:
         pred, gt = pred3d[rows], gt3d[rows]
         error = 1e3 * np.linalg.norm(pred - gt, axis=-1)  # (F, 29) mm
@@ -89,11 +106,13 @@ def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], f
         out["acceleration_error_mm_per_frame2"].append(acceleration_error_mm_per_frame2(pred, gt))
         out["jitter_mm_per_s3"].append(jitter_mm_per_s3(pred, fps))
         out["truth_jitter_mm_per_s3"].append(jitter_mm_per_s3(gt, fps))
-        predicted = point_kinematics(pred[:, kp.NUM_HAND:].mean(axis=1), fps)
-        true = point_kinematics(gt[:, kp.NUM_HAND:].mean(axis=1), fps)
-        for key in KINEMATICS_KEYS:
-            out[f"probe_{key}_error"].append(abs(predicted[key] - true[key]))
-            out[f"truth_probe_{key}"].append(true[key])
+        centres = [points[:, kp.NUM_HAND:].mean(axis=1) for points in (pred, gt)]  # (F, 3) each, camera frame
+        for frame, (predicted, true) in (("", centres), ("room_", [transform_points(T_room_cam[rows], c[:, None])[:, 0]
+                                                                   for c in centres])):
+            predicted, true = point_kinematics(predicted, fps), point_kinematics(true, fps)
+            for key in KINEMATICS_KEYS:
+                out[f"probe_{frame}{key}_error"].append(abs(predicted[key] - true[key]))
+                out[f"truth_probe_{frame}{key}"].append(true[key])
     return {key: np.asarray(values, np.float64) for key, values in out.items()}
 
 
@@ -106,10 +125,10 @@ def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float
         {"mpjpe_all_mm", "acceleration_error_mm_per_frame2"}, "tried": [{"min_cutoff_hz", "beta", "mpjpe_all_mm",
         "acceleration_error_mm_per_frame2"}, ...]}, all means over the split's clips.
     """
-    clips = clip_rows(fields)
+    clips, T_room_cam = clip_rows(fields), room_poses(fields)
 
     def score(points: np.ndarray) -> dict:
-        scores = clip_scores(points, gt3d, clips, fps)
+        scores = clip_scores(points, gt3d, clips, fps, T_room_cam)
         return {key: float(scores[key].mean()) for key in ("mpjpe_all_mm", "acceleration_error_mm_per_frame2")}
 
     untracked = score(pred3d)
@@ -130,7 +149,7 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
 
     Args:
         pred3d, gt3d: (N, 29, 3) metres, the split's per-frame predictions and labels.
-        fields: the split's annotations ("clip_id", "frame_in_clip", "time_s", "grasp_id").
+        fields: the split's annotations (:data:`FIELDS`).
         fps: the clips' frame rate. choice: :func:`choose_filter`'s answer. chosen_on: the split it was made on.
         resamples, seed: the bootstrap's.
 
@@ -145,7 +164,9 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
     start = time.perf_counter()
     smoothed = tracked(pred3d, fields, clips, settings)
     filter_ms = 1e3 * (time.perf_counter() - start) / len(pred3d)
-    untracked, tracked_scores = clip_scores(pred3d, gt3d, clips, fps), clip_scores(smoothed, gt3d, clips, fps)
+    T_room_cam = room_poses(fields)
+    untracked = clip_scores(pred3d, gt3d, clips, fps, T_room_cam)
+    tracked_scores = clip_scores(smoothed, gt3d, clips, fps, T_room_cam)
     grasp_of_clip = np.array([int(fields["grasp_id"][rows[0]]) for rows in clips])
     grasps = np.unique(grasp_of_clip)
     frames = np.array([sum(len(clips[c]) for c in np.flatnonzero(grasp_of_clip == g)) for g in grasps], np.int64)

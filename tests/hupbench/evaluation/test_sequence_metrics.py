@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from hupbench.evaluation.results import _validate_sequence
-from hupbench.evaluation.sequence_metrics import SCORES, choose_filter, clip_rows, clip_scores, sequence_block, tracked
+from hupbench.evaluation.sequence_metrics import (SCORES, choose_filter, clip_rows, clip_scores, room_poses,
+                                                   sequence_block, tracked)
 
 FPS, FRAMES, CLIPS_PER_GRASP, GRASPS = 30.0, 60, 2, 3
 
@@ -29,6 +30,10 @@ def _clips(seed: int):
         fields["grasp_id"] += [100 + clip // CLIPS_PER_GRASP] * FRAMES
     gt = np.concatenate(truth)
     fields = {k: np.asarray(v) for k, v in fields.items()}
+    # the camera in the room: turned 90 degrees about z and 1 m up (the room's figures equal the camera's)
+    T = np.array([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
+    fields["T_world_body"] = np.tile(np.eye(4), (len(gt), 1, 1))
+    fields["T_cam_world"] = np.tile(np.linalg.inv(T), (len(gt), 1, 1))
     return gt + rng.normal(0.0, 0.003, gt.shape), gt, fields
 
 
@@ -41,7 +46,7 @@ def test_clip_rows_follow_time_not_row_order():
 def test_the_truth_scores_zero_and_a_filter_is_fresh_per_clip():
     pred, gt, fields = _clips(0)
     clips = clip_rows(fields)
-    scores = clip_scores(gt, gt, clips, FPS)
+    scores = clip_scores(gt, gt, clips, FPS, room_poses(fields))
     for key in SCORES:
         if key != "jitter_mm_per_s3":
             assert np.all(scores[key] == 0.0), key
@@ -75,8 +80,12 @@ def test_tracking_chosen_on_val_lowers_the_acceleration_error_on_test_without_ra
     # sqrt(6) x 3 mm per axis, its mean norm sqrt(8 / pi) x that
     assert untracked["acceleration_error_mm_per_frame2"] == pytest.approx(np.sqrt(8 / np.pi) * np.sqrt(6) * 3.0,
                                                                           rel=0.05)
-    # the probe's speed measured from the noisy track is far off; tracked, closer
+    # the probe's speed measured from the noisy track is far off; tracked, closer; a camera still in the room gives
+    # the room the camera's figures
     assert tracked_["probe_speed_mm_per_s_error"] < untracked["probe_speed_mm_per_s_error"]
+    for key in ("speed_mm_per_s", "acceleration_mm_per_s2", "jerk_mm_per_s3"):
+        assert untracked[f"probe_room_{key}_error"] == pytest.approx(untracked[f"probe_{key}_error"], rel=1e-9)
+        assert block["truth"][f"probe_room_{key}"] == pytest.approx(block["truth"][f"probe_{key}"], rel=1e-9)
 
 
 def test_no_filter_where_every_setting_raises_the_mpjpe():
