@@ -11,6 +11,7 @@ from __future__ import annotations
 from hupbench.core.contract import TRACKS
 from hupbench.datagen.dataset.floors import FLOOR_KINDS
 from hupbench.evaluation.leaderboard_robustness import robustness_section
+from hupbench.evaluation.leaderboard_sequences import sequence_section
 from hupbench.evaluation.leaderboard_table import (
     GRASP_COLUMNS,
     MISSING,
@@ -228,6 +229,7 @@ def render_readme(rows: list[dict], robust: list[dict] = ()) -> str:
     for track in tracks:
         out += _track_section(track, by_track[track])
     out += robustness_section(list(robust), rows)
+    out += sequence_section(rows)
     out += _meaning() + _plots() + ["## Row details", "", "By track, in the tables' order.", ""]
     for track in tracks:
         for row in by_track[track]:
