@@ -60,6 +60,8 @@ MESH_RELAX_ROUNDS = 15
 CONTACT_MAX_POLAR_DEG = 40.0
 #: the deepest any probe point may sink into the skin, metres
 PROBE_MAX_DEPTH_M = 0.002
+#: the deepest a hand or forearm vertex may be inside the body or below the bed's top by default, metres
+MAX_PENETRATION_M = 0.003
 
 
 @dataclass(frozen=True)
@@ -80,7 +82,7 @@ class PatientSpec:
     radius_m: Sequence[float] = (0.15, 0.25)
     max_tilt_deg: float = 15.0
     press_m: float = 0.0005
-    max_penetration_m: float = 0.003
+    max_penetration_m: float = MAX_PENETRATION_M
     attempts: int = 16
 
     def __post_init__(self) -> None:

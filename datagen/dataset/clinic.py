@@ -62,6 +62,7 @@ class ClinicWorld:
         self._cameras: dict[int, dict] = {}
         self._colours: dict[tuple[int, int], dict] = {}
         self._arm_length_m = ArmSpec().length_m
+        self._keep_out: dict[int, np.ndarray] = {}  # the last grasp's (a worker renders a grasp's clips together)
 
     def cameras(self, g: int) -> dict:
         """Grasp ``g``'s cameras (:func:`hupbench.datagen.dataset.head.head_cameras`' dict), drawn once."""
@@ -78,6 +79,19 @@ class ClinicWorld:
             self._cameras[g] = head_cameras(self.spec.head, self.spec.intrinsics, grasps.keypoints_world[g, _LOOK_AT],
                                             placement.vertical_world, clear, rng)
         return self._cameras[g]
+
+    def keep_out(self, g: int) -> np.ndarray:
+        """(V, 3) float64, metres, world frame: grasp ``g``'s hand and forearm vertices as the renderer builds them
+        (what a clip may not sink into the patient), built once per grasp."""
+        from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
+
+        if g not in self._keep_out:
+            grasps = self.grasps
+            parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
+                                                          models_of(grasps.hand_spec(g)), probe=grasps.probe)}
+            self._keep_out = {g: np.concatenate([np.asarray(parts["hand"].vertices, np.float64),
+                                                 np.asarray(parts["arm"].vertices, np.float64)])}
+        return self._keep_out[g]
 
     def parts(self, g: int) -> list[MeshPart]:
         """The patient (label "patient") and the room (label 0: background with depth) of grasp ``g``, in the

@@ -57,7 +57,7 @@ def clip_geometry(world: ClinicWorld, g: int, view: int, scan: ScanMotionSpec, h
     """
     grasps, intrinsics = world.grasps, world.spec.intrinsics
     placement = world.placements[g]
-    motion: ScanMotion = scan_motion(placement, grasps.probe, scan, rng)
+    motion: ScanMotion = scan_motion(placement, grasps.probe, scan, rng, keep_out=world.keep_out(g))
     T_body_world = invert_transform(motion.T_world_body)  # (F, 4, 4)
     keypoints_world = grasps.keypoints_world[g]
     target_body = transform_points(T_body_world, keypoints_world[_LOOK_AT][None])[:, 0]  # (F, 3)

@@ -23,7 +23,8 @@ hand's physiological tremor. :func:`scan_motion` makes one clip of that motion f
    acceleration, the tremor the jerk). Kinematics the drawn moves cannot meet (e.g. a jerk whose tremor
    alone would exceed the drawn acceleration) or moves that would tilt the probe beyond ``max_tilt_deg``
    are drawn again, kinematics and moves together: a clip's kinematics are the draw of step 1 conditioned
-   on the moves reaching them.
+   on the moves reaching them. So are moves that, in some frame, sink a probe vertex deeper than the placement
+   allows (``PROBE_MAX_DEPTH_M``) or the hand or forearm into the body or the bed (``MAX_PENETRATION_M``).
 
 The hand holds the probe as in its grasp, so it moves with the probe; the world (probe) frame of the grasp
 stays the world of every frame, and the patient (with the bed and room fixed to it) moves in it.
@@ -45,7 +46,8 @@ from hupbench.core.errors import RunFailedError
 from hupbench.core.geometry import axis_angle_to_matrix, invert_transform
 from hupbench.core.input_checks import check_interval, check_number
 from hupbench.core.motion_metrics import KINEMATICS_KEYS, point_kinematics, time_derivatives
-from hupbench.datagen.assets.patient import PatientPlacement, body_sdf_local, sphere_centre
+from hupbench.datagen.assets.patient import (MAX_PENETRATION_M, PROBE_MAX_DEPTH_M, PatientPlacement,
+                                             body_sdf_local, sphere_centre)
 
 __all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "band_noise", "clip_frames",
            "draw_kinematics", "scan_motion"]
@@ -237,7 +239,22 @@ class _Skin:
         return np.einsum("nij,j->ni", T[:, :3, :3], self.centre_probe) + T[:, :3, 3]
 
 
-def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: np.random.Generator) -> ScanMotion:
+def _contact_kept(T: np.ndarray, radius_m: float, probe_vertices: np.ndarray, keep_out: np.ndarray | None) -> bool:
+    """Whether in every pose of ``T`` ((F, 4, 4) T_body_probe) no probe vertex is deeper than ``PROBE_MAX_DEPTH_M``
+    in the body and no ``keep_out`` vertex (the hand and forearm, probe frame) deeper than ``MAX_PENETRATION_M`` in
+    it or below the bed's top: what :func:`hupbench.datagen.assets.patient.place_patient` keeps for the grasp's own
+    pose, kept over the clip."""
+    probe_body = np.einsum("fij,vj->fvi", T[:, :3, :3], probe_vertices) + T[:, None, :3, 3]
+    if body_sdf_local(radius_m, probe_body.reshape(-1, 3)).min() < -PROBE_MAX_DEPTH_M:
+        return False
+    if keep_out is None:
+        return True
+    parts = (np.einsum("fij,vj->fvi", T[:, :3, :3], keep_out) + T[:, None, :3, 3]).reshape(-1, 3)
+    return bool(np.maximum(-body_sdf_local(radius_m, parts), -parts[:, 2]).max() <= MAX_PENETRATION_M)
+
+
+def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: np.random.Generator,
+                keep_out: np.ndarray | None = None) -> ScanMotion:
     """One clip of a scan for a grasp's patient placement (the module's steps 1-4).
 
     Args:
@@ -245,13 +262,17 @@ def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: n
         probe: the :class:`hupbench.datagen.assets.probe.Probe` the hand holds.
         spec: the clip's ranges.
         rng: the seeded generator of the clip's draws.
+        keep_out: (V, 3) float, metres, probe frame: the hand's and forearm's vertices, which may not sink into the
+            body or the bed by more than ``MAX_PENETRATION_M`` in any frame; None: not checked.
 
     Returns:
-        The clip, its first frame at the placement's pose pressed by ``spec.press_m``.
+        The clip, its first frame at the placement's pose pressed by ``spec.press_m``; in every frame no probe vertex
+        deeper than ``PROBE_MAX_DEPTH_M`` and no ``keep_out`` vertex deeper than ``MAX_PENETRATION_M``.
 
     Raises:
         RunFailedError: none of :data:`DRAWS` draws of kinematics and moves met the kinematics within
-            ``spec.max_tilt_deg`` (the figures need a few degrees: a limit of a degree or less cannot hold them).
+            ``spec.max_tilt_deg`` (the figures need a few degrees: a limit of a degree or less cannot hold them)
+            with the contact kept.
     """
     vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
     lens = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
@@ -278,12 +299,16 @@ def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: n
                     break
                 gains = gains * (want / got)
         tilt = np.degrees(np.abs(np.einsum("b,bcn->cn", gains, signals)[2:])).max()
-        if met and tilt <= spec.max_tilt_deg:
+        contact = met and tilt <= spec.max_tilt_deg and _contact_kept(T[::OVERSAMPLE], skin.radius, vertices,
+                                                                       keep_out)
+        if contact:
             break
     else:
         raise RunFailedError(f"scan motion: {DRAWS} draws of kinematics and moves met the kinematics within "
-                             f"dataset.scan.max_tilt_deg {spec.max_tilt_deg:g} deg in none (the last: tilts of "
-                             f"{tilt:.1f} deg, kinematics {'met' if met else 'not met'}): raise it")
+                             f"dataset.scan.max_tilt_deg {spec.max_tilt_deg:g} deg in none, with the probe, hand and "
+                             f"forearm out of the body (the last: tilts of {tilt:.1f} deg, kinematics "
+                             f"{'met' if met else 'not met'}, contact {'kept' if contact else 'not kept or not tried'}):"
+                             " raise it")
     centres = skin.centres(T)
     bounds = {key: float(np.linalg.norm(derivative, axis=-1).max() * 1e3)
               for key, derivative in zip(KINEMATICS_KEYS, time_derivatives(centres, rate))}

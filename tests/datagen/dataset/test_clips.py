@@ -142,3 +142,15 @@ def test_a_rendered_clip_frame_equals_the_scene_built_at_its_pose(rendered):
     want = chunks.renderer.render(clip["T_cam_world"][f], ("depth", "seg"))
     near = np.abs(frames[f]["depth"] - want["depth"]) < 1e-4
     assert near.mean() > 0.995 and (frames[f]["seg"] == want["seg"]).mean() > 0.995
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_clips_probe_hand_and_forearm_stay_out_of_the_patient_in_every_frame(world, clip_of, case):
+    """verify's contact measure (its own build of the grasp's hand and forearm) at every frame's body pose: the lens
+    on the skin, no probe vertex deeper than 2 mm, no hand or forearm vertex deeper than 3 mm."""
+    from hupbench.datagen.dataset.verify_clinic import ClinicGrasps, _contact_problem, contact, frame_placement
+
+    g, _ = case
+    checked = ClinicGrasps(world.grasps, world.grasps.placements, {})
+    for T in clip_of[case]["T_world_body"]:
+        assert _contact_problem(*contact(checked, g, world.grasps.probe, frame_placement(checked, g, T))) is None

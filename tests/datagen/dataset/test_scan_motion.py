@@ -107,3 +107,14 @@ def test_bad_spec_values_are_refused_naming_the_key(field, value, message):
     with pytest.raises(BadValueError, match=message):
         ScanMotionSpec(**{field: value})
 
+
+
+def test_moves_that_sink_the_hand_into_the_patient_are_drawn_again(grasps):
+    """A keep-out vertex 5 mm inside the skin under the lens sinks in every draw: the clip fails in one line naming
+    the contact; the grasp's own hand and forearm (built as the renderer builds them) keep out of the body."""
+    g = GRASPS[0]
+    placement = grasps.placements[g]
+    inside = np.array([[0.0, 0.0, 0.0]]) - 0.005 * placement.normal_world
+    with pytest.raises(RunFailedError, match="with the probe, hand and forearm out of the body .*kinematics met"):
+        scan_motion(placement, grasps.probe, ScanMotionSpec(duration_s=(1.0, 1.0)), np.random.default_rng(0),
+                    keep_out=inside)
