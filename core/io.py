@@ -26,11 +26,12 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from hupbench.core.errors import BadPathError, BadValueError, NotWritableError, RunFailedError, UserError
+from hupbench.core.errors import (BadPathError, BadValueError, MissingFileError, NotWritableError, RunFailedError,
+                                  UserError)
 
 #: temporary names written by this module: ``.NAME.tmpPID`` or ``.STEM.tmpPID.npz``
 TMP_PATTERN = re.compile(r"^\..+\.tmp(\d+)(\.[A-Za-z0-9]+)?$")
@@ -400,3 +401,30 @@ class OutputLock:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
+    """A JSON object's key/value pairs as a dict, refusing a key named twice."""
+    keys = [key for key, _ in pairs]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    if twice:
+        raise ValueError(f"an object names the key(s) {twice} twice (which value is meant?)")
+    return dict(pairs)
+
+
+def parse_json(data: bytes, where: str) -> Any:
+    """UTF-8 JSON bytes as Python values, read strictly: a syntax error, an object that names a key twice and
+    nesting deeper than the parser follows are one error starting with ``where`` (the file, or file:line)."""
+    try:
+        return json.loads(data.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise BadValueError(f"{where}: not valid JSON: {exc}") from None
+
+
+def read_bytes(path: Path, what: str) -> bytes:
+    """The bytes of the file ``path``; ``what`` names the kind of file in errors (``"results file"``)."""
+    if path.exists() and not path.is_file():
+        raise BadValueError(f"{path}: not a file (a {what} is one file)")
+    if not path.is_file():
+        raise MissingFileError(f"{what} not found: {path}")
+    return path.read_bytes()

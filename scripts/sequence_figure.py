@@ -76,7 +76,7 @@ def main() -> None:
     from hupbench.data.reader import read_rgb
     from hupbench.evaluation.prediction import EvalModel, predict_split, split_reader
     from hupbench.evaluation.sequence_metrics import FIELDS, clip_rows, room_poses, tracked
-    from hupbench.inference.predict import parse_track
+    from hupbench.inference.tracking import parse_track
 
     if (args.track is None) == (args.results is None):
         parser.error("give the filter's settings: --track MIN_CUTOFF_HZ,BETA or --results RESULTS.json")

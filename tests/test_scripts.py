@@ -247,6 +247,20 @@ def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys
     assert image is not None and image.shape[0] > 4 * 200
 
 
+def test_sequence_figure(exported, tiny_clips, tmp_path, monkeypatch, capsys):
+    from PIL import Image
+
+    ckpt, _ = exported
+    out = run_script(SCRIPTS / "sequence_figure.py", ckpt, tiny_clips, "--track", "1,10", "--clip", "1",
+                     "--out-dir", tmp_path, "--side", "96", monkeypatch=monkeypatch, capsys=capsys)
+    assert out.strip().startswith(f"{tmp_path / 'sequence_clip.gif'} (11 frames")
+    with Image.open(tmp_path / "sequence_clip.gif") as gif:
+        assert gif.n_frames == 11 and gif.size[0] == 96
+    assert cv2.imread(str(tmp_path / "sequence_probe_speed.png")) is not None
+    with pytest.raises(SystemExit):  # the filter's settings are required, from --track or --results
+        run_script(SCRIPTS / "sequence_figure.py", ckpt, tiny_clips, monkeypatch=monkeypatch, capsys=capsys)
+
+
 def test_depth_sensor_picture(tiny_clinic, tmp_path, monkeypatch, capsys):
     dataset, _ = tiny_clinic
     out = run_script(SCRIPTS / "depth_sensor_picture.py", dataset, "--frames", "1", "--out", tmp_path / "sensor.png",

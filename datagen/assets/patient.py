@@ -23,6 +23,7 @@ Convention:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Sequence
@@ -114,6 +115,15 @@ class PatientPlacement:
     normal_world: np.ndarray
     lens_skin_m: float
     penetration_m: float
+
+
+def moved_placement(placement: PatientPlacement, T_world_body: np.ndarray) -> PatientPlacement:
+    """``placement`` with the body moved to the pose ``T_world_body`` ((4, 4), world frame; a clip's frame): its
+    vertical and contact normal turned with it."""
+    T = np.asarray(T_world_body, dtype=np.float64)
+    R = T[:3, :3] @ placement.T_world_body[:3, :3].T  # the body's turn since the placement's pose, world frame
+    return dataclasses.replace(placement, T_world_body=T, vertical_world=R @ placement.vertical_world,
+                               normal_world=R @ placement.normal_world)
 
 
 # --------------------------------------------------------------------------- the body's shape

@@ -446,3 +446,43 @@ def protocol(spec: DatasetSpec) -> dict:
             "exclude": list(s.exclude), "elbow_cone_deg": s.elbow_cone_deg,
             "excluded_view_ids": list(excluded_view_ids(s)), "look_at": spec.look_at,
             "look_at_index": None if spec.look_at == BOX_CENTRE else kp.KEYPOINT_NAMES.index(spec.look_at)}
+
+
+def layout_record(spec: DatasetSpec, layout: Layout) -> dict:
+    """The manifest's "layout": the frame index's mixed radix (a dataset of clips names its axes as it uses them)."""
+    if spec.sequence:
+        return {"order": ["grasp", "clip", "-", "-", "frame"], "shape": list(layout.shape),
+                "index": "i = (grasp * clips_per_grasp + clip) * frames_per_clip + frame (a clip draws its room and "
+                         "glove: the annotations hold them)", "chunk_size": layout.chunk_size}
+    return {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(layout.shape),
+            "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
+            "chunk_size": layout.chunk_size}
+
+
+def sequence_record(spec: DatasetSpec, clips: list[dict]) -> dict:
+    """The manifest's "sequence" record of a dataset of clips: the clips' rate and length, how the probe and the
+    head move, and each clip's record (its split, grasp, room, glove, skill and the probe's kinematics: drawn,
+    measured and their bounds, mm/s^n)."""
+    return {"fps": spec.scan.fps, "frames_per_clip": spec.frames_per_clip, "clips_per_grasp": spec.n_views,
+            "scan": asdict(spec.scan), "head_motion": asdict(spec.head_motion),
+            "kinematics_source": "Le Lous et al. 2024 (hupbench.datagen.dataset.scan_motion.SKILL_KINEMATICS)",
+            "clips": clips}
+
+
+def cameras_record(spec: DatasetSpec, views: dict[str, list[int]]) -> dict:
+    """The manifest's "z_ego_m" and "viewpoints": the sphere's views, or on the clinic track the head's camera
+    indices (each grasp draws its own cameras; the annotations hold every frame's); ``views`` the plan's split ->
+    view positions (:func:`split_of_views`)."""
+    if spec.track == CLINIC:
+        ids = list(range(spec.n_views))
+        return {"z_ego_m": list(spec.distances_m), "viewpoints": {
+            "ids": ids, "head": asdict(spec.head), "split_view_ids": {split: ids for split in views}}}
+    view_ids, angles = viewpoints(spec.sphere)
+    return {"z_ego_m": list(spec.z_ego_m),
+            "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(),
+                           "phi_rad": angles[:, 1].tolist(), "sphere": asdict(spec.sphere),
+                           # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
+                           # the same for every grasp, whichever way the sphere is attached
+                           "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
+                           "split_view_ids": {split: view_ids[positions].tolist()
+                                              for split, positions in views.items()}}}

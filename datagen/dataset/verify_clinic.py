@@ -24,7 +24,6 @@ Convention:
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
 from hupbench.core.contract import ANNOTATIONS
 from hupbench.core.geometry import invert_transform
-from hupbench.datagen.assets.patient import PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf
+from hupbench.datagen.assets.patient import PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf, moved_placement
 from hupbench.datagen.dataset.verify_frames import _problem
 
 #: the lens's deepest vertex lies at most this far above the skin: it rests on it, metres
@@ -130,12 +129,7 @@ def frame_placement(world: ClinicGrasps, g: int, T_world_body: np.ndarray | None
     """Grasp ``g``'s patient placement, moved to a frame's body pose ``T_world_body`` ((4, 4), a dataset of clips'
     annotation; None: the grasp's own pose)."""
     placement = world.placements[g]
-    if T_world_body is None:
-        return placement
-    T = np.asarray(T_world_body, dtype=np.float64)
-    R = T[:3, :3] @ placement.T_world_body[:3, :3].T  # the body's turn since the grasp's pose, world frame
-    return dataclasses.replace(placement, T_world_body=T, vertical_world=R @ placement.vertical_world,
-                               normal_world=R @ placement.normal_world)
+    return placement if T_world_body is None else moved_placement(placement, T_world_body)
 
 
 def _placement_of_row(ann: dict, i: int, world: ClinicGrasps) -> PatientPlacement:

@@ -42,7 +42,7 @@ import numpy as np
 from hupbench.core import keypoints as kp
 from hupbench.core import tolerances as tol
 from hupbench.core.contract import CLINIC, CLINIC_SEG_LABELS, SEG_LABELS, SENSOR_DEPTH, frame_path
-from hupbench.datagen.assets.patient import PatientPlacement, body_sdf
+from hupbench.datagen.assets.patient import PatientPlacement, body_sdf, moved_placement
 from hupbench.datagen.dataset.verify_images import (
     background_mismatch_px,
     glove_pair_ratio,
@@ -247,10 +247,11 @@ def _check_clinic_depth(row: dict, images: dict, names: dict, split: str, world)
         problems.append(_problem(split, frame_id, "mask_depth", holes, names["depth"]))
     g = int(row["grasp_index"])
     if "seg" in images and world is not None and 0 <= g < len(world.placements):
-        from hupbench.datagen.dataset.verify_clinic import frame_placement
-
+        placement = world.placements[g]
+        if "T_world_body" in row:  # a dataset of clips: the patient moves under the probe
+            placement = moved_placement(placement, row["T_world_body"])
         off = patient_depth_problem(row, images["depth"].astype(np.float64) * _CONTEXT["manifest"]["depth_scale_m"],
-                                    images["seg"], frame_placement(world, g, row.get("T_world_body")))
+                                    images["seg"], placement)
         if off:
             problems.append(_problem(split, frame_id, "patient_depth", off, f"{names['depth']} + {names['seg']}"))
     return problems

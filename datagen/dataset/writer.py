@@ -46,9 +46,8 @@ from hupbench.datagen.dataset.grasps_file import (CLINIC_GRASPS, DEFAULT_GRASPS,
 from hupbench.datagen.dataset.clinic import check_clinic_grasps
 from hupbench.datagen.dataset.ray_launcher import RayOptions, check_launcher
 from hupbench.datagen.dataset.floors import definition as floors_definition, split_floors
-from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, frame_plan, protocol, split_of_grasps,
-                                          view_directions_arm)
-from hupbench.datagen.dataset.sphere import viewpoints
+from hupbench.datagen.dataset.spec import (DatasetSpec, GENERATOR_VERSION, cameras_record, frame_plan, layout_record,
+                                           protocol, sequence_record, split_of_grasps)
 from hupbench.core.io import (TMP_PATTERN, DiskFullError, LockedError, OutputLock, check_writable, file_sha256, save_npz,
                         write_json, write_with)
 from hupbench.core.processes import check_workers, workers_ignore_ctrl_c
@@ -540,7 +539,7 @@ class DatasetWriter:
                                     for i, e in zip(grasps.grasp_id, grasps.probe_euler_deg)},
             # the dataset's copy of the grasps it was rendered from
             "grasps_sha256": file_sha256(self.out_dir / "grasps.npz"),
-            "layout": _layout_record(spec, plan),
+            "layout": layout_record(spec, plan.layout),
             "image_size": [spec.width, spec.height],
             "K": spec.intrinsics.K.tolist(),
             "modalities": list(spec.stored_modalities), **spec.sensor_record(),
@@ -549,7 +548,7 @@ class DatasetWriter:
             "skeleton_edges": [list(e) for e in kp.SKELETON_EDGES],
             "seg_labels": seg_labels(spec.track),
             "depth_scale_m": DEPTH_SCALE_M,
-            **self._cameras(),
+            **cameras_record(spec, plan.views),
             "protocol": protocol(spec),
             "split_floors": {"definition": floors_definition(spec.track), "splits": floors},
             "backgrounds": {"names": list(self.backgrounds.names[: spec.n_backgrounds]),
@@ -561,45 +560,6 @@ class DatasetWriter:
             **({} if spec.track != CLINIC else {"subjects": subjects_record(grasps)}),
             **({} if not spec.sequence else {SEQUENCE: sequence_record(spec, clips)}),
         }
-
-    def _cameras(self) -> dict:
-        """The manifest's "z_ego_m" and "viewpoints": the sphere's views, or on the clinic track the head's camera
-        indices (each grasp draws its own cameras; the annotations hold every frame's)."""
-        spec, plan = self.run.dataset, self.plan
-        if spec.track == CLINIC:
-            ids = list(range(spec.n_views))
-            return {"z_ego_m": list(spec.distances_m), "viewpoints": {
-                "ids": ids, "head": asdict(spec.head), "split_view_ids": {split: ids for split in plan.views}}}
-        view_ids, angles = viewpoints(spec.sphere)
-        return {"z_ego_m": list(spec.z_ego_m),
-                "viewpoints": {"ids": view_ids.tolist(), "theta_rad": angles[:, 0].tolist(),
-                               "phi_rad": angles[:, 1].tolist(), "sphere": asdict(spec.sphere),
-                               # target -> camera per view in the arm frame (hand -> elbow, dorsal, thumb side):
-                               # the same for every grasp, whichever way the sphere is attached
-                               "direction_arm": view_directions_arm(spec.sphere, angles).round(12).tolist(),
-                               "split_view_ids": {split: view_ids[positions].tolist()
-                                                  for split, positions in plan.views.items()}}}
-
-
-def _layout_record(spec: DatasetSpec, plan) -> dict:
-    """The manifest's "layout": the frame index's mixed radix (a dataset of clips names its axes as it uses them)."""
-    if spec.sequence:
-        return {"order": ["grasp", "clip", "-", "-", "frame"], "shape": list(plan.layout.shape),
-                "index": "i = (grasp * clips_per_grasp + clip) * frames_per_clip + frame (a clip draws its room and "
-                         "glove: the annotations hold them)", "chunk_size": plan.layout.chunk_size}
-    return {"order": ["grasp", "z_ego", "background", "glove", "view"], "shape": list(plan.layout.shape),
-            "index": "i = (((grasp * n_z + z) * n_bg + bg) * n_glove + glove) * n_view + view",
-            "chunk_size": plan.layout.chunk_size}
-
-
-def sequence_record(spec: DatasetSpec, clips: list[dict]) -> dict:
-    """The manifest's "sequence" record of a dataset of clips: the clips' rate and length, how the probe and the
-    head move, and each clip's record (its split, grasp, room, glove, skill and the probe's kinematics: drawn,
-    measured and their bounds, mm/s^n)."""
-    return {"fps": spec.scan.fps, "frames_per_clip": spec.frames_per_clip, "clips_per_grasp": spec.n_views,
-            "scan": asdict(spec.scan), "head_motion": asdict(spec.head_motion),
-            "kinematics_source": "Le Lous et al. 2024 (hupbench.datagen.dataset.scan_motion.SKILL_KINEMATICS)",
-            "clips": clips}
 
 
 def _has_bytes(path: Path) -> bool:

@@ -16,12 +16,12 @@ from pathlib import Path
 
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_int, is_number
-from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp
+from hupbench.core.io import atomic_output, check_writable, clean_stale_tmp, parse_json, read_bytes
 from hupbench.evaluation.leaderboard_plots import plot_latency, plot_training
 from hupbench.evaluation.leaderboard_readme import LATENCY_PLOT, TRAINING_PLOT, render_readme
 from hupbench.evaluation.leaderboard_robustness import ROBUSTNESS, check_robustness
 from hupbench.evaluation.leaderboard_table import sort_key, with_intervals
-from hupbench.evaluation.results import LIMITS, load_results, parse_json, read_bytes
+from hupbench.evaluation.results import LIMITS, load_results
 
 README = "README.md"
 #: the largest training time a log may state, seconds (about three years)
@@ -69,7 +69,7 @@ def read_validation_curve(path: Path, cited_by: str | None = None) -> list[tuple
     """``(train_wall_s, val_mpjpe_all_mm)`` of the ``"event": "val"`` lines of a training run's ``metrics.jsonl``,
     in file order.
 
-    Every line is checked: a JSON object (read strictly, :func:`~hupbench.evaluation.results.parse_json`) whose
+    Every line is checked: a JSON object (read strictly, :func:`~hupbench.core.io.parse_json`) whose
     ``step`` is a whole number >= 0 and larger than the step of the same event's line before it (a log that two
     trainings appended to, or an edited one, fails here); a validation line's time (<= ``MAX_TRAIN_WALL_S``) and
     error (<= ``LIMITS["mm"]``) are finite numbers >= 0. ``cited_by`` (a results file) starts every error line.

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextvars
 import copy
-import json
 import math
 import re
 import time
@@ -32,10 +31,10 @@ from typing import Any
 
 from hupbench.core.contract import TRACKS
 from hupbench.core.depth_sensor import NONE, PRESETS
-from hupbench.core.errors import BadValueError, MissingFileError
+from hupbench.core.errors import BadValueError
 from hupbench.provenance import RUN_NAME_PATTERN
 from hupbench.core.input_checks import is_number, is_whole
-from hupbench.core.io import write_json
+from hupbench.core.io import parse_json, read_bytes, write_json
 from hupbench.core.keypoints import NUM_CORNERS, NUM_HAND
 from hupbench.datagen.dataset.floors import FLOOR_KINDS, NEAREST_TRAIN_FRAME, NEAREST_TRAIN_GRASP, NEAREST_TRAIN_VIEW
 
@@ -68,9 +67,6 @@ _TOP_KEYS_V2 = ("schema_version", "kind", "run_name", "model", "dataset", "metri
                 "latency_ms_per_image", "device", "training", "git_commit", "created_utc", "source")
 _TOP_KEYS_V3 = _TOP_KEYS_V2 + ("track", "split_floor")
 _TOP_KEYS = _TOP_KEYS_V3 + ("intervals",)
-#: a split of clips' block (optional: only a dataset of clips has one)
-_SEQUENCE_KEYS = ("fps", "clips", "frames_per_clip", "filter", "untracked", "tracked", "truth", "intervals",
-                  "filter_ms_per_frame")
 _MODEL_KEYS = ("name", "label", "config", "parameters", "flops", "input_size", "format")
 _DATASET_KEYS_V2 = ("path", "manifest_sha256", "split", "frames", "name")
 _DATASET_KEYS_V3 = _DATASET_KEYS_V2 + ("grasp_theta_vol_deg",)
@@ -512,40 +508,12 @@ def _validate_row(d: dict, version: int) -> dict:
     if version >= INTERVALS_VERSION:
         _validate_intervals(d)
     if "sequence" in d:
-        _validate_sequence(d["sequence"])
+        from hupbench.evaluation.sequence_metrics import sequence_block_problem
+
+        problem = sequence_block_problem(d["sequence"])
+        if problem is not None:
+            raise BadValueError(f"results['sequence']{problem}")
     return d
-
-
-def _validate_sequence(block) -> None:
-    """A split of clips' ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`)."""
-    from hupbench.evaluation.sequence_metrics import SCORES
-
-    parts = ("sequence",)
-    _keys(block, parts, _SEQUENCE_KEYS)
-    for key in ("fps", "filter_ms_per_frame"):
-        _number(block, parts + (key,), nullable=False)
-    for key in ("clips", "frames_per_clip"):
-        _integer(block, parts + (key,), nullable=False, low=1)
-    _keys(block["filter"], parts + ("filter",), ("name", "settings", "chosen_on", "grid", "criterion"))
-    settings = block["filter"]["settings"]
-    if settings is not None:
-        _keys(settings, parts + ("filter", "settings"), ("min_cutoff_hz", "beta"))
-        for key in ("min_cutoff_hz", "beta"):
-            _number(settings, parts + ("filter", "settings", key), nullable=False)
-    for variant in ("untracked", "tracked"):
-        _keys(block[variant], parts + (variant,), SCORES)
-        for key in SCORES:
-            _number(block[variant], parts + (variant, key), nullable=False)
-    intervals = block["intervals"]
-    _keys(intervals, parts + ("intervals",), ("method", "confidence", "resamples", "seed", "grasps", "untracked",
-                                              "tracked", "tracked_minus_untracked"))
-    for variant in ("untracked", "tracked", "tracked_minus_untracked"):
-        _keys(intervals[variant], parts + ("intervals", variant), SCORES)
-        for key in SCORES:
-            bounds = intervals[variant][key]
-            if not (isinstance(bounds, list) and len(bounds) == 2 and all(is_number(v) for v in bounds)
-                    and bounds[0] <= bounds[1]):
-                _fail(parts + ("intervals", variant, key), "[low, high] numbers, low <= high", bounds)
 
 
 def blank_results(kind: str, run_name: str) -> dict:
@@ -588,33 +556,6 @@ def upgrade_results(d: dict) -> dict:
     out["intervals"] = None
     out["dataset"] = {key: d["dataset"].get(key) for key in _DATASET_KEYS}
     return validate_results(out)
-
-
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
-    """A JSON object's key/value pairs as a dict, refusing a key named twice."""
-    keys = [key for key, _ in pairs]
-    twice = sorted({key for key in keys if keys.count(key) > 1})
-    if twice:
-        raise ValueError(f"an object names the key(s) {twice} twice (which value is meant?)")
-    return dict(pairs)
-
-
-def parse_json(data: bytes, where: str) -> Any:
-    """UTF-8 JSON bytes as Python values, read strictly: a syntax error, an object that names a key twice and
-    nesting deeper than the parser follows are one error starting with ``where`` (the file, or file:line)."""
-    try:
-        return json.loads(data.decode("utf-8"), object_pairs_hook=_unique_keys)
-    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        raise BadValueError(f"{where}: not valid JSON: {exc}") from None
-
-
-def read_bytes(path: Path, what: str) -> bytes:
-    """The bytes of the file ``path``; ``what`` names the kind of file in errors (``"results file"``)."""
-    if path.exists() and not path.is_file():
-        raise BadValueError(f"{path}: not a file (a {what} is one file)")
-    if not path.is_file():
-        raise MissingFileError(f"{what} not found: {path}")
-    return path.read_bytes()
 
 
 def load_results(path: str | Path) -> dict:

@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import is_number, is_whole
 from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.motion_metrics import (KINEMATICS_KEYS, acceleration_error_mm_per_frame2, jitter_mm_per_s3,
                                           point_kinematics)
@@ -45,7 +46,7 @@ from hupbench.evaluation.intervals import CONFIDENCE, METHOD, grasp_interval_of_
 from hupbench.inference.tracking import OneEuroFilter
 
 __all__ = ["FIELDS", "FILTER_GRID", "choose_filter", "clip_rows", "clip_scores", "room_poses", "sequence_block",
-           "tracked"]
+           "sequence_block_problem", "tracked"]
 
 #: the 1-euro settings :func:`choose_filter` tries: cut-off at rest (Hz) and its rise with speed (Hz per m/s of a
 #: keypoint; a probe moves at 0.01-0.03 m/s, a head-worn camera's view of it faster)
@@ -196,3 +197,48 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
                                                   for key in SCORES}},
         "filter_ms_per_frame": float(filter_ms),
     }
+
+
+def sequence_block_problem(block) -> str | None:
+    """The first field of a results file's ``sequence`` block (:func:`sequence_block`) that is missing, unknown or
+    malformed, as ``['key']...: what it must be, got ...``; None when the block is well formed."""
+    def number(v):
+        return is_number(v) and v >= 0
+
+    def count(v):
+        return is_whole(v) and v >= 1
+
+    def interval(v):
+        return isinstance(v, list) and len(v) == 2 and all(is_number(x) for x in v) and v[0] <= v[1]
+
+    def settings(v):
+        return v is None or (isinstance(v, dict) and set(v) == {"min_cutoff_hz", "beta"}
+                             and all(number(x) for x in v.values()))
+
+    def text(v):
+        return isinstance(v, str)
+
+    scores = dict.fromkeys(SCORES, (number, "a number >= 0"))
+    spans = dict.fromkeys(SCORES, (interval, "[low, high] numbers, low <= high"))
+    shape = {"fps": (number, "a number >= 0"), "clips": (count, "a count >= 1"),
+             "frames_per_clip": (count, "a count >= 1"), "filter_ms_per_frame": (number, "a number >= 0"),
+             "filter": {"name": (text, "a string"), "settings": (settings, "null or {min_cutoff_hz, beta} >= 0"),
+                        "chosen_on": (text, "a string"), "grid": (lambda v: isinstance(v, dict), "a dict"),
+                        "criterion": (text, "a string")},
+             "untracked": scores, "tracked": scores, "truth": (lambda v: isinstance(v, dict), "a dict"),
+             "intervals": {"method": (text, "a string"), "confidence": (number, "a number >= 0"),
+                           "resamples": (count, "a count >= 1"), "seed": (is_whole, "an integer"),
+                           "grasps": (count, "a count >= 1"), "untracked": spans, "tracked": spans,
+                           "tracked_minus_untracked": spans}}
+
+    def walk(value, expected, path: str) -> str | None:
+        if isinstance(expected, dict):
+            if not isinstance(value, dict) or set(value) != set(expected):
+                got = sorted(value) if isinstance(value, dict) else repr(value)[:80]
+                return f"{path}: must have the keys {sorted(expected)}, got {got}"
+            return next((p for k, e in expected.items() if (p := walk(value[k], e, f"{path}['{k}']")) is not None),
+                        None)
+        ok, what = expected
+        return None if ok(value) else f"{path}: must be {what}, got {repr(value)[:80]}"
+
+    return walk(block, shape, "")

@@ -7,7 +7,7 @@ unlike a centre crop, keeps a hand near the border in view, and a constant grey 
 Camera: without ``--K`` the image is assumed to come from the training camera K_input scaled to the
 image ("assumed training camera"): the 3D points are the network's output as it is, which is what
 ``hupbench eval`` scores. With ``--K fx,fy,cx,cy`` of the original images ("user K") the points are moved
-to the user's camera by :func:`user_camera_points`.
+to the user's camera by :func:`hupbench.inference.user_camera.user_camera_points`.
 
 Depth: a model exported from a run with ``data.reader.input_modalities=rgb+depth`` reads a depth map beside
 each image, ``--depth DIR``: ``DIR/<image stem>.png``, single-channel 16-bit, of the image's size, metres =
@@ -81,11 +81,11 @@ from hupbench.fits import after_network, check_fitted_probe, fits
 from hupbench.inference.model_file import (
     CONFIDENCE,
     NO_CONFIDENCE,
-    check_intrinsics,
 )
 from hupbench.inference.overlay import draw_prediction
 from hupbench.inference.video import OverlayVideo, VideoFrames, is_video
-from hupbench.inference.tracking import OneEuroFilter
+from hupbench.inference.tracking import OneEuroFilter, parse_track
+from hupbench.inference.user_camera import check_user_K, keypoints_for_image, parse_intrinsics
 from hupbench.inference.runtime import (
     OnnxModel,
     load_onnx_model,
@@ -97,11 +97,6 @@ SCHEMA_VERSION = 4  # 2: keypoint_confidence and ood; 3: videos, and each record
 DEFAULT_BATCH_SIZE = 16
 #: metres per unit of a depth PNG unless ``--depth-scale-m`` says otherwise: the dataset's (0.1 mm)
 DEFAULT_DEPTH_SCALE_M = 1e-4
-# a focal length or principal point beyond a million pixels is a typo (1e6 px on a 4000 px photo is a 0.2
-# degree field of view) and 1e308 overflows the 3D points to infinity
-MAX_FOCAL_PX = 1e6
-CAMERA_ASSUMED = "assumed training camera"
-CAMERA_USER = "user K"
 _DECIMALS_M = 6  # 1 um: far below any model's error, keeps the JSON readable
 _DECIMALS_PX = 3
 _DECIMALS_K = 6
@@ -173,74 +168,6 @@ class PredictOptions:
         object.__setattr__(self, "K", K)
 
 
-# ---------------------------------------------------------------- camera
-
-
-def parse_track(value: Any) -> dict[str, float]:
-    """``--track`` as the 1-euro filter's settings: ``"min_cutoff_hz,beta"`` or a dict of both, a cut-off > 0 Hz
-    and a beta >= 0."""
-    if isinstance(value, str):
-        parts = value.split(",")
-        try:
-            numbers = [float(v) for v in parts] if len(parts) == 2 else None
-        except ValueError:
-            numbers = None
-        if numbers is None:
-            raise BadValueError(f"--track must be two numbers min_cutoff_hz,beta (e.g. 1,10), got {value!r}")
-        value = dict(zip(("min_cutoff_hz", "beta"), numbers))
-    if not isinstance(value, dict) or set(value) != {"min_cutoff_hz", "beta"}:
-        raise BadValueError(f"--track must give min_cutoff_hz and beta, got {value!r}")
-    return {"min_cutoff_hz": check_number(value["min_cutoff_hz"], "--track's min_cutoff_hz", 0.0, low_open=True),
-            "beta": check_number(value["beta"], "--track's beta", 0.0)}
-
-
-def parse_intrinsics(text: str) -> np.ndarray:
-    """Parse ``--K fx,fy,cx,cy`` (pixels of the original image) into a checked (3, 3) float64 matrix."""
-    try:
-        fx, fy, cx, cy = (float(p) for p in text.split(","))
-    except ValueError:
-        raise BadValueError(f"--K must be four numbers 'fx,fy,cx,cy' (pixels), got {text!r}") from None
-    return check_user_K([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "--K")
-
-
-def check_user_K(K: Any, name: str = "K") -> np.ndarray:
-    """A user's (3, 3) intrinsics, pixels of the original image: finite, 0 < fx, fy <= MAX_FOCAL_PX,
-    |cx|, |cy| <= MAX_FOCAL_PX (beyond that a value is a typo; see the constant)."""
-    K = check_intrinsics(K, name)
-    if max(K[0, 0], K[1, 1], abs(K[0, 2]), abs(K[1, 2])) > MAX_FOCAL_PX:
-        raise BadValueError(f"{name}: fx and fy must be in (0, {MAX_FOCAL_PX:g}] and cx and cy in "
-                            f"[-{MAX_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] pixels, got fx={K[0, 0]:g}, fy={K[1, 1]:g}, "
-                            f"cx={K[0, 2]:g}, cy={K[1, 2]:g}")
-    return K
-
-
-def user_camera_points(uv_in: np.ndarray, points3d_train: np.ndarray, K_train: np.ndarray,
-                       K_user_in: np.ndarray, metric_depth: bool = False) -> np.ndarray:
-    """3D keypoints for the user's camera from a network trained with another camera.
-
-    The network judges depth from the object's size in pixels, so a point it sees at an input pixel with
-    focal f_train lies, through the user's lens of focal f_user_in, at z_user = z * f_user_in / f_train
-    (the geometric mean of the x and y ratios when fx != fy); x and y are back-projected from the 2D
-    prediction at that depth, so the points project through K_user_in exactly onto it. A network that reads
-    a depth map (``metric_depth``) measures z itself: it is kept.
-
-    Args:
-        uv_in: (N, 2) float, predicted 2D keypoints, model-input pixels.
-        points3d_train: (N, 3) float, metres, the network's 3D output (camera K_train).
-        K_train: (3, 3) intrinsics the network was trained with (K_input), model-input pixels.
-        K_user_in: (3, 3) the user's intrinsics mapped to the model input.
-
-    Returns:
-        (N, 3) float64, metres, OpenCV camera frame of the user's camera.
-    """
-    uv_in, points3d_train = np.asarray(uv_in, dtype=np.float64), np.asarray(points3d_train, dtype=np.float64)
-    focal_ratio = 1.0 if metric_depth else np.sqrt((K_user_in[0, 0] / K_train[0, 0]) * (K_user_in[1, 1] / K_train[1, 1]))
-    z = points3d_train[:, 2] * focal_ratio
-    x = (uv_in[:, 0] - K_user_in[0, 2]) * z / K_user_in[0, 0]
-    y = (uv_in[:, 1] - K_user_in[1, 2]) * z / K_user_in[1, 1]
-    return np.stack([x, y, z], axis=1)
-
-
 # ---------------------------------------------------------------- images
 
 
@@ -283,31 +210,6 @@ def _compact_json(value: Any, indent: int = 0) -> str:
 
 def _stderr(message: str) -> None:
     print(message, file=sys.stderr)
-
-
-def keypoints_for_image(points2d_norm: np.ndarray, points3d: np.ndarray, geometry: InputGeometry,
-                        K_input: np.ndarray, K_user: np.ndarray | None = None,
-                        metric_depth: bool = False) -> dict[str, Any]:
-    """Map one image's network outputs to its original pixels and to the chosen camera.
-
-    Args:
-        points2d_norm: (N, 2) normalised input coordinates. points3d: (N, 3) metres, camera frame of K_input.
-        geometry: how the image became the input. K_input: (3, 3) the training camera at the model input.
-        K_user: (3, 3) the user's intrinsics of the original image, or None to assume the training camera.
-        metric_depth: the network read a depth map (:func:`user_camera_points`).
-
-    Returns:
-        ``{"camera": str, "K": (3, 3) original pixels, "K_model_input": (3, 3), "keypoints_2d_px": (N, 2)
-        original pixels, "keypoints_3d_m": (N, 3) metres, camera frame of "K"}``.
-    """
-    uv_px = geometry.normalized_to_image_px(points2d_norm)
-    if K_user is None:
-        return {"camera": CAMERA_ASSUMED, "K": geometry.intrinsics_to_image(K_input), "K_model_input": K_input,
-                "keypoints_2d_px": uv_px, "keypoints_3d_m": np.asarray(points3d, dtype=np.float64)}
-    K_user_in = geometry.intrinsics_to_input(K_user)
-    xyz = user_camera_points(geometry.normalized_to_input_px(points2d_norm), points3d, K_input, K_user_in, metric_depth)
-    return {"camera": CAMERA_USER, "K": np.asarray(K_user, dtype=np.float64), "K_model_input": K_user_in,
-            "keypoints_2d_px": uv_px, "keypoints_3d_m": xyz}
 
 
 def run_predict(options: PredictOptions, log: Callable[[str], None] = _stderr) -> dict[str, Any]:

@@ -13,12 +13,14 @@ Convention:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
+from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_number
 
-__all__ = ["OneEuroFilter"]
+__all__ = ["OneEuroFilter", "parse_track"]
 
 
 def _alpha(cutoff_hz: np.ndarray | float, dt_s: float) -> np.ndarray | float:
@@ -72,3 +74,21 @@ class OneEuroFilter:
         self._value = self._value + _alpha(cutoff, dt) * (points - self._value)
         self._time_s = float(time_s)
         return self._value.copy()
+
+
+def parse_track(value: Any) -> dict[str, float]:
+    """``--track`` as the 1-euro filter's settings: ``"min_cutoff_hz,beta"`` or a dict of both, a cut-off > 0 Hz
+    and a beta >= 0."""
+    if isinstance(value, str):
+        parts = value.split(",")
+        try:
+            numbers = [float(v) for v in parts] if len(parts) == 2 else None
+        except ValueError:
+            numbers = None
+        if numbers is None:
+            raise BadValueError(f"--track must be two numbers min_cutoff_hz,beta (e.g. 1,10), got {value!r}")
+        value = dict(zip(("min_cutoff_hz", "beta"), numbers))
+    if not isinstance(value, dict) or set(value) != {"min_cutoff_hz", "beta"}:
+        raise BadValueError(f"--track must give min_cutoff_hz and beta, got {value!r}")
+    return {"min_cutoff_hz": check_number(value["min_cutoff_hz"], "--track's min_cutoff_hz", 0.0, low_open=True),
+            "beta": check_number(value["beta"], "--track's beta", 0.0)}

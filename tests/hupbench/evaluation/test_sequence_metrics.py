@@ -7,9 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hupbench.evaluation.results import _validate_sequence
 from hupbench.evaluation.sequence_metrics import (SCORES, choose_filter, clip_rows, clip_scores, room_poses,
-                                                   sequence_block, tracked)
+                                                   sequence_block, sequence_block_problem, tracked)
 
 FPS, FRAMES, CLIPS_PER_GRASP, GRASPS = 30.0, 60, 2, 3
 
@@ -69,7 +68,12 @@ def test_tracking_chosen_on_val_lowers_the_acceleration_error_on_test_without_ra
     assert chosen[0]["acceleration_error_mm_per_frame2"] == best
     pred, gt, fields = _clips(2)
     block = sequence_block(pred, gt, fields, FPS, choice, "val", 2000, 0)
-    _validate_sequence(block)
+    assert sequence_block_problem(block) is None
+    broken = {**block, "intervals": {**block["intervals"], "tracked": {**block["intervals"]["tracked"],
+                                                                       "jitter_mm_per_s3": [2.0, 1.0]}}}
+    assert sequence_block_problem(broken) == ("['intervals']['tracked']['jitter_mm_per_s3']: must be [low, high] "
+                                              "numbers, low <= high, got [2.0, 1.0]")
+    assert "must have the keys" in sequence_block_problem({**block, "extra": 1})
     assert block["clips"] == GRASPS * CLIPS_PER_GRASP and block["intervals"]["grasps"] == GRASPS
     untracked, tracked_ = block["untracked"], block["tracked"]
     assert tracked_["acceleration_error_mm_per_frame2"] < 0.5 * untracked["acceleration_error_mm_per_frame2"]

@@ -35,15 +35,17 @@ from hupbench.inference.images import decode_image, expand_inputs
 from hupbench.inference.model_file import read_metadata
 from hupbench.inference.overlay import draw_prediction, keypoint_color, line_width
 from hupbench.inference.predict import (
-    CAMERA_ASSUMED,
-    CAMERA_USER,
     PAD_VALUE,
     PredictOptions,
     _compact_json,
-    keypoints_for_image,
-    parse_intrinsics,
     preprocess,
     run_predict,
+)
+from hupbench.inference.user_camera import (
+    CAMERA_ASSUMED,
+    CAMERA_USER,
+    keypoints_for_image,
+    parse_intrinsics,
     user_camera_points,
 )
 from hupbench.inference.runtime import load_onnx_model

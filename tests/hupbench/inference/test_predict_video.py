@@ -116,7 +116,7 @@ def test_a_model_that_reads_depth_refuses_a_video(tmp_path):
 def test_tracking_carries_the_filter_from_frame_to_frame(dot_model, tmp_path):
     """--track: each frame's 3D keypoints are the 1-euro filter of the per-frame predictions so far (kept under
     "untracked"), its 2D their projection; the first frame passes as it is; a still image is not tracked."""
-    from hupbench.inference.predict import parse_track
+    from hupbench.inference.tracking import parse_track
     from hupbench.inference.tracking import OneEuroFilter
 
     video = write_video(tmp_path / "scan.mkv")
