@@ -56,7 +56,8 @@ def test_version(capsys):
     assert re.fullmatch(r"\d+\.\d+\.\d+", __version__), __version__
 
 
-@pytest.mark.parametrize("where", ["before-the-verb", "after-the-verb"])
+# after the verb (8.5 s) runs with the slow tests: the same flag, parsed by the same code (CI keeps under 20 minutes)
+@pytest.mark.parametrize("where", ["before-the-verb", pytest.param("after-the-verb", marks=pytest.mark.slow)])
 def test_debug_shows_the_traceback(tmp_path, where):
     """--debug, before or after the verb, lets the traceback of a bad input through; without it, one line."""
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}

@@ -113,6 +113,7 @@ def test_the_palm_does_not_repeat_across_grasps_of_a_view(shipped):
     assert spread_mm.min() > 5.0, spread_mm.min()
 
 
+@pytest.mark.slow  # 10 s; test_generate's SIGKILL-then-resume keeps the resume in the default set (CI under 20 min)
 def test_a_killed_clinic_generation_resumes_to_the_same_frames(tiny_clinic, tmp_path):
     root, grasps = tiny_clinic
     out = tmp_path / "killed"
