@@ -83,14 +83,10 @@ class ClinicWorld:
     def keep_out(self, g: int) -> np.ndarray:
         """(V, 3) float64, metres, world frame: grasp ``g``'s hand and forearm vertices as the renderer builds them
         (what a clip may not sink into the patient), built once per grasp."""
-        from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
+        from hupbench.datagen.render.scene import hand_and_arm_vertices
 
         if g not in self._keep_out:
-            grasps = self.grasps
-            parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
-                                                          models_of(grasps.hand_spec(g)), probe=grasps.probe)}
-            self._keep_out = {g: np.concatenate([np.asarray(parts["hand"].vertices, np.float64),
-                                                 np.asarray(parts["arm"].vertices, np.float64)])}
+            self._keep_out = {g: hand_and_arm_vertices(self.grasps, g, self.grasps.probe)}
         return self._keep_out[g]
 
     def parts(self, g: int) -> list[MeshPart]:

@@ -125,7 +125,8 @@ def clip_cameras(world: ClinicWorld, g: int, clip: dict) -> dict[str, np.ndarray
                  2.0 * np.pi)
     up_cam = np.einsum("fij,fj->fi", R, up)
     roll_deg = np.degrees(np.arctan2(-up_cam[:, 0], -up_cam[:, 1]))
-    return {"theta": theta, "phi": phi, "z_ego": z_ego, "roll_deg": roll_deg, "aim_px": clip["keypoints_2d"][:, _LOOK_AT]}
+    return {"theta": theta, "phi": phi, "z_ego": z_ego, "roll_deg": roll_deg,
+            "aim_px": clip["keypoints_2d"][:, _LOOK_AT]}
 
 
 def head_steps(T_cam_world: np.ndarray, T_world_body: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:

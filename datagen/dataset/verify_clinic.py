@@ -157,16 +157,12 @@ def _grasp_vertices(world: ClinicGrasps, g: int, probe) -> tuple[np.ndarray, np.
     """Grasp ``g``'s (lens vertices, probe vertices, hand and forearm vertices), world frame, metres: the hand and
     forearm built as the renderer builds them (:func:`hupbench.datagen.render.scene.scene_parts` with the grasp's
     hand, ``GraspSet.hand_spec``). Kept per grasp."""
-    from hupbench.datagen.render.scene import Grasp, models_of, scene_parts
+    from hupbench.datagen.render.scene import hand_and_arm_vertices
 
     if g not in world.vertices:
-        grasps = world.grasps
-        parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
-                                                      models_of(grasps.hand_spec(g)), probe=probe)}
         vertices = np.asarray(probe.mesh.vertices, dtype=np.float64)
         lens = vertices[np.unique(probe.mesh.faces[probe.lens_face_mask])]
-        body = np.concatenate([np.asarray(parts["hand"].vertices), np.asarray(parts["arm"].vertices)])
-        world.vertices[g] = (lens, vertices, body)
+        world.vertices[g] = (lens, vertices, hand_and_arm_vertices(world.grasps, g, probe))
     return world.vertices[g]
 
 

@@ -143,3 +143,13 @@ def scene_parts(grasp: Grasp, models: SceneModels = SceneModels(), glove_rgb=GLO
         parts.append(MeshPart("probe_marker", marker_mesh, SEG_LABELS["probe"], PROBE_MARKER_RGB, roughness=0.3,
                               emissive=PROBE_MARKER_EMISSIVE))
     return parts
+
+
+def hand_and_arm_vertices(grasps, g: int, probe) -> np.ndarray:
+    """(V, 3) float64, metres, world (probe) frame: the hand's and the forearm's vertices of grasp ``g`` of a
+    :class:`hupbench.datagen.dataset.grasps_file.GraspSet` holding ``probe``, built as :func:`scene_parts` builds them
+    for the renderer (the grasp's own hand, ``GraspSet.hand_spec``)."""
+    parts = {p.name: p.mesh for p in scene_parts(Grasp(grasps.hand_pose[g], grasps.hand_trans[g]),
+                                                  models_of(grasps.hand_spec(g)), probe=probe)}
+    return np.concatenate([np.asarray(parts["hand"].vertices, np.float64),
+                           np.asarray(parts["arm"].vertices, np.float64)])

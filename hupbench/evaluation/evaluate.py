@@ -338,16 +338,15 @@ def _figures(figures_dir: Path, results: dict, outputs: dict) -> dict[str, Path]
 
 
 def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, pred3d: np.ndarray, gt3d: np.ndarray,
-              log) -> dict:
-    """The ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`) of a split of clips: the
-    tracking filter chosen on the validation split (the model run over it too; on val itself when it is the split
-    evaluated), then the split scored with and without it."""
+              fields: dict, log) -> dict:
+    """The ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`) of a split of clips
+    (``fields`` its annotations, with :data:`~hupbench.evaluation.sequence_metrics.FIELDS`): the tracking filter
+    chosen on the validation split (the model run over it too; on val itself when it is the split evaluated), then
+    the split scored with and without it."""
     from hupbench.core.contract import SEQUENCE, read_annotations
     from hupbench.evaluation.sequence_metrics import FIELDS, choose_filter, sequence_block
 
-    keys = FIELDS
     fps = float(manifest[SEQUENCE]["fps"])
-    fields = read_annotations(options.dataset, options.split, keys, manifest)
     if options.split == "val":
         val_pred, val_gt, val_fields = pred3d, gt3d, fields
     else:
@@ -356,7 +355,7 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, pred3d: np.n
         reader = split_reader(options.dataset, "val", net, options.depth_sensor)
         val = predict_split(net, reader, options.batch_size, progress=options.progress, log=log)
         val_pred, val_gt = val.points3d, val.labels3d
-        val_fields = read_annotations(options.dataset, "val", keys, manifest)
+        val_fields = read_annotations(options.dataset, "val", FIELDS, manifest)
     choice = choose_filter(val_pred, val_gt, val_fields, fps)
     block = sequence_block(pred3d, gt3d, fields, fps, choice, "val", options.interval_resamples,
                            options.interval_seed)
@@ -410,8 +409,12 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
 
     dataset, split = options.dataset, options.split
     reader = split_reader(dataset, split, net, options.depth_sensor)
-    fields = {**reader.ann, **read_annotations(dataset, split, ("theta", "z_ego", "background_id", "T_cam_world",
-                                                                "grasp_id", "view_id"), reader.manifest)}
+    keys = ("theta", "z_ego", "background_id", "T_cam_world", "grasp_id", "view_id")
+    if is_sequence(manifest):
+        from hupbench.evaluation.sequence_metrics import FIELDS
+
+        keys = tuple(dict.fromkeys(keys + FIELDS))
+    fields = {**reader.ann, **read_annotations(dataset, split, keys, reader.manifest)}
     grasp_ids = sorted({int(g) for g in fields["grasp_id"]})
     manifest_path = str(dataset / "manifest.json")
     theta_vol_by_grasp = grasp_theta_vol_deg(manifest, grasp_ids, manifest_path)
@@ -451,7 +454,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     for name, text in _mpjpe_rows(results, lambda v: f"{v:.2f}"):
         log(f"{split} {name}: {text}")
     if is_sequence(manifest):
-        results["sequence"] = _sequence(options, net, manifest, pred3d, gt3d, log)
+        results["sequence"] = _sequence(options, net, manifest, pred3d, gt3d, fields, log)
     if options.latency:
         results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress)
     results["device"] = hardware_description(torch.device("cpu"))

@@ -3,12 +3,12 @@
 
 Its cells: MPJPE all, acceleration error and jitter, untracked -> tracked, each with its 95 % interval over the test
 grasps and the paired interval of the difference (tracked minus untracked); the probe's speed error over the patient;
-the filter and the split it was chosen on.
+the split's floor (MPJPE all) beside them; the filter and the split it was chosen on.
 """
 
 from __future__ import annotations
 
-from hupbench.evaluation.leaderboard_table import code_cell, markdown_table, text_cell
+from hupbench.evaluation.leaderboard_table import MISSING, code_cell, interval_cell, markdown_table, text_cell
 
 #: the metrics of the table, with their column names
 METRICS = (("mpjpe_all_mm", "MPJPE all (mm)"), ("acceleration_error_mm_per_frame2", "accel. error (mm/frame²)"),
@@ -38,15 +38,20 @@ def sequence_section(rows: list[dict]) -> list[str]:
             "test grasps, and Δ the paired interval of tracked minus untracked (below 0: tracking lowers it). The "
             "probe's speed error is over the patient: each frame's prediction taken to the room with the headset's "
             "pose (docs/sequences.md)."), ""]
-    columns = ["Model", *(name for _, name in METRICS), "tracking", "clips", "Command"]
-    aligns = [":--", *("--:" for _ in METRICS), ":--", "--:", ":--"]
+    columns = ["Model", *(name for _, name in METRICS), "split floor all (mm)", "tracking", "clips", "Command"]
+    aligns = [":--", *("--:" for _ in METRICS), "--:", ":--", "--:", ":--"]
     table = []
     for row in rows:
         block = row["sequence"]
         settings = block["filter"]["settings"]
         tracking = "none kept the MPJPE" if settings is None else \
-            f"1-euro {settings['min_cutoff_hz']:g} Hz, β {settings['beta']:g} (chosen on {block['filter']['chosen_on']})"
-        table.append([text_cell(row["model"]["label"]), *(_cell(block, key) for key, _ in METRICS), tracking,
+            f"1-euro {settings['min_cutoff_hz']:g} Hz, β {settings['beta']:g} (chosen on " \
+            f"{block['filter']['chosen_on']})"
+        floor, bounds = row.get("split_floor"), (row.get("intervals") or {}).get("split_floor_mm")
+        floor_cell = MISSING if floor is None else \
+            interval_cell(floor["floor_mm"]["all"], (bounds or {}).get("all"))
+        table.append([text_cell(row["model"]["label"]), *(_cell(block, key) for key, _ in METRICS), floor_cell,
+                      tracking,
                       f"{block['clips']} × {block['frames_per_clip']} at {block['fps']:g} fps",
                       code_cell(row["training"]["command"])])
     return out + markdown_table(columns, aligns, table)

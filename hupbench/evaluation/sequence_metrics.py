@@ -20,7 +20,7 @@ The metrics (:mod:`hupbench.core.motion_metrics`), each the mean over clips (eve
   with the camera's pose in the room, as a headset's own head tracking gives it (a HoloLens 2 reports its pose in a
   world-locked frame): the skill-assessment figures (Le Lous et al. 2024 measured 12.9 against 24.6 mm/s,
   consultants and fellows), which the head's motion swamps in the camera frame. The network and the fits never read
-  that pose.
+  that pose; the score takes the frame's true pose, so it assumes the headset's tracking exact.
 
 Intervals are the percentile bootstrap over the evaluated grasps (:mod:`hupbench.evaluation.intervals`; a grasp's
 value the mean of its clips), one set of draws for every metric; ``tracked_minus_untracked`` holds the paired

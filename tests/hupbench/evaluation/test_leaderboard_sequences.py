@@ -12,7 +12,8 @@ def _row(settings):
              "intervals": {"untracked": dict.fromkeys(keys, [9.0, 11.0]), "tracked": dict.fromkeys(keys, [7.5, 9.5]),
                            "tracked_minus_untracked": dict.fromkeys(keys, [-2.0, -1.0])}}
     return {"model": {"label": "HUPNet | seg"}, "training": {"command": "bash scripts/paper_protocol.sh x"},
-            "sequence": block}
+            "sequence": block, "split_floor": {"floor_mm": {"all": 50.2}},
+            "intervals": {"split_floor_mm": {"all": [45.9, 54.9]}}}
 
 
 def test_a_row_on_clips_gets_its_cells_and_rows_on_frames_none():
@@ -23,3 +24,4 @@ def test_a_row_on_clips_gets_its_cells_and_rows_on_frames_none():
     assert "10.00 [9.0-11.0] → 8.50 [7.5-9.5], Δ [-2.0--1.0]" in table[1]
     assert "1-euro 1 Hz, β 10 (chosen on val)" in table[1] and "HUPNet \\| seg" in table[1]
     assert "none kept the MPJPE" in table[2] and "20 × 151 at 30 fps" in table[2]
+    assert "| 50.20 [45.9-54.9] |" in table[1]
