@@ -26,7 +26,7 @@ from hupbench.core.input_checks import check_choice, check_int
 from hupbench.core.processes import check_threads
 from hupbench.evaluation.intervals import CONFIDENCE, RESAMPLES, SEED, interval_text
 from hupbench.evaluation.latency import measured_latency, model_cost
-from hupbench.evaluation.prediction import EvalModel, predict_split, split_reader
+from hupbench.evaluation.prediction import EvalModel, SplitPrediction, predict_split, split_reader
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
 from hupbench.evaluation.results import FLOOR_NAMES
 from hupbench.evaluation.split_metrics import (
@@ -337,28 +337,30 @@ def _figures(figures_dir: Path, results: dict, outputs: dict) -> dict[str, Path]
         outputs["errors"])
 
 
-def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, pred3d: np.ndarray, gt3d: np.ndarray,
-              fields: dict, log) -> dict:
+def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, predicted: SplitPrediction, fields: dict,
+              log) -> dict:
     """The ``sequence`` block (:func:`hupbench.evaluation.sequence_metrics.sequence_block`) of a split of clips
-    (``fields`` its annotations, with :data:`~hupbench.evaluation.sequence_metrics.FIELDS`): the tracking filter
-    chosen on the validation split (the model run over it too; on val itself when it is the split evaluated), then
-    the split scored with and without it."""
+    (``predicted`` the model over it, its fits also tracking each clip; ``fields`` its annotations, with
+    :data:`~hupbench.evaluation.sequence_metrics.FIELDS`): the tracking filter chosen on the validation split (the
+    model run over it too; on val itself when it is the split evaluated), then the split scored per frame and
+    tracked (the tracked fits, then the filter)."""
     from hupbench.core.contract import SEQUENCE, read_annotations
     from hupbench.evaluation.sequence_metrics import FIELDS, choose_filter, sequence_block
 
     fps = float(manifest[SEQUENCE]["fps"])
     if options.split == "val":
-        val_pred, val_gt, val_fields = pred3d, gt3d, fields
+        val, val_fields = predicted, fields
     else:
         if not manifest["counts"].get("val"):
             raise BadValueError(f"{options.dataset} has no val split: tracking's filter is chosen on it")
         reader = split_reader(options.dataset, "val", net, options.depth_sensor)
-        val = predict_split(net, reader, options.batch_size, progress=options.progress, log=log)
-        val_pred, val_gt = val.points3d, val.labels3d
         val_fields = read_annotations(options.dataset, "val", FIELDS, manifest)
-    choice = choose_filter(val_pred, val_gt, val_fields, fps)
-    block = sequence_block(pred3d, gt3d, fields, fps, choice, "val", options.interval_resamples,
-                           options.interval_seed)
+        val = predict_split(net, reader, options.batch_size, progress=options.progress, log=log,
+                            clips=np.asarray(val_fields["clip_id"]))
+    choice = choose_filter(val.points3d, val.labels3d, val_fields, fps, val.tracked3d)
+    block = sequence_block(predicted.points3d, predicted.labels3d, fields, fps, choice, "val",
+                           options.interval_resamples, options.interval_seed, predicted.tracked3d,
+                           predicted.tracked_fits_ms)
     for name, text in sequence_rows(block):
         log(f"{options.split} {name}: {text}")
     return block
@@ -372,6 +374,11 @@ def sequence_rows(block: dict) -> list[tuple[str, str]]:
              f"1-euro, min cut-off {settings['min_cutoff_hz']:g} Hz, beta {settings['beta']:g}, chosen on "
              f"{block['filter']['chosen_on']}; {block['filter_ms_per_frame']:.3f} ms/frame; {block['clips']} clips "
              f"at {block['fps']:g} frames/s")]
+    fitted = block.get("tracked_fits")
+    if fitted is not None:
+        rows.append(("tracked fits", f"from the frame before's probe pose, probe {fitted['probe_tracking_iterations']} "
+                                     f"and hand {fitted['hand_tracking_iterations']} steps, "
+                                     f"{fitted['ms_per_frame']:.2f} ms/frame (median, frame by frame)"))
     intervals = block["intervals"]
     for key, value in block["untracked"].items():
         rows.append((f"{key}, untracked -> tracked",
@@ -428,7 +435,8 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     if np.max(np.abs(K_eval - net.K_input)) > K_MISMATCH_REL * abs(net.K_input[0, 0]):
         log(f"warning: the dataset's input intrinsics {K_eval.round(3).tolist()} differ from the model's K_input "
             f"{net.K_input.round(3).tolist()}: its 3D output assumes the training camera")
-    predicted = predict_split(net, reader, options.batch_size, progress=options.progress, log=log)
+    clips = np.asarray(fields["clip_id"]) if is_sequence(manifest) else None
+    predicted = predict_split(net, reader, options.batch_size, progress=options.progress, log=log, clips=clips)
     pred2d, pred3d, gt2d, gt3d = predicted.points2d, predicted.points3d, predicted.labels2d, predicted.labels3d
 
     errors = metrics.keypoint_errors_mm(pred3d, gt3d)                                   # (N, 29) mm
@@ -454,7 +462,7 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     for name, text in _mpjpe_rows(results, lambda v: f"{v:.2f}"):
         log(f"{split} {name}: {text}")
     if is_sequence(manifest):
-        results["sequence"] = _sequence(options, net, manifest, pred3d, gt3d, fields, log)
+        results["sequence"] = _sequence(options, net, manifest, predicted, fields, log)
     if options.latency:
         results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress)
     results["device"] = hardware_description(torch.device("cpu"))

@@ -3,7 +3,8 @@
 
 Its cells: MPJPE all, acceleration error and jitter, untracked -> tracked, each with its 95 % interval over the test
 grasps and the paired interval of the difference (tracked minus untracked); the probe's speed error over the patient;
-the split's floor (MPJPE all) beside them; the filter and the split it was chosen on.
+the split's floor (MPJPE all) beside them; the tracked fits (their time per frame) and the filter with the split it
+was chosen on.
 """
 
 from __future__ import annotations
@@ -33,8 +34,9 @@ def sequence_section(rows: list[dict]) -> list[str]:
         return []
     out = ["## Sequences: scored as motion, per frame and tracked", "",
            ("Rows evaluated on a split of clips (`hupbench generate +track=clinic_sequences`): each clip's frames in "
-            "time order, per frame (untracked) and through the 1-euro filter whose settings `hupbench eval` chose on "
-            "the validation split (tracked). Each cell: untracked → tracked, each with its 95 % interval over the "
+            "time order, per frame (untracked) and tracked: the fits started where they left the frame before "
+            "(a model with fits), then the 1-euro filter whose settings `hupbench eval` chose on the validation "
+            "split. Each cell: untracked → tracked, each with its 95 % interval over the "
             "test grasps, and Δ the paired interval of tracked minus untracked (below 0: tracking lowers it). The "
             "probe's speed error is over the patient: each frame's prediction taken to the room with the headset's "
             "pose (docs/sequences.md)."), ""]
@@ -44,9 +46,12 @@ def sequence_section(rows: list[dict]) -> list[str]:
     for row in rows:
         block = row["sequence"]
         settings = block["filter"]["settings"]
-        tracking = "none kept the MPJPE" if settings is None else \
+        tracking = "no filter kept the MPJPE" if settings is None else \
             f"1-euro {settings['min_cutoff_hz']:g} Hz, β {settings['beta']:g} (chosen on " \
             f"{block['filter']['chosen_on']})"
+        fitted = block.get("tracked_fits")
+        if fitted is not None:
+            tracking = f"fits from the frame before ({fitted['ms_per_frame']:.1f} ms/frame), then {tracking}"
         floor, bounds = row.get("split_floor"), (row.get("intervals") or {}).get("split_floor_mm")
         floor_cell = MISSING if floor is None else \
             interval_cell(floor["floor_mm"]["all"], (bounds or {}).get("all"))

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from hupbench.core.errors import BadValueError, RunFailedError
-from hupbench.fits import after_network, fits
+from hupbench.fits import after_network, fits, track_fits
 from hupbench.inference.runtime import load_onnx_model, run_onnx_outputs, split_model_images
 from hupbench.input_geometry import INPUT_MODALITIES
 
@@ -100,6 +100,13 @@ class EvalModel:
         return after_network(self.model_config, outputs.points2d, outputs.points3d, images, self.K_input,
                              fitted=self.fit_probe, segmentation=outputs.segmentation)
 
+    def track_fits(self, images: np.ndarray, outputs: NetworkOutput, probe_start: np.ndarray | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`after_network` on frames of a clip, the probe's pose carried from the frame before
+        (:func:`hupbench.fits.track_fits`): (points2d, points3d, the next frame's ``probe_start``)."""
+        return track_fits(self.model_config, outputs.points2d, outputs.points3d, images, self.K_input, probe_start,
+                          fitted=self.fit_probe, segmentation=outputs.segmentation)
+
     def network(self, images: torch.Tensor) -> NetworkOutput:
         """(B, C, S, S) float32 model images -> the network's :class:`NetworkOutput`, without the fits."""
         if self.module is None:
@@ -138,6 +145,9 @@ class SplitPrediction:
         seconds: wall time of the pass.
         segmentation: with the images of the network alone (``with_fits`` False), a segmenting model's (F, S, S)
             int64 classes of each input pixel (what its fits read, :class:`NetworkOutput`); else None.
+        tracked2d, tracked3d: given the frames' clips, the predictions with the fits tracking each clip frame by frame
+            (:meth:`EvalModel.track_fits`; the network's output for a model without fits); else None.
+        tracked_fits_ms: the median time of the tracked fits per frame, ms; None without clips or fits.
     """
 
     rows: np.ndarray
@@ -148,6 +158,9 @@ class SplitPrediction:
     images: list[np.ndarray] | None
     seconds: float
     segmentation: np.ndarray | None = None
+    tracked2d: np.ndarray | None = None
+    tracked3d: np.ndarray | None = None
+    tracked_fits_ms: float | None = None
 
 
 def split_reader(dataset: Path, split: str, net: EvalModel, depth_sensor: str = "dataset"):
@@ -168,7 +181,7 @@ def evenly_spaced(total: int, frames: int) -> np.ndarray:
 
 def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] | None = None, with_fits: bool = True,
                   keep_images: bool = False, progress: bool = False,
-                  log: Callable[[str], None] | None = None) -> SplitPrediction:
+                  log: Callable[[str], None] | None = None, clips: np.ndarray | None = None) -> SplitPrediction:
     """Run a model over frames of a split, batched, in order.
 
     Args:
@@ -178,6 +191,8 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
         keep_images: keep each batch's model images (and a segmenting model's segmentation) in the result (for
             fits run afterwards).
         progress: a progress bar on a terminal. log: receives one line with the pass's time, when given.
+        clips: (F,) the clip of each frame of ``rows`` (a split of clips, whose frames follow each other in order):
+            the fits also run tracking each clip (:attr:`SplitPrediction.tracked3d`).
 
     Returns:
         :class:`SplitPrediction`.
@@ -191,13 +206,28 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     frames = torch.utils.data.Subset(reader, rows.tolist())
     loader = torch.utils.data.DataLoader(frames, batch_size=batch_size, shuffle=False, num_workers=0)
     pred2d, pred3d, gt2d, gt3d, images, segmentation = [], [], [], [], [], []
+    tracked2d, tracked3d, fit_seconds, probe_start, clip_before = [], [], [], None, None
+    track = clips is not None and net.fits
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        if with_fits:
-            (p2, p3), seg = net.predict(batch["image"]), None
+        if with_fits or track:
+            output = net.network(batch["image"])
+            seg = None if with_fits else output.segmentation
+            p2, p3 = net.after_network(batch["image"].numpy(), output) if with_fits else output[:2]
         else:
             p2, p3, seg = net.network(batch["image"])
+        if track:   # frame by frame, the probe's pose carried within a clip
+            for i, frame in enumerate(batch["image"].numpy()):
+                clip = clips[len(fit_seconds)]
+                if clip != clip_before:
+                    probe_start, clip_before = None, clip
+                begun = time.perf_counter()
+                t2, t3, probe_start = net.track_fits(frame[None], NetworkOutput(*(
+                    None if v is None else v[i:i + 1] for v in output)), probe_start)
+                fit_seconds.append(time.perf_counter() - begun)
+                tracked2d.append(t2)
+                tracked3d.append(t3)
         pred2d.append(p2)
         pred3d.append(p3)
         gt2d.append(batch["keypoints_2d"].double().numpy())
@@ -213,5 +243,10 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     bad = ~(np.isfinite(pred3d).all(axis=(1, 2)) & np.isfinite(pred2d).all(axis=(1, 2)))
     if bad.any():
         raise RunFailedError(f"the model's output is NaN or inf on {int(bad.sum())} of {len(bad)} frames")
+    if clips is not None and not track:   # a model without fits: its tracking is the filter's alone
+        tracked2d, tracked3d = [pred2d], [pred3d]
     return SplitPrediction(rows, pred2d, pred3d, gt2d, gt3d, images if keep_images else None, seconds,
-                           np.concatenate(segmentation) if segmentation else None)
+                           np.concatenate(segmentation) if segmentation else None,
+                           np.concatenate(tracked2d) if clips is not None else None,
+                           np.concatenate(tracked3d) if clips is not None else None,
+                           1e3 * float(np.median(fit_seconds)) if track else None)

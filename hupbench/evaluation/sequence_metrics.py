@@ -2,10 +2,11 @@
 MPJPE, the acceleration error, the jitter and the probe's speed, acceleration and jerk, of the per-frame predictions
 and of the tracked ones, with intervals over the evaluated grasps.
 
-Tracking is what a video's frames allow and a single image does not: a temporal filter carrying state from frame to
-frame. Here it is the 1-euro filter (:class:`hupbench.inference.tracking.OneEuroFilter`) over each clip's predicted
-camera-frame keypoints in time order, reset at the clip's start, as ``hupbench predict --track`` runs it over a
-video. Its settings are chosen on the validation split (:func:`choose_filter`): of :data:`FILTER_GRID`, the one with
+Tracking is what a video's frames allow and a single image does not: state carried from frame to frame. Here it is
+the fits started where they left the frame before (:func:`hupbench.fits.track_fits`: the probe's pose; a model
+without fits has none), then the 1-euro filter (:class:`hupbench.inference.tracking.OneEuroFilter`) over each clip's
+predicted camera-frame keypoints in time order, both reset at the clip's start, as ``hupbench predict --track`` runs
+them over a video or an ordered folder of frames. Its settings are chosen on the validation split (:func:`choose_filter`): of :data:`FILTER_GRID`, the one with
 the lowest acceleration error among those whose MPJPE is not above the per-frame prediction's (no setting: no
 filter). A test split is scored with the settings its validation split chose.
 
@@ -43,6 +44,7 @@ from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.motion_metrics import (KINEMATICS_KEYS, acceleration_error_mm_per_frame2, jitter_mm_per_s3,
                                           point_kinematics)
 from hupbench.evaluation.intervals import CONFIDENCE, METHOD, grasp_interval_of_grasps
+from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
 from hupbench.inference.tracking import OneEuroFilter
 
 __all__ = ["FIELDS", "FILTER_GRID", "choose_filter", "clip_rows", "clip_scores", "room_poses", "sequence_block",
@@ -117,9 +119,12 @@ def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], f
     return {key: np.asarray(values, np.float64) for key, values in out.items()}
 
 
-def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float) -> dict:
+def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float,
+                  tracked3d: np.ndarray | None = None) -> dict:
     """The 1-euro settings of :data:`FILTER_GRID` with the lowest mean acceleration error over the clips among those
-    whose mean MPJPE (all) is not above the untracked prediction's; call it on the validation split.
+    whose mean MPJPE (all) is not above the untracked prediction's; call it on the validation split. The filter runs
+    on ``tracked3d`` (the prediction with the fits tracking each clip, :class:`hupbench.evaluation.prediction.
+    SplitPrediction`) where given, else on ``pred3d``.
 
     Returns:
         {"settings": {"min_cutoff_hz", "beta"} or None (no setting kept the MPJPE: no filter), "untracked":
@@ -133,11 +138,12 @@ def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float
         return {key: float(scores[key].mean()) for key in ("mpjpe_all_mm", "acceleration_error_mm_per_frame2")}
 
     untracked = score(pred3d)
+    filtered = pred3d if tracked3d is None else tracked3d
     tried = []
     for cutoff in FILTER_GRID["min_cutoff_hz"]:
         for beta in FILTER_GRID["beta"]:
             settings = {"min_cutoff_hz": cutoff, "beta": beta}
-            tried.append(settings | score(tracked(pred3d, fields, clips, settings)))
+            tried.append(settings | score(tracked(filtered, fields, clips, settings)))
     kept = [t for t in tried if t["mpjpe_all_mm"] <= untracked["mpjpe_all_mm"]]
     best = min(kept, key=lambda t: t["acceleration_error_mm_per_frame2"], default=None)
     settings = None if best is None else {"min_cutoff_hz": best["min_cutoff_hz"], "beta": best["beta"]}
@@ -145,7 +151,8 @@ def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float
 
 
 def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float, choice: dict, chosen_on: str,
-                   resamples: int, seed: int) -> dict:
+                   resamples: int, seed: int, tracked3d: np.ndarray | None = None,
+                   tracked_fits_ms: float | None = None) -> dict:
     """The ``sequence`` block of a results file.
 
     Args:
@@ -153,17 +160,21 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
         fields: the split's annotations (:data:`FIELDS`).
         fps: the clips' frame rate. choice: :func:`choose_filter`'s answer. chosen_on: the split it was made on.
         resamples, seed: the bootstrap's.
+        tracked3d: the predictions with the fits tracking each clip (:func:`hupbench.fits.track_fits`), which the
+            filter then smooths; None: the model has no fits, the filter smooths ``pred3d``.
+        tracked_fits_ms: the tracked fits' median time per frame, ms (with ``tracked3d``).
 
     Returns:
         {"fps", "clips", "frames_per_clip", "filter": {"name", "settings", "chosen_on", "grid", "criterion"},
         "untracked", "tracked", "truth": {metric: mean over clips}, "intervals": {"method", "confidence",
         "resamples", "seed", "grasps", "untracked", "tracked", "tracked_minus_untracked": {metric: [low, high]}},
-        "filter_ms_per_frame": the filter's own time per frame}.
+        "filter_ms_per_frame": the filter's own time per frame, "tracked_fits": None (a model without fits) or
+        {"probe_tracking_iterations", "hand_tracking_iterations", "ms_per_frame"}}.
     """
     clips = clip_rows(fields)
     settings = choice["settings"]
     start = time.perf_counter()
-    smoothed = tracked(pred3d, fields, clips, settings)
+    smoothed = tracked(pred3d if tracked3d is None else tracked3d, fields, clips, settings)
     filter_ms = 1e3 * (time.perf_counter() - start) / len(pred3d)
     T_room_cam = room_poses(fields)
     untracked = clip_scores(pred3d, gt3d, clips, fps, T_room_cam)
@@ -196,6 +207,9 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
                       "tracked_minus_untracked": {key: interval(tracked_scores[key] - untracked[key])
                                                   for key in SCORES}},
         "filter_ms_per_frame": float(filter_ms),
+        "tracked_fits": None if tracked3d is None or tracked_fits_ms is None else {
+            "probe_tracking_iterations": ProbeFitSettings().tracking_iterations,
+            "hand_tracking_iterations": HandFitSettings().tracking_iterations, "ms_per_frame": float(tracked_fits_ms)},
     }
 
 
@@ -218,10 +232,18 @@ def sequence_block_problem(block) -> str | None:
     def text(v):
         return isinstance(v, str)
 
+    def tracked_fits(v):
+        return v is None or (isinstance(v, dict) and set(v) == {"probe_tracking_iterations", "hand_tracking_iterations",
+                                                                "ms_per_frame"}
+                             and count(v["probe_tracking_iterations"]) and count(v["hand_tracking_iterations"])
+                             and number(v["ms_per_frame"]))
+
     scores = dict.fromkeys(SCORES, (number, "a number >= 0"))
     spans = dict.fromkeys(SCORES, (interval, "[low, high] numbers, low <= high"))
     shape = {"fps": (number, "a number >= 0"), "clips": (count, "a count >= 1"),
              "frames_per_clip": (count, "a count >= 1"), "filter_ms_per_frame": (number, "a number >= 0"),
+             "tracked_fits": (tracked_fits, "null or {probe_tracking_iterations, hand_tracking_iterations, "
+                                            "ms_per_frame}"),
              "filter": {"name": (text, "a string"), "settings": (settings, "null or {min_cutoff_hz, beta} >= 0"),
                         "chosen_on": (text, "a string"), "grid": (lambda v: isinstance(v, dict), "a dict"),
                         "criterion": (text, "a string")},

@@ -6,7 +6,8 @@ them on its output, in eval (:mod:`hupbench.evaluation.prediction`) and ``hupben
 hand and leaves that probe's surface out; both read the depth input through :mod:`hupbench.fits.depth_points`. Both
 fit one probe (:class:`hupbench.fits.known_probe.FitProbe`): the one of the dataset the model was trained on, which
 its model file carries, else the default procedural probe; data made with another probe is refused by
-:func:`check_fitted_probe`.
+:func:`check_fitted_probe`. Tracking a video, :func:`track_fits` starts each frame's fits where they left the frame
+before (the probe's pose).
 
 Numpy only, no torch: ``hupbench predict`` runs the fits of an exported model where torch is not installed.
 May import: ``hupbench.core``, ``hupbench.input_geometry``, numpy, and the generator's probe and hand
@@ -16,6 +17,8 @@ file does not carry them: they are built by the generator when a fit first needs
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from hupbench.core.contract import SEGMENT_CLASSES
@@ -23,7 +26,8 @@ from hupbench.core.errors import BadValueError
 from hupbench.fits.known_probe import FitProbe
 from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
 
-__all__ = ["FITTED_PROBE", "HandFitSettings", "ProbeFitSettings", "after_network", "check_fitted_probe", "fits"]
+__all__ = ["FITTED_PROBE", "HandFitSettings", "ProbeFitSettings", "after_network", "check_fitted_probe",
+           "fits", "track_fits"]
 
 #: the probe record (a dataset manifest's ``probe``, :attr:`hupbench.datagen.assets.probe.Probe.record`) of the one
 #: probe the fits know: the procedural probe of the default spec
@@ -89,17 +93,48 @@ def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray
     Returns:
         float64 (points2d (B, N, 2), points3d (B, N, 3)); the output itself where the model fits nothing.
     """
+    return _run(model_config, points2d, points3d, images, K_input, probe, hand, fitted, segmentation)[:2]
+
+
+def track_fits(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
+               K_input: np.ndarray, probe_start: np.ndarray | None, probe: ProbeFitSettings = ProbeFitSettings(),
+               hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None,
+               segmentation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`after_network` on the frames of a video, the frame before's fits carried: the probe's fit starts at
+    the probe's pose there (``probe_start``, :func:`hupbench.fits.probe_fit.fit_probe`'s ``start``: no search over
+    turns, ``probe.tracking_iterations`` steps) and the hand's takes ``hand.tracking_iterations`` steps from the
+    network's hand.
+
+    Args:
+        probe_start: (B, 4, 4) the probe's pose where this function left the frames before (its third return;
+            NaN rows or None: none, as at a video's first frame). The other arguments: :func:`after_network`'s.
+
+    Returns:
+        (points2d, points3d) as :func:`after_network`'s, and the probe's fitted pose (B, 4, 4) (NaN where the fit
+        kept the network's corners), the next frames' ``probe_start``; None for a model without the probe's fit.
+    """
+    tracking = replace(hand, iterations=hand.tracking_iterations)
+    return _run(model_config, points2d, points3d, images, K_input, probe, tracking, fitted, segmentation, probe_start)
+
+
+def _run(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
+         probe: ProbeFitSettings, hand: HandFitSettings, fitted: FitProbe | None, segmentation: np.ndarray | None,
+         probe_start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`track_fits`' work, with or without a start."""
     asked = fits(model_config)
 
     def _own(part: str) -> np.ndarray | None:
         return None if segmentation is None else np.asarray(segmentation) == SEGMENT_CLASSES.index(part)
 
+    probe_pose = None
     if "probe" in asked:
         from hupbench.fits.probe_fit import fit_probe
 
-        points2d, points3d, _ = fit_probe(points2d, points3d, images, K_input, probe, fitted, pixels=_own("probe"))
+        points2d, points3d, report = fit_probe(points2d, points3d, images, K_input, probe, fitted,
+                                               pixels=_own("probe"), start=probe_start)
+        probe_pose = report.pose
     if "hand" in asked:
         from hupbench.fits.hand_fit import fit_hand
 
         points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted, pixels=_own("hand"))
-    return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64)
+    return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64), probe_pose

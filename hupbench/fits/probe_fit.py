@@ -36,6 +36,11 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept").
 
+Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
+its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
+on all the points and the better scored is kept, instead of step 3's search over turns; and where the marker does
+not decide (step 4), the half turn nearer the frame before's stays ("previous").
+
 The corners out are the probe's box in the chosen pose: an exact rigid box. Their 2D points are its
 projection with ``K_input``. The hand's keypoints are not touched.
 """
@@ -55,16 +60,18 @@ from hupbench.fits.settings import ProbeFitSettings
 __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "fit_probe"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
-DECISIONS = ("kept", "marker", "no marker", "network")
+DECISIONS = ("kept", "marker", "no marker", "network", "previous")
 
 
 @dataclass(frozen=True)
 class ProbeFit:
     """What :func:`fit_probe` did, per frame: ``decision`` (B,) int64 indexing :data:`DECISIONS`, ``inliers``
-    (B,) int64 measured points on the chosen pose's surface."""
+    (B,) int64 measured points on the chosen pose's surface, ``pose`` (B, 4, 4) float64 the fitted probe's pose
+    (probe frame to camera; NaN where the network's corners were kept): the next frame's ``start``."""
 
     decision: np.ndarray
     inliers: np.ndarray
+    pose: np.ndarray
 
 
 def _turn_z(angles: np.ndarray) -> np.ndarray:
@@ -74,14 +81,14 @@ def _turn_z(angles: np.ndarray) -> np.ndarray:
     return np.stack([c, -s, zero, s, c, zero, zero, zero, one], axis=-1).reshape(*np.shape(angles), 3, 3)
 
 
-def _refine(probe: FitProbe, p: np.ndarray, w_real: np.ndarray, R: np.ndarray, t: np.ndarray, s: ProbeFitSettings
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Poses (N, 3, 3), (N, 3) refined by Gauss-Newton on the signed distance of points (N, P, 3) with weights
-    (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
-    for step in range(s.iterations):
+def _refine(probe: FitProbe, p: np.ndarray, w_real: np.ndarray, R: np.ndarray, t: np.ndarray, s: ProbeFitSettings,
+            iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Poses (N, 3, 3), (N, 3) refined by ``iterations`` Gauss-Newton steps on the signed distance of points (N, P, 3)
+    with weights (N, P): the poses, their scores (N,) and inliers (N,) (module docstring, step 3)."""
+    for step in range(iterations):
         q = (p - t[:, None]) @ R                                                # R^T (p - t), probe frame
         d, g = probe.signed_distance_and_gradient(q)
-        trim = s.trim_m[0] if step < s.iterations // 2 else s.trim_m[1]
+        trim = s.trim_m[0] if step < iterations // 2 else s.trim_m[1]
         w = w_real * (np.abs(d) < trim)
         J = np.concatenate([np.cross(q, g), g], axis=-1)                        # (N, P, 6)
         A = J.swapaxes(1, 2) @ (J * w[..., None]) + 1e-6 * np.maximum(w.sum(1), 1.0)[:, None, None] * np.eye(6)
@@ -91,6 +98,26 @@ def _refine(probe: FitProbe, p: np.ndarray, w_real: np.ndarray, R: np.ndarray, t
     d, _ = probe.signed_distance_and_gradient((p - t[:, None]) @ R)
     inliers = (w_real * (np.abs(d) < s.inlier_m)).sum(1)
     return R, t, inliers - s.inside_penalty * (w_real * (d < -s.inside_m)).sum(1), inliers
+
+
+def _search(probe: FitProbe, points: np.ndarray, weight: np.ndarray, R0: np.ndarray, t0: np.ndarray,
+            s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The best pose (B, 3, 3), (B, 3) and its inliers (B,) among ``s.hypotheses`` turns of the network's poses R0, t0
+    about the probe's long axis: every turn refined on ``s.coarse_points`` of the points (B, P, 3) with weights
+    (B, P), the best ``s.finalists`` again on all of them (module docstring, step 3)."""
+    B, H, F = len(points), s.hypotheses, s.finalists
+    angles = np.arange(H) * (2 * np.pi / H)
+    R = (R0[:, None] @ _turn_z(angles)).reshape(B * H, 3, 3)
+    t = np.repeat(t0, H, axis=0)
+    few = s.coarse_points
+    R, t, score, _ = _refine(probe, np.repeat(points[:, :few], H, axis=0), np.repeat(weight[:, :few], H, axis=0),
+                             R, t, s, s.iterations)
+    top = np.argsort(-score.reshape(B, H), axis=1, kind="stable")[:, :F] + np.arange(B)[:, None] * H   # (B, F)
+    R, t = R[top.reshape(-1)], t[top.reshape(-1)]
+    R, t, score, inliers = _refine(probe, np.repeat(points, F, axis=0), np.repeat(weight, F, axis=0), R, t, s,
+                                   s.iterations)
+    pick = np.arange(B) * F + score.reshape(B, F).argmax(axis=1)
+    return R[pick], t[pick], inliers[pick].astype(np.int64)
 
 
 def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
@@ -126,7 +153,8 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
 
 def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
               settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None,
-              pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
+              pixels: np.ndarray | None = None, start: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, ProbeFit]:
     """The probe's corners of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -138,6 +166,11 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         probe: the probe to fit (None: the default procedural probe, :func:`default_fit_probe`).
         pixels: (B, S, S) bool, the pixels that may be the probe's (a segmentation's, :func:`hupbench.fits.
             after_network`); a measured point elsewhere (the hand, the patient's skin) is left out. None: any pixel.
+        start: (B, 4, 4) float, the probe's fitted pose in the frame before (:attr:`ProbeFit.pose`), tracking a
+            video: a frame with one (finite) takes its measured points around it, refines it and the network's
+            pose by ``settings.tracking_iterations`` steps on all of them instead of the search over turns (step 3),
+            and, where the marker does not decide, keeps the half turn nearest it ("previous"). None or NaN rows:
+            the search.
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 8 corners replaced where the fit holds,
@@ -151,9 +184,13 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     B = len(images)
     network = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
     R0, t0 = network[:, :3, :3], network[:, :3, 3]                                # the network's pose
+    warm = np.zeros(B, bool) if start is None else np.isfinite(start).all(axis=(1, 2))
+    # the turn a frame keeps where the marker does not decide: the previous frame's, else the network's
+    R_ref = np.where(warm[:, None, None], np.nan_to_num(start[:, :3, :3]) if start is not None else 0.0, R0)
+    t_ref = np.where(warm[:, None], np.nan_to_num(start[:, :3, 3]) if start is not None else 0.0, t0)
     box_centre = probe.corners.mean(0)
     reach = float(np.linalg.norm(probe.corners - box_centre, axis=-1).max()) + s.reach_m
-    centre = box_centre @ R0.transpose(0, 2, 1) + t0                              # (B, 3)
+    centre = box_centre @ R_ref.transpose(0, 2, 1) + t_ref                        # (B, 3)
     points = unproject_depth(depth, K)
     near = (points[..., 2] > 0) & (np.linalg.norm(points - centre[:, None], axis=-1) < reach)
     own = None if pixels is None else np.asarray(pixels, dtype=bool)
@@ -161,31 +198,29 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         near &= own.reshape(B, -1)
     points, weight = sample_points(points, near, s.max_points)
 
-    # every turn refined on a few points, the best again on all of them
-    H, F = s.hypotheses, s.finalists
-    angles = np.arange(H) * (2 * np.pi / H)
-    R = (R0[:, None] @ _turn_z(angles)).reshape(B * H, 3, 3)
-    t = np.repeat(t0, H, axis=0)
-    few = s.coarse_points
-    R, t, score, _ = _refine(probe, np.repeat(points[:, :few], H, axis=0), np.repeat(weight[:, :few], H, axis=0),
-                             R, t, s)
-    top = np.argsort(-score.reshape(B, H), axis=1, kind="stable")[:, :F] + np.arange(B)[:, None] * H   # (B, F)
-    R, t = R[top.reshape(-1)], t[top.reshape(-1)]
-    R, t, score, inliers = _refine(probe, np.repeat(points, F, axis=0), np.repeat(weight, F, axis=0), R, t, s)
-    pick = np.arange(B) * F + score.reshape(B, F).argmax(axis=1)
-    RA, tA, inliers = R[pick], t[pick], inliers[pick].astype(np.int64)
+    RA, tA, inliers = np.empty((B, 3, 3)), np.empty((B, 3)), np.zeros(B, np.int64)
+    cold = ~warm
+    if cold.any():
+        RA[cold], tA[cold], inliers[cold] = _search(probe, points[cold], weight[cold], R0[cold], t0[cold], s)
+    if warm.any():   # the previous frame's pose and the network's, each refined on all the points
+        R = np.stack([start[warm, :3, :3], R0[warm]], axis=1).reshape(-1, 3, 3)
+        t = np.stack([start[warm, :3, 3], t0[warm]], axis=1).reshape(-1, 3)
+        R, t, score, found = _refine(probe, np.repeat(points[warm], 2, axis=0), np.repeat(weight[warm], 2, axis=0),
+                                     R, t, s, s.tracking_iterations)
+        pick = np.arange(int(warm.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
+        RA[warm], tA[warm], inliers[warm] = R[pick], t[pick], found[pick]
     RB = RA @ _turn_z(np.pi)
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
     facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
-    turn = R0.transpose(0, 2, 1) @ RA                                             # the fit relative to the network
+    turn = R_ref.transpose(0, 2, 1) @ RA                      # the fit relative to the network (or the frame before)
     network_a = np.abs(np.arctan2(turn[:, 1, 0], turn[:, 0, 0])) <= np.pi / 2
-    # a probe without a marker: neither site decides, the network's turn does
+    # a probe without a marker: neither site decides, the network's (or the frame before's) turn does
     marker = (np.maximum(lead_a, lead_b) > s.marker_chroma) & probe.has_marker
     absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
     choose_a = np.where(marker, lead_a >= lead_b, np.where(absent_a, False, np.where(absent_b, True, network_a)))
-    decision = np.where(marker, 1, np.where(absent_a | absent_b, 2, 3))
+    decision = np.where(marker, 1, np.where(absent_a | absent_b, 2, np.where(warm, 4, 3)))
     kept = inliers < s.min_inliers
     decision = np.where(kept, 0, decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
@@ -194,4 +229,6 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[use, kp.CORNER_SLICE] = fitted[use]
     out2d[use, kp.CORNER_SLICE] = input_points2d(fitted[use], K_input, images.shape[-1])
-    return out2d, out3d, ProbeFit(decision, inliers)
+    pose = np.full((B, 4, 4), np.nan)
+    pose[use, :3, :3], pose[use, :3, 3], pose[use, 3] = rotation[use], tA[use], (0.0, 0.0, 0.0, 1.0)
+    return out2d, out3d, ProbeFit(decision, inliers, pose)

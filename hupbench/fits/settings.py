@@ -20,6 +20,9 @@ class ProbeFitSettings:
     Attributes:
         hypotheses: turns of the network's pose about the probe's long axis, evenly spaced (12: every 30 degrees).
         iterations: Gauss-Newton steps per turn.
+        tracking_iterations: Gauss-Newton steps from the frame before's pose and from the network's, tracking a
+            video (:func:`hupbench.fits.track_fits`; 4 chosen on 8 val clips of the clinic_sequences track,
+            docs/sequences.md).
         max_points: measured points per frame; coarse_points: of them, for the first round over every turn.
         finalists: turns refined again on all the points.
         reach_m: points this far beyond the probe's half diagonal from the network's box centre, metres.
@@ -37,6 +40,7 @@ class ProbeFitSettings:
 
     hypotheses: int = 12
     iterations: int = 4
+    tracking_iterations: int = 4
     max_points: int = 768
     coarse_points: int = 128
     finalists: int = 3
@@ -67,7 +71,9 @@ class HandFitSettings:
         reach_m: measured points this close to the network's capsules are the hand's, metres;
         probe_gap_m: and this far outside the probe, metres.
         max_points: measured points per frame; min_points: fewer keep the network's hand.
-        iterations: Gauss-Newton steps.
+        iterations: Gauss-Newton steps; tracking_iterations: those tracking a video (:func:`hupbench.fits.
+            track_fits`; 2 chosen on 8 val clips of the clinic_sequences track, where 2 scored as 8 do; a start at
+            the frame before's fitted hand drifted, docs/sequences.md).
         trim_m: points farther from the capsules are left out, metres: (first half, second half) of the steps.
         free_samples: points on each capsule's axis checked against the measured depth;
         free_margin_m: a sample this far in front of the measured surface would be seen there, metres;
@@ -87,6 +93,7 @@ class HandFitSettings:
     max_points: int = 512
     min_points: int = 30
     iterations: int = 8
+    tracking_iterations: int = 2
     trim_m: tuple[float, float] = (0.008, 0.004)
     free_samples: int = 4
     free_margin_m: float = 0.004

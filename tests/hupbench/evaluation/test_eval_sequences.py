@@ -66,3 +66,54 @@ def test_a_dataset_of_single_frames_has_no_sequence_block(exported, tiny_dataset
     assert "sequence" not in results
     with pytest.raises(KeyError):
         load_results(tmp_path / "frames.json")["sequence"]
+
+
+def test_the_tracked_fits_carry_the_probe_within_a_clip_across_batches_and_start_afresh_at_each_clip():
+    """predict_split with the frames' clips: the fits run frame by frame, each frame started at the pose the frame
+    before left (across the network's batches), none at a clip's first frame; a model without fits tracks with
+    the filter alone (its tracked prediction is the network's)."""
+    import torch
+
+    from hupbench.core import keypoints as kp
+    from hupbench.evaluation.prediction import NetworkOutput, predict_split
+
+    class Frames(torch.utils.data.Dataset):
+        split = "val"
+
+        def __len__(self):
+            return 7
+
+        def __getitem__(self, i):
+            return {"image": torch.full((4, 2, 2), float(i)), "keypoints_2d": torch.zeros(kp.NUM_KEYPOINTS, 2),
+                    "keypoints_3d": torch.zeros(kp.NUM_KEYPOINTS, 3)}
+
+    class Net:
+        format, fits = "fake", True
+
+        def __init__(self):
+            self.starts = []
+
+        def network(self, images):
+            frame = images[:, 0, 0, 0].double().numpy()[:, None, None]
+            return NetworkOutput(np.zeros((len(frame), kp.NUM_KEYPOINTS, 2)) + frame,
+                                 np.zeros((len(frame), kp.NUM_KEYPOINTS, 3)) + frame)
+
+        def after_network(self, images, output):
+            return output.points2d, output.points3d
+
+        def track_fits(self, images, output, probe_start):
+            frame = float(images[0, 0, 0, 0])
+            self.starts.append(None if probe_start is None else float(probe_start[0, 0, 0]))
+            return output.points2d, output.points3d + 1.0, np.full((1, 4, 4), frame)
+
+    net = Net()
+    clips = np.array([5, 5, 5, 9, 9, 9, 9])
+    out = predict_split(net, Frames(), 2, clips=clips)
+    assert net.starts == [None, 0.0, 1.0, None, 3.0, 4.0, 5.0]
+    np.testing.assert_array_equal(out.tracked3d, out.points3d + 1.0)
+    assert out.tracked_fits_ms is not None and out.tracked_fits_ms >= 0
+    net.fits = False
+    plain = predict_split(net, Frames(), 3, clips=clips)
+    np.testing.assert_array_equal(plain.tracked3d, plain.points3d)
+    assert plain.tracked_fits_ms is None
+    assert predict_split(net, Frames(), 3).tracked3d is None

@@ -23,5 +23,11 @@ def test_a_row_on_clips_gets_its_cells_and_rows_on_frames_none():
     assert len(table) == 3  # header and two rows
     assert "10.00 [9.0-11.0] → 8.50 [7.5-9.5], Δ [-2.0--1.0]" in table[1]
     assert "1-euro 1 Hz, β 10 (chosen on val)" in table[1] and "HUPNet \\| seg" in table[1]
-    assert "none kept the MPJPE" in table[2] and "20 × 151 at 30 fps" in table[2]
+    assert "no filter kept the MPJPE" in table[2] and "20 × 151 at 30 fps" in table[2]
     assert "| 50.20 [45.9-54.9] |" in table[1]
+    assert "frame before" not in table[1]
+    fitted = _row(None)
+    fitted["sequence"]["tracked_fits"] = {"probe_tracking_iterations": 4, "hand_tracking_iterations": 2,
+                                          "ms_per_frame": 12.34}
+    row = [line for line in sequence_section([fitted]) if line.startswith("| ")][1]
+    assert "fits from the frame before (12.3 ms/frame), then no filter kept the MPJPE" in row

@@ -1,6 +1,7 @@
 """hupbench.fits: what a model asks to run after its network, the probe the fits know, and the settings each fit
 takes as an argument (a variant without touching module state)."""
 
+import types
 from dataclasses import FrozenInstanceError, replace
 
 import numpy as np
@@ -15,6 +16,7 @@ from hupbench.fits import (
     after_network,
     check_fitted_probe,
     fits,
+    track_fits,
 )
 
 MESH_PROBE = {"kind": "mesh", "path": "/data/probes/linear.stl", "unit": "m", "align": False, "sha256": "0" * 64,
@@ -75,17 +77,24 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     seen = []
 
     def stand_in(part):
-        def fit(points2d, points3d, images, K_input, settings, probe, pixels):
-            seen.append((part, settings, probe))
-            return points2d, points3d + 1.0, None
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels, **start):
+            seen.append((part, settings, probe, *start.values()))
+            return points2d, points3d + 1.0, types.SimpleNamespace(pose=None)
         return fit
 
     monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe"))
     monkeypatch.setattr(hand_fit, "fit_hand", stand_in("hand"))
-    probe, hand = ProbeFitSettings(min_inliers=5), HandFitSettings(iterations=2)
+    probe, hand = ProbeFitSettings(min_inliers=5), HandFitSettings(iterations=3)
     points2d, points3d = np.zeros((1, kp.NUM_KEYPOINTS, 2), np.float32), np.zeros((1, kp.NUM_KEYPOINTS, 3))
     out2d, out3d = after_network({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d,
                                  np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe, hand, fitted="the file's")
-    assert seen == [("probe", probe, "the file's"), ("hand", hand, "the file's")]
+    assert seen == [("probe", probe, "the file's", None), ("hand", hand, "the file's")]
     assert out2d.dtype == out3d.dtype == np.float64 and (out3d == 2.0).all()
+    # tracking: the probe's fit gets the start, the hand's its tracking steps
+    seen.clear()
+    track_fits({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d, np.zeros((1, 4, 8, 8), np.float32),
+               np.eye(3), "the start", probe, hand, fitted="the file's")
+    assert seen == [("probe", probe, "the file's", "the start"),
+                    ("hand", replace(hand, iterations=hand.tracking_iterations), "the file's")]
+    assert hand.iterations != hand.tracking_iterations
 

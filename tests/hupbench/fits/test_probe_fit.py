@@ -167,6 +167,7 @@ def test_without_a_measured_surface_the_network_stays():
     image[3] = 0.0
     out2d, out3d, decision = fit(image, points2d, points3d)
     assert decision == "kept"
+    assert np.isnan(F.fit_probe(points2d, points3d, image[None], K)[2].pose).all()   # no start for the next frame
     np.testing.assert_array_equal(out3d, points3d[0])
     np.testing.assert_array_equal(out2d, points2d[0])
 
@@ -212,3 +213,44 @@ def test_the_probe_read_back_from_its_json_fits_the_same_and_damage_is_refused()
             FitProbe.from_json(json.dumps(doc | {key: value}), "model.onnx")
     with pytest.raises(BadValueError, match="model.onnx: not a probe of the fits"):
         FitProbe.from_json("{}", "model.onnx")
+
+
+def test_tracking_starts_at_the_frame_before_and_keeps_its_half_turn(monkeypatch):
+    """Nothing in the image tells the half turn (both sites edge-on, no marker colour) and the network's turn is the
+    wrong one, which the frame alone keeps; started at the frame before's pose (3 mm and 4 degrees off), the fit
+    keeps that half turn ("previous") without searching the turns, and returns its pose for the next frame."""
+    R, t = SITES_EDGE_ON
+    image = render(R, t, marker_coloured=False)
+    points2d, points3d = network_output(R, t, np.pi * 5 / 6)
+    _, alone, report = F.fit_probe(points2d, points3d, image[None], K)
+    assert F.DECISIONS[report.decision[0]] == "network" and error_mm(alone[0], R @ turn_z(np.pi), t) < 2.0
+    before = np.eye(4)
+    before[:3, :3], before[:3, 3] = R @ turn_z(np.radians(4.0)), t + [0.003, 0.0, -0.001]
+
+    def no_search(*_):
+        raise AssertionError("a frame with a start searched the turns")
+
+    monkeypatch.setattr(F, "_search", no_search)
+    out2d, out3d, report = F.fit_probe(points2d, points3d, image[None], K, start=before[None])
+    assert F.DECISIONS[report.decision[0]] == "previous"
+    assert error_mm(out3d[0], R, t) < 2.0
+    pose = report.pose[0]
+    np.testing.assert_allclose(pose[3], [0.0, 0.0, 0.0, 1.0])
+    np.testing.assert_allclose(corners(pose[:3, :3], pose[:3, 3]), out3d[0, kp.CORNER_SLICE], atol=1e-9)
+
+
+def test_in_a_batch_a_frame_without_a_start_is_fitted_alone():
+    (R1, t1), (R2, t2) = MARKER_IN_VIEW, SITES_EDGE_ON
+    a, b = network_output(R1, t1, np.pi / 2), network_output(R2, t2, np.pi * 5 / 6)
+    images = np.stack([render(R1, t1), render(R2, t2, marker_coloured=False)])
+    start = np.full((2, 4, 4), np.nan)
+    start[1] = np.eye(4)
+    start[1, :3, :3], start[1, :3, 3] = R2, t2
+    out2d, out3d, report = F.fit_probe(np.concatenate([a[0], b[0]]), np.concatenate([a[1], b[1]]), images, K,
+                                       start=start)
+    alone2d, alone3d, alone = F.fit_probe(*a, images[:1], K)
+    np.testing.assert_array_equal(out3d[0], alone3d[0])
+    np.testing.assert_array_equal(out2d[0], alone2d[0])
+    assert [F.DECISIONS[d] for d in report.decision] == ["marker", "previous"]
+    assert error_mm(out3d[1], R2, t2) < 2.0
+    np.testing.assert_array_equal(report.pose[0], alone.pose[0])
