@@ -1,12 +1,16 @@
 """A model's latency per stage at batch 1 and 32: the network (PyTorch, onnxruntime), the probe's fit and the hand's
-fit after it, the whole of each runtime, and ``hupbench predict`` end to end, on real frames of a dataset.
+fit after it, the whole of each runtime, and ``hupbench predict`` end to end, on real frames of a dataset; and, on
+a dataset of clips, tracking them at batch 1: the fits started where they left the frame before
+(:func:`hupbench.fits.track_fits`), onnxruntime with them and the 1-euro filter, and ``hupbench predict --track --fps``.
 
 Each stage is timed on the same frames (the split's first ``--frames``, read at the model's input as eval reads
 them), batch by batch over all of them, ``--repeats`` times after one warm-up round: the median time of a batch per
 image (a fit's time depends on the frame: how many of its pixels it reads). A fit is timed on the output of the
 stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load included, per
 image. eval's own latency runs on random images, where a fit finds no hand; these are the figures of frames it
-does find. Prints the CPU with the figures.
+does find. The tracked rows run the frames in order, each started at the frame before (the split's first frames
+are its first clip's, in order; ``--frames`` at most a clip's length keeps them in one clip), the state reset before
+each round: the median frame. Prints the CPU with the figures.
 
 Usage: python benchmarks/latency.py CHECKPOINT DATASET [--split val] [--frames 32] [--repeats 3] [--threads 2]
 """
@@ -54,6 +58,20 @@ def per_image_ms(run: Callable[[np.ndarray], object], frames: np.ndarray, batch:
     return statistics.median(times)
 
 
+def tracked_ms(run: Callable[[np.ndarray, object], object], frames: np.ndarray, repeats: int) -> float:
+    """The median time of ``run(frame (1, C, S, S), state) -> state`` over ``frames`` in order, the state carried from
+    frame to frame and None at the start of each of ``repeats`` rounds (one untimed round first), ms per frame."""
+    times = []
+    for round_ in range(repeats + 1):
+        state = None
+        for i in range(len(frames)):
+            start = time.perf_counter()
+            state = run(frames[i:i + 1], state)
+            if round_:
+                times.append((time.perf_counter() - start) * 1000.0)
+    return statistics.median(times)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", type=Path, help="a model that fits (e.g. the recommended one's last.pt)")
@@ -69,12 +87,13 @@ def main() -> None:
     import torch
 
     from hupbench.evaluation.latency import LATENCY_RUNS
-    from hupbench.core.contract import SEGMENT_CLASSES
+    from hupbench.core.contract import SEGMENT_CLASSES, is_sequence, read_annotations
     from hupbench.evaluation.prediction import EvalModel, onnx_network_output, split_reader
     from hupbench.fits import fits
     from hupbench.fits.hand_fit import fit_hand
     from hupbench.fits.probe_fit import fit_probe
     from hupbench.inference.export import ExportOptions, run_export
+    from hupbench.inference.tracking import OneEuroFilter
     from hupbench.inference.predict import PredictOptions, run_predict
     from hupbench.inference.runtime import load_onnx_model
 
@@ -141,6 +160,33 @@ def main() -> None:
             row.append((time.perf_counter() - start) * 1000.0 / count)
         print(f"{'hupbench predict, files':{width}s}" + "".join(f"{v:14.2f}" for v in row)
               + f"   ({count} images, decoding and the model file's load included)")
+        if not is_sequence(reader.manifest):
+            return
+        clips = np.unique(np.asarray(read_annotations(args.dataset, args.split, ("clip_id",), reader.manifest)
+                                     ["clip_id"])[:count])
+        print(f"tracked, frame by frame in order ({count} frames of clip{'s' if len(clips) > 1 else ''} "
+              f"{', '.join(str(int(c)) for c in clips)}; batch 1 only):")
+        if asked:
+            row = tracked_ms(lambda x, start: net.track_fits(x, network(x), start)[2], frames, args.repeats)
+            print(f"{'tracked fits':{width}s}{row:14.2f}")
+        smoother = OneEuroFilter(min_cutoff_hz=1.0, beta=3.0)
+
+        def tracked(x, start):
+            out = onnx_network_output(onnx, x)
+            points2d, points3d, start = net.track_fits(x, out, start) if asked else (*out[:2], None)
+            smoother(points3d[0], time.perf_counter())
+            return start
+
+        print(f"{'onnxruntime tracked end to end':{width}s}{tracked_ms(tracked, frames, args.repeats):14.2f}"
+              "   (network, tracked fits, 1-euro filter)")
+        row = []
+        for b in LATENCY_RUNS:
+            start = time.perf_counter()
+            run_predict(PredictOptions(onnx_path, tuple(rgb), Path(folder) / f"tracked{b}", overlay=False,
+                                       batch_size=b, depth_dir=depth, track="1,3", fps=30.0), log=lambda *_: None)
+            row.append((time.perf_counter() - start) * 1000.0 / count)
+        print(f"{'hupbench predict --track, files':{width}s}" + "".join(f"{v:14.2f}" for v in row)
+              + "   (decoding and the model file's load included)")
 
 
 if __name__ == "__main__":

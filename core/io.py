@@ -245,6 +245,19 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     return write_with(path, lambda tmp: tmp.write_bytes(data))
 
 
+def compact_json(value: Any, indent: int = 0) -> str:
+    """Indented JSON (keys sorted) with every list of numbers on one line: one keypoint per line."""
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(value, dict) and value:
+        items = [f"{inner}{json.dumps(str(k))}: {compact_json(v, indent + 2)}" for k, v in sorted(value.items())]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    if isinstance(value, (list, tuple)) and value:
+        if all(v is None or isinstance(v, (int, float)) for v in value):
+            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+        return "[\n" + ",\n".join(inner + compact_json(v, indent + 2) for v in value) + "\n" + pad + "]"
+    return json.dumps(value, allow_nan=False)
+
+
 def write_json(path: str | Path, data: dict) -> Path:
     """Write indented JSON atomically (numpy scalars and paths become plain values)."""
     return write_bytes(path, (json.dumps(data, indent=2, sort_keys=True, default=_plain) + "\n").encode())

@@ -283,10 +283,13 @@ def _predict(args: list[str]) -> int:
     parser.add_argument("--track", metavar="MIN_CUTOFF_HZ,BETA",
                         help="track a video's frames with the 1-euro filter of these settings (the ones `hupbench "
                              "eval` chose on a split of clips, its 'tracking' line); default: each frame alone")
+    parser.add_argument("--fps", type=float, metavar="F",
+                        help="with --track: the image files are one sequence's frames at F frames/s, in name order, "
+                             "tracked as a video's (a fitting model's fits start where they left the frame before)")
     ns = parser.parse_args(args)
     result = run_predict(PredictOptions(ns.model, ns.inputs, ns.out, K=ns.K, overlay=not ns.no_overlay,
                                         batch_size=ns.batch_size, progress=True, depth_dir=ns.depth,
-                                        depth_scale_m=ns.depth_scale_m, track=ns.track))
+                                        depth_scale_m=ns.depth_scale_m, track=ns.track, fps=ns.fps))
     bad_videos = sum(not v["ok"] for v in result["videos"])
     print(f"hupbench predict: {result['ok']} image(s) predicted, {result['failed']} of {result['images']} failed"
           + (f" (video frames among them; {bad_videos} of {len(result['videos'])} video(s) unread or cut short)"

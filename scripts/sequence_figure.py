@@ -3,9 +3,9 @@
 speed over the clip, true, per frame and tracked.
 
 The model runs over the clip's frames as ``hupbench eval`` runs it (the dataset's depth); the tracked prediction is
-the 1-euro filter of ``--track`` (the settings ``hupbench eval`` chose on val, its "tracking" line, or read from its
-results JSON with ``--results``) over the per-frame predictions in time order, drawn as its projection with the
-frame's K. The speed is the probe centre's (keypoints 21-28) over each frame interval, in the
+the fits started where they left the frame before (a model with fits, :func:`hupbench.fits.track_fits`), then the
+1-euro filter of ``--track`` (the settings ``hupbench eval`` chose on val, its "tracking" line, or read from its
+results JSON with ``--results``) in time order, drawn as its projection with the frame's K. The speed is the probe centre's (keypoints 21-28) over each frame interval, in the
 room: each frame's prediction taken there with the camera's pose in the room (a headset's head tracking), the
 skill-assessment figure.
 
@@ -97,10 +97,10 @@ def main() -> None:
     rows = clips[args.clip]
     net = EvalModel(args.model)
     reader = split_reader(args.dataset, args.split, net)
-    predicted = predict_split(net, reader, 32, rows=rows)
+    predicted = predict_split(net, reader, 32, rows=rows, clips=np.asarray(fields["clip_id"])[rows])
     pred, truth = predicted.points3d, predicted.labels3d
     clip_fields = {"time_s": fields["time_s"][rows]}
-    smooth = tracked(pred, clip_fields, [np.arange(len(rows))], settings)
+    smooth = tracked(predicted.tracked3d, clip_fields, [np.arange(len(rows))], settings)
     K = fields["K"][rows]
     size = tuple(int(v) for v in manifest["image_size"])
     truth_px = project_points(truth, K, behind="nan")

@@ -311,12 +311,13 @@ def test_benchmark_train(tiny_dataset, monkeypatch, capsys):
     assert "jpeg:0" in out and "cache:0 / jpeg:0" in out
 
 
-def test_benchmark_latency(tiny_dataset, tmp_path, monkeypatch, capsys):
-    """A model with both fits: every stage's line, batch 32 marked absent on 2 frames, predict's line."""
+def test_benchmark_latency(tiny_clips, tmp_path, monkeypatch, capsys):
+    """A model with both fits on a dataset of clips: every stage's line, batch 32 marked absent on 2 frames,
+    predict's line, and the tracked lines."""
     from helpers.models import make_checkpoint as checkpoint
 
-    ckpt = checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth")
-    out = run_script(BENCHMARKS / "latency.py", ckpt, tiny_dataset, "--frames", "2", "--threads", "1",
+    ckpt = checkpoint(tmp_path / "fit.pt", tiny_clips, input_channels=4, probe_fit="depth", hand_fit="depth")
+    out = run_script(BENCHMARKS / "latency.py", ckpt, tiny_clips, "--frames", "2", "--threads", "1",
                      monkeypatch=monkeypatch, capsys=capsys)
     assert "fits: probe, hand; 1 threads;" in out and "torch CPU capability" in out
     for stage in ("network, PyTorch", "network, onnxruntime", "probe fit", "hand fit", "PyTorch end to end (eval)",
@@ -325,6 +326,11 @@ def test_benchmark_latency(tiny_dataset, tmp_path, monkeypatch, capsys):
         figures = line[len(stage):].split("(")[0].split()
         assert len(figures) == 2 and float(figures[0]) > 0, line
         assert figures[1] == "-" or stage == "hupbench predict, files", line
+    assert "tracked, frame by frame in order (2 frames of clip " in out
+    for stage, figures in (("tracked fits", 1), ("onnxruntime tracked end to end", 1),
+                           ("hupbench predict --track, files", 2)):
+        line = next(line for line in out.splitlines() if line.startswith(stage))
+        assert len(line[len(stage):].split("(")[0].split()) == figures and float(line[len(stage):].split()[0]) > 0
 
 
 def test_benchmark_scale_training(tiny_dataset, monkeypatch, capsys):

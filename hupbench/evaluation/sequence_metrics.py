@@ -7,7 +7,8 @@ the fits started where they left the frame before (:func:`hupbench.fits.track_fi
 without fits has none), then the 1-euro filter (:class:`hupbench.inference.tracking.OneEuroFilter`) over each clip's
 predicted camera-frame keypoints in time order, both reset at the clip's start, as ``hupbench predict --track`` runs
 them over a video or an ordered folder of frames. Its settings are chosen on the validation split (:func:`choose_filter`): of :data:`FILTER_GRID`, the one with
-the lowest acceleration error among those whose MPJPE is not above the per-frame prediction's (no setting: no
+the lowest acceleration error among those whose MPJPE (all, hand and probe, each) is not above the per-frame
+prediction's (no setting: no
 filter). A test split is scored with the settings its validation split chose.
 
 The metrics (:mod:`hupbench.core.motion_metrics`), each the mean over clips (every clip has the same frames):
@@ -54,6 +55,8 @@ __all__ = ["FIELDS", "FILTER_GRID", "choose_filter", "clip_rows", "clip_scores",
 #: keypoint; a probe moves at 0.01-0.03 m/s, a head-worn camera's view of it faster)
 FILTER_GRID = {"min_cutoff_hz": (0.25, 0.5, 1.0, 2.0, 4.0, 8.0), "beta": (0.0, 1.0, 3.0, 10.0, 30.0, 100.0)}
 #: the annotations the metrics read
+#: the MPJPEs the chosen filter may not raise on the tuning split (:func:`choose_filter`)
+KEPT = ("mpjpe_all_mm", "mpjpe_hand_mm", "mpjpe_probe_mm")
 FIELDS = ("clip_id", "frame_in_clip", "time_s", "grasp_id", "T_cam_world", "T_world_body")
 #: the per-clip metrics, in results order (:func:`clip_scores`)
 SCORES = ("mpjpe_all_mm", "mpjpe_hand_mm", "mpjpe_probe_mm", "acceleration_error_mm_per_frame2", "jitter_mm_per_s3",
@@ -122,20 +125,21 @@ def clip_scores(pred3d: np.ndarray, gt3d: np.ndarray, clips: list[np.ndarray], f
 def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float,
                   tracked3d: np.ndarray | None = None) -> dict:
     """The 1-euro settings of :data:`FILTER_GRID` with the lowest mean acceleration error over the clips among those
-    whose mean MPJPE (all) is not above the untracked prediction's; call it on the validation split. The filter runs
+    whose mean MPJPE (all, hand and probe, each: :data:`KEPT`) is not above the untracked prediction's; call it on the
+    validation split. The filter runs
     on ``tracked3d`` (the prediction with the fits tracking each clip, :class:`hupbench.evaluation.prediction.
     SplitPrediction`) where given, else on ``pred3d``.
 
     Returns:
         {"settings": {"min_cutoff_hz", "beta"} or None (no setting kept the MPJPE: no filter), "untracked":
-        {"mpjpe_all_mm", "acceleration_error_mm_per_frame2"}, "tried": [{"min_cutoff_hz", "beta", "mpjpe_all_mm",
-        "acceleration_error_mm_per_frame2"}, ...]}, all means over the split's clips.
+        {each of :data:`KEPT`, "acceleration_error_mm_per_frame2"}, "tried": [{"min_cutoff_hz", "beta", the same
+        scores}, ...]}, all means over the split's clips.
     """
     clips, T_room_cam = clip_rows(fields), room_poses(fields)
 
     def score(points: np.ndarray) -> dict:
         scores = clip_scores(points, gt3d, clips, fps, T_room_cam)
-        return {key: float(scores[key].mean()) for key in ("mpjpe_all_mm", "acceleration_error_mm_per_frame2")}
+        return {key: float(scores[key].mean()) for key in (*KEPT, "acceleration_error_mm_per_frame2")}
 
     untracked = score(pred3d)
     filtered = pred3d if tracked3d is None else tracked3d
@@ -144,7 +148,7 @@ def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float
         for beta in FILTER_GRID["beta"]:
             settings = {"min_cutoff_hz": cutoff, "beta": beta}
             tried.append(settings | score(tracked(filtered, fields, clips, settings)))
-    kept = [t for t in tried if t["mpjpe_all_mm"] <= untracked["mpjpe_all_mm"]]
+    kept = [t for t in tried if all(t[key] <= untracked[key] for key in KEPT)]
     best = min(kept, key=lambda t: t["acceleration_error_mm_per_frame2"], default=None)
     settings = None if best is None else {"min_cutoff_hz": best["min_cutoff_hz"], "beta": best["beta"]}
     return {"settings": settings, "untracked": untracked, "tried": tried}
@@ -196,8 +200,8 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
         "fps": float(fps), "clips": len(clips), "frames_per_clip": int(max(len(r) for r in clips)),
         "filter": {"name": "1-euro (hupbench.inference.tracking.OneEuroFilter)", "settings": settings,
                    "chosen_on": chosen_on, "grid": {k: list(v) for k, v in FILTER_GRID.items()},
-                   "criterion": "lowest acceleration error among the settings whose MPJPE (all) is not above the "
-                                "untracked prediction's"},
+                   "criterion": "lowest acceleration error among the settings whose MPJPE (all, hand and probe, "
+                                "each) is not above the untracked prediction's"},
         "untracked": means(untracked, SCORES), "tracked": means(tracked_scores, SCORES),
         "truth": {key[len("truth_"):]: float(untracked[key].mean()) for key in truth_keys},
         "intervals": {"method": METHOD + " (a grasp's value the mean of its clips)", "confidence": CONFIDENCE,

@@ -242,3 +242,19 @@ def expand_inputs(inputs: Sequence[str | Path]) -> tuple[list[Path], list[dict[s
                 skipped.append({"path": str(entry), "reason": "not an image or video file name "
                                 f"({', '.join(IMAGE_SUFFIXES + VIDEO_SUFFIXES)})"})
     return files, skipped
+
+
+def check_frame_order(files: Sequence[Path]) -> None:
+    """Refuse image files read as a video's frames in name order (a folder sorted by name, :func:`expand_inputs`)
+    whose numbers say another order: ``frame_10.png`` sorts before ``frame_2.png``.
+
+    Raises:
+        BadValueError: naming the first two files of one folder out of their numbers' order.
+    """
+    def numbers_first(path: Path) -> list:
+        return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+    for before, after in zip(files, files[1:]):
+        if before.parent == after.parent and numbers_first(before) > numbers_first(after):
+            raise BadValueError(f"{before} comes before {after} in name order, but its number is the higher: frames are "
+                                "tracked in name order; name them with zero-padded numbers (frame_0002.png)")

@@ -39,6 +39,12 @@ MIN_CUTOFF_HZ,BETA`` a video's frames are tracked: each frame's 3D keypoints go 
 record keeps the per-frame prediction under ``untracked`` and the settings under ``tracking``; the overlay video
 shows the tracked keypoints. ``hupbench eval`` on a split of clips chooses the settings on its validation split.
 
+Ordered frames: with ``--track`` and ``--fps F`` the image files (a folder's in name order; names whose numbers say
+another order, ``frame_10`` before ``frame_2``, are refused) are the frames of one sequence at F frames/s, each
+record with its ``frame`` index and ``time_s`` = frame / F, tracked as a video's are; a model that fits (and so reads
+``--depth``) also starts each frame's fits where they left the frame before (:func:`hupbench.fits.track_fits`: the
+probe's pose), which makes them cheaper. Without ``--fps`` images are never tracked.
+
 Outputs in ``OUT/``: ``predictions.json`` (written atomically, and last), with per image the path, ok or
 error, the camera and its K, ``keypoints_2d_px`` (N, 2) original image pixels and ``keypoints_3d_m``
 (N, 3) metres in the camera frame of that K, ``keypoint_confidence`` and ``ood``; and ``<stem>_overlay.png`` per
@@ -52,7 +58,6 @@ with a ``predictions.json`` holds one finished run, and a refused run leaves no 
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -65,19 +70,20 @@ from hupbench.core.camera import project_points
 from hupbench.core.depth_sensor import PRESETS, depth_input_warnings
 from hupbench.core.errors import BadTypeError, BadValueError, UserError
 from hupbench.core.input_checks import check_int, check_number
-from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp, write_bytes
+from hupbench.core.io import OutputLock, check_writable, clean_stale_tmp, compact_json, write_bytes
 from hupbench.core.draw import write_png
 from hupbench.inference.image_statistics import image_statistics
 from hupbench.inference.images import (
     IMAGE_SUFFIXES,
     PAD_VALUE,
     VIDEO_SUFFIXES,
+    check_frame_order,
     expand_inputs,
     read_depth_png,
     read_image,
     to_uint8,
 )
-from hupbench.fits import after_network, check_fitted_probe, fits
+from hupbench.fits import after_network, check_fitted_probe, fits, track_fits
 from hupbench.inference.model_file import (
     CONFIDENCE,
     NO_CONFIDENCE,
@@ -128,7 +134,8 @@ class PredictOptions:
         depth_scale_m: metres per unit of those PNGs, in (0, 1].
         track: a video's frames tracked with the 1-euro filter of these settings, ``"min_cutoff_hz,beta"`` (what
             ``hupbench eval`` chose on a split of clips) or {"min_cutoff_hz", "beta"}; None: each frame alone.
-            Images are never tracked.
+        fps: with ``track``, the image files are one sequence's frames at this rate, frames/s (module docstring);
+            None: images are not tracked.
     """
 
     model: Path
@@ -141,10 +148,15 @@ class PredictOptions:
     depth_dir: Path | None = None
     depth_scale_m: float = DEFAULT_DEPTH_SCALE_M
     track: Any = None
+    fps: float | None = None
 
     def __post_init__(self) -> None:
         if self.track is not None:
             object.__setattr__(self, "track", parse_track(self.track))
+        if self.fps is not None:
+            if self.track is None:
+                raise BadValueError("--fps is the frame rate of image files tracked as a sequence: give --track too")
+            check_number(self.fps, "--fps (frames per second of the image files)", 0.0, 1000.0, low_open=True)
         if isinstance(self.inputs, (str, Path)):
             raise BadTypeError("inputs must be a list of paths, got a single path")
         check_int(self.batch_size, "batch_size (--batch-size)", low=1)
@@ -195,19 +207,6 @@ def _plain(values: np.ndarray, decimals: int) -> list:
     return np.where(np.isfinite(rounded), rounded, None).tolist()
 
 
-def _compact_json(value: Any, indent: int = 0) -> str:
-    """Indented JSON (keys sorted) with every list of numbers on one line: one keypoint per line."""
-    pad, inner = " " * indent, " " * (indent + 2)
-    if isinstance(value, dict) and value:
-        items = [f"{inner}{json.dumps(str(k))}: {_compact_json(v, indent + 2)}" for k, v in sorted(value.items())]
-        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
-    if isinstance(value, (list, tuple)) and value:
-        if all(v is None or isinstance(v, (int, float)) for v in value):
-            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
-        return "[\n" + ",\n".join(inner + _compact_json(v, indent + 2) for v in value) + "\n" + pad + "]"
-    return json.dumps(value, allow_nan=False)
-
-
 def _stderr(message: str) -> None:
     print(message, file=sys.stderr)
 
@@ -252,6 +251,11 @@ def _open_checked(options: PredictOptions) -> tuple[OnnxModel, list[Path], list[
                             f"{', '.join(str(i) for i in options.inputs)}"
                             + (f" ({len(skipped)} other entries skipped)" if skipped else ""))
     videos = [f for f in files if is_video(f)]
+    if options.fps is not None:
+        if len(videos) == len(files):
+            raise BadValueError("--fps is the frame rate of image files tracked as a sequence, and the inputs hold only "
+                                "videos, which carry their own")
+        check_frame_order([f for f in files if not is_video(f)])
     if videos and model.reads_depth:
         raise BadValueError(f"{videos[0]} is a video, which holds no depth maps, and {model.path} reads RGB and depth: "
                             "give its frames as images in a folder, with their depth maps in --depth DIR")
@@ -282,6 +286,7 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
                 _stderr(line)
     for item in skipped:
         log(f"hupbench predict: note: {item['path']}: {item['reason']}")
+    frames = None if options.fps is None else _Track(OneEuroFilter(**options.track))   # the image files, tracked
     if model.reads_depth and model.depth_sensor is not None:
         log(f"hupbench predict: note: {model.path.name} was trained on "
             + ("the renderer's clean depth (no sensor model)" if model.depth_sensor not in PRESETS else
@@ -299,7 +304,11 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
                 continue
             for start in range(0, len(stills), options.batch_size):
                 chunk = [_empty_record(p, names, model.run_name) for p in stills[start:start + options.batch_size]]
-                _predict_batch(model, chunk, options, overlay_dir, used_stems, overlays, log)
+                if frames is not None:
+                    for record in chunk:
+                        record.update(frame=frames.count, time_s=round(frames.count / options.fps, _DECIMALS_M))
+                        frames.count += 1
+                _predict_batch(model, chunk, options, overlay_dir, used_stems, overlays, log, frames)
                 records.extend(chunk)
                 bar.update(len(chunk))
             stills = []
@@ -307,7 +316,7 @@ def _run_locked(options: PredictOptions, log: Callable[[str], None]) -> dict[str
                 videos.append(_predict_video(model, path, options, overlay_dir, used_stems, overlays, records, log))
                 bar.update(1)
         json_path = write_bytes(out_dir / "predictions.json",
-                                (_compact_json(_document(model, records, videos, skipped)) + "\n").encode())
+                                (compact_json(_document(model, records, videos, skipped)) + "\n").encode())
         finished = True
     finally:
         bar.close()
@@ -348,10 +357,11 @@ def _document(model: OnnxModel, records: list[dict[str, Any]], videos: list[dict
 
 
 def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], options: PredictOptions,
-                   overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log) -> None:
+                   overlay_dir: Path | None, used_stems: set[str], overlays: list[Path], log,
+                   track: _Track | None = None) -> None:
     """Read, predict and record one batch of image files in place: a bad image's record gets its error (and
     the log a line), a good one its keypoints and, with ``overlay_dir``, its overlay (appended to
-    ``overlays``)."""
+    ``overlays``); with ``track``, as the next frames of its sequence."""
     loaded = []
     for record in chunk_records:
         notes: list[str] = []
@@ -379,15 +389,26 @@ def _predict_batch(model: OnnxModel, chunk_records: list[dict[str, Any]], option
         overlays.append(write_png(overlay_dir / f"{stem}_overlay.png", drawn))
         record["overlay"] = str(overlays[-1])
 
-    _predict_loaded(model, loaded, options, overlay if overlay_dir is not None else None, log)
+    _predict_loaded(model, loaded, options, overlay if overlay_dir is not None else None, log, track)
+
+
+@dataclass
+class _Track:
+    """What a tracked sequence (a video, or the ordered image files) carries from frame to frame: the 1-euro
+    filter, the probe's pose where the fits left the frame before (:func:`hupbench.fits.track_fits`), and the
+    frames counted so far."""
+
+    filter: OneEuroFilter
+    probe_start: np.ndarray | None = None
+    count: int = 0
 
 
 def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndarray, np.ndarray | None]],
                     options: PredictOptions, overlay: Callable[[dict[str, Any], np.ndarray], None] | None,
-                    log) -> None:
+                    log, track: _Track | None = None) -> None:
     """Predict read images (each (record, (H, W, 3) float RGB in [0, 1], depth map or None)) in one onnxruntime
     call and fill their records; ``overlay(record, drawn RGB uint8)`` takes each drawn prediction (None: none
-    drawn)."""
+    drawn); ``track``: the images are the next frames of that sequence, in order."""
     if not loaded:
         return
     names = list(model.keypoint_names)
@@ -400,10 +421,18 @@ def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndar
     images = np.stack([item[2] for item in prepared])
     outputs = run_onnx_outputs(model, images, depth)  # (B, C, S, S) -> (B, N, *)
     points2d, points3d, confidence = outputs["points2d"], outputs["points3d"], outputs.get("confidence")
-    if fits(model.model_config):
+    segmentation = outputs.get("segmentation")
+    if fits(model.model_config) and track is None:
         points2d, points3d = after_network(model.model_config, points2d, points3d,
                                            np.concatenate([images, depth], axis=1), model.K_input,
-                                           fitted=model.fit_probe, segmentation=outputs.get("segmentation"))
+                                           fitted=model.fit_probe, segmentation=segmentation)
+    elif fits(model.model_config):   # frame by frame, each started where the fits left the frame before
+        points2d, points3d = np.array(points2d, np.float64), np.array(points3d, np.float64)
+        for b in range(len(images)):
+            points2d[b:b + 1], points3d[b:b + 1], track.probe_start = track_fits(
+                model.model_config, points2d[b:b + 1], points3d[b:b + 1],
+                np.concatenate([images[b:b + 1], depth[b:b + 1]], axis=1), model.K_input, track.probe_start,
+                fitted=model.fit_probe, segmentation=None if segmentation is None else segmentation[b:b + 1])
     K_user = options.K
     for b, (record, image, _, geometry, _) in enumerate(prepared):
         if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):
@@ -429,7 +458,11 @@ def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndar
             keypoints_3d_m=_plain(result["keypoints_3d_m"], _DECIMALS_M),
             keypoint_confidence=None if confidence is None else _plain(confidence[b], _DECIMALS_SCORE), ood=ood,
         )
-        if overlay is not None:
+        if track is not None:
+            _track(record, track.filter, options.track)
+            if overlay is not None:
+                overlay(record, _draw_record(model, record, image))
+        elif overlay is not None:
             overlay(record, draw_prediction(to_uint8(image), result["keypoints_2d_px"], names, model.skeleton_edges,
                                             None if confidence is None else confidence[b],
                                             "unlike the training images" if ood is not None and ood["flagged"]
@@ -466,7 +499,7 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
     if overlay_dir is not None:
         stem = _unique_stem(path.stem, used_stems)
         writer = OverlayVideo(overlay_dir / f"{stem}_overlay.mp4", frames.fps, (frames.width, frames.height))
-    tracker = None if options.track is None else OneEuroFilter(**options.track)
+    tracker = None if options.track is None else _Track(OneEuroFilter(**options.track))
     try:
         batch: list[tuple[dict[str, Any], np.ndarray, None]] = []
 
@@ -476,12 +509,8 @@ def _predict_video(model: OnnxModel, path: Path, options: PredictOptions, overla
             def keep(record: dict[str, Any], image: np.ndarray) -> None:
                 drawn[record["frame"]] = image
 
-            _predict_loaded(model, batch, options, keep if writer is not None and tracker is None else None, log)
+            _predict_loaded(model, batch, options, keep if writer is not None else None, log, tracker)
             for record, image, _ in batch:
-                if tracker is not None and record["ok"]:
-                    _track(record, tracker, options.track)
-                    if writer is not None:
-                        drawn[record["frame"]] = _draw_record(model, record, image)
                 if writer is not None:
                     writer.write(drawn.get(record["frame"], to_uint8(image)))
                 records.append(record)

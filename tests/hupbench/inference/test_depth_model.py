@@ -4,6 +4,7 @@ missing or mismatched depth map is refused naming it."""
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -153,11 +154,11 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     calls = []
 
     def stand_in(part, where, by):
-        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None):
             calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
             moved = np.array(points3d, dtype=np.float64)
             moved[:, where] += by
-            return np.array(points2d, dtype=np.float64), moved, None
+            return np.array(points2d, dtype=np.float64), moved, SimpleNamespace(pose=None)
         return fit
 
     monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe", kp.CORNER_SLICE, 0.01))

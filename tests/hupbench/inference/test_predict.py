@@ -30,6 +30,7 @@ from helpers.dot_model import (
 
 from hupbench.core import keypoints as kp
 from hupbench.core.draw import FINGER_RGB, PROBE_RGB
+from hupbench.core.io import compact_json
 from hupbench.cli import main
 from hupbench.inference.images import decode_image, expand_inputs
 from hupbench.inference.model_file import read_metadata
@@ -37,7 +38,6 @@ from hupbench.inference.overlay import draw_prediction, keypoint_color, line_wid
 from hupbench.inference.predict import (
     PAD_VALUE,
     PredictOptions,
-    _compact_json,
     preprocess,
     run_predict,
 )
@@ -406,7 +406,7 @@ def test_predict_directory_and_stem_collisions(dot_model, image_set, tmp_path):
 def test_json_layout_round_trips():
     document = {"b": [[1.5, -2.0, None], [3, 4, 5]], "a": {"path": "img[1,  2].png", "empty": [], "d": {}},
                 "names": ["x", "y"], "flag": True}
-    text = _compact_json(document)
+    text = compact_json(document)
     assert json.loads(text) == document
     assert '  "b": [\n    [1.5, -2.0, null],\n    [3, 4, 5]\n  ],' in text  # one row per line
     assert '"path": "img[1,  2].png"' in text  # strings untouched

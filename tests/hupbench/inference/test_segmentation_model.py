@@ -4,6 +4,7 @@ and predict hand that segmentation to the fits: the probe's fit its probe pixels
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -86,9 +87,9 @@ def test_the_exported_segmentation_matches_pytorch_and_reaches_the_fits(segmenti
     seen = []
 
     def stand_in(part):
-        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None):
             seen.append((part, pixels))
-            return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64), None
+            return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64), SimpleNamespace(pose=None)
         return fit
 
     monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe"))
