@@ -329,15 +329,19 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
     probe_pose = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
     points, real = _measured_points(depth, K, hand, probe_pose, s, caps, probe, pixels)
     B = len(images)
-    theta, solved = np.zeros((B, N_PARAMS)), np.ones(B, dtype=bool)
-    for step in range(s.iterations):
-        trim = s.trim_m[0 if step < s.iterations // 2 else 1]
-        JTJ, JTr = _normal_equations(theta, hand, points, real, trim, depth, K, s, caps)
-        delta, ok = _solve(JTJ + s.damping * np.eye(N_PARAMS), -JTr)
-        solved &= ok
-        theta = theta + np.where(solved[:, None], delta, 0.0)
-    fitted = pose_and_jacobian(theta, hand)[0]
     count = real.sum(1).astype(np.int64)
+    rows = np.flatnonzero(count >= s.min_points)     # the others keep the network's hand (step 4): not fitted
+    theta, solved = np.zeros((B, N_PARAMS)), np.ones(B, dtype=bool)
+    if len(rows):
+        fitting, ok_rows = np.zeros((len(rows), N_PARAMS)), np.ones(len(rows), dtype=bool)
+        for step in range(s.iterations):
+            trim = s.trim_m[0 if step < s.iterations // 2 else 1]
+            JTJ, JTr = _normal_equations(fitting, hand[rows], points[rows], real[rows], trim, depth[rows], K, s, caps)
+            delta, ok = _solve(JTJ + s.damping * np.eye(N_PARAMS), -JTr)
+            ok_rows &= ok
+            fitting = fitting + np.where(ok_rows[:, None], delta, 0.0)
+        theta[rows], solved[rows] = fitting, ok_rows
+    fitted = pose_and_jacobian(theta, hand)[0]
     use = (count >= s.min_points) & solved & np.isfinite(fitted).all(axis=(1, 2))
     fitted = np.where(use[:, None, None], fitted, hand)
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)

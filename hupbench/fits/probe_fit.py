@@ -34,7 +34,7 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        ``s.marker_chroma``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
        loses ("no marker"); else the network's own turn decides ("network").
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
-       hidden), the network's corners stay ("kept").
+       hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
@@ -66,7 +66,8 @@ DECISIONS = ("kept", "marker", "no marker", "network", "previous")
 @dataclass(frozen=True)
 class ProbeFit:
     """What :func:`fit_probe` did, per frame: ``decision`` (B,) int64 indexing :data:`DECISIONS`, ``inliers``
-    (B,) int64 measured points on the chosen pose's surface, ``pose`` (B, 4, 4) float64 the fitted probe's pose
+    (B,) int64 measured points on the chosen pose's surface (a frame with fewer measured points than ``min_inliers``
+    is not refined: its measured points), ``pose`` (B, 4, 4) float64 the fitted probe's pose
     (probe frame to camera; NaN where the network's corners were kept): the next frame's ``start``."""
 
     decision: np.ndarray
@@ -198,17 +199,20 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         near &= own.reshape(B, -1)
     points, weight = sample_points(points, near, s.max_points)
 
-    RA, tA, inliers = np.empty((B, 3, 3)), np.empty((B, 3)), np.zeros(B, np.int64)
-    cold = ~warm
+    # fewer measured points than min_inliers cannot put that many on any pose's surface: kept (step 5) unrefined
+    inliers = weight.sum(1).astype(np.int64)
+    enough = inliers >= s.min_inliers
+    RA, tA = R0.copy(), t0.copy()
+    cold, tracked = ~warm & enough, warm & enough
     if cold.any():
         RA[cold], tA[cold], inliers[cold] = _search(probe, points[cold], weight[cold], R0[cold], t0[cold], s)
-    if warm.any():   # the previous frame's pose and the network's, each refined on all the points
-        R = np.stack([start[warm, :3, :3], R0[warm]], axis=1).reshape(-1, 3, 3)
-        t = np.stack([start[warm, :3, 3], t0[warm]], axis=1).reshape(-1, 3)
-        R, t, score, found = _refine(probe, np.repeat(points[warm], 2, axis=0), np.repeat(weight[warm], 2, axis=0),
-                                     R, t, s, s.tracking_iterations)
-        pick = np.arange(int(warm.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
-        RA[warm], tA[warm], inliers[warm] = R[pick], t[pick], found[pick]
+    if tracked.any():   # the previous frame's pose and the network's, each refined on all the points
+        R = np.stack([start[tracked, :3, :3], R0[tracked]], axis=1).reshape(-1, 3, 3)
+        t = np.stack([start[tracked, :3, 3], t0[tracked]], axis=1).reshape(-1, 3)
+        R, t, score, found = _refine(probe, np.repeat(points[tracked], 2, axis=0),
+                                     np.repeat(weight[tracked], 2, axis=0), R, t, s, s.tracking_iterations)
+        pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
+        RA[tracked], tA[tracked], inliers[tracked] = R[pick], t[pick], found[pick]
     RB = RA @ _turn_z(np.pi)
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)

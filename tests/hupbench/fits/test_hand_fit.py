@@ -133,8 +133,13 @@ def test_without_a_measured_surface_the_network_stays():
     np.testing.assert_array_equal(out2d, points2d)
 
 
-def test_too_few_measured_points_leave_the_network_s_hand():
-    """A depth map showing only a few pixels of the hand cannot fix 51 parameters: the network's hand stays."""
+def test_too_few_measured_points_leave_the_network_s_hand(monkeypatch):
+    """A depth map showing only a few pixels of the hand cannot fix 51 parameters: the network's hand stays, and no
+    Gauss-Newton step is spent on it."""
+    def no_step(*_):
+        raise AssertionError("a frame with too few points was fitted")
+
+    monkeypatch.setattr(F, "_normal_equations", no_step)
     image, joints = scene()
     seen = np.flatnonzero(image[3].reshape(-1) > 0)
     keep = np.zeros(image[3].size, bool)
