@@ -7,8 +7,7 @@ Each stage is timed on the same frames (the split's first ``--frames``, read at 
 them), batch by batch over all of them, ``--repeats`` times after one warm-up round: the median time of a batch per
 image (a fit's time depends on the frame: how many of its pixels it reads). A fit is timed on the output of the
 stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load included, per
-image. eval's own latency runs on random images, where a fit finds no hand; these are the figures of frames it
-does find. The tracked rows run the frames in order, each started at the frame before (the split's first frames
+image. eval's own latency runs the whole model on 32 frames spread over the split; this splits it by stage. The tracked rows run the frames in order, each started at the frame before (the split's first frames
 are its first clip's, in order; ``--frames`` at most a clip's length keeps them in one clip), the state reset before
 each round: the median frame. Prints the CPU with the figures.
 

@@ -16,6 +16,7 @@ import torch
 
 from helpers import REPO
 from helpers.models import INPUT_SIZE, make_checkpoint
+from hupbench.core.errors import BadValueError
 
 SCRIPTS = REPO / "scripts"
 BENCHMARKS = REPO / "benchmarks"
@@ -259,6 +260,23 @@ def test_sequence_figure(exported, tiny_clips, tmp_path, monkeypatch, capsys):
     assert cv2.imread(str(tmp_path / "sequence_probe_speed.png")) is not None
     with pytest.raises(SystemExit):  # the filter's settings are required, from --track or --results
         run_script(SCRIPTS / "sequence_figure.py", ckpt, tiny_clips, monkeypatch=monkeypatch, capsys=capsys)
+
+
+def test_tracking_ablation(tiny_clips, tmp_path, monkeypatch, capsys):
+    """Each variant's line with its scores and time, each fit's times and the probe fit's decisions; a model
+    without both fits is refused."""
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_clips, input_channels=4, probe_fit="depth", hand_fit="depth")
+    out = run_script(SCRIPTS / "tracking_ablation.py", ckpt, tiny_clips, "--clips", "1", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    assert "on 1 val clips (11 frames)" in out
+    lines = out.splitlines()
+    for start in ("per frame (defaults)", "from the frame before: probe 4, hand 2 steps", "hand, 2 steps",
+                  "probe fit's decisions, from the frame before:"):
+        assert sum(line.startswith(start) for line in lines) == 1, start
+    assert len(next(line for line in lines if line.startswith("per frame, hand 2")).split("accel")[1].split()) == 2
+    plain = make_checkpoint(tmp_path / "plain.pt", tiny_clips, input_channels=4)
+    with pytest.raises(BadValueError, match="does not fit both"):
+        run_script(SCRIPTS / "tracking_ablation.py", plain, tiny_clips, monkeypatch=monkeypatch, capsys=capsys)
 
 
 def test_depth_sensor_picture(tiny_clinic, tmp_path, monkeypatch, capsys):

@@ -25,8 +25,8 @@ from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.input_checks import check_choice, check_int
 from hupbench.core.processes import check_threads
 from hupbench.evaluation.intervals import CONFIDENCE, RESAMPLES, SEED, interval_text
-from hupbench.evaluation.latency import measured_latency, model_cost
-from hupbench.evaluation.prediction import EvalModel, SplitPrediction, predict_split, split_reader
+from hupbench.evaluation.latency import LATENCY_FRAMES, measured_latency, model_cost
+from hupbench.evaluation.prediction import EvalModel, SplitPrediction, evenly_spaced, predict_split, split_reader
 from hupbench.evaluation.probe_pose import dataset_probe, floor_probe_pose, logged_probe_pose, probe_pose_rows
 from hupbench.evaluation.results import FLOOR_NAMES
 from hupbench.evaluation.split_metrics import (
@@ -464,7 +464,8 @@ def _results(options: EvalOptions, net: EvalModel, manifest: dict, run_name: str
     if is_sequence(manifest):
         results["sequence"] = _sequence(options, net, manifest, predicted, fields, log)
     if options.latency:
-        results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress)
+        frames = np.stack([reader[int(i)]["image"].numpy() for i in evenly_spaced(len(reader), LATENCY_FRAMES)])
+        results["latency_ms_per_image"] = measured_latency(net, out_path, run_name, log, options.progress, frames)
     results["device"] = hardware_description(torch.device("cpu"))
     results["training"] = _training_block(options.model, net.payload)
     results["training"]["command"] = options.training_command

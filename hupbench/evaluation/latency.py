@@ -1,8 +1,9 @@
 """What a model costs: parameters, FLOPs per image, and the latency per image of PyTorch and onnxruntime.
 
-Latency is the median wall time per image over timed runs at batch 1 and 32 (:data:`LATENCY_RUNS`) on random model
-images after a warm-up, the fits after the network included where the model asks for them (they are part of its run
-time); docs/metrics.md defines the figures.
+Latency is the median wall time per image over timed runs at batch 1 and 32 (:data:`LATENCY_RUNS`) after a warm-up,
+on frames of the evaluated split (:data:`LATENCY_FRAMES` spread over it, taken in turn), the fits after the network
+included where the model asks for them (they are part of its run time, and on real frames they find what they fit:
+on random images a fit finds too few points and skips its work); docs/metrics.md defines the figures.
 """
 
 from __future__ import annotations
@@ -20,10 +21,12 @@ import torch
 from hupbench.evaluation.prediction import EvalModel, onnx_network_output
 from hupbench.inference.runtime import load_onnx_model
 
-__all__ = ["LATENCY_RUNS", "count_flops", "measure_latency_ms", "measured_latency", "model_cost"]
+__all__ = ["LATENCY_FRAMES", "LATENCY_RUNS", "count_flops", "measure_latency_ms", "measured_latency", "model_cost"]
 
 #: (least warm-up runs, timed runs) per batch size for the latency medians
 LATENCY_RUNS = {1: (3, 15), 32: (1, 5)}
+#: frames of the evaluated split the latency runs on
+LATENCY_FRAMES = 32
 #: warm-up also lasts at least this long (s): oneDNN and onnxruntime set up kernels lazily, and on
 #: a busy machine the first calls can be many times slower than the steady state
 WARMUP_MIN_S = 0.5
@@ -54,27 +57,38 @@ def model_cost(net: EvalModel) -> tuple[int, int]:
 
 
 def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch: int,
-                       warmup: int, repeats: int, channels: int = 3) -> float:
-    """Median wall time per image of ``run`` on a (batch, C, S, S) float32 array of model images, milliseconds.
+                       warmup: int, repeats: int, channels: int = 3, frames: np.ndarray | None = None) -> float:
+    """Median wall time per image of ``run`` on (batch, C, S, S) float32 arrays of model images, milliseconds.
 
-    Warm-up: at least ``warmup`` runs and ``WARMUP_MIN_S`` seconds (at most ``WARMUP_MAX_RUNS`` runs);
+    The images: ``frames`` (F, C, S, S), each run the next ``batch`` of them in turn (wrapping around); None: random
+    ones. Warm-up: at least ``warmup`` runs and ``WARMUP_MIN_S`` seconds (at most ``WARMUP_MAX_RUNS`` runs);
     then the median of ``repeats`` timed runs, divided by ``batch``.
     """
-    images = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
+    if frames is None:
+        frames = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
+    frames = np.ascontiguousarray(frames, dtype=np.float32)
+    runs_made = [0]
+
+    def images() -> np.ndarray:
+        first = runs_made[0] * batch
+        runs_made[0] += 1
+        return np.ascontiguousarray(np.take(frames, np.arange(first, first + batch), axis=0, mode="wrap"))
+
     start, runs = time.perf_counter(), 0
     while runs < warmup or (time.perf_counter() - start < WARMUP_MIN_S and runs < WARMUP_MAX_RUNS):
-        run(images)
+        run(images())
         runs += 1
     times = []
     for _ in range(repeats):
+        batch_images = images()
         start = time.perf_counter()
-        run(images)
+        run(batch_images)
         times.append(time.perf_counter() - start)
     return statistics.median(times) * 1000.0 / batch
 
 
-def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool,
-               export: Callable[[], object] | None = None) -> dict[str, dict[str, float | None]]:
+def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool, export: Callable[[], object] | None = None,
+               frames: np.ndarray | None = None) -> dict[str, dict[str, float | None]]:
     """Latency medians of both runtimes (PyTorch only for a checkpoint, at torch's thread count); ``export()``, when
     given, first writes ``onnx_path`` (a stage of the progress bar: the exporter takes as long as the timings). The
     fits the model asks for run after the network inside the timing."""
@@ -97,7 +111,8 @@ def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool,
                     after(images, outputs)
             for batch, (warmup, repeats) in LATENCY_RUNS.items():
                 bar.set_postfix_str(f"PyTorch batch {batch}")
-                out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, size, batch, warmup, repeats, channels)
+                out["pytorch"][f"batch{batch}"] = measure_latency_ms(run_torch, size, batch, warmup, repeats, channels,
+                                                                     frames)
                 bar.update(1)
         onnx_model = load_onnx_model(onnx_path, torch.get_num_threads())
 
@@ -108,22 +123,24 @@ def _latencies(net: EvalModel, onnx_path: Path, log, progress: bool,
         for batch, (warmup, repeats) in LATENCY_RUNS.items():
             bar.set_postfix_str(f"onnxruntime batch {batch}")
             out["onnxruntime"][f"batch{batch}"] = measure_latency_ms(run_onnx_and_after, size, batch, warmup, repeats,
-                                                                     channels)
+                                                                     channels, frames)
             bar.update(1)
     log("latency (ms/image): " + ", ".join(f"{rt} b{b[5:]} {v:.2f}" for rt, d in out.items()
                                            for b, v in d.items() if v is not None))
     return out
 
 
-def measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progress: bool) -> dict:
-    """Latency per image, ms, of PyTorch and onnxruntime at batch 1 and 32 (an ONNX model: onnxruntime only):
-    ``{runtime: {"batch1", "batch32"}}``. A checkpoint is exported for onnxruntime beside ``out_path`` under a
-    temporary name, removed afterwards; ``run_name`` goes into its metadata."""
+def measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progress: bool,
+                     frames: np.ndarray | None = None) -> dict:
+    """Latency per image, ms, of PyTorch and onnxruntime at batch 1 and 32 (an ONNX model: onnxruntime only) on
+    ``frames`` (F, C, S, S) model images of the evaluated split (None: random images): ``{runtime: {"batch1",
+    "batch32"}}``. A checkpoint is exported for onnxruntime beside ``out_path`` under a temporary name, removed
+    afterwards; ``run_name`` goes into its metadata."""
     from hupbench.core.io import DiskFullError, tmp_path
     from hupbench.provenance import git_commit
 
     if net.format == "onnx":
-        return _latencies(net, net.path, log, progress)
+        return _latencies(net, net.path, log, progress, frames=frames)
     from hupbench.inference.export import export_onnx, onnx_metadata
 
     # the timed ONNX file lives beside the results under a temporary name (``.NAME.tmpPID.onnx``), not in
@@ -138,6 +155,6 @@ def measured_latency(net: EvalModel, out_path: Path, run_name: str, log, progres
             raise (DiskFullError(onnx_path) if exc.errno == errno.ENOSPC else exc) from exc
 
     try:
-        return _latencies(net, onnx_path, log, progress, export)
+        return _latencies(net, onnx_path, log, progress, export, frames)
     finally:
         onnx_path.unlink(missing_ok=True)

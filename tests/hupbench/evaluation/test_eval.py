@@ -491,6 +491,12 @@ def test_latency_helper_median():
     ms = measure_latency_ms(lambda images: calls.append(images.shape), input_size=16, batch=4, warmup=2, repeats=5)
     assert ms >= 0 and math.isfinite(ms)
     assert len(calls) >= 7 and calls[0] == (4, 3, 16, 16)
+    # given frames, each run takes the next batch of them in turn
+    seen = []
+    frames = np.arange(3, dtype=np.float32)[:, None, None, None] * np.ones((3, 4, 8, 8), np.float32)
+    measure_latency_ms(lambda images: seen.append(images[:, 0, 0, 0].tolist()), input_size=8, batch=2, warmup=1,
+                       repeats=2, channels=4, frames=frames)
+    assert seen[:3] == [[0.0, 1.0], [2.0, 0.0], [1.0, 2.0]] and all(len(s) == 2 for s in seen)
 
 
 @pytest.mark.slow
