@@ -211,10 +211,12 @@ def predict_split(net: EvalModel, reader, batch_size: int, rows: Sequence[int] |
     start = time.perf_counter()
     for batch in tqdm(loader, unit="batch", desc=f"predict {reader.split}", dynamic_ncols=True, leave=False,
                       disable=None if progress else True):  # None: only on a terminal
-        if with_fits or track:
+        if track:   # the network's output kept for the tracked fits
             output = net.network(batch["image"])
             seg = None if with_fits else output.segmentation
             p2, p3 = net.after_network(batch["image"].numpy(), output) if with_fits else output[:2]
+        elif with_fits:
+            (p2, p3), seg = net.predict(batch["image"]), None
         else:
             p2, p3, seg = net.network(batch["image"])
         if track:   # frame by frame, the probe's pose carried within a clip

@@ -101,6 +101,9 @@ def test_the_tracked_fits_carry_the_probe_within_a_clip_across_batches_and_start
         def after_network(self, images, output):
             return output.points2d, output.points3d
 
+        def predict(self, images):
+            return self.after_network(images.numpy(), self.network(images))
+
         def track_fits(self, images, output, probe_start):
             frame = float(images[0, 0, 0, 0])
             self.starts.append(None if probe_start is None else float(probe_start[0, 0, 0]))
