@@ -7,9 +7,9 @@ Each stage is timed on the same frames (the split's first ``--frames``, read at 
 them), batch by batch over all of them, ``--repeats`` times after one warm-up round: the median time of a batch per
 image (a fit's time depends on the frame: how many of its pixels it reads). A fit is timed on the output of the
 stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load included, per
-image. eval's own latency runs the whole model on 32 frames spread over the split; this splits it by stage. The tracked rows run the frames in order, each started at the frame before (the split's first frames
-are its first clip's, in order; ``--frames`` at most a clip's length keeps them in one clip), the state reset before
-each round: the median frame. Prints the CPU with the figures.
+image. eval's own latency runs the whole model on 32 frames spread over the split; this splits it by stage. The
+tracked rows run the frames in order (the split's first frames: its first clips', in order), each started at the
+frame before and afresh at each clip's first frame: the median frame. Prints the CPU with the figures.
 
 Usage: python benchmarks/latency.py CHECKPOINT DATASET [--split val] [--frames 32] [--repeats 3] [--threads 2]
 """
@@ -57,13 +57,17 @@ def per_image_ms(run: Callable[[np.ndarray], object], frames: np.ndarray, batch:
     return statistics.median(times)
 
 
-def tracked_ms(run: Callable[[np.ndarray, object], object], frames: np.ndarray, repeats: int) -> float:
+def tracked_ms(run: Callable[[np.ndarray, object], object], frames: np.ndarray, firsts: np.ndarray,
+               repeats: int) -> float:
     """The median time of ``run(frame (1, C, S, S), state) -> state`` over ``frames`` in order, the state carried from
-    frame to frame and None at the start of each of ``repeats`` rounds (one untimed round first), ms per frame."""
+    frame to frame and None at each clip's first frame (``firsts`` (F,) bool), over ``repeats`` rounds (one untimed
+    round first), ms per frame."""
     times = []
     for round_ in range(repeats + 1):
         state = None
         for i in range(len(frames)):
+            if firsts[i]:
+                state = None
             start = time.perf_counter()
             state = run(frames[i:i + 1], state)
             if round_:
@@ -161,12 +165,14 @@ def main() -> None:
               + f"   ({count} images, decoding and the model file's load included)")
         if not is_sequence(reader.manifest):
             return
-        clips = np.unique(np.asarray(read_annotations(args.dataset, args.split, ("clip_id",), reader.manifest)
-                                     ["clip_id"])[:count])
+        of_clip = np.asarray(read_annotations(args.dataset, args.split, ("clip_id",), reader.manifest)["clip_id"]
+                             )[:count]
+        firsts = np.r_[True, of_clip[1:] != of_clip[:-1]]
+        clips = np.unique(of_clip)
         print(f"tracked, frame by frame in order ({count} frames of clip{'s' if len(clips) > 1 else ''} "
-              f"{', '.join(str(int(c)) for c in clips)}; batch 1 only):")
+              f"{', '.join(str(int(c)) for c in clips)}, each started afresh; batch 1 only):")
         if asked:
-            row = tracked_ms(lambda x, start: net.track_fits(x, network(x), start)[2], frames, args.repeats)
+            row = tracked_ms(lambda x, start: net.track_fits(x, network(x), start)[2], frames, firsts, args.repeats)
             print(f"{'tracked fits':{width}s}{row:14.2f}")
         smoother = OneEuroFilter(min_cutoff_hz=1.0, beta=3.0)
 
@@ -176,7 +182,7 @@ def main() -> None:
             smoother(points3d[0], time.perf_counter())
             return start
 
-        print(f"{'onnxruntime tracked end to end':{width}s}{tracked_ms(tracked, frames, args.repeats):14.2f}"
+        print(f"{'onnxruntime tracked end to end':{width}s}{tracked_ms(tracked, frames, firsts, args.repeats):14.2f}"
               "   (network, tracked fits, 1-euro filter)")
         row = []
         for b in LATENCY_RUNS:

@@ -344,7 +344,7 @@ def test_benchmark_latency(tiny_clips, tmp_path, monkeypatch, capsys):
         figures = line[len(stage):].split("(")[0].split()
         assert len(figures) == 2 and float(figures[0]) > 0, line
         assert figures[1] == "-" or stage == "hupbench predict, files", line
-    assert "tracked, frame by frame in order (2 frames of clip " in out
+    assert "tracked, frame by frame in order (2 frames of clip " in out and "each started afresh" in out
     for stage, figures in (("tracked fits", 1), ("onnxruntime tracked end to end", 1),
                            ("hupbench predict --track, files", 2)):
         line = next(line for line in out.splitlines() if line.startswith(stage))
