@@ -154,7 +154,9 @@ def main() -> None:
                   flush=True)
 
         rgb = [reader.path(i, "rgb") for i in range(count)]
-        depth = reader.path(0, "depth").parent if net.input_modalities == "rgb+depth" else None
+        # the depth files the model images read: a sensor's stored maps, else the clean ones
+        kind = reader.depth_files[0] if len(reader.depth_files) == 1 else "depth"
+        depth = reader.path(0, kind).parent if net.input_modalities == "rgb+depth" else None
         row = []
         for b in LATENCY_RUNS:
             start = time.perf_counter()
