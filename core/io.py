@@ -253,7 +253,7 @@ def compact_json(value: Any, indent: int = 0) -> str:
         return "{\n" + ",\n".join(items) + "\n" + pad + "}"
     if isinstance(value, (list, tuple)) and value:
         if all(v is None or isinstance(v, (int, float)) for v in value):
-            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+            return json.dumps(list(value), allow_nan=False)   # "[a, b]", one call for the whole row
         return "[\n" + ",\n".join(inner + compact_json(v, indent + 2) for v in value) + "\n" + pad + "]"
     return json.dumps(value, allow_nan=False)
 
