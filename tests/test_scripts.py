@@ -229,14 +229,19 @@ def test_benchmark_generate(tiny_dataset, monkeypatch, capsys):
     assert "workers 1: 48 frames in" in out  # 1 grasp x 2 distances x 1 background x 2 gloves x 12 views
 
 
-def test_benchmark_generate_clinic_beside_the_paper_protocol(tiny_grasps, tiny_clinic, monkeypatch, capsys):
+def test_benchmark_generate_clinic_and_sequences_beside_the_paper_protocol(tiny_grasps, tiny_clinic, monkeypatch,
+                                                                            capsys):
     _, clinic_grasps = tiny_clinic
     out = run_script(BENCHMARKS / "generate.py", tiny_grasps, "--clinic", clinic_grasps, "--clinic-grasps", "1",
-                     "--backgrounds", "1", "--workers", "1", "--size", "32", "--r-circ-m", "0.4",
+                     "--sequences", "--backgrounds", "1", "--workers", "1", "--size", "32", "--r-circ-m", "0.4",
                      monkeypatch=monkeypatch, capsys=capsys)
     assert "paper workers 1: 48 frames in" in out  # 1 grasp x 2 distances x 1 background x 2 gloves x 12 views
     assert "clinic workers 1: 66 frames in" in out  # 1 grasp x 1 background x 2 gloves x 33 cameras
-    assert "the clinic track renders at" in out
+    assert "clinic_sequences workers 1: 302 frames in" in out  # 1 grasp x 2 clips x 151 frames
+    assert "full track 18120 frames" in out
+    assert "the clinic track renders at" in out and "the clinic_sequences track renders at" in out
+    with pytest.raises(SystemExit):  # the clips are of the clinic grasps
+        run_script(BENCHMARKS / "generate.py", tiny_grasps, "--sequences", monkeypatch=monkeypatch, capsys=capsys)
 
 
 def test_clinic_picture(tiny_clinic, tiny_dataset, tmp_path, monkeypatch, capsys):
