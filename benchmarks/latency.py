@@ -180,7 +180,7 @@ def main() -> None:
 
         def tracked(x, start):
             out = onnx_network_output(onnx, x)
-            points2d, points3d, start = net.track_fits(x, out, start) if asked else (*out[:2], None)
+            _, points3d, start = net.track_fits(x, out, start) if asked else (*out[:2], None)
             smoother(points3d[0], time.perf_counter())
             return start
 

@@ -9,6 +9,7 @@ on random images a fit finds too few points and skips its work); docs/metrics.md
 from __future__ import annotations
 
 import errno
+import itertools
 import statistics
 import time
 from collections.abc import Callable
@@ -67,12 +68,11 @@ def measure_latency_ms(run: Callable[[np.ndarray], Any], input_size: int, batch:
     if frames is None:
         frames = np.random.default_rng(0).random((batch, channels, input_size, input_size), dtype=np.float32)
     frames = np.ascontiguousarray(frames, dtype=np.float32)
-    runs_made = [0]
+    turns = itertools.count()
 
     def images() -> np.ndarray:
-        first = runs_made[0] * batch
-        runs_made[0] += 1
-        return np.ascontiguousarray(np.take(frames, np.arange(first, first + batch), axis=0, mode="wrap"))
+        first = next(turns) * batch
+        return np.take(frames, np.arange(first, first + batch), axis=0, mode="wrap")
 
     start, runs = time.perf_counter(), 0
     while runs < warmup or (time.perf_counter() - start < WARMUP_MIN_S and runs < WARMUP_MAX_RUNS):

@@ -186,9 +186,10 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     network = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
     R0, t0 = network[:, :3, :3], network[:, :3, 3]                                # the network's pose
     warm = np.zeros(B, bool) if start is None else np.isfinite(start).all(axis=(1, 2))
-    # the turn a frame keeps where the marker does not decide: the previous frame's, else the network's
-    R_ref = np.where(warm[:, None, None], np.nan_to_num(start[:, :3, :3]) if start is not None else 0.0, R0)
-    t_ref = np.where(warm[:, None], np.nan_to_num(start[:, :3, 3]) if start is not None else 0.0, t0)
+    # where a frame's points are taken, and the turn it keeps where the marker does not decide: the frame before's
+    # pose, else the network's
+    reference = network if start is None else np.where(warm[:, None, None], start, network)
+    R_ref, t_ref = reference[:, :3, :3], reference[:, :3, 3]
     box_centre = probe.corners.mean(0)
     reach = float(np.linalg.norm(probe.corners - box_centre, axis=-1).max()) + s.reach_m
     centre = box_centre @ R_ref.transpose(0, 2, 1) + t_ref                        # (B, 3)
@@ -207,8 +208,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     if cold.any():
         RA[cold], tA[cold], inliers[cold] = _search(probe, points[cold], weight[cold], R0[cold], t0[cold], s)
     if tracked.any():   # the previous frame's pose and the network's, each refined on all the points
-        R = np.stack([start[tracked, :3, :3], R0[tracked]], axis=1).reshape(-1, 3, 3)
-        t = np.stack([start[tracked, :3, 3], t0[tracked]], axis=1).reshape(-1, 3)
+        R = np.stack([R_ref[tracked], R0[tracked]], axis=1).reshape(-1, 3, 3)
+        t = np.stack([t_ref[tracked], t0[tracked]], axis=1).reshape(-1, 3)
         R, t, score, found = _refine(probe, np.repeat(points[tracked], 2, axis=0),
                                      np.repeat(weight[tracked], 2, axis=0), R, t, s, s.tracking_iterations)
         pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)

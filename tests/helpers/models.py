@@ -1,5 +1,7 @@
 """Checkpoints and exported models for tests: an untrained HOPE-Net on a dataset, exported once per session."""
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from hupbench.core.io import file_sha256
@@ -27,6 +29,17 @@ def make_checkpoint(path, dataset, **model_cfg):
         model_config=model.config.saved(), model=model.state_dict(), step=0, input_size=INPUT_SIZE,
         K_input=K.tolist(), config={"run_name": "tiny_hopenet"},
         dataset={"path": str(dataset), "manifest_sha256": file_sha256(dataset / "manifest.json")}).save(path)
+
+
+def fitting_onnx(folder, dataset):
+    """An exported untrained model with both fits (probe_fit, hand_fit: depth) that recalls the first test frame's
+    truth (points3d_scale 1e-3: the untrained network adds a fraction of a millimetre), so that both fits find their
+    points there; the ONNX file's path."""
+    with np.load(dataset / "test" / "annotations.npz") as ann:
+        truth = ann["keypoints_3d_cam"][0]
+    ckpt = make_checkpoint(folder / "fit.pt", dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
+                           points3d_mean=truth.tolist(), points3d_scale=1e-3)
+    return Path(E.run_export(E.ExportOptions(ckpt, folder / "fit.onnx", parity_frames=2), log=lambda *_: None)["onnx"])
 
 
 def checkpoint_with_other_K(path, dataset):

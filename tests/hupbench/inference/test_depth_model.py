@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from helpers.cli import assert_clean_error, run_cli
-from helpers.models import make_checkpoint
+from helpers.models import fitting_onnx, make_checkpoint
 from hupbench.checkpoint import load_model
 from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.inference import export as E
@@ -234,14 +234,7 @@ def test_predict_of_a_fitting_model_fits_without_torch(tiny_dataset, tmp_path):
     from hupbench.fits.known_probe import default_fit_probe
     from hupbench.inference.runtime import load_onnx_model, run_onnx
 
-    # the layout it recalls (points3d_scale 1e-3: the untrained network adds a fraction of a millimetre) is the first
-    # frame's truth, so that both fits find their points there
-    with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
-        truth = ann["keypoints_3d_cam"][0]
-    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
-                           points3d_mean=truth.tolist(), points3d_scale=1e-3)
-    onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
-                                  log=lambda *_: None)["onnx"])
+    onnx_path = fitting_onnx(tmp_path, tiny_dataset)   # it recalls the first frame's truth
     model = load_onnx_model(onnx_path)
     assert model.fit_probe.record == default_fit_probe().record
     assert np.array_equal(model.fit_probe.grid, default_fit_probe().grid)

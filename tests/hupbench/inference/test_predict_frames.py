@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 from helpers.cli import assert_clean_error, run_cli
-from helpers.models import make_checkpoint
+from helpers.models import fitting_onnx
 from hupbench.core.errors import BadValueError
 from hupbench.data import HUPDataset, ReaderConfig
-from hupbench.inference import export as E
 from hupbench.inference.predict import PredictOptions, run_predict
 
 FPS = 30.0
@@ -23,12 +22,7 @@ def fitting(tmp_path_factory, tiny_dataset):
     """(onnx, frames folder, depth folder) of an untrained model with both fits that recalls the first test frame's
     truth (so that both fits find their points), and 4 test frames renamed frame_08 ... frame_11 with their depth."""
     folder = tmp_path_factory.mktemp("frames")
-    with np.load(tiny_dataset / "test" / "annotations.npz") as ann:
-        truth = ann["keypoints_3d_cam"][0]
-    ckpt = make_checkpoint(folder / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
-                           points3d_mean=truth.tolist(), points3d_scale=1e-3)
-    onnx_path = Path(E.run_export(E.ExportOptions(ckpt, folder / "fit.onnx", parity_frames=2),
-                                  log=lambda *_: None)["onnx"])
+    onnx_path = fitting_onnx(folder, tiny_dataset)
     frames, depth = folder / "rgb", folder / "depth"
     frames.mkdir()
     depth.mkdir()
