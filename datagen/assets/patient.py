@@ -34,7 +34,8 @@ import trimesh
 
 from hupbench.core.input_checks import check_int, check_interval, check_number
 
-__all__ = ["PLACEMENT_FIELDS", "PatientPlacement", "PatientSpec", "body_mesh", "body_sdf", "body_sdf_local", "place_patient",
+__all__ = ["PLACEMENT_FIELDS", "PatientPlacement", "PatientSpec", "below_skin", "body_mesh", "body_sdf", "body_sdf_local",
+           "place_patient",
            "placement_arrays", "placement_from_arrays", "SKIN_RGB", "skin_rgb", "sphere_centre"]
 
 #: the radii a config may ask for: below 0.1 m the bump is no longer star-shaped from the body's core
@@ -175,6 +176,22 @@ def body_sdf_local(radius_m: float, points_body: np.ndarray) -> np.ndarray:
     union = h * sphere + (1.0 - h) * torso - BLEND_M * h * (1.0 - h)
     gradient = h[:, None] * sphere_gradient + (1.0 - h)[:, None] * torso_gradient
     return union / np.maximum(np.linalg.norm(gradient, axis=-1), 1e-12)
+
+
+def below_skin(radius_m: float, points_body: np.ndarray) -> np.ndarray:
+    """How deep points lie inside the body or below the bed's top (the body frame's z = 0), metres.
+
+    Args:
+        radius_m: the abdomen's radius of curvature, metres.
+        points_body: (..., 3) float64, metres, body frame.
+
+    Returns:
+        (...) float64: the larger of the depth inside the body and below the bed; negative where a point is
+        clear of both.
+    """
+    points = np.asarray(points_body, dtype=np.float64)
+    flat = points.reshape(-1, 3)
+    return np.maximum(-body_sdf_local(radius_m, flat), -flat[:, 2]).reshape(points.shape[:-1])
 
 
 def body_sdf(placement: PatientPlacement, points_world: np.ndarray) -> np.ndarray:
@@ -340,9 +357,7 @@ def place_patient(spec: PatientSpec, probe, hand_vertices_world: np.ndarray, arm
         T = _pressed(radius, R_world_body, contact_body, lens_world, spec.press_m)
         if body_sdf_local(radius, (vertices - T[:3, 3]) @ R_world_body).min() < -PROBE_MAX_DEPTH_M:
             continue
-        parts_body = (body_parts - T[:3, 3]) @ R_world_body
-        depth = np.maximum(-body_sdf_local(radius, parts_body), -parts_body[:, 2])
-        penetration = float(depth.max(initial=0.0))
+        penetration = float(below_skin(radius, (body_parts - T[:3, 3]) @ R_world_body).max(initial=0.0))
         if penetration <= spec.max_penetration_m:
             lens_skin = float(body_sdf_local(radius, (lens_world - T[:3, 3]) @ R_world_body).min())
             normal_world = R_world_body @ (contact_body - sphere_centre(radius)) / radius

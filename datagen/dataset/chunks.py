@@ -223,7 +223,8 @@ class ChunkRenderer:
                                                                                               "z_ego")}}
             rows.append(self._row(index, cam, frame["visible"], light) | world.rows(g, clip["background"], c)
                         | {"roll_deg": measured["roll_deg"][f], "aim_px": measured["aim_px"][f], "clip_id": clip_id,
-                           "frame_in_clip": f, "time_s": clip["time_s"][f], "T_world_body": clip["T_world_body"][f]})
+                           "frame_in_clip": f, "time_s": clip["time_s"][f], "T_world_body": clip["T_world_body"][f],
+                           "hand_pose": clip["hand_pose"][f]})
         record = {"clip_id": clip_id, "grasp_index": g, **clip_record(clip, spec.scan.fps)}
         return ChunkOutput(chunk, split, files, _stack_rows(rows, annotation_fields(spec.track, sequence=True)),
                            clip=record)
@@ -295,8 +296,8 @@ class ChunkRenderer:
     def render_clip(self, g: int, clip: dict, background: int, glove: int, light: dict) -> list[dict]:
         """Render every frame of one clip of grasp ``g`` on the clinic track (nothing is encoded or written).
 
-        The patient and the room move with the clip's body pose; the hand and the probe stay where the grasp puts
-        them (the world is the probe frame); one lamp lights the whole clip.
+        The patient and the room move with the clip's body pose; the probe and the wrist stay where the grasp puts
+        them (the world is the probe frame), the fingers take each frame's pose; one lamp lights the whole clip.
 
         Args:
             g: the grasp. clip: :func:`hupbench.datagen.dataset.clips.clip_geometry`'s dict.
@@ -308,15 +309,22 @@ class ChunkRenderer:
             (H, W) uint8; "visible": (29,) bool}.
         """
         assert self.world is not None, "clips are rendered on the clinic track's world"
+        from hupbench.datagen.assets.hand import build_hand
+
         self._load_grasp(g)
         moving = list(self.world.colours(g, background))  # the patient and the room's parts
         T_world_body0 = self.world.placements[g].T_world_body
+        hand, grasp_pose, trans = build_hand(self.grasps.hand_spec(g)), self.grasps.hand_pose[g], self.grasps.hand_trans[g]
+        posed = grasp_pose
         frames = []
         try:
             for f, T_cam_world in enumerate(clip["T_cam_world"]):
                 T_move = clip["T_world_body"][f] @ invert_transform(T_world_body0)
                 for name in moving:
                     self.renderer.move_part(name, T_move)
+                if (clip["hand_pose"][f] != posed).any():
+                    posed = clip["hand_pose"][f]
+                    self.renderer.set_part_mesh("hand", hand.mesh(posed, trans))
                 labels = self.renderer.render(T_cam_world, ("depth", "seg"))
                 cam = {"keypoints_cam": clip["keypoints_cam"][f], "keypoints_2d": clip["keypoints_2d"][f]}
                 frame = {"depth": labels["depth"], "seg": labels["seg"],
@@ -327,6 +335,8 @@ class ChunkRenderer:
         finally:
             for name in moving:
                 self.renderer.move_part(name, np.eye(4))
+            if (posed != grasp_pose).any():
+                self.renderer.set_part_mesh("hand", hand.mesh(grasp_pose, trans))
         return frames
 
     def _view(self, cam: dict) -> dict:

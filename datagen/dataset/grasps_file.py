@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hupbench.core import keypoints as kp
-from hupbench.core.contract import read_manifest
+from hupbench.core.contract import SEQUENCE, read_manifest
 from hupbench.core.errors import BadValueError, MissingFileError
 from hupbench.core.geometry import axis_angle_to_matrix
 from hupbench.datagen.assets.hand_anatomy import FACTOR_RANGE, PROPORTION_FIELDS, HandSpec
@@ -252,15 +252,22 @@ def _subjects_problem(arrays: dict[str, np.ndarray]) -> str | None:
     return None
 
 
-def rendered_with(grasps: dict[str, np.ndarray], ann: dict[str, np.ndarray]) -> np.ndarray:
+def rendered_with(grasps: dict[str, np.ndarray], ann: dict[str, np.ndarray], manifest: dict) -> np.ndarray:
     """(N,) bool: each annotation row holds the grasp (id, hand pose, translation) that its ``grasp_index``
     names in ``grasps`` (:func:`read_grasps`' arrays), as the writer copied them: the frames were rendered
-    from these grasps."""
+    from these grasps. On a dataset of clips (``manifest`` with a "sequence" record; ``ann`` with ``clip_id`` and
+    ``time_s``) the pose is the grasp's with its clip's finger adjustments
+    (:func:`hupbench.datagen.dataset.verify_sequence.expected_hand_poses`)."""
     index = ann["grasp_index"]
     inside = (index >= 0) & (index < len(grasps["grasp_id"]))
     at = np.where(inside, index, 0)
+    expected = grasps["hand_pose"][at]
+    if SEQUENCE in manifest:
+        from hupbench.datagen.dataset.verify_sequence import expected_hand_poses
+
+        expected = expected_hand_poses(grasps["hand_pose"], ann, manifest)
     return (inside & (grasps["grasp_id"][at] == ann["grasp_id"])
-            & (grasps["hand_pose"][at] == ann["hand_pose"]).all(axis=1)
+            & (expected == ann["hand_pose"]).all(axis=1)
             & (grasps["hand_trans"][at] == ann["hand_trans"]).all(axis=1))
 
 

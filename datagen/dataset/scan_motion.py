@@ -46,7 +46,7 @@ from hupbench.core.errors import RunFailedError
 from hupbench.core.geometry import axis_angle_to_matrix, invert_transform
 from hupbench.core.input_checks import check_interval, check_number
 from hupbench.core.motion_metrics import KINEMATICS_KEYS, point_kinematics, time_derivatives
-from hupbench.datagen.assets.patient import (MAX_PENETRATION_M, PROBE_MAX_DEPTH_M, PatientPlacement,
+from hupbench.datagen.assets.patient import (MAX_PENETRATION_M, PROBE_MAX_DEPTH_M, PatientPlacement, below_skin,
                                              body_sdf_local, sphere_centre)
 
 __all__ = ["BANDS_HZ", "OVERSAMPLE", "SKILL_KINEMATICS", "ScanMotion", "ScanMotionSpec", "band_noise", "clip_frames",
@@ -249,8 +249,8 @@ def _contact_kept(T: np.ndarray, radius_m: float, probe_vertices: np.ndarray, ke
         return False
     if keep_out is None:
         return True
-    parts = (np.einsum("fij,vj->fvi", T[:, :3, :3], keep_out) + T[:, None, :3, 3]).reshape(-1, 3)
-    return bool(np.maximum(-body_sdf_local(radius_m, parts), -parts[:, 2]).max() <= MAX_PENETRATION_M)
+    parts = np.einsum("fij,vj->fvi", T[:, :3, :3], keep_out) + T[:, None, :3, 3]
+    return bool(below_skin(radius_m, parts).max() <= MAX_PENETRATION_M)
 
 
 def scan_motion(placement: PatientPlacement, probe, spec: ScanMotionSpec, rng: np.random.Generator,

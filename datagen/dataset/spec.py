@@ -25,6 +25,7 @@ from hupbench.core.input_checks import check_int, is_whole
 from hupbench.datagen.assets.backgrounds import MIN_SIZE_PX
 from hupbench.datagen.assets.hand_anatomy import HAND_LENGTH_M
 from hupbench.datagen.dataset.head import HeadSpec
+from hupbench.datagen.dataset.finger_motion import FingerMotionSpec
 from hupbench.datagen.dataset.head_motion import HeadMotionSpec
 from hupbench.datagen.dataset.scan_motion import ScanMotionSpec, clip_frames
 from hupbench.datagen.dataset.sphere import SphereSpec, excluded_view_ids, sphere_frame, unit_directions, viewpoints
@@ -116,6 +117,9 @@ class DatasetSpec:
             :attr:`frames_per_clip` frames) and how the wearer's head moves
             (:class:`hupbench.datagen.dataset.head_motion.HeadMotionSpec`); each of a grasp's
             ``head.views_per_grasp`` cameras starts one clip. None (both) for single frames.
+        fingers: on a dataset of clips, how the fingers adjust over a clip
+            (:class:`hupbench.datagen.dataset.finger_motion.FingerMotionSpec`); None: the hand holds its grasp's
+            pose throughout. Only with ``scan``.
         view_stride: on the "unseen_views" track, of every ``view_stride`` consecutive views of the
             sphere one goes to test and one to val (:func:`split_of_views`).
         modalities: which of rgb, depth, seg to write.
@@ -159,6 +163,7 @@ class DatasetSpec:
     head: HeadSpec | None = None
     scan: ScanMotionSpec | None = None
     head_motion: HeadMotionSpec | None = None
+    fingers: FingerMotionSpec | None = None
     intrinsics: Intrinsics = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -179,6 +184,9 @@ class DatasetSpec:
                                 "`hupbench generate +track=clinic_sequences` sets both, got "
                                 f"scan={'set' if self.scan is not None else 'null'}, head_motion="
                                 f"{'set' if self.head_motion is not None else 'null'} on the {self.track} track")
+        if self.fingers is not None and self.scan is None:
+            raise BadValueError("dataset.fingers moves the fingers over a clip: set it with dataset.scan "
+                                "(`hupbench generate +track=clinic_sequences`), or dataset.fingers=null")
         if self.scan is not None and self.scan.duration_s[0] != self.scan.duration_s[1]:
             raise BadValueError("dataset.scan.duration_s must be one clip length on a dataset of clips, [d, d] (each "
                                 "clip has the same frames, so a frame's index places it in its clip), got "
@@ -465,6 +473,7 @@ def sequence_record(spec: DatasetSpec, clips: list[dict]) -> dict:
     measured and their bounds, mm/s^n)."""
     return {"fps": spec.scan.fps, "frames_per_clip": spec.frames_per_clip, "clips_per_grasp": spec.n_views,
             "scan": asdict(spec.scan), "head_motion": asdict(spec.head_motion),
+            "fingers": None if spec.fingers is None else asdict(spec.fingers),
             "kinematics_source": "Le Lous et al. 2024 (hupbench.datagen.dataset.scan_motion.SKILL_KINEMATICS)",
             "clips": clips}
 

@@ -224,7 +224,8 @@ def check_look_at(ann: dict, split: str, look_at: str) -> list[dict]:
 
 def check_grasps_file(root: Path, annotations: dict[str, dict], manifest: dict) -> list[dict]:
     """grasps.npz against the frames and the manifest: each row's hand pose, translation and grasp id must
-    be those of its grasp (``grasp_index``) in the file, as the writer copied them, and the file's sha256
+    be those of its grasp (``grasp_index``) in the file, as the writer copied them (on a dataset of clips the pose
+    with its clip's finger adjustments), and the file's sha256
     the manifest's ``grasps_sha256`` where it records one."""
     from hupbench.datagen.dataset.grasps_file import read_grasps, rendered_with
 
@@ -241,7 +242,7 @@ def check_grasps_file(root: Path, annotations: dict[str, dict], manifest: dict) 
         problems.append(_problem(None, None, "grasps_file", f"sha256 {actual} is not the manifest's grasps_sha256 "
                                                             f"{recorded!r}: the file was changed or replaced", path.name))
     for split, ann in annotations.items():
-        same = rendered_with(grasps, ann)
+        same = rendered_with(grasps, ann, manifest)
         if not same.all():
             first = int(ann["frame_id"][np.flatnonzero(~same)[0]])
             problems.append(_problem(split, first, "grasps_file",

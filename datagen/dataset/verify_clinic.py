@@ -166,14 +166,21 @@ def _grasp_vertices(world: ClinicGrasps, g: int, probe) -> tuple[np.ndarray, np.
     return world.vertices[g]
 
 
-def contact(world: ClinicGrasps, g: int, probe, placement: PatientPlacement) -> tuple[float, float, float]:
+def contact(world: ClinicGrasps, g: int, probe, placement: PatientPlacement, hand: np.ndarray | None = None
+            ) -> tuple[float, float, float]:
     """Grasp ``g``'s lens against the patient at ``placement``, as rendered.
+
+    Args:
+        hand: (V, 3) float64, metres, world frame: the hand's vertices in a frame whose fingers moved (a dataset of
+            clips), in place of the grasp's own; None: the grasp's.
 
     Returns:
         (the lens's deepest vertex's signed distance to the skin, the deepest probe vertex's, the deepest hand or
         forearm vertex's depth inside the body or below the bed's top, >= 0), metres.
     """
     lens, vertices, body = _grasp_vertices(world, g, probe)
+    if hand is not None:
+        body = np.concatenate([hand, body[len(hand):]])
     depth = np.maximum(-body_sdf(placement, body), -_body_frame_height(placement, body))
     return (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
             max(0.0, float(depth.max())))
@@ -184,6 +191,22 @@ def grasp_contact(world: ClinicGrasps, g: int, probe) -> tuple[float, float, flo
     if g not in world.contact:
         world.contact[g] = contact(world, g, probe, world.placements[g])
     return world.contact[g]
+
+
+def _frame_hands(ann: dict, rows: np.ndarray, world: ClinicGrasps) -> dict[int, np.ndarray]:
+    """{row: (V, 3) its hand's vertices, world frame} for the ``rows`` whose ``hand_pose`` is not their grasp's (a
+    clip's frames whose fingers moved), built as the renderer builds them (the joints clamped to their limits)."""
+    from hupbench.datagen.assets.hand import build_hand
+
+    grasps = world.grasps
+    index = ann["grasp_index"][rows]
+    moved = rows[(ann["hand_pose"][rows] != grasps.hand_pose[index]).any(axis=1)]
+    out = {}
+    for g in np.unique(ann["grasp_index"][moved]).tolist():
+        at = moved[ann["grasp_index"][moved] == g]
+        vertices = build_hand(grasps.hand_spec(g)).vertices(ann["hand_pose"][at], grasps.hand_trans[g])
+        out.update(zip(at.tolist(), vertices))
+    return out
 
 
 def _contact_problem(lens_m: float, probe_m: float, hand_m: float) -> str | None:
@@ -202,15 +225,16 @@ def _contact_problem(lens_m: float, probe_m: float, hand_m: float) -> str | None
 def check_lens_skin(ann: dict, split: str, world: ClinicGrasps, probe) -> list[dict]:
     """Per grasp of the split: the lens on the skin, the probe no deeper than ``PROBE_MAX_DEPTH_M``, the hand and
     forearm no deeper than :data:`BODY_PENETRATION_M`; one problem per failing grasp, naming its frames. On a
-    dataset of clips the same in every frame, at the frame's body pose: one problem per failing clip, naming its
-    first failing frame and how many fail (the contact kept throughout)."""
+    dataset of clips the same in every frame, at the frame's body pose and with the frame's hand pose: one problem
+    per failing clip, naming its first failing frame and how many fail (the contact kept throughout)."""
     problems = []
     known = _known(ann, world)
     if "T_world_body" in ann:
         for clip in np.unique(ann["clip_id"][known]).tolist():
             rows = np.flatnonzero(known & (ann["clip_id"] == clip))
+            hands = _frame_hands(ann, rows, world)
             failing = [(i, why) for i in rows for why in [_contact_problem(*contact(
-                world, int(ann["grasp_index"][i]), probe, _placement_of_row(ann, i, world)))] if why]
+                world, int(ann["grasp_index"][i]), probe, _placement_of_row(ann, i, world), hands.get(i)))] if why]
             if failing:
                 i, why = failing[0]
                 problems.append(_problem(split, ann["frame_id"][i], "lens_skin",

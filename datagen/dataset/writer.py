@@ -487,10 +487,11 @@ class DatasetWriter:
         copied = self.out_dir / "grasps.npz"
         if not copied.is_file() or file_sha256(copied) != file_sha256(self.run.grasps_file):
             return False
-        arrays = read_grasps(copied)
-        keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans")
-        return all(rendered_with(arrays, read_annotations(self.out_dir, split, keys)).all()
-                   for split, count in read_manifest(self.out_dir)["counts"].items() if count)
+        arrays, manifest = read_grasps(copied), read_manifest(self.out_dir)
+        keys = ("grasp_index", "grasp_id", "hand_pose", "hand_trans") + (("clip_id", "time_s") if SEQUENCE in manifest
+                                                                       else ())
+        return all(rendered_with(arrays, read_annotations(self.out_dir, split, keys), manifest).all()
+                   for split, count in manifest["counts"].items() if count)
 
     def _frame_files(self, split: str, frames: tuple[int, ...]) -> Iterator[Path]:
         spec = self.run.dataset

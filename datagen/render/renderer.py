@@ -154,6 +154,7 @@ class Renderer:
         self._camera_node = self._scene.add(camera, pose=np.eye(4))
         self._part_nodes: dict[str, object] = {}
         self._labels: dict[object, tuple[int, int, int]] = {}
+        self._smooth: dict[str, bool] = {}
         self._light_nodes: list[object] = []
 
     def set_parts(self, parts: Sequence[MeshPart]) -> None:
@@ -169,6 +170,7 @@ class Renderer:
             self._scene.remove_node(node)
         self._part_nodes.clear()
         self._labels.clear()
+        self._smooth.clear()
         for rank, part in enumerate(parts):
             material = pyrender.MetallicRoughnessMaterial(
                 baseColorFactor=[*part.color, 1.0], roughnessFactor=part.roughness, metallicFactor=part.metallic,
@@ -180,6 +182,23 @@ class Renderer:
             setattr(node, gl.DRAW_RANK, rank)
             self._part_nodes[part.name] = node
             self._labels[node] = (part.label,) * 3
+            self._smooth[part.name] = part.smooth
+
+    def set_part_mesh(self, name: str, mesh) -> None:
+        """Replace one part's mesh (a hand whose fingers move, frame by frame), keeping its material, label and
+        drawing rank.
+
+        Args:
+            name: the part's name. mesh: a ``trimesh.Trimesh``, world frame.
+        """
+        old = self._part_nodes[name]
+        primitive = old.mesh.primitives[0]
+        node = self._scene.add(self._pyrender.Mesh.from_trimesh(mesh, material=primitive.material,
+                                                                smooth=self._smooth[name]), name=name)
+        setattr(node, gl.DRAW_RANK, getattr(old, gl.DRAW_RANK))
+        self._scene.remove_node(old)
+        self._part_nodes[name] = node
+        self._labels[node] = self._labels.pop(old)
 
     def move_part(self, name: str, T_world_given: np.ndarray) -> None:
         """Move a part rigidly without re-uploading its mesh (a patient under a moving probe, frame by frame).

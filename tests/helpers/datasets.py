@@ -67,14 +67,22 @@ CLIPS_PER_GRASP, CLIP_FPS, CLIP_FRAMES = 2, 10.0, 11
 
 
 def sequence_spec(**changes):
-    """A tiny dataset of clips: :func:`clinic_spec` with 2 clips per grasp of 1 s at 10 frames/s."""
+    """A tiny dataset of clips: :func:`clinic_spec` with 2 clips per grasp of 1 s at 10 frames/s, whose fingers
+    adjust quickly (:data:`TINY_FINGERS`)."""
     from hupbench.datagen.dataset.head import HeadSpec
     from hupbench.datagen.dataset.head_motion import HeadMotionSpec
     from hupbench.datagen.dataset.scan_motion import ScanMotionSpec
 
     return clinic_spec(**{"head": HeadSpec(views_per_grasp=CLIPS_PER_GRASP),
-                          "scan": ScanMotionSpec(duration_s=(1.0, 1.0), fps=CLIP_FPS), "head_motion": HeadMotionSpec()}
-                       | changes)
+                          "scan": ScanMotionSpec(duration_s=(1.0, 1.0), fps=CLIP_FPS), "head_motion": HeadMotionSpec(),
+                          "fingers": tiny_fingers()} | changes)
+
+
+def tiny_fingers():
+    """Finger adjustments that fit a 1 s clip: about two, each 0.2-0.6 s long."""
+    from hupbench.datagen.dataset.finger_motion import FingerMotionSpec
+
+    return FingerMotionSpec(rate_hz=4.0, open_deg=(10.0, 20.0), move_s=(0.1, 0.2), hold_s=(0.0, 0.2))
 
 
 def kill_after_first_chunk(code: str, out, timeout_s: float = 300.0) -> None:

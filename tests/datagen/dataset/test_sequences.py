@@ -190,3 +190,67 @@ def test_a_malformed_sequence_record_is_refused(clips_dataset, tmp_path):
     (out / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(BadValueError, match="sequence must be a clinic dataset's record"):
         verify(out, workers=1, progress=False, log=lambda *_: None)
+
+
+def test_the_fingers_adjust_within_a_clip_and_verify_holds_each_frame_to_its_record(clips_dataset):
+    """The tiny clips' fingers move (frames whose hand pose is not their grasp's, hand keypoints that move
+    relative to the probe); each frame's pose is its grasp's with its clip's recorded adjustments, and a frame
+    given another pose is a grasps_file problem."""
+    from hupbench.datagen.dataset.grasps_file import read_grasps
+    from hupbench.datagen.dataset.verify_annotations import check_grasps_file
+
+    manifest = read_manifest(clips_dataset)
+    assert manifest[SEQUENCE]["fingers"]["rate_hz"] > 0
+    grasps = read_grasps(clips_dataset / "grasps.npz")
+    annotations = {split: read_annotations(clips_dataset, split) for split in ("train", "val", "test")}
+    moved = {split: (ann["hand_pose"] != grasps["hand_pose"][ann["grasp_index"]]).any(axis=1)
+             for split, ann in annotations.items()}
+    assert sum(m.sum() for m in moved.values()) > 10
+    ann = annotations["train"]
+    first = ann["frame_in_clip"] == 0  # a clip starts at its grasp's pose
+    assert not moved["train"][first].any()
+    assert check_grasps_file(clips_dataset, annotations, manifest) == []
+    row = int(np.flatnonzero(moved["train"])[0])
+    other = copy.deepcopy(annotations)
+    other["train"]["hand_pose"][row, 5] += 0.01
+    problems = check_grasps_file(clips_dataset, other, manifest)
+    assert len(problems) == 1 and problems[0]["frame_id"] == ann["frame_id"][row], problems
+    assert "1 train frames' grasp (id, hand pose, translation) differ" in problems[0]["detail"]
+
+
+def test_a_finger_label_jump_or_a_malformed_adjustment_is_clip_continuity(clips_dataset):
+    """A fingertip label moved 50 mm in one frame (beyond the clip's fingers' bound) is a jump; a record whose
+    adjustment names the thumb is not an adjustment."""
+    from hupbench.core import keypoints as kp
+
+    manifest = read_manifest(clips_dataset)
+    ann = read_annotations(clips_dataset, "train")
+    row = 4
+    bound = manifest[SEQUENCE]["clips"][int(ann["clip_id"][row])]["fingers"]["keypoint_speed_mm_per_s"]
+    assert 50.0 > bound / FPS
+    jumped = copy.deepcopy(ann)
+    jumped["keypoints_3d_cam"][row, kp.KEYPOINT_NAMES.index("index_tip")] += np.float32([0.05, 0.0, 0.0])
+    problems = check_clips(jumped, "train", manifest)
+    assert len(problems) == 1 and "hand keypoint moves" in problems[0]["detail"], problems
+    assert problems[0]["frame_id"] == ann["frame_id"][row]
+    thumb = copy.deepcopy(manifest)
+    clip = int(ann["clip_id"][0])
+    thumb[SEQUENCE]["clips"][clip]["fingers"]["adjustments"] = [
+        {"fingers": ["thumb"], "start_s": 0.1, "move_s": 0.1, "hold_s": 0.0, "open_deg": [[5.0, 5.0, 5.0]]}]
+    problems = check_clips(ann, "train", thumb)
+    assert len(problems) == 1 and "fingers are not" in problems[0]["detail"], problems
+
+
+def test_generate_renders_a_missing_clip_frame_of_a_finished_dataset_of_clips_again(clips_dataset, tmp_path):
+    """The frames whose fingers moved hold their clip's poses, not their grasp's: generate on the finished dataset
+    still knows it was rendered from its grasps and renders the missing frame's clip again, byte for byte."""
+    from hupbench.datagen.dataset.writer import GenerateRun, generate
+
+    out = _copy(clips_dataset, tmp_path)
+    frame = next((out / "val" / "rgb").glob("*.*"))
+    before = frame.read_bytes()
+    frame.unlink()
+    result = generate(GenerateRun(sequence_spec(), str(out), str(out / "grasps.npz"), progress=False),
+                      {"test": "tiny_clips"}, log=lambda *_: None)
+    assert result["complete"] and result["frames_rendered"] == FRAMES  # the one clip
+    assert frame.read_bytes() == before
