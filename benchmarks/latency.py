@@ -6,8 +6,8 @@ a dataset of clips, tracking them at batch 1: the fits started where they left t
 Each stage is timed on the same frames (the split's first ``--frames``, read at the model's input as eval reads
 them), batch by batch over all of them, ``--repeats`` times after one warm-up round: the median time of a batch per
 image (a fit's time depends on the frame: how many of its pixels it reads). A fit is timed on the output of the
-stage before it. ``predict`` is timed over the frames' image and depth files, the model file's load included, per
-image. eval's own latency runs the whole model on 32 frames spread over the split; this splits it by stage. The
+stage before it. ``predict`` is timed over the frames' image and depth files, per image with the model file's load
+and per image after it (less a run on one file: a stream's rate once loaded). eval's own latency runs the whole model on 32 frames spread over the split; this splits it by stage. The
 tracked rows run the frames in order (the split's first frames: its first clips', in order), each started at the
 frame before and afresh at each clip's first frame: the median frame. Prints the CPU with the figures.
 
@@ -157,14 +157,27 @@ def main() -> None:
         # the depth files the model images read: a sensor's stored maps, else the clean ones
         kind = reader.depth_files[0] if len(reader.depth_files) == 1 else "depth"
         depth = reader.path(0, kind).parent if net.input_modalities == "rgb+depth" else None
-        row = []
-        for b in LATENCY_RUNS:
-            start = time.perf_counter()
-            run_predict(PredictOptions(onnx_path, tuple(rgb), Path(folder) / f"predict{b}", overlay=False,
-                                       batch_size=b, depth_dir=depth), log=lambda *_: None)
-            row.append((time.perf_counter() - start) * 1000.0 / count)
-        print(f"{'hupbench predict, files':{width}s}" + "".join(f"{v:14.2f}" for v in row)
-              + f"   ({count} images, decoding and the model file's load included)")
+
+        def predict_rows(name: str, **track) -> None:
+            """``hupbench predict`` over the files at each batch size: per image with the model file's load, and
+            per image after it (the run on all the files less a run on the first file alone, over the rest: the
+            rate of a stream once the model is loaded)."""
+            def seconds(files: list, b: int) -> float:
+                start = time.perf_counter()
+                run_predict(PredictOptions(onnx_path, tuple(files), Path(folder) / f"{name}{b}_{len(files)}",
+                                           overlay=False, batch_size=b, depth_dir=depth, **track), log=lambda *_: None)
+                return time.perf_counter() - start
+
+            seconds(rgb[:1], 1)  # the process's first loads (imports, onnxruntime's start), untimed
+            first = seconds(rgb[:1], 1)
+            whole = [seconds(rgb, b) for b in LATENCY_RUNS]
+            print(f"{'hupbench predict' + name + ', files':{width}s}" + "".join(f"{1e3 * t / count:14.2f}" for t in whole)
+                  + f"   ({count} images; decoding and the model file's load ({1e3 * first:.0f} ms with one image) "
+                  "included)")
+            print(f"{'  the same, after the load':{width}s}"
+                  + "".join(f"{1e3 * (t - first) / (count - 1):14.2f}" for t in whole), flush=True)
+
+        predict_rows("")
         if not is_sequence(reader.manifest):
             return
         of_clip = np.asarray(read_annotations(args.dataset, args.split, ("clip_id",), reader.manifest)["clip_id"]
@@ -186,14 +199,7 @@ def main() -> None:
 
         print(f"{'onnxruntime tracked end to end':{width}s}{tracked_ms(tracked, frames, firsts, args.repeats):14.2f}"
               "   (network, tracked fits, 1-euro filter)")
-        row = []
-        for b in LATENCY_RUNS:
-            start = time.perf_counter()
-            run_predict(PredictOptions(onnx_path, tuple(rgb), Path(folder) / f"tracked{b}", overlay=False,
-                                       batch_size=b, depth_dir=depth, track="1,3", fps=30.0), log=lambda *_: None)
-            row.append((time.perf_counter() - start) * 1000.0 / count)
-        print(f"{'hupbench predict --track, files':{width}s}" + "".join(f"{v:14.2f}" for v in row)
-              + "   (decoding and the model file's load included)")
+        predict_rows(" --track", track="1,3", fps=30.0)
 
 
 if __name__ == "__main__":

@@ -354,6 +354,9 @@ def test_benchmark_latency(tiny_clips, tmp_path, monkeypatch, capsys):
                            ("hupbench predict --track, files", 2)):
         line = next(line for line in out.splitlines() if line.startswith(stage))
         assert len(line[len(stage):].split("(")[0].split()) == figures and float(line[len(stage):].split()[0]) > 0
+    after = [line.split() for line in out.splitlines() if line.startswith("  the same, after the load")]
+    assert len(after) == 2 and all(len(words) == 7 for words in after), after  # predict's and predict --track's
+    assert "the model file's load (" in out and "ms with one image) included" in out
 
 
 def test_benchmark_scale_training(tiny_dataset, monkeypatch, capsys):

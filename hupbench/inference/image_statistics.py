@@ -72,14 +72,19 @@ def image_statistics(image_rgb: np.ndarray, input_size: int) -> np.ndarray:
     height, width = image_rgb.shape[:2]
     scale = input_size / max(height, width)
     size = (max(1, round(width * scale)), max(1, round(height * scale)))
-    image = cv2.resize(np.asarray(image_rgb, dtype=np.float32), size, interpolation=cv2.INTER_AREA).reshape(
-        size[1], size[0], 3)
-    saturation = cv2.cvtColor(image, cv2.COLOR_RGB2HSV)[..., 1]
+    image = np.asarray(image_rgb, dtype=np.float32)
+    if size != (width, height):
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
+    # OpenCV's means and deviations sum in float64 (numpy's float32 sums over the channel-strided axes drifted by
+    # up to 4e-4 of the value) and cost a fifth of numpy's (predict's frame rate)
+    mean, std = cv2.meanStdDev(image)
+    saturation_mean, saturation_std = cv2.meanStdDev(cv2.cvtColor(image, cv2.COLOR_RGB2HSV)[..., 1].copy())
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    gradient = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
-    laplacian = cv2.Laplacian(grey, cv2.CV_32F)
-    return np.array([*image.mean(axis=(0, 1)), *image.std(axis=(0, 1)), saturation.mean(), saturation.std(),
-                     np.log(gradient.mean() + _EPS), np.log(laplacian.var() + _EPS)], dtype=np.float64)
+    gradient = cv2.magnitude(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
+    _, laplacian_std = cv2.meanStdDev(cv2.Laplacian(grey, cv2.CV_32F))
+    return np.array([*mean[:, 0], *std[:, 0], saturation_mean[0, 0], saturation_std[0, 0],
+                     math.log(cv2.mean(gradient)[0] + _EPS), math.log(laplacian_std[0, 0] ** 2 + _EPS)],
+                    dtype=np.float64)
 
 
 def depth_median_m(depth_m: np.ndarray) -> float:

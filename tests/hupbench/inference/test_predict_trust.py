@@ -56,6 +56,26 @@ def test_image_statistics_of_a_known_image():
     assert values["log_gradient_mean"] == pytest.approx(np.log(1e-6), abs=1e-3)  # flat: the log's floor
 
 
+def test_image_statistics_match_a_float64_computation_written_out():
+    """The ten statistics against numpy in float64 on the same resized image, HSV saturation as (max - min) / max,
+    the gradient and Laplacian by OpenCV's kernels applied here with scipy."""
+    from scipy.ndimage import convolve
+
+    rng = np.random.default_rng(3)
+    image = rng.random((32, 32, 3)).astype(np.float32)
+    x = image.astype(np.float64)
+    high, low = x.max(axis=2), x.min(axis=2)
+    saturation = np.where(high > 0, (high - low) / np.where(high > 0, high, 1), 0)
+    grey = x @ [0.299, 0.587, 0.114]
+    sobel = np.array([[-1, 0, 1], [-2, 0, 2], [-1, 0, 1]], np.float64)
+    mode = "mirror"  # OpenCV's default border, BORDER_REFLECT_101
+    gx, gy = convolve(grey, sobel[:, ::-1], mode=mode), convolve(grey, sobel.T[::-1], mode=mode)
+    laplacian = convolve(grey, np.array([[0, 1, 0], [1, -4, 1], [0, 1, 0]], np.float64), mode=mode)
+    want = [*x.mean(axis=(0, 1)), *x.std(axis=(0, 1)), saturation.mean(), saturation.std(),
+            np.log(np.hypot(gx, gy).mean() + 1e-6), np.log(laplacian.var() + 1e-6)]
+    np.testing.assert_allclose(stats.image_statistics(image, 32), want, rtol=1e-5, atol=1e-6)
+
+
 def test_image_statistics_ignore_padding():
     """The statistics are taken on the image, not on the grey square predict pads it to: a frame and the same
     frame inside a grey border differ, a frame and itself resized do not."""
