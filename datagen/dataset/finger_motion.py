@@ -33,11 +33,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hupbench.core.input_checks import check_int, check_interval, check_number
+from hupbench.core.contract import SEQUENCE
+from hupbench.core.input_checks import check_int, check_interval, check_number, is_number
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
 from hupbench.datagen.assets.patient import MAX_PENETRATION_M, below_skin
 
-__all__ = ["DRAWS", "FINGERS", "FingerMotionSpec", "finger_motion", "finger_poses", "min_jerk"]
+__all__ = ["DRAWS", "FINGERS", "FingerMotionSpec", "clip_adjustments", "expected_hand_poses", "finger_motion",
+           "finger_poses", "min_jerk"]
 
 #: the fingers an adjustment may loosen (the thumb holds the probe), in MANO order
 FINGERS = ("index", "middle", "little", "ring")
@@ -176,3 +178,49 @@ def _clear(poses: np.ndarray, frames: np.ndarray, hand_vertices, probe, own_dept
     T = T_body_world[frames]
     body = np.einsum("fij,fvj->fvi", T[:, :3, :3], vertices) + T[:, None, :3, 3]
     return bool(below_skin(radius_m, body).max() <= MAX_PENETRATION_M)
+
+
+def clip_adjustments(record: dict) -> list[dict] | None:
+    """A clip record's finger adjustments (:func:`hupbench.datagen.dataset.finger_motion.finger_motion`'s): [] for a
+    record without ``fingers`` (a dataset whose hands hold their grasps), None when ``fingers`` is there but not
+    adjustments and a number ``keypoint_speed_mm_per_s``."""
+    fingers = record.get("fingers")
+    if fingers is None:
+        return []
+    if not isinstance(fingers, dict) or not is_number(fingers.get("keypoint_speed_mm_per_s")) \
+            or not isinstance(fingers.get("adjustments"), list):
+        return None
+    for adjustment in fingers["adjustments"]:
+        if not isinstance(adjustment, dict) or not all(is_number(adjustment.get(k)) for k in
+                                                       ("start_s", "move_s", "hold_s")):
+            return None
+        names, opens = adjustment.get("fingers"), adjustment.get("open_deg")
+        if not (adjustment["move_s"] > 0 and adjustment["hold_s"] >= 0 and isinstance(names, list)
+                and isinstance(opens, list) and len(names) == len(opens) and all(n in FINGERS for n in names)
+                and all(isinstance(o, list) and len(o) == 3 and all(map(is_number, o)) for o in opens)):
+            return None
+    return fingers["adjustments"]
+
+
+def expected_hand_poses(grasp_poses: np.ndarray, ann: dict, manifest: dict) -> np.ndarray:
+    """(N,) rows' hand poses on a dataset of clips: each the pose of its grasp (``grasp_poses[grasp_index]``, the
+    grasps file's) with its clip's adjustments at its ``time_s``; a row whose grasp index is outside the file or
+    whose clip has no valid record keeps its own (``hupbench verify``'s ``clip_continuity`` and ``grasps_file`` report those).
+
+    Args:
+        grasp_poses: (G, 48) float64, the grasps file's hand poses. ann: a split's annotations. manifest: the
+            dataset's (its "sequence" record).
+
+    Returns:
+        (N, 48) float64.
+    """
+    expected = np.array(ann["hand_pose"], dtype=np.float64, copy=True)
+    clips = {c.get("clip_id"): c for c in manifest[SEQUENCE].get("clips", []) if isinstance(c, dict)}
+    for clip_id in np.unique(ann["clip_id"]).tolist():
+        rows = np.flatnonzero(ann["clip_id"] == clip_id)
+        grasp = np.unique(ann["grasp_index"][rows])
+        adjustments = clip_adjustments(clips[clip_id]) if clip_id in clips else None
+        if adjustments is None or len(grasp) != 1 or not 0 <= grasp[0] < len(grasp_poses):
+            continue
+        expected[rows] = finger_poses(grasp_poses[grasp[0]], adjustments, ann["time_s"][rows])
+    return expected

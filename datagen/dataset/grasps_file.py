@@ -257,13 +257,13 @@ def rendered_with(grasps: dict[str, np.ndarray], ann: dict[str, np.ndarray], man
     names in ``grasps`` (:func:`read_grasps`' arrays), as the writer copied them: the frames were rendered
     from these grasps. On a dataset of clips (``manifest`` with a "sequence" record; ``ann`` with ``clip_id`` and
     ``time_s``) the pose is the grasp's with its clip's finger adjustments
-    (:func:`hupbench.datagen.dataset.verify_sequence.expected_hand_poses`)."""
+    (:func:`hupbench.datagen.dataset.finger_motion.expected_hand_poses`)."""
     index = ann["grasp_index"]
     inside = (index >= 0) & (index < len(grasps["grasp_id"]))
     at = np.where(inside, index, 0)
     expected = grasps["hand_pose"][at]
     if SEQUENCE in manifest:
-        from hupbench.datagen.dataset.verify_sequence import expected_hand_poses
+        from hupbench.datagen.dataset.finger_motion import expected_hand_poses
 
         expected = expected_hand_poses(grasps["hand_pose"], ann, manifest)
     return (inside & (grasps["grasp_id"][at] == ann["grasp_id"])

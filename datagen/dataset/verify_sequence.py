@@ -16,10 +16,12 @@ labels continuous to its own kinematic bounds.
 * the camera moves or turns relative to the patient's room between frames faster than the clip's ``head_bounds``;
 * a hand keypoint, taken back to the world (probe) frame, moves between frames faster than the clip's
   ``fingers.keypoint_speed_mm_per_s`` (0 for a record without ``fingers``: a hand that holds its grasp), or the
-  record's ``fingers.adjustments`` are not adjustments (:func:`clip_adjustments`).
+  record's ``fingers.adjustments`` are not adjustments
+  (:func:`hupbench.datagen.dataset.finger_motion.clip_adjustments`).
 
 Each frame's ``hand_pose`` is the grasp's with the clip's adjustments
-(:func:`hupbench.datagen.dataset.finger_motion.finger_poses`): :func:`expected_hand_poses`, which
+(:func:`hupbench.datagen.dataset.finger_motion.finger_poses`):
+:func:`hupbench.datagen.dataset.finger_motion.expected_hand_poses`, which
 :func:`hupbench.datagen.dataset.verify_annotations.check_grasps_file` holds the frames to.
 
 The contact (the lens on the skin in every frame, nothing of the hand or forearm in the body) is
@@ -39,7 +41,7 @@ from hupbench.core.geometry import invert_transform, transform_points
 from hupbench.core.input_checks import is_number
 from hupbench.core.motion_metrics import KINEMATICS_KEYS, time_derivatives
 from hupbench.datagen.dataset.clips import hand_steps, head_steps
-from hupbench.datagen.dataset.finger_motion import FINGERS, finger_poses
+from hupbench.datagen.dataset.finger_motion import FINGERS, clip_adjustments
 from hupbench.datagen.dataset.verify_frames import _problem
 
 #: a clip's time stamps are frame_in_clip / fps to this, seconds
@@ -150,48 +152,3 @@ def _motion_problem(ann: dict, rows: np.ndarray, record: dict, fps: float) -> tu
                                      f"{int(ids[i]):06d}-{int(ids[i + 1]):06d} exceeds the clip's bound {bound!r}")
     return None
 
-
-def clip_adjustments(record: dict) -> list[dict] | None:
-    """A clip record's finger adjustments (:func:`hupbench.datagen.dataset.finger_motion.finger_motion`'s): [] for a
-    record without ``fingers`` (a dataset whose hands hold their grasps), None when ``fingers`` is there but not
-    adjustments and a number ``keypoint_speed_mm_per_s``."""
-    fingers = record.get("fingers")
-    if fingers is None:
-        return []
-    if not isinstance(fingers, dict) or not is_number(fingers.get("keypoint_speed_mm_per_s")) \
-            or not isinstance(fingers.get("adjustments"), list):
-        return None
-    for adjustment in fingers["adjustments"]:
-        if not isinstance(adjustment, dict) or not all(is_number(adjustment.get(k)) for k in
-                                                       ("start_s", "move_s", "hold_s")):
-            return None
-        names, opens = adjustment.get("fingers"), adjustment.get("open_deg")
-        if not (adjustment["move_s"] > 0 and adjustment["hold_s"] >= 0 and isinstance(names, list)
-                and isinstance(opens, list) and len(names) == len(opens) and all(n in FINGERS for n in names)
-                and all(isinstance(o, list) and len(o) == 3 and all(map(is_number, o)) for o in opens)):
-            return None
-    return fingers["adjustments"]
-
-
-def expected_hand_poses(grasp_poses: np.ndarray, ann: dict, manifest: dict) -> np.ndarray:
-    """(N,) rows' hand poses on a dataset of clips: each the pose of its grasp (``grasp_poses[grasp_index]``, the
-    grasps file's) with its clip's adjustments at its ``time_s``; a row whose grasp index is outside the file or
-    whose clip has no valid record keeps its own (:func:`check_clips` and the grasps file's check report those).
-
-    Args:
-        grasp_poses: (G, 48) float64, the grasps file's hand poses. ann: a split's annotations. manifest: the
-            dataset's (its "sequence" record).
-
-    Returns:
-        (N, 48) float64.
-    """
-    expected = np.array(ann["hand_pose"], dtype=np.float64, copy=True)
-    clips = {c.get("clip_id"): c for c in manifest[SEQUENCE].get("clips", []) if isinstance(c, dict)}
-    for clip_id in np.unique(ann["clip_id"]).tolist():
-        rows = np.flatnonzero(ann["clip_id"] == clip_id)
-        grasp = np.unique(ann["grasp_index"][rows])
-        adjustments = clip_adjustments(clips[clip_id]) if clip_id in clips else None
-        if adjustments is None or len(grasp) != 1 or not 0 <= grasp[0] < len(grasp_poses):
-            continue
-        expected[rows] = finger_poses(grasp_poses[grasp[0]], adjustments, ann["time_s"][rows])
-    return expected
