@@ -76,14 +76,16 @@ def image_statistics(image_rgb: np.ndarray, input_size: int) -> np.ndarray:
     if size != (width, height):
         image = cv2.resize(image, size, interpolation=cv2.INTER_AREA).reshape(size[1], size[0], 3)
     # OpenCV's means and deviations sum in float64 (numpy's float32 sums over the channel-strided axes drifted by
-    # up to 4e-4 of the value) and cost a fifth of numpy's (predict's frame rate)
+    # up to 4e-4 of the value) and cost a fifth of numpy's (predict's frame rate); the gradient is numpy's hypot:
+    # cv2.magnitude's last digits differed between two exports of one model in one test process (the CLI's and the
+    # library call's), and so did the exported files' bytes
     mean, std = cv2.meanStdDev(image)
     saturation_mean, saturation_std = cv2.meanStdDev(cv2.cvtColor(image, cv2.COLOR_RGB2HSV)[..., 1].copy())
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    gradient = cv2.magnitude(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
+    gradient = np.hypot(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
     _, laplacian_std = cv2.meanStdDev(cv2.Laplacian(grey, cv2.CV_32F))
     return np.array([*mean[:, 0], *std[:, 0], saturation_mean[0, 0], saturation_std[0, 0],
-                     math.log(cv2.mean(gradient)[0] + _EPS), math.log(laplacian_std[0, 0] ** 2 + _EPS)],
+                     math.log(float(gradient.mean(dtype=np.float64)) + _EPS), math.log(laplacian_std[0, 0] ** 2 + _EPS)],
                     dtype=np.float64)
 
 
