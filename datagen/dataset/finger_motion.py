@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hupbench.core import keypoints as kp
 from hupbench.core.contract import SEQUENCE
 from hupbench.core.input_checks import check_int, check_interval, check_number, is_number
 from hupbench.datagen.assets.hand_anatomy import anatomical_to_pose, joint_limits_rad, pose_to_anatomical
@@ -42,8 +43,9 @@ __all__ = ["DRAWS", "FINGERS", "FingerMotionSpec", "clip_adjustments", "expected
            "finger_poses", "min_jerk"]
 
 #: the fingers an adjustment may loosen (the thumb holds the probe), in MANO order
-FINGERS = ("index", "middle", "little", "ring")
-_FINGER_ROWS = {name: 3 * i for i, name in enumerate(("index", "middle", "little", "ring", "thumb"))}
+FINGERS = tuple(name for name in kp.MANO_FINGER_ORDER if name != "thumb")
+#: each finger's first row among the 15 joints of an anatomical pose (its MCP, then PIP and DIP)
+_FINGER_ROWS = {name: 3 * i for i, name in enumerate(kp.MANO_FINGER_ORDER)}
 #: draws of one adjustment before it is not made
 DRAWS = 10
 #: how much deeper than the grasp's own pose a loosening finger may reach into the probe, metres: the probe's

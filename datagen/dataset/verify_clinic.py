@@ -34,7 +34,8 @@ from hupbench.core import tolerances as tol
 from hupbench.core.camera import project_points
 from hupbench.core.contract import ANNOTATIONS
 from hupbench.core.geometry import invert_transform
-from hupbench.datagen.assets.patient import PROBE_MAX_DEPTH_M, PatientPlacement, body_sdf, moved_placement
+from hupbench.datagen.assets.patient import (PROBE_MAX_DEPTH_M, PatientPlacement, below_skin, body_sdf,
+                                             moved_placement)
 from hupbench.datagen.dataset.verify_frames import _problem
 
 #: the lens's deepest vertex lies at most this far above the skin: it rests on it, metres
@@ -181,7 +182,8 @@ def contact(world: ClinicGrasps, g: int, probe, placement: PatientPlacement, han
     lens, vertices, body = _grasp_vertices(world, g, probe)
     if hand is not None:
         body = np.concatenate([hand, body[len(hand):]])
-    depth = np.maximum(-body_sdf(placement, body), -_body_frame_height(placement, body))
+    T = placement.T_world_body
+    depth = below_skin(placement.radius_m, (body - T[:3, 3]) @ T[:3, :3])
     return (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
             max(0.0, float(depth.max())))
 
