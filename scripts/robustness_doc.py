@@ -47,7 +47,7 @@ def record(markers: str = "matrix") -> Path:
 
 def collected() -> list[tuple[str, str]]:
     """(module path, case) of every matrix case, in collection order."""
-    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "matrix", "-p",
+    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-n", "0", "-q", "-m", "matrix", "-p",
                            "no:cacheprovider", str(REPO / "tests")], capture_output=True, text=True, cwd=REPO)
     if proc.returncode != 0:
         raise SystemExit(proc.stdout[-3000:] + proc.stderr[-3000:])

@@ -15,8 +15,8 @@ def documented_cases() -> list[str]:
 
 
 def collected_cases() -> list[str]:
-    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "matrix", "-p", "no:cacheprovider",
-                           str(REPO / "tests")], capture_output=True, text=True, cwd=REPO, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-n", "0", "-q", "-m", "matrix", "-p",
+                           "no:cacheprovider", str(REPO / "tests")], capture_output=True, text=True, cwd=REPO, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return [line.split("::", 1)[1] for line in proc.stdout.splitlines() if "::" in line]
 
