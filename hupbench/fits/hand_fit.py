@@ -93,11 +93,16 @@ def _capsules(palm_radius_m: float, knuckle_radius_m: float) -> _Capsules:
     return _Capsules(start, end, radius.astype(np.float64), tip.astype(bool))
 
 
+#: the cross-product matrices of the unit vectors x, y, z, a row each: [v]x = v @ this, reshaped (one product
+#: instead of nine stacked components; the same numbers, 6 % of the hand's fit at batch 1)
+_SKEW_BASIS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                        [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                        [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=np.float64).reshape(3, 9)
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) cross-product matrices of vectors (..., 3) (unchecked: a fit's numbers may not be finite)."""
-    x, y, z = np.moveaxis(v, -1, 0)
-    zero = np.zeros_like(x)
-    return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(*v.shape[:-1], 3, 3)
+    return (v @ _SKEW_BASIS).reshape(*v.shape[:-1], 3, 3)
 
 
 def _rodrigues_and_right_jacobian(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,9 +112,10 @@ def _rodrigues_and_right_jacobian(w: np.ndarray) -> tuple[np.ndarray, np.ndarray
     angle = np.sqrt(angle2)
     small = angle < 1e-4
     safe = np.where(small, 1.0, angle)
-    sin_a = np.where(small, 1.0 - angle2 / 6.0, np.sin(safe) / safe)                     # sin t / t
+    sin = np.sin(safe)
+    sin_a = np.where(small, 1.0 - angle2 / 6.0, sin / safe)                               # sin t / t
     cos_a = np.where(small, 0.5 - angle2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)       # (1 - cos t) / t^2
-    cube = np.where(small, 1.0 / 6.0 - angle2 / 120.0, (safe - np.sin(safe)) / safe ** 3)   # (t - sin t) / t^3
+    cube = np.where(small, 1.0 / 6.0 - angle2 / 120.0, (safe - sin) / safe ** 3)          # (t - sin t) / t^3
     W = _skew(w)
     WW = W @ W
     eye = np.eye(3)
@@ -189,13 +195,23 @@ def _nearest(points: np.ndarray, hand: np.ndarray, caps: _Capsules) -> tuple[np.
     nanometre at the hand's scale)."""
     a, b = _ends(hand, caps)
     ab = b - a                                                                     # (B, C, 3)
-    p_a = points @ a.swapaxes(-1, -2)                                              # (B, P, C)
-    q_ab = points @ ab.swapaxes(-1, -2) - (a * ab).sum(-1)[:, None]                # (q = p - a) . ab
+    C = ab.shape[1]
+    products = points @ np.concatenate([a, ab], axis=1).swapaxes(-1, -2)          # (B, P, 2C): p.a, p.ab
+    p_a = products[..., :C]
+    q_ab = products[..., C:] - (a * ab).sum(-1)[:, None]                           # (q = p - a) . ab
     ab_ab = (ab * ab).sum(-1)[:, None]
     q_q = (points * points).sum(-1)[..., None] - 2.0 * p_a + (a * a).sum(-1)[:, None]
     t = np.clip(q_ab / np.maximum(ab_ab, 1e-12), 0.0, 1.0)
     d = np.sqrt(np.maximum(q_q - t * (2.0 * q_ab - t * ab_ab), 0.0)) - caps.radius
     return d.min(axis=-1), d.argmin(axis=-1)
+
+
+@functools.lru_cache(maxsize=4)
+def _free_lambdas(samples: int) -> np.ndarray:
+    """(F, 1) places of the free-space samples along a capsule's axis, 0 to 1 (read-only)."""
+    lam = np.linspace(0.0, 1.0, samples)[:, None]
+    lam.flags.writeable = False
+    return lam
 
 
 def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSettings, caps: _Capsules):
@@ -218,7 +234,7 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     pulls = of_capsule @ (x * r_surface[..., None])                                              # (B, C, 6)
 
     # free space: samples along each capsule's axis seen in front of the measured surface
-    lam = np.linspace(0.0, 1.0, s.free_samples)[:, None]
+    lam = _free_lambdas(s.free_samples)
     samples = a[:, :, None] + lam * (b - a)[:, :, None]                                   # (B, C, F, 3)
     z_raw = samples[..., 2]
     z = np.maximum(z_raw, MIN_PROJECTION_Z_M)
@@ -229,9 +245,8 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     u0, v0 = np.floor(uc), np.floor(vc)
     fu, fv = uc - u0, vc - v0
     flat = depth.reshape(B, -1)
-    idx = (v0 * size + u0).astype(np.int64).reshape(B, -1)
-    pick = lambda dv, du: np.take_along_axis(flat, idx + dv * size + du, axis=1).reshape(u.shape)  # noqa: E731
-    d00, d01, d10, d11 = pick(0, 0), pick(0, 1), pick(1, 0), pick(1, 1)
+    idx = (v0 * size + u0).astype(np.int64).reshape(B, -1, 1) + np.array([0, 1, size, size + 1])
+    d00, d01, d10, d11 = np.moveaxis(np.take_along_axis(flat, idx.reshape(B, -1), axis=1).reshape(*u.shape, 4), -1, 0)
     measured = d00 * (1 - fu) * (1 - fv) + d01 * fu * (1 - fv) + d10 * (1 - fu) * fv + d11 * fu * fv
     inside = (u > 0) & (u < size - 1) & (v > 0) & (v < size - 1) & (measured > 0)
     behind = measured - (z - caps.radius[:, None])           # how far the measured surface lies behind the front
@@ -241,11 +256,10 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     dm_du = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) * ((u > 0) & (u < size - 1.001))
     dm_dv = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) * ((v > 0) & (v < size - 1.001))
     unclamped = z_raw > MIN_PROJECTION_Z_M
-    zeros = np.zeros_like(z)
-    du = np.stack([K[0, 0] / z, zeros, -K[0, 0] * samples[..., 0] / z ** 2 * unclamped], -1)
-    dv = np.stack([zeros, K[1, 1] / z, -K[1, 1] * samples[..., 1] / z ** 2 * unclamped], -1)
-    dz = np.stack([zeros, zeros, unclamped.astype(float)], -1)
-    grad = (dm_du[..., None] * du + dm_dv[..., None] * dv - dz) * (active * s.free_weight)[..., None]  # (B, C, F, 3)
+    # d(measured - z)/d(sample): the measured depth's by (u, v) through the projection's (u by x and z, v by y and z)
+    along_z = dm_du * (-K[0, 0] * samples[..., 0] / z ** 2 * unclamped) + dm_dv * (-K[1, 1] * samples[..., 1] / z ** 2
+                                                                                     * unclamped) - unclamped
+    grad = np.stack([dm_du * (K[0, 0] / z), dm_dv * (K[1, 1] / z), along_z], -1) * (active * s.free_weight)[..., None]
     x_free = np.concatenate([grad * (1 - lam), grad * lam], -1)                                  # (B, C, F, 6)
     moments += x_free.swapaxes(-1, -2) @ x_free
     pulls += (x_free * r_free[..., None]).sum(2)

@@ -217,6 +217,16 @@ def test_the_joints_jacobian_is_the_derivative_of_the_pose():
         np.testing.assert_allclose(jac[0], numeric, atol=1e-7)
 
 
+def test_the_cross_product_matrices_cross():
+    """[v]x u is v x u (numpy's cross) for a batch of vectors, and [v]x is antisymmetric."""
+    rng = np.random.default_rng(2)
+    v, u = rng.normal(size=(2, 5, 3)), rng.normal(size=(2, 5, 3))
+    skew = F._skew(v)
+    assert skew.shape == (2, 5, 3, 3)
+    np.testing.assert_allclose((skew @ u[..., None])[..., 0], np.cross(v, u), atol=1e-15)
+    np.testing.assert_array_equal(skew, -skew.swapaxes(-1, -2))
+
+
 def test_hands_a_tenth_smaller_and_larger_are_fitted_as_well_as_the_default_within_1_mm():
     """The generator's hand at scale 0.9 and 1.1 (built so, not scaled after: its capsules' radii, the palm's width
     and the bones' lengths all change), each in four curls from two wrong starts: the fit's mean error is within 1 mm
