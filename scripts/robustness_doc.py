@@ -29,7 +29,8 @@ REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "robustness.md"
 ROW = re.compile(r"^\|\s*`(test_\w+(?:\[[^\]]+\])?)`\s*\|(.*)\|(.*)\|\s*$")
 QUOTED = re.compile(r"``\s?(?:.*?error:.*?)\s?``|`(?:[^`]*?error:[^`]*)`")
-TMP_FOLDER = re.compile(r"/tmp/(?:pytest-of-[^/\s]+/pytest-\d+/[^/\s'\"]+|tmp[\w-]+)(/?)")
+#: a test's temporary folder (under pytest-xdist, inside its worker's popen-gwN folder)
+TMP_FOLDER = re.compile(r"/tmp/(?:pytest-of-[^/\s]+/pytest-\d+/(?:popen-gw\d+/)?[^/\s'\"]+|tmp[\w-]+)(/?)")
 HOLDER = re.compile(r"pid \d+ on [^\s,]+, since [0-9TZ:-]+")
 MAX_LINE = 400
 #: words the doc writes for a test's own folders and files

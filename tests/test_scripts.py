@@ -217,6 +217,15 @@ def test_robustness_doc_parses(monkeypatch, capsys):
     assert info.value.code == 0
 
 
+def test_robustness_doc_cuts_the_test_folders():
+    """A recorded line names a test's temporary folder as pytest made it, in one process or under a worker of
+    pytest-xdist (the default suite's two): the doc shows neither."""
+    plain = runpy.run_path(str(SCRIPTS / "robustness_doc.py"))["plain"]
+    for root in ("/tmp/pytest-of-root/pytest-7/", "/tmp/pytest-of-root/pytest-7/popen-gw1/"):
+        assert plain(f"error: cannot write {root}test_x0/ro/qs") == "error: cannot write ro/qs"
+        assert plain(f"error: {root}test_x0 is missing") == "error: FOLDER is missing"
+
+
 @pytest.mark.parametrize("script", sorted(p.name for p in SCRIPTS.glob("*.sh")))
 def test_shell_scripts_parse(script):
     done = subprocess.run(["bash", "-n", str(SCRIPTS / script)], capture_output=True, text=True)
