@@ -117,6 +117,11 @@ class PatientPlacement:
     lens_skin_m: float
     penetration_m: float
 
+    def to_body(self, points_world: np.ndarray) -> np.ndarray:
+        """(..., 3) float64 world points (metres) in the body frame."""
+        T = self.T_world_body
+        return (np.asarray(points_world, dtype=np.float64) - T[:3, 3]) @ T[:3, :3]
+
 
 def moved_placement(placement: PatientPlacement, T_world_body: np.ndarray) -> PatientPlacement:
     """``placement`` with the body moved to the pose ``T_world_body`` ((4, 4), world frame; a clip's frame): its
@@ -204,8 +209,7 @@ def body_sdf(placement: PatientPlacement, points_world: np.ndarray) -> np.ndarra
     Returns:
         (N,) float64, metres, negative inside (see :func:`body_sdf_local`).
     """
-    T = placement.T_world_body
-    return body_sdf_local(placement.radius_m, (np.asarray(points_world) - T[:3, 3]) @ T[:3, :3])
+    return body_sdf_local(placement.radius_m, placement.to_body(points_world))
 
 
 def _cast(radius_m: float, directions: np.ndarray) -> np.ndarray:

@@ -120,12 +120,6 @@ def check_aim(ann: dict, split: str, look_at: str) -> list[dict]:
             for i in np.flatnonzero(bad)]
 
 
-def _body_frame_height(placement: PatientPlacement, points_world: np.ndarray) -> np.ndarray:
-    """(N,) height of world points above the bed's top (the body frame's z), metres."""
-    T = placement.T_world_body
-    return ((np.asarray(points_world) - T[:3, 3]) @ T[:3, :3])[:, 2]
-
-
 def frame_placement(world: ClinicGrasps, g: int, T_world_body: np.ndarray | None = None) -> PatientPlacement:
     """Grasp ``g``'s patient placement, moved to a frame's body pose ``T_world_body`` ((4, 4), a dataset of clips'
     annotation; None: the grasp's own pose)."""
@@ -145,7 +139,7 @@ def check_cameras(ann: dict, split: str, world: ClinicGrasps) -> list[dict]:
     for i in np.flatnonzero(_known(ann, world)):
         placement = _placement_of_row(ann, i, world)
         sdf = float(body_sdf(placement, centres[i][None])[0])
-        height = float(_body_frame_height(placement, centres[i][None])[0])
+        height = float(placement.to_body(centres[i])[2])   # above the bed's top: the body frame's z
         if not (sdf > 0 and height > 0):
             problems.append(_problem(split, ann["frame_id"][i], "camera_in_patient",
                                      f"the camera centre is {'inside' if sdf <= 0 else 'outside'} the body "
@@ -182,8 +176,7 @@ def contact(world: ClinicGrasps, g: int, probe, placement: PatientPlacement, han
     lens, vertices, body = _grasp_vertices(world, g, probe)
     if hand is not None:
         body = np.concatenate([hand, body[len(hand):]])
-    T = placement.T_world_body
-    depth = below_skin(placement.radius_m, (body - T[:3, 3]) @ T[:3, :3])
+    depth = below_skin(placement.radius_m, placement.to_body(body))
     return (float(body_sdf(placement, lens).min()), float(body_sdf(placement, vertices).min()),
             max(0.0, float(depth.max())))
 
