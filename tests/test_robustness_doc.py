@@ -1,24 +1,19 @@
 """docs/robustness.md lists exactly the matrix cases the suite runs (marker ``matrix``), so it cannot drift."""
 
-import re
-import subprocess
-import sys
+import runpy
 
 from helpers import REPO
 
-DOC = REPO / "docs" / "robustness.md"
-ROW = re.compile(r"^\|\s*`(test_\w+(?:\[[^\]]+\])?)`\s*\|")
+#: the doc's script (scripts/robustness_doc.py): its doc, row pattern and collection of the matrix cases
+SCRIPT = runpy.run_path(str(REPO / "scripts" / "robustness_doc.py"))
 
 
 def documented_cases() -> list[str]:
-    return [m.group(1) for line in DOC.read_text().splitlines() if (m := ROW.match(line))]
+    return [m.group(1) for line in SCRIPT["DOC"].read_text().splitlines() if (m := SCRIPT["ROW"].match(line))]
 
 
 def collected_cases() -> list[str]:
-    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-n", "0", "-q", "-m", "matrix", "-p",
-                           "no:cacheprovider", str(REPO / "tests")], capture_output=True, text=True, cwd=REPO, timeout=600)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return [line.split("::", 1)[1] for line in proc.stdout.splitlines() if "::" in line]
+    return [case for _, case in SCRIPT["collected"]()]
 
 
 def test_robustness_doc_lists_every_matrix_case():
