@@ -130,7 +130,11 @@ def hydra_error_line(exc: BaseException, config: str = "conf/train.yaml", exampl
     if isinstance(exc, OverrideParseException):
         if exc.override and repr(exc.override) not in text:
             text = f"cannot parse override {exc.override!r}: {text}"
-        return f"{text} (overrides are key=value, e.g. {example})"
+        # a list whose elements are overrides themselves (the quickstart's stage lists): each is a quoted string
+        # an element of a list (after '[' or ',') that does not open with a quote and holds '='
+        unquoted = "=[" in (exc.override or "") and re.search(r"[\[,]\s*[^'\"\s\[\],][^'\",\]]*=", exc.override)
+        quote = "; a list element with '=' in it is quoted: key=['a=1','b=2']" if unquoted else ""
+        return f"{text} (overrides are key=value, e.g. {example}{quote})"
     key = re.search(r"Could not override '([^']+)'", text)
     if key and "is not in struct" in str(exc.__cause__ or ""):
         append = re.search(r"use (\+\S+)", text)

@@ -40,7 +40,9 @@ CASES = {
     # rendering
     "render-platform-unknown": lambda t: (["render.platform=vulkan"], ["render.platform", "vulkan"]),
     # the later stages' overrides (lists of key=value), checked as their own verbs check them
-    "stage-list-unquoted": lambda t: (["grasps=[generate.n_select=0]"], ["grasps=[generate.n_select=0]", "key=value"]),
+    "stage-list-unquoted": lambda t: (["grasps=[generate.n_select=0]"], ["grasps=[generate.n_select=0]", "key=value",
+                                                                        "list element with '=' in it is quoted"]),
+    "stage-list-half-quoted": lambda t: (["train=['model=hupnet_seg',threads=2]"], ["threads=", "is quoted"]),
     "grasps-n-select-zero": lambda t: (["grasps=['generate.n_select=0']"], ["grasps stage", "n_select", "whole number >= 1"]),
     "grasps-unknown-key": lambda t: (["grasps=['generate.colour=1']"], ["grasps stage", "generate.colour", "conf/grasps.yaml"]),
     "grasps-threads-huge": lambda t: (["grasps=['threads=100000']"], ["grasps stage", "threads", "100000"]),
@@ -73,8 +75,10 @@ def test_matrix_quickstart(case, tmp_path, capsys):
     arguments, needles = CASES[case](tmp_path)
     before = _files(tmp_path)
     answer = run_cli(capsys, "quickstart", f"out_dir={tmp_path / 'qs'}", *arguments)
-    assert_clean_error(answer, *needles, prefix="hupbench quickstart: error:")
+    line = assert_clean_error(answer, *needles, prefix="hupbench quickstart: error:")
     assert answer.rc == (2 if case == "option-unknown" else 1), answer
+    if case == "override-bad-syntax":   # no list element to quote: no word of quoting
+        assert "quoted" not in line, line
     # no stage started, nothing written or changed under out_dir (nor beside it)
     assert "[1/" not in answer.out, answer
     assert not (tmp_path / "qs").exists()

@@ -2,12 +2,16 @@
 options, the preview camera, view and rendering): each answers with the line the CLI prints
 (tests/hupbench/verbs/test_matrix_quickstart.py keeps one case per field group, the stages' lists and the files)."""
 
+import re
+import shlex
+from pathlib import Path
+
 import pytest
 from omegaconf import OmegaConf
 
 from helpers.answers import assert_refusal
 from hupbench.config import compose
-from hupbench.verbs.quickstart import QuickstartRun
+from hupbench.verbs.quickstart import QuickstartRun, _stage_configs
 
 
 @pytest.fixture(scope="module")
@@ -86,3 +90,17 @@ def test_a_probe_mesh_reaches_the_grasps_and_dataset_stages_as_given(packaged, t
     for stage, config in (("grasps", "grasps"), ("dataset", "generate")):
         probe = compose(config, overrides[stage]).probe
         assert (probe.mesh, probe.mesh_unit, probe.align) == (mesh, "mm", True), stage
+
+
+def test_the_readmes_recommended_model_command_trains_that_model(tmp_path):
+    """README's quickstart command with the recommended model parses as typed (each list element quoted) and its
+    train stage is that model with the default list's other values."""
+    readme = (Path(__file__).parents[3] / "README.md").read_text()
+    line = re.search(r"^hupbench quickstart .*'train=\[.*$", readme, re.MULTILINE)
+    assert line, "README shows no quickstart command with a train list"
+    argv = shlex.split(line.group(0))[2:]
+    fields = OmegaConf.to_container(compose("quickstart", [*argv, f"out_dir={tmp_path / 'qs'}"]), resolve=True)
+    run = QuickstartRun(**{k: v for k, v in fields.items() if k not in ("_target_", "_recursive_")})
+    train = _stage_configs(tmp_path / "qs" / "full", run.stage_overrides(), fast=False).train
+    assert train.model_id == "hupnet_seg"
+    assert (train.train.max_steps, train.data.batch_size, train.threads) == (400, 32, 2)
