@@ -1,8 +1,9 @@
 """What the probe's fit to the depth input (hupbench.fits.probe_fit) does to a checkpoint's probe, on a split:
 the probe corner MPJPE (and under the half turn, eval's symmetric score) of the network alone and after the fit,
-per grasp, how each frame's half turn was decided and the error of each kind, the fitted box's rotation from the
-true box (median, and the share of frames turned more than 150 degrees: the half turn lost), and the fit's time
-per frame.
+per grasp, how each frame's half turn was decided and the error of each kind (beside the network's own on those
+frames), the fitted box's rotation from the true box (median, and the share of frames turned more than 150 degrees:
+the half turn lost), its centre's distance and its long axis's angle from the true box's (what is left when the
+turn about that axis is set aside), and the fit's time per frame.
 
 A segmenting model's fit takes only its own segmentation's probe pixels, as eval runs it (``--no-masks``: every
 pixel near the probe). ``--from-truth`` also starts the fit from the true corners: what the depth can hold, apart
@@ -32,6 +33,17 @@ def rotation_deg(pred: np.ndarray, truth: np.ndarray, corners: np.ndarray) -> np
 
     relative = fit_rigid_pose(corners, pred)[:, :3, :3].transpose(0, 2, 1) @ fit_rigid_pose(corners, truth)[:, :3, :3]
     return np.degrees(np.linalg.norm(matrix_to_axis_angle(relative), axis=-1))   # stable near the half turn
+
+
+def centre_and_axis(pred: np.ndarray, truth: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) mm between the boxes' centres (the corners' means) and (F,) degrees between their long axes (the probe
+    frame's +z, either way: the half turn keeps it) of predicted and true corners (F, 8, 3): what is left when the
+    turn about the long axis is set aside."""
+    from hupbench.core.geometry import fit_rigid_pose
+
+    centre = np.linalg.norm(pred.mean(1) - truth.mean(1), axis=-1) * 1000.0
+    cosine = np.abs((fit_rigid_pose(corners, pred)[:, :3, 2] * fit_rigid_pose(corners, truth)[:, :3, 2]).sum(-1))
+    return centre, np.degrees(np.arccos(np.clip(cosine, 0.0, 1.0)))
 
 
 def main() -> None:
@@ -81,23 +93,28 @@ def main() -> None:
     if floor:
         print(floor)
     grasps = sorted(np.unique(grasp).tolist())
-    print(f"{'':20s}{'probe':>9s}{'median':>9s}{'half turn':>11s}{'rot. deg':>10s}{'>150 deg':>10s}"
+    print(f"{'':20s}{'probe':>9s}{'median':>9s}{'half turn':>11s}{'rot. deg':>10s}{'>150 deg':>10s}{'centre':>8s}"
+          f"{'axis deg':>10s}"
           + "".join(f"{'grasp ' + str(g):>12s}" for g in grasps))
     out = {}
     for name, pred in predictions.items():
         plain, half = error(pred, gt), np.minimum(error(pred, gt), error(pred, turned))
         angle = rotation_deg(pred, gt, probe.corners)
+        centre, axis = centre_and_axis(pred, gt, probe.corners)
         out[name] = (plain, half)
         print(f"{name:20s}{plain.mean():9.2f}{np.median(plain):9.2f}{half.mean():11.2f}{np.median(angle):10.1f}"
-              f"{(angle > 150).mean():10.1%}" + "".join(f"{plain[grasp == g].mean():12.2f}" for g in grasps))
+              f"{(angle > 150).mean():10.1%}{centre.mean():8.1f}{axis.mean():10.1f}"
+              + "".join(f"{plain[grasp == g].mean():12.2f}" for g in grasps))
         if name == "network":
             continue
         chosen_by = np.concatenate(decisions[name])
         for index, kind in enumerate(DECISIONS):
             chosen = chosen_by == index
             if chosen.any():
-                print(f"  half turn by {kind:9s}: {chosen.mean():6.1%} of frames, probe {plain[chosen].mean():6.2f} mm, "
-                      f"turned > 150 deg {(angle[chosen] > 150).mean():6.1%}")
+                print(f"  half turn by {kind:9s}: {chosen.mean():6.1%} of frames, probe {plain[chosen].mean():6.2f} mm "
+                      f"(the network's there {out['network'][0][chosen].mean():6.2f}), turned > 150 deg "
+                      f"{(angle[chosen] > 150).mean():6.1%}, centre {centre[chosen].mean():5.1f} mm, long axis "
+                      f"{axis[chosen].mean():5.1f} deg")
     print(f"the fit: {fit_s / len(rows) * 1000:.1f} ms per frame ({torch.get_num_threads()} threads)")
     print(json.dumps({"checkpoint": str(Path(args.checkpoint)), "frames": len(rows),
                       "probe_mm": {k: round(float(v[0].mean()), 2) for k, v in out.items()},

@@ -68,6 +68,27 @@ def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, caps
     else:
         assert set(summary["probe_mm"]) == {"network", "fit", "fit from the truth"}
         assert " val: " in out and "depth dataset" in out
+        assert "centre  axis deg" in out and "(the network's there " in out and " long axis " in out
+
+
+def test_probe_fit_ablation_parts_the_centre_and_the_long_axis_from_the_turn_about_it():
+    """Boxes turned about their centre by a half turn or 40 degrees about the long axis keep the centre and the axis;
+    one tipped 30 degrees about x does not keep the axis; one moved 4 mm does not keep the centre."""
+    import numpy as np
+
+    from hupbench.core.geometry import axis_angle_to_matrix
+    from hupbench.fits.known_probe import default_fit_probe
+
+    centre_and_axis = runpy.run_path(str(SCRIPTS / "probe_fit_ablation.py"))["centre_and_axis"]
+    corners = default_fit_probe().corners
+    c = corners.mean(0)
+    turns = axis_angle_to_matrix(np.radians([[0.0, 0.0, 180.0], [0.0, 0.0, 40.0], [30.0, 0.0, 0.0], [0.0, 0.0, 0.0]]))
+    R, t = axis_angle_to_matrix(np.array([[0.3, -0.2, 0.5]]))[0], np.array([0.01, 0.02, 0.5])
+    moved = np.array([0.0, 0.0, 0.0, 0.004])[:, None, None] * [0.0, 0.0, 1.0]                  # the last 4 mm in z
+    pred = ((corners - c) @ turns.transpose(0, 2, 1) + c) @ R.T + t + moved
+    centre, axis = centre_and_axis(pred, np.repeat((corners @ R.T + t)[None], 4, axis=0), corners)
+    np.testing.assert_allclose(axis, [0.0, 0.0, 30.0, 0.0], atol=1e-4)
+    np.testing.assert_allclose(centre, [0.0, 0.0, 0.0, 4.0], atol=1e-6)
 
 
 def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):

@@ -237,7 +237,7 @@ def kill(proc, until, poll_s=0.02):
         pids.update(children(proc.pid))
         time.sleep(poll_s)
     finished = proc.poll() is not None
-    os.kill(proc.pid, signal.SIGKILL)
+    proc.kill()   # SIGKILL; nothing when poll() has reaped it already (its pid may be gone: os.kill raised there)
     proc.wait()
     # a worker killed while it starts (importing) dies when its start-up ends, before rendering
     wait_for(lambda: not any(running(p) for p in pids), 30.0, f"the workers {sorted(pids)} to exit")
