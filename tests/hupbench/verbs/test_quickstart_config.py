@@ -103,4 +103,5 @@ def test_the_readmes_recommended_model_command_trains_that_model(tmp_path):
     run = QuickstartRun(**{k: v for k, v in fields.items() if k not in ("_target_", "_recursive_")})
     train = _stage_configs(tmp_path / "qs" / "full", run.stage_overrides(), fast=False).train
     assert train.model_id == "hupnet_seg"
-    assert (train.train.max_steps, train.data.batch_size, train.threads) == (400, 32, 2)
+    assert (train.train.max_steps, train.data.batch_size, train.threads) == (200, 32, 2)
+    assert train.model.backbone == "resnet10"
