@@ -420,3 +420,33 @@ def test_no_script_writes_a_module_s_attributes():
             if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "setattr":
                 offenders.append(f"{path.name}:{node.lineno}")
     assert not offenders, offenders
+
+
+def test_probe_half_turn_bound(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """The half turn's own error is the default probe's (each corner moved twice its distance from the long axis); the
+    bound is half of it on the frames that do not show the marker; a copy of the split whose images are grey shows the
+    marker on none."""
+    import json
+    import shutil
+
+    import numpy as np
+
+    from hupbench.fits.known_probe import default_fit_probe
+
+    corners = default_fit_probe().corners
+    flip = 1000.0 * np.mean(2.0 * np.hypot(corners[:, 0], corners[:, 1]))
+    out = run_script(SCRIPTS / "probe_half_turn_bound.py", tiny_dataset, "--frames", "0", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["frames"] == 20 and summary["flip_mm"] == pytest.approx(flip, abs=0.011)
+    assert summary["bound_mm"] == pytest.approx((1.0 - summary["shown"]) * flip / 2.0, abs=0.011)
+    assert summary["shown"] > 0 and summary["nearer_true_site"] == 1.0, summary
+    grey = tmp_path / "dataset"
+    shutil.copytree(tiny_dataset, grey)
+    for path in (grey / "val" / "rgb").iterdir():
+        image = cv2.imread(str(path))
+        cv2.imwrite(str(path), np.repeat(image.mean(-1, keepdims=True), 3, axis=-1).astype(np.uint8))
+    summary = json.loads(run_script(SCRIPTS / "probe_half_turn_bound.py", grey, "--frames", "0",
+                                    monkeypatch=monkeypatch, capsys=capsys).strip().splitlines()[-1])
+    assert summary["shown"] == 0.0 and summary["nearer_true_site"] is None
+    assert summary["bound_mm"] == pytest.approx(flip / 2.0, abs=0.011)
