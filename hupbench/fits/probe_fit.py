@@ -31,15 +31,22 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        its probe pixels without depth (a time-of-flight camera returns none from much of the dark plastic), is
        looked at. A site
        whose pixels have the marker's colour (its strongest channel ahead of the others by
-       ``s.marker_chroma``) wins ("marker"); else a site that faces the camera, unoccluded, without that colour
+       ``s.marker_chroma``) wins ("marker"); else, given a segmentation, where at least ``s.marker_pixels`` of its
+       probe pixels anywhere have the marker's colour (ahead by ``s.marker_pixel_chroma``), the pose whose site
+       projects nearer their centre wins ("marker pixels": the marker seen beside its site, where the pose is off
+       by a few pixels or the site is edge-on); else a site that faces the camera, unoccluded, without that colour
        loses ("no marker"); else the network's own turn decides ("network").
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
+       Given a segmentation whose probe pixels show the marker's colour (step 4), such a frame takes the network's
+       box (its corners' Kabsch pose) in the turn the marker reads instead ("kept, marker pixels"): a network trained
+       with the half-turn-symmetric loss gives either turn.
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
 on all the points and the better scored is kept, instead of step 3's search over turns; and where the marker does
-not decide (step 4), the half turn nearer the frame before's stays ("previous").
+not decide (step 4: the sites' windows; the marker's pixels elsewhere are not read), the half turn nearer the
+frame before's stays ("previous").
 
 The corners out are the probe's box in the chosen pose: an exact rigid box. Their 2D points are its
 projection with ``K_input``. The hand's keypoints are not touched.
@@ -60,7 +67,7 @@ from hupbench.fits.settings import ProbeFitSettings
 __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "fit_probe"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
-DECISIONS = ("kept", "marker", "no marker", "network", "previous")
+DECISIONS = ("kept", "marker", "no marker", "network", "previous", "marker pixels", "kept, marker pixels")
 
 
 @dataclass(frozen=True)
@@ -152,6 +159,25 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     return facing, shows.mean(axis=(1, 2)) * inside, lead.max(axis=(1, 2)) * inside
 
 
+def _marker_pixels(probe: FitProbe, RA: np.ndarray, RB: np.ndarray, t: np.ndarray, rgb: np.ndarray,
+                   pixels: np.ndarray, K: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray]:
+    """(found, a) (B,) bool: whether at least ``s.marker_pixels`` of the probe's ``pixels`` (B, S, S) have the marker's
+    colour (its channel ahead of the others by ``s.marker_pixel_chroma`` in ``rgb`` (B, 3, S, S)), and whether the
+    centre of those pixels lies nearer the marker site's projection of the poses RA (B, 3, 3) than of RB, at ``t``
+    (module docstring, step 4)."""
+    c = probe.marker_channel
+    lead = rgb[:, c] - np.delete(rgb, c, axis=1).max(axis=1)                      # (B, S, S)
+    coloured = (lead > s.marker_pixel_chroma) & pixels
+    count = coloured.sum(axis=(1, 2))
+    v, u = np.mgrid[0:rgb.shape[-2], 0:rgb.shape[-1]]
+    centre = np.stack([(coloured * u).sum(axis=(1, 2)), (coloured * v).sum(axis=(1, 2))], -1) / np.maximum(count, 1)[:, None]
+    sites = np.stack([RA @ probe.marker + t, RB @ probe.marker + t], axis=1)     # (B, 2, 3)
+    z = np.maximum(sites[..., 2], MIN_PROJECTION_Z_M)
+    projected = np.stack([K[0, 0] * sites[..., 0] / z + K[0, 2], K[1, 1] * sites[..., 1] / z + K[1, 2]], -1)
+    far = np.linalg.norm(projected - centre[:, None], axis=-1)                   # (B, 2) pixels
+    return count >= s.marker_pixels, far[:, 0] <= far[:, 1]
+
+
 def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
               settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None,
               pixels: np.ndarray | None = None, start: np.ndarray | None = None
@@ -214,6 +240,14 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
                                      np.repeat(weight[tracked], 2, axis=0), R, t, s, s.tracking_iterations)
         pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
         RA[tracked], tA[tracked], inliers[tracked] = R[pick], t[pick], found[pick]
+    kept = inliers < s.min_inliers
+    # given the probe's pixels, the marker's colour anywhere among them, read against the fitted pose (a kept
+    # frame's: the network's, its box then taken in that turn); a frame tracked keeps the frame before's turn instead
+    found, pixel_a = np.zeros(B, bool), np.zeros(B, bool)
+    if own is not None and probe.has_marker:
+        RA, tA = np.where(kept[:, None, None], R0, RA), np.where(kept[:, None], t0, tA)
+        found, pixel_a = _marker_pixels(probe, RA, RA @ _turn_z(np.pi), tA, rgb, own, K, s)
+        found &= ~warm
     RB = RA @ _turn_z(np.pi)
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
@@ -224,16 +258,17 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     marker = (np.maximum(lead_a, lead_b) > s.marker_chroma) & probe.has_marker
     absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
-    choose_a = np.where(marker, lead_a >= lead_b, np.where(absent_a, False, np.where(absent_b, True, network_a)))
-    decision = np.where(marker, 1, np.where(absent_a | absent_b, 2, np.where(warm, 4, 3)))
-    kept = inliers < s.min_inliers
-    decision = np.where(kept, 0, decision).astype(np.int64)
+    choose_a = np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
+        absent_a, False, np.where(absent_b, True, network_a))))
+    decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(warm, 4, 3))))
+    decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
     fitted = probe.corners @ rotation.transpose(0, 2, 1) + tA[:, None]
-    use = ~kept
+    use = ~kept | found       # a kept frame whose marker shows: the network's box, in the turn the marker reads
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[use, kp.CORNER_SLICE] = fitted[use]
     out2d[use, kp.CORNER_SLICE] = input_points2d(fitted[use], K_input, images.shape[-1])
     pose = np.full((B, 4, 4), np.nan)
-    pose[use, :3, :3], pose[use, :3, 3], pose[use, 3] = rotation[use], tA[use], (0.0, 0.0, 0.0, 1.0)
+    posed = ~kept             # a kept frame's box was not fitted: no start for the next frame
+    pose[posed, :3, :3], pose[posed, :3, 3], pose[posed, 3] = rotation[posed], tA[posed], (0.0, 0.0, 0.0, 1.0)
     return out2d, out3d, ProbeFit(decision, inliers, pose)

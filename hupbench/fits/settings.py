@@ -36,6 +36,10 @@ class ProbeFitSettings:
         marker_chroma: the marker's colour: its strongest channel ahead of the others by this much (RGB in [0, 1]).
         marker_facing: a site faces the camera: cosine between its normal and the way to the camera above this.
         marker_seen: a site is unoccluded: this share of its window shows it.
+        marker_pixels: given a segmentation, this many of the probe's pixels with the marker's colour (its channel
+            ahead of the others by marker_pixel_chroma) anywhere show the marker, and the turn whose site projects
+            nearer their centre is taken where the sites' windows do not decide (chosen on the clinic_sequences val
+            split, docs/clinic.md).
     """
 
     hypotheses: int = 12
@@ -55,10 +59,13 @@ class ProbeFitSettings:
     marker_chroma: float = 0.25
     marker_facing: float = 0.3
     marker_seen: float = 0.5
+    marker_pixels: int = 1
+    marker_pixel_chroma: float = 0.1
 
     def __post_init__(self) -> None:
         assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)
         assert 1 <= self.coarse_points <= self.max_points, (self.coarse_points, self.max_points)
+        assert self.marker_pixels >= 1, self.marker_pixels
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,8 @@ handle. The fit must find the pose the depth shows from a network's pose turned 
 from the marker's colour (or its absence), fall back to the network's turn where neither site is in view, and
 leave the network's corners where no surface is measured."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -258,3 +260,39 @@ def test_in_a_batch_a_frame_without_a_start_is_fitted_alone():
     assert [F.DECISIONS[d] for d in report.decision] == ["marker", "previous"]
     assert error_mm(out3d[1], R2, t2) < 2.0
     np.testing.assert_array_equal(report.pose[0], alone.pose[0])
+
+
+@pytest.mark.parametrize("turn", [np.pi / 3, np.pi * 5 / 6])
+def test_the_markers_pixels_in_the_segmentation_read_the_half_turn_where_its_site_does_not(turn):
+    """Both sites edge-on, the marker's 2 mm stand out of the silhouette in its colour, and the sites' windows told
+    to see no colour (``marker_chroma`` 2): given the probe's pixels, the centre of those with the marker's colour
+    lies nearer the true turn's site, whichever turn the network gave; without them the network's turn decides."""
+    R, t = SITES_EDGE_ON
+    image = render(R, t)
+    points2d, points3d = network_output(R, t, turn)
+    windows_blind = dataclasses.replace(F.ProbeFitSettings(), marker_chroma=2.0)
+    blind = F.fit_probe(points2d, points3d, image[None], K, windows_blind)
+    seen = F.fit_probe(points2d, points3d, image[None], K, windows_blind, pixels=(image[3] > 0)[None])
+    assert F.DECISIONS[blind[2].decision[0]] == "network"
+    assert F.DECISIONS[seen[2].decision[0]] == "marker pixels"
+    assert error_mm(seen[1][0], R, t) < 2.0
+
+
+def test_a_kept_frame_whose_marker_shows_takes_the_networks_box_in_the_turn_it_reads():
+    """No depth at all (the probe kept), the network half-turned and 4 mm off: given the probe's pixels the marker's
+    colour turns the network's box back (within the network's own offset), and the frame gives no start to the next;
+    without them the network's corners stay."""
+    R, t = MARKER_IN_VIEW
+    image = render(R, t)
+    pixels = (image[3] > 0)[None]
+    image[3] = 0.0
+    points2d, points3d = network_output(R, t, np.pi, shift=(0.004, 0.0, 0.0))
+    out2d, out3d, report = F.fit_probe(points2d, points3d, image[None], K, pixels=pixels)
+    assert F.DECISIONS[report.decision[0]] == "kept, marker pixels" and np.isnan(report.pose).all()
+    assert error_mm(out3d[0], R, t) < 4.5 < 60 < error_mm(points3d[0], R, t)
+    np.testing.assert_array_equal(out3d[0, :kp.NUM_HAND], points3d[0, :kp.NUM_HAND])
+    uv = out3d[0, kp.CORNER_SLICE, :2] / out3d[0, kp.CORNER_SLICE, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    np.testing.assert_allclose(out2d[0, kp.CORNER_SLICE], (2 * uv + 1) / S - 1, atol=1e-6)
+    _, kept3d, kept = F.fit_probe(points2d, points3d, image[None], K)
+    assert F.DECISIONS[kept.decision[0]] == "kept"
+    np.testing.assert_array_equal(kept3d, points3d)
