@@ -130,8 +130,8 @@ def hydra_error_line(exc: BaseException, config: str = "conf/train.yaml", exampl
     if isinstance(exc, OverrideParseException):
         if exc.override and repr(exc.override) not in text:
             text = f"cannot parse override {exc.override!r}: {text}"
-        # a list whose elements are overrides themselves (the quickstart's stage lists): each is a quoted string
-        # an element of a list (after '[' or ',') that does not open with a quote and holds '='
+        # a list of overrides (the quickstart's stage lists) with an element (after '[' or ',') that holds '=' but
+        # does not open with a quote
         unquoted = "=[" in (exc.override or "") and re.search(r"[\[,]\s*[^'\"\s\[\],][^'\",\]]*=", exc.override)
         quote = "; a list element with '=' in it is quoted: key=['a=1','b=2']" if unquoted else ""
         return f"{text} (overrides are key=value, e.g. {example}{quote})"

@@ -22,14 +22,15 @@ import argparse
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 
 def main() -> None:
     from hupbench.core import keypoints as kp
+    from hupbench.core.camera import project_points
     from hupbench.core.contract import frame_path, read_annotations, read_manifest, seg_labels, track_of
     from hupbench.core.geometry import fit_rigid_pose
+    from hupbench.data.reader import read_rgb, read_seg
     from hupbench.evaluation.prediction import evenly_spaced
     from hupbench.fits.known_probe import dataset_fit_probe
 
@@ -55,20 +56,14 @@ def main() -> None:
     flip_mm *= 1000.0                                                     # (F,) the half turn's own error
     sites = np.stack([R @ probe.marker + t, R @ half @ probe.marker + t], axis=1)    # (F, 2, 3) true, half-turned
     shown, nearer_true = np.zeros(len(rows), dtype=bool), np.zeros(len(rows), dtype=bool)
-    c = probe.marker_channel
     for i, row in enumerate(rows):
         fid = int(ann["frame_id"][row])
-        seg = cv2.imread(str(frame_path(args.dataset, args.split, "seg", fid)), cv2.IMREAD_UNCHANGED)
-        bgr = cv2.imread(str(frame_path(args.dataset, args.split, "rgb", fid, manifest.get("rgb_format", "jpg"))))
-        rgb = bgr[..., ::-1].astype(np.float64) / 255.0
-        lead = rgb[..., c] - np.delete(rgb, c, axis=-1).max(-1)
-        v, u = np.nonzero((seg == probe_label) & (lead > args.chroma))
+        seg = read_seg(frame_path(args.dataset, args.split, "seg", fid))
+        rgb = read_rgb(frame_path(args.dataset, args.split, "rgb", fid, manifest.get("rgb_format", "jpg"))) / 255.0
+        v, u = np.nonzero((seg == probe_label) & (probe.marker_lead(rgb) > args.chroma))
         shown[i] = len(u) >= args.min_pixels
-        if shown[i]:
-            K = ann["K"][row]
-            z = np.maximum(sites[i, :, 2], 1e-3)
-            projected = np.stack([K[0, 0] * sites[i, :, 0] / z + K[0, 2], K[1, 1] * sites[i, :, 1] / z + K[1, 2]], -1)
-            far = np.linalg.norm(projected - [u.mean(), v.mean()], axis=-1)
+        if shown[i]:   # a site behind the camera projects to NaN: never the nearer
+            far = np.linalg.norm(project_points(sites[i], ann["K"][row], behind="nan") - [u.mean(), v.mean()], axis=-1)
             nearer_true[i] = far[0] < far[1]
     bound = np.where(shown, 0.0, 0.5 * flip_mm)
     check = (f"their centre nearer the true site than the half-turned one's in {nearer_true[shown].mean():.1%}"

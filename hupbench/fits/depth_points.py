@@ -13,7 +13,7 @@ import numpy as np
 
 from hupbench.input_geometry import pixels_to_normalized
 
-__all__ = ["MIN_PROJECTION_Z_M", "input_points2d", "pixel_order", "sample_points", "unproject_depth"]
+__all__ = ["MIN_PROJECTION_Z_M", "input_pixels", "input_points2d", "pixel_order", "sample_points", "unproject_depth"]
 
 #: points nearer the camera than this are projected as if at it, metres (a fit that moved a point behind the
 #: camera keeps finite 2D points)
@@ -52,10 +52,15 @@ def sample_points(points: np.ndarray, wanted: np.ndarray, max_points: int) -> tu
     return chosen, weight
 
 
-def input_points2d(points_cam: np.ndarray, K_input: np.ndarray, size: int) -> np.ndarray:
-    """(..., 2) float64 normalised input coordinates of camera-frame points (..., 3) metres, projected with the
-    (3, 3) ``K_input`` of the ``size`` px model input (z at least :data:`MIN_PROJECTION_Z_M`)."""
+def input_pixels(points_cam: np.ndarray, K_input: np.ndarray) -> np.ndarray:
+    """(..., 2) float64 pixels (u, v) of camera-frame points (..., 3) metres, projected with the (3, 3) ``K_input``
+    (z at least :data:`MIN_PROJECTION_Z_M`)."""
     K = np.asarray(K_input, dtype=np.float64)
     z = np.maximum(points_cam[..., 2], MIN_PROJECTION_Z_M)
-    uv = np.stack([K[0, 0] * points_cam[..., 0] / z + K[0, 2], K[1, 1] * points_cam[..., 1] / z + K[1, 2]], -1)
-    return pixels_to_normalized(uv, size)
+    return np.stack([K[0, 0] * points_cam[..., 0] / z + K[0, 2], K[1, 1] * points_cam[..., 1] / z + K[1, 2]], -1)
+
+
+def input_points2d(points_cam: np.ndarray, K_input: np.ndarray, size: int) -> np.ndarray:
+    """(..., 2) float64 normalised input coordinates of camera-frame points (..., 3) metres, projected with the
+    (3, 3) ``K_input`` of the ``size`` px model input (:func:`input_pixels`)."""
+    return pixels_to_normalized(input_pixels(points_cam, K_input), size)

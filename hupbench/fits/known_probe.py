@@ -51,6 +51,12 @@ class FitProbe:
     marker_channel: int
     has_marker: bool = True
 
+    def marker_lead(self, rgb: np.ndarray, axis: int = -1) -> np.ndarray:
+        """How far the marker colour's channel leads the other two in ``rgb`` (channels on ``axis``, values in
+        [0, 1]): above about 0.1 a pixel has the marker's colour."""
+        c = self.marker_channel
+        return np.take(rgb, c, axis=axis) - np.delete(rgb, c, axis=axis).max(axis=axis)
+
     @property
     def upper(self) -> np.ndarray:
         """(3,) float64: the grid's last node, probe frame."""

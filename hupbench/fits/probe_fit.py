@@ -60,7 +60,7 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.geometry import axis_angle_to_matrix, fit_rigid_pose
-from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_points2d, sample_points, unproject_depth
+from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_pixels, input_points2d, sample_points, unproject_depth
 from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import ProbeFitSettings
 
@@ -138,9 +138,7 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     site = rotation @ probe.marker + translation                                  # (B, 3)
     normal = rotation @ probe.marker_normal
     facing = -(normal * site).sum(-1) / np.maximum(np.linalg.norm(site, axis=-1), 1e-9)
-    z = np.maximum(site[:, 2], MIN_PROJECTION_Z_M)
-    u = np.round(K[0, 0] * site[:, 0] / z + K[0, 2])
-    v = np.round(K[1, 1] * site[:, 1] / z + K[1, 2])
+    u, v = np.round(input_pixels(site, K)).T
     r = s.marker_window
     inside = ((u >= r) & (u < S - r) & (v >= r) & (v < S - r) & (site[:, 2] > MIN_PROJECTION_Z_M)).astype(float)
     u, v = np.clip(u, -S, 2 * S).astype(np.int64), np.clip(v, -S, 2 * S).astype(np.int64)
@@ -153,9 +151,7 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     shows = np.abs(window_depth - site[:, 2, None, None]) < s.marker_depth_m
     if pixels is not None:   # a sensor without depth on the probe's dark plastic: its pixels show the probe
         shows |= (window_depth <= 0) & pixels[index, rows[:, :, None], cols[:, None, :]]
-    c = probe.marker_channel
-    others = np.concatenate([window_rgb[..., :c], window_rgb[..., c + 1:]], axis=-1).max(-1)
-    lead = np.where(shows, window_rgb[..., c] - others, -1.0)
+    lead = np.where(shows, probe.marker_lead(window_rgb), -1.0)
     return facing, shows.mean(axis=(1, 2)) * inside, lead.max(axis=(1, 2)) * inside
 
 
@@ -165,16 +161,12 @@ def _marker_pixels(probe: FitProbe, RA: np.ndarray, RB: np.ndarray, t: np.ndarra
     colour (its channel ahead of the others by ``s.marker_pixel_chroma`` in ``rgb`` (B, 3, S, S)), and whether the
     centre of those pixels lies nearer the marker site's projection of the poses RA (B, 3, 3) than of RB, at ``t``
     (module docstring, step 4)."""
-    c = probe.marker_channel
-    lead = rgb[:, c] - np.delete(rgb, c, axis=1).max(axis=1)                      # (B, S, S)
-    coloured = (lead > s.marker_pixel_chroma) & pixels
+    coloured = (probe.marker_lead(rgb, axis=1) > s.marker_pixel_chroma) & pixels   # (B, S, S)
     count = coloured.sum(axis=(1, 2))
-    v, u = np.mgrid[0:rgb.shape[-2], 0:rgb.shape[-1]]
-    centre = np.stack([(coloured * u).sum(axis=(1, 2)), (coloured * v).sum(axis=(1, 2))], -1) / np.maximum(count, 1)[:, None]
+    centre = np.stack([coloured.sum(axis=1) @ np.arange(rgb.shape[-1]), coloured.sum(axis=2) @ np.arange(rgb.shape[-2])],
+                      -1) / np.maximum(count, 1)[:, None]                        # (B, 2) u, v
     sites = np.stack([RA @ probe.marker + t, RB @ probe.marker + t], axis=1)     # (B, 2, 3)
-    z = np.maximum(sites[..., 2], MIN_PROJECTION_Z_M)
-    projected = np.stack([K[0, 0] * sites[..., 0] / z + K[0, 2], K[1, 1] * sites[..., 1] / z + K[1, 2]], -1)
-    far = np.linalg.norm(projected - centre[:, None], axis=-1)                   # (B, 2) pixels
+    far = np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1)      # (B, 2) pixels
     return count >= s.marker_pixels, far[:, 0] <= far[:, 1]
 
 
@@ -243,12 +235,13 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     kept = inliers < s.min_inliers
     # given the probe's pixels, the marker's colour anywhere among them, read against the fitted pose (a kept
     # frame's: the network's, its box then taken in that turn); a frame tracked keeps the frame before's turn instead
-    found, pixel_a = np.zeros(B, bool), np.zeros(B, bool)
-    if own is not None and probe.has_marker:
+    read_pixels = own is not None and probe.has_marker
+    if read_pixels:
         RA, tA = np.where(kept[:, None, None], R0, RA), np.where(kept[:, None], t0, tA)
-        found, pixel_a = _marker_pixels(probe, RA, RA @ _turn_z(np.pi), tA, rgb, own, K, s)
-        found &= ~warm
     RB = RA @ _turn_z(np.pi)
+    found, pixel_a = (_marker_pixels(probe, RA, RB, tA, rgb, own, K, s) if read_pixels
+                      else (np.zeros(B, bool), np.zeros(B, bool)))
+    found &= ~warm
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
     facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
