@@ -19,16 +19,21 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        within ``s.reach_m`` of the network's capsules and more than ``s.probe_gap_m`` outside the probe posed by the
        output's 8 corners (their box, Kabsch), and, given a segmentation, among its hand pixels; ``s.max_points`` of
        them in a fixed pseudo-random order.
-    3. ``s.iterations`` Gauss-Newton steps on 51 parameters: a rotation about the hand's centroid and a
-       translation (6), and a rotation of each of the 15 finger bones about its proximal joint (45; the bone
-       lengths stay the network's). The residuals: each point's distance to the surface of its nearest capsule
+    3. ``s.iterations`` Gauss-Newton steps on 66 parameters: a rotation about the hand's centroid and a
+       translation (6), a rotation of each of the 15 finger bones about its proximal joint (45), and each finger
+       bone's length as a share of the network's (15; the palm's bones, wrist to each finger's base, stay the
+       network's). The residuals: each point's distance to the surface of its nearest capsule
        (points farther than ``s.trim_m`` left out: the arm, the other objects; first half, second half of the
        steps); where a capsule's axis (``s.free_samples`` points on each) is seen in front of the measured
        surface's depth by more than ``s.free_margin_m`` (and at most ``s.free_band_m``: farther, the sensor saw
        past the hand, onto the patient or the room, and pushing the capsule back would pull it there) the capsule
        would be visible there, and it is pushed back (``s.free_weight``); and each bone's rotation times
        ``s.bone_prior_m`` (metres per radian): a finger without measured points, hidden by the probe or the palm,
-       keeps the network's pose; and the fitted wrist's distance from the network's times ``s.wrist_weight`` (started
+       keeps the network's pose; each bone's change of length (a share of the network's) times ``s.length_prior_m``:
+       the network, which reads the image, gives the lengths the depth corrects (a hand larger or smaller than the
+       one the network was trained on), from step ``s.length_from`` x ``s.iterations`` on (before it the lengths
+       stay, while the pose comes near: from a start far off, free lengths stretch a finger towards points that
+       belong to its neighbour); and the fitted wrist's distance from the network's times ``s.wrist_weight`` (started
        from the true joints the capsule hand's wrist drifts 5 mm; on 48 frames of the paper protocol's val split the
        fitted wrist was 8.6 mm off where the network's was 5.2).
     4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
@@ -55,8 +60,10 @@ from hupbench.fits.settings import HandFitSettings
 
 __all__ = ["HandFit", "HandFitSettings", "fit_hand", "pose_and_jacobian"]
 
-#: rigid motion (6) and the 15 finger bones' turns (3 each)
-N_PARAMS = 6 + 15 * 3
+#: the parameters: rigid motion (6), the 15 finger bones' turns (3 each), then their lengths (1 each)
+_TURNS = slice(6, 6 + 15 * 3)
+_LENGTHS = slice(_TURNS.stop, _TURNS.stop + 15)
+N_PARAMS = _LENGTHS.stop
 
 
 @dataclass(frozen=True)
@@ -129,34 +136,41 @@ _FINGER_BASE = np.array([kp.FINGER_START[f] for f in kp.FINGERS])
 
 
 def pose_and_jacobian(theta: np.ndarray, hand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hands (B, 21, 3) moved by their (B, 51) parameters (module docstring, step 3), and the joints' Jacobian
-    (B, 21, 3, 51) by the parameters."""
+    """Hands (B, 21, 3) moved by their (B, 66) parameters (module docstring, step 3), and the joints' Jacobian
+    (B, 21, 3, 66) by the parameters."""
     B = len(hand)
     R0, J0 = _rodrigues_and_right_jacobian(theta[:, :3])
     centre = hand.mean(1, keepdims=True)
     moved = np.einsum("bij,bkj->bki", R0, hand - centre) + centre + theta[:, None, 3:6]
-    bones, bone_jr = _rodrigues_and_right_jacobian(theta[:, 6:].reshape(B, 5, 3, 3))
+    bones, bone_jr = _rodrigues_and_right_jacobian(theta[:, _TURNS].reshape(B, 5, 3, 3))
+    grow = 1.0 + theta[:, _LENGTHS].reshape(B, 5, 3)                     # each bone's length over the network's
     # d(R0 x)/d(rotation) = -R0 [x]x Jr(w0): linear in x, so a bone's is its two joints' difference
     d_global = -R0[:, None] @ _skew(hand - centre) @ J0[:, None]                      # (B, 21, 3, 3)
     out, jac = moved.copy(), np.zeros((B, kp.NUM_HAND, 3, N_PARAMS))
     jac[:, :, :, :3], jac[:, :, :, 3:6] = d_global, np.eye(3)
     fb = _FINGER_BASE
     bone_jac = np.zeros((B, 5, 3, 3, 3, 3))        # finger, joint after bone k, xyz, bone j, its 3 parameters
+    length_jac = np.zeros((B, 5, 3, 3, 3))         # finger, joint after bone k, xyz, bone j's length
     turned, before = np.broadcast_to(np.eye(3), (B, 5, 3, 3)), []
     for k in range(3):
         before.append(turned)                                                 # T_{k-1}: the turns above bone k
         turned = bones[:, :, k] @ turned                                      # T_k = B_k T_{k-1}
-        step = moved[:, fb + k + 1] - moved[:, fb + k]                        # v_k (B, 5, 3)
+        network_step = moved[:, fb + k + 1] - moved[:, fb + k]                # v_k (B, 5, 3)
+        step = network_step * grow[:, :, k, None]                             # (1 + l_k) v_k
         out[:, fb + k + 1] = out[:, fb + k] + (turned @ step[..., None])[..., 0]
         jac[:, fb + k + 1, :, :6] = jac[:, fb + k, :, :6]
-        jac[:, fb + k + 1, :, :3] += turned @ (d_global[:, fb + k + 1] - d_global[:, fb + k])
+        jac[:, fb + k + 1, :, :3] += grow[:, :, k, None, None] * (turned @ (d_global[:, fb + k + 1]
+                                                                            - d_global[:, fb + k]))
         if k:
             bone_jac[:, :, k] = bone_jac[:, :, k - 1]
-        turned_step = -turned @ _skew(step)                                   # -T_k [v_k]x
+            length_jac[:, :, k] = length_jac[:, :, k - 1]
+        length_jac[:, :, k, :, k] = (turned @ network_step[..., None])[..., 0]     # d(T_k (1 + l_k) v_k)/dl_k
+        turned_step = -turned @ _skew(step)                                   # -T_k [(1 + l_k) v_k]x
         for j in range(k + 1):                          # d(T_k v_k)/dw_j = -T_k [v_k]x T_{j-1}^T Jr_j
             bone_jac[:, :, k, :, j] += turned_step @ before[j].swapaxes(-1, -2) @ bone_jr[:, :, j]
     for i in range(5):
         jac[:, fb[i] + 1:fb[i] + 4, :, 6 + 9 * i:15 + 9 * i] = bone_jac[:, i].reshape(B, 3, 3, 9)
+        jac[:, fb[i] + 1:fb[i] + 4, :, _LENGTHS.start + 3 * i:_LENGTHS.start + 3 * i + 3] = length_jac[:, i]
     return out, jac
 
 
@@ -215,8 +229,8 @@ def _free_lambdas(samples: int) -> np.ndarray:
 
 
 def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSettings, caps: _Capsules):
-    """Gauss-Newton's (B, 51, 51) J^T J and (B, 51) J^T r of the residuals (module docstring, step 3) at parameters
-    theta (B, 51): hands (B, 21, 3), points (B, P, 3) with weights (B, P) (those farther than ``trim`` from the
+    """Gauss-Newton's (B, 66, 66) J^T J and (B, 66) J^T r of the residuals (module docstring, step 3) at parameters
+    theta (B, 66): hands (B, 21, 3), points (B, P, 3) with weights (B, P) (those farther than ``trim`` from the
     capsules left out), depth (B, S, S), K (3, 3)."""
     B, C = len(theta), len(caps.radius)
     joints, jac = pose_and_jacobian(theta, hand)
@@ -226,7 +240,7 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     at = lambda x: np.take_along_axis(x, nearest[..., None], axis=1)  # noqa: E731
     d, n, t = _segment(points, at(a), at(b))
     r_surface = (d - caps.radius[nearest]) * weight
-    # a point's row of J is x^T G[c] for its capsule c, G = the capsule's two ends' Jacobians (6, 51) and x its
+    # a point's row of J is x^T G[c] for its capsule c, G = the capsule's two ends' Jacobians (6, 66) and x its
     # distance's gradient by them (6): J^T J sums G^T (x x^T) G, so the x x^T are summed per capsule first
     x = np.concatenate([-(1 - t)[..., None] * n, -t[..., None] * n], -1) * weight[..., None]      # (B, P, 6)
     of_capsule = (nearest[:, None, :] == np.arange(C)[:, None]).astype(np.float64)               # (B, C, P)
@@ -263,15 +277,16 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     x_free = np.concatenate([grad * (1 - lam), grad * lam], -1)                                  # (B, C, F, 6)
     moments += x_free.swapaxes(-1, -2) @ x_free
     pulls += (x_free * r_free[..., None]).sum(2)
-    G = np.concatenate([ja, jb], axis=2)                                                         # (B, C, 6, 51)
+    G = np.concatenate([ja, jb], axis=2)                                                         # (B, C, 6, 66)
     JTJ = (moments @ G).reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ G.reshape(B, -1, N_PARAMS)
     JTr = (G.reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ pulls.reshape(B, -1, 1))[..., 0]
 
-    # each bone's turn, a prior towards the network's pose
-    JTJ[:, 6:, 6:] += s.bone_prior_m ** 2 * np.eye(N_PARAMS - 6)
-    JTr[:, 6:] += s.bone_prior_m ** 2 * theta[:, 6:]
+    # each bone's turn and length, a prior towards the network's
+    for part, weight in ((_TURNS, s.bone_prior_m), (_LENGTHS, s.length_prior_m)):
+        JTJ[:, part, part] += weight ** 2 * np.eye(part.stop - part.start)
+        JTr[:, part] += weight ** 2 * theta[:, part]
     # the network's wrist, held: the capsule hand's own wrist drifts from the true one (module docstring, step 3)
-    wrist = jac[:, _WRIST] * s.wrist_weight                                                  # (B, 3, 51)
+    wrist = jac[:, _WRIST] * s.wrist_weight                                                  # (B, 3, 66)
     JTJ += wrist.swapaxes(-1, -2) @ wrist
     JTr += (wrist.swapaxes(-1, -2) @ ((joints[:, _WRIST] - hand[:, _WRIST]) * s.wrist_weight)[..., None])[..., 0]
     return JTJ, JTr
@@ -351,6 +366,9 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         for step in range(s.iterations):
             trim = s.trim_m[0 if step < s.iterations // 2 else 1]
             JTJ, JTr = _normal_equations(fitting, hand[rows], points[rows], real[rows], trim, depth[rows], K, s, caps)
+            if step < s.length_from * s.iterations:     # the lengths held (the network's) until the pose has come near
+                JTJ[:, _LENGTHS, :], JTJ[:, :, _LENGTHS], JTr[:, _LENGTHS] = 0.0, 0.0, 0.0
+                JTJ[:, _LENGTHS, _LENGTHS] = np.eye(_LENGTHS.stop - _LENGTHS.start)
             delta, ok = _solve(JTJ + s.damping * np.eye(N_PARAMS), -JTr)
             ok_rows &= ok
             fitting = fitting + np.where(ok_rows[:, None], delta, 0.0)

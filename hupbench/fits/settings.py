@@ -89,6 +89,11 @@ class HandFitSettings:
             metres (the sensor saw past the hand there: the patient, the room; pushing the capsule back would pull
             it towards them).
         bone_prior_m: each bone's turn costs this many metres per radian (a finger without points stays put).
+        length_prior_m: each bone's length, as a share of the network's, costs this many metres per unit (a bone a
+            tenth longer than the network's: a tenth of it): the network's lengths are the prior, read from the
+            image, and the depth stretches or shortens a bone whose points say so (hands of other sizes than the
+            generator's default).
+        length_from: the lengths are fitted from this share of the steps on (0: every step; 0.5: the second half).
         wrist_weight: the network's wrist holds the fitted wrist: the residual of their distance (metres) times this.
         damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
     """
@@ -107,5 +112,7 @@ class HandFitSettings:
     free_weight: float = 0.3
     free_band_m: float = 0.04
     bone_prior_m: float = 0.05
+    length_prior_m: float = 0.03
+    length_from: float = 0.5
     wrist_weight: float = 3.0
     damping: float = 1e-6

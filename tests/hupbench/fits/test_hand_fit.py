@@ -107,18 +107,22 @@ def test_a_hand_moved_turned_and_bent_comes_back(curl):
 def test_the_network_s_wrist_holds_the_fitted_wrist(curl):
     """From the true joints the capsule hand's wrist drifts 5 mm off the mesh's (measured here, without the hold). The
     network's wrist (here the true one) holds it (wrist_weight), and so the whole hand fits better, from the true
-    joints and from a hand turned about the wrist with a finger bent."""
+    joints and from a hand turned about the wrist with a finger bent. The bones' lengths are held (the network's) in
+    both, so that the hold is measured alone: with them fitted, from that far start the default fit lands 0.5, 1.0 and
+    0.1 mm further off at curls 0.2, 0.5 and 0.8 (11.30 / 11.61 / 2.63 mm, the start 16.2 / 15.2 / 13.6), still nearer
+    than without the hold; on the val splits' network output they gain (README, "The hand fitted to the depth")."""
     image, joints = scene(curl)
     wrist = lambda out: np.linalg.norm(out[0, 0] - joints[0]) * 1000  # noqa: E731
-    free = F.fit_hand(*network_output(joints), image[None], K, NO_WRIST)[1]
-    held = F.fit_hand(*network_output(joints), image[None], K)[1]
+    held_lengths = F.HandFitSettings(length_prior_m=1e3)
+    free = F.fit_hand(*network_output(joints), image[None], K, dataclasses.replace(NO_WRIST, length_prior_m=1e3))[1]
+    held = F.fit_hand(*network_output(joints), image[None], K, held_lengths)[1]
     assert wrist(free) > 4.5 and wrist(held) < 4.0
     assert error_mm(held[0], joints) < error_mm(free[0], joints) - 0.2
     wrong = (joints - joints[0]) @ rotation((0.3, 1.0, 0.2), 8).T + joints[0]
     index = slice(kp.FINGER_START["index"] + 1, kp.FINGER_START["index"] + 4)
     wrong[index] = (wrong[index] - wrong[index.start - 1]) @ rotation((0.0, 0.0, 1.0), 20).T + wrong[index.start - 1]
-    free = F.fit_hand(*network_output(wrong), image[None], K, NO_WRIST)[1]
-    held = F.fit_hand(*network_output(wrong), image[None], K)[1]
+    free = F.fit_hand(*network_output(wrong), image[None], K, dataclasses.replace(NO_WRIST, length_prior_m=1e3))[1]
+    held = F.fit_hand(*network_output(wrong), image[None], K, held_lengths)[1]
     assert wrist(held) < 4.0 and wrist(free) > 4.5
     assert error_mm(held[0], joints) < min(error_mm(free[0], joints), 0.75 * error_mm(wrong, joints))
 
@@ -250,11 +254,29 @@ def test_hands_a_tenth_smaller_and_larger_are_fitted_as_well_as_the_default_with
     assert abs(mean[0.9] - mean[1.0]) < 1.0 and abs(mean[1.1] - mean[1.0]) < 1.0, mean
 
 
+@pytest.mark.parametrize("grow", [0.88, 1.12])
+def test_fingers_the_network_made_too_short_or_long_take_the_depth_s_length(grow):
+    """The network's fingers an eighth too short or too long (each finger's joints stretched from its base): the
+    fit gives the bones the length the depth shows, and lands nearer the true joints than the same fit with the
+    network's lengths held (length_prior_m so stiff that they stay)."""
+    image, joints = scene(0.3)
+    wrong = joints.copy()
+    for finger in kp.FINGERS:
+        base = kp.FINGER_START[finger]
+        wrong[base + 1:base + 4] = joints[base] + grow * (joints[base + 1:base + 4] - joints[base])
+    before = error_mm(wrong, joints)
+    _, fitted, _ = F.fit_hand(*network_output(wrong), image[None], K)
+    _, held, _ = F.fit_hand(*network_output(wrong), image[None], K, F.HandFitSettings(length_prior_m=1e3))
+    assert before > 5.0
+    assert error_mm(fitted[0], joints) < 0.6 * error_mm(held[0], joints), (before, error_mm(fitted[0], joints),
+                                                                           error_mm(held[0], joints))
+
+
 @pytest.mark.parametrize("shift", [(0.012, 0.0, 0.0), (0.008, -0.008, 0.0)])
 def test_a_wall_behind_the_hand_neither_pulls_it_back_nor_changes_the_fit(shift):
     """Every pixel without the hand sees a wall 1.2 m away (the clinic's room), and the network's hand is 12 mm off
     sideways, so capsules stray over the wall: the free-space term leaves samples whose surface lies beyond
-    free_band_m out, and the fit is the one without the wall (to 0.1 mm). Without that band (inf) the term pushes
+    free_band_m out, and the fit is the one without the wall (to 0.25 mm). Without that band (inf) the term pushes
     the hand metres towards the wall, as it did on the clinic track."""
     image, joints = scene(0.6)
     wall = image.copy()
@@ -262,7 +284,9 @@ def test_a_wall_behind_the_hand_neither_pulls_it_back_nor_changes_the_fit(shift)
     outputs = network_output(joints + np.asarray(shift))
     _, alone, _ = F.fit_hand(*outputs, image[None], K, NO_WRIST)
     _, with_wall, _ = F.fit_hand(*outputs, wall[None], K, NO_WRIST)
-    np.testing.assert_allclose(with_wall, alone, atol=1e-4)   # 0.1 mm: depth read across the silhouette blends
+    # 0.25 mm: depth read across the silhouette blends (0.18 mm at most with the bones' lengths fitted, under 0.1
+    # with them held)
+    np.testing.assert_allclose(with_wall, alone, atol=2.5e-4)
     assert error_mm(with_wall[0], joints) < 2.5
     _, pulled, _ = F.fit_hand(*outputs, wall[None], K, dataclasses.replace(NO_WRIST, free_band_m=float("inf")))
     assert error_mm(pulled[0], joints) > 100.0
