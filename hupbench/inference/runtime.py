@@ -94,6 +94,9 @@ def load_onnx_model(path: str | Path, threads: int | None = None) -> OnnxModel:
     options.log_severity_level = 4  # fatal only: a failure reaches the user as one line naming the file
     if threads is not None:
         options.intra_op_num_threads = threads
+    # onnxruntime's threads wait for work by spinning: on a small CPU they then take the cores from the fits that run
+    # after the network (benchmarks/latency.py: end to end against the sum of its stages)
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         # from the bytes, not the path: onnxruntime's message for a damaged file then names no path twice
         session = ort.InferenceSession(data, sess_options=options, providers=["CPUExecutionProvider"])
