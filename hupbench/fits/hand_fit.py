@@ -366,10 +366,10 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         for step in range(s.iterations):
             trim = s.trim_m[0 if step < s.iterations // 2 else 1]
             JTJ, JTr = _normal_equations(fitting, hand[rows], points[rows], real[rows], trim, depth[rows], K, s, caps)
-            if step < s.length_from * s.iterations:     # the lengths held (the network's) until the pose has come near
-                JTJ[:, _LENGTHS, :], JTJ[:, :, _LENGTHS], JTr[:, _LENGTHS] = 0.0, 0.0, 0.0
-                JTJ[:, _LENGTHS, _LENGTHS] = np.eye(_LENGTHS.stop - _LENGTHS.start)
-            delta, ok = _solve(JTJ + s.damping * np.eye(N_PARAMS), -JTr)
+            # the lengths held (the network's) until the pose has come near: the parameters before them solved alone
+            n = N_PARAMS if step >= s.length_from * s.iterations else _LENGTHS.start
+            delta = np.zeros_like(fitting)
+            delta[:, :n], ok = _solve(JTJ[:, :n, :n] + s.damping * np.eye(n), -JTr[:, :n])
             ok_rows &= ok
             fitting = fitting + np.where(ok_rows[:, None], delta, 0.0)
         theta[rows], solved[rows] = fitting, ok_rows

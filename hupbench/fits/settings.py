@@ -93,7 +93,8 @@ class HandFitSettings:
             tenth longer than the network's: a tenth of it): the network's lengths are the prior, read from the
             image, and the depth stretches or shortens a bone whose points say so (hands of other sizes than the
             generator's default).
-        length_from: the lengths are fitted from this share of the steps on (0: every step; 0.5: the second half).
+        length_from: the lengths are fitted from this share of the steps on (0: every step; 0.5: the second half;
+            1: never, the network's lengths kept).
         wrist_weight: the network's wrist holds the fitted wrist: the residual of their distance (metres) times this.
         damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
     """

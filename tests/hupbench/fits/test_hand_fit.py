@@ -113,15 +113,15 @@ def test_the_network_s_wrist_holds_the_fitted_wrist(curl):
     than without the hold; on the val splits' network output they gain (README, "The hand fitted to the depth")."""
     image, joints = scene(curl)
     wrist = lambda out: np.linalg.norm(out[0, 0] - joints[0]) * 1000  # noqa: E731
-    held_lengths = F.HandFitSettings(length_prior_m=1e3)
-    free = F.fit_hand(*network_output(joints), image[None], K, dataclasses.replace(NO_WRIST, length_prior_m=1e3))[1]
+    held_lengths = F.HandFitSettings(length_from=1.0)
+    free = F.fit_hand(*network_output(joints), image[None], K, dataclasses.replace(NO_WRIST, length_from=1.0))[1]
     held = F.fit_hand(*network_output(joints), image[None], K, held_lengths)[1]
     assert wrist(free) > 4.5 and wrist(held) < 4.0
     assert error_mm(held[0], joints) < error_mm(free[0], joints) - 0.2
     wrong = (joints - joints[0]) @ rotation((0.3, 1.0, 0.2), 8).T + joints[0]
     index = slice(kp.FINGER_START["index"] + 1, kp.FINGER_START["index"] + 4)
     wrong[index] = (wrong[index] - wrong[index.start - 1]) @ rotation((0.0, 0.0, 1.0), 20).T + wrong[index.start - 1]
-    free = F.fit_hand(*network_output(wrong), image[None], K, dataclasses.replace(NO_WRIST, length_prior_m=1e3))[1]
+    free = F.fit_hand(*network_output(wrong), image[None], K, dataclasses.replace(NO_WRIST, length_from=1.0))[1]
     held = F.fit_hand(*network_output(wrong), image[None], K, held_lengths)[1]
     assert wrist(held) < 4.0 and wrist(free) > 4.5
     assert error_mm(held[0], joints) < min(error_mm(free[0], joints), 0.75 * error_mm(wrong, joints))
@@ -258,7 +258,7 @@ def test_hands_a_tenth_smaller_and_larger_are_fitted_as_well_as_the_default_with
 def test_fingers_the_network_made_too_short_or_long_take_the_depth_s_length(grow):
     """The network's fingers an eighth too short or too long (each finger's joints stretched from its base): the
     fit gives the bones the length the depth shows, and lands nearer the true joints than the same fit with the
-    network's lengths held (length_prior_m so stiff that they stay)."""
+    network's lengths held (length_from 1: never fitted)."""
     image, joints = scene(0.3)
     wrong = joints.copy()
     for finger in kp.FINGERS:
@@ -266,7 +266,7 @@ def test_fingers_the_network_made_too_short_or_long_take_the_depth_s_length(grow
         wrong[base + 1:base + 4] = joints[base] + grow * (joints[base + 1:base + 4] - joints[base])
     before = error_mm(wrong, joints)
     _, fitted, _ = F.fit_hand(*network_output(wrong), image[None], K)
-    _, held, _ = F.fit_hand(*network_output(wrong), image[None], K, F.HandFitSettings(length_prior_m=1e3))
+    _, held, _ = F.fit_hand(*network_output(wrong), image[None], K, F.HandFitSettings(length_from=1.0))
     assert before > 5.0
     assert error_mm(fitted[0], joints) < 0.6 * error_mm(held[0], joints), (before, error_mm(fitted[0], joints),
                                                                            error_mm(held[0], joints))
