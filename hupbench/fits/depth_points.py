@@ -1,5 +1,6 @@
-"""The depth input as the fits read it: its pixels unprojected to camera-frame points, a fixed sample of those a fit
-uses, and fitted points projected back to the model input. Numpy only.
+"""The depth input as the fits read it: its pixels with a surface, unprojected to camera-frame points, a fixed sample of
+those a fit uses, and fitted points projected back to the model input. Numpy only (a fit unprojects only the pixels
+it looks at: at batch 1 every array operation over the whole map costs).
 
 Convention: the camera of the model input (``K_input``, pixels, OpenCV axes), depth in metres along its optical
 axis, 0 where the map has no surface (no depth: unknown, never far).
@@ -13,21 +14,29 @@ import numpy as np
 
 from hupbench.input_geometry import pixels_to_normalized
 
-__all__ = ["MIN_PROJECTION_Z_M", "input_pixels", "input_points2d", "pixel_order", "sample_points", "unproject_depth"]
+__all__ = ["MIN_PROJECTION_Z_M", "input_pixels", "input_points2d", "pixel_order", "sample_points", "surface_pixels",
+           "unproject_pixels"]
 
 #: points nearer the camera than this are projected as if at it, metres (a fit that moved a point behind the
 #: camera keeps finite 2D points)
 MIN_PROJECTION_Z_M = 1e-3
 
 
-def unproject_depth(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(B, S * S, 3) float64 camera-frame points, metres, of every pixel of the depth maps ``depth`` (B, S, S) metres,
-    row by row; a pixel without a surface is the camera's centre (z = 0). ``K``: (3, 3)."""
-    B, S, _ = depth.shape
+def unproject_pixels(depth: np.ndarray, K: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """(N, 3) float64 camera-frame points, metres, of the pixels ``index`` (N,) int (row by row: v * S + u) of the
+    depth map ``depth`` (S, S) metres; a pixel without a surface is the camera's centre (z = 0). ``K``: (3, 3)."""
+    S = depth.shape[-1]
     K = np.asarray(K, dtype=np.float64)
-    v, u = np.mgrid[0:S, 0:S].astype(np.float64)
-    z = np.asarray(depth, dtype=np.float64).reshape(B, -1)
-    return np.stack([(u.ravel() - K[0, 2]) / K[0, 0] * z, (v.ravel() - K[1, 2]) / K[1, 1] * z, z], -1)
+    z = np.asarray(depth, dtype=np.float64).reshape(-1)[index]
+    v, u = np.divmod(index, S)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], -1)
+
+
+def surface_pixels(depth: np.ndarray, allowed: np.ndarray | None = None) -> np.ndarray:
+    """(B, S * S) bool: the pixels of the depth maps ``depth`` (B, S, S) with a surface (depth above 0), among
+    ``allowed`` (B, S, S) bool where given (a segmentation's pixels of one object)."""
+    wanted = np.asarray(depth).reshape(len(depth), -1) > 0
+    return wanted if allowed is None else wanted & np.asarray(allowed, dtype=bool).reshape(len(depth), -1)
 
 
 @functools.lru_cache(maxsize=8)
@@ -38,17 +47,19 @@ def pixel_order(count: int) -> np.ndarray:
     return order
 
 
-def sample_points(points: np.ndarray, wanted: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
-    """Up to ``max_points`` of the ``wanted`` (B, P) bool of ``points`` (B, P, 3), in a fixed pseudo-random order that
-    is the same for every frame (a fit's result does not depend on the batch): (B, M, 3) points and their (B, M)
-    float64 weights (1 a wanted point, 0 padding at the end), M = min(``max_points``, P)."""
-    B, P, _ = points.shape
+def sample_points(depth: np.ndarray, K: np.ndarray, wanted: np.ndarray, max_points: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``max_points`` of the ``wanted`` (B, S * S) bool pixels of the depth maps ``depth`` (B, S, S), in a fixed
+    pseudo-random order that is the same for every frame (a fit's result does not depend on the batch), unprojected
+    with ``K`` (:func:`unproject_pixels`): (B, M, 3) points and their (B, M) float64 weights (1 a wanted pixel's
+    point, 0 padding at the end), M = min(``max_points``, S * S)."""
+    B, P = wanted.shape
     M = min(max_points, P)
     order = pixel_order(P)
     chosen, weight = np.zeros((B, M, 3)), np.zeros((B, M))
     for b in range(B):
         take = order[wanted[b, order]][:M]
-        chosen[b, :len(take)], weight[b, :len(take)] = points[b, take], 1.0
+        chosen[b, :len(take)], weight[b, :len(take)] = unproject_pixels(depth[b], K, take), 1.0
     return chosen, weight
 
 

@@ -54,7 +54,9 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.geometry import fit_rigid_pose
-from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_points2d, sample_points, unproject_depth
+from hupbench.core.processes import one_blas_thread
+from hupbench.fits.depth_points import (MIN_PROJECTION_Z_M, input_points2d, sample_points, surface_pixels,
+                                        unproject_pixels)
 from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import HandFitSettings
 
@@ -64,6 +66,8 @@ __all__ = ["HandFit", "HandFitSettings", "fit_hand", "pose_and_jacobian"]
 _TURNS = slice(6, 6 + 15 * 3)
 _LENGTHS = slice(_TURNS.stop, _TURNS.stop + 15)
 N_PARAMS = _LENGTHS.stop
+#: the normal equations' diagonal, (row, column) index
+_DIAGONAL = np.arange(N_PARAMS)
 
 
 @dataclass(frozen=True)
@@ -133,44 +137,53 @@ def _rodrigues_and_right_jacobian(w: np.ndarray) -> tuple[np.ndarray, np.ndarray
 _WRIST = kp.HAND_NAMES.index("wrist")
 #: each finger's first keypoint (the MCP joint; the CMC for the thumb), in :data:`kp.FINGERS` order
 _FINGER_BASE = np.array([kp.FINGER_START[f] for f in kp.FINGERS])
+#: each finger's keypoints, base to tip (5, 4): bone k runs from column k to column k + 1
+_CHAIN = _FINGER_BASE[:, None] + np.arange(4)
+#: (k, j) 1 where bone j lies at or above bone k along its finger (j <= k): bone j moves the joint after bone k
+_AT_OR_ABOVE = np.tril(np.ones((3, 3)))
 
 
 def pose_and_jacobian(theta: np.ndarray, hand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hands (B, 21, 3) moved by their (B, 66) parameters (module docstring, step 3), and the joints' Jacobian
-    (B, 21, 3, 66) by the parameters."""
+    (B, 21, 3, 66) by the parameters.
+
+    Along each finger, with T_k = B_k ... B_0 the turns of bones 0..k, v_k the network's bone k (moved rigidly) and
+    (1 + l_k) its length's share: the joint after bone k is the finger's base + sum_{i <= k} T_i (1 + l_i) v_i; its
+    derivative by bone j's turn (j <= k) sums -T_i [(1 + l_i) v_i]x T_{j-1}^T Jr_j over i = j..k, by bone i's length
+    T_i v_i. Every finger and bone at once (a few dozen array operations: at batch 1 each costs its call)."""
     B = len(hand)
-    R0, J0 = _rodrigues_and_right_jacobian(theta[:, :3])
+    turns = np.concatenate([theta[:, None, :3], theta[:, _TURNS].reshape(B, 15, 3)], axis=1)
+    rotations, right = _rodrigues_and_right_jacobian(turns)                               # (B, 16, 3, 3)
+    R0, J0 = rotations[:, 0], right[:, 0]
+    bones, bone_jr = rotations[:, 1:].reshape(B, 5, 3, 3, 3), right[:, 1:].reshape(B, 5, 3, 3, 3)
     centre = hand.mean(1, keepdims=True)
-    moved = np.einsum("bij,bkj->bki", R0, hand - centre) + centre + theta[:, None, 3:6]
-    bones, bone_jr = _rodrigues_and_right_jacobian(theta[:, _TURNS].reshape(B, 5, 3, 3))
-    grow = 1.0 + theta[:, _LENGTHS].reshape(B, 5, 3)                     # each bone's length over the network's
+    local = hand - centre
+    moved = local @ R0.swapaxes(-1, -2) + centre + theta[:, None, 3:6]
     # d(R0 x)/d(rotation) = -R0 [x]x Jr(w0): linear in x, so a bone's is its two joints' difference
-    d_global = -R0[:, None] @ _skew(hand - centre) @ J0[:, None]                      # (B, 21, 3, 3)
-    out, jac = moved.copy(), np.zeros((B, kp.NUM_HAND, 3, N_PARAMS))
-    jac[:, :, :, :3], jac[:, :, :, 3:6] = d_global, np.eye(3)
-    fb = _FINGER_BASE
-    bone_jac = np.zeros((B, 5, 3, 3, 3, 3))        # finger, joint after bone k, xyz, bone j, its 3 parameters
-    length_jac = np.zeros((B, 5, 3, 3, 3))         # finger, joint after bone k, xyz, bone j's length
-    turned, before = np.broadcast_to(np.eye(3), (B, 5, 3, 3)), []
-    for k in range(3):
-        before.append(turned)                                                 # T_{k-1}: the turns above bone k
-        turned = bones[:, :, k] @ turned                                      # T_k = B_k T_{k-1}
-        network_step = moved[:, fb + k + 1] - moved[:, fb + k]                # v_k (B, 5, 3)
-        step = network_step * grow[:, :, k, None]                             # (1 + l_k) v_k
-        out[:, fb + k + 1] = out[:, fb + k] + (turned @ step[..., None])[..., 0]
-        jac[:, fb + k + 1, :, :6] = jac[:, fb + k, :, :6]
-        jac[:, fb + k + 1, :, :3] += grow[:, :, k, None, None] * (turned @ (d_global[:, fb + k + 1]
-                                                                            - d_global[:, fb + k]))
-        if k:
-            bone_jac[:, :, k] = bone_jac[:, :, k - 1]
-            length_jac[:, :, k] = length_jac[:, :, k - 1]
-        length_jac[:, :, k, :, k] = (turned @ network_step[..., None])[..., 0]     # d(T_k (1 + l_k) v_k)/dl_k
-        turned_step = -turned @ _skew(step)                                   # -T_k [(1 + l_k) v_k]x
-        for j in range(k + 1):                          # d(T_k v_k)/dw_j = -T_k [v_k]x T_{j-1}^T Jr_j
-            bone_jac[:, :, k, :, j] += turned_step @ before[j].swapaxes(-1, -2) @ bone_jr[:, :, j]
-    for i in range(5):
-        jac[:, fb[i] + 1:fb[i] + 4, :, 6 + 9 * i:15 + 9 * i] = bone_jac[:, i].reshape(B, 3, 3, 9)
-        jac[:, fb[i] + 1:fb[i] + 4, :, _LENGTHS.start + 3 * i:_LENGTHS.start + 3 * i + 3] = length_jac[:, i]
+    d_global = -R0[:, None] @ _skew(local) @ J0[:, None]                                  # (B, 21, 3, 3)
+    grow = 1.0 + theta[:, _LENGTHS].reshape(B, 5, 3)                  # each bone's length over the network's
+    above = bones[:, :, 1] @ bones[:, :, 0]
+    turned = np.stack([bones[:, :, 0], above, bones[:, :, 2] @ above], axis=2)             # T_k (B, 5, 3, 3, 3)
+    before = np.concatenate([np.broadcast_to(np.eye(3), (B, 5, 1, 3, 3)), turned[:, :, :2]], axis=2)   # T_{k-1}
+    network_bone = moved[:, _CHAIN[:, 1:]] - moved[:, _CHAIN[:, :-1]]                    # v_k (B, 5, 3, 3)
+    turned_bone = (turned @ network_bone[..., None])[..., 0]                               # T_k v_k
+    out = moved.copy()
+    out[:, _CHAIN[:, 1:]] = moved[:, _FINGER_BASE, None] + np.cumsum(turned_bone * grow[..., None], axis=2)
+
+    jac = np.zeros((B, kp.NUM_HAND, 3, N_PARAMS))
+    jac[..., :3], jac[..., 3:6] = d_global, np.eye(3)
+    bone_global = d_global[:, _CHAIN[:, 1:]] - d_global[:, _CHAIN[:, :-1]]              # (B, 5, 3, 3, 3)
+    jac[:, _CHAIN[:, 1:], :, :3] = d_global[:, _FINGER_BASE, None] + np.cumsum(
+        grow[..., None, None] * (turned @ bone_global), axis=2)
+    # by bone j's turn: -T_i [(1 + l_i) v_i]x (i, rows) times T_{j-1}^T Jr_j (j, columns), summed over i = j..k
+    lever = -turned @ _skew(network_bone * grow[..., None])                                 # (B, 5, 3, 3, 3)
+    frame = before.swapaxes(-1, -2) @ bone_jr                                              # (B, 5, 3, 3, 3)
+    pairs = (lever[:, :, :, None] @ frame[:, :, None]) * _AT_OR_ABOVE[:, :, None, None]     # (B, 5, i, j, 3, 3)
+    by_turn = np.cumsum(pairs, axis=2).transpose(0, 1, 2, 4, 3, 5).reshape(B, 5, 3, 3, 9)    # (B, 5, k, xyz, 9)
+    by_length = turned_bone.swapaxes(-1, -2)[:, :, None] * _AT_OR_ABOVE[:, None, :]         # (B, 5, k, xyz, 3)
+    eye = np.eye(5)
+    jac[:, _CHAIN[:, 1:], :, _TURNS] = np.einsum("bfkxp,fg->bfkxgp", by_turn, eye).reshape(B, 5, 3, 3, 45)
+    jac[:, _CHAIN[:, 1:], :, _LENGTHS] = np.einsum("bfkxl,fg->bfkxgl", by_length, eye).reshape(B, 5, 3, 3, 15)
     return out, jac
 
 
@@ -189,25 +202,15 @@ def _ends(hand: np.ndarray, caps: _Capsules, jac: np.ndarray | None = None):
     return a, end, ja, jb - across @ (jb - ja)
 
 
-def _segment(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For points (..., 3) and segments a-b (..., 3), broadcast: the distance, the unit direction from the closest
-    point to the point (0 at distance 0), and the closest point's place t in [0, 1] along a-b."""
-    ab, ap = b - a, points - a
-    dot = lambda p, q: p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1] + p[..., 2] * q[..., 2]  # noqa: E731
-    t = np.clip(dot(ap, ab) / np.maximum(dot(ab, ab), 1e-12), 0.0, 1.0)
-    e = ap - t[..., None] * ab
-    d = np.sqrt(dot(e, e))
-    return d, e / np.where(d > 1e-12, d, np.inf)[..., None], t
-
-
-def _nearest(points: np.ndarray, hand: np.ndarray, caps: _Capsules) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's (B, P) signed distance to the capsule hand and the index of its nearest capsule.
+def _nearest(points: np.ndarray, a: np.ndarray, b: np.ndarray, radius: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's (B, P) signed distance to the capsules with axes a-b (B, C, 3) and ``radius`` (C,), the index
+    of its nearest capsule, and the place t in [0, 1] of the closest point on that capsule's axis.
 
     Every point against every capsule (B, P, C) from two batched products, p.a and p.(b - a): with q = p - a and
-    t = clip(q.ab / ab.ab), the squared distance is q.q - 2 t q.ab + t^2 ab.ab (what :func:`_segment` computes
-    point by point, a quarter of the time at 512 points and 20 capsules; in float64 the cancellation costs under a
-    nanometre at the hand's scale)."""
-    a, b = _ends(hand, caps)
+    t = clip(q.ab / ab.ab), the squared distance is q.q - 2 t q.ab + t^2 ab.ab (a quarter of the time of taking
+    each difference at 512 points and 20 capsules; in float64 the cancellation costs under a nanometre at the
+    hand's scale)."""
     ab = b - a                                                                     # (B, C, 3)
     C = ab.shape[1]
     products = points @ np.concatenate([a, ab], axis=1).swapaxes(-1, -2)          # (B, P, 2C): p.a, p.ab
@@ -216,8 +219,10 @@ def _nearest(points: np.ndarray, hand: np.ndarray, caps: _Capsules) -> tuple[np.
     ab_ab = (ab * ab).sum(-1)[:, None]
     q_q = (points * points).sum(-1)[..., None] - 2.0 * p_a + (a * a).sum(-1)[:, None]
     t = np.clip(q_ab / np.maximum(ab_ab, 1e-12), 0.0, 1.0)
-    d = np.sqrt(np.maximum(q_q - t * (2.0 * q_ab - t * ab_ab), 0.0)) - caps.radius
-    return d.min(axis=-1), d.argmin(axis=-1)
+    d = np.sqrt(np.maximum(q_q - t * (2.0 * q_ab - t * ab_ab), 0.0)) - radius
+    nearest = d.argmin(axis=-1)
+    return (np.take_along_axis(d, nearest[..., None], -1)[..., 0], nearest,
+            np.take_along_axis(t, nearest[..., None], -1)[..., 0])
 
 
 @functools.lru_cache(maxsize=4)
@@ -235,10 +240,12 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     B, C = len(theta), len(caps.radius)
     joints, jac = pose_and_jacobian(theta, hand)
     a, b, ja, jb = _ends(joints, caps, jac)
-    distance, nearest = _nearest(points, joints, caps)
+    distance, nearest, t = _nearest(points, a, b, caps.radius)
     weight = real * (np.abs(distance) < trim)
-    at = lambda x: np.take_along_axis(x, nearest[..., None], axis=1)  # noqa: E731
-    d, n, t = _segment(points, at(a), at(b))
+    start = np.take_along_axis(a, nearest[..., None], axis=1)
+    e = points - start - t[..., None] * (np.take_along_axis(b, nearest[..., None], axis=1) - start)  # from the axis
+    d = np.sqrt(e[..., 0] * e[..., 0] + e[..., 1] * e[..., 1] + e[..., 2] * e[..., 2])   # exact, unlike _nearest's
+    n = e / np.where(d > 1e-12, d, np.inf)[..., None]               # the unit direction (0 at distance 0)
     r_surface = (d - caps.radius[nearest]) * weight
     # a point's row of J is x^T G[c] for its capsule c, G = the capsule's two ends' Jacobians (6, 66) and x its
     # distance's gradient by them (6): J^T J sums G^T (x x^T) G, so the x x^T are summed per capsule first
@@ -250,30 +257,29 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     # free space: samples along each capsule's axis seen in front of the measured surface
     lam = _free_lambdas(s.free_samples)
     samples = a[:, :, None] + lam * (b - a)[:, :, None]                                   # (B, C, F, 3)
-    z_raw = samples[..., 2]
-    z = np.maximum(z_raw, MIN_PROJECTION_Z_M)
-    u = K[0, 0] * samples[..., 0] / z + K[0, 2]
-    v = K[1, 1] * samples[..., 1] / z + K[1, 2]
+    unclamped = samples[..., 2] > MIN_PROJECTION_Z_M
+    z = np.maximum(samples[..., 2], MIN_PROJECTION_Z_M)[..., None]
+    focal = K[[0, 1], [0, 1]]
+    uv = focal * samples[..., :2] / z + K[:2, 2]                                           # (B, C, F, 2) pixels
     size = depth.shape[-1]
-    uc, vc = np.clip(u, 0.0, size - 1.001), np.clip(v, 0.0, size - 1.001)
-    u0, v0 = np.floor(uc), np.floor(vc)
-    fu, fv = uc - u0, vc - v0
-    flat = depth.reshape(B, -1)
-    idx = (v0 * size + u0).astype(np.int64).reshape(B, -1, 1) + np.array([0, 1, size, size + 1])
-    d00, d01, d10, d11 = np.moveaxis(np.take_along_axis(flat, idx.reshape(B, -1), axis=1).reshape(*u.shape, 4), -1, 0)
-    measured = d00 * (1 - fu) * (1 - fv) + d01 * fu * (1 - fv) + d10 * (1 - fu) * fv + d11 * fu * fv
-    inside = (u > 0) & (u < size - 1) & (v > 0) & (v < size - 1) & (measured > 0)
-    behind = measured - (z - caps.radius[:, None])           # how far the measured surface lies behind the front
+    clamped = np.clip(uv, 0.0, size - 1.001)
+    cell = np.floor(clamped)
+    fu, fv = np.moveaxis(clamped - cell, -1, 0)
+    idx = (cell @ np.array([1.0, size])).astype(np.int64).reshape(B, -1, 1) + np.array([0, 1, size, size + 1])
+    corner = np.take_along_axis(depth.reshape(B, -1), idx.reshape(B, -1), axis=1).reshape(*uv.shape, 2)  # [v, u]
+    across = corner[..., 1] - corner[..., 0]                                  # along u, at the cell's two rows
+    rows = corner[..., 0] + fu[..., None] * across                            # bilinear: along u, then along v
+    measured = rows[..., 0] + fv * (rows[..., 1] - rows[..., 0])
+    inside = ((uv > 0) & (uv < size - 1)).all(-1) & (measured > 0)
+    behind = measured - (z[..., 0] - caps.radius[:, None])   # how far the measured surface lies behind the front
     gap = behind - s.free_margin_m
     active = inside & (gap > 0) & (behind <= s.free_band_m)
     r_free = np.where(active, gap, 0.0) * s.free_weight
-    dm_du = ((d01 - d00) * (1 - fv) + (d11 - d10) * fv) * ((u > 0) & (u < size - 1.001))
-    dm_dv = ((d10 - d00) * (1 - fu) + (d11 - d01) * fu) * ((v > 0) & (v < size - 1.001))
-    unclamped = z_raw > MIN_PROJECTION_Z_M
     # d(measured - z)/d(sample): the measured depth's by (u, v) through the projection's (u by x and z, v by y and z)
-    along_z = dm_du * (-K[0, 0] * samples[..., 0] / z ** 2 * unclamped) + dm_dv * (-K[1, 1] * samples[..., 1] / z ** 2
-                                                                                     * unclamped) - unclamped
-    grad = np.stack([dm_du * (K[0, 0] / z), dm_dv * (K[1, 1] / z), along_z], -1) * (active * s.free_weight)[..., None]
+    slope = np.stack([across[..., 0] + fv * (across[..., 1] - across[..., 0]), rows[..., 1] - rows[..., 0]], -1)
+    slope = slope * ((uv > 0) & (uv < size - 1.001))
+    along_z = -(slope * focal * samples[..., :2]).sum(-1) / z[..., 0] ** 2 * unclamped - unclamped
+    grad = np.concatenate([slope * focal / z, along_z[..., None]], -1) * (active * s.free_weight)[..., None]
     x_free = np.concatenate([grad * (1 - lam), grad * lam], -1)                                  # (B, C, F, 6)
     moments += x_free.swapaxes(-1, -2) @ x_free
     pulls += (x_free * r_free[..., None]).sum(2)
@@ -282,9 +288,10 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     JTr = (G.reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ pulls.reshape(B, -1, 1))[..., 0]
 
     # each bone's turn and length, a prior towards the network's
-    for part, weight in ((_TURNS, s.bone_prior_m), (_LENGTHS, s.length_prior_m)):
-        JTJ[:, part, part] += weight ** 2 * np.eye(part.stop - part.start)
-        JTr[:, part] += weight ** 2 * theta[:, part]
+    prior = np.zeros(N_PARAMS)
+    prior[_TURNS], prior[_LENGTHS] = s.bone_prior_m ** 2, s.length_prior_m ** 2
+    JTJ[:, _DIAGONAL, _DIAGONAL] += prior
+    JTr += prior * theta
     # the network's wrist, held: the capsule hand's own wrist drifts from the true one (module docstring, step 3)
     wrist = jac[:, _WRIST] * s.wrist_weight                                                  # (B, 3, 66)
     JTJ += wrist.swapaxes(-1, -2) @ wrist
@@ -313,23 +320,24 @@ def _measured_points(depth: np.ndarray, K: np.ndarray, hand: np.ndarray, probe_p
     """(B, P, 3) camera-frame points of the depth maps (B, S, S) near the hands (B, 21, 3), off the probes posed
     by (B, 4, 4) and among ``pixels`` (B, S, S) bool where given, and their (B, P) weights (1 real, 0 padding),
     P = ``s.max_points`` (module docstring, step 2)."""
-    points = unproject_depth(depth, K)
     # only pixels in the box around the joints can lie within reach of a capsule: the distances are taken there
     margin = float(caps.radius.max()) + s.reach_m
-    lo, hi = hand.min(1, keepdims=True) - margin, hand.max(1, keepdims=True) + margin
-    near = (points[..., 2] > 0) & ((points > lo) & (points < hi)).all(-1)
-    if pixels is not None:
-        near &= np.asarray(pixels, dtype=bool).reshape(len(depth), -1)
-    for b, where in enumerate(near):
+    lo, hi = hand.min(1) - margin, hand.max(1) + margin
+    wanted = surface_pixels(depth, pixels)
+    for b, where in enumerate(wanted):
         cand = np.flatnonzero(where)
+        p = unproject_pixels(depth[b], K, cand)
+        box = ((p > lo[b]) & (p < hi[b])).all(-1)
+        cand, p = cand[box], p[box]
+        where[:] = False
         if len(cand):
-            p = points[b, cand][None]
             off_probe = probe.signed_distance_and_gradient(
-                (p[0] - probe_pose[b, :3, 3]) @ probe_pose[b, :3, :3])[0] > s.probe_gap_m
-            where[cand] = (_nearest(p, hand[b:b + 1], caps)[0][0] < s.reach_m) & off_probe
-    return sample_points(points, near, s.max_points)
+                (p - probe_pose[b, :3, 3]) @ probe_pose[b, :3, :3])[0] > s.probe_gap_m
+            where[cand] = (_nearest(p[None], *_ends(hand[b:b + 1], caps), caps.radius)[0][0] < s.reach_m) & off_probe
+    return sample_points(depth, K, wanted, s.max_points)
 
 
+@one_blas_thread()
 def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
              settings: HandFitSettings = HandFitSettings(), probe: FitProbe | None = None,
              pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, HandFit]:

@@ -62,22 +62,27 @@ class FitProbe:
         """(3,) float64: the grid's last node, probe frame."""
         return self.origin + self.spacing * (np.array(self.grid.shape) - 1)
 
+    @functools.cached_property
+    def _flat_grid(self) -> np.ndarray:
+        """The grid's values flat, float64 (converted once, not at every gather)."""
+        return self.grid.reshape(-1).astype(np.float64)
+
     def signed_distance_and_gradient(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """((...) signed distance, metres, negative inside; (..., 3) its gradient) at points (..., 3) float, metres,
         probe frame; float64."""
         p = np.asarray(points, dtype=np.float64)
-        clamped = np.clip(p, self.origin, self.upper)
+        clamped = np.minimum(np.maximum(p, self.origin), self.upper)
         u = (clamped - self.origin) / self.spacing
         shape = np.array(self.grid.shape)
         i0 = np.minimum(np.maximum(np.floor(u).astype(np.int64), 0), shape - 2)
         fx, fy, fz = np.moveaxis(u - i0, -1, 0)
-        flat = self.grid.reshape(-1)
+        flat = self._flat_grid
         sy, sx = shape[2], shape[1] * shape[2]
         base = i0[..., 0] * sx + i0[..., 1] * sy + i0[..., 2]
         ax, dx = {}, {}
         for b in (0, 1):
             for c in (0, 1):
-                v0, v1 = flat[base + b * sy + c].astype(np.float64), flat[base + sx + b * sy + c].astype(np.float64)
+                v0, v1 = flat[base + b * sy + c], flat[base + sx + b * sy + c]
                 dx[b, c] = v1 - v0
                 ax[b, c] = v0 + fx * dx[b, c]
         by = {c: ax[0, c] + fy * (ax[1, c] - ax[0, c]) for c in (0, 1)}
@@ -87,7 +92,8 @@ class FitProbe:
         grad = np.stack([bdx[0] + fz * (bdx[1] - bdx[0]), bdy[0] + fz * (bdy[1] - bdy[0]), by[1] - by[0]],
                         axis=-1) / self.spacing
         out = p - clamped
-        dist_out = np.linalg.norm(out, axis=-1)
+        ox, oy, oz = np.moveaxis(out, -1, 0)
+        dist_out = np.sqrt(ox * ox + oy * oy + oz * oz)
         away = out / np.maximum(dist_out, 1e-12)[..., None]
         return value + dist_out, np.where((dist_out > 0)[..., None], away, grad)
 

@@ -60,7 +60,9 @@ import numpy as np
 
 from hupbench.core import keypoints as kp
 from hupbench.core.geometry import axis_angle_to_matrix, fit_rigid_pose
-from hupbench.fits.depth_points import MIN_PROJECTION_Z_M, input_pixels, input_points2d, sample_points, unproject_depth
+from hupbench.core.processes import one_blas_thread
+from hupbench.fits.depth_points import (MIN_PROJECTION_Z_M, input_pixels, input_points2d, sample_points,
+                                        surface_pixels, unproject_pixels)
 from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import ProbeFitSettings
 
@@ -82,6 +84,11 @@ class ProbeFit:
     pose: np.ndarray
 
 
+#: each axis's next and the one after (y z x, z x y): a x b = a[_NEXT] b[_AFTER] - a[_AFTER] b[_NEXT] (numpy's cross
+#: takes several times as long on these small arrays)
+_NEXT, _AFTER = [1, 2, 0], [2, 0, 1]
+
+
 def _turn_z(angles: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotations by ``angles`` about +z."""
     c, s = np.cos(angles), np.sin(angles)
@@ -98,7 +105,7 @@ def _refine(probe: FitProbe, p: np.ndarray, w_real: np.ndarray, R: np.ndarray, t
         d, g = probe.signed_distance_and_gradient(q)
         trim = s.trim_m[0] if step < iterations // 2 else s.trim_m[1]
         w = w_real * (np.abs(d) < trim)
-        J = np.concatenate([np.cross(q, g), g], axis=-1)                        # (N, P, 6)
+        J = np.concatenate([q[..., _NEXT] * g[..., _AFTER] - q[..., _AFTER] * g[..., _NEXT], g], axis=-1)  # q x g, g
         A = J.swapaxes(1, 2) @ (J * w[..., None]) + 1e-6 * np.maximum(w.sum(1), 1.0)[:, None, None] * np.eye(6)
         delta = np.linalg.solve(A, -(J.swapaxes(1, 2) @ (w * d)[..., None]))[..., 0]   # (N, 6)
         R = R @ axis_angle_to_matrix(delta[:, :3]).transpose(0, 2, 1)
@@ -170,6 +177,7 @@ def _marker_pixels(probe: FitProbe, RA: np.ndarray, RB: np.ndarray, t: np.ndarra
     return count >= s.marker_pixels, far[:, 0] <= far[:, 1]
 
 
+@one_blas_thread()
 def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
               settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None,
               pixels: np.ndarray | None = None, start: np.ndarray | None = None
@@ -211,12 +219,12 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     box_centre = probe.corners.mean(0)
     reach = float(np.linalg.norm(probe.corners - box_centre, axis=-1).max()) + s.reach_m
     centre = box_centre @ R_ref.transpose(0, 2, 1) + t_ref                        # (B, 3)
-    points = unproject_depth(depth, K)
-    near = (points[..., 2] > 0) & (np.linalg.norm(points - centre[:, None], axis=-1) < reach)
     own = None if pixels is None else np.asarray(pixels, dtype=bool)
-    if own is not None:
-        near &= own.reshape(B, -1)
-    points, weight = sample_points(points, near, s.max_points)
+    near = surface_pixels(depth, own)
+    for b, where in enumerate(near):
+        cand = np.flatnonzero(where)
+        where[cand] = np.linalg.norm(unproject_pixels(depth[b], K, cand) - centre[b], axis=-1) < reach
+    points, weight = sample_points(depth, K, near, s.max_points)
 
     # fewer measured points than min_inliers cannot put that many on any pose's surface: kept (step 5) unrefined
     inliers = weight.sum(1).astype(np.int64)

@@ -79,9 +79,9 @@ def taken(monkeypatch):
     wanted = {}
 
     def recording(part):
-        def sample(points, want, max_points):
+        def sample(depth, K_input, want, max_points):
             wanted[part] = want[0].reshape(S, S).copy()
-            return D.sample_points(points, want, max_points)
+            return D.sample_points(depth, K_input, want, max_points)
         return sample
 
     monkeypatch.setattr(probe_fit, "sample_points", recording("probe"))
