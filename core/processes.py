@@ -79,8 +79,7 @@ def one_blas_thread() -> Iterator[None]:
     The fits after the network multiply many small matrices (66 x 120 by 120 x 66): a second BLAS thread gains
     nothing there, and BLAS threads, waiting spinning for the next product, take the CPU from the fit and from
     torch's own threads. Measured (``benchmarks/latency.py``, the paper protocol's best checkpoint, batch 1, the
-    2-core AMD EPYC): PyTorch end to end 108 -> 48 ms, onnxruntime end to end 50 -> 45 ms, the hand's fit 15.7 ->
-    13.5 ms. About 20 microseconds a block.
-    """
+    2-core AMD EPYC, a noisy host): PyTorch end to end 108 ms with two BLAS threads, 48 with
+    ``OPENBLAS_NUM_THREADS=1``, 48-57 in four runs with this block. About 20 microseconds a block."""
     with _thread_pools().limit(limits=1, user_api="blas"):
         yield

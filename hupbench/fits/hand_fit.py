@@ -233,6 +233,16 @@ def _free_lambdas(samples: int) -> np.ndarray:
     return lam
 
 
+@functools.lru_cache(maxsize=4)
+def _prior_weights(bone_prior_m: float, length_prior_m: float) -> np.ndarray:
+    """(66,) the priors' squared weights on the normal equations' diagonal: 0 for the rigid motion, each bone's turn
+    ``bone_prior_m`` ** 2, each bone's length ``length_prior_m`` ** 2 (read-only)."""
+    prior = np.zeros(N_PARAMS)
+    prior[_TURNS], prior[_LENGTHS] = bone_prior_m ** 2, length_prior_m ** 2
+    prior.flags.writeable = False
+    return prior
+
+
 def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSettings, caps: _Capsules):
     """Gauss-Newton's (B, 66, 66) J^T J and (B, 66) J^T r of the residuals (module docstring, step 3) at parameters
     theta (B, 66): hands (B, 21, 3), points (B, P, 3) with weights (B, P) (those farther than ``trim`` from the
@@ -288,8 +298,7 @@ def _normal_equations(theta, hand, points, real, trim, depth, K, s: HandFitSetti
     JTr = (G.reshape(B, -1, N_PARAMS).swapaxes(-1, -2) @ pulls.reshape(B, -1, 1))[..., 0]
 
     # each bone's turn and length, a prior towards the network's
-    prior = np.zeros(N_PARAMS)
-    prior[_TURNS], prior[_LENGTHS] = s.bone_prior_m ** 2, s.length_prior_m ** 2
+    prior = _prior_weights(s.bone_prior_m, s.length_prior_m)
     JTJ[:, _DIAGONAL, _DIAGONAL] += prior
     JTr += prior * theta
     # the network's wrist, held: the capsule hand's own wrist drifts from the true one (module docstring, step 3)
