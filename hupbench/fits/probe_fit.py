@@ -39,8 +39,10 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
        Given a segmentation whose probe pixels show the marker's colour (step 4), such a frame takes the network's
-       box (its corners' Kabsch pose) in the turn the marker reads instead ("kept, marker pixels"): a network trained
-       with the half-turn-symmetric loss gives either turn.
+       box (its corners' Kabsch pose) turned about its long axis, in steps of ``s.marker_roll_deg``, to the roll
+       whose marker site faces the camera and projects nearest those pixels' centre, then moved across the view (at
+       the site's depth) until the site projects there ("kept, marker pixels"): the network's roll is its largest
+       error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it.
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
@@ -162,19 +164,34 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     return facing, shows.mean(axis=(1, 2)) * inside, lead.max(axis=(1, 2)) * inside
 
 
-def _marker_pixels(probe: FitProbe, RA: np.ndarray, RB: np.ndarray, t: np.ndarray, rgb: np.ndarray,
-                   pixels: np.ndarray, K: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray]:
-    """(found, a) (B,) bool: whether at least ``s.marker_pixels`` of the probe's ``pixels`` (B, S, S) have the marker's
-    colour (its channel ahead of the others by ``s.marker_pixel_chroma`` in ``rgb`` (B, 3, S, S)), and whether the
-    centre of those pixels lies nearer the marker site's projection of the poses RA (B, 3, 3) than of RB, at ``t``
-    (module docstring, step 4)."""
+def _marker_pixels(probe: FitProbe, rgb: np.ndarray, pixels: np.ndarray, s: ProbeFitSettings
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(found (B,) bool, centre (B, 2) pixels u, v): whether at least ``s.marker_pixels`` of the probe's ``pixels``
+    (B, S, S) have the marker's colour (its channel ahead of the others by ``s.marker_pixel_chroma`` in ``rgb``
+    (B, 3, S, S)), and the centre of those pixels (module docstring, step 4)."""
     coloured = (probe.marker_lead(rgb, axis=1) > s.marker_pixel_chroma) & pixels   # (B, S, S)
     count = coloured.sum(axis=(1, 2))
     centre = np.stack([coloured.sum(axis=1) @ np.arange(rgb.shape[-1]), coloured.sum(axis=2) @ np.arange(rgb.shape[-2])],
                       -1) / np.maximum(count, 1)[:, None]                        # (B, 2) u, v
-    sites = np.stack([RA @ probe.marker + t, RB @ probe.marker + t], axis=1)     # (B, 2, 3)
-    far = np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1)      # (B, 2) pixels
-    return count >= s.marker_pixels, far[:, 0] <= far[:, 1]
+    return count >= s.marker_pixels, centre
+
+
+def _roll_to_marker(probe: FitProbe, R: np.ndarray, t: np.ndarray, centre: np.ndarray, K: np.ndarray,
+                    s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (N, 3, 3), (N, 3) turned about their long axis to the roll, in steps of ``s.marker_roll_deg``, whose
+    marker site faces the camera and projects nearest ``centre`` (N, 2) (a site facing away only where none faces
+    it), then moved across the view at the site's depth until it projects on ``centre`` (module docstring, step 5)."""
+    turns = _turn_z(np.radians(np.arange(0.0, 360.0, s.marker_roll_deg)))        # (A, 3, 3)
+    Rs = R[:, None] @ turns                                                      # (N, A, 3, 3)
+    sites = Rs @ probe.marker + t[:, None]                                       # (N, A, 3)
+    away = ((Rs @ probe.marker_normal) * sites).sum(-1) >= 0                     # the normal not towards the camera
+    far = np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1) + np.where(away, 1e9, 0.0)   # pixels
+    pick = far.argmin(axis=1)
+    rows = np.arange(len(R))
+    R, site = Rs[rows, pick], sites[rows, pick]
+    z = np.maximum(site[:, 2], MIN_PROJECTION_Z_M)
+    seen = np.stack([(centre[:, 0] - K[0, 2]) / K[0, 0] * z, (centre[:, 1] - K[1, 2]) / K[1, 1] * z, site[:, 2]], -1)
+    return R, t + seen - site
 
 
 @one_blas_thread()
@@ -246,10 +263,14 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     read_pixels = own is not None and probe.has_marker
     if read_pixels:
         RA, tA = np.where(kept[:, None, None], R0, RA), np.where(kept[:, None], t0, tA)
-    RB = RA @ _turn_z(np.pi)
-    found, pixel_a = (_marker_pixels(probe, RA, RB, tA, rgb, own, K, s) if read_pixels
-                      else (np.zeros(B, bool), np.zeros(B, bool)))
+    found, seen_at = _marker_pixels(probe, rgb, own, s) if read_pixels else (np.zeros(B, bool), np.zeros((B, 2)))
     found &= ~warm
+    roll = kept & found
+    if roll.any():
+        RA[roll], tA[roll] = _roll_to_marker(probe, RA[roll], tA[roll], seen_at[roll], K, s)
+    RB = RA @ _turn_z(np.pi)
+    sites = np.stack([RA @ probe.marker + tA, RB @ probe.marker + tA], axis=1)   # (B, 2, 3)
+    pixel_a = np.less_equal(*np.linalg.norm(input_pixels(sites, K) - seen_at[:, None], axis=-1).T)
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
     facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
@@ -259,7 +280,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     marker = (np.maximum(lead_a, lead_b) > s.marker_chroma) & probe.has_marker
     absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
-    choose_a = np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
+    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
         absent_a, False, np.where(absent_b, True, network_a))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(warm, 4, 3))))
     decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)

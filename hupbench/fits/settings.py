@@ -40,6 +40,10 @@ class ProbeFitSettings:
             ahead of the others by marker_pixel_chroma) anywhere show the marker, and the turn whose site projects
             nearer their centre is taken where the sites' windows do not decide (chosen on the clinic_sequences val
             split, docs/clinic.md).
+        marker_roll_deg: a frame kept (too few points on the probe's surface) whose probe pixels show the marker
+            takes the roll about the network's long axis, in steps of this many degrees, whose marker site faces the
+            camera and projects nearest the marker pixels' centre, and the box moved across the view (at its depth)
+            until the site projects there (chosen on the clinic_sequences val split, docs/clinic.md).
     """
 
     hypotheses: int = 12
@@ -61,11 +65,13 @@ class ProbeFitSettings:
     marker_seen: float = 0.5
     marker_pixels: int = 1
     marker_pixel_chroma: float = 0.1
+    marker_roll_deg: float = 10.0
 
     def __post_init__(self) -> None:
         assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)
         assert 1 <= self.coarse_points <= self.max_points, (self.coarse_points, self.max_points)
         assert self.marker_pixels >= 1, self.marker_pixels
+        assert 0 < self.marker_roll_deg <= 180, self.marker_roll_deg
 
 
 @dataclass(frozen=True)
