@@ -13,6 +13,10 @@ from hupbench.core.errors import BadValueError
 
 #: views with sphere polar angle theta below this are "egocentric" (see :func:`latitude_labels`)
 EGOCENTRIC_MAX_THETA_RAD = np.pi / 2
+#: frames holding at most this many camera distances are bucketed by distance, more by Z_EGO_BIN_M bins
+Z_EGO_DISTANCES_MAX = 6
+#: the width of a camera-distance bin, metres
+Z_EGO_BIN_M = 0.05
 #: the Theta_Vol bucket of frames whose grasp has no recorded probe orientation
 THETA_VOL_UNKNOWN = "unknown"
 #: Theta_Vol angles are rounded to this many decimals (degrees) in their bucket labels
@@ -38,9 +42,15 @@ def latitude_labels(theta_rad) -> np.ndarray:
 
 
 def z_ego_labels(z_ego_m) -> np.ndarray:
-    """Camera-distance bucket of each frame, e.g. "0.5 m" (annotations "z_ego", metres)."""
-    z = np.asarray(z_ego_m, np.float64).reshape(-1)
-    return np.array([f"{v:g} m" for v in np.round(z, 3)])
+    """Camera-distance bucket of each frame (annotations "z_ego", metres): its distance, e.g. "0.5 m", where the
+    frames hold at most :data:`Z_EGO_DISTANCES_MAX` distances (to the millimetre; the paper's two), else its
+    :data:`Z_EGO_BIN_M` bin, e.g. "0.35-0.40 m" (a head that sways: the clinic tracks draw a distance per frame, and
+    a bucket per millimetre printed hundreds of one-frame rows)."""
+    z = np.round(np.asarray(z_ego_m, np.float64).reshape(-1), 3)
+    if len(np.unique(z)) <= Z_EGO_DISTANCES_MAX:
+        return np.array([f"{v:g} m" for v in z])
+    low = np.floor(z / Z_EGO_BIN_M + 1e-9) * Z_EGO_BIN_M
+    return np.array([f"{a:.2f}-{a + Z_EGO_BIN_M:.2f} m" for a in low])
 
 
 def background_labels(background_id, names: Sequence[str] | None = None) -> np.ndarray:

@@ -217,6 +217,9 @@ def test_breakdowns():
     z = B.z_ego_labels([0.5, 0.8, 0.5, 0.8])
     assert z.tolist() == ["0.5 m", "0.8 m", "0.5 m", "0.8 m"]
     assert M.breakdown_mpjpe_mm(torch.from_numpy(errors), z)["0.8 m"]["mpjpe_mm"]["hand"] == pytest.approx(3.0)
+    # a distance per frame (a swaying head): 5 cm bins, a frame on an edge in the bin above it
+    swaying = B.z_ego_labels([0.351, 0.3529, 0.399, 0.40, 0.4489, 0.45, 0.6, 0.6012])
+    assert swaying.tolist() == ["0.35-0.40 m"] * 3 + ["0.40-0.45 m"] * 2 + ["0.45-0.50 m"] + ["0.60-0.65 m"] * 2
     assert B.background_labels([0, 2], ["white", "room", "phantom"]).tolist() == ["white", "phantom"]
     assert B.background_labels([1]).tolist() == ["background 1"]
     with pytest.raises(ValueError, match="no name"):
