@@ -258,8 +258,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
         RA[tracked], tA[tracked], inliers[tracked] = R[pick], t[pick], found[pick]
     kept = inliers < s.min_inliers
-    # given the probe's pixels, the marker's colour anywhere among them, read against the fitted pose (a kept
-    # frame's: the network's, its box then taken in that turn); a frame tracked keeps the frame before's turn instead
+    # given the probe's pixels, the marker's colour anywhere among them, read against the fitted pose (its turn), or
+    # for a kept frame against the network's (its roll, step 5); a frame tracked keeps the frame before's turn instead
     read_pixels = own is not None and probe.has_marker
     if read_pixels:
         RA, tA = np.where(kept[:, None, None], R0, RA), np.where(kept[:, None], t0, tA)
