@@ -44,8 +44,7 @@ def latitude_labels(theta_rad) -> np.ndarray:
 def z_ego_labels(z_ego_m) -> np.ndarray:
     """Camera-distance bucket of each frame (annotations "z_ego", metres): its distance, e.g. "0.5 m", where the
     frames hold at most :data:`Z_EGO_DISTANCES_MAX` distances (to the millimetre; the paper's two), else its
-    :data:`Z_EGO_BIN_M` bin, e.g. "0.35-0.40 m" (a head that sways: the clinic tracks draw a distance per frame, and
-    a bucket per millimetre printed hundreds of one-frame rows)."""
+    :data:`Z_EGO_BIN_M` bin, e.g. "0.35-0.40 m" (a head that sways: the clinic tracks draw a distance per frame)."""
     z = np.round(np.asarray(z_ego_m, np.float64).reshape(-1), 3)
     if len(np.unique(z)) <= Z_EGO_DISTANCES_MAX:
         return np.array([f"{v:g} m" for v in z])

@@ -14,8 +14,8 @@ from helpers import REPO
 
 def start_writing(argv: list[str], folder: Path, timeout_s: float = 300.0) -> subprocess.Popen:
     """Start ``python -m hupbench.cli ARGV`` and return it once it holds a lock in ``folder`` (a ``*.lock``
-    file there records its pid). The lock file's mere presence is not enough: it is created before it is
-    locked and written, and a second run started in that gap took the lock first (CI, stop 52).
+    file there records its pid): the lock file exists before it is locked and written, and a second run
+    started in that gap could take the lock first.
 
     Raises:
         AssertionError: the run ended, or took no lock there within ``timeout_s``.
