@@ -15,21 +15,26 @@ import numpy as np
 from hupbench.input_geometry import pixels_to_normalized
 
 __all__ = ["MIN_PROJECTION_Z_M", "input_pixels", "input_points2d", "pixel_order", "sample_points", "surface_pixels",
-           "unproject_pixels"]
+           "unproject_pixels", "unproject_uv"]
 
 #: points nearer the camera than this are projected as if at it, metres (a fit that moved a point behind the
 #: camera keeps finite 2D points)
 MIN_PROJECTION_Z_M = 1e-3
 
 
+def unproject_uv(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(..., 3) float64 camera-frame points, metres, of the pixels (u, v) (...) at depths ``z`` (...) metres along the
+    optical axis; ``K``: (3, 3). The inverse of :func:`input_pixels` for z at least :data:`MIN_PROJECTION_Z_M`."""
+    K = np.asarray(K, dtype=np.float64)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], -1)
+
+
 def unproject_pixels(depth: np.ndarray, K: np.ndarray, index: np.ndarray) -> np.ndarray:
     """(N, 3) float64 camera-frame points, metres, of the pixels ``index`` (N,) int (row by row: v * S + u) of the
     depth map ``depth`` (S, S) metres; a pixel without a surface is the camera's centre (z = 0). ``K``: (3, 3)."""
-    S = depth.shape[-1]
-    K = np.asarray(K, dtype=np.float64)
     z = np.asarray(depth, dtype=np.float64).reshape(-1)[index]
-    v, u = np.divmod(index, S)
-    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], -1)
+    v, u = np.divmod(index, depth.shape[-1])
+    return unproject_uv(u, v, z, K)
 
 
 def surface_pixels(depth: np.ndarray, allowed: np.ndarray | None = None) -> np.ndarray:

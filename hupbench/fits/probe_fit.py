@@ -64,7 +64,7 @@ from hupbench.core import keypoints as kp
 from hupbench.core.geometry import axis_angle_to_matrix, fit_rigid_pose
 from hupbench.core.processes import one_blas_thread
 from hupbench.fits.depth_points import (MIN_PROJECTION_Z_M, input_pixels, input_points2d, sample_points,
-                                        surface_pixels, unproject_pixels)
+                                        surface_pixels, unproject_pixels, unproject_uv)
 from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import ProbeFitSettings
 
@@ -137,6 +137,14 @@ def _search(probe: FitProbe, points: np.ndarray, weight: np.ndarray, R0: np.ndar
     return R[pick], t[pick], inliers[pick].astype(np.int64)
 
 
+def _site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The marker's site (..., 3), camera frame, metres, of poses (..., 3, 3), (..., 3), and how it faces the camera
+    (...): the cosine between its normal and the way from it to the camera."""
+    site = rotation @ probe.marker + translation
+    normal = rotation @ probe.marker_normal
+    return site, -(normal * site).sum(-1) / np.maximum(np.linalg.norm(site, axis=-1), 1e-9)
+
+
 def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                  K: np.ndarray, s: ProbeFitSettings, pixels: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -144,9 +152,7 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     (cosine), the share of its pixel window that shows it (its depth agrees with the site's; or, given the probe's
     ``pixels`` (B, S, S) bool, it has no depth and is the probe's), the marker colour's lead there."""
     B, _, S, _ = rgb.shape
-    site = rotation @ probe.marker + translation                                  # (B, 3)
-    normal = rotation @ probe.marker_normal
-    facing = -(normal * site).sum(-1) / np.maximum(np.linalg.norm(site, axis=-1), 1e-9)
+    site, facing = _site(probe, rotation, translation)                            # (B, 3), (B,)
     u, v = np.round(input_pixels(site, K)).T
     r = s.marker_window
     inside = ((u >= r) & (u < S - r) & (v >= r) & (v < S - r) & (site[:, 2] > MIN_PROJECTION_Z_M)).astype(float)
@@ -183,15 +189,12 @@ def _roll_to_marker(probe: FitProbe, R: np.ndarray, t: np.ndarray, centre: np.nd
     it), then moved across the view at the site's depth until it projects on ``centre`` (module docstring, step 5)."""
     turns = _turn_z(np.radians(np.arange(0.0, 360.0, s.marker_roll_deg)))        # (A, 3, 3)
     Rs = R[:, None] @ turns                                                      # (N, A, 3, 3)
-    sites = Rs @ probe.marker + t[:, None]                                       # (N, A, 3)
-    away = ((Rs @ probe.marker_normal) * sites).sum(-1) >= 0                     # the normal not towards the camera
-    far = np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1) + np.where(away, 1e9, 0.0)   # pixels
-    pick = far.argmin(axis=1)
+    sites, facing = _site(probe, Rs, t[:, None])                                 # (N, A, 3), (N, A)
+    far = np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1) + np.where(facing <= 0, 1e9, 0.0)
+    pick = far.argmin(axis=1)                                                    # pixels, a site facing away last
     rows = np.arange(len(R))
     R, site = Rs[rows, pick], sites[rows, pick]
-    z = np.maximum(site[:, 2], MIN_PROJECTION_Z_M)
-    seen = np.stack([(centre[:, 0] - K[0, 2]) / K[0, 0] * z, (centre[:, 1] - K[1, 2]) / K[1, 1] * z, site[:, 2]], -1)
-    return R, t + seen - site
+    return R, t + unproject_uv(centre[:, 0], centre[:, 1], site[:, 2], K) - site
 
 
 @one_blas_thread()
@@ -269,7 +272,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     if roll.any():
         RA[roll], tA[roll] = _roll_to_marker(probe, RA[roll], tA[roll], seen_at[roll], K, s)
     RB = RA @ _turn_z(np.pi)
-    sites = np.stack([RA @ probe.marker + tA, RB @ probe.marker + tA], axis=1)   # (B, 2, 3)
+    sites, _ = _site(probe, np.stack([RA, RB], axis=1), tA[:, None])              # (B, 2, 3)
     pixel_a = np.less_equal(*np.linalg.norm(input_pixels(sites, K) - seen_at[:, None], axis=-1).T)
 
     facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
