@@ -8,6 +8,7 @@ to the same :class:`hupbench.data.augment.BatchAugment`.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -165,13 +166,28 @@ class TrainData(NamedTuple):
     augment: BatchAugment
 
 
-def _bounded_threads(_worker_id: int) -> None:
-    """Loader workers decode or gather with one thread each: OpenCV and OpenMP pools in every worker
-    oversubscribe the machine (measured: load 140-170 on 16 cores)."""
+def _worker_setup(_worker_id: int) -> None:
+    """A loader worker: one thread each for decoding and gathering (OpenCV and OpenMP pools in every worker
+    oversubscribe the machine, measured: load 140-170 on 16 cores), and silent on a batch handoff its main
+    process dropped.
+
+    A worker hands each batch's shared memory over through multiprocessing's resource sharer, a thread that
+    reports its errors through ``sys.excepthook``. Ctrl-C reaches the main process in the middle of such a
+    handoff now and then: it drops the connection, and the worker's thread would print a
+    ``ConnectionResetError`` traceback under the run's one line. A dropped handoff loses nothing (the main
+    process is ending), so the worker's hook passes over a closed connection and prints every other error.
+    """
     import cv2
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+    sys.excepthook = _quiet_on_dropped_connection
+
+
+def _quiet_on_dropped_connection(kind, value, traceback) -> None:
+    """A loader worker's ``sys.excepthook`` (:func:`_worker_setup`)."""
+    if not issubclass(kind, (ConnectionError, EOFError)):
+        sys.__excepthook__(kind, value, traceback)
 
 
 def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, progress: bool = True,
@@ -212,7 +228,7 @@ def setup_data(data: DataConfig, seed: int, bn_frames: int, place: Placement, pr
                            segs=cached(splits[1], "seg"), with_seg=with_seg)
     workers = data.num_workers
     loader_args = {"batch_size": data.batch_size, "num_workers": workers, "collate_fn": _stacked,
-                   "pin_memory": place.device.type == "cuda", "worker_init_fn": _bounded_threads if workers else None,
+                   "pin_memory": place.device.type == "cuda", "worker_init_fn": _worker_setup if workers else None,
                    "persistent_workers": workers > 0}
     sampler = EpochSampler(len(train_set), data.batch_size, seed, place.world, place.rank, tag_epoch=fresh)
     train_loader = torch.utils.data.DataLoader(train_set, sampler=sampler, drop_last=True, **loader_args)
