@@ -35,7 +35,13 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        probe pixels anywhere have the marker's colour (ahead by ``s.marker_pixel_chroma``), the pose whose site
        projects nearer their centre wins ("marker pixels": the marker seen beside its site, where the pose is off
        by a few pixels or the site is edge-on); else a site that faces the camera, unoccluded, without that colour
-       loses ("no marker"); else the network's own turn decides ("network").
+       loses ("no marker"); else the network's own turn decides ("network"). Without a segmentation, the probe's
+       pixels of a fitted frame are those whose measured point lies within ``s.marker_surface_m`` of the fitted
+       surface, read for the marker's pixels as a segmentation's; where none of them has its colour (and no site
+       decides), the marker is on the side the camera does not see: the turn whose site faces away from the camera
+       wins ("marker hidden") where the two sites' facings differ by more than ``s.marker_hidden_margin`` and
+       at least ``s.marker_seen`` of the window of the site facing the camera has depth (else the network's turn:
+       a sensor without depth there may have missed the marker).
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
        Given a segmentation whose probe pixels show the marker's colour (step 4), such a frame takes the network's
@@ -71,7 +77,8 @@ from hupbench.fits.settings import ProbeFitSettings
 __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "fit_probe"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
-DECISIONS = ("kept", "marker", "no marker", "network", "previous", "marker pixels", "kept, marker pixels")
+DECISIONS = ("kept", "marker", "no marker", "network", "previous", "marker pixels", "kept, marker pixels",
+             "marker hidden")
 
 
 @dataclass(frozen=True)
@@ -147,10 +154,11 @@ def _site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray) -> tup
 
 def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                  K: np.ndarray, s: ProbeFitSettings, pixels: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For poses (B, 3, 3), (B, 3): (facing, seen, chroma), each (B,): the site's normal towards the camera
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For poses (B, 3, 3), (B, 3): (facing, seen, chroma, measured), each (B,): the site's normal towards the camera
     (cosine), the share of its pixel window that shows it (its depth agrees with the site's; or, given the probe's
-    ``pixels`` (B, S, S) bool, it has no depth and is the probe's), the marker colour's lead there."""
+    ``pixels`` (B, S, S) bool, it has no depth and is the probe's), the marker colour's lead there, the share of the
+    window with any depth."""
     B, _, S, _ = rgb.shape
     site, facing = _site(probe, rotation, translation)                            # (B, 3), (B,)
     u, v = np.round(input_pixels(site, K)).T
@@ -167,7 +175,8 @@ def _marker_site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray,
     if pixels is not None:   # a sensor without depth on the probe's dark plastic: its pixels show the probe
         shows |= (window_depth <= 0) & pixels[index, rows[:, :, None], cols[:, None, :]]
     lead = np.where(shows, probe.marker_lead(window_rgb), -1.0)
-    return facing, shows.mean(axis=(1, 2)) * inside, lead.max(axis=(1, 2)) * inside
+    return (facing, shows.mean(axis=(1, 2)) * inside, lead.max(axis=(1, 2)) * inside,
+            (window_depth > 0).mean(axis=(1, 2)) * inside)
 
 
 def _marker_pixels(probe: FitProbe, rgb: np.ndarray, pixels: np.ndarray, s: ProbeFitSettings
@@ -180,6 +189,18 @@ def _marker_pixels(probe: FitProbe, rgb: np.ndarray, pixels: np.ndarray, s: Prob
     centre = np.stack([coloured.sum(axis=1) @ np.arange(rgb.shape[-1]), coloured.sum(axis=2) @ np.arange(rgb.shape[-2])],
                       -1) / np.maximum(count, 1)[:, None]                        # (B, 2) u, v
     return count >= s.marker_pixels, centre
+
+
+def _on_surface(probe: FitProbe, depth: np.ndarray, K: np.ndarray, near: np.ndarray, R: np.ndarray, t: np.ndarray,
+                fitted: np.ndarray, s: ProbeFitSettings) -> np.ndarray:
+    """(B, S, S) bool: the ``near`` pixels (B, S * S) whose measured point lies within ``s.marker_surface_m`` of the
+    surface of the poses (B, 3, 3), (B, 3), for the ``fitted`` frames (B,) bool; none for the others (step 4)."""
+    out = np.zeros_like(near)
+    for b in np.flatnonzero(fitted):
+        cand = np.flatnonzero(near[b])
+        distance, _ = probe.signed_distance_and_gradient(((unproject_pixels(depth[b], K, cand) - t[b]) @ R[b])[None])
+        out[b, cand[np.abs(distance[0]) < s.marker_surface_m]] = True
+    return out.reshape(depth.shape)
 
 
 def _roll_to_marker(probe: FitProbe, R: np.ndarray, t: np.ndarray, centre: np.ndarray, K: np.ndarray,
@@ -261,13 +282,18 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
         RA[tracked], tA[tracked], inliers[tracked] = R[pick], t[pick], found[pick]
     kept = inliers < s.min_inliers
-    # given the probe's pixels, the marker's colour anywhere among them, read against the fitted pose (its turn), or
-    # for a kept frame against the network's (its roll, step 5); a frame tracked keeps the frame before's turn instead
-    read_pixels = own is not None and probe.has_marker
-    if read_pixels:
+    # the probe's pixels (a segmentation's, else the fitted surface's), the marker's colour anywhere among them, read
+    # against the fitted pose (its turn), or for a kept frame against the network's (its roll, step 5); a frame
+    # tracked keeps the frame before's turn instead
+    if own is not None and probe.has_marker:
         RA, tA = np.where(kept[:, None, None], R0, RA), np.where(kept[:, None], t0, tA)
-    found, seen_at = _marker_pixels(probe, rgb, own, s) if read_pixels else (np.zeros(B, bool), np.zeros((B, 2)))
+    on_surface = own is None and probe.has_marker and s.marker_surface_m > 0
+    read = _on_surface(probe, depth, K, near, RA, tA, ~kept & ~warm, s) if on_surface else own
+    found, seen_at = np.zeros(B, bool), np.zeros((B, 2))
+    if read is not None and probe.has_marker:
+        found, seen_at = _marker_pixels(probe, rgb, read, s)
     found &= ~warm
+    hidden = on_surface & ~kept & ~warm & ~found   # the visible surface shows no marker: its site faces away
     roll = kept & found
     if roll.any():
         RA[roll], tA[roll] = _roll_to_marker(probe, RA[roll], tA[roll], seen_at[roll], K, s)
@@ -275,8 +301,12 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     sites, _ = _site(probe, np.stack([RA, RB], axis=1), tA[:, None])              # (B, 2, 3)
     pixel_a = np.less_equal(*np.linalg.norm(input_pixels(sites, K) - seen_at[:, None], axis=-1).T)
 
-    facing_a, seen_a, lead_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
-    facing_b, seen_b, lead_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
+    facing_a, seen_a, lead_a, measured_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
+    facing_b, seen_b, lead_b, measured_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
+    # edge-on sites: their facing tells nothing; a window without depth at the site facing the camera: the sensor
+    # may have missed the marker there (a time-of-flight camera on coloured plastic)
+    hidden &= ((np.abs(facing_a - facing_b) > s.marker_hidden_margin)
+               & (np.where(facing_a > facing_b, measured_a, measured_b) >= s.marker_seen))
     turn = R_ref.transpose(0, 2, 1) @ RA                      # the fit relative to the network (or the frame before)
     network_a = np.abs(np.arctan2(turn[:, 1, 0], turn[:, 0, 0])) <= np.pi / 2
     # a probe without a marker: neither site decides, the network's (or the frame before's) turn does
@@ -284,8 +314,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
     choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
-        absent_a, False, np.where(absent_b, True, network_a))))
-    decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(warm, 4, 3))))
+        absent_a, False, np.where(absent_b, True, np.where(hidden, facing_a <= facing_b, network_a)))))
+    decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
+        warm, 4, np.where(hidden, 7, 3)))))
     decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
     fitted = probe.corners @ rotation.transpose(0, 2, 1) + tA[:, None]

@@ -44,6 +44,11 @@ class ProbeFitSettings:
             takes the roll about the network's long axis, in steps of this many degrees, whose marker site faces the
             camera and projects nearest the marker pixels' centre, and the box moved across the view (at its depth)
             until the site projects there (chosen on the clinic_sequences val split, docs/clinic.md).
+        marker_surface_m: without a segmentation, a fitted frame's probe pixels are those whose measured point lies
+            within this of the fitted surface: they are read for the marker's pixels as a segmentation's are, and
+            where none has its colour and the sites' windows do not decide, the turn whose site faces away from the
+            camera is taken where the two sites' facings (cosines) differ by more than marker_hidden_margin (0:
+            neither; both chosen on the paper protocol's val split, docs/results.md).
     """
 
     hypotheses: int = 12
@@ -66,12 +71,15 @@ class ProbeFitSettings:
     marker_pixels: int = 1
     marker_pixel_chroma: float = 0.1
     marker_roll_deg: float = 10.0
+    marker_surface_m: float = 0.008
+    marker_hidden_margin: float = 0.1
 
     def __post_init__(self) -> None:
         assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)
         assert 1 <= self.coarse_points <= self.max_points, (self.coarse_points, self.max_points)
         assert self.marker_pixels >= 1, self.marker_pixels
         assert 0 < self.marker_roll_deg <= 180, self.marker_roll_deg
+        assert self.marker_surface_m >= 0, self.marker_surface_m
 
 
 @dataclass(frozen=True)

@@ -123,7 +123,9 @@ def test_where_the_sensor_sees_no_depth_on_the_marker_the_segmentation_shows_it(
     """A time-of-flight camera returns no depth from much of the probe's dark plastic: here three pixels in four of
     the probe, and the marker with 2 pixels around it, have none. The marker's window then has no depth to show the
     site, and the network's (wrong) half turn decides; given the probe's pixels (a segmentation), those without
-    depth show the probe, and the marker's colour decides the half turn."""
+    depth show the probe, and the marker's colour decides the half turn. Without them the fitted surface's pixels
+    show no marker either, but the window of the site facing the camera has no depth: the marker may be there, so
+    the turn turned away from the camera does not win ("marker hidden" needs depth in that window)."""
     R, t = MARKER_IN_VIEW
     image = render(R, t, finger=False)
     probe_pixels = image[3] > 0
@@ -263,19 +265,45 @@ def test_in_a_batch_a_frame_without_a_start_is_fitted_alone():
 
 
 @pytest.mark.parametrize("turn", [np.pi / 3, np.pi * 5 / 6])
-def test_the_markers_pixels_in_the_segmentation_read_the_half_turn_where_its_site_does_not(turn):
+def test_the_markers_pixels_read_the_half_turn_where_its_site_does_not(turn):
     """Both sites edge-on, the marker's 2 mm stand out of the silhouette in its colour, and the sites' windows told
-    to see no colour (``marker_chroma`` 2): given the probe's pixels, the centre of those with the marker's colour
-    lies nearer the true turn's site, whichever turn the network gave; without them the network's turn decides."""
+    to see no colour (``marker_chroma`` 2): given the probe's pixels (a segmentation's), or without them those on
+    the fitted surface, the centre of those with the marker's colour lies nearer the true turn's site, whichever
+    turn the network gave; reading neither (``marker_surface_m`` 0, no segmentation) the network's turn decides."""
     R, t = SITES_EDGE_ON
     image = render(R, t)
     points2d, points3d = network_output(R, t, turn)
     windows_blind = dataclasses.replace(F.ProbeFitSettings(), marker_chroma=2.0)
-    blind = F.fit_probe(points2d, points3d, image[None], K, windows_blind)
-    seen = F.fit_probe(points2d, points3d, image[None], K, windows_blind, pixels=(image[3] > 0)[None])
+    blind = F.fit_probe(points2d, points3d, image[None], K, dataclasses.replace(windows_blind, marker_surface_m=0.0))
+    for pixels in ((image[3] > 0)[None], None):
+        seen = F.fit_probe(points2d, points3d, image[None], K, windows_blind, pixels=pixels)
+        assert F.DECISIONS[seen[2].decision[0]] == "marker pixels"
+        assert error_mm(seen[1][0], R, t) < 2.0
     assert F.DECISIONS[blind[2].decision[0]] == "network"
-    assert F.DECISIONS[seen[2].decision[0]] == "marker pixels"
-    assert error_mm(seen[1][0], R, t) < 2.0
+
+
+@pytest.mark.parametrize("network_turn", [0.0, np.pi])
+def test_a_marker_on_no_pixel_of_the_fitted_surface_is_on_the_side_turned_away(network_turn):
+    """The marker's side turned away from the camera, and something 3 cm in front of the site that faces it (so
+    that its window neither shows the marker nor says it is absent): without a segmentation, the fitted surface's
+    pixels show no marker colour, so the turn whose site faces away wins, whichever turn the network gave; not
+    reading them (``marker_surface_m`` 0), the network's turn decides."""
+    R, t = MARKER_IN_VIEW
+    R = R @ turn_z(np.pi)                                          # the marker's side away from the camera
+    image = render(R, t, finger=False)
+    probe = default_fit_probe()
+    front = R @ turn_z(np.pi) @ probe.marker + t                    # the site facing the camera (no marker)
+    u, v = np.round(front[:2] / front[2] * [K[0, 0], K[1, 1]] + K[:2, 2]).astype(int)
+    image[:3, v - 4:v + 5, u - 4:u + 5] = np.asarray([0.76, 0.57, 0.45], np.float32)[:, None, None]
+    image[3, v - 4:v + 5, u - 4:u + 5] = front[2] - 0.03
+    points2d, points3d = network_output(R, t, network_turn)
+    _, out3d, report = F.fit_probe(points2d, points3d, image[None], K)
+    assert F.DECISIONS[report.decision[0]] == "marker hidden"
+    assert error_mm(out3d[0], R, t) < 2.0
+    unread = dataclasses.replace(F.ProbeFitSettings(), marker_surface_m=0.0)
+    _, network3d, network = F.fit_probe(points2d, points3d, image[None], K, unread)
+    assert F.DECISIONS[network.decision[0]] == "network"
+    assert error_mm(network3d[0], R @ turn_z(network_turn), t) < 2.0
 
 
 @pytest.mark.parametrize("turn", [np.pi, np.pi / 2, -np.pi / 3, -2.5])
