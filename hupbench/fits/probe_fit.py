@@ -144,6 +144,34 @@ def _search(probe: FitProbe, points: np.ndarray, weight: np.ndarray, R0: np.ndar
     return R[pick], t[pick], inliers[pick].astype(np.int64)
 
 
+def _near_points(probe: FitProbe, depth: np.ndarray, K: np.ndarray, own: np.ndarray | None, R: np.ndarray,
+                 t: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The measured points around the poses (B, 3, 3), (B, 3) (module docstring, step 2): (near (B, S * S) bool, the
+    pixels within the probe's half diagonal + ``s.reach_m`` of the pose's box centre, among ``own`` where given;
+    points (B, P, 3) and weights (B, P), :func:`hupbench.fits.depth_points.sample_points` of them)."""
+    box_centre = probe.corners.mean(0)
+    reach = float(np.linalg.norm(probe.corners - box_centre, axis=-1).max()) + s.reach_m
+    centre = box_centre @ R.transpose(0, 2, 1) + t                                # (B, 3)
+    near = surface_pixels(depth, own)
+    for b, where in enumerate(near):
+        cand = np.flatnonzero(where)
+        where[cand] = np.linalg.norm(unproject_pixels(depth[b], K, cand) - centre[b], axis=-1) < reach
+    points, weight = sample_points(depth, K, near, s.max_points)
+    return near, points, weight
+
+
+def _track(probe: FitProbe, points: np.ndarray, weight: np.ndarray, R_before: np.ndarray, t_before: np.ndarray,
+           R0: np.ndarray, t0: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tracked frames' poses (N, 3, 3), (N, 3) and inliers (N,): the frame before's pose and the network's, each
+    refined by ``s.tracking_iterations`` steps on all the points (N, P, 3) with weights (N, P), the better scored."""
+    R = np.stack([R_before, R0], axis=1).reshape(-1, 3, 3)
+    t = np.stack([t_before, t0], axis=1).reshape(-1, 3)
+    R, t, score, inliers = _refine(probe, np.repeat(points, 2, axis=0), np.repeat(weight, 2, axis=0), R, t, s,
+                                   s.tracking_iterations)
+    pick = np.arange(len(points)) * 2 + score.reshape(-1, 2).argmax(axis=1)
+    return R[pick], t[pick], inliers[pick]
+
+
 def _site(probe: FitProbe, rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The marker's site (..., 3), camera frame, metres, of poses (..., 3, 3), (..., 3), and how it faces the camera
     (...): the cosine between its normal and the way from it to the camera."""
@@ -257,15 +285,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     # pose, else the network's
     reference = network if start is None else np.where(warm[:, None, None], start, network)
     R_ref, t_ref = reference[:, :3, :3], reference[:, :3, 3]
-    box_centre = probe.corners.mean(0)
-    reach = float(np.linalg.norm(probe.corners - box_centre, axis=-1).max()) + s.reach_m
-    centre = box_centre @ R_ref.transpose(0, 2, 1) + t_ref                        # (B, 3)
     own = None if pixels is None else np.asarray(pixels, dtype=bool)
-    near = surface_pixels(depth, own)
-    for b, where in enumerate(near):
-        cand = np.flatnonzero(where)
-        where[cand] = np.linalg.norm(unproject_pixels(depth[b], K, cand) - centre[b], axis=-1) < reach
-    points, weight = sample_points(depth, K, near, s.max_points)
+    near, points, weight = _near_points(probe, depth, K, own, R_ref, t_ref, s)
 
     # fewer measured points than min_inliers cannot put that many on any pose's surface: kept (step 5) unrefined
     inliers = weight.sum(1).astype(np.int64)
@@ -274,13 +295,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     cold, tracked = ~warm & enough, warm & enough
     if cold.any():
         RA[cold], tA[cold], inliers[cold] = _search(probe, points[cold], weight[cold], R0[cold], t0[cold], s)
-    if tracked.any():   # the previous frame's pose and the network's, each refined on all the points
-        R = np.stack([R_ref[tracked], R0[tracked]], axis=1).reshape(-1, 3, 3)
-        t = np.stack([t_ref[tracked], t0[tracked]], axis=1).reshape(-1, 3)
-        R, t, score, found = _refine(probe, np.repeat(points[tracked], 2, axis=0),
-                                     np.repeat(weight[tracked], 2, axis=0), R, t, s, s.tracking_iterations)
-        pick = np.arange(int(tracked.sum())) * 2 + score.reshape(-1, 2).argmax(axis=1)
-        RA[tracked], tA[tracked], inliers[tracked] = R[pick], t[pick], found[pick]
+    if tracked.any():
+        RA[tracked], tA[tracked], inliers[tracked] = _track(probe, points[tracked], weight[tracked], R_ref[tracked],
+                                                            t_ref[tracked], R0[tracked], t0[tracked], s)
     kept = inliers < s.min_inliers
     # the probe's pixels (a segmentation's, else the fitted surface's), the marker's colour anywhere among them, read
     # against the fitted pose (its turn), or for a kept frame against the network's (its roll, step 5); a frame
