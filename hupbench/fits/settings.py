@@ -47,8 +47,10 @@ class ProbeFitSettings:
         marker_surface_m: without a segmentation, a fitted frame's probe pixels are those whose measured point lies
             within this of the fitted surface: they are read for the marker's pixels as a segmentation's are, and
             where none has its colour and the sites' windows do not decide, the turn whose site faces away from the
-            camera is taken where the two sites' facings (cosines) differ by more than marker_hidden_margin (0:
-            neither; both chosen on the paper protocol's val split, docs/results.md).
+            camera is taken (0: neither; chosen on the paper protocol's val split, docs/results.md).
+        marker_hidden_margin: that turn is taken only where the two sites' facings (cosines) differ by more than
+            this, and where at least marker_seen of the window of the site facing the camera has depth (chosen on
+            the paper protocol's val split, docs/results.md).
     """
 
     hypotheses: int = 12
@@ -80,6 +82,7 @@ class ProbeFitSettings:
         assert self.marker_pixels >= 1, self.marker_pixels
         assert 0 < self.marker_roll_deg <= 180, self.marker_roll_deg
         assert self.marker_surface_m >= 0, self.marker_surface_m
+        assert self.marker_hidden_margin >= 0, self.marker_hidden_margin
 
 
 @dataclass(frozen=True)
