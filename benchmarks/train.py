@@ -9,13 +9,17 @@ device waited for data (time spent in the loader's ``next()``; on CUDA each step
 that waits and compute are told apart).
 
 Usage:
-    python benchmarks/train.py DATASET [--model hopenet_r10_128] [--device cpu|cuda] [--batch 32]
-        [--steps 40] [--warmup 5] [--threads 2] [--compile]
-        [--pipelines jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16] [--set KEY=VALUE ...]
-    Each pipeline item is PIPELINE:WORKERS[:cl][:bf16][:depth]: loader workers, channels_last, bf16 autocast,
-    the depth input beside the RGB (data.reader.input_modalities=rgb+depth); the first item is the reference
-    the others are compared with. --set adds a train config override to every item (e.g.
-    data.reader.depth_sensor=hololens2_ahat, the depth camera a clinic experiment reads).
+    python benchmarks/train.py DATASET [--model hopenet_r10_128 | --experiment NAME] [--device cpu|cuda]
+        [--batch 32] [--steps 40] [--warmup 5] [--threads 2] [--compile]
+        [--pipelines jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16] [--set KEY=VALUE ...] [--json FILE]
+    Each pipeline item is PIPELINE:WORKERS[:cl][:bf16][:depth][:resident]: loader workers, channels_last, bf16
+    autocast, the depth input beside the RGB (data.reader.input_modalities=rgb+depth), and ``resident``: the
+    loader's first batch kept on the device and trained on at every step, no loader in the timed loop (the
+    device's ceiling for the model: what a loader that never kept it waiting would reach; its augmentation and
+    optimiser step still run). The first item is the reference the others are compared with. --experiment
+    composes a file of conf/experiment/ (its model, input and loss) instead of --model; --set adds a train config
+    override to every item (e.g. data.reader.depth_sensor=hololens2_ahat, the depth camera a clinic experiment
+    reads); --json writes each item's figures to FILE.
 
 The frame cache is built before timing (its one-off cost is printed separately). A train split smaller than
 (warm-up + steps) x batch frames is cycled epoch after epoch, as training does. The first line names the CPU,
@@ -25,12 +29,14 @@ torch's CPU capability and whether bf16 is native there (elsewhere the bf16 item
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
+from pathlib import Path
 
 
-def measure(dataset: str, model_name: str, pipeline: str, workers: int, precision: str, channels_last: bool,
-            depth: bool, args) -> dict:
+def measure(dataset: str, pipeline: str, workers: int, precision: str, channels_last: bool, depth: bool,
+            resident: bool, args) -> dict:
     import torch
 
     from hupbench.config import compose
@@ -39,7 +45,8 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
     from hupbench.training.loop import autocast_args, build_run_model, resolve_precision, train_step
     from hupbench.training.schedule import learning_rate
 
-    cfg = compose("train", [f"model={model_name}", f"data.root={dataset}", f"data.pipeline={pipeline}",
+    chosen = [f"+experiment={args.experiment}"] if args.experiment else [f"model={args.model}"]
+    cfg = compose("train", [*chosen, f"data.root={dataset}", f"data.pipeline={pipeline}",
                             f"data.num_workers={workers}", f"data.batch_size={args.batch}", f"device={args.device}",
                             f"precision={precision}", f"channels_last={str(channels_last).lower()}",
                             "data.val_frames=32", "train.bn_recompute_frames=0", "train.progress=true",
@@ -69,12 +76,15 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
             sync()
             start = time.perf_counter()
         t_wait = time.perf_counter()
-        batch = next(batches, None)
-        if batch is None:  # a small train split: the next epoch, as training does (its start is timed too)
-            epoch += 1
-            data.sampler.set_position(epoch, 0)
-            batches = iter(data.train_loader)
-            batch = next(batches)
+        if not resident or i == 0:  # resident: the first batch, on the device from step 0 on
+            batch = next(batches, None)
+            if batch is None:  # a small train split: the next epoch, as training does (its start is timed too)
+                epoch += 1
+                data.sampler.set_position(epoch, 0)
+                batches = iter(data.train_loader)
+                batch = next(batches)
+            if resident:
+                batch = {name: value.to(device) for name, value in batch.items()}
         t_step = time.perf_counter()
         loss, _ = train_step(train_model, optimizer, batch, epoch, data, run, device, autocast)
         scheduler.step()
@@ -91,7 +101,9 @@ def measure(dataset: str, model_name: str, pipeline: str, workers: int, precisio
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", help="a dataset made by hupbench generate")
-    parser.add_argument("--model", default="hopenet_r10_128", help="a config of conf/model/")
+    chosen = parser.add_mutually_exclusive_group()
+    chosen.add_argument("--model", default="hopenet_r10_128", help="a config of conf/model/")
+    chosen.add_argument("--experiment", help="a file of conf/experiment/ (without .yaml), instead of --model")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--steps", type=int, default=40, help="timed steps per pipeline (after the warm-up)")
@@ -99,10 +111,12 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads of the training process")
     parser.add_argument("--compile", action="store_true", help="torch.compile the training model")
     parser.add_argument("--pipelines", default="jpeg:1,cache:0,cache:0:cl,cache:0:cl:bf16",
-                        help="comma-separated PIPELINE:WORKERS[:cl][:bf16][:depth] (cl: channels_last; bf16: "
-                             "autocast; depth: RGB and depth in)")
+                        help="comma-separated PIPELINE:WORKERS[:cl][:bf16][:depth][:resident] (cl: channels_last; "
+                             "bf16: autocast; depth: RGB and depth in; resident: one batch kept on the device, the "
+                             "ceiling without a loader)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a train config override for every item (repeatable)")
+    parser.add_argument("--json", help="write each item's figures to this file")
     args = parser.parse_args()
 
     import torch
@@ -114,16 +128,16 @@ def main() -> None:
     device = torch.device(args.device)
     print(f"{hardware_description(device)}; torch CPU capability {torch.backends.cpu.get_cpu_capability()}, "
           f"native bf16: {'yes' if native_bf16(device) else 'no (bf16 autocast is emulated)'}")
-    print(f"{args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, {args.device}"
+    print(f"{args.experiment or args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, {args.device}"
           f"{', compiled' if args.compile else ''}, torch threads {args.threads}")
     rows = []
     for item in args.pipelines.split(","):
         pipeline, workers, *flags = item.split(":")
-        unknown = set(flags) - {"cl", "bf16", "depth"}
+        unknown = set(flags) - {"cl", "bf16", "depth", "resident"}
         if unknown:
-            raise SystemExit(f"unknown flags {sorted(unknown)} in {item!r}; known: cl, bf16, depth")
-        result = measure(args.dataset, args.model, pipeline, int(workers), "bf16" if "bf16" in flags else "fp32",
-                         "cl" in flags, "depth" in flags, args)
+            raise SystemExit(f"unknown flags {sorted(unknown)} in {item!r}; known: cl, bf16, depth, resident")
+        result = measure(args.dataset, pipeline, int(workers), "bf16" if "bf16" in flags else "fp32",
+                         "cl" in flags, "depth" in flags, "resident" in flags, args)
         rows.append((item, result))
         print(f"  {item:16s} setup {result['setup_s']:6.1f} s | median step {result['median_img_s']:7.1f} img/s | "
               f"end to end {result['end_to_end_img_s']:7.1f} img/s | waiting for data {100 * result['wait_share']:5.1f} %",
@@ -132,6 +146,8 @@ def main() -> None:
         base = rows[0][1]["end_to_end_img_s"]
         for item, result in rows[1:]:
             print(f"  {item} / {rows[0][0]}: {result['end_to_end_img_s'] / base:.2f}x end to end")
+    if args.json:
+        Path(args.json).write_text(json.dumps({item: result for item, result in rows}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -253,6 +253,43 @@ def test_shell_scripts_parse(script):
     assert done.returncode == 0, done.stderr
 
 
+@pytest.mark.slow
+def test_gpu_protocol_on_the_cpu(tiny_dataset, tmp_path):
+    """scripts/gpu_protocol.sh with DEVICE=cpu on the tiny dataset: each experiment's rates beside its ceiling, its
+    steps sized to the budget, trained, and packed in parts that unpack into a run folder evaluation reads (the
+    checkpoint without the optimiser's state)."""
+    import json
+    import os
+    import tarfile
+
+    from hupbench.checkpoint import Checkpoint
+
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    overrides = (f"out_root={runs} data.batch_size=2 data.reader.input_size=64 data.num_workers=0 precision=fp32 "
+                 "data.val_frames=4 train.bn_recompute_frames=0 threads=1")
+    done = subprocess.run(["bash", str(SCRIPTS / "gpu_protocol.sh"), "0.05", str(out)], capture_output=True, text=True,
+                          env={**os.environ, "DEVICE": "cpu", "DATASET": str(tiny_dataset), "SET": overrides})
+    assert done.returncode == 0, done.stderr[-3000:]
+    for experiment, run_name in (("paper_hopenet_rgbd_fit_gpu", "paper_hopenet_rgbd_fit_gpu"),
+                                 ("paper_hupnet_seg_gpu", "paper_hupnet_seg_gpu")):
+        rates = json.loads((out / f"{experiment}_rates.json").read_text())
+        assert set(rates) == {"cache:0:cl:bf16", "cache:0:cl:bf16:resident"}
+        steps = json.loads((runs / run_name / "summary.json").read_text())["steps"]
+        expected = max(10, int(0.05 * 60 * rates["cache:0:cl:bf16"]["end_to_end_img_s"] / 2))
+        assert steps == expected and f"{experiment}: {steps} steps of 2 images" in done.stdout
+        parts = sorted(out.glob(f"{run_name}.tgz.part-*"))
+        assert parts
+        whole = tmp_path / f"{run_name}.tgz"
+        whole.write_bytes(b"".join(p.read_bytes() for p in parts))
+        unpacked = tmp_path / "unpacked"
+        with tarfile.open(whole) as tar:
+            tar.extractall(unpacked, filter="data")
+        assert {p.name for p in (unpacked / run_name).iterdir()} == {"run.json", "summary.json", "metrics.jsonl",
+                                                                     "train.log", "checkpoints"}
+        checkpoint = Checkpoint.read(unpacked / run_name / "checkpoints" / "last.pt")
+        assert checkpoint.optimizer is None and checkpoint.step == steps and checkpoint.config["device"] == "cpu"
+
+
 def test_benchmark_generate(tiny_dataset, monkeypatch, capsys):
     out = run_script(BENCHMARKS / "generate.py", tiny_dataset / "grasps.npz", "--backgrounds", "1", "--workers", "1",
                      "--size", "32", "--r-circ-m", "0.4", monkeypatch=monkeypatch, capsys=capsys)
@@ -362,6 +399,21 @@ def test_benchmark_train(tiny_dataset, monkeypatch, capsys):
                      "--steps", "1", "--warmup", "0", "--threads", "1", "--pipelines", "jpeg:0,cache:0",
                      monkeypatch=monkeypatch, capsys=capsys)
     assert "jpeg:0" in out and "cache:0 / jpeg:0" in out
+
+
+def test_benchmark_train_of_an_experiment_beside_its_resident_ceiling(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """An experiment's model, input and loss (HUPNet with its segmentation head, RGB-D at its own input size) through
+    the cache and with one batch kept on the device (no loader in the timed loop), the figures written as JSON."""
+    import json
+
+    out = run_script(BENCHMARKS / "train.py", tiny_dataset, "--experiment", "paper_hupnet_seg_cpu", "--batch", "2",
+                     "--steps", "2", "--warmup", "1", "--threads", "1", "--pipelines", "cache:0:depth,cache:0:depth:resident",
+                     "--set", "data.reader.input_size=64", "--json", tmp_path / "rates.json",
+                     monkeypatch=monkeypatch, capsys=capsys)
+    assert "paper_hupnet_seg_cpu, batch 2" in out and "cache:0:depth:resident / cache:0:depth" in out
+    rates = json.loads((tmp_path / "rates.json").read_text())
+    assert set(rates) == {"cache:0:depth", "cache:0:depth:resident"}
+    assert rates["cache:0:depth:resident"]["wait_share"] < 0.05 and rates["cache:0:depth"]["end_to_end_img_s"] > 0
 
 
 def test_benchmark_latency(tiny_clips, tmp_path, monkeypatch, capsys):

@@ -31,8 +31,9 @@ from hupbench.core.io import atomic_output, clean_stale_tmp, write_json, writing
 CACHE_FORMAT = 1
 #: how the stored image is resized to the input size (:func:`hupbench.input_geometry.pad_and_resize`)
 RESIZE = "cv2.INTER_AREA"
-#: frames decoded per thread task, and decoding threads, while building (OpenCV releases the GIL)
-_BUILD_CHUNK, _BUILD_THREADS = 64, 2
+#: frames decoded per thread task, and decoding threads while building (OpenCV releases the GIL): one a core this
+#: process may run on (a GPU machine's 16 build the paper protocol's caches in seconds), at least 2
+_BUILD_CHUNK, _BUILD_THREADS = 64, max(2, len(os.sched_getaffinity(0)))
 
 
 #: what each cached modality holds: (the dataset's per-row reader, dtype, trailing shape after (N, S, S))
