@@ -12,8 +12,9 @@
 #    without the optimiser's state) -> OUT/<run>.tgz.part-aa, -ab ... (15 MiB parts: a lent machine's transfer limit).
 # Then, where the dataset is (a CPU machine): cat OUT/<run>.tgz.part-* | tar xz -C hupbench_out/runs, and
 # hupbench eval hupbench_out/runs/<run>/checkpoints/last.pt hupbench_out/dataset --split test ... (docs/results.md,
-# "Trained on a GPU"). DEVICE=cpu runs the same on the CPU, DATASET names another dataset, and SET adds train config
-# overrides to both runs and their benchmarks (the tests' smoke run: a tiny dataset, small batches).
+# "Trained on a GPU"). EXPERIMENTS names the experiments to run (default both), DEVICE=cpu runs them on the CPU,
+# DATASET names another dataset, and SET adds train config overrides to the runs and their benchmarks (the tests'
+# smoke run: a tiny dataset, small batches).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 minutes="${1:-2}"
@@ -27,7 +28,7 @@ if [ ! -f "$dataset/manifest.json" ]; then
     cores=$(nproc)
     hupbench generate +track=unseen_grasps progress=false "out_dir=$dataset" "workers=$(( cores > 3 ? cores - 2 : 1 ))"
 fi
-for experiment in paper_hopenet_rgbd_fit_gpu paper_hupnet_seg_gpu; do
+for experiment in ${EXPERIMENTS:-paper_hopenet_rgbd_fit_gpu paper_hupnet_seg_gpu}; do
     set_args=()
     for kv in "device=$device" "data.root=$dataset" ${extra[@]+"${extra[@]}"}; do set_args+=(--set "$kv"); done
     read -r workers batch run_dir < <(python3 -c "
