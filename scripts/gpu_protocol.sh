@@ -10,11 +10,14 @@
 #    MINUTES at the pipeline's measured end-to-end images/s (a validation and a checkpoint at every fifth of it);
 # 3. the run folder as evaluation needs it (run.json, summary.json, metrics.jsonl, train.log and checkpoints/last.pt
 #    without the optimiser's state) -> OUT/<run>.tgz.part-aa, -ab ... (15 MiB parts: a lent machine's transfer limit).
-# Then, where the dataset is (a CPU machine): cat OUT/<run>.tgz.part-* | tar xz -C hupbench_out/runs, and
-# hupbench eval hupbench_out/runs/<run>/checkpoints/last.pt hupbench_out/dataset --split test ... (docs/results.md,
-# "Trained on a GPU"). EXPERIMENTS names the experiments to run (default both), DEVICE=cpu runs them on the CPU,
-# DATASET names another dataset, and SET adds train config overrides to the runs and their benchmarks (the tests'
-# smoke run: a tiny dataset, small batches).
+# Then, where the dataset is (a CPU machine with the parts copied to FOLDER):
+#   bash scripts/gpu_protocol.sh evaluate FOLDER
+# unpacks each run into its run folder (unless it is there), exports it to ONNX (with the parity check), evaluates it
+# on the test split -> leaderboard/results/<run>.json (its training log -> leaderboard/logs/), and rebuilds the
+# leaderboard, as scripts/paper_protocol.sh does for a CPU run (docs/results.md, "Trained on a GPU").
+# EXPERIMENTS names the experiments (default both), DEVICE=cpu trains on the CPU, DATASET names another dataset, and
+# SET adds train config overrides to the runs and their benchmarks (the tests' smoke run: a tiny dataset, small
+# batches).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 minutes="${1:-2}"
@@ -22,19 +25,47 @@ out="${2:-hupbench_out/gpu}"
 device="${DEVICE:-cuda}"
 dataset="${DATASET:-hupbench_out/dataset}"
 read -r -a extra <<< "${SET:-}"
+experiments="${EXPERIMENTS:-paper_hopenet_rgbd_fit_gpu paper_hupnet_seg_gpu}"
+run_folder() {  # the run folder of experiment $1 with SET's overrides
+    python3 -c "
+from hupbench.config import compose
+c = compose('train', ['+experiment=$1', *'''${extra[*]:-}'''.split()])
+print(c.out_root + '/' + c.run_name)"
+}
+
+if [ "$minutes" = evaluate ]; then
+    parts="${2:?usage: scripts/gpu_protocol.sh evaluate FOLDER (the folder holding the parts a GPU run wrote)}"
+    for experiment in $experiments; do
+        run_dir=$(run_folder "$experiment")
+        run_name=$(basename "$run_dir")
+        if [ ! -f "$run_dir/summary.json" ]; then
+            compgen -G "$parts/$run_name.tgz.part-*" > /dev/null || { echo "no $parts/$run_name.tgz.part-*" >&2; exit 1; }
+            mkdir -p "$(dirname "$run_dir")"
+            cat "$parts/$run_name".tgz.part-* | tar xz -C "$(dirname "$run_dir")"
+        fi
+        cp "$run_dir/metrics.jsonl" "leaderboard/logs/$run_name.jsonl"
+        hupbench export "$run_dir/checkpoints/last.pt" --out "$run_dir/$run_name.onnx" --dataset "$dataset"
+        hupbench eval "$run_dir/checkpoints/last.pt" "$dataset" --split test --run-name "$run_name" \
+            --out "leaderboard/results/$run_name.json" --training-command "bash scripts/gpu_protocol.sh" \
+            --training-log "logs/$run_name.jsonl"
+    done
+    hupbench leaderboard
+    exit 0
+fi
 mkdir -p "$out"
 
 if [ ! -f "$dataset/manifest.json" ]; then
     cores=$(nproc)
     hupbench generate +track=unseen_grasps progress=false "out_dir=$dataset" "workers=$(( cores > 3 ? cores - 2 : 1 ))"
 fi
-for experiment in ${EXPERIMENTS:-paper_hopenet_rgbd_fit_gpu paper_hupnet_seg_gpu}; do
+for experiment in $experiments; do
     set_args=()
     for kv in "device=$device" "data.root=$dataset" ${extra[@]+"${extra[@]}"}; do set_args+=(--set "$kv"); done
-    read -r workers batch run_dir < <(python3 -c "
+    read -r workers batch < <(python3 -c "
 from hupbench.config import compose
 c = compose('train', ['+experiment=$experiment', *'''${extra[*]:-}'''.split()])
-print(c.data.num_workers, c.data.batch_size, c.out_root + '/' + c.run_name)")
+print(c.data.num_workers, c.data.batch_size)")
+    run_dir=$(run_folder "$experiment")
     run_name=$(basename "$run_dir")
     python3 benchmarks/train.py "$dataset" --experiment "$experiment" --device "$device" --batch "$batch" \
         --steps 40 --warmup 10 --threads 4 --pipelines "cache:$workers:cl:bf16,cache:0:cl:bf16:resident" \
