@@ -128,8 +128,8 @@ def main() -> None:
     device = torch.device(args.device)
     print(f"{hardware_description(device)}; torch CPU capability {torch.backends.cpu.get_cpu_capability()}, "
           f"native bf16: {'yes' if native_bf16(device) else 'no (bf16 autocast is emulated)'}")
-    print(f"{args.experiment or args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, {args.device}"
-          f"{', compiled' if args.compile else ''}, torch threads {args.threads}")
+    print(f"{args.experiment or args.model}, batch {args.batch}, {args.steps} timed steps after {args.warmup}, "
+          f"{args.device}{', compiled' if args.compile else ''}, torch threads {args.threads}")
     rows = []
     for item in args.pipelines.split(","):
         pipeline, workers, *flags = item.split(":")

@@ -26,28 +26,29 @@ device="${DEVICE:-cuda}"
 dataset="${DATASET:-hupbench_out/dataset}"
 read -r -a extra <<< "${SET:-}"
 experiments="${EXPERIMENTS:-paper_hopenet_rgbd_fit_gpu paper_hupnet_seg_gpu}"
-run_folder() {  # the run folder of experiment $1 with SET's overrides
+describe() {  # experiment $1 with SET's overrides: its run folder, loader workers, batch and the depth it reads
     python3 -c "
 from hupbench.config import compose
 c = compose('train', ['+experiment=$1', *'''${extra[*]:-}'''.split()])
-print(c.out_root + '/' + c.run_name)"
+print(c.out_root + '/' + c.run_name, c.data.num_workers, c.data.batch_size, c.data.reader.depth_sensor)"
 }
 
 if [ "$minutes" = evaluate ]; then
     parts="${2:?usage: scripts/gpu_protocol.sh evaluate FOLDER (the folder holding the parts a GPU run wrote)}"
     for experiment in $experiments; do
-        run_dir=$(run_folder "$experiment")
+        read -r run_dir _ _ sensor < <(describe "$experiment")
         run_name=$(basename "$run_dir")
         if [ ! -f "$run_dir/summary.json" ]; then
-            compgen -G "$parts/$run_name.tgz.part-*" > /dev/null || { echo "no $parts/$run_name.tgz.part-*" >&2; exit 1; }
+            compgen -G "$parts/$run_name.tgz.part-*" > /dev/null || { echo "no $parts/$run_name.tgz.part-*" >&2
+                                                                       exit 1; }
             mkdir -p "$(dirname "$run_dir")"
             cat "$parts/$run_name".tgz.part-* | tar xz -C "$(dirname "$run_dir")"
         fi
         cp "$run_dir/metrics.jsonl" "leaderboard/logs/$run_name.jsonl"
         hupbench export "$run_dir/checkpoints/last.pt" --out "$run_dir/$run_name.onnx" --dataset "$dataset"
         hupbench eval "$run_dir/checkpoints/last.pt" "$dataset" --split test --run-name "$run_name" \
-            --out "leaderboard/results/$run_name.json" --training-command "bash scripts/gpu_protocol.sh" \
-            --training-log "logs/$run_name.jsonl"
+            --out "leaderboard/results/$run_name.json" --depth-sensor "$sensor" \
+            --training-command "bash scripts/gpu_protocol.sh" --training-log "logs/$run_name.jsonl"
     done
     hupbench leaderboard
     exit 0
@@ -61,11 +62,7 @@ fi
 for experiment in $experiments; do
     set_args=()
     for kv in "device=$device" "data.root=$dataset" ${extra[@]+"${extra[@]}"}; do set_args+=(--set "$kv"); done
-    read -r workers batch < <(python3 -c "
-from hupbench.config import compose
-c = compose('train', ['+experiment=$experiment', *'''${extra[*]:-}'''.split()])
-print(c.data.num_workers, c.data.batch_size)")
-    run_dir=$(run_folder "$experiment")
+    read -r run_dir workers batch _ < <(describe "$experiment")
     run_name=$(basename "$run_dir")
     python3 benchmarks/train.py "$dataset" --experiment "$experiment" --device "$device" --batch "$batch" \
         --steps 40 --warmup 10 --threads 4 --pipelines "cache:$workers:cl:bf16,cache:0:cl:bf16:resident" \

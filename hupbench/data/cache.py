@@ -24,6 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hupbench.core.contract import SEGMENT_CLASSES
+from hupbench.core.processes import usable_cores
 from hupbench.core.io import atomic_output, clean_stale_tmp, write_json, writing
 
 
@@ -33,7 +34,7 @@ CACHE_FORMAT = 1
 RESIZE = "cv2.INTER_AREA"
 #: frames decoded per thread task, and decoding threads while building (OpenCV releases the GIL): one a core this
 #: process may run on (a GPU machine's 16 build the paper protocol's caches in seconds), at least 2
-_BUILD_CHUNK, _BUILD_THREADS = 64, max(2, len(os.sched_getaffinity(0)))
+_BUILD_CHUNK, _BUILD_THREADS = 64, max(2, usable_cores())
 
 
 #: what each cached modality holds: (the dataset's per-row reader, dtype, trailing shape after (N, S, S))
