@@ -106,7 +106,7 @@ def main() -> None:
     reader = split_reader(args.dataset, args.split, net)
     count = min(args.frames, len(reader))
     frames = np.stack([reader[i]["image"].numpy() for i in range(count)])
-    K, probe = net.K_input, net.fit_probe
+    K, probe, (probe_settings, hand_settings) = net.K_input, net.fit_probe, net.fit_settings
     print(f"{args.checkpoint} on {count} {args.split} frames of {args.dataset}, input {net.input_size} px "
           f"{net.input_modalities}, fits: {', '.join(asked) or 'none'}; {args.threads} threads; {cpu_name()}")
 
@@ -133,7 +133,7 @@ def main() -> None:
             return once("network", x, lambda: net.network(torch.from_numpy(x)))
 
         def after_probe(x):
-            return once("probe", x, lambda: fit_probe(*network(x)[:2], x, K, probe=probe, pixels=own(x, "probe"))[:2]
+            return once("probe", x, lambda: fit_probe(*network(x)[:2], x, K, probe_settings, probe, own(x, "probe"))[:2]
                         ) if "probe" in asked else network(x)[:2]
 
         def own(x, part: str):
@@ -141,9 +141,9 @@ def main() -> None:
             return None if segmentation is None else segmentation == SEGMENT_CLASSES.index(part)
 
         if "probe" in asked:
-            stages["probe fit"] = lambda x: fit_probe(*network(x)[:2], x, K, probe=probe, pixels=own(x, "probe"))
+            stages["probe fit"] = lambda x: fit_probe(*network(x)[:2], x, K, probe_settings, probe, own(x, "probe"))
         if "hand" in asked:
-            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K, probe=probe, pixels=own(x, "hand"))
+            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K, hand_settings, probe, own(x, "hand"))
         stages["PyTorch end to end (eval)"] = lambda x: net.predict(torch.from_numpy(x))
         stages["onnxruntime end to end"] = lambda x: net.after_network(x, onnx_network_output(onnx, x))
         width = max(map(len, stages)) + 2

@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import torch
 
 from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number
+from hupbench.fits.settings import check_fit_settings
 from hupbench.models.resnet import check_backbone
 
 #: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
@@ -58,6 +59,10 @@ class ModelConfig:
             ``input_channels`` 4). Eval and predict run it; training and its validation curve do not.
         hand_fit: the same for the hand: "none", or "depth" (the 21 joints refined by fitting a capsule hand to
             the depth input, :mod:`hupbench.fits.hand_fit`, after the probe's fit where both are asked).
+        fit_settings: the fits' settings this model changes from the defaults, chosen on its track's val split:
+            ``{"hand": {"iterations": 16}}`` (:func:`hupbench.fits.settings.check_fit_settings`: fields of
+            :class:`hupbench.fits.HandFitSettings` / :class:`~hupbench.fits.ProbeFitSettings` of a fit the model
+            runs); None or {}: the defaults. Saved with the config, so that eval, export and predict run them.
     """
 
     #: the model's name in a saved config (:data:`hupbench.models.build.MODELS`)
@@ -73,6 +78,7 @@ class ModelConfig:
     input_channels: int = 3
     probe_fit: str = "none"
     hand_fit: str = "none"
+    fit_settings: dict | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -82,6 +88,8 @@ class ModelConfig:
         check_choice(self.input_channels, "input_channels", (3, 4))  # RGB, or RGB and depth
         for name in ("probe_fit", "hand_fit"):
             check_choice(getattr(self, name), name, FITS)
+        asked = tuple(part for part in ("probe", "hand") if getattr(self, f"{part}_fit") == "depth")
+        object.__setattr__(self, "fit_settings", check_fit_settings(self.fit_settings, asked) or None)
         check_number(self.points3d_scale, "points3d_scale", 0.0, low_open=True)
         check_bool_fields(self)  # the subclasses' boolean fields too
         if self.points3d_mean is not None:

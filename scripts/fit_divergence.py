@@ -47,7 +47,7 @@ def _variant(text: str) -> dict:
 def main() -> None:
     from hupbench.core import keypoints as kp
     from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
-    from hupbench.fits import HandFitSettings, after_network
+    from hupbench.fits import after_network
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("model", help="a hupbench checkpoint (.pt) whose model runs fits after the network")
@@ -66,7 +66,7 @@ def main() -> None:
     outputs = {"network alone ": p.points3d}
     for changes in [{}] + args.hand_variant:
         name = "network + fits" + "".join(f", hand fit {k}={v:g}" for k, v in changes.items())
-        settings = dataclasses.replace(HandFitSettings(), **changes)
+        settings = dataclasses.replace(net.fit_settings[1], **changes)
         outputs[name] = after_network(net.model_config, p.points2d, p.points3d, images, net.K_input, hand=settings,
                                       fitted=net.fit_probe, segmentation=p.segmentation)[1]
     hand = {}

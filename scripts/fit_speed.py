@@ -47,7 +47,7 @@ def main() -> None:
     from hupbench.core.contract import SEGMENT_CLASSES
     from hupbench.data.reader import DEPTH_SENSORS
     from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
-    from hupbench.fits import HandFitSettings, ProbeFitSettings, fits
+    from hupbench.fits import fits
     from hupbench.fits.hand_fit import fit_hand
     from hupbench.fits.known_probe import default_fit_probe
     from hupbench.fits.probe_fit import fit_probe
@@ -94,8 +94,8 @@ def main() -> None:
             for c, name in enumerate(SEGMENT_CLASSES)))
     settings = [{"probe": {}, "hand": {}}] + args.variant
     for mask_name, (changes, mask) in ((m, (c, masks[m])) for m in masks for c in settings):
-        probe = dataclasses.replace(ProbeFitSettings(), **changes["probe"])
-        hand = dataclasses.replace(HandFitSettings(), **changes["hand"])
+        probe = dataclasses.replace(net.fit_settings[0], **changes["probe"])
+        hand = dataclasses.replace(net.fit_settings[1], **changes["hand"])
         out3d, spent = np.empty_like(p.points3d), {"probe": 0.0, "hand": 0.0}
         for i in range(len(rows)):
             points2d, points3d, frame = p.points2d[i:i + 1], p.points3d[i:i + 1], images[i:i + 1]
@@ -113,7 +113,7 @@ def main() -> None:
                 spent["hand"] += time.perf_counter() - start
             out3d[i] = points3d[0]
         name = "; ".join(f"{kind} {', '.join(f'{k}={v:g}' for k, v in c.items())}" for kind, c in changes.items()
-                         if c) or "defaults"
+                         if c) or "the model's settings"
         name += f" ({mask_name})"
         times = ", ".join(f"{kind} fit {1000.0 * spent[kind] / len(rows):5.1f}" for kind in asked)
         print(f"{name:48s} {errors(out3d)}; {times}", flush=True)

@@ -34,7 +34,6 @@ def main() -> None:
 
     from diagnose_errors import batches, decompose, floor_line, split_labels, split_outputs
     from hupbench.core import keypoints as kp
-    from hupbench.fits import HandFitSettings
     from hupbench.fits.hand_fit import fit_hand
     from hupbench.fits.probe_fit import fit_probe
 
@@ -42,13 +41,14 @@ def main() -> None:
                                                   keep_images=True)
     rows, K = prediction.rows, net.K_input
     outputs = batches(prediction)
-    probe_fitted = [fit_probe(points2d, points3d, images, K)[:2] for images, points2d, points3d in outputs]
+    own_probe, own_hand = net.fit_settings
+    probe_fitted = [fit_probe(points2d, points3d, images, K, own_probe)[:2] for images, points2d, points3d in outputs]
     hands = {"network": np.concatenate([points3d[:, kp.HAND_SLICE] for _, points3d in probe_fitted])}
     labels, _, grasp = split_labels(args, reader, rows)
     starts = np.cumsum([0] + [len(images) for images, _, _ in outputs])
     seconds = {}
     for name, changes in VARIANTS.items():
-        settings = replace(HandFitSettings(), **changes)
+        settings = replace(own_hand, **changes)
         began, out = time.perf_counter(), []
         for start, (images, _, _), (points2d, points3d) in zip(starts, outputs, probe_fitted):
             if name == "fit from the truth":

@@ -92,15 +92,16 @@ def test_probe_fit_ablation_parts_the_centre_and_the_long_axis_from_the_turn_abo
 
 
 def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
-    """The defaults' line and a variant's, each with both fits' times; a bad variant is refused naming the field."""
+    """The model's settings' line and a variant's, each with both fits' times; a bad variant is refused naming the
+    field; a model whose config changes a fit's settings is measured from them."""
     ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth")
     out = run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--frames", "2", "--variant",
                      "probe:hypotheses=4,coarse_points=64;hand:iterations=2", "--true-masks", monkeypatch=monkeypatch,
                      capsys=capsys)
     lines = out.splitlines()
-    assert lines[1].startswith("network alone") and lines[2].startswith("defaults (no masks)")
+    assert lines[1].startswith("network alone") and lines[2].startswith("the model's settings (no masks)")
     assert lines[3].startswith("probe hypotheses=4, coarse_points=64; hand iterations=2 (no masks)")
-    assert lines[4].startswith("defaults (true masks)") and len(lines) == 6
+    assert lines[4].startswith("the model's settings (true masks)") and len(lines) == 6
     assert all("probe fit" in line and "hand fit" in line and "all " in line for line in lines[2:])
     # a segmenting model: its head's IoU, and the fits with its segmentation, without any, and with the seg maps
     from hupbench.data import HUPDataset, ReaderConfig
@@ -117,6 +118,15 @@ def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
         run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--variant", "probe:nope=1", monkeypatch=monkeypatch,
                    capsys=capsys)
     assert "'nope=1': expected NAME=NUMBER" in capsys.readouterr().err
+    from hupbench.fits import hand_fit
+
+    steps, fit = [], hand_fit.fit_hand
+    monkeypatch.setattr(hand_fit, "fit_hand", lambda *args, **kw: steps.append(args[4].iterations) or fit(*args, **kw))
+    own = make_checkpoint(tmp_path / "own.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
+                          fit_settings={"hand": {"iterations": 3}})
+    run_script(SCRIPTS / "fit_speed.py", own, tiny_dataset, "--frames", "2", "--variant", "hand:bone_prior_m=0.02",
+               "--variant", "hand:iterations=8", monkeypatch=monkeypatch, capsys=capsys)
+    assert steps == [3, 3, 3, 3, 8, 8]   # 2 frames each: the model's 3 steps, kept by a variant of another field
 
 
 def test_the_fit_ablations_refuse_an_rgb_checkpoint(exported, tiny_dataset, monkeypatch, capsys):

@@ -155,7 +155,8 @@ def model_label(model_config: dict, input_size: int) -> str:
     """Human label naming the model, backbone, input size, a depth input and HUPNet's heads, e.g. "HOPE-Net
     (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)", "HUPNet (ResNet-18,
     128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)", "HUPNet (ResNet-18, 128 px, RGB-D,
-    depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"."""
+    depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"; a fit whose settings the model
+    changes names them: "hand fitted to depth (iterations=16)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -176,7 +177,9 @@ def model_label(model_config: dict, input_size: int) -> str:
                                       if model_config.get("probe_crop_px") else ""))
     if model_config.get("segmentation"):
         parts.append("segmentation")
-    parts += [f"{part} fitted to depth" for part in fits(model_config)]
+    changed = model_config.get("fit_settings") or {}
+    parts += [f"{part} fitted to depth" + (" (" + ", ".join(f"{k}={v}" for k, v in changed[part].items()) + ")"
+                                           if changed.get(part) else "") for part in fits(model_config)]
     return f"{name} ({', '.join(parts)})"
 
 
@@ -346,6 +349,7 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, predicted: S
     tracked (the tracked fits, then the filter)."""
     from hupbench.core.contract import SEQUENCE, read_annotations
     from hupbench.evaluation.sequence_metrics import FIELDS, choose_filter, sequence_block
+    from hupbench.fits import model_fit_settings
 
     fps = float(manifest[SEQUENCE]["fps"])
     if options.split == "val":
@@ -360,7 +364,7 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, predicted: S
     choice = choose_filter(val.points3d, val.labels3d, val_fields, fps, val.tracked3d)
     block = sequence_block(predicted.points3d, predicted.labels3d, fields, fps, choice, "val",
                            options.interval_resamples, options.interval_seed, predicted.tracked3d,
-                           predicted.tracked_fits_ms)
+                           predicted.tracked_fits_ms, model_fit_settings(net.model_config))
     for name, text in sequence_rows(block):
         log(f"{options.split} {name}: {text}")
     return block

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from hupbench.core.errors import BadValueError, RunFailedError
-from hupbench.fits import after_network, fits, track_fits
+from hupbench.fits import HandFitSettings, ProbeFitSettings, after_network, fits, model_fit_settings, track_fits
 from hupbench.inference.runtime import load_onnx_model, run_onnx_outputs, split_model_images
 from hupbench.input_geometry import INPUT_MODALITIES
 
@@ -87,6 +87,11 @@ class EvalModel:
     def fits(self) -> bool:
         """Whether the model's config asks for a fit after the network (:func:`hupbench.fits.fits`)."""
         return bool(fits(self.model_config))
+
+    @property
+    def fit_settings(self) -> tuple[ProbeFitSettings, HandFitSettings]:
+        """The settings the model's fits run with (:func:`hupbench.fits.model_fit_settings`)."""
+        return model_fit_settings(self.model_config)
 
     @property
     def channels(self) -> int:

@@ -156,7 +156,7 @@ def choose_filter(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float
 
 def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: float, choice: dict, chosen_on: str,
                    resamples: int, seed: int, tracked3d: np.ndarray | None = None,
-                   tracked_fits_ms: float | None = None) -> dict:
+                   tracked_fits_ms: float | None = None, fit_settings: tuple | None = None) -> dict:
     """The ``sequence`` block of a results file.
 
     Args:
@@ -167,6 +167,8 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
         tracked3d: the predictions with the fits tracking each clip (:func:`hupbench.fits.track_fits`), which the
             filter then smooths; None: the model has no fits, the filter smooths ``pred3d``.
         tracked_fits_ms: the tracked fits' median time per frame, ms (with ``tracked3d``).
+        fit_settings: the model's (probe, hand) fit settings (:func:`hupbench.fits.model_fit_settings`; None: the
+            defaults), whose tracking steps the block records.
 
     Returns:
         {"fps", "clips", "frames_per_clip", "filter": {"name", "settings", "chosen_on", "grid", "criterion"},
@@ -175,6 +177,7 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
         "filter_ms_per_frame": the filter's own time per frame, "tracked_fits": None (a model without fits) or
         {"probe_tracking_iterations", "hand_tracking_iterations", "ms_per_frame"}}.
     """
+    probe_fit, hand_fit = fit_settings or (ProbeFitSettings(), HandFitSettings())
     clips = clip_rows(fields)
     settings = choice["settings"]
     start = time.perf_counter()
@@ -212,8 +215,8 @@ def sequence_block(pred3d: np.ndarray, gt3d: np.ndarray, fields: dict, fps: floa
                                                   for key in SCORES}},
         "filter_ms_per_frame": float(filter_ms),
         "tracked_fits": None if tracked3d is None or tracked_fits_ms is None else {
-            "probe_tracking_iterations": ProbeFitSettings().tracking_iterations,
-            "hand_tracking_iterations": HandFitSettings().tracking_iterations, "ms_per_frame": float(tracked_fits_ms)},
+            "probe_tracking_iterations": probe_fit.tracking_iterations,
+            "hand_tracking_iterations": hand_fit.tracking_iterations, "ms_per_frame": float(tracked_fits_ms)},
     }
 
 

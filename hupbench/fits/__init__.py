@@ -24,10 +24,10 @@ import numpy as np
 from hupbench.core.contract import SEGMENT_CLASSES
 from hupbench.core.errors import BadValueError
 from hupbench.fits.known_probe import FitProbe
-from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
+from hupbench.fits.settings import HandFitSettings, ProbeFitSettings, model_fit_settings
 
 __all__ = ["FITTED_PROBE", "HandFitSettings", "ProbeFitSettings", "after_network", "check_fitted_probe",
-           "fits", "track_fits"]
+           "fits", "model_fit_settings", "track_fits"]
 
 #: the probe record (a dataset manifest's ``probe``, :attr:`hupbench.datagen.assets.probe.Probe.record`) of the one
 #: probe the fits know: the procedural probe of the default spec
@@ -72,9 +72,9 @@ def _shown(record: dict) -> str:
 
 
 def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
-                  K_input: np.ndarray, probe: ProbeFitSettings = ProbeFitSettings(),
-                  hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None,
-                  segmentation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  K_input: np.ndarray, probe: ProbeFitSettings | None = None, hand: HandFitSettings | None = None,
+                  fitted: FitProbe | None = None, segmentation: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The fits a model asks for (:func:`fits`) on its output: the probe's first, the hand's on the probe it left.
 
     Args:
@@ -83,7 +83,8 @@ def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray
             frame of ``K_input``: the network's output.
         images: (B, C, S, S) float32 model images (C = 4 for a model that fits: RGB in [0, 1], depth in metres).
         K_input: (3, 3) intrinsics of the model input, pixels.
-        probe, hand: the fits' settings (the defaults are what every model runs with).
+        probe, hand: the fits' settings; None: the model's own (:func:`hupbench.fits.settings.model_fit_settings`:
+            the defaults with its config's ``fit_settings``).
         fitted: the probe the fits know (the model file's); None: the default procedural probe.
         segmentation: (B, S, S) int, the model's class of each input pixel (:data:`hupbench.core.contract.
             SEGMENT_CLASSES`): the probe's fit takes only the depth of probe pixels, the hand's only that of hand
@@ -97,8 +98,8 @@ def after_network(model_config: dict, points2d: np.ndarray, points3d: np.ndarray
 
 
 def track_fits(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray,
-               K_input: np.ndarray, probe_start: np.ndarray | None, probe: ProbeFitSettings = ProbeFitSettings(),
-               hand: HandFitSettings = HandFitSettings(), fitted: FitProbe | None = None,
+               K_input: np.ndarray, probe_start: np.ndarray | None, probe: ProbeFitSettings | None = None,
+               hand: HandFitSettings | None = None, fitted: FitProbe | None = None,
                segmentation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`after_network` on the frames of a video, the frame before's fits carried: the probe's fit starts at
     the probe's pose there (``probe_start``, :func:`hupbench.fits.probe_fit.fit_probe`'s ``start``: no search over
@@ -113,15 +114,19 @@ def track_fits(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, i
         (points2d, points3d) as :func:`after_network`'s, and the probe's fitted pose (B, 4, 4) (NaN where the fit
         kept the network's corners), the next frames' ``probe_start``; None for a model without the probe's fit.
     """
+    hand = model_fit_settings(model_config)[1] if hand is None else hand
     tracking = replace(hand, iterations=hand.tracking_iterations)
     return _run(model_config, points2d, points3d, images, K_input, probe, tracking, fitted, segmentation, probe_start)
 
 
 def _run(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
-         probe: ProbeFitSettings, hand: HandFitSettings, fitted: FitProbe | None, segmentation: np.ndarray | None,
-         probe_start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+         probe: ProbeFitSettings | None, hand: HandFitSettings | None, fitted: FitProbe | None,
+         segmentation: np.ndarray | None, probe_start: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`track_fits`' work, with or without a start."""
     asked = fits(model_config)
+    own_probe, own_hand = model_fit_settings(model_config)
+    probe, hand = own_probe if probe is None else probe, own_hand if hand is None else hand
 
     def _own(part: str) -> np.ndarray | None:
         return None if segmentation is None else np.asarray(segmentation) == SEGMENT_CLASSES.index(part)

@@ -1,16 +1,22 @@
 """The tuning values of the fits after the network, as frozen settings passed to each fit.
 
 Plain dataclasses (no torch): :func:`hupbench.fits.after_network` takes them on the torch-free predict path. A
-variant is ``dataclasses.replace(HandFitSettings(), free_weight=0.0)``; the defaults are the values every model
-runs with, chosen on the val splits of the paper protocol and the clinic track (``scripts/fit_speed.py``,
+variant is ``dataclasses.replace(HandFitSettings(), free_weight=0.0)``; the defaults are the values a model runs
+with unless its config's ``fit_settings`` changes some (:func:`model_fit_settings`), chosen on the val splits of the
+paper protocol and the clinic track (``scripts/fit_speed.py``,
 ``scripts/fit_divergence.py``; docs/results.md gives the figures).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
-__all__ = ["HandFitSettings", "ProbeFitSettings"]
+from hupbench.core.errors import BadValueError
+from hupbench.core.input_checks import check_int, check_number, is_number
+
+__all__ = ["HandFitSettings", "ProbeFitSettings", "check_fit_settings", "model_fit_settings"]
 
 
 @dataclass(frozen=True)
@@ -134,3 +140,65 @@ class HandFitSettings:
     length_from: float = 0.5
     wrist_weight: float = 3.0
     damping: float = 1e-6
+
+
+#: a model config's ``fit_settings`` part -> the settings it changes
+SETTINGS = {"probe": ProbeFitSettings, "hand": HandFitSettings}
+
+
+def check_fit_settings(value: Any, asked: tuple[str, ...], name: str = "model.fit_settings") -> dict:
+    """A model config's ``fit_settings``, checked where the config enters: None, or a mapping from a fit the model
+    asks for (``asked``: "probe", "hand") to the fields of its settings (:class:`ProbeFitSettings`,
+    :class:`HandFitSettings`) the model changes, each a number of its default's kind (a whole number where the
+    default is one), >= 0, or two for ``trim_m``.
+
+    Returns:
+        the plain form a model's saved config holds: {part: {field: value}}, parts and fields sorted, pairs as
+        lists; {} for None.
+
+    Raises:
+        BadValueError: naming the part or field (``model.fit_settings.hand.iterations``) and what it must be.
+    """
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or any(part not in asked for part in value):
+        raise BadValueError(f"{name} must map a fit the model runs ({', '.join(asked) or 'none'}) to the settings it "
+                            f"changes, got {value!r}")
+    out = {}
+    for part in sorted(value):
+        changes, kind = value[part], SETTINGS[part]
+        known = {f.name: getattr(kind(), f.name) for f in fields(kind)}
+        if not isinstance(changes, Mapping) or any(field not in known for field in changes):
+            raise BadValueError(f"{name}.{part} must map fields of {kind.__name__} ({', '.join(known)}) to values, "
+                                f"got {changes!r}")
+        out[part] = {field: _checked(changes[field], known[field], f"{name}.{part}.{field}")
+                     for field in sorted(changes)}
+        try:
+            replace(kind(), **out[part])
+        except AssertionError:
+            raise BadValueError(f"{name}.{part}: {out[part]} do not fit together (see {kind.__name__})") from None
+    return {part: {field: list(v) if isinstance(v, tuple) else v for field, v in c.items()}
+            for part, c in out.items()}
+
+
+def _checked(value: Any, default: Any, name: str) -> Any:
+    """One field's value, of its default's kind."""
+    if isinstance(default, tuple):
+        pair = list(value) if isinstance(value, Sequence) and not isinstance(value, str) else []
+        if len(pair) != len(default) or not all(is_number(v) and v >= 0 for v in pair):
+            raise BadValueError(f"{name} must be {len(default)} finite numbers >= 0, got {value!r}")
+        return tuple(float(v) for v in pair)
+    if isinstance(default, int):
+        return check_int(value, name, 0)
+    return check_number(value, name, 0.0)
+
+
+def model_fit_settings(model_config: dict) -> tuple[ProbeFitSettings, HandFitSettings]:
+    """The settings a model's fits run with: the defaults with its saved config's ``fit_settings`` changes
+    (:func:`check_fit_settings`; a config without the field, as every model file before it: the defaults)."""
+    from hupbench.fits import fits
+
+    changes = check_fit_settings(model_config.get("fit_settings"), fits(model_config))
+    return tuple(replace(kind(), **{f: tuple(v) if isinstance(v, list) else v
+                                    for f, v in changes.get(part, {}).items()})
+                 for part, kind in SETTINGS.items())

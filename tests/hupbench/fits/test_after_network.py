@@ -1,6 +1,7 @@
 """hupbench.fits: what a model asks to run after its network, the probe the fits know, and the settings each fit
 takes as an argument (a variant without touching module state)."""
 
+import re
 import types
 from dataclasses import FrozenInstanceError, replace
 
@@ -98,3 +99,53 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
                     ("hand", replace(hand, iterations=hand.tracking_iterations), "the file's")]
     assert hand.iterations != hand.tracking_iterations
 
+
+
+def test_a_model_s_own_fit_settings_run_unless_a_caller_passes_others(monkeypatch):
+    """A config's ``fit_settings`` (chosen on its track's val split, saved in its model file) are what eval, predict and
+    tracking run; a script's variant passed as an argument replaces them; a config without them runs the defaults."""
+    from hupbench.fits import hand_fit, model_fit_settings, probe_fit
+
+    seen = []
+
+    def stand_in(part):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels, **start):
+            seen.append((part, settings))
+            return points2d, points3d, types.SimpleNamespace(pose=None)
+        return fit
+
+    monkeypatch.setattr(probe_fit, "fit_probe", stand_in("probe"))
+    monkeypatch.setattr(hand_fit, "fit_hand", stand_in("hand"))
+    config = {"probe_fit": "depth", "hand_fit": "depth",
+              "fit_settings": {"hand": {"iterations": 16, "bone_prior_m": 0.02, "trim_m": [0.01, 0.005]}}}
+    own = replace(HandFitSettings(), iterations=16, bone_prior_m=0.02, trim_m=(0.01, 0.005))
+    assert model_fit_settings(config) == (ProbeFitSettings(), own)
+    frame = (np.zeros((1, kp.NUM_KEYPOINTS, 2)), np.zeros((1, kp.NUM_KEYPOINTS, 3)), np.zeros((1, 4, 8, 8)),
+             np.eye(3))
+    after_network(config, *frame)
+    assert seen == [("probe", ProbeFitSettings()), ("hand", own)]
+    seen.clear()
+    track_fits(config, *frame, None)
+    assert seen == [("probe", ProbeFitSettings()), ("hand", replace(own, iterations=own.tracking_iterations))]
+    seen.clear()
+    after_network(config, *frame, hand=HandFitSettings(iterations=3))
+    after_network({"probe_fit": "depth", "hand_fit": "depth"}, *frame)
+    assert seen == [("probe", ProbeFitSettings()), ("hand", HandFitSettings(iterations=3)),
+                    ("probe", ProbeFitSettings()), ("hand", HandFitSettings())]
+
+
+@pytest.mark.parametrize(("settings", "message"), [
+    ({"probe": {"iterations": 3}}, "model.fit_settings must map a fit the model runs (hand) to the settings it changes, "
+                                   "got {'probe': {'iterations': 3}}"),
+    ({"hand": {"iterationz": 3}}, "model.fit_settings.hand must map fields of HandFitSettings (palm_radius_m, "),
+    ({"hand": {"iterations": 2.5}}, "model.fit_settings.hand.iterations must be a whole number >= 0, got 2.5"),
+    ({"hand": {"bone_prior_m": -0.1}}, "model.fit_settings.hand.bone_prior_m must be a finite number >= 0, got -0.1"),
+    ({"hand": {"trim_m": [0.01]}}, "model.fit_settings.hand.trim_m must be 2 finite numbers >= 0, got [0.01]"),
+    ({"hand": {"bone_prior_m": float("nan")}}, "model.fit_settings.hand.bone_prior_m must be a finite number >= 0"),
+    ("16", "model.fit_settings must map a fit the model runs (hand) to the settings it changes, got '16'")])
+def test_a_model_config_s_fit_settings_are_checked_where_the_config_is_built(settings, message):
+    from hupbench.models.build import build_model
+
+    with pytest.raises(BadValueError, match="^" + re.escape(message)):
+        build_model({"name": "hopenet", "backbone": "resnet10", "input_channels": 4, "hand_fit": "depth",
+                     "fit_settings": settings})
