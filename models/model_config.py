@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import torch
 
 from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number
+from hupbench.fits import fits
 from hupbench.fits.settings import check_fit_settings
 from hupbench.models.resnet import check_backbone
 
@@ -88,7 +89,7 @@ class ModelConfig:
         check_choice(self.input_channels, "input_channels", (3, 4))  # RGB, or RGB and depth
         for name in ("probe_fit", "hand_fit"):
             check_choice(getattr(self, name), name, FITS)
-        asked = tuple(part for part in ("probe", "hand") if getattr(self, f"{part}_fit") == "depth")
+        asked = fits({"probe_fit": self.probe_fit, "hand_fit": self.hand_fit})
         object.__setattr__(self, "fit_settings", check_fit_settings(self.fit_settings, asked) or None)
         check_number(self.points3d_scale, "points3d_scale", 0.0, low_open=True)
         check_bool_fields(self)  # the subclasses' boolean fields too
