@@ -2,7 +2,7 @@
 
 Stages, each the same code as its own verb: a preview sheet of a hand-set
 grasp -> grasps (``hupbench grasps``) -> a small dataset (``hupbench
-generate``) -> ``hupbench verify`` -> a short HOPE-Net training (``train.py``)
+generate``) -> ``hupbench verify`` -> a short training of HUPNet reading depth, with both fits (``train.py``)
 -> ``hupbench eval`` on the test split -> ``hupbench export`` (ONNX, parity
 checked) -> ``hupbench predict`` on a rendered test image. Every stage's
 config is composed before the first one runs, so a bad override fails at

@@ -21,16 +21,17 @@ from omegaconf import DictConfig, open_dict
 from hupbench.error_lines import answered
 
 #: the best measured row of leaderboard/README.md: its model (conf/model/) and its recipe (conf/experiment/)
-RECOMMENDED_MODEL = "hupnet_handfit"
-RECOMMENDED_EXPERIMENT = "paper_hupnet_handfit_cpu"
+RECOMMENDED_MODEL = "hupnet_seg"
+RECOMMENDED_EXPERIMENT = "paper_hupnet_seg_60_cpu"
 
 DESCRIPTION = ("Train a 3D hand + probe pose model on a dataset made by `hupbench generate` (conf/train.yaml: the "
                "groups model, data and optim). Writes OUT_ROOT/RUN_NAME/: run.json, metrics.jsonl, "
                "checkpoints/last.pt and best.pt, tb/, summary.json; the same command resumes an interrupted run. "
                "Recommended model: the best measured row of leaderboard/README.md is the depth-anchored HUPNet "
-               f"with the probe and the hand fitted to the depth, model={RECOMMENDED_MODEL} (its recipe: "
-               f"+experiment={RECOMMENDED_EXPERIMENT}; it reads depth, so the dataset needs its depth modality, the "
-               "default). The quickstart trains model=hopenet_r10_128, the smallest.")
+               "with a segmentation head and the probe and the hand fitted to the depth on their own pixels, "
+               f"model={RECOMMENDED_MODEL} (its recipe: +experiment={RECOMMENDED_EXPERIMENT}; it reads depth, so the "
+               "dataset needs its depth modality, the default). The quickstart trains model=hupnet_handfit on a "
+               "ResNet-10 for 500 steps.")
 
 
 def run_train(cfg: DictConfig, log=print) -> dict:
@@ -45,8 +46,8 @@ def examples(prog: str) -> list[str]:
     """The examples of ``PROG --help``, each a command line to run."""
     command = "python train.py" if prog == "train.py" else prog
     return [f"{command} +experiment={RECOMMENDED_EXPERIMENT}    # the recommended model's recipe (conf/experiment/)",
-            (f"{command} model=hopenet_r10_128 train.max_steps=400 data.batch_size=32 precision=fp32"
-             "    # a short run of the quickstart's model"),
+            (f"{command} model=hupnet_handfit model.backbone=resnet10 train.max_steps=500 data.batch_size=32 "
+             "precision=fp32    # a short run of the quickstart's model"),
             f"{command} model={RECOMMENDED_MODEL} data.root=hupbench_out/dataset device=cuda",
             f"{command} -m model=hopenet_r10_128,resnet50_128 train.max_steps=500    # a sweep, one folder per job",
             f"{command} --cfg job +experiment={RECOMMENDED_EXPERIMENT}    # print the composed config, run nothing"]

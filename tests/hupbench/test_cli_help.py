@@ -203,8 +203,8 @@ def test_train_py_help_is_hupbench_train_help(capsys, tmp_path):
     ours = answer.out.split("\nconfig keys", 1)[1].replace("hupbench train", "python train.py")
     assert done.stdout.split("\nconfig keys", 1)[1] == ours
     # the recommended model and a short example
-    assert "model=hupnet_handfit (its recipe: +experiment=paper_hupnet_handfit_cpu" in " ".join(answer.out.split())
-    assert "  hupbench train model=hopenet_r10_128 train.max_steps=400" in answer.out
+    assert "model=hupnet_seg (its recipe: +experiment=paper_hupnet_seg_60_cpu" in " ".join(answer.out.split())
+    assert "  hupbench train model=hupnet_handfit model.backbone=resnet10 train.max_steps=500" in answer.out
 
 
 @pytest.mark.parametrize("argv, needles", [

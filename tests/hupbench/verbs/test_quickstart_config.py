@@ -92,9 +92,9 @@ def test_a_probe_mesh_reaches_the_grasps_and_dataset_stages_as_given(packaged, t
         assert (probe.mesh, probe.mesh_unit, probe.align) == (mesh, "mm", True), stage
 
 
-def test_the_readmes_recommended_model_command_trains_that_model(tmp_path):
-    """README's quickstart command with the recommended model parses as typed (each list element quoted) and its
-    train stage is that model with the default list's other values."""
+def test_the_readmes_other_model_command_trains_that_model(tmp_path):
+    """README's quickstart command with another model (HOPE-Net) parses as typed (each list element quoted) and its
+    train stage is that model with the values it lists."""
     readme = (Path(__file__).parents[3] / "README.md").read_text()
     line = re.search(r"^hupbench quickstart .*'train=\[.*$", readme, re.MULTILINE)
     assert line, "README shows no quickstart command with a train list"
@@ -102,6 +102,6 @@ def test_the_readmes_recommended_model_command_trains_that_model(tmp_path):
     fields = OmegaConf.to_container(compose("quickstart", [*argv, f"out_dir={tmp_path / 'qs'}"]), resolve=True)
     run = QuickstartRun(**{k: v for k, v in fields.items() if k not in ("_target_", "_recursive_")})
     train = _stage_configs(tmp_path / "qs" / "full", run.stage_overrides(), fast=False).train
-    assert train.model_id == "hupnet_seg"
-    assert (train.train.max_steps, train.data.batch_size, train.threads) == (200, 32, 2)
+    assert train.model_id == "hopenet_r10_128"
+    assert (train.train.max_steps, train.data.batch_size, train.threads) == (400, 32, 2)
     assert train.model.backbone == "resnet10"
