@@ -7,14 +7,13 @@ export rebuild it from the saved dict (:meth:`ModelConfig.saved`, :func:`hupbenc
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import torch
 
 from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number
-from hupbench.fits import fits
-from hupbench.fits.settings import check_fit_settings
 from hupbench.models.resnet import check_backbone
 
 #: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
@@ -29,6 +28,16 @@ def nested(value: Any) -> Any:
 def plain(value: Any) -> Any:
     """Tuples as lists all the way down: the saved form (JSON and a checkpoint hold lists)."""
     return [plain(v) for v in value] if isinstance(value, (list, tuple)) else value
+
+
+def plain_tree(value: Any) -> Any:
+    """A mapping (a Hydra node's too) as a dict and a sequence as a list, all the way down: a config field that
+    holds a tree (:attr:`ModelConfig.fit_settings`) in the form a checkpoint and JSON hold."""
+    if isinstance(value, Mapping):
+        return {k: plain_tree(v) for k, v in value.items()}
+    if isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
+        return [plain_tree(v) for v in value]
+    return value
 
 
 def check_camera(K_input: Any, input_size: Any, multiple: int = 1) -> None:
@@ -61,9 +70,11 @@ class ModelConfig:
         hand_fit: the same for the hand: "none", or "depth" (the 21 joints refined by fitting a capsule hand to
             the depth input, :mod:`hupbench.fits.hand_fit`, after the probe's fit where both are asked).
         fit_settings: the fits' settings this model changes from the defaults, chosen on its track's val split:
-            ``{"hand": {"iterations": 16}}`` (:func:`hupbench.fits.settings.check_fit_settings`: fields of
-            :class:`hupbench.fits.HandFitSettings` / :class:`~hupbench.fits.ProbeFitSettings` of a fit the model
-            runs); None or {}: the defaults. Saved with the config, so that eval, export and predict run them.
+            ``{"hand": {"iterations": 16}}``: fields of :class:`hupbench.fits.HandFitSettings` /
+            :class:`~hupbench.fits.ProbeFitSettings` of a fit the model runs, checked where a training config is
+            built (:class:`hupbench.training.run_config.TrainRun`) and where the fits read them
+            (:func:`hupbench.fits.model_fit_settings`); None or {}: the defaults. Saved with the config, so that
+            eval, export and predict run them.
     """
 
     #: the model's name in a saved config (:data:`hupbench.models.build.MODELS`)
@@ -89,8 +100,7 @@ class ModelConfig:
         check_choice(self.input_channels, "input_channels", (3, 4))  # RGB, or RGB and depth
         for name in ("probe_fit", "hand_fit"):
             check_choice(getattr(self, name), name, FITS)
-        asked = fits({"probe_fit": self.probe_fit, "hand_fit": self.hand_fit})
-        object.__setattr__(self, "fit_settings", check_fit_settings(self.fit_settings, asked) or None)
+        object.__setattr__(self, "fit_settings", plain_tree(self.fit_settings) or None)
         check_number(self.points3d_scale, "points3d_scale", 0.0, low_open=True)
         check_bool_fields(self)  # the subclasses' boolean fields too
         if self.points3d_mean is not None:

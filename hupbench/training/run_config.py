@@ -23,6 +23,7 @@ from hupbench.core.io import check_writable
 from hupbench.core.processes import usable_cores
 from hupbench.config import build
 from hupbench.data import DataConfig
+from hupbench.fits import model_fit_settings
 from hupbench.metrics import PROBE_SYMMETRIES
 from hupbench.models.model_config import ModelConfig
 
@@ -136,6 +137,7 @@ class TrainRun:
         if self.model.n_keypoints != kp.NUM_KEYPOINTS:
             raise BadValueError(f"model.n_keypoints must be {kp.NUM_KEYPOINTS} (21 hand joints + 8 probe corners, "
                                 f"as every dataset has), got {self.model.n_keypoints}")
+        model_fit_settings(self.model.saved())   # the fit settings the model changes: names and values
 
     @property
     def folder(self) -> Path:

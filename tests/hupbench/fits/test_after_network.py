@@ -143,9 +143,21 @@ def test_a_model_s_own_fit_settings_run_unless_a_caller_passes_others(monkeypatc
     ({"hand": {"trim_m": [0.01]}}, "model.fit_settings.hand.trim_m must be 2 finite numbers >= 0, got [0.01]"),
     ({"hand": {"bone_prior_m": float("nan")}}, "model.fit_settings.hand.bone_prior_m must be a finite number >= 0"),
     ("16", "model.fit_settings must map a fit the model runs (hand) to the settings it changes, got '16'")])
-def test_a_model_config_s_fit_settings_are_checked_where_the_config_is_built(settings, message):
-    from hupbench.models.build import build_model
+def test_a_model_config_s_fit_settings_are_checked_where_the_config_is_built(settings, message, tmp_path):
+    """A training config's, when it is built (the run folder is not made), and a saved config's, when the fits read
+    it (a model file edited by hand)."""
+    from omegaconf import OmegaConf, open_dict
 
+    from hupbench.config import compose
+    from hupbench.fits import model_fit_settings
+    from hupbench.training.run_config import train_config
+
+    cfg = compose("train", ["model=hupnet_handfit", "model.probe_fit=none", f"run_dir={tmp_path / 'run'}"])
+    OmegaConf.set_readonly(cfg, False)
+    with open_dict(cfg):
+        cfg.model.fit_settings = settings
     with pytest.raises(BadValueError, match="^" + re.escape(message)):
-        build_model({"name": "hopenet", "backbone": "resnet10", "input_channels": 4, "hand_fit": "depth",
-                     "fit_settings": settings})
+        train_config(cfg)
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(BadValueError, match="^" + re.escape(message)):
+        model_fit_settings({"hand_fit": "depth", "fit_settings": settings})
