@@ -138,24 +138,28 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     """probe_fit / hand_fit: depth travel in the checkpoint and the ONNX metadata, and eval (either format) and
     predict run hupbench.fits.probe_fit and hand after the network, the probe's first, on its output and
     its RGB-D input (the fits themselves: test_probe_fit.py, test_hand_fit.py); here stand-in fits move the corners
-    by 1 cm and the hand by 2 cm so that their use and order are seen."""
+    by 1 cm and the hand by 2 cm so that their use and order are seen. The model's own fit settings
+    (model.fit_settings) travel with it and are what each fit gets."""
     from hupbench.core import keypoints as kp
     from hupbench.evaluation import evaluate
     from hupbench.fits import hand_fit, probe_fit
 
     fits = {f"{part}_fit": "depth" for part in asked}
-    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, **fits)
+    own = {asked[-1]: {"iterations": 5}}
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, fit_settings=own, **fits)
     onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
                                   log=lambda *_: None)["onnx"])
     props = {p.key: p.value for p in onnx.load(str(onnx_path)).metadata_props}
     saved = json.loads(props["hupbench.model_config"])
     assert {key: saved[key] for key in ("probe_fit", "hand_fit")} == {
         key: fits.get(key, "none") for key in ("probe_fit", "hand_fit")}
-    calls = []
+    assert saved["fit_settings"] == own
+    calls, steps = [], []
 
     def stand_in(part, where, by):
         def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None):
             calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
+            steps.append((part, settings.iterations))
             moved = np.array(points3d, dtype=np.float64)
             moved[:, where] += by
             return np.array(points2d, dtype=np.float64), moved, SimpleNamespace(pose=None)
@@ -180,6 +184,7 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     assert [part for part, _, _ in calls[:len(asked)]] == list(asked)    # the probe's fit first
     if asked == ("probe", "hand"):  # the hand's fit sees the probe the probe's fit left
         assert np.isclose(calls[1][2], calls[0][2] + 0.01, atol=1e-6)
+    assert {iterations for part, iterations in steps if part == asked[-1]} == {5}   # predict's and eval's alike
 
 
 def test_the_model_file_names_its_training_depth_and_predict_warns_of_a_z_buffer(rgbd_model, tiny_dataset, tmp_path):
