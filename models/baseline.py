@@ -2,7 +2,9 @@
 
 HUP-3D's second model: a ResNet-50 whose head regresses the 29 x 3
 coordinates directly, with no graph stage. A 29 x 2 side output can be
-switched on so that the baseline trains with the same 2D terms as HOPE-Net.
+switched on so that the baseline trains with the same 2D terms as HOPE-Net, and a segmentation head
+(:mod:`hupbench.models.segmentation`, on the backbone's stride-8 stage) so that its fits take only their own
+object's depth, as HUPNet's do.
 
 Convention:
     As :mod:`hupbench.models.hopenet`: 2D points in normalised image coordinates
@@ -22,6 +24,7 @@ from torch import nn
 from hupbench.models.model_config import ModelConfig
 from hupbench.models.prior import PointPrior
 from hupbench.models.resnet import resnet
+from hupbench.models.segmentation import segment, segmentation_layers
 
 __all__ = ["RegressorOutput", "ResNetRegressor", "ResNetRegressorConfig"]
 
@@ -33,10 +36,13 @@ class RegressorOutput(NamedTuple):
         points2d: (B, N, 2) float in normalised image coordinates, or None when the model
             was built with ``predict_2d=False``. Same meaning as ``HOPENetOutput.points2d``.
         points3d: (B, N, 3) float in the training target's units and frame.
+        segmentation: (B, 3, S, S) float logits of each input pixel's class (other, hand, probe) for a model
+            with ``segmentation``, else None.
     """
 
     points2d: torch.Tensor | None
     points3d: torch.Tensor
+    segmentation: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -45,11 +51,14 @@ class ResNetRegressorConfig(ModelConfig):
 
     Attributes:
         predict_2d: also regress (B, N, 2) 2D keypoints from the same feature.
+        segmentation: a head that labels each input pixel other, hand or probe from the backbone's stride-8
+            stage and the input image (:mod:`hupbench.models.segmentation`), for the fits.
     """
 
     name: ClassVar[str] = "resnet_regressor"
     backbone: str = "resnet50"
     predict_2d: bool = False
+    segmentation: bool = False
 
 
 class ResNetRegressor(nn.Module):
@@ -64,6 +73,9 @@ class ResNetRegressor(nn.Module):
         self.head3d = nn.Linear(self.backbone.feature_dim, n * 3)
         self.head2d = nn.Linear(self.backbone.feature_dim, n * 2) if config.predict_2d else None
         self.prior3d = PointPrior(n, config.points3d_mean, config.points3d_scale)
+        if config.segmentation:
+            self.seg_features, self.seg_head = segmentation_layers(self.backbone.stage_channels[1],
+                                                                   config.input_channels)
 
     def forward(self, images: torch.Tensor) -> RegressorOutput:
         """Regress keypoints.
@@ -73,11 +85,18 @@ class ResNetRegressor(nn.Module):
                 channels_last.
 
         Returns:
-            :class:`RegressorOutput`: ``points2d`` (B, N, 2) or None, ``points3d`` (B, N, 3).
+            :class:`RegressorOutput`: ``points2d`` (B, N, 2) or None, ``points3d`` (B, N, 3), ``segmentation``
+            (B, 3, H, W) or None.
         """
-        features = self.backbone.features(images)  # (B, F)
+        segmentation = None
+        if self.config.segmentation:
+            c2, c3, c4, c5 = self.backbone.feature_maps(images)
+            features = torch.flatten(self.backbone.avgpool(c5), 1)                      # (B, F)
+            segmentation = segment(self.seg_features, self.seg_head, c3, images)
+        else:
+            features = self.backbone.features(images)  # (B, F)
         points3d = self.prior3d(self.head3d(features).reshape(-1, self.n_keypoints, 3))  # (B, N * 3) -> (B, N, 3)
         points2d = None
         if self.head2d is not None:
             points2d = self.head2d(features).reshape(-1, self.n_keypoints, 2)  # (B, N * 2) -> (B, N, 2)
-        return RegressorOutput(points2d, points3d)
+        return RegressorOutput(points2d, points3d, segmentation)

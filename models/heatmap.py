@@ -58,17 +58,15 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from hupbench.core.contract import SEGMENT_CLASSES
 from hupbench.core.input_checks import check_choice, check_int, check_number
 from hupbench.models.model_config import ModelConfig, check_camera
 from hupbench.models.hopenet import normalized_intrinsics, unproject_normalized
 from hupbench.models.prior import PointPrior
 from hupbench.models.resnet import check_backbone, resnet
+from hupbench.models.segmentation import segment, segmentation_layers
 
 __all__ = ["HUPNet", "HUPNetConfig", "HUPNetOutput", "heatmap_confidence", "soft_argmax"]
 
-#: channels of the canvas features the segmentation head upsamples to the input (:attr:`HUPNetConfig.segmentation`)
-SEG_FEATURES = 8
 
 
 class HUPNetOutput(NamedTuple):
@@ -252,9 +250,7 @@ class HUPNet(nn.Module):
             nn.init.normal_(head.weight, std=1e-3)
             nn.init.zeros_(head.bias)
         if config.segmentation:
-            self.seg_features = nn.Conv2d(D, SEG_FEATURES, 1)
-            self.seg_head = nn.Sequential(nn.Conv2d(SEG_FEATURES + config.input_channels, 2 * SEG_FEATURES, 3, padding=1),
-                                          nn.ReLU(inplace=True), nn.Conv2d(2 * SEG_FEATURES, len(SEGMENT_CLASSES), 1))
+            self.seg_features, self.seg_head = segmentation_layers(D, config.input_channels)
         self.prior3d = PointPrior(config.n_keypoints, config.points3d_mean, config.points3d_scale)
         self.register_buffer("intrinsics", normalized_intrinsics(config.K_input, input_size))
         if config.probe_head == "rigid":
@@ -350,9 +346,7 @@ class HUPNet(nn.Module):
         """(B, 3, S, S) float32 class logits of each input pixel from the canvas features ``p`` (B, D, H, W) (the
         image's cells, without the margin, upsampled bilinearly to the input) and the input images."""
         m, cells = self.margin_cells, p.shape[-1] - 2 * self.margin_cells
-        features = self.seg_features(p[:, :, m:m + cells, m:m + cells])
-        features = F.interpolate(features, size=images.shape[-2:], mode="bilinear", align_corners=False)
-        return self.seg_head(torch.cat([features, images.to(features.dtype)], dim=1)).float()
+        return segment(self.seg_features, self.seg_head, p[:, :, m:m + cells, m:m + cells], images)
 
     def _rigid_probe(self, p: torch.Tensor, pooled: torch.Tensor, corners3d: torch.Tensor, images: torch.Tensor,
                      corners2d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -31,8 +31,36 @@ def test_side_output_2d(batch):
     assert out.points2d.shape == (batch, 29, 2) and out.points3d.shape == (batch, 29, 3)
 
 
-def test_field_names_shared_with_hopenet():
-    assert set(RegressorOutput._fields) <= set(HOPENetOutput._fields)
+def test_field_names_shared_with_hopenet_and_hupnet():
+    """Its points as HOPE-Net names them, its segmentation as HUPNet does (eval, export and the loss read them)."""
+    from hupbench.models.heatmap import HUPNetOutput
+
+    assert set(RegressorOutput._fields) - {"segmentation"} <= set(HOPENetOutput._fields)
+    assert "segmentation" in HUPNetOutput._fields
+
+
+def test_the_segmentation_head_labels_every_input_pixel_and_is_trained_through():
+    """With ``segmentation``: (B, 3, S, S) logits from the stride-8 stage and the RGB-D input, the gradient of a
+    cross-entropy on them reaching the head and the backbone below the stage; the export's wrapper hands the fits
+    each pixel's class."""
+    from hupbench.inference.export import ContractModule
+
+    torch.manual_seed(0)
+    model = ResNetRegressor(ResNetRegressorConfig(backbone="resnet18", input_channels=4, segmentation=True)).train()
+    images = torch.rand(2, 4, 64, 64)
+    out = model(images)
+    assert out.segmentation.shape == (2, 3, 64, 64) and out.segmentation.dtype == torch.float32
+    torch.nn.functional.cross_entropy(out.segmentation, torch.randint(0, 3, (2, 64, 64))).backward()
+    for name in ("seg_features.weight", "seg_head.0.weight", "seg_head.2.weight", "backbone.layer2.0.conv1.weight"):
+        grad = dict(model.named_parameters())[name].grad
+        assert grad is not None and grad.abs().sum() > 0, name
+    assert dict(model.named_parameters())["backbone.layer4.0.conv1.weight"].grad is None   # the stage above: not
+    wrapped = ContractModule(model.eval(), [[60.0, 0, 32], [0, 60.0, 32], [0, 0, 1]], 64)
+    assert wrapped.outputs[-1] == "segmentation"
+    with torch.no_grad():
+        classes = wrapped(images[:, :3], images[:, 3:])[-1]
+    assert classes.shape == (2, 64, 64) and torch.equal(classes, model(images).segmentation.argmax(dim=1))
+    assert ResNetRegressor(ResNetRegressorConfig(backbone="resnet18")).eval()(images[:, :3]).segmentation is None
 
 
 @pytest.mark.parametrize("backbone, predict_2d", [("resnet50", False), ("resnet18", True)])
