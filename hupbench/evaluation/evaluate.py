@@ -349,7 +349,6 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, predicted: S
     tracked (the tracked fits, then the filter)."""
     from hupbench.core.contract import SEQUENCE, read_annotations
     from hupbench.evaluation.sequence_metrics import FIELDS, choose_filter, sequence_block
-    from hupbench.fits import model_fit_settings
 
     fps = float(manifest[SEQUENCE]["fps"])
     if options.split == "val":
@@ -364,7 +363,7 @@ def _sequence(options: EvalOptions, net: EvalModel, manifest: dict, predicted: S
     choice = choose_filter(val.points3d, val.labels3d, val_fields, fps, val.tracked3d)
     block = sequence_block(predicted.points3d, predicted.labels3d, fields, fps, choice, "val",
                            options.interval_resamples, options.interval_seed, predicted.tracked3d,
-                           predicted.tracked_fits_ms, model_fit_settings(net.model_config))
+                           predicted.tracked_fits_ms, net.fit_settings)
     for name, text in sequence_rows(block):
         log(f"{options.split} {name}: {text}")
     return block

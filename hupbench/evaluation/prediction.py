@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from hupbench.core.errors import BadValueError, RunFailedError
-from hupbench.fits import HandFitSettings, ProbeFitSettings, after_network, fits, model_fit_settings, track_fits
+from hupbench.fits import after_network, fits, model_fit_settings, track_fits
 from hupbench.inference.runtime import load_onnx_model, run_onnx_outputs, split_model_images
 from hupbench.input_geometry import INPUT_MODALITIES
 
@@ -69,7 +69,7 @@ class EvalModel:
             self.input_modalities = self.onnx.input_modalities
             self.K_input = self.onnx.K_input
             self.run_name = default_run_name(self.onnx.run_name, self.path)
-            self.fit_probe = self.onnx.fit_probe
+            self.fit_probe, self.fit_settings = self.onnx.fit_probe, self.onnx.fit_settings
             return
         model, payload = load_model(self.path)
         self.format, self.payload, self.onnx = "pytorch", payload, None
@@ -82,16 +82,13 @@ class EvalModel:
         self.K_input = np.asarray(payload["K_input"], dtype=np.float64)
         self.run_name = default_run_name((payload.get("config") or {}).get("run_name"), self.path)
         self.fit_probe = trained_fit_probe(payload)
+        #: (probe, hand) the settings the model's fits run with, read once (:func:`hupbench.fits.model_fit_settings`)
+        self.fit_settings = model_fit_settings(self.model_config)
 
     @property
     def fits(self) -> bool:
         """Whether the model's config asks for a fit after the network (:func:`hupbench.fits.fits`)."""
         return bool(fits(self.model_config))
-
-    @property
-    def fit_settings(self) -> tuple[ProbeFitSettings, HandFitSettings]:
-        """The settings the model's fits run with (:func:`hupbench.fits.model_fit_settings`)."""
-        return model_fit_settings(self.model_config)
 
     @property
     def channels(self) -> int:
@@ -103,14 +100,14 @@ class EvalModel:
         asks for (:func:`hupbench.fits.after_network`, reading its segmentation where it has one), else nothing;
         (points2d, points3d) float64."""
         return after_network(self.model_config, outputs.points2d, outputs.points3d, images, self.K_input,
-                             fitted=self.fit_probe, segmentation=outputs.segmentation)
+                             *self.fit_settings, fitted=self.fit_probe, segmentation=outputs.segmentation)
 
     def track_fits(self, images: np.ndarray, outputs: NetworkOutput, probe_start: np.ndarray | None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """:meth:`after_network` on frames of a clip, the probe's pose carried from the frame before
         (:func:`hupbench.fits.track_fits`): (points2d, points3d, the next frame's ``probe_start``)."""
         return track_fits(self.model_config, outputs.points2d, outputs.points3d, images, self.K_input, probe_start,
-                          fitted=self.fit_probe, segmentation=outputs.segmentation)
+                          *self.fit_settings, fitted=self.fit_probe, segmentation=outputs.segmentation)
 
     def network(self, images: torch.Tensor) -> NetworkOutput:
         """(B, C, S, S) float32 model images -> the network's :class:`NetworkOutput`, without the fits."""

@@ -41,6 +41,7 @@ from hupbench.core.depth_sensor import NONE, PRESETS
 from hupbench.core.errors import BadValueError
 from hupbench.core.input_checks import check_int, is_whole
 from hupbench.fits.known_probe import FitProbe
+from hupbench.fits.settings import model_fit_settings
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.input_geometry import DEPTH_CLIP_M, INPUT_MODALITIES, INPUT_SIZE_RANGE
 
@@ -177,7 +178,12 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
                             f"{', '.join((NONE, *PRESETS))}, got {sensor!r:.80} on an {modalities} model")
     probe = props.get(META + "fit_probe")
     probe = None if probe is None else FitProbe.from_json(probe, f"{source}: metadata hupbench.fit_probe")
-    return {"depth_sensor": sensor, "fit_probe": probe, "input_size": input_size, "K_input": K_input,
+    try:
+        fit_settings = model_fit_settings(model_config)
+    except BadValueError as error:
+        raise BadValueError(f"{source}: metadata hupbench.model_config: {error}") from None
+    return {"depth_sensor": sensor, "fit_probe": probe, "fit_settings": fit_settings, "input_size": input_size,
+            "K_input": K_input,
             "keypoint_names": tuple(names), "input_modalities": modalities,
             "skeleton_edges": tuple((int(a), int(b)) for a, b in edges), "model_config": model_config,
             "run_name": props.get(META + "run_name", ""), "git_commit": props.get(META + "git_commit", ""),

@@ -424,7 +424,7 @@ def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndar
     segmentation = outputs.get("segmentation")
     if fits(model.model_config) and track is None:
         points2d, points3d = after_network(model.model_config, points2d, points3d,
-                                           np.concatenate([images, depth], axis=1), model.K_input,
+                                           np.concatenate([images, depth], axis=1), model.K_input, *model.fit_settings,
                                            fitted=model.fit_probe, segmentation=segmentation)
     elif fits(model.model_config):   # frame by frame, each started where the fits left the frame before
         points2d, points3d = np.array(points2d, np.float64), np.array(points3d, np.float64)
@@ -432,7 +432,8 @@ def _predict_loaded(model: OnnxModel, loaded: list[tuple[dict[str, Any], np.ndar
             points2d[b:b + 1], points3d[b:b + 1], track.probe_start = track_fits(
                 model.model_config, points2d[b:b + 1], points3d[b:b + 1],
                 np.concatenate([images[b:b + 1], depth[b:b + 1]], axis=1), model.K_input, track.probe_start,
-                fitted=model.fit_probe, segmentation=None if segmentation is None else segmentation[b:b + 1])
+                *model.fit_settings, fitted=model.fit_probe,
+                segmentation=None if segmentation is None else segmentation[b:b + 1])
     K_user = options.K
     for b, (record, image, _, geometry, _) in enumerate(prepared):
         if not (np.all(np.isfinite(points2d[b])) and np.all(np.isfinite(points3d[b]))):

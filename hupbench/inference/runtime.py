@@ -16,6 +16,7 @@ from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 from hupbench.core.errors import BadValueError, MissingFileError, RunFailedError
 from hupbench.core.io import file_sha256
 from hupbench.fits.known_probe import FitProbe
+from hupbench.fits.settings import HandFitSettings, ProbeFitSettings
 from hupbench.inference.image_statistics import ImageStatistics
 from hupbench.inference.model_file import BASE_OUTPUTS, check_graph, check_io_shapes, read_metadata
 
@@ -45,6 +46,8 @@ class OnnxModel:
             trained on ("none": the clean z-buffer; a preset of :mod:`hupbench.core.depth_sensor`), None unknown.
         fit_probe: the probe a fitting model's fits know (:class:`hupbench.fits.known_probe.FitProbe`), None where
             the file carries none (the fits then know the default procedural probe).
+        fit_settings: (probe, hand) the settings its fits run with (:func:`hupbench.fits.model_fit_settings`, read
+            once from its model config when the file is loaded).
     """
 
     path: Path
@@ -62,6 +65,7 @@ class OnnxModel:
     image_statistics: ImageStatistics | None = None
     depth_sensor: str | None = None
     fit_probe: FitProbe | None = None
+    fit_settings: tuple[ProbeFitSettings, HandFitSettings] = (ProbeFitSettings(), HandFitSettings())
 
     @property
     def reads_depth(self) -> bool:
