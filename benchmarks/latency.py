@@ -143,7 +143,8 @@ def main() -> None:
         if "probe" in asked:
             stages["probe fit"] = lambda x: fit_probe(*network(x)[:2], x, K, probe_settings, probe, own(x, "probe"))
         if "hand" in asked:
-            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K, hand_settings, probe, own(x, "hand"))
+            stages["hand fit"] = lambda x: fit_hand(*after_probe(x), x, K, hand_settings, probe, own(x, "hand"),
+                                                    net.model_config.get("hand_templates"))
         stages["PyTorch end to end (eval)"] = lambda x: net.predict(torch.from_numpy(x))
         stages["onnxruntime end to end"] = lambda x: net.after_network(x, onnx_network_output(onnx, x))
         width = max(map(len, stages)) + 2

@@ -134,3 +134,18 @@ def check_shape(array: Any, shape: tuple, name: str) -> np.ndarray:
         shown = ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "")
         raise BadValueError(f"{name} must be ({shown}), got {tuple(array.shape)}")
     return array
+
+
+def check_finite_points(value: Any, shape: tuple, name: str) -> np.ndarray:
+    """``value`` as a float64 array of finite numbers whose shape matches ``shape`` (:func:`check_shape`), e.g.
+    ``("T", 21, 3)`` for a set of hands; a value that is not an array of numbers, or holds NaN or inf, is refused
+    naming ``name``."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BadValueError(f"{name} must be an array of numbers of shape ({', '.join(map(str, shape))}), got "
+                            f"{str(value)[:80]}") from None
+    check_shape(array, shape, name)
+    if not np.isfinite(array).all():
+        raise BadValueError(f"{name} must hold finite numbers, got NaN or inf")
+    return array

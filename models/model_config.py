@@ -13,7 +13,9 @@ from typing import Any, ClassVar
 
 import torch
 
-from hupbench.core.input_checks import check_bool_fields, check_choice, check_int, check_number
+from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import (check_bool_fields, check_choice, check_finite_points, check_int,
+                                        check_number)
 from hupbench.models.resnet import check_backbone
 
 #: what may run after a model's network on its output (:attr:`ModelConfig.probe_fit`, :attr:`ModelConfig.hand_fit`)
@@ -75,6 +77,10 @@ class ModelConfig:
             built (:class:`hupbench.training.run_config.TrainRun`) and where the fits read them
             (:func:`hupbench.fits.model_fit_settings`); None or {}: the defaults. Saved with the config, so that
             eval, export and predict run them.
+        hand_templates: (T, 21, 3) the training split's hands, metres, one per training grasp (:func:`hupbench.fits.
+            hand_fit.training_hands`): where the model fits the hand (``hand_fit: depth``) the fit starts from the one
+            nearest the network's joints (:attr:`hupbench.fits.HandFitSettings.templates`); training sets them. None:
+            the fit starts from the network's joints (every model file before them).
     """
 
     #: the model's name in a saved config (:data:`hupbench.models.build.MODELS`)
@@ -91,6 +97,7 @@ class ModelConfig:
     probe_fit: str = "none"
     hand_fit: str = "none"
     fit_settings: dict | None = None
+    hand_templates: tuple[tuple[tuple[float, float, float], ...], ...] | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -109,6 +116,9 @@ class ModelConfig:
                 raise ValueError(f"points3d_mean must be a finite ({self.n_keypoints}, 3) layout, got shape "
                                  f"{tuple(mean.shape)}")
             object.__setattr__(self, "points3d_mean", nested(mean.tolist()))
+        if self.hand_templates is not None:
+            hands = check_finite_points(self.hand_templates, ("T", kp.NUM_HAND, 3), "hand_templates")
+            object.__setattr__(self, "hand_templates", nested(hands.tolist()))
 
     def saved(self) -> dict[str, Any]:
         """``{"name": ..., **fields}`` with lists: what a checkpoint stores and :func:`build_model` takes."""

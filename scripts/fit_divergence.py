@@ -20,16 +20,22 @@ import numpy as np
 
 
 def settings_changes(text: str, settings_type) -> dict:
-    """``"free_weight=0,iterations=5"`` -> {"free_weight": 0.0, "iterations": 5}: numeric fields of the frozen
-    settings dataclass ``settings_type``, each typed as its default (argparse's error otherwise)."""
+    """``"free_weight=0,iterations=5,templates=false"`` -> {"free_weight": 0.0, "iterations": 5, "templates": False}:
+    numeric and true / false fields of the frozen settings dataclass ``settings_type``, each typed as its default
+    (argparse's error otherwise)."""
     fields = {f.name: type(getattr(settings_type(), f.name)) for f in dataclasses.fields(settings_type)}
     changes = {}
     for item in text.split(","):
         name, _, value = item.partition("=")
-        if name not in fields or fields[name] not in (int, float) or not value:
-            numeric = ", ".join(n for n, t in fields.items() if t in (int, float))
-            raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER, NAME one of "
-                                             f"{settings_type.__name__}' {numeric}")
+        if name not in fields or fields[name] not in (int, float, bool) or not value:
+            known = ", ".join(n for n, t in fields.items() if t in (int, float, bool))
+            raise argparse.ArgumentTypeError(f"{item!r}: expected NAME=NUMBER (or true / false), NAME one of "
+                                             f"{settings_type.__name__}' {known}")
+        if fields[name] is bool:
+            if value not in ("true", "false"):
+                raise argparse.ArgumentTypeError(f"{item!r}: {value!r} is not true or false")
+            changes[name] = value == "true"
+            continue
         try:
             changes[name] = fields[name](value)
         except ValueError:

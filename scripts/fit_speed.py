@@ -11,8 +11,13 @@ without. ``--true-masks`` also runs each setting with every fit reading only its
 dataset's seg maps (the probe's, the hand's): what a perfect segmentation would give the fits, an upper bound for
 diagnosis, never a model's number (a model reads no label).
 
+The hand's fit starts from the model's training hands where its config has them (``hand:templates=false``: the
+network's joints). ``--training-hands`` gives a checkpoint trained before they were recorded the hands its training
+would have recorded: those of DATASET's train split (:func:`hupbench.fits.hand_fit.training_hands`; the model's own
+training data, labels a model file may carry; a diagnosis of that checkpoint, not its row).
+
 Usage: python scripts/fit_speed.py CHECKPOINT DATASET [--split val] [--frames 240] [--depth-sensor dataset]
-       [--variant SPEC ...] [--true-masks]
+       [--variant SPEC ...] [--true-masks] [--training-hands]
 """
 
 from __future__ import annotations
@@ -42,13 +47,18 @@ def _variant(text: str) -> dict[str, dict]:
     return out
 
 
+def _shown(value) -> str:
+    """A variant's value as its command line writes it (true / false, or a number)."""
+    return str(value).lower() if isinstance(value, bool) else format(value, "g")
+
+
 def main() -> None:
     from hupbench.core import keypoints as kp
-    from hupbench.core.contract import SEGMENT_CLASSES
+    from hupbench.core.contract import SEGMENT_CLASSES, read_annotations
     from hupbench.data.reader import DEPTH_SENSORS
     from hupbench.evaluation.prediction import EvalModel, evenly_spaced, predict_split, split_reader
     from hupbench.fits import fits
-    from hupbench.fits.hand_fit import fit_hand
+    from hupbench.fits.hand_fit import fit_hand, training_hands
     from hupbench.fits.known_probe import default_fit_probe
     from hupbench.fits.probe_fit import fit_probe
 
@@ -63,12 +73,20 @@ def main() -> None:
                         help="the depth the model reads (hupbench eval's --depth-sensor)")
     parser.add_argument("--true-masks", action="store_true",
                         help="also run each setting on the dataset's seg maps (module docstring)")
+    parser.add_argument("--training-hands", action="store_true",
+                        help="a checkpoint without training hands: take them from DATASET's train split")
     args = parser.parse_args()
     net = EvalModel(Path(args.model))
     asked = fits(net.model_config)
+    templates = net.model_config.get("hand_templates")   # the hand fit's starts, where the model has them
     if not asked:
         parser.error(f"{args.model} runs no fit after its network (model.probe_fit / model.hand_fit)")
     reader = split_reader(Path(args.dataset), args.split, net, args.depth_sensor)
+    if args.training_hands:
+        if templates is not None:
+            parser.error(f"{args.model} has its own training hands: --training-hands is for a checkpoint without")
+        train = read_annotations(Path(args.dataset), "train", ("keypoints_3d_cam", "grasp_id"), reader.manifest)
+        templates = training_hands(train["keypoints_3d_cam"], train["grasp_id"])
     rows = evenly_spaced(len(reader), args.frames)
     p = predict_split(net, reader, 32, rows, with_fits=False, keep_images=True)
     images = np.concatenate(p.images)
@@ -109,10 +127,10 @@ def main() -> None:
             if "hand" in asked:
                 start = time.perf_counter()
                 points2d, points3d, _ = fit_hand(points2d, points3d, frame, net.K_input, hand, net.fit_probe,
-                                                 pixels=own["hand"])
+                                                 pixels=own["hand"], templates=templates)
                 spent["hand"] += time.perf_counter() - start
             out3d[i] = points3d[0]
-        name = "; ".join(f"{kind} {', '.join(f'{k}={v:g}' for k, v in c.items())}" for kind, c in changes.items()
+        name = "; ".join(f"{kind} {', '.join(f'{k}={_shown(v)}' for k, v in c.items())}" for kind, c in changes.items()
                          if c) or "the model's settings"
         name += f" ({mask_name})"
         times = ", ".join(f"{kind} fit {1000.0 * spent[kind] / len(rows):5.1f}" for kind in asked)

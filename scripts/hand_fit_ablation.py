@@ -54,7 +54,8 @@ def main() -> None:
             if name == "fit from the truth":
                 points3d = points3d.copy()
                 points3d[:, kp.HAND_SLICE] = labels[start:start + len(images), kp.HAND_SLICE]
-            out.append(fit_hand(points2d, points3d, images, K, settings)[1][:, kp.HAND_SLICE])
+            out.append(fit_hand(points2d, points3d, images, K, settings, net.fit_probe,
+                                templates=net.model_config.get("hand_templates"))[1][:, kp.HAND_SLICE])
         seconds[name] = time.perf_counter() - began
         hands[name] = np.concatenate(out)
     gt = labels[:, kp.HAND_SLICE]

@@ -110,7 +110,8 @@ def main() -> None:
         start = report.pose
         for name, steps in (("hand, 8 steps", 8), ("hand, 2 steps", 2)):
             begun = time.perf_counter()
-            fit_hand(p2, p3, images[i:i + 1], K, H(iterations=steps), net.fit_probe, own["hand"][i:i + 1])
+            fit_hand(p2, p3, images[i:i + 1], K, H(iterations=steps), net.fit_probe, own["hand"][i:i + 1],
+                     net.model_config.get("hand_templates"))
             times[name].append(time.perf_counter() - begun)
     for name, seconds in times.items():
         print(f"{name:32s} median {1e3 * statistics.median(seconds):6.2f} ms, mean {1e3 * np.mean(seconds):6.2f} ms")

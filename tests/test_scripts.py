@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 import torch
 
@@ -74,8 +75,6 @@ def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, caps
 def test_probe_fit_ablation_parts_the_centre_and_the_long_axis_from_the_turn_about_it():
     """Boxes turned about their centre by a half turn or 40 degrees about the long axis keep the centre and the axis;
     one tipped 30 degrees about x does not keep the axis; one moved 4 mm does not keep the centre."""
-    import numpy as np
-
     from hupbench.core.geometry import axis_angle_to_matrix
     from hupbench.fits.known_probe import default_fit_probe
 
@@ -120,13 +119,32 @@ def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
     assert "'nope=1': expected NAME=NUMBER" in capsys.readouterr().err
     from hupbench.fits import hand_fit
 
-    steps, fit = [], hand_fit.fit_hand
-    monkeypatch.setattr(hand_fit, "fit_hand", lambda *args, **kw: steps.append(args[4].iterations) or fit(*args, **kw))
+    steps, starts, fit = [], [], hand_fit.fit_hand
+
+    def counted(*args, **kw):
+        steps.append(args[4].iterations)
+        starts.append((args[4].templates, kw["templates"] is not None))
+        return fit(*args, **kw)
+
+    monkeypatch.setattr(hand_fit, "fit_hand", counted)
+    hands = np.zeros((2, 21, 3)) + [0.0, 0.0, 0.5]
     own = make_checkpoint(tmp_path / "own.pt", tiny_dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
-                          fit_settings={"hand": {"iterations": 3}})
-    run_script(SCRIPTS / "fit_speed.py", own, tiny_dataset, "--frames", "2", "--variant", "hand:bone_prior_m=0.02",
-               "--variant", "hand:iterations=8", monkeypatch=monkeypatch, capsys=capsys)
-    assert steps == [3, 3, 3, 3, 8, 8]   # 2 frames each: the model's 3 steps, kept by a variant of another field
+                          fit_settings={"hand": {"iterations": 3}}, hand_templates=hands.tolist())
+    out = run_script(SCRIPTS / "fit_speed.py", own, tiny_dataset, "--frames", "2", "--variant", "hand:bone_prior_m=0.02",
+                     "--variant", "hand:iterations=8", "--variant", "hand:templates=false", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    assert steps == [3, 3, 3, 3, 8, 8, 3, 3]   # 2 frames each: the model's 3 steps, kept by a variant of another field
+    # the model's training hands go to the fit, used unless the variant turns them off
+    assert starts == [(True, True)] * 6 + [(False, True)] * 2 and "hand templates=false (no masks)" in out
+    # a checkpoint from before them takes its dataset's training hands where asked; one with its own refuses
+    starts.clear()
+    run_script(SCRIPTS / "fit_speed.py", ckpt, tiny_dataset, "--frames", "2", "--training-hands",
+               monkeypatch=monkeypatch, capsys=capsys)
+    assert starts == [(True, True)] * 2
+    with pytest.raises(SystemExit):
+        run_script(SCRIPTS / "fit_speed.py", own, tiny_dataset, "--training-hands", monkeypatch=monkeypatch,
+                   capsys=capsys)
+    assert "has its own training hands" in capsys.readouterr().err
 
 
 def test_the_fit_ablations_refuse_an_rgb_checkpoint(exported, tiny_dataset, monkeypatch, capsys):
@@ -381,7 +399,8 @@ def test_fit_divergence(exported, tiny_dataset, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         run_script(SCRIPTS / "fit_divergence.py", ckpt, tiny_dataset, "--hand-variant", "palm=2",
                    monkeypatch=monkeypatch, capsys=capsys)
-    assert "'palm=2': expected NAME=NUMBER, NAME one of HandFitSettings' palm_radius_m" in capsys.readouterr().err
+    expected = "'palm=2': expected NAME=NUMBER (or true / false), NAME one of HandFitSettings' palm_radius_m"
+    assert expected in capsys.readouterr().err
 
 
 def test_benchmark_grasps(monkeypatch, capsys):

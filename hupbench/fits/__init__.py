@@ -141,5 +141,6 @@ def _run(model_config: dict, points2d: np.ndarray, points3d: np.ndarray, images:
     if "hand" in asked:
         from hupbench.fits.hand_fit import fit_hand
 
-        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted, pixels=_own("hand"))
+        points2d, points3d, _ = fit_hand(points2d, points3d, images, K_input, hand, fitted, pixels=_own("hand"),
+                                         templates=model_config.get("hand_templates"))
     return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64), probe_pose

@@ -11,6 +11,11 @@ SO(3)'s right Jacobian (Sola, Deray and Atchuthan, "A micro Lie theory for state
 arXiv:1812.01537, 2018, eq. 143), chained along each finger. Numpy only: ``hupbench predict`` runs it without torch.
 
 How, per frame, in the camera of the model input (``K_input``), with :class:`HandFitSettings` ``s``:
+    0. The start: given the model's training hands (``s.templates``, :func:`training_hands`: one per training grasp,
+       recorded in the model file), the one nearest the network's 21 joints once turned and moved onto them
+       (Kabsch, :func:`hupbench.core.geometry.fit_rigid_pose`; the nearest by the mean distance of its joints), so
+       that the fit starts from a whole hand of the right proportions in a grasp's shape where the network's fingers
+       are off; else the network's joints. Below, "the network's" hand is this start.
     1. The hand: a capsule along each finger bone (the generator's radii, :mod:`hupbench.datagen.assets.hand_anatomy`; a
        fingertip keypoint sits on the surface, so the last capsule stops one radius short of it) and the palm as
        capsules from the wrist to each finger's base (``s.palm_radius_m``) and across the knuckles
@@ -38,7 +43,7 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Han
        fitted wrist was 8.6 mm off where the network's was 5.2).
     4. With fewer than ``s.min_points`` measured points (no depth, the hand hidden, too few to fix a rigid
        motion), or a step whose equations could not be solved, or a fit that is not finite, the hand stays where
-       the network put it.
+       the network put it (its own joints, not the start).
 
 The keypoints out are the fitted hand's joints; their 2D points are their projection with ``K_input``. The probe's
 corners are not touched (:mod:`hupbench.fits.probe_fit` runs first where a model asks for both).
@@ -60,7 +65,7 @@ from hupbench.fits.depth_points import (MIN_PROJECTION_Z_M, input_points2d, samp
 from hupbench.fits.known_probe import FitProbe, default_fit_probe
 from hupbench.fits.settings import HandFitSettings
 
-__all__ = ["HandFit", "HandFitSettings", "fit_hand", "pose_and_jacobian"]
+__all__ = ["MAX_TEMPLATES", "HandFit", "HandFitSettings", "fit_hand", "pose_and_jacobian", "training_hands"]
 
 #: the parameters: rigid motion (6), the 15 finger bones' turns (3 each), then their lengths (1 each)
 _TURNS = slice(6, 6 + 15 * 3)
@@ -68,6 +73,30 @@ _LENGTHS = slice(_TURNS.stop, _TURNS.stop + 15)
 N_PARAMS = _LENGTHS.stop
 #: the normal equations' diagonal, (row, column) index
 _DIAGONAL = np.arange(N_PARAMS)
+#: the most training hands a model file carries (:func:`training_hands`)
+MAX_TEMPLATES = 64
+
+
+def training_hands(keypoints3d: np.ndarray, grasp_ids: np.ndarray) -> np.ndarray:
+    """(T, 21, 3) float64 metres: the hands a model's hand fit may start from (module docstring, step 0): the 21 hand
+    joints of the first frame of each grasp of a training split (a grasp's hand has one shape in all its views, up
+    to the rigid motion the fit's start takes out), of at most :data:`MAX_TEMPLATES` grasps evenly spaced in the
+    order of their ids. ``keypoints3d``: (N, 29, 3) the split's camera-frame keypoints; ``grasp_ids``: (N,)."""
+    ids, first = np.unique(np.asarray(grasp_ids), return_index=True)
+    keep = first[np.unique(np.linspace(0, len(ids) - 1, min(len(ids), MAX_TEMPLATES)).round().astype(np.int64))]
+    return np.asarray(keypoints3d, dtype=np.float64)[keep][:, kp.HAND_SLICE]
+
+
+def _template_start(hand: np.ndarray, templates: np.ndarray) -> np.ndarray:
+    """(B, 21, 3): for each of the network's hands (B, 21, 3), the template (T, 21, 3) turned and moved onto it
+    (Kabsch) whose joints lie nearest it on average (module docstring, step 0)."""
+    B, T = len(hand), len(templates)
+    target = np.repeat(hand, T, axis=0)                                          # (B * T, 21, 3)
+    source = np.tile(templates, (B, 1, 1))
+    pose = fit_rigid_pose(source, target)
+    placed = (source @ pose[:, :3, :3].transpose(0, 2, 1) + pose[:, None, :3, 3]).reshape(B, T, -1, 3)
+    nearest = np.linalg.norm(placed - hand[:, None], axis=-1).mean(-1).argmin(axis=1)
+    return placed[np.arange(B), nearest]
 
 
 @dataclass(frozen=True)
@@ -349,7 +378,8 @@ def _measured_points(depth: np.ndarray, K: np.ndarray, hand: np.ndarray, probe_p
 @one_blas_thread()
 def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
              settings: HandFitSettings = HandFitSettings(), probe: FitProbe | None = None,
-             pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, HandFit]:
+             pixels: np.ndarray | None = None, templates: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, HandFit]:
     """The hand joints of a model's output refined against its depth input (module docstring).
 
     Args:
@@ -361,6 +391,9 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         probe: the probe whose surface is left out (None: the default procedural probe).
         pixels: (B, S, S) bool, the pixels that may be the hand's (a segmentation's, :func:`hupbench.fits.
             after_network`); a measured point elsewhere (the probe, the patient's skin) is left out. None: any pixel.
+        templates: (T, 21, 3) float, metres, the model's training hands (:func:`training_hands`, a model config's
+            ``hand_templates``): with ``settings.templates`` the fit starts from the nearest (step 0). None: the
+            network's joints.
 
     Returns:
         (points2d (B, 29, 2), points3d (B, 29, 3)) float64 with the 21 hand joints replaced, and :class:`HandFit`.
@@ -371,7 +404,9 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
     caps = _capsules(s.palm_radius_m, s.knuckle_radius_m)
     K = np.asarray(K_input, dtype=np.float64)
     depth = np.asarray(images[:, 3], dtype=np.float64)
-    hand = np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64)
+    network = np.asarray(points3d[:, kp.HAND_SLICE], dtype=np.float64)
+    use_templates = s.templates and templates is not None and len(templates) and len(network)
+    hand = _template_start(network, np.asarray(templates, dtype=np.float64)) if use_templates else network
     probe_pose = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
     points, real = _measured_points(depth, K, hand, probe_pose, s, caps, probe, pixels)
     B = len(images)
@@ -392,7 +427,7 @@ def fit_hand(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_i
         theta[rows], solved[rows] = fitting, ok_rows
     fitted = pose_and_jacobian(theta, hand)[0]
     use = (count >= s.min_points) & solved & np.isfinite(fitted).all(axis=(1, 2))
-    fitted = np.where(use[:, None, None], fitted, hand)
+    fitted = np.where(use[:, None, None], fitted, network)
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[:, kp.HAND_SLICE] = fitted
     out2d[:, kp.HAND_SLICE] = np.where(use[:, None, None], input_points2d(fitted, K_input, images.shape[-1]),

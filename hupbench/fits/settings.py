@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from hupbench.core.errors import BadValueError
-from hupbench.core.input_checks import check_int, check_number, is_number
+from hupbench.core.input_checks import check_bool, check_int, check_number, is_number
 
 __all__ = ["HandFitSettings", "ProbeFitSettings", "check_fit_settings", "model_fit_settings"]
 
@@ -120,6 +120,11 @@ class HandFitSettings:
             1: never, the network's lengths kept).
         wrist_weight: the network's wrist holds the fitted wrist: the residual of their distance (metres) times this.
         damping: added to the normal equations' diagonal, so that a frame with few points stays solvable.
+        templates: the fit starts from the training hand nearest the network's (the model's ``hand_templates``,
+            one per training grasp, each turned and moved onto the network's 21 joints; the nearest by their mean
+            distance), its bones' turns and lengths the priors, in place of the network's own joints; False, or a
+            model without templates (every model file before them): the network's. Chosen on the val splits of three
+            tracks (docs/results.md, "The hand fit started from a training hand").
     """
 
     palm_radius_m: float = 0.011
@@ -140,6 +145,7 @@ class HandFitSettings:
     length_from: float = 0.5
     wrist_weight: float = 3.0
     damping: float = 1e-6
+    templates: bool = True
 
 
 #: a model config's ``fit_settings`` part -> the settings it changes
@@ -150,7 +156,7 @@ def check_fit_settings(value: Any, asked: tuple[str, ...], name: str = "model.fi
     """A model config's ``fit_settings``, checked where the config enters: None, or a mapping from a fit the model
     asks for (``asked``: "probe", "hand") to the fields of its settings (:class:`ProbeFitSettings`,
     :class:`HandFitSettings`) the model changes, each a number of its default's kind (a whole number where the
-    default is one), >= 0, or two for ``trim_m``.
+    default is one), >= 0, or two for ``trim_m``, or true / false where the default is a bool.
 
     Returns:
         the plain form a model's saved config holds: {part: {field: value}}, parts and fields sorted, pairs as
@@ -183,6 +189,8 @@ def check_fit_settings(value: Any, asked: tuple[str, ...], name: str = "model.fi
 
 def _checked(value: Any, default: Any, name: str) -> Any:
     """One field's value, of its default's kind."""
+    if isinstance(default, bool):
+        return check_bool(value, name)
     if isinstance(default, tuple):
         pair = list(value) if isinstance(value, Sequence) and not isinstance(value, str) else []
         if len(pair) != len(default) or not all(is_number(v) and v >= 0 for v in pair):

@@ -39,7 +39,8 @@ import numpy as np
 
 from hupbench.core.depth_sensor import NONE, PRESETS
 from hupbench.core.errors import BadValueError
-from hupbench.core.input_checks import check_int, is_whole
+from hupbench.core import keypoints as kp
+from hupbench.core.input_checks import check_finite_points, check_int, is_whole
 from hupbench.fits.known_probe import FitProbe
 from hupbench.fits.settings import model_fit_settings
 from hupbench.inference.image_statistics import ImageStatistics
@@ -180,6 +181,8 @@ def read_metadata(props: dict[str, str], source: str = "model") -> dict[str, Any
     probe = None if probe is None else FitProbe.from_json(probe, f"{source}: metadata hupbench.fit_probe")
     try:
         fit_settings = model_fit_settings(model_config)
+        if model_config.get("hand_templates") is not None:
+            check_finite_points(model_config["hand_templates"], ("T", kp.NUM_HAND, 3), "hand_templates")
     except BadValueError as error:
         raise BadValueError(f"{source}: metadata hupbench.model_config: {error}") from None
     return {"depth_sensor": sensor, "fit_probe": probe, "fit_settings": fit_settings, "input_size": input_size,

@@ -27,10 +27,11 @@ from omegaconf import DictConfig
 from hupbench.checkpoint import Checkpoint
 from hupbench.core import keypoints as kp
 from hupbench.core.camera import resize_intrinsics
-from hupbench.core.contract import MANIFEST
+from hupbench.core.contract import MANIFEST, read_annotations
 from hupbench.core.errors import BadValueError, RunFailedError
 from hupbench.core.io import OutputLock, clean_stale_tmp, file_sha256, write_json, writing
 from hupbench.data import Placement, TrainData, model_images, read_manifest, setup_data
+from hupbench.fits.hand_fit import training_hands
 from hupbench.input_geometry import INPUT_MODALITIES
 from hupbench.models.build import build_model, load_checkpoint_state
 from hupbench.provenance import hardware_description, run_info
@@ -399,15 +400,21 @@ def build_run_model(run: TrainRun, data: TrainData, K_input: np.ndarray,
             raise BadValueError(f"checkpoint {resumed.path} holds a {name!r} model, this run builds {config.name!r}")
         mean = resumed.model_config.get("points3d_mean")
         extents = resumed.model_config.get("probe_half_extents")
+        hands = resumed.model_config.get("hand_templates")
     else:
         # the prior: the training split's mean camera-frame layout, (29, 3) metres
         mean = data.train_set.ann["keypoints_3d_cam"].astype(np.float64).mean(axis=0).tolist()
         extents = None  # the box of a model that poses the probe rigidly (hupbench.models.heatmap, probe_head)
         if getattr(config, "probe_head", None) == "rigid":
             extents = probe_half_extents(data.train_set.ann["keypoints_3d_cam"][:, kp.CORNER_SLICE]).tolist()
+        hands = None  # a model that fits the hand: one training hand per grasp, its fit's starts
+        if config.hand_fit == "depth":
+            train = data.train_set.dataset
+            grasps = read_annotations(train.root, "train", ("grasp_id",), train.manifest)["grasp_id"]
+            hands = training_hands(data.train_set.ann["keypoints_3d_cam"], grasps).tolist()
     camera = {"K_input": K_input.tolist(), "input_size": run.data.reader.input_size, "probe_half_extents": extents}
     channels = INPUT_MODALITIES[run.data.reader.input_modalities]
-    config = replace(config, points3d_mean=mean, input_channels=channels,
+    config = replace(config, points3d_mean=mean, input_channels=channels, hand_templates=hands,
                      **{k: v for k, v in camera.items() if hasattr(config, k) and getattr(config, k) is None})
     torch.manual_seed(run.seed)  # the initial weights are a function of the seed
     try:

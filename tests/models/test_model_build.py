@@ -113,3 +113,19 @@ def test_the_fits_are_checked_where_the_model_is_built(key, part):
         build_model({"name": "hopenet", "backbone": "resnet10", key: "depth"})
     built = build_model({"name": "hopenet", "backbone": "resnet10", key: "depth", "input_channels": 4})
     assert built.config.saved()[key] == "depth"
+
+
+@pytest.mark.parametrize("hands,message", [
+    ([[[0.0, 0.0, 0.5]] * 21] * 2, None),
+    ([[[0.0, 0.0, 0.5]] * 20], r"hand_templates must be \(T, 21, 3\), got \(1, 20, 3\)"),
+    ([[[0.0, 0.0, float("nan")]] * 21], "hand_templates must hold finite numbers"),
+])
+def test_hand_templates_are_a_finite_set_of_hands_saved_as_lists(hands, message):
+    """A fitting model's training hands (the hand fit's starts, set by training) are checked where the config is
+    built; a config without them (every model file before) has None."""
+    if message is not None:
+        with pytest.raises(ValueError, match=message):
+            HUPNetConfig(hand_templates=hands)
+        return
+    config = HUPNetConfig(hand_templates=hands)
+    assert config.saved()["hand_templates"] == hands and HUPNetConfig().hand_templates is None

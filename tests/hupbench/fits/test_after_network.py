@@ -87,16 +87,18 @@ def test_after_network_passes_each_fit_its_settings(monkeypatch):
     monkeypatch.setattr(hand_fit, "fit_hand", stand_in("hand"))
     probe, hand = ProbeFitSettings(min_inliers=5), HandFitSettings(iterations=3)
     points2d, points3d = np.zeros((1, kp.NUM_KEYPOINTS, 2), np.float32), np.zeros((1, kp.NUM_KEYPOINTS, 3))
-    out2d, out3d = after_network({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d,
-                                 np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe, hand, fitted="the file's")
-    assert seen == [("probe", probe, "the file's", None), ("hand", hand, "the file's")]
+    # the hand's fit gets the model's training hands (its start), where the model file has them
+    config = {"probe_fit": "depth", "hand_fit": "depth", "hand_templates": "the file's hands"}
+    out2d, out3d = after_network(config, points2d, points3d, np.zeros((1, 4, 8, 8), np.float32), np.eye(3), probe,
+                                 hand, fitted="the file's")
+    assert seen == [("probe", probe, "the file's", None), ("hand", hand, "the file's", "the file's hands")]
     assert out2d.dtype == out3d.dtype == np.float64 and (out3d == 2.0).all()
     # tracking: the probe's fit gets the start, the hand's its tracking steps
     seen.clear()
     track_fits({"probe_fit": "depth", "hand_fit": "depth"}, points2d, points3d, np.zeros((1, 4, 8, 8), np.float32),
                np.eye(3), "the start", probe, hand, fitted="the file's")
     assert seen == [("probe", probe, "the file's", "the start"),
-                    ("hand", replace(hand, iterations=hand.tracking_iterations), "the file's")]
+                    ("hand", replace(hand, iterations=hand.tracking_iterations), "the file's", None)]
     assert hand.iterations != hand.tracking_iterations
 
 
@@ -142,6 +144,7 @@ def test_a_model_s_own_fit_settings_run_unless_a_caller_passes_others(monkeypatc
     ({"hand": {"bone_prior_m": -0.1}}, "model.fit_settings.hand.bone_prior_m must be a finite number >= 0, got -0.1"),
     ({"hand": {"trim_m": [0.01]}}, "model.fit_settings.hand.trim_m must be 2 finite numbers >= 0, got [0.01]"),
     ({"hand": {"bone_prior_m": float("nan")}}, "model.fit_settings.hand.bone_prior_m must be a finite number >= 0"),
+    ({"hand": {"templates": 1}}, "model.fit_settings.hand.templates must be true or false, got 1"),
     ("16", "model.fit_settings must map a fit the model runs (hand) to the settings it changes, got '16'")])
 def test_a_model_config_s_fit_settings_are_checked_where_the_config_is_built(settings, message, tmp_path):
     """A training config's, when it is built (the run folder is not made), and a saved config's, when the fits read

@@ -146,7 +146,9 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
 
     fits = {f"{part}_fit": "depth" for part in asked}
     own = {asked[-1]: {"iterations": 5}}
-    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, fit_settings=own, **fits)
+    hands = np.arange(2 * 21 * 3, dtype=np.float64).reshape(2, 21, 3) / 1000.0 if "hand" in asked else None
+    ckpt = make_checkpoint(tmp_path / "fit.pt", tiny_dataset, input_channels=4, fit_settings=own,
+                           hand_templates=None if hands is None else hands.tolist(), **fits)
     onnx_path = Path(E.run_export(E.ExportOptions(ckpt, tmp_path / "fit.onnx", parity_frames=2),
                                   log=lambda *_: None)["onnx"])
     props = {p.key: p.value for p in onnx.load(str(onnx_path)).metadata_props}
@@ -154,12 +156,14 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     assert {key: saved[key] for key in ("probe_fit", "hand_fit")} == {
         key: fits.get(key, "none") for key in ("probe_fit", "hand_fit")}
     assert saved["fit_settings"] == own
-    calls, steps = [], []
+    calls, steps, starts = [], [], []
 
     def stand_in(part, where, by):
-        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None, templates=None):
             calls.append((part, images.shape, float(np.asarray(points3d)[0, kp.CORNER_SLICE].mean())))
             steps.append((part, settings.iterations))
+            if part == "hand":
+                starts.append(np.asarray(templates))
             moved = np.array(points3d, dtype=np.float64)
             moved[:, where] += by
             return np.array(points2d, dtype=np.float64), moved, SimpleNamespace(pose=None)
@@ -185,6 +189,8 @@ def test_a_model_that_fits_is_fitted_by_eval_and_predict_alike(tiny_dataset, tmp
     if asked == ("probe", "hand"):  # the hand's fit sees the probe the probe's fit left
         assert np.isclose(calls[1][2], calls[0][2] + 0.01, atol=1e-6)
     assert {iterations for part, iterations in steps if part == asked[-1]} == {5}   # predict's and eval's alike
+    # the hand fit's training hands travel in both formats too, and predict and eval hand them to it
+    assert all(np.array_equal(got, hands) for got in starts) and (len(starts) > 0) == ("hand" in asked)
 
 
 def test_the_model_file_names_its_training_depth_and_predict_warns_of_a_z_buffer(rgbd_model, tiny_dataset, tmp_path):

@@ -46,6 +46,10 @@ def test_metadata_round_trips():
     ({"hupbench.input_modalities": "rgb+depth"}, ("reads depth needs metadata hupbench.depth_input", "metres")),
     ({"hupbench.model_config": json.dumps({"name": "hopenet", "input_channels": 4})},
      ("input_channels 4", "hupbench.input_modalities is 'rgb'")),
+    ({"hupbench.model_config": json.dumps({"name": "hopenet", "hand_templates": [[[0.0, 0.0, 0.5]] * 20]})},
+     ("metadata hupbench.model_config", "hand_templates must be (T, 21, 3), got (1, 20, 3)")),
+    ({"hupbench.model_config": json.dumps({"name": "hopenet", "hand_templates": [[[0.0, 0.0, "x"]] * 21]})},
+     ("metadata hupbench.model_config", "hand_templates must be an array of numbers")),
 ])
 def test_metadata_errors_name_the_key(changes, needles):
     with pytest.raises(ValueError) as info:

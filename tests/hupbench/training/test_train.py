@@ -495,3 +495,26 @@ def test_precision_auto_is_printed_and_recorded(tiny_dataset, tmp_path, monkeypa
     assert json.loads((run_dir / "run.json").read_text())["precision"] == "fp32"
     assert any("on cpu in fp32 (precision=auto)" in line for line in lines), lines
 
+
+
+def test_a_model_that_fits_the_hand_records_one_training_hand_per_grasp(tiny_dataset, tmp_path):
+    """hand_fit: depth: the checkpoint's config holds the training split's hands, the first frame of each grasp
+    (the hand fit's starts, hupbench.fits.hand_fit.training_hands); a model without the hand's fit holds none."""
+    import numpy as np
+
+    from hupbench.core.contract import read_annotations
+    from hupbench.data import read_manifest
+    from hupbench.fits.hand_fit import training_hands
+
+    run_dir = tmp_path / "fit"
+    run_train(tiny_cfg(tiny_dataset, run_dir, "+model.hand_fit=depth", "data.reader.input_modalities=rgb+depth",
+                       "train.max_steps=1", "train.val_every=1", "train.ckpt_every=1"), log=lambda *_: None)
+    saved = load_model(run_dir / "checkpoints" / "last.pt")[1]["model_config"]["hand_templates"]
+    ann = read_annotations(tiny_dataset, "train", ("keypoints_3d_cam", "grasp_id"),
+                           read_manifest(tiny_dataset, "train"))
+    expected = training_hands(ann["keypoints_3d_cam"], ann["grasp_id"])
+    assert len(np.unique(ann["grasp_id"])) == len(expected) >= 1
+    np.testing.assert_allclose(saved, expected, atol=1e-6)
+    plain = tiny_cfg(tiny_dataset, tmp_path / "plain", "train.max_steps=1", "train.val_every=1", "train.ckpt_every=1")
+    run_train(plain, log=lambda *_: None)
+    assert load_model(tmp_path / "plain" / "checkpoints" / "last.pt")[1]["model_config"]["hand_templates"] is None
