@@ -87,7 +87,7 @@ def test_the_exported_segmentation_matches_pytorch_and_reaches_the_fits(segmenti
     seen = []
 
     def stand_in(part):
-        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None):
+        def fit(points2d, points3d, images, K_input, settings, probe, pixels=None, start=None, templates=None):
             seen.append((part, pixels))
             return np.asarray(points2d, np.float64), np.asarray(points3d, np.float64), SimpleNamespace(pose=None)
         return fit
