@@ -34,11 +34,16 @@ def make_checkpoint(path, dataset, **model_cfg):
 def fitting_onnx(folder, dataset):
     """An exported untrained model with both fits (probe_fit, hand_fit: depth) that recalls the first test frame's
     truth (points3d_scale 1e-3: the untrained network adds a fraction of a millimetre), so that both fits find their
-    points there; the ONNX file's path."""
+    points there, and its training split's hands (the hand fit's starts, as training records them); the ONNX file's
+    path."""
+    from hupbench.fits.hand_fit import training_hands
+
     with np.load(dataset / "test" / "annotations.npz") as ann:
         truth = ann["keypoints_3d_cam"][0]
+    with np.load(dataset / "train" / "annotations.npz") as ann:
+        hands = training_hands(ann["keypoints_3d_cam"], ann["grasp_id"])
     ckpt = make_checkpoint(folder / "fit.pt", dataset, input_channels=4, probe_fit="depth", hand_fit="depth",
-                           points3d_mean=truth.tolist(), points3d_scale=1e-3)
+                           points3d_mean=truth.tolist(), points3d_scale=1e-3, hand_templates=hands.tolist())
     return Path(E.run_export(E.ExportOptions(ckpt, folder / "fit.onnx", parity_frames=2), log=lambda *_: None)["onnx"])
 
 

@@ -247,6 +247,7 @@ def test_predict_of_a_fitting_model_fits_without_torch(tiny_dataset, tmp_path):
 
     onnx_path = fitting_onnx(tmp_path, tiny_dataset)   # it recalls the first frame's truth
     model = load_onnx_model(onnx_path)
+    assert len(model.model_config["hand_templates"]) >= 1   # the hand's fit starts from a training hand, torch-free
     assert model.fit_probe.record == default_fit_probe().record
     assert np.array_equal(model.fit_probe.grid, default_fit_probe().grid)
     images, depth_dir = frames(tiny_dataset, 3)
