@@ -156,7 +156,8 @@ def model_label(model_config: dict, input_size: int) -> str:
     (ResNet-18, 128 px)", "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, rigid probe)", "HUPNet (ResNet-18,
     128 px, RGB-D, depth-anchored, stride-4 heatmaps, probe fitted to depth)", "HUPNet (ResNet-18, 128 px, RGB-D,
     depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"; a fit whose settings the model
-    changes names them: "hand fitted to depth (iterations=16)"."""
+    changes names them: "hand fitted to depth (iterations=16)"; a hand fit started from the model's training hands
+    says how many: "hand fitted to depth (from 40 training hands, iterations=16)"."""
     name = MODEL_LABELS.get(model_config.get("name"), str(model_config.get("name")))
     backbone = model_config.get("backbone") or ""
     if backbone.startswith("resnet"):
@@ -178,8 +179,12 @@ def model_label(model_config: dict, input_size: int) -> str:
     if model_config.get("segmentation"):
         parts.append("segmentation")
     changed = model_config.get("fit_settings") or {}
-    parts += [f"{part} fitted to depth" + (" (" + ", ".join(f"{k}={v}" for k, v in changed[part].items()) + ")"
-                                           if changed.get(part) else "") for part in fits(model_config)]
+    for part in fits(model_config):
+        notes = [f"{k}={v}" for k, v in changed.get(part, {}).items()]
+        hands = model_config.get("hand_templates")
+        if part == "hand" and hands and changed.get("hand", {}).get("templates", True):
+            notes.insert(0, f"from {len(hands)} training hands")
+        parts.append(f"{part} fitted to depth" + (f" ({', '.join(notes)})" if notes else ""))
     return f"{name} ({', '.join(parts)})"
 
 

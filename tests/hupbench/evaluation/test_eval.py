@@ -524,6 +524,13 @@ def test_model_label_names_what_the_model_reads_and_its_heads():
     assert model_label({"name": "hupnet", "backbone": "resnet18", "input_channels": 4, "depth_anchor": True,
                         "segmentation": True, "probe_fit": "depth", "hand_fit": "depth"}, 128) == \
         "HUPNet (ResNet-18, 128 px, RGB-D, depth-anchored, segmentation, probe fitted to depth, hand fitted to depth)"
+    # a hand fit started from the model's training hands says so, unless its settings turn them off
+    hands = [[[0.0, 0.0, 0.5]] * 21] * 3
+    fitting = {"name": "hupnet", "backbone": "resnet10", "hand_fit": "depth", "hand_templates": hands}
+    assert model_label(fitting | {"fit_settings": {"hand": {"iterations": 24}}}, 128) == \
+        "HUPNet (ResNet-10, 128 px, hand fitted to depth (from 3 training hands, iterations=24))"
+    assert model_label(fitting | {"fit_settings": {"hand": {"templates": False}}}, 128) == \
+        "HUPNet (ResNet-10, 128 px, hand fitted to depth (templates=False))"
 
 
 def test_eval_without_out_writes_beside_the_model_not_the_leaderboard(exported, tiny_dataset, tmp_path, monkeypatch,
