@@ -36,7 +36,7 @@ from hupbench.evaluation.split_metrics import (
     split_intervals,
     split_metrics,
 )
-from hupbench.fits import check_fitted_probe, fits
+from hupbench.fits import check_fitted_probe, fits, model_fit_settings
 from hupbench.input_geometry import INPUT_MODALITIES
 from hupbench.provenance import check_run_name
 
@@ -182,7 +182,7 @@ def model_label(model_config: dict, input_size: int) -> str:
     for part in fits(model_config):
         notes = [f"{k}={v}" for k, v in changed.get(part, {}).items()]
         hands = model_config.get("hand_templates")
-        if part == "hand" and hands and changed.get("hand", {}).get("templates", True):
+        if part == "hand" and hands and model_fit_settings(model_config)[1].templates:
             notes.insert(0, f"from {len(hands)} training hands")
         parts.append(f"{part} fitted to depth" + (f" ({', '.join(notes)})" if notes else ""))
     return f"{name} ({', '.join(parts)})"
