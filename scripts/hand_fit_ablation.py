@@ -42,7 +42,9 @@ def main() -> None:
     rows, K = prediction.rows, net.K_input
     outputs = batches(prediction)
     own_probe, own_hand = net.fit_settings
-    probe_fitted = [fit_probe(points2d, points3d, images, K, own_probe)[:2] for images, points2d, points3d in outputs]
+    # the probe's fit as eval runs it: the model's settings and its own probe (the one its hand fit leaves out)
+    probe_fitted = [fit_probe(points2d, points3d, images, K, own_probe, net.fit_probe)[:2]
+                    for images, points2d, points3d in outputs]
     hands = {"network": np.concatenate([points3d[:, kp.HAND_SLICE] for _, points3d in probe_fitted])}
     labels, _, grasp = split_labels(args, reader, rows)
     starts = np.cumsum([0] + [len(images) for images, _, _ in outputs])
