@@ -545,3 +545,26 @@ def test_probe_half_turn_bound(tiny_dataset, tmp_path, monkeypatch, capsys):
                                     monkeypatch=monkeypatch, capsys=capsys).strip().splitlines()[-1])
     assert summary["shown"] == 0.0 and summary["nearer_true_site"] is None
     assert summary["bound_mm"] == pytest.approx(flip / 2.0, abs=0.011)
+
+
+@pytest.mark.parametrize("track", ["unseen_grasps", "clinic"])
+def test_cross_split_floor(track, tiny_dataset, tiny_clinic, monkeypatch, capsys):
+    """A dataset's test split against its own training grasps gives the floor its manifest records (the grasps' floor,
+    or the clinic's nearest training frame); its train split against itself 0; a clinic split against a sphere track's
+    training grasps is refused, naming both tracks."""
+    import json
+
+    dataset = tiny_dataset if track == "unseen_grasps" else tiny_clinic[0]
+    recorded = json.loads((dataset / "manifest.json").read_text())["split_floors"]["splits"]["test"]["floor_mm"]
+    out = run_script(SCRIPTS / "cross_split_floor.py", dataset, dataset, "--split", "test", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    kind = "nearest_train_grasp" if track == "unseen_grasps" else "nearest_train_frame"
+    assert f"\nfloor ({kind}): hand {recorded['hand']:.2f} probe {recorded['probe']:.2f} all {recorded['all']:.2f}\n" \
+        in out, out
+    out = run_script(SCRIPTS / "cross_split_floor.py", dataset, dataset, "--split", "train", monkeypatch=monkeypatch,
+                     capsys=capsys)
+    assert "): hand 0.00 probe 0.00 all 0.00\n" in out, out
+    if track == "clinic":
+        with pytest.raises(SystemExit):
+            run_script(SCRIPTS / "cross_split_floor.py", tiny_dataset, dataset, monkeypatch=monkeypatch, capsys=capsys)
+        assert "of the track 'clinic'" in capsys.readouterr().err
