@@ -21,8 +21,9 @@ import numpy as np
 
 
 def main() -> None:
-    from hupbench.datagen.dataset.floors import FIELDS, split_floors
     from hupbench.core.contract import CLINIC, read_annotations, read_manifest
+    from hupbench.core.errors import BadValueError
+    from hupbench.datagen.dataset.floors import FIELDS, split_floors
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("train_dataset", type=Path, help="the dataset whose train split the model was trained on")
@@ -36,12 +37,16 @@ def main() -> None:
                      "their grasps are seen from other cameras")
     train = read_annotations(args.train_dataset, "train", FIELDS, manifests["train"])
     evaluated = read_annotations(args.dataset, args.split, FIELDS, manifests["eval"])
-    if not len(evaluated["grasp_id"]):
-        parser.error(f"{args.dataset} has no {args.split} frames")
+    for path, split, ann in ((args.train_dataset, "train", train), (args.dataset, args.split, evaluated)):
+        if not len(ann["grasp_id"]):
+            parser.error(f"{path} has no {split} frames")
     # the evaluated grasps under ids no training grasp has (negative), named by their own ids below
     ids, index = np.unique(evaluated["grasp_id"], return_inverse=True)
     evaluated["grasp_id"] = -1 - index.astype(evaluated["grasp_id"].dtype)
-    floors = split_floors({"train": train, "evaluated": evaluated}, tracks["train"])["evaluated"]
+    try:
+        floors = split_floors({"train": train, "evaluated": evaluated}, tracks["train"])["evaluated"]
+    except BadValueError as error:   # a grasp seen in no view of the training grasps (another sphere)
+        parser.error(f"{args.dataset} against {args.train_dataset}: {error}")
     key = "floor_mm" if tracks["train"] == CLINIC else "nearest_train_grasp_mm"
 
     def triplet(mm: dict) -> str:
