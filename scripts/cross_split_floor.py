@@ -21,7 +21,7 @@ import numpy as np
 
 
 def main() -> None:
-    from hupbench.core.contract import CLINIC, read_annotations, read_manifest
+    from hupbench.core.contract import CLINIC, read_annotations, read_manifest, track_of
     from hupbench.core.errors import BadValueError
     from hupbench.datagen.dataset.floors import FIELDS, split_floors
 
@@ -31,7 +31,7 @@ def main() -> None:
     parser.add_argument("--split", default="val", choices=("train", "val", "test"))
     args = parser.parse_args()
     manifests = {name: read_manifest(path) for name, path in (("train", args.train_dataset), ("eval", args.dataset))}
-    tracks = {name: (m.get("protocol") or {}).get("track") for name, m in manifests.items()}
+    tracks = {name: track_of(m) for name, m in manifests.items()}
     if tracks["train"] != tracks["eval"]:
         parser.error(f"{args.dataset} is of the track {tracks['eval']!r}, {args.train_dataset} of {tracks['train']!r}: "
                      "their grasps are seen from other cameras")

@@ -179,9 +179,9 @@ def model_label(model_config: dict, input_size: int) -> str:
     if model_config.get("segmentation"):
         parts.append("segmentation")
     changed = model_config.get("fit_settings") or {}
+    hands = model_config.get("hand_templates")
     for part in fits(model_config):
         notes = [f"{k}={v}" for k, v in changed.get(part, {}).items()]
-        hands = model_config.get("hand_templates")
         if part == "hand" and hands and model_fit_settings(model_config)[1].templates:
             notes.insert(0, f"from {len(hands)} training hands")
         parts.append(f"{part} fitted to depth" + (f" ({', '.join(notes)})" if notes else ""))
