@@ -218,8 +218,8 @@ def _marker_pixels(probe: FitProbe, rgb: np.ndarray, pixels: np.ndarray, s: Prob
     (B, 3, S, S)), and the centre of those pixels (module docstring, step 4)."""
     coloured = (probe.marker_lead(rgb, axis=1) > s.marker_pixel_chroma) & pixels   # (B, S, S)
     count = coloured.sum(axis=(1, 2))
-    centre = np.stack([coloured.sum(axis=1) @ np.arange(rgb.shape[-1]), coloured.sum(axis=2) @ np.arange(rgb.shape[-2])],
-                      -1) / np.maximum(count, 1)[:, None]                        # (B, 2) u, v
+    centre = np.stack([coloured.sum(axis=1) @ np.arange(rgb.shape[-1]),
+                       coloured.sum(axis=2) @ np.arange(rgb.shape[-2])], -1) / np.maximum(count, 1)[:, None]   # u, v
     return count >= s.marker_pixels, centre
 
 
@@ -338,8 +338,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         absent_a, False, np.where(absent_b, True, np.where(hidden, facing_a <= facing_b, network_a)))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
         warm, 4, np.where(hidden, 7, 3)))))
-    # a kept frame whose probe pixels show no marker: a site facing the camera, seen as the probe's pixels without
-    # its colour, still reads the turn of the network's box (step 5)
+    # a kept frame without the marker among its probe pixels: a site seen without its colour reads the turn (step 5)
     sited = kept & ~found & (absent_a | absent_b) & (own is not None) & s.kept_sites
     decision = np.where(kept, np.where(found, 6, np.where(sited, 8, 0)), decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
