@@ -48,11 +48,7 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        box (its corners' Kabsch pose) turned about its long axis, in steps of ``s.marker_roll_deg``, to the roll
        whose marker site faces the camera and projects nearest those pixels' centre, then moved across the view (at
        the site's depth) until the site projects there ("kept, marker pixels"): the network's roll is its largest
-       error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it. Given a
-       segmentation whose probe pixels show no marker, such a frame takes the network's box in the turn step 4's
-       sites read, where one does (``s.kept_sites``): a site facing the camera, seen as the probe's pixels (without
-       depth, or with the site's), without the marker's colour, is not the marker's ("kept, no marker"; the fingers
-       often cover the other site).
+       error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it.
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
@@ -82,7 +78,7 @@ __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "fit_probe"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
 DECISIONS = ("kept", "marker", "no marker", "network", "previous", "marker pixels", "kept, marker pixels",
-             "marker hidden", "kept, no marker")
+             "marker hidden")
 
 
 @dataclass(frozen=True)
@@ -338,12 +334,10 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         absent_a, False, np.where(absent_b, True, np.where(hidden, facing_a <= facing_b, network_a)))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
         warm, 4, np.where(hidden, 7, 3)))))
-    # a kept frame without the marker among its probe pixels: a site seen without its colour reads the turn (step 5)
-    sited = kept & ~found & (absent_a | absent_b) & (own is not None) & s.kept_sites
-    decision = np.where(kept, np.where(found, 6, np.where(sited, 8, 0)), decision).astype(np.int64)
+    decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
     fitted = probe.corners @ rotation.transpose(0, 2, 1) + tA[:, None]
-    use = ~kept | found | sited   # a kept frame read: the network's box, in the turn the marker or a site reads
+    use = ~kept | found       # a kept frame whose marker shows: the network's box, in the turn the marker reads
     out3d, out2d = np.array(points3d, dtype=np.float64), np.array(points2d, dtype=np.float64)
     out3d[use, kp.CORNER_SLICE] = fitted[use]
     out2d[use, kp.CORNER_SLICE] = input_points2d(fitted[use], K_input, images.shape[-1])

@@ -57,9 +57,6 @@ class ProbeFitSettings:
         marker_hidden_margin: that turn is taken only where the two sites' facings (cosines) differ by more than
             this, and where at least marker_seen of the window of the site facing the camera has depth (chosen on
             the paper protocol's val split, docs/results.md).
-        kept_sites: given a segmentation, a frame kept whose probe pixels show no marker takes the network's box
-            in the turn its sites' windows read (a site facing the camera, seen as the probe's pixels, without the
-            marker's colour, is not the marker's), where one does; False: the network's corners stay there.
     """
 
     hypotheses: int = 12
@@ -84,7 +81,6 @@ class ProbeFitSettings:
     marker_roll_deg: float = 10.0
     marker_surface_m: float = 0.008
     marker_hidden_margin: float = 0.1
-    kept_sites: bool = True
 
     def __post_init__(self) -> None:
         assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)

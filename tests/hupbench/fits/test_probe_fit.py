@@ -331,28 +331,3 @@ def test_a_kept_frame_whose_marker_shows_takes_the_networks_box_in_the_roll_it_r
     _, kept3d, kept = F.fit_probe(points2d, points3d, image[None], K)
     assert F.DECISIONS[kept.decision[0]] == "kept"
     np.testing.assert_array_equal(kept3d, points3d)
-
-
-@pytest.mark.parametrize("network_turn", [0.0, np.pi, np.pi - 0.4])
-def test_a_kept_frame_without_the_marker_takes_the_turn_its_sites_read(network_turn):
-    """No depth at all (the probe kept), the marker on the side away from the camera: the site facing the camera
-    shows the probe's pixels without the marker's colour, so given those pixels the network's box is taken in the
-    turn whose site faces away, whichever turn the network gave (its roll otherwise kept: 0.4 rad off is 15 mm);
-    without the pixels, or with ``kept_sites`` off, the network's corners stay."""
-    R, t = MARKER_IN_VIEW
-    R = R @ turn_z(np.pi)                                          # the marker's side away from the camera
-    image = render(R, t, finger=False)
-    pixels = (image[3] > 0)[None]
-    image[3] = 0.0
-    points2d, points3d = network_output(R, t, network_turn)
-    _, out3d, report = F.fit_probe(points2d, points3d, image[None], K, pixels=pixels)
-    assert F.DECISIONS[report.decision[0]] == "kept, no marker" and np.isnan(report.pose).all()
-    read = network_turn + (np.pi if np.cos(network_turn) < 0 else 0.0)       # the network's box, half-turned if so
-    np.testing.assert_allclose(out3d[0, kp.CORNER_SLICE], corners(R @ turn_z(read), t), atol=1e-9)
-    assert error_mm(out3d[0], R, t) < 16.0 < 30 < error_mm(out3d[0], R @ turn_z(np.pi), t)
-    np.testing.assert_array_equal(out3d[0, :kp.NUM_HAND], points3d[0, :kp.NUM_HAND])
-    off = dataclasses.replace(F.ProbeFitSettings(), kept_sites=False)
-    for settings, given in ((off, pixels), (F.ProbeFitSettings(), None)):
-        _, kept3d, kept = F.fit_probe(points2d, points3d, image[None], K, settings, pixels=given)
-        assert F.DECISIONS[kept.decision[0]] == "kept"
-        np.testing.assert_array_equal(kept3d, points3d)
