@@ -41,7 +41,10 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        decides), the marker is on the side the camera does not see: the turn whose site faces away from the camera
        wins ("marker hidden") where the two sites' facings differ by more than ``s.marker_hidden_margin`` and
        at least ``s.marker_seen`` of the window of the site facing the camera has depth (else the network's turn:
-       a sensor without depth there may have missed the marker).
+       a sensor without depth there may have missed the marker). Given a segmentation and ``s.marker_under_hand``,
+       where neither site nor the marker's pixels decide (the site facing the camera hidden, most often by the
+       fingers), the marker is taken to be under the hand: the turn whose site faces the camera more wins ("marker
+       under hand").
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
        Given a segmentation whose probe pixels show the marker's colour (step 4), such a frame takes the network's
@@ -78,7 +81,7 @@ __all__ = ["DECISIONS", "ProbeFit", "ProbeFitSettings", "fit_probe"]
 
 #: how each frame's probe was decided (:attr:`ProbeFit.decision` indexes this)
 DECISIONS = ("kept", "marker", "no marker", "network", "previous", "marker pixels", "kept, marker pixels",
-             "marker hidden")
+             "marker hidden", "marker under hand")
 
 
 @dataclass(frozen=True)
@@ -275,9 +278,8 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     assert images.ndim == 4 and images.shape[1] == 4, images.shape
     assert points3d.shape == (len(images), kp.NUM_KEYPOINTS, 3), points3d.shape
     probe, s = probe or default_fit_probe(), settings
-    K = np.asarray(K_input, dtype=np.float64)
+    K, B = np.asarray(K_input, dtype=np.float64), len(images)
     rgb, depth = np.asarray(images[:, :3], np.float64), np.asarray(images[:, 3], np.float64)
-    B = len(images)
     network = fit_rigid_pose(probe.corners, np.asarray(points3d[:, kp.CORNER_SLICE], dtype=np.float64))
     R0, t0 = network[:, :3, :3], network[:, :3, 3]                                # the network's pose
     warm = np.zeros(B, bool) if start is None else np.isfinite(start).all(axis=(1, 2))
@@ -330,10 +332,12 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     marker = (np.maximum(lead_a, lead_b) > s.marker_chroma) & probe.has_marker
     absent_a = (facing_a > s.marker_facing) & (seen_a > s.marker_seen) & probe.has_marker
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
-    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
-        absent_a, False, np.where(absent_b, True, np.where(hidden, facing_a <= facing_b, network_a)))))
+    # given a segmentation, where neither site nor the marker's pixels decide: the marker under the hand, facing
+    under = ~warm & (own is not None and probe.has_marker and s.marker_under_hand)
+    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(absent_a, False, np.where(
+        absent_b, True, np.where(hidden, facing_a <= facing_b, np.where(under, facing_a >= facing_b, network_a))))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
-        warm, 4, np.where(hidden, 7, 3)))))
+        warm, 4, np.where(hidden, 7, np.where(under, 8, 3))))))
     decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
     fitted = probe.corners @ rotation.transpose(0, 2, 1) + tA[:, None]

@@ -57,6 +57,9 @@ class ProbeFitSettings:
         marker_hidden_margin: that turn is taken only where the two sites' facings (cosines) differ by more than
             this, and where at least marker_seen of the window of the site facing the camera has depth (chosen on
             the paper protocol's val split, docs/results.md).
+        marker_under_hand: given a segmentation, where neither site's window nor the marker's pixels decide the half
+            turn, the turn whose site faces the camera more is taken (the marker hidden under the fingers) in place
+            of the network's (chosen on the clinic track's val split, docs/clinic.md).
     """
 
     hypotheses: int = 12
@@ -81,6 +84,7 @@ class ProbeFitSettings:
     marker_roll_deg: float = 10.0
     marker_surface_m: float = 0.008
     marker_hidden_margin: float = 0.1
+    marker_under_hand: bool = False
 
     def __post_init__(self) -> None:
         assert 1 <= self.finalists <= self.hypotheses, (self.finalists, self.hypotheses)

@@ -331,3 +331,29 @@ def test_a_kept_frame_whose_marker_shows_takes_the_networks_box_in_the_roll_it_r
     _, kept3d, kept = F.fit_probe(points2d, points3d, image[None], K)
     assert F.DECISIONS[kept.decision[0]] == "kept"
     np.testing.assert_array_equal(kept3d, points3d)
+
+
+@pytest.mark.parametrize("network_turn", [0.0, np.pi])
+def test_a_marker_under_the_fingers_is_read_at_the_site_facing_the_camera(network_turn):
+    """The marker's side towards the camera, a finger 3 cm in front of its site hiding it (no pixel of its colour,
+    the finger's pixels not the probe's in the segmentation), the other site turned away: neither window nor pixel
+    decides. With ``marker_under_hand`` the turn whose site faces the camera wins, whichever turn the network gave;
+    without it (the default) the network's turn decides."""
+    R, t = MARKER_IN_VIEW
+    image = render(R, t, marker_coloured=False, finger=False)
+    site = R @ default_fit_probe().marker + t
+    u, v = np.round(site[:2] / site[2] * [K[0, 0], K[1, 1]] + K[:2, 2]).astype(int)
+    image[:3, v - 4:v + 5, u - 4:u + 5] = np.asarray([0.76, 0.57, 0.45], np.float32)[:, None, None]
+    image[3, v - 4:v + 5, u - 4:u + 5] = site[2] - 0.03
+    pixels = image[3] > 0
+    pixels[v - 4:v + 5, u - 4:u + 5] = False
+    points2d, points3d = network_output(R, t, network_turn)
+    under = dataclasses.replace(F.ProbeFitSettings(), marker_under_hand=True)
+    _, out3d, report = F.fit_probe(points2d, points3d, image[None], K, under, pixels=pixels[None])
+    assert F.DECISIONS[report.decision[0]] == "marker under hand"
+    assert error_mm(out3d[0], R, t) < 2.0
+    _, network3d, network = F.fit_probe(points2d, points3d, image[None], K, pixels=pixels[None])
+    assert F.DECISIONS[network.decision[0]] == "network"
+    assert error_mm(network3d[0], R @ turn_z(network_turn), t) < 2.0
+    _, unsegmented3d, unsegmented = F.fit_probe(points2d, points3d, image[None], K, under)
+    assert F.DECISIONS[unsegmented.decision[0]] != "marker under hand"
