@@ -10,7 +10,8 @@ pixel near the probe). ``--from-truth`` also starts the fit from the true corner
 from where the fit starts (a diagnosis: a model never has the truth).
 
 The checkpoint must read depth (data.reader.input_modalities=rgb+depth); whether its config asks for the fit does
-not matter here: both are measured. Quote it with the split's floor (printed from the manifest).
+not matter here: both are measured, with the probe fit's settings its config gives (as eval runs it). Quote it with
+the split's floor (printed from the manifest).
 
 Usage: python scripts/probe_fit_ablation.py CHECKPOINT DATASET [--split val] [--frames 960] [--batch 32]
        [--depth-sensor dataset] [--no-masks] [--from-truth]
@@ -74,7 +75,7 @@ def main() -> None:
             if truth is not None:
                 begun[:, kp.CORNER_SLICE] = truth[start:stop, kp.CORNER_SLICE]
             began = time.perf_counter()
-            _, refined, report = fit_probe(points2d, begun, images, K, probe=probe, pixels=pixels)
+            _, refined, report = fit_probe(points2d, begun, images, K, model.fit_settings[0], probe, pixels)
             if truth is None:
                 fit_s += time.perf_counter() - began
             fitted[name].append(refined[:, kp.CORNER_SLICE])
