@@ -62,6 +62,14 @@ def render(R, t, marker_coloured=True, finger=True):
     return image.reshape(4, S, S)
 
 
+def occlude(image, point):
+    """A finger-coloured patch of 9 x 9 pixels 3 cm in front of ``point`` (camera frame) in ``image``; its (v, u)."""
+    u, v = np.round(point[:2] / point[2] * [K[0, 0], K[1, 1]] + K[:2, 2]).astype(int)
+    image[:3, v - 4:v + 5, u - 4:u + 5] = np.asarray([0.76, 0.57, 0.45], np.float32)[:, None, None]
+    image[3, v - 4:v + 5, u - 4:u + 5] = point[2] - 0.03
+    return v, u
+
+
 def corners(R, t):
     return build_probe().corners_probe @ R.T + t
 
@@ -292,10 +300,7 @@ def test_a_marker_on_no_pixel_of_the_fitted_surface_is_on_the_side_turned_away(n
     R = R @ turn_z(np.pi)                                          # the marker's side away from the camera
     image = render(R, t, finger=False)
     probe = default_fit_probe()
-    front = R @ turn_z(np.pi) @ probe.marker + t                    # the site facing the camera (no marker)
-    u, v = np.round(front[:2] / front[2] * [K[0, 0], K[1, 1]] + K[:2, 2]).astype(int)
-    image[:3, v - 4:v + 5, u - 4:u + 5] = np.asarray([0.76, 0.57, 0.45], np.float32)[:, None, None]
-    image[3, v - 4:v + 5, u - 4:u + 5] = front[2] - 0.03
+    occlude(image, R @ turn_z(np.pi) @ probe.marker + t)           # the site facing the camera (no marker)
     points2d, points3d = network_output(R, t, network_turn)
     _, out3d, report = F.fit_probe(points2d, points3d, image[None], K)
     assert F.DECISIONS[report.decision[0]] == "marker hidden"
@@ -341,10 +346,7 @@ def test_a_marker_under_the_fingers_is_read_at_the_site_facing_the_camera(networ
     without it (the default) the network's turn decides."""
     R, t = MARKER_IN_VIEW
     image = render(R, t, marker_coloured=False, finger=False)
-    site = R @ default_fit_probe().marker + t
-    u, v = np.round(site[:2] / site[2] * [K[0, 0], K[1, 1]] + K[:2, 2]).astype(int)
-    image[:3, v - 4:v + 5, u - 4:u + 5] = np.asarray([0.76, 0.57, 0.45], np.float32)[:, None, None]
-    image[3, v - 4:v + 5, u - 4:u + 5] = site[2] - 0.03
+    v, u = occlude(image, R @ default_fit_probe().marker + t)
     pixels = image[3] > 0
     pixels[v - 4:v + 5, u - 4:u + 5] = False
     points2d, points3d = network_output(R, t, network_turn)
@@ -355,5 +357,5 @@ def test_a_marker_under_the_fingers_is_read_at_the_site_facing_the_camera(networ
     _, network3d, network = F.fit_probe(points2d, points3d, image[None], K, pixels=pixels[None])
     assert F.DECISIONS[network.decision[0]] == "network"
     assert error_mm(network3d[0], R @ turn_z(network_turn), t) < 2.0
-    _, unsegmented3d, unsegmented = F.fit_probe(points2d, points3d, image[None], K, under)
+    _, _, unsegmented = F.fit_probe(points2d, points3d, image[None], K, under)
     assert F.DECISIONS[unsegmented.decision[0]] != "marker under hand"
