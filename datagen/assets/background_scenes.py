@@ -29,6 +29,12 @@ Float3 = tuple[float, float, float]
 # Canvases are float32 RGB in [0, 1]; masks are float32 coverage in [0, 1].
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot product over the last axis (length 3), written out: ``a @ b`` goes through BLAS, whose kernel
+    (chosen by the CPU) changes the last bits, and with them a pixel here and there and the fingerprint."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def _grid(size: int) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre coordinates (x, y), each (size, size) float32, pixels."""
     coords = np.arange(size, dtype=np.float32)
@@ -157,8 +163,8 @@ def _camera_rays(size: int, azimuth_deg: float, elevation_deg: float, target: Fl
     """
     az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
     rot = np.array([[np.cos(az), np.sin(az), 0], [-np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    direction = rot @ np.array([0.0, np.cos(el), -np.sin(el)])
-    right = rot @ np.array([1.0, 0.0, 0.0])
+    direction = _dot(rot, np.array([0.0, np.cos(el), -np.sin(el)]))
+    right = _dot(rot, np.array([1.0, 0.0, 0.0]))
     up = np.cross(right, direction)
     coords = (np.arange(size) + 0.5) / size * 2.0 - 1.0
     u, v = np.meshgrid(coords, coords)  # v grows downwards
@@ -173,8 +179,8 @@ def _hit_ellipsoid(origins: np.ndarray, direction: np.ndarray, centre: Float3,
     radii_arr = np.asarray(radii, np.float32)
     o = (origins - np.asarray(centre, np.float32)) / radii_arr
     d = direction / radii_arr
-    a = float(d @ d)
-    b = 2.0 * (o @ d)
+    a = float(_dot(d, d))
+    b = 2.0 * _dot(o, d)
     c = np.einsum("ij,ij->i", o, o) - 1.0
     disc = b * b - 4 * a * c
     hit = disc >= 0
@@ -226,15 +232,15 @@ def _in_shadow(points: np.ndarray, light_dir: np.ndarray, ellipsoids: Sequence[t
 
 def _shade(normals: np.ndarray, view_dir: np.ndarray, light_dir: np.ndarray, wrap: float) -> tuple[np.ndarray, np.ndarray]:
     """Wrapped Lambert diffuse and Blinn half-vector cosine, (N,) float32 each."""
-    diffuse = np.clip((normals @ light_dir + wrap) / (1 + wrap), 0.0, 1.0)
+    diffuse = np.clip((_dot(normals, light_dir) + wrap) / (1 + wrap), 0.0, 1.0)
     half = light_dir - view_dir
-    half = half / np.linalg.norm(half)
-    return diffuse.astype(np.float32), np.clip(normals @ half, 0.0, 1.0).astype(np.float32)
+    half = half / np.sqrt(_dot(half, half))
+    return diffuse.astype(np.float32), np.clip(_dot(normals, half), 0.0, 1.0).astype(np.float32)
 
 
 def _unit(v: Sequence[float]) -> np.ndarray:
     v = np.asarray(v, np.float32)
-    return v / np.linalg.norm(v)
+    return v / np.sqrt(_dot(v, v))
 
 
 # --------------------------------------------------------------------------- scenes
@@ -482,9 +488,9 @@ def _abdomen(seed: int, skin: Float3, shirt: Float3, sheet: Float3, light_dir: S
     normals[..., 1] -= 0.05 * bump_y
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     view = np.array([0.0, 0.0, 1.0], np.float32)  # towards the camera
-    diffuse = np.clip((normals @ light_dir + 0.4) / 1.4, 0, 1)
+    diffuse = np.clip((_dot(normals, light_dir) + 0.4) / 1.4, 0, 1)
     half = _unit(light_dir + view)
-    cos_half = np.clip(normals @ half, 0, 1)
+    cos_half = np.clip(_dot(normals, half), 0, 1)
 
     blotch = _smooth_noise(rng, size, 10)
     pores = _smooth_noise(rng, size, 200)
