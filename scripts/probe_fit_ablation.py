@@ -3,7 +3,8 @@ the probe corner MPJPE (and under the half turn, eval's symmetric score) of the 
 per grasp, how each frame's half turn was decided and the error of each kind (beside the network's own on those
 frames), the fitted box's rotation from the true box (median, and the share of frames turned more than 150 degrees:
 the half turn lost), its centre's distance and its long axis's angle from the true box's (what is left when the
-turn about that axis is set aside), and the fit's time per frame.
+turn about that axis is set aside), per decision the centre's offset along the camera ray (the depth's share) and
+the error left with the true centre (the rotation's), and the fit's time per frame.
 
 A segmenting model's fit takes only its own segmentation's probe pixels, as eval runs it (``--no-masks``: every
 pixel near the probe). ``--from-truth`` also starts the fit from the true corners: what the depth can hold, apart
@@ -45,6 +46,13 @@ def centre_and_axis(pred: np.ndarray, truth: np.ndarray, corners: np.ndarray) ->
     centre = np.linalg.norm(pred.mean(1) - truth.mean(1), axis=-1) * 1000.0
     cosine = np.abs((fit_rigid_pose(corners, pred)[:, :3, 2] * fit_rigid_pose(corners, truth)[:, :3, 2]).sum(-1))
     return centre, np.degrees(np.arccos(np.clip(cosine, 0.0, 1.0)))
+
+
+def centre_along_ray(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(F,) mm of the centres' offset along the camera's ray to the true centre (the depth's share; the rest of
+    :func:`centre_and_axis`'s distance lies across the ray, where the image shows it)."""
+    ray = truth.mean(1) / np.linalg.norm(truth.mean(1), axis=-1, keepdims=True)
+    return np.abs(((pred.mean(1) - truth.mean(1)) * ray).sum(-1)) * 1000.0
 
 
 def main() -> None:
@@ -109,13 +117,17 @@ def main() -> None:
         if name == "network":
             continue
         chosen_by = np.concatenate(decisions[name])
+        along = centre_along_ray(pred, gt)
+        # the same corners moved to the true centre: what the rotation alone leaves
+        centred = error(pred - pred.mean(1, keepdims=True) + gt.mean(1, keepdims=True), gt)
         for index, kind in enumerate(DECISIONS):
             chosen = chosen_by == index
             if chosen.any():
                 print(f"  half turn by {kind:9s}: {chosen.mean():6.1%} of frames, probe {plain[chosen].mean():6.2f} mm "
                       f"(the network's there {out['network'][0][chosen].mean():6.2f}), turned > 150 deg "
                       f"{(angle[chosen] > 150).mean():6.1%}, centre {centre[chosen].mean():5.1f} mm, long axis "
-                      f"{axis[chosen].mean():5.1f} deg")
+                      f"{axis[chosen].mean():5.1f} deg; centre along the ray {along[chosen].mean():5.1f} mm, at the "
+                      f"true centre {centred[chosen].mean():6.2f} mm, half-turn symmetric {half[chosen].mean():6.2f} mm")
     print(f"the fit: {fit_s / len(rows) * 1000:.1f} ms per frame ({torch.get_num_threads()} threads)")
     print(json.dumps({"checkpoint": str(Path(args.checkpoint)), "frames": len(rows),
                       "probe_mm": {k: round(float(v[0].mean()), 2) for k, v in out.items()},

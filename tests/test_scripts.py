@@ -70,6 +70,7 @@ def test_fit_ablations(script, depth_checkpoint, tiny_dataset, monkeypatch, caps
         assert set(summary["probe_mm"]) == {"network", "fit", "fit from the truth"}
         assert " val: " in out and "depth dataset" in out
         assert "centre  axis deg" in out and "(the network's there " in out and " long axis " in out
+        assert "centre along the ray " in out and " at the true centre " in out
 
 
 def test_probe_fit_ablation_parts_the_centre_and_the_long_axis_from_the_turn_about_it():
@@ -88,6 +89,13 @@ def test_probe_fit_ablation_parts_the_centre_and_the_long_axis_from_the_turn_abo
     centre, axis = centre_and_axis(pred, np.repeat((corners @ R.T + t)[None], 4, axis=0), corners)
     np.testing.assert_allclose(axis, [0.0, 0.0, 30.0, 0.0], atol=1e-4)
     np.testing.assert_allclose(centre, [0.0, 0.0, 0.0, 4.0], atol=1e-6)
+    # 5 mm along the ray to the true centre, then 5 mm across it: the first all depth, the second none
+    along_ray = runpy.run_path(str(SCRIPTS / "probe_fit_ablation.py"))["centre_along_ray"]
+    truth = corners @ R.T + t
+    ray = truth.mean(0) / np.linalg.norm(truth.mean(0))
+    across = np.cross(ray, [1.0, 0.0, 0.0])
+    shifted = truth[None] + 0.005 * np.stack([ray, across / np.linalg.norm(across)])[:, None]
+    np.testing.assert_allclose(along_ray(shifted, np.repeat(truth[None], 2, axis=0)), [5.0, 0.0], atol=1e-9)
 
 
 def test_fit_speed(tiny_dataset, tmp_path, monkeypatch, capsys):
