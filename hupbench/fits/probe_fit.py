@@ -35,7 +35,7 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        probe pixels anywhere have the marker's colour (ahead by ``s.marker_pixel_chroma``), the pose whose site
        projects nearer their centre wins ("marker pixels": the marker seen beside its site, where the pose is off
        by a few pixels or the site is edge-on); else a site that faces the camera, unoccluded, without that colour
-       loses ("no marker"); else the network's own turn decides ("network"). Without a segmentation, the probe's
+       loses ("no marker"; where both sites do, the one facing it more loses); else the network's own turn decides ("network"). Without a segmentation, the probe's
        pixels of a fitted frame are those whose measured point lies within ``s.marker_surface_m`` of the fitted
        surface, read for the marker's pixels as a segmentation's; where none of them has its colour (and no site
        decides), the marker is on the side the camera does not see: the turn whose site faces away from the camera
@@ -334,8 +334,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
     # given a segmentation, where neither site nor the marker's pixels decide: the marker under the hand, facing
     under = ~warm & (own is not None and probe.has_marker and s.marker_under_hand)
-    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(absent_a, False, np.where(
-        absent_b, True, np.where(hidden, facing_a <= facing_b, np.where(under, facing_a >= facing_b, network_a))))))
+    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(absent_a | absent_b, np.where(
+        absent_a & absent_b, facing_a < facing_b, absent_b), np.where(hidden, facing_a <= facing_b, np.where(
+            under, facing_a >= facing_b, network_a)))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
         warm, 4, np.where(hidden, 7, np.where(under, 8, 3))))))
     decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
