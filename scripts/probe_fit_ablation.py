@@ -127,7 +127,8 @@ def main() -> None:
                       f"(the network's there {out['network'][0][chosen].mean():6.2f}), turned > 150 deg "
                       f"{(angle[chosen] > 150).mean():6.1%}, centre {centre[chosen].mean():5.1f} mm, long axis "
                       f"{axis[chosen].mean():5.1f} deg; centre along the ray {along[chosen].mean():5.1f} mm, at the "
-                      f"true centre {centred[chosen].mean():6.2f} mm, half-turn symmetric {half[chosen].mean():6.2f} mm")
+                      f"true centre {centred[chosen].mean():6.2f} mm, half-turn symmetric "
+                      f"{half[chosen].mean():6.2f} mm")
     print(f"the fit: {fit_s / len(rows) * 1000:.1f} ms per frame ({torch.get_num_threads()} threads)")
     print(json.dumps({"checkpoint": str(Path(args.checkpoint)), "frames": len(rows),
                       "probe_mm": {k: round(float(v[0].mean()), 2) for k, v in out.items()},

@@ -35,16 +35,17 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        probe pixels anywhere have the marker's colour (ahead by ``s.marker_pixel_chroma``), the pose whose site
        projects nearer their centre wins ("marker pixels": the marker seen beside its site, where the pose is off
        by a few pixels or the site is edge-on); else a site that faces the camera, unoccluded, without that colour
-       loses ("no marker"; where both sites do, the one facing it more loses); else the network's own turn decides ("network"). Without a segmentation, the probe's
-       pixels of a fitted frame are those whose measured point lies within ``s.marker_surface_m`` of the fitted
-       surface, read for the marker's pixels as a segmentation's; where none of them has its colour (and no site
-       decides), the marker is on the side the camera does not see: the turn whose site faces away from the camera
-       wins ("marker hidden") where the two sites' facings differ by more than ``s.marker_hidden_margin`` and
-       at least ``s.marker_seen`` of the window of the site facing the camera has depth (else the network's turn:
-       a sensor without depth there may have missed the marker). Given a segmentation and ``s.marker_under_hand``,
-       where neither site nor the marker's pixels decide (the site facing the camera hidden, most often by the
-       fingers), the marker is taken to be under the hand: the turn whose site faces the camera more wins ("marker
-       under hand").
+       loses ("no marker"; where both sites do, the one facing it more loses: the marker's normal leans along the
+       long axis, so both turns' sites can face the camera); else the network's own turn decides ("network").
+       Without a segmentation, the probe's pixels of a fitted frame are those whose measured point lies within
+       ``s.marker_surface_m`` of the fitted surface, read for the marker's pixels as a segmentation's; where none of
+       them has its colour (and no site decides), the marker is on the side the camera does not see: the turn whose
+       site faces away from the camera wins ("marker hidden") where the two sites' facings differ by more than
+       ``s.marker_hidden_margin`` and at least ``s.marker_seen`` of the window of the site facing the camera has
+       depth (else the network's turn: a sensor without depth there may have missed the marker). Given a
+       segmentation and ``s.marker_under_hand``, where neither site nor the marker's pixels decide (the site facing
+       the camera hidden, most often by the fingers), the marker is taken to be under the hand: the turn whose site
+       faces the camera more wins ("marker under hand").
     5. When fewer than ``s.min_inliers`` points lie on the surface of the best pose (no depth, or the probe
        hidden), the network's corners stay ("kept"); a frame with fewer measured points than that skips step 3.
        Given a segmentation whose probe pixels show the marker's colour (step 4), such a frame takes the network's
@@ -334,9 +335,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
     absent_b = (facing_b > s.marker_facing) & (seen_b > s.marker_seen) & probe.has_marker
     # given a segmentation, where neither site nor the marker's pixels decide: the marker under the hand, facing
     under = ~warm & (own is not None and probe.has_marker and s.marker_under_hand)
-    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(absent_a | absent_b, np.where(
-        absent_a & absent_b, facing_a < facing_b, absent_b), np.where(hidden, facing_a <= facing_b, np.where(
-            under, facing_a >= facing_b, network_a)))))
+    choose_a = roll | np.where(marker, lead_a >= lead_b, np.where(found, pixel_a, np.where(
+        absent_a | absent_b, np.where(absent_a & absent_b, facing_a < facing_b, absent_b), np.where(
+            hidden, facing_a <= facing_b, np.where(under, facing_a >= facing_b, network_a)))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
         warm, 4, np.where(hidden, 7, np.where(under, 8, 3))))))
     decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
