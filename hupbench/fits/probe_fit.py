@@ -52,7 +52,10 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        box (its corners' Kabsch pose) turned about its long axis, in steps of ``s.marker_roll_deg``, to the roll
        whose marker site faces the camera and projects nearest those pixels' centre, then moved across the view (at
        the site's depth) until the site projects there ("kept, marker pixels"): the network's roll is its largest
-       error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it.
+       error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it. So does a
+       fitted frame, given a segmentation, whose marker's pixels lie farther than ``s.marker_reroll_px`` from both
+       turns' sites (decision "marker pixels"): its depth's roll is wrong there (on the clinic track's val frames most
+       often by 60 to 120 degrees, docs/clinic.md).
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps
@@ -250,6 +253,24 @@ def _roll_to_marker(probe: FitProbe, R: np.ndarray, t: np.ndarray, centre: np.nd
     return R, t + unproject_uv(centre[:, 0], centre[:, 1], site[:, 2], K) - site
 
 
+def _read_marker_pixels(probe: FitProbe, R: np.ndarray, t: np.ndarray, centre: np.ndarray, found: np.ndarray,
+                        kept: np.ndarray, K: np.ndarray, s: ProbeFitSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Where the marker's pixels centred on ``centre`` (B, 2) were ``found`` (B,) bool, the poses (B, 3, 3), (B, 3)
+    (changed in place) of ``kept`` frames, and of fitted ones whose sites (the pose's and its half turn's) both lie
+    farther than ``s.marker_reroll_px`` from ``centre``, turned to the roll those pixels read (step 5,
+    :func:`_roll_to_marker`): (rolled (B,) bool, (B,) bool whether the pose's site lies nearer ``centre`` than its half
+    turn's)."""
+
+    def to_pixels() -> np.ndarray:   # (B, 2) pixels from the centre to the sites of the poses and their half turns
+        sites, _ = _site(probe, np.stack([R, R @ _turn_z(np.pi)], axis=1), t[:, None])   # (B, 2, 3)
+        return np.linalg.norm(input_pixels(sites, K) - centre[:, None], axis=-1)
+
+    roll = found & (kept | (to_pixels().min(axis=1) > s.marker_reroll_px))
+    if roll.any():
+        R[roll], t[roll] = _roll_to_marker(probe, R[roll], t[roll], centre[roll], K, s)
+    return roll, np.less_equal(*to_pixels().T)
+
+
 @one_blas_thread()
 def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_input: np.ndarray,
               settings: ProbeFitSettings = ProbeFitSettings(), probe: FitProbe | None = None,
@@ -314,12 +335,9 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
         found, seen_at = _marker_pixels(probe, rgb, read, s)
     found &= ~warm
     hidden = on_surface & ~kept & ~warm & ~found   # the visible surface shows no marker: its site faces away
-    roll = kept & found
-    if roll.any():
-        RA[roll], tA[roll] = _roll_to_marker(probe, RA[roll], tA[roll], seen_at[roll], K, s)
+    # the kept frames, and given a segmentation the fitted ones, that the marker's pixels turn (step 5)
+    roll, pixel_a = _read_marker_pixels(probe, RA, tA, seen_at, found if own is not None else found & kept, kept, K, s)
     RB = RA @ _turn_z(np.pi)
-    sites, _ = _site(probe, np.stack([RA, RB], axis=1), tA[:, None])              # (B, 2, 3)
-    pixel_a = np.less_equal(*np.linalg.norm(input_pixels(sites, K) - seen_at[:, None], axis=-1).T)
 
     facing_a, seen_a, lead_a, measured_a = _marker_site(probe, RA, tA, rgb, depth, K, s, own)
     facing_b, seen_b, lead_b, measured_b = _marker_site(probe, RB, tA, rgb, depth, K, s, own)
@@ -340,7 +358,7 @@ def fit_probe(points2d: np.ndarray, points3d: np.ndarray, images: np.ndarray, K_
             hidden, facing_a <= facing_b, np.where(under, facing_a >= facing_b, network_a)))))
     decision = np.where(marker, 1, np.where(found, 5, np.where(absent_a | absent_b, 2, np.where(
         warm, 4, np.where(hidden, 7, np.where(under, 8, 3))))))
-    decision = np.where(kept, np.where(found, 6, 0), decision).astype(np.int64)
+    decision = np.where(kept, np.where(found, 6, 0), np.where(roll, 5, decision)).astype(np.int64)
     rotation = np.where(choose_a[:, None, None], RA, RB)
     fitted = probe.corners @ rotation.transpose(0, 2, 1) + tA[:, None]
     use = ~kept | found       # a kept frame whose marker shows: the network's box, in the turn the marker reads

@@ -50,6 +50,10 @@ class ProbeFitSettings:
             takes the roll about the network's long axis, in steps of this many degrees, whose marker site faces the
             camera and projects nearest the marker pixels' centre, and the box moved across the view (at its depth)
             until the site projects there (chosen on the clinic_sequences val split, docs/clinic.md).
+        marker_reroll_px: a fitted frame whose marker's pixels (a segmentation's) lie farther than this from both
+            turns' marker sites, in pixels, takes the roll they read as a kept frame does (marker_roll_deg): the
+            depth's roll is wrong there, most often by about a quarter turn (chosen on the clinic track's val split,
+            docs/clinic.md).
         marker_surface_m: without a segmentation, a fitted frame's probe pixels are those whose measured point lies
             within this of the fitted surface: they are read for the marker's pixels as a segmentation's are, and
             where none has its colour and the sites' windows do not decide, the turn whose site faces away from the
@@ -82,6 +86,7 @@ class ProbeFitSettings:
     marker_pixels: int = 1
     marker_pixel_chroma: float = 0.1
     marker_roll_deg: float = 10.0
+    marker_reroll_px: float = 5.0
     marker_surface_m: float = 0.008
     marker_hidden_margin: float = 0.1
     marker_under_hand: bool = False

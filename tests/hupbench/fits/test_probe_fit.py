@@ -381,3 +381,31 @@ def test_where_both_sites_face_the_camera_without_the_marker_the_one_facing_it_m
     _, out3d, decision = fit(render(R, t, marker_coloured=False), points2d, points3d)
     assert decision == "no marker"
     assert error_mm(out3d, R @ turn_z(0.0 if facing_a < facing_b else np.pi), t) < 2.0
+
+
+@pytest.mark.parametrize("wrong_roll", [np.pi / 2, -np.pi / 2, 2.0])
+def test_a_fitted_roll_that_puts_neither_site_near_the_marker_pixels_takes_the_roll_they_read(monkeypatch,
+                                                                                             wrong_roll):
+    """The depth's search stubbed to a roll about the long axis the image does not show (on clinic val frames most
+    such rolls were 60 to 120 degrees off), the sites' windows blind (``marker_chroma`` 2): given a segmentation whose
+    marker's pixels lie farther than ``marker_reroll_px`` from both turns' sites, the pose takes the roll they read
+    (within 6 mm: the rolls tried are 10 degrees apart); with the threshold out of reach the wrong roll stays, and
+    without a segmentation nothing is read again."""
+    R, t = MARKER_IN_VIEW
+    image = render(R, t)
+    pixels = (image[3] > 0)[None]
+    points2d, points3d = network_output(R, t)
+
+    def search(probe, points, weight, R0, t0, s):
+        return R0 @ turn_z(wrong_roll), t0, np.full(len(points), 500)
+
+    monkeypatch.setattr(F, "_search", search)
+    blind = dataclasses.replace(F.ProbeFitSettings(), marker_chroma=2.0)
+    _, out3d, report = F.fit_probe(points2d, points3d, image[None], K, blind, pixels=pixels)
+    assert F.DECISIONS[report.decision[0]] == "marker pixels"
+    assert error_mm(out3d[0], R, t) < 6.0
+    np.testing.assert_allclose(report.pose[0, :3, :3] @ build_probe().corners_probe.T + report.pose[0, :3, 3:],
+                               out3d[0, kp.CORNER_SLICE].T, atol=1e-9)
+    for settings, segmentation in ((dataclasses.replace(blind, marker_reroll_px=1e9), pixels), (blind, None)):
+        _, stays, _ = F.fit_probe(points2d, points3d, image[None], K, settings, pixels=segmentation)
+        assert error_mm(stays[0], R, t) > 20
