@@ -54,8 +54,8 @@ How, per frame, in the camera of the model input (``K_input``), with :class:`Pro
        the site's depth) until the site projects there ("kept, marker pixels"): the network's roll is its largest
        error where a time-of-flight camera gives no depth on the probe, and the marker's pixels read it. So does a
        fitted frame, given a segmentation, whose marker's pixels lie farther than ``s.marker_reroll_px`` from both
-       turns' sites (decision "marker pixels"): its depth's roll is wrong there (on the clinic track's val frames most
-       often by 60 to 120 degrees, docs/clinic.md).
+       turns' sites (decision "marker pixels"): its depth's roll is wrong there (76 degrees off, median, modulo the
+       half turn, on the clinic val frames whose half turn those pixels lost, docs/clinic.md).
 
 Tracking a video (``start``, the frame before's :attr:`ProbeFit.pose`): a frame whose frame before was fitted takes
 its points around that pose (step 2); that pose and the network's are each refined by ``s.tracking_iterations`` steps

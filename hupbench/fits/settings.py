@@ -52,8 +52,8 @@ class ProbeFitSettings:
             until the site projects there (chosen on the clinic_sequences val split, docs/clinic.md).
         marker_reroll_px: a fitted frame whose marker's pixels (a segmentation's) lie farther than this from both
             turns' marker sites, in pixels, takes the roll they read as a kept frame does (marker_roll_deg): the
-            depth's roll is wrong there, most often by about a quarter turn (chosen on the clinic track's val split,
-            docs/clinic.md).
+            depth's roll is wrong there (76 degrees off, median, where the half turn was lost; chosen on the clinic
+            track's val split, docs/clinic.md).
         marker_surface_m: without a segmentation, a fitted frame's probe pixels are those whose measured point lies
             within this of the fitted surface: they are read for the marker's pixels as a segmentation's are, and
             where none has its colour and the sites' windows do not decide, the turn whose site faces away from the

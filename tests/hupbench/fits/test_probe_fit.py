@@ -386,11 +386,11 @@ def test_where_both_sites_face_the_camera_without_the_marker_the_one_facing_it_m
 @pytest.mark.parametrize("wrong_roll", [np.pi / 2, -np.pi / 2, 2.0])
 def test_a_fitted_roll_that_puts_neither_site_near_the_marker_pixels_takes_the_roll_they_read(monkeypatch,
                                                                                              wrong_roll):
-    """The depth's search stubbed to a roll about the long axis the image does not show (on clinic val frames most
-    such rolls were 60 to 120 degrees off), the sites' windows blind (``marker_chroma`` 2): given a segmentation whose
-    marker's pixels lie farther than ``marker_reroll_px`` from both turns' sites, the pose takes the roll they read
-    (within 6 mm: the rolls tried are 10 degrees apart); with the threshold out of reach the wrong roll stays, and
-    without a segmentation nothing is read again."""
+    """The depth's search stubbed to a roll about the long axis the image does not show (on the clinic val frames
+    whose half turn the marker's pixels lost, 76 degrees off, median), the sites' windows blind (``marker_chroma`` 2):
+    given a segmentation whose marker's pixels lie farther than ``marker_reroll_px`` from both turns' sites, the pose
+    takes the roll they read (within 6 mm: the rolls tried are 10 degrees apart); with the threshold out of reach the
+    wrong roll stays, and without a segmentation nothing is read again."""
     R, t = MARKER_IN_VIEW
     image = render(R, t)
     pixels = (image[3] > 0)[None]
