@@ -1,8 +1,14 @@
 """Fixtures shared across the test packages (plain helpers live in tests/helpers/)."""
 
+import os
+
 import pytest
 
-from helpers.datasets import TINY_SPEC, write_grasps
+from helpers import THREADS
+
+os.environ["OMP_NUM_THREADS"] = str(THREADS)  # before anything loads torch: see helpers.THREADS
+
+from helpers.datasets import TINY_SPEC, write_grasps  # noqa: E402  (after OMP_NUM_THREADS)
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from helpers.cli import CliAnswer
 
-from helpers import REPO  # noqa: F401  (re-exported for the training tests)
+from helpers import REPO, THREADS  # noqa: F401  (REPO re-exported for the training tests)
 TRAIN_PREFIX = "train.py: error:"
 
 
@@ -21,7 +21,7 @@ def tiny_overrides(dataset, run_dir, cache_dir, *extra: str) -> list[str]:
     return ["model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", f"data.cache_dir={cache_dir}",
             "data.reader.input_size=64", "data.batch_size=4", "data.num_workers=0", "data.val_frames=8",
             "train.max_steps=2", "train.val_every=2", "train.ckpt_every=2", "train.log_every=1", "train.progress=false",
-            "train.tensorboard=false", "threads=2", "precision=fp32", *extra]
+            "train.tensorboard=false", f"threads={THREADS}", "precision=fp32", *extra]
 
 
 def tiny_cfg(dataset, run_dir, cache_dir, *extra: str):

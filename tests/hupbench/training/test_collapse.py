@@ -22,7 +22,7 @@ from hupbench.data import HUPDataset, ReaderConfig
 from hupbench.metrics import SPREAD_RATIO_WARN, spread_ratios
 from hupbench.training.run_config import train_config
 from hupbench.training.loop import train
-from helpers import REPO
+from helpers import REPO, THREADS
 
 MODEL_CONFIGS = sorted(p.stem for p in (REPO / "conf" / "model").glob("*.yaml"))
 INPUT_SIZE = 64
@@ -57,7 +57,7 @@ def short_run(model: str, dataset, folder: Path, steps: int):
         f"data.reader.input_size={INPUT_SIZE}", "data.batch_size=8", "data.val_frames=8", f"train.max_steps={steps}",
         f"train.val_every={steps}", f"train.ckpt_every={steps}", f"train.log_every={steps}",
         "train.bn_recompute_frames=20", "train.progress=false", "train.tensorboard=false", "data.reader.rotate_deg=0",
-        "data.reader.photometric=0", "threads=2", "precision=fp32"]))
+        "data.reader.photometric=0", f"threads={THREADS}", "precision=fp32"]))
 
 
 def trained_model(run) -> torch.nn.Module:

@@ -16,7 +16,7 @@ from hupbench.training.losses import loss_terms
 from hupbench.data.loaders import EpochSampler
 from hupbench.training.schedule import warmup_cosine
 from hupbench.models.hopenet import HOPENetOutput
-from helpers import REPO
+from helpers import REPO, THREADS
 
 
 def tiny_cfg(dataset, run_dir, *extra):
@@ -24,8 +24,8 @@ def tiny_cfg(dataset, run_dir, *extra):
     return compose("train", [
         "model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", "data.reader.input_size=64",
         "data.batch_size=4", "data.num_workers=0", "data.val_frames=8", "train.max_steps=4", "train.val_every=2",
-        "train.ckpt_every=2", "train.log_every=1", "train.progress=false", "train.tensorboard=false", "threads=2",
-        "precision=fp32", *extra])
+        "train.ckpt_every=2", "train.log_every=1", "train.progress=false", "train.tensorboard=false",
+        f"threads={THREADS}", "precision=fp32", *extra])
 
 
 def read_log(run_dir):

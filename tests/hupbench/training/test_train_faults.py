@@ -20,6 +20,7 @@ import pytest
 
 from helpers.cli import CliAnswer, assert_clean_error
 from helpers.training import REPO, TRAIN_PREFIX, train_py
+from helpers import THREADS
 from helpers.faults import dead_pid, private_mount
 
 STEPS = 6
@@ -30,7 +31,7 @@ def overrides(dataset, run_dir, cache, *extra) -> list[str]:
     return ["model=hopenet_r10_128", f"data.root={dataset}", f"run_dir={run_dir}", f"data.cache_dir={cache}",
             "data.reader.input_size=64", "data.batch_size=4", "data.num_workers=0", "data.val_frames=8",
             f"train.max_steps={STEPS}", "train.val_every=2", "train.ckpt_every=2", "train.log_every=1",
-            "train.progress=false", "train.tensorboard=false", "threads=2", "precision=fp32", *extra]
+            "train.progress=false", "train.tensorboard=false", f"threads={THREADS}", "precision=fp32", *extra]
 
 
 def read_log(run_dir: Path) -> list[dict]:
