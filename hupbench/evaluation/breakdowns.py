@@ -1,5 +1,5 @@
 """The buckets of ``hupbench eval``'s breakdowns: one label per frame, by camera latitude, distance,
-background, grasp and the grasp's probe orientation Theta_Vol (numpy only).
+background, grasp, the grasp's probe orientation Theta_Vol and how much of the hand the frame shows (numpy only).
 
 :func:`hupbench.metrics.breakdown_mpjpe_mm` turns per-frame errors and these labels into MPJPE per bucket.
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from hupbench.core import keypoints as kp
 from hupbench.core.errors import BadValueError
 
 #: views with sphere polar angle theta below this are "egocentric" (see :func:`latitude_labels`)
@@ -21,6 +22,8 @@ Z_EGO_BIN_M = 0.05
 THETA_VOL_UNKNOWN = "unknown"
 #: Theta_Vol angles are rounded to this many decimals (degrees) in their bucket labels
 THETA_VOL_LABEL_DECIMALS = 3
+#: the buckets of :func:`hand_visible_labels`: how many of the 21 hand keypoints a frame shows, (fewest, most)
+HAND_VISIBLE_BUCKETS = ((0, 5), (6, 10), (11, 15), (16, kp.NUM_HAND))
 
 
 def latitude_labels(theta_rad) -> np.ndarray:
@@ -89,3 +92,17 @@ def theta_vol_labels(grasp_id, theta_vol_deg_by_grasp: dict) -> np.ndarray:
     labels = {int(g): THETA_VOL_UNKNOWN if theta is None else theta_vol_label(theta)
               for g, theta in theta_vol_deg_by_grasp.items()}
     return np.array([labels.get(int(g), THETA_VOL_UNKNOWN) for g in np.asarray(grasp_id).reshape(-1)])
+
+
+def hand_visible_labels(visible) -> np.ndarray:
+    """Hand-visibility bucket of each frame: how many of its 21 hand keypoints the stored frame shows, by
+    :data:`HAND_VISIBLE_BUCKETS`, e.g. "0-5 of 21" (a hand hidden behind the probe, its own fingers or the forearm)
+    or "16-21 of 21".
+
+    Args:
+        visible: (N, 29) bool, annotations "visible": a hand keypoint is visible where its pixel of the stored frame
+            is the hand's and the surface there lies at the joint's depth (datagen/dataset/chunks.py).
+    """
+    count = np.asarray(visible, dtype=bool).reshape(-1, kp.NUM_KEYPOINTS)[:, :kp.NUM_HAND].sum(axis=1)
+    names = [f"{low}-{high} of {kp.NUM_HAND}" for low, high in HAND_VISIBLE_BUCKETS]
+    return np.array(names, dtype=object)[np.searchsorted([high for _, high in HAND_VISIBLE_BUCKETS], count)].astype(str)

@@ -50,7 +50,7 @@ INTERVALS_VERSION = 5
 KINDS = ("measured", "reported")
 FORMATS = ("pytorch", "onnx")
 SPLITS = ("train", "val", "test")
-BREAKDOWNS = ("latitude", "z_ego", "background", "grasp", "theta_vol")
+BREAKDOWNS = ("latitude", "z_ego", "background", "grasp", "theta_vol", "hand_visible")
 _BREAKDOWNS_V2 = BREAKDOWNS[:3]
 #: how a split's floor is made (datagen/dataset/floors.py), in plain words: each evaluated grasp replaced by its
 #: nearest training grasp, or each evaluated frame by the nearest training view of the same grasp

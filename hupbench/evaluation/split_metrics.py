@@ -82,12 +82,14 @@ def split_metrics(pred2d_px: np.ndarray, gt2d_px: np.ndarray, pred3d: np.ndarray
 
 def split_breakdowns(errors_mm: np.ndarray, fields: dict, manifest: dict,
                      theta_vol_by_grasp: dict[str, list[float] | None] | None) -> dict[str, dict]:
-    """The ``breakdowns`` block of a results file: MPJPE by latitude, camera distance, background, grasp and (where
-    the manifest records it) the grasp's probe orientation Theta_Vol.
+    """The ``breakdowns`` block of a results file: MPJPE by latitude, camera distance, background, grasp, (where
+    the manifest records it) the grasp's probe orientation Theta_Vol and (where ``fields`` hold ``visible``) how many
+    hand keypoints each frame shows.
 
     Args:
         errors_mm: (N, 29) float, per-keypoint errors of the frames, mm.
-        fields: the frames' annotations ``theta``, ``z_ego``, ``background_id``, ``grasp_id``, each (N,).
+        fields: the frames' annotations ``theta``, ``z_ego``, ``background_id``, ``grasp_id``, each (N,), and
+            optionally ``visible`` (N, 29).
         manifest: the dataset's manifest (the backgrounds' names).
         theta_vol_by_grasp: :func:`grasp_theta_vol_deg` of the split.
     """
@@ -103,6 +105,8 @@ def split_breakdowns(errors_mm: np.ndarray, fields: dict, manifest: dict,
         by_grasp = {int(g): theta for g, theta in theta_vol_by_grasp.items()}
         out["theta_vol"] = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.theta_vol_labels(fields["grasp_id"],
                                                                                              by_grasp))
+    if "visible" in fields:
+        out["hand_visible"] = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.hand_visible_labels(fields["visible"]))
     return out
 
 

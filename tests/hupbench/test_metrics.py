@@ -226,6 +226,22 @@ def test_breakdowns():
         B.background_labels([5], ["white"])
 
 
+def test_hand_visible_buckets_count_the_hand_keypoints_shown():
+    # frames showing 0, 5, 6, 10, 11, 15, 16 and 21 hand keypoints, every probe corner visible (not counted)
+    counts = [0, 5, 6, 10, 11, 15, 16, 21]
+    visible = np.zeros((len(counts), 29), bool)
+    visible[:, 21:] = True
+    for row, count in enumerate(counts):
+        visible[row, 21 - count:21] = True
+    assert B.hand_visible_labels(visible).tolist() == ["0-5 of 21"] * 2 + ["6-10 of 21"] * 2 + ["11-15 of 21"] * 2 \
+        + ["16-21 of 21"] * 2
+    # the hidden hands' error shows in their bucket
+    errors = _frames_with_errors([(100.0, 50.0), (100.0, 50.0)] + [(10.0, 20.0)] * 6)
+    table = M.breakdown_mpjpe_mm(errors, B.hand_visible_labels(visible))
+    assert table["0-5 of 21"]["mpjpe_mm"]["hand"] == pytest.approx(100.0)
+    assert table["16-21 of 21"]["frames"] == 2 and table["16-21 of 21"]["mpjpe_mm"]["probe"] == pytest.approx(20.0)
+
+
 def _frames_with_errors(hand_probe_mm):
     """(N, 29) errors: every hand keypoint of frame n has error hand_n, every probe corner probe_n (mm)."""
     errors = np.zeros((len(hand_probe_mm), 29))

@@ -12,6 +12,7 @@ from hupbench.evaluation import evaluate as EV
 from hupbench.evaluation.probe_pose import probe_pose_scores
 from hupbench import metrics as M
 from hupbench.core import probe_symmetry as PS
+from hupbench.core.contract import read_annotations
 from hupbench.core.io import file_sha256
 from hupbench.cli import main
 from hupbench.data import HUPDataset, ReaderConfig
@@ -87,6 +88,13 @@ def test_onnx_eval_matches_checkpoint_eval(exported, tiny_dataset, tmp_path):
                                                                                   "plain_white": 10}
     test_grasp = json.loads((tiny_dataset / "manifest.json").read_text())["grasp_ids"]["test"]
     assert {k: v["frames"] for k, v in a["breakdowns"]["grasp"].items()} == {str(g): 20 for g in test_grasp}
+    # how many hand keypoints each frame shows, from the stored visibility
+    shown = read_annotations(tiny_dataset, "test", ("visible",))["visible"][:, :21].sum(axis=1)
+    expected = {name: int(((shown >= low) & (shown <= high)).sum())
+                for name, low, high in (("0-5 of 21", 0, 5), ("6-10 of 21", 6, 10), ("11-15 of 21", 11, 15),
+                                        ("16-21 of 21", 16, 21))}
+    assert {k: v["frames"] for k, v in a["breakdowns"]["hand_visible"].items()} == {
+        k: n for k, n in expected.items() if n}
 
 
 def test_known_answers_through_the_pipeline(exported, tiny_dataset, tmp_path, monkeypatch):
@@ -447,7 +455,7 @@ def test_datasets_without_tracks_and_floors(exported, tiny_dataset, tmp_path):
     dataset = _dataset_copy(tiny_dataset, tmp_path / "ds_old", _without_floors)
     r = evaluate(ckpt, dataset, out=tmp_path / "old.json", latency=False)["results"]
     assert (r["track"], r["split_floor"], r["dataset"]["grasp_theta_vol_deg"]) == (None, None, None)
-    assert set(r["breakdowns"]) == {"latitude", "z_ego", "background", "grasp"}
+    assert set(r["breakdowns"]) == {"latitude", "z_ego", "background", "grasp", "hand_visible"}
     assert "split floor" not in EV.format_table(r)
     # the MPJPE's interval needs no floor
     assert r["intervals"]["split_floor_mm"] is None and r["intervals"]["grasps"] == 1
