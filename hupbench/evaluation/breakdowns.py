@@ -24,6 +24,8 @@ THETA_VOL_UNKNOWN = "unknown"
 THETA_VOL_LABEL_DECIMALS = 3
 #: the buckets of :func:`hand_visible_labels`: how many of the 21 hand keypoints a frame shows, (fewest, most)
 HAND_VISIBLE_BUCKETS = ((0, 5), (6, 10), (11, 15), (16, kp.NUM_HAND))
+#: their labels, fewest first (the order eval's table prints them in; a results file sorts its keys)
+HAND_VISIBLE_NAMES = tuple(f"{low}-{high} of {kp.NUM_HAND}" for low, high in HAND_VISIBLE_BUCKETS)
 
 
 def latitude_labels(theta_rad) -> np.ndarray:
@@ -104,5 +106,4 @@ def hand_visible_labels(visible) -> np.ndarray:
             is the hand's and the surface there lies at the joint's depth (datagen/dataset/chunks.py).
     """
     count = np.asarray(visible, dtype=bool).reshape(-1, kp.NUM_KEYPOINTS)[:, :kp.NUM_HAND].sum(axis=1)
-    names = [f"{low}-{high} of {kp.NUM_HAND}" for low, high in HAND_VISIBLE_BUCKETS]
-    return np.array(names, dtype=object)[np.searchsorted([high for _, high in HAND_VISIBLE_BUCKETS], count)].astype(str)
+    return np.array(HAND_VISIBLE_NAMES)[np.searchsorted([high for _, high in HAND_VISIBLE_BUCKETS], count)]

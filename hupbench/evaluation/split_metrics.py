@@ -106,7 +106,8 @@ def split_breakdowns(errors_mm: np.ndarray, fields: dict, manifest: dict,
         out["theta_vol"] = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.theta_vol_labels(fields["grasp_id"],
                                                                                              by_grasp))
     if "visible" in fields:
-        out["hand_visible"] = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.hand_visible_labels(fields["visible"]))
+        table = metrics.breakdown_mpjpe_mm(errors_mm, breakdowns.hand_visible_labels(fields["visible"]))
+        out["hand_visible"] = {name: table[name] for name in breakdowns.HAND_VISIBLE_NAMES if name in table}
     return out
 
 
